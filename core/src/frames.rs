@@ -1,0 +1,146 @@
+//! Frames in: configuration, encoder latch to row offset, row flags.
+//!
+//! The configuration is all integers, converted once from the calibration (on the host, from
+//! the recording manifest). The host and the firmware run on the same `Config` values, which
+//! is what makes their outputs bit-identical.
+
+use crate::solve::{MAX_N, MIN_N};
+
+/// Row flags carried in every row packet (bit values are part of the stream format).
+pub mod flags {
+    /// Window noise gain above `max_noise_gain` (includes a stalled conveyor).
+    pub const ILL_CONDITIONED: u16 = 1 << 0;
+    /// Row not seen in `n` consecutive frames (left the ROI, recording ended).
+    pub const INCOMPLETE: u16 = 1 << 1;
+    /// Row never admitted (first frame, encoder step above `max_step`).
+    pub const SKIPPED: u16 = 1 << 2;
+    /// Encoder count decreased while the row was open.
+    pub const ENCODER_REVERSAL: u16 = 1 << 3;
+    /// Frame sequence gap, or a frame that ended before delivering the row's line.
+    pub const FRAME_GAP: u16 = 1 << 4;
+    /// At least one pixel had a saturated sample (per-pixel summary).
+    pub const SATURATED: u16 = 1 << 5;
+    /// At least one pixel had modulation below the threshold (per-pixel summary).
+    pub const LOW_MODULATION: u16 = 1 << 6;
+    /// The caller-supplied state had no free line slot for this row.
+    pub const OVERFLOW: u16 = 1 << 7;
+    /// Flags that invalidate the whole row.
+    pub const ROW_INVALID: u16 =
+        ILL_CONDITIONED | INCOMPLETE | SKIPPED | ENCODER_REVERSAL | FRAME_GAP | OVERFLOW;
+}
+
+/// Processing configuration (geometry, calibration, thresholds) in integer form.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Config {
+    /// Columns `W`.
+    pub width: u16,
+    /// Rows per frame `H`.
+    pub rows: u16,
+    /// Observations per board row (3..=8).
+    pub n: u8,
+    /// Camera id written into packets.
+    pub camera: u8,
+    /// Encoder counts per pixel of travel, Q16.16 (must be > 0).
+    pub counts_per_pixel_q16: u32,
+    /// Fringe phase advance per image row `2 pi f_x`, binary angle.
+    pub fx: u32,
+    /// Height LSBs per fringe turn `T_z / lsb`, Q16.16 (`< 2^31`).
+    pub lsb_per_turn_q16: u32,
+    /// A sample `>= saturation` (DN) is saturated.
+    pub saturation: u16,
+    /// Minimum modulation `C` of a valid pixel, DN in Q20.12.
+    pub min_modulation_q12: u32,
+    /// Largest accepted window noise gain, Q8.8 (256..=2048).
+    pub max_noise_gain_q8: u16,
+    /// Largest number of new board rows admitted per frame (`max_step_rows`).
+    pub max_step: u16,
+}
+
+/// A configuration value out of range.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ConfigError {
+    Width,
+    Rows,
+    Count,
+    CountsPerPixel,
+    LsbPerTurn,
+    NoiseGain,
+    MaxStep,
+}
+
+impl Config {
+    /// Checks every field against the ranges the arithmetic relies on.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        if self.width == 0 {
+            return Err(ConfigError::Width);
+        }
+        if self.rows == 0 {
+            return Err(ConfigError::Rows);
+        }
+        if !(MIN_N..=MAX_N).contains(&(self.n as usize)) {
+            return Err(ConfigError::Count);
+        }
+        if self.counts_per_pixel_q16 == 0 {
+            return Err(ConfigError::CountsPerPixel);
+        }
+        if self.lsb_per_turn_q16 == 0 || self.lsb_per_turn_q16 >= 1 << 31 {
+            return Err(ConfigError::LsbPerTurn);
+        }
+        if !(256..=2048).contains(&self.max_noise_gain_q8) {
+            return Err(ConfigError::NoiseGain);
+        }
+        if self.max_step == 0 || self.max_step > self.rows {
+            return Err(ConfigError::MaxStep);
+        }
+        Ok(())
+    }
+
+    /// Board-row offset of a frame: `floor(latch / cpp + 1/2)`, exact in integers.
+    pub fn offset(&self, latch: i64) -> i64 {
+        let q = self.counts_per_pixel_q16 as i128;
+        let num = ((latch as i128) << 17) + q;
+        num.div_euclid(2 * q) as i64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+
+    fn cfg(cpp: f64) -> Config {
+        Config {
+            width: 8,
+            rows: 8,
+            n: 4,
+            camera: 0,
+            counts_per_pixel_q16: (cpp * 65536.0) as u32,
+            fx: 1 << 27,
+            lsb_per_turn_q16: 2000 << 16,
+            saturation: 4095,
+            min_modulation_q12: 0,
+            max_noise_gain_q8: 512,
+            max_step: 4,
+        }
+    }
+
+    #[test]
+    fn offset_rounds_half_up_like_f64() {
+        for &cpp in &[10.25, 1.0, 0.5, 7.015625, 3.0 + 1.0 / 65536.0] {
+            let c = cfg(cpp);
+            let cppq = c.counts_per_pixel_q16 as f64 / 65536.0;
+            for e in -5000i64..5000 {
+                let want = (e as f64 / cppq + 0.5).floor() as i64;
+                assert_eq!(c.offset(e), want, "cpp {cpp} e {e}");
+            }
+        }
+    }
+
+    #[test]
+    fn offset_extremes_do_not_overflow() {
+        let c = cfg(1.0 / 65536.0);
+        assert_eq!(c.offset(i64::MAX >> 17), (i64::MAX >> 17) << 16);
+        let _ = c.offset(i64::MIN);
+        let _ = c.offset(i64::MAX);
+    }
+}

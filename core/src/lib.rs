@@ -1,0 +1,74 @@
+//! # dpsa-core: fixed-point dynamic phase-shift algorithm (D-PSA)
+//!
+//! `#![no_std]`, no allocation, no I/O. The same code runs on the Cortex-M7 frame grabber and
+//! on the host, and both produce the same bytes.
+//!
+//! ## Measurement model (units)
+//!
+//! A board rides a conveyor under a projector that throws one fixed sinusoidal fringe pattern.
+//! Frames are `H` rows x `W` columns (px); image rows run along the motion. Frame `k` carries the
+//! encoder count `e_k` (counts) latched at its trigger; the calibration gives `cpp` encoder
+//! counts per pixel of travel. On the zero-height reference plane the fringe phase at image row
+//! `r`, column `c` is `2 pi f_x r + phi_0(c)` (`f_x` in cycles/px, `phi_0` in rad); a point of
+//! height `h` (um) adds `2 pi h / T_z` (`T_z = 1/f_z`, um per fringe turn):
+//!
+//! ```text
+//! I_k(r, c) = B + C cos(2 pi f_x r + phi_0(c) + 2 pi h / T_z) + noise      [DN]
+//! ```
+//!
+//! Frame `k` shows board row `b = r + o_k` at image row `r`, with `o_k = round(e_k / cpp)` (px).
+//! A board row is observed in `n` consecutive frames `w..w+n-1` (default 4, 3..=8), at image
+//! rows `b - o_{w+j}`, i.e. with the phase shifts `theta_j = -2 pi f_x (o_{w+j} - o_w)` that the
+//! encoder makes known. Per pixel the paper's least squares gives
+//! `v = (M^T M)^-1 M^T i` with rows `[1, cos theta_j, -sin theta_j]`, then
+//! `Phi = atan2(v_3, v_2)`, and the height is
+//! `h = wrap(Phi - phi_r) / (2 pi) * T_z` with `phi_r = 2 pi f_x (b - o_w) + phi_0(c)`,
+//! written as i16 in units of a configurable LSB (default 0.25 um). The full rule, including
+//! which frames a row uses and every validity flag, is in `docs/model.md`.
+//!
+//! ## Data flow (one module per stage)
+//!
+//! frames -> [`solve`] -> [`accumulate`] -> [`phase`] -> [`height`] -> [`packets`] -> [`sink`]
+//!
+//! - [`frames`]: integer [`frames::Config`], encoder latch to row offset, row flags.
+//! - [`solve`]: `P = (M^T M)^-1 M^T` once per window, integer, with the ill-conditioning test.
+//! - [`accumulate`]: raw samples of open rows in a line pool; `v = P i` per pixel.
+//! - [`phase`]: binary angles, integer `atan2`, `sin`/`cos`.
+//! - [`height`]: phase to height, validity mask.
+//! - [`packets`]: CRC-framed row packets.
+//! - [`sink`]: where rows go.
+//! - [`pipeline`]: the streaming API that runs all of the above line by line.
+//!
+//! ## State memory
+//!
+//! The caller supplies all state, sized by [`pipeline::Layout`]: a pool of
+//! `max_step * n (n-1) / 2` raw lines (`W` x u16), `max_step * n` row slots, one output row and
+//! the `W`-entry reference-phase table. No frame is buffered whole. For the default geometry
+//! (`W = 2048`, `n = 4`, `max_step = 10`): 60 lines = 245 760 B, plus 120 B free list,
+//! 40 slots x 24 B, 4096 + 256 B output row and 8192 B phase table: 259 384 B in all.
+//!
+//! ## Fixed-point error budget (each bound is tested beside its code)
+//!
+//! | step | format | bound |
+//! | --- | --- | --- |
+//! | `cos`, `sin` of the shifts | Q1.30, then Q1.24 | `4 * 2^-30`, then `2^-25` |
+//! | `P` | Q7.24 (i32) | relative `3e-7 * g^2` vs f64 |
+//! | `v = P i` | i64, DN * 2^24 | exact given `P` |
+//! | `atan2` | u32 binary angle | `2e-6` rad |
+//! | height | i16 LSB | `<= 0.5` LSB rounding + phase error |
+
+#![no_std]
+#![forbid(unsafe_code)]
+
+pub mod accumulate;
+pub mod frames;
+pub mod height;
+pub mod packets;
+pub mod phase;
+pub mod pipeline;
+pub mod sink;
+pub mod solve;
+
+pub use frames::{flags, Config};
+pub use pipeline::{Layout, Memory, Pipeline};
+pub use sink::{Row, RowHeader, Sink};

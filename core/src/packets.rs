@@ -1,0 +1,252 @@
+//! Packets: one height row framed with a sync word, a header, a payload and a CRC-32.
+//!
+//! Layout (all integers little-endian), format version [`VERSION`]:
+//!
+//! | offset | size | field |
+//! | --- | --- | --- |
+//! | 0 | 4 | sync word `"DPSA"` (`44 50 53 41`) |
+//! | 4 | 1 | format version |
+//! | 5 | 1 | payload codec (`0` = raw) |
+//! | 6 | 1 | camera id |
+//! | 7 | 1 | `n` |
+//! | 8 | 8 | board row (i64) |
+//! | 16 | 8 | encoder latch of the window's first frame (i64) |
+//! | 24 | 2 | row flags (u16) |
+//! | 26 | 2 | width `W` (u16) |
+//! | 28 | 4 | payload length `L` (u32) |
+//! | 32 | L | payload |
+//! | 32+L | 4 | CRC-32 (ISO-HDLC, as zlib) of bytes `4 .. 32+L` |
+//!
+//! Raw payload (codec 0): the validity bitmask, `ceil(W/8)` bytes (bit `c % 8` of byte `c / 8`,
+//! 1 = valid), then `W` heights as i16 (LSB units, 0 where invalid).
+
+use crate::sink::{Row, RowHeader};
+use crc::{Crc, CRC_32_ISO_HDLC};
+
+/// Sync word at the start of every packet.
+pub const SYNC: [u8; 4] = *b"DPSA";
+/// Stream format version.
+pub const VERSION: u8 = 1;
+/// Bytes before the payload.
+pub const HEADER_LEN: usize = 32;
+/// Bytes after the payload.
+pub const TRAILER_LEN: usize = 4;
+/// Payload codec: raw bitmask + i16 heights.
+pub const CODEC_RAW: u8 = 0;
+
+const CRC: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
+
+/// Raw payload bytes for a row of `width` pixels.
+pub const fn raw_payload_len(width: usize) -> usize {
+    width.div_ceil(8) + 2 * width
+}
+
+/// Largest packet for a row of `width` pixels.
+pub const fn max_packet_len(width: usize) -> usize {
+    HEADER_LEN + raw_payload_len(width) + TRAILER_LEN
+}
+
+/// Why bytes are not a packet.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PacketError {
+    /// The output buffer is too small.
+    BufferTooSmall,
+    /// Fewer bytes than the header or the declared payload need.
+    Truncated,
+    /// No sync word at the start.
+    BadSync,
+    /// Unknown format version.
+    BadVersion(u8),
+    /// Unknown payload codec.
+    BadCodec(u8),
+    /// Payload length does not fit the codec and width.
+    BadLength,
+    /// CRC mismatch.
+    BadCrc,
+}
+
+/// Frames a row into `buf` with a raw payload; returns the packet length.
+pub fn encode(row: &Row<'_>, buf: &mut [u8]) -> Result<usize, PacketError> {
+    let w = row.header.width as usize;
+    let plen = raw_payload_len(w);
+    let total = HEADER_LEN + plen + TRAILER_LEN;
+    if buf.len() < total || row.heights.len() < w || row.valid.len() < w.div_ceil(8) {
+        return Err(PacketError::BufferTooSmall);
+    }
+    write_header(&row.header, CODEC_RAW, plen as u32, &mut buf[..HEADER_LEN]);
+    let payload = &mut buf[HEADER_LEN..HEADER_LEN + plen];
+    let nb = w.div_ceil(8);
+    payload[..nb].copy_from_slice(&row.valid[..nb]);
+    for (dst, &h) in payload[nb..].chunks_exact_mut(2).zip(row.heights) {
+        dst.copy_from_slice(&h.to_le_bytes());
+    }
+    let crc = CRC.checksum(&buf[4..HEADER_LEN + plen]);
+    buf[HEADER_LEN + plen..total].copy_from_slice(&crc.to_le_bytes());
+    Ok(total)
+}
+
+fn write_header(h: &RowHeader, codec: u8, plen: u32, out: &mut [u8]) {
+    out[0..4].copy_from_slice(&SYNC);
+    out[4] = VERSION;
+    out[5] = codec;
+    out[6] = h.camera;
+    out[7] = h.n;
+    out[8..16].copy_from_slice(&h.row.to_le_bytes());
+    out[16..24].copy_from_slice(&h.latch.to_le_bytes());
+    out[24..26].copy_from_slice(&h.flags.to_le_bytes());
+    out[26..28].copy_from_slice(&h.width.to_le_bytes());
+    out[28..32].copy_from_slice(&plen.to_le_bytes());
+}
+
+/// A checked packet borrowed from a byte stream.
+#[derive(Clone, Copy, Debug)]
+pub struct Packet<'a> {
+    pub header: RowHeader,
+    pub codec: u8,
+    pub payload: &'a [u8],
+}
+
+impl Packet<'_> {
+    /// Unpacks the payload into `heights` (`W`) and `valid` (`ceil(W/8)`).
+    pub fn unpack(&self, heights: &mut [i16], valid: &mut [u8]) -> Result<(), PacketError> {
+        let w = self.header.width as usize;
+        let nb = w.div_ceil(8);
+        if heights.len() < w || valid.len() < nb {
+            return Err(PacketError::BufferTooSmall);
+        }
+        match self.codec {
+            CODEC_RAW => {
+                if self.payload.len() != raw_payload_len(w) {
+                    return Err(PacketError::BadLength);
+                }
+                valid[..nb].copy_from_slice(&self.payload[..nb]);
+                for (h, src) in heights.iter_mut().zip(self.payload[nb..].chunks_exact(2)) {
+                    *h = i16::from_le_bytes([src[0], src[1]]);
+                }
+                Ok(())
+            }
+            c => Err(PacketError::BadCodec(c)),
+        }
+    }
+}
+
+/// Parses the packet at the start of `buf`; returns it and its length in bytes.
+pub fn decode(buf: &[u8]) -> Result<(Packet<'_>, usize), PacketError> {
+    if buf.len() < 4 {
+        return Err(PacketError::Truncated);
+    }
+    if buf[0..4] != SYNC {
+        return Err(PacketError::BadSync);
+    }
+    if buf.len() < HEADER_LEN {
+        return Err(PacketError::Truncated);
+    }
+    let u16_at = |i: usize| u16::from_le_bytes([buf[i], buf[i + 1]]);
+    let i64_at = |i: usize| {
+        let mut b = [0u8; 8];
+        b.copy_from_slice(&buf[i..i + 8]);
+        i64::from_le_bytes(b)
+    };
+    if buf[4] != VERSION {
+        return Err(PacketError::BadVersion(buf[4]));
+    }
+    let codec = buf[5];
+    let width = u16_at(26);
+    let plen = u32::from_le_bytes([buf[28], buf[29], buf[30], buf[31]]) as usize;
+    // No codec may exceed the raw size (the compressed codec bounds its expansion).
+    if plen > raw_payload_len(width as usize) + 64 {
+        return Err(PacketError::BadLength);
+    }
+    let total = HEADER_LEN + plen + TRAILER_LEN;
+    if buf.len() < total {
+        return Err(PacketError::Truncated);
+    }
+    let crc = u32::from_le_bytes([
+        buf[total - 4],
+        buf[total - 3],
+        buf[total - 2],
+        buf[total - 1],
+    ]);
+    if CRC.checksum(&buf[4..HEADER_LEN + plen]) != crc {
+        return Err(PacketError::BadCrc);
+    }
+    let header = RowHeader {
+        camera: buf[6],
+        n: buf[7],
+        row: i64_at(8),
+        latch: i64_at(16),
+        flags: u16_at(24),
+        width,
+    };
+    Ok((Packet { header, codec, payload: &buf[HEADER_LEN..HEADER_LEN + plen] }, total))
+}
+
+/// Offset of the next sync word at or after `from`, for resynchronising after damage.
+pub fn find_sync(buf: &[u8], from: usize) -> Option<usize> {
+    buf.get(from..)?.windows(4).position(|w| w == SYNC).map(|p| p + from)
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use std::vec;
+    use std::vec::Vec;
+
+    fn sample(width: u16) -> (RowHeader, Vec<i16>, Vec<u8>) {
+        let w = width as usize;
+        let heights: Vec<i16> = (0..w).map(|c| (c as i16).wrapping_mul(331)).collect();
+        let valid: Vec<u8> = (0..w.div_ceil(8)).map(|i| (i as u8).wrapping_mul(37)).collect();
+        let header = RowHeader { camera: 2, n: 4, row: -77, latch: 1 << 40, flags: 0x21, width };
+        (header, heights, valid)
+    }
+
+    #[test]
+    fn round_trip() {
+        for width in [1u16, 7, 8, 9, 2048] {
+            let (header, heights, valid) = sample(width);
+            let row = Row { header, heights: &heights, valid: &valid };
+            let mut buf = vec![0u8; max_packet_len(width as usize)];
+            let n = encode(&row, &mut buf).unwrap();
+            assert_eq!(n, buf.len());
+            let (p, used) = decode(&buf).unwrap();
+            assert_eq!(used, n);
+            assert_eq!(p.header, header);
+            let mut h2 = vec![0i16; width as usize];
+            let mut v2 = vec![0u8; valid.len()];
+            p.unpack(&mut h2, &mut v2).unwrap();
+            assert_eq!(h2, heights);
+            assert_eq!(v2, valid);
+        }
+    }
+
+    #[test]
+    fn every_single_bit_flip_is_detected() {
+        let (header, heights, valid) = sample(40);
+        let row = Row { header, heights: &heights, valid: &valid };
+        let mut buf = vec![0u8; max_packet_len(40)];
+        let n = encode(&row, &mut buf).unwrap();
+        for bit in 0..n * 8 {
+            let mut b = buf.clone();
+            b[bit / 8] ^= 1 << (bit % 8);
+            assert!(decode(&b).is_err(), "bit {bit} undetected");
+        }
+        for cut in 0..n {
+            assert_eq!(decode(&buf[..cut]).err().map(|_| ()), Some(()), "cut {cut}");
+        }
+    }
+
+    #[test]
+    fn resync_finds_next_packet() {
+        let (header, heights, valid) = sample(16);
+        let row = Row { header, heights: &heights, valid: &valid };
+        let mut one = vec![0u8; max_packet_len(16)];
+        let n = encode(&row, &mut one).unwrap();
+        let mut stream = Vec::new();
+        stream.extend_from_slice(b"garbage");
+        stream.extend_from_slice(&one[..n]);
+        assert_eq!(find_sync(&stream, 0), Some(7));
+        assert!(decode(&stream[7..]).is_ok());
+        assert_eq!(find_sync(&stream, 8), None);
+    }
+}

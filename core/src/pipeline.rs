@@ -1,0 +1,726 @@
+//! The streaming pipeline: frames arrive line by line, completed board rows go to a [`Sink`].
+//!
+//! ```text
+//! begin_frame(seq, latch) -> push_line(0, ..) ... push_line(H-1, ..) -> end_frame()  (repeat)
+//! finish()
+//! ```
+//!
+//! At `begin_frame` the encoder latch gives the frame's row offset `o`; rows that left the ROI
+//! are closed, new rows at the bottom are admitted, and the window of the rows that complete in
+//! this frame is solved (once, see [`crate::solve`]). Each `push_line` either stores the line for
+//! the rows it opens or continues, or combines it with the stored lines of the rows it completes
+//! and emits them. Rows reach the sink in increasing board-row order, each exactly once, with
+//! flags that say why a row or pixel is invalid (see [`crate::frames::flags`]).
+//!
+//! All state lives in caller-supplied [`Memory`] sized by [`Layout`]: nothing is allocated, and
+//! bad input (lines out of order, wrong width, truncated frames, sequence gaps, encoder stalls or
+//! reversals, exhausted state) yields an error or flagged rows, never a panic.
+
+use crate::accumulate::{self, Pool};
+use crate::frames::{flags, Config, ConfigError};
+use crate::height::{Invalid, Scale};
+use crate::solve::{SolveError, Window, MAX_N};
+use crate::sink::{Row, RowHeader, Sink};
+
+/// Frame records kept: the `n <= MAX_N` frames of the current window plus one.
+const HIST: usize = MAX_N + 1;
+
+/// Per open board row: its stored lines and how far it got.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Slot {
+    lines: [u16; MAX_N - 1],
+    count: u8,
+    flags: u16,
+    enter: u32,
+}
+
+/// Sizes of the caller-supplied state for a configuration.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Layout {
+    /// Columns `W`.
+    pub width: usize,
+    /// Line slots of the raw-sample pool: `max_step * n (n - 1) / 2`.
+    pub pool_lines: usize,
+    /// Open-row slots: `max_step * n`.
+    pub slots: usize,
+}
+
+impl Layout {
+    pub const fn of(cfg: &Config) -> Layout {
+        let n = cfg.n as usize;
+        let m = cfg.max_step as usize;
+        Layout { width: cfg.width as usize, pool_lines: m * n * (n - 1) / 2, slots: m * n }
+    }
+
+    /// Bytes of pipeline state: the line pool, its free list, the row slots, the output row
+    /// (heights and validity bits) and the reference-phase table (`W` binary angles).
+    pub const fn bytes(&self) -> usize {
+        self.pool_lines * self.width * 2
+            + self.pool_lines * 2
+            + self.slots * core::mem::size_of::<Slot>()
+            + self.width * 2
+            + self.width.div_ceil(8)
+            + self.width * 4
+    }
+}
+
+/// Caller-supplied state (see [`Layout`] for the sizes).
+pub struct Memory<'a> {
+    /// `pool_lines * W` samples.
+    pub lines: &'a mut [u16],
+    /// `pool_lines` entries.
+    pub free: &'a mut [u16],
+    /// `slots` entries.
+    pub slots: &'a mut [Slot],
+    /// `W` heights of the row being emitted.
+    pub heights: &'a mut [i16],
+    /// `ceil(W/8)` validity bytes of the row being emitted.
+    pub valid: &'a mut [u8],
+}
+
+/// Why a pipeline could not be built.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NewError {
+    Config(ConfigError),
+    /// A memory slice or the reference-phase table is smaller than [`Layout`] says.
+    Memory,
+}
+
+/// A streaming error. The pipeline stays usable: the rows affected are flagged.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Error<E> {
+    /// The sink failed.
+    Sink(E),
+    /// `begin_frame` while a frame is open.
+    FrameOpen,
+    /// `push_line`/`end_frame` without an open frame.
+    NoFrame,
+    /// Lines must arrive in order `0..H`.
+    LineOrder { expected: u16, got: u16 },
+    /// A line of the wrong width.
+    LineWidth { expected: u16, got: usize },
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+struct FrameRec {
+    index: u32,
+    offset: i64,
+    latch: i64,
+    /// Rows `[skip_start, admit_start)` were never admitted.
+    skip_start: i64,
+    /// Rows `[admit_start, admit_end)` entered at this frame.
+    admit_start: i64,
+    admit_end: i64,
+    /// Slot-ring position of `admit_start`.
+    slot_base: u32,
+}
+
+/// What a board row is, for the pipeline.
+enum Kind {
+    Skipped,
+    Admitted(usize),
+    Gone,
+}
+
+/// The streaming D-PSA pipeline.
+pub struct Pipeline<'a> {
+    cfg: Config,
+    scale: Scale,
+    ref_phase: &'a [u32],
+    pool: Pool<'a>,
+    slots: &'a mut [Slot],
+    heights: &'a mut [i16],
+    valid: &'a mut [u8],
+    hist: [FrameRec; HIST],
+    /// Frames begun so far (index of the open or next frame).
+    frames: u32,
+    /// Next board row to emit.
+    next_row: i64,
+    /// One past the highest row admitted or skipped.
+    entered_end: i64,
+    /// Admitted rows so far (slot-ring cursor).
+    admitted: u32,
+    open: bool,
+    next_line: u16,
+    prev_seq: u32,
+    prev_latch: i64,
+    /// Window of the rows completing in the open frame.
+    win: Result<Window, SolveError>,
+}
+
+impl<'a> Pipeline<'a> {
+    /// Builds a pipeline. `ref_phase[c]` is `phi_0(c)` as a binary angle.
+    pub fn new(cfg: Config, ref_phase: &'a [u32], mem: Memory<'a>) -> Result<Self, NewError> {
+        cfg.validate().map_err(NewError::Config)?;
+        let lay = Layout::of(&cfg);
+        let w = lay.width;
+        if ref_phase.len() < w
+            || mem.free.len() < lay.pool_lines
+            || mem.slots.len() < lay.slots
+            || mem.heights.len() < w
+            || mem.valid.len() < w.div_ceil(8)
+        {
+            return Err(NewError::Memory);
+        }
+        let pool = Pool::new(w, mem.lines, &mut mem.free[..lay.pool_lines]).ok_or(NewError::Memory)?;
+        let heights = &mut mem.heights[..w];
+        let valid = &mut mem.valid[..w.div_ceil(8)];
+        heights.fill(0);
+        valid.fill(0);
+        Ok(Pipeline {
+            cfg,
+            scale: Scale::new(&cfg),
+            ref_phase: &ref_phase[..w],
+            pool,
+            slots: &mut mem.slots[..lay.slots],
+            heights,
+            valid,
+            hist: [FrameRec::default(); HIST],
+            frames: 0,
+            next_row: 0,
+            entered_end: 0,
+            admitted: 0,
+            open: false,
+            next_line: 0,
+            prev_seq: 0,
+            prev_latch: 0,
+            win: Err(SolveError::BadCount),
+        })
+    }
+
+    pub fn config(&self) -> &Config {
+        &self.cfg
+    }
+
+    /// Line slots in use (for high-water measurements).
+    pub fn pool_used(&self) -> usize {
+        self.pool.used()
+    }
+
+    fn rec(&self, index: u32) -> &FrameRec {
+        &self.hist[index as usize % HIST]
+    }
+
+    /// Starts frame `seq` whose trigger latched encoder count `latch`.
+    pub fn begin_frame<S: Sink>(&mut self, seq: u32, latch: i64, sink: &mut S) -> Result<(), Error<S::Error>> {
+        if self.open {
+            return Err(Error::FrameOpen);
+        }
+        let f = self.frames;
+        let o = self.cfg.offset(latch);
+        let h = self.cfg.rows as i64;
+        if f == 0 {
+            self.next_row = o;
+            self.entered_end = o;
+        } else {
+            if seq != self.prev_seq.wrapping_add(1) {
+                self.kill_open(flags::FRAME_GAP);
+            }
+            if latch < self.prev_latch {
+                self.kill_open(flags::ENCODER_REVERSAL);
+            }
+        }
+        // Rows above the ROI can no longer be observed.
+        self.drain_until(o, flags::INCOMPLETE, sink)?;
+        // Admission of the rows that entered at the bottom.
+        let end = o + h;
+        let mut rec = FrameRec {
+            index: f,
+            offset: o,
+            latch,
+            skip_start: self.entered_end,
+            admit_start: self.entered_end,
+            admit_end: self.entered_end,
+            slot_base: self.admitted,
+        };
+        if end > self.entered_end {
+            rec.admit_start = self.entered_end.max(end - self.cfg.max_step as i64);
+            rec.admit_end = end;
+            let count = (end - rec.admit_start) as u32;
+            for k in 0..count {
+                let s = rec.slot_base.wrapping_add(k) as usize % self.slots.len();
+                self.slots[s] = Slot { enter: f, ..Slot::default() };
+            }
+            self.admitted = self.admitted.wrapping_add(count);
+            self.entered_end = end;
+        }
+        self.hist[f as usize % HIST] = rec;
+        // Window of the rows that entered n-1 frames ago and complete now.
+        let n = self.cfg.n as usize;
+        self.win = Err(SolveError::BadCount);
+        if f as usize + 1 >= n {
+            let w0 = f + 1 - n as u32;
+            let o0 = self.rec(w0).offset;
+            let mut shifts = [0u32; MAX_N];
+            for (j, s) in shifts.iter_mut().enumerate().take(n) {
+                let d = self.rec(w0 + j as u32).offset.wrapping_sub(o0);
+                *s = (d as u32).wrapping_mul(self.cfg.fx).wrapping_neg();
+            }
+            self.win = Window::solve(&shifts[..n], self.cfg.max_noise_gain_q8);
+        }
+        self.open = true;
+        self.next_line = 0;
+        self.prev_seq = seq;
+        self.prev_latch = latch;
+        Ok(())
+    }
+
+    /// Delivers image row `r` (in order `0..H`) of the open frame.
+    pub fn push_line<S: Sink>(&mut self, r: u16, line: &[u16], sink: &mut S) -> Result<(), Error<S::Error>> {
+        if !self.open {
+            return Err(Error::NoFrame);
+        }
+        if r != self.next_line || r >= self.cfg.rows {
+            return Err(Error::LineOrder { expected: self.next_line, got: r });
+        }
+        if line.len() != self.cfg.width as usize {
+            return Err(Error::LineWidth { expected: self.cfg.width, got: line.len() });
+        }
+        self.next_line += 1;
+        let f = self.frames;
+        let b = self.rec(f).offset + r as i64;
+        if b < self.next_row {
+            return Ok(()); // emitted already (more than n observations, or after a reversal)
+        }
+        let Kind::Admitted(s) = self.kind(b) else {
+            return Ok(()); // skipped rows carry no samples
+        };
+        let n = self.cfg.n as usize;
+        let slot = &mut self.slots[s];
+        if slot.flags & flags::ROW_INVALID != 0 {
+            return Ok(());
+        }
+        let j = f.wrapping_sub(slot.enter) as usize;
+        if j != slot.count as usize {
+            self.kill(s, flags::FRAME_GAP);
+            return Ok(());
+        }
+        if j + 1 < n {
+            match self.pool.store(line) {
+                Some(l) => {
+                    let slot = &mut self.slots[s];
+                    slot.lines[j] = l;
+                    slot.count += 1;
+                }
+                None => self.kill(s, flags::OVERFLOW),
+            }
+            return Ok(());
+        }
+        // Final observation: everything before this row is finished first.
+        self.drain_until(b, flags::FRAME_GAP, sink)?;
+        let win = match self.win {
+            Ok(w) => w,
+            Err(_) => {
+                self.kill(s, flags::ILL_CONDITIONED);
+                return self.emit_dead(b, sink);
+            }
+        };
+        let w0 = f + 1 - n as u32;
+        let (o0, latch0) = (self.rec(w0).offset, self.rec(w0).latch);
+        let rho = ((b - o0) as u32).wrapping_mul(self.cfg.fx);
+        let row_flags = self.compute(s, &win, rho, line);
+        self.release(s);
+        let header = self.header(b, latch0, row_flags);
+        let res = sink.row(&Row { header, heights: self.heights, valid: self.valid });
+        self.heights.fill(0);
+        self.valid.fill(0);
+        self.next_row = b + 1;
+        res.map_err(Error::Sink)
+    }
+
+    /// Ends the open frame. A frame that delivered fewer than `H` lines flags the rows whose
+    /// line is missing (`FRAME_GAP`).
+    pub fn end_frame<S: Sink>(&mut self, sink: &mut S) -> Result<(), Error<S::Error>> {
+        if !self.open {
+            return Err(Error::NoFrame);
+        }
+        let f = self.frames;
+        let o = self.rec(f).offset;
+        let missing_from = (o + self.next_line as i64).max(self.next_row);
+        for b in missing_from..o + self.cfg.rows as i64 {
+            if let Kind::Admitted(s) = self.kind(b) {
+                if self.slots[s].flags & flags::ROW_INVALID == 0 {
+                    self.kill(s, flags::FRAME_GAP);
+                }
+            }
+        }
+        self.open = false;
+        self.frames = f.wrapping_add(1);
+        // Emit finished rows at the front: skipped rows and dead rows whose window has ended.
+        let n = self.cfg.n as u32;
+        while self.next_row < self.entered_end {
+            match self.kind(self.next_row) {
+                Kind::Admitted(s) => {
+                    let slot = self.slots[s];
+                    let ended = f.wrapping_sub(slot.enter) + 1 >= n;
+                    if slot.flags & flags::ROW_INVALID == 0 || !ended {
+                        break;
+                    }
+                }
+                Kind::Skipped | Kind::Gone => {}
+            }
+            self.emit_dead(self.next_row, sink)?;
+        }
+        Ok(())
+    }
+
+    /// Ends the stream: closes an open frame and emits every open row as `INCOMPLETE`.
+    pub fn finish<S: Sink>(&mut self, sink: &mut S) -> Result<(), Error<S::Error>> {
+        if self.open {
+            self.end_frame(sink)?;
+        }
+        self.drain_until(self.entered_end, flags::INCOMPLETE, sink)
+    }
+
+    /// Classifies board row `b >= next_row`.
+    fn kind(&self, b: i64) -> Kind {
+        let f = self.frames.wrapping_sub(if self.open { 0 } else { 1 });
+        for back in 0..HIST as u32 {
+            if back > f {
+                break;
+            }
+            let r = self.rec(f - back);
+            if b >= r.skip_start && b < r.admit_end {
+                if b < r.admit_start {
+                    return Kind::Skipped;
+                }
+                let k = r.slot_base.wrapping_add((b - r.admit_start) as u32);
+                return Kind::Admitted(k as usize % self.slots.len());
+            }
+        }
+        Kind::Gone
+    }
+
+    /// Marks an admitted row invalid and returns its lines to the pool.
+    fn kill(&mut self, s: usize, flag: u16) {
+        self.release(s);
+        self.slots[s].flags |= flag;
+    }
+
+    fn release(&mut self, s: usize) {
+        let slot = &mut self.slots[s];
+        let used = (slot.count as usize).min(MAX_N - 1);
+        for &l in &slot.lines[..used] {
+            self.pool.release(l);
+        }
+        slot.count = 0;
+    }
+
+    /// Marks every open admitted row invalid.
+    fn kill_open(&mut self, flag: u16) {
+        let mut b = self.next_row;
+        while b < self.entered_end {
+            if let Kind::Admitted(s) = self.kind(b) {
+                self.kill(s, flag);
+            }
+            b += 1;
+        }
+    }
+
+    /// Emits every row in `[next_row, until)` as invalid; open rows get `reason`.
+    fn drain_until<S: Sink>(&mut self, until: i64, reason: u16, sink: &mut S) -> Result<(), Error<S::Error>> {
+        let until = until.min(self.entered_end);
+        while self.next_row < until {
+            if let Kind::Admitted(s) = self.kind(self.next_row) {
+                if self.slots[s].flags & flags::ROW_INVALID == 0 {
+                    self.kill(s, reason);
+                }
+            }
+            self.emit_dead(self.next_row, sink)?;
+        }
+        Ok(())
+    }
+
+    /// Emits row `b` (== next_row) without heights.
+    fn emit_dead<S: Sink>(&mut self, b: i64, sink: &mut S) -> Result<(), Error<S::Error>> {
+        let (fl, latch) = match self.kind(b) {
+            Kind::Admitted(s) => {
+                let slot = self.slots[s];
+                self.release(s);
+                (slot.flags, self.window_latch(slot.enter))
+            }
+            Kind::Skipped | Kind::Gone => (flags::SKIPPED, 0),
+        };
+        let header = self.header(b, latch, fl);
+        self.next_row = b + 1;
+        sink.row(&Row { header, heights: self.heights, valid: self.valid }).map_err(Error::Sink)
+    }
+
+    fn window_latch(&self, enter: u32) -> i64 {
+        let r = self.rec(enter);
+        if r.index == enter {
+            r.latch
+        } else {
+            0
+        }
+    }
+
+    fn header(&self, row: i64, latch: i64, flags: u16) -> RowHeader {
+        RowHeader { camera: self.cfg.camera, n: self.cfg.n, row, latch, flags, width: self.cfg.width }
+    }
+
+    /// The hot loop: `v = P i`, phase, height and mask for every column of a completed row.
+    fn compute(&mut self, s: usize, win: &Window, rho: u32, last: &[u16]) -> u16 {
+        let n = win.n;
+        let slot = self.slots[s];
+        let mut lines: [&[u16]; MAX_N] = [&[]; MAX_N];
+        for (j, l) in lines.iter_mut().enumerate().take(n - 1) {
+            *l = self.pool.line(slot.lines[j]);
+        }
+        lines[n - 1] = last;
+        let w = self.cfg.width as usize;
+        if lines[..n].iter().any(|l| l.len() < w) {
+            return flags::OVERFLOW;
+        }
+        let sat = self.cfg.saturation;
+        let mut row_flags = 0u16;
+        let mut samples = [0u16; MAX_N];
+        for c in 0..w {
+            for j in 0..n {
+                samples[j] = lines[j][c];
+            }
+            let acc = accumulate::pixel(win, &samples[..n], sat);
+            match self.scale.pixel(&acc, rho.wrapping_add(self.ref_phase[c])) {
+                Ok(h) => {
+                    self.heights[c] = h;
+                    self.valid[c / 8] |= 1 << (c % 8);
+                }
+                Err(Invalid::Saturated) => row_flags |= flags::SATURATED,
+                Err(Invalid::LowModulation) => row_flags |= flags::LOW_MODULATION,
+            }
+        }
+        row_flags
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use crate::phase::from_rad;
+    use proptest::prelude::*;
+    use std::f64::consts::PI;
+    use std::vec;
+    use std::vec::Vec;
+
+    const W: usize = 16;
+    const H: u16 = 40;
+
+    fn cfg() -> Config {
+        Config {
+            width: W as u16,
+            rows: H,
+            n: 4,
+            camera: 3,
+            counts_per_pixel_q16: 10 << 16,
+            fx: 1 << 27, // period 32 px
+            lsb_per_turn_q16: 2000 << 16,
+            saturation: 4095,
+            min_modulation_q12: 40 << 12,
+            max_noise_gain_q8: 512,
+            max_step: 8,
+        }
+    }
+
+    #[derive(Default)]
+    struct Collect(Vec<(RowHeader, Vec<i16>, Vec<u8>)>);
+    impl Sink for Collect {
+        type Error = ();
+        fn row(&mut self, r: &Row<'_>) -> Result<(), ()> {
+            self.0.push((r.header, r.heights.to_vec(), r.valid.to_vec()));
+            Ok(())
+        }
+    }
+
+    struct Mem {
+        lines: Vec<u16>,
+        free: Vec<u16>,
+        slots: Vec<Slot>,
+        heights: Vec<i16>,
+        valid: Vec<u8>,
+    }
+    impl Mem {
+        fn new(c: &Config) -> Mem {
+            let l = Layout::of(c);
+            Mem {
+                lines: vec![0; l.pool_lines * l.width],
+                free: vec![0; l.pool_lines],
+                slots: vec![Slot::default(); l.slots],
+                heights: vec![0; l.width],
+                valid: vec![0; l.width.div_ceil(8)],
+            }
+        }
+        fn mem(&mut self) -> Memory<'_> {
+            Memory {
+                lines: &mut self.lines,
+                free: &mut self.free,
+                slots: &mut self.slots,
+                heights: &mut self.heights,
+                valid: &mut self.valid,
+            }
+        }
+    }
+
+    /// Height (um) of board row b, column c: a 100 um step on rows 60..80.
+    fn truth(b: i64, _c: usize) -> f64 {
+        if (60..80).contains(&b) {
+            100.0
+        } else {
+            0.0
+        }
+    }
+
+    fn phi0(c: usize) -> f64 {
+        0.3 + 0.05 * c as f64
+    }
+
+    /// Noiseless frame at offset `pos` (px).
+    fn frame(pos: i64) -> Vec<Vec<u16>> {
+        (0..H as i64)
+            .map(|r| {
+                (0..W)
+                    .map(|c| {
+                        let ph = 2.0 * PI * r as f64 / 32.0 + phi0(c) + 2.0 * PI * truth(r + pos, c) / 500.0;
+                        (1800.0 + 700.0 * ph.cos()).round() as u16
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    fn run(latches: &[i64], seqs: &[u32], lines_per_frame: &[u16]) -> (Collect, usize) {
+        let c = cfg();
+        let refp: Vec<u32> = (0..W).map(|c| from_rad(phi0(c))).collect();
+        let mut m = Mem::new(&c);
+        let mut p = Pipeline::new(c, &refp, m.mem()).unwrap();
+        let mut sink = Collect::default();
+        for (k, &e) in latches.iter().enumerate() {
+            p.begin_frame(seqs[k], e, &mut sink).unwrap();
+            let fr = frame(c.offset(e));
+            for r in 0..lines_per_frame[k] {
+                p.push_line(r, &fr[r as usize], &mut sink).unwrap();
+            }
+            p.end_frame(&mut sink).unwrap();
+        }
+        p.finish(&mut sink).unwrap();
+        let used = p.pool_used();
+        (sink, used)
+    }
+
+    fn check_order(rows: &[(RowHeader, Vec<i16>, Vec<u8>)]) {
+        for w in rows.windows(2) {
+            assert_eq!(w[1].0.row, w[0].0.row + 1, "rows must be contiguous and increasing");
+        }
+    }
+
+    #[test]
+    fn uniform_motion_recovers_heights() {
+        let latches: Vec<i64> = (0..40).map(|k| k * 80 - 200).collect(); // 8 px per frame
+        let seqs: Vec<u32> = (0..40).collect();
+        let (out, used) = run(&latches, &seqs, &[H; 40]);
+        assert_eq!(used, 0, "pool leaked");
+        check_order(&out.0);
+        let mut valid_rows = 0;
+        for (h, heights, valid) in &out.0 {
+            if h.flags & flags::ROW_INVALID != 0 {
+                assert!(valid.iter().all(|&v| v == 0));
+                continue;
+            }
+            valid_rows += 1;
+            let b = h.row;
+            // Flat rows only (the 100 um step edges are lateral sampling).
+            if (56..84).contains(&b) && !(62..78).contains(&b) {
+                continue;
+            }
+            for c in 0..W {
+                assert!(valid[c / 8] & (1 << (c % 8)) != 0);
+                let want = truth(b, c) / 0.25;
+                assert!((heights[c] as f64 - want).abs() <= 1.0, "row {b} col {c}: {} vs {want}", heights[c]);
+            }
+        }
+        let fl: Vec<(i64, u16)> = out.0.iter().map(|r| (r.0.row, r.0.flags)).collect();
+        assert!(valid_rows > 200, "{valid_rows} {fl:?}");
+        // First frame: rows above the admission band are SKIPPED; the end is INCOMPLETE.
+        assert_eq!(out.0[0].0.flags, flags::SKIPPED);
+        assert_eq!(out.0.last().unwrap().0.flags & flags::INCOMPLETE, flags::INCOMPLETE);
+    }
+
+    #[test]
+    fn stall_gives_ill_conditioned_rows() {
+        let mut latches: Vec<i64> = (0..10).map(|k| k * 80).collect();
+        latches.extend([720; 6]);
+        latches.extend((0..10).map(|k| 800 + k * 80));
+        let seqs: Vec<u32> = (0..latches.len() as u32).collect();
+        let (out, used) = run(&latches, &seqs, &[H; 26]);
+        assert_eq!(used, 0);
+        check_order(&out.0);
+        assert!(out.0.iter().any(|r| r.0.flags & flags::ILL_CONDITIONED != 0));
+        assert!(out.0.iter().any(|r| r.0.flags == 0));
+    }
+
+    #[test]
+    fn reversal_gap_and_truncation_are_flagged() {
+        let latches: Vec<i64> = vec![0, 80, 160, 240, 320, 400, 300, 380, 460, 540, 620, 700, 780, 860, 940, 1020];
+        let mut seqs: Vec<u32> = (0..16).collect();
+        for s in seqs.iter_mut().skip(12) {
+            *s += 1; // frame 12 lost
+        }
+        let mut lines = [H; 16];
+        lines[3] = 5; // truncated frame
+        let (out, used) = run(&latches, &seqs, &lines);
+        assert_eq!(used, 0);
+        check_order(&out.0);
+        let any = |f: u16| out.0.iter().any(|r| r.0.flags & f != 0);
+        assert!(any(flags::ENCODER_REVERSAL));
+        assert!(any(flags::FRAME_GAP));
+    }
+
+    #[test]
+    fn api_misuse_is_an_error() {
+        let c = cfg();
+        let refp = vec![0u32; W];
+        let mut m = Mem::new(&c);
+        let mut p = Pipeline::new(c, &refp, m.mem()).unwrap();
+        let mut s = Collect::default();
+        assert_eq!(p.push_line(0, &[0; W], &mut s), Err(Error::NoFrame));
+        assert_eq!(p.end_frame(&mut s), Err(Error::NoFrame));
+        p.begin_frame(0, 0, &mut s).unwrap();
+        assert_eq!(p.begin_frame(1, 0, &mut s), Err(Error::FrameOpen));
+        assert_eq!(p.push_line(1, &[0; W], &mut s), Err(Error::LineOrder { expected: 0, got: 1 }));
+        assert_eq!(p.push_line(0, &[0; 3], &mut s), Err(Error::LineWidth { expected: W as u16, got: 3 }));
+        let mut small = Mem::new(&c);
+        small.free.truncate(1);
+        assert!(matches!(Pipeline::new(c, &refp, small.mem()), Err(NewError::Memory)));
+        let mut bad = c;
+        bad.n = 9;
+        assert!(matches!(Pipeline::new(bad, &refp, Mem::new(&c).mem()), Err(NewError::Config(_))));
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(300))]
+        /// Any sequence of latches, lost frames and truncated frames: no panic, rows contiguous
+        /// and increasing, no leaked line slots.
+        #[test]
+        fn never_panics_and_keeps_order(steps in proptest::collection::vec(-40i64..120, 1..30),
+                                        gaps in proptest::collection::vec(0u32..3, 30),
+                                        cuts in proptest::collection::vec(0u16..40, 30)) {
+            let mut e = 0i64;
+            let mut s = 0u32;
+            let mut latches = vec![];
+            let mut seqs = vec![];
+            let mut lines = vec![];
+            for (k, st) in steps.iter().enumerate() {
+                e += st;
+                s += 1 + if gaps[k] == 2 { 1 } else { 0 };
+                latches.push(e);
+                seqs.push(s);
+                lines.push(cuts[k].min(H));
+            }
+            let (out, used) = run(&latches, &seqs, &lines);
+            prop_assert_eq!(used, 0);
+            for w in out.0.windows(2) {
+                prop_assert_eq!(w[1].0.row, w[0].0.row + 1);
+            }
+        }
+    }
+}
