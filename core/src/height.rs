@@ -27,20 +27,20 @@ pub struct Scale {
 
 impl Scale {
     pub fn new(cfg: &Config) -> Scale {
-        let m = cfg.min_modulation_q12 as u64;
-        Scale { k: cfg.lsb_per_turn_q16 as i64, min_c2: m.saturating_mul(m) }
+        Scale::from_parts(cfg.lsb_per_turn_q16, cfg.min_modulation_q12)
     }
 
-    /// Height of one pixel from its accumulated `v`, relative to the reference phase `phi_r`.
+    /// From LSB per turn (Q16.16) and the modulation threshold (DN, Q20.12).
+    pub fn from_parts(lsb_per_turn_q16: u32, min_modulation_q12: u32) -> Scale {
+        let m = min_modulation_q12 as u64;
+        Scale { k: lsb_per_turn_q16 as i64, min_c2: m.saturating_mul(m) }
+    }
+
+    /// The pixel's phase `Phi = atan2(v_3, v_2)` if it is valid (not saturated, modulated).
     ///
-    /// Formats at each step:
-    /// - modulation: `v >> 12` is DN in Q12, clamped to i32; `C^2` in u64 Q24 (`< 2^63`).
-    /// - `Phi = atan2(v_3, v_2)`: binary angle (error <= 2e-6 rad, see [`crate::phase`]).
-    /// - `D = Phi - phi_r`, wrapping, read as i32: `[-pi, pi)` in units of `2 pi / 2^32`.
-    /// - `h = round(D * k / 2^48)` with `k` = LSB per turn in Q16.16: i64 product `< 2^62`,
-    ///   rounded half up, clamped to `+-32767`.
+    /// Modulation: `v >> 12` is DN in Q12, clamped to i32; `C^2` in u64 Q24 (`< 2^63`).
     #[inline(always)]
-    pub fn pixel(&self, acc: &Acc, phi_r: u32) -> Result<i16, Invalid> {
+    pub fn phase(&self, acc: &Acc) -> Result<u32, Invalid> {
         if acc.saturated {
             return Err(Invalid::Saturated);
         }
@@ -49,7 +49,20 @@ impl Scale {
         if ((x * x) as u64 + (y * y) as u64) < self.min_c2 || (x == 0 && y == 0) {
             return Err(Invalid::LowModulation);
         }
-        let d = atan2(acc.v3, acc.v2).wrapping_sub(phi_r) as i32 as i64;
+        Ok(atan2(acc.v3, acc.v2))
+    }
+
+    /// Height of one pixel from its accumulated `v`, relative to the reference phase `phi_r`.
+    ///
+    /// Formats at each step:
+    /// - validity and `Phi = atan2(v_3, v_2)` from [`Scale::phase`] (binary angle, error
+    ///   <= 2e-6 rad, see [`crate::phase`]).
+    /// - `D = Phi - phi_r`, wrapping, read as i32: `[-pi, pi)` in units of `2 pi / 2^32`.
+    /// - `h = round(D * k / 2^48)` with `k` = LSB per turn in Q16.16: i64 product `< 2^62`,
+    ///   rounded half up, clamped to `+-32767`.
+    #[inline(always)]
+    pub fn pixel(&self, acc: &Acc, phi_r: u32) -> Result<i16, Invalid> {
+        let d = self.phase(acc)?.wrapping_sub(phi_r) as i32 as i64;
         let h = (d * self.k + (1 << 47)) >> 48;
         Ok(h.clamp(-H_MAX as i64, H_MAX as i64) as i16)
     }

@@ -1,0 +1,75 @@
+//! Images out: 16-bit height PNGs, false-colour PNGs and wrapped-phase PNGs.
+
+use anyhow::{Context, Result};
+use image::{GrayImage, ImageBuffer, Luma, Rgb, RgbImage};
+use std::path::Path;
+
+use crate::heightmap::HeightMap;
+
+/// Writes the height map as a 16-bit greyscale PNG: value `h + 32768` (h in LSB) for valid
+/// pixels, 0 for invalid ones. Image row `i` is board row `first_row + i`.
+pub fn write_height_png(map: &HeightMap, path: &Path) -> Result<()> {
+    let (w, h) = (map.width as u32, map.rows.len() as u32);
+    let img: ImageBuffer<Luma<u16>, Vec<u16>> = ImageBuffer::from_fn(w, h, |x, y| {
+        let row = &map.rows[y as usize];
+        let c = x as usize;
+        if row.pixel_valid(c) {
+            Luma([(row.heights[c] as i32 + 32768).clamp(1, 65535) as u16])
+        } else {
+            Luma([0])
+        }
+    });
+    img.save(path).with_context(|| format!("writing {}", path.display()))
+}
+
+/// Writes a false-colour PNG of the heights over `[lo_um, hi_um]`; invalid pixels are dark grey.
+pub fn write_false_colour_png(map: &HeightMap, lo_um: f64, hi_um: f64, path: &Path) -> Result<()> {
+    let (w, h) = (map.width as u32, map.rows.len() as u32);
+    let span = (hi_um - lo_um).max(1e-9);
+    let img: RgbImage = ImageBuffer::from_fn(w, h, |x, y| {
+        let row = &map.rows[y as usize];
+        let c = x as usize;
+        if row.pixel_valid(c) {
+            let t = ((row.heights[c] as f64 * map.lsb_um - lo_um) / span).clamp(0.0, 1.0);
+            Rgb(colour(t))
+        } else {
+            Rgb([40, 40, 40])
+        }
+    });
+    img.save(path).with_context(|| format!("writing {}", path.display()))
+}
+
+/// Writes a wrapped phase map (`[-pi, pi)` -> 1..=255) as 8-bit grey; `None` (invalid) is 0.
+pub fn write_phase_png(phase: &[Option<f64>], width: usize, path: &Path) -> Result<()> {
+    let h = phase.len() / width.max(1);
+    let img: GrayImage = ImageBuffer::from_fn(width as u32, h as u32, |x, y| {
+        match phase[y as usize * width + x as usize] {
+            Some(p) => {
+                let t = (p + std::f64::consts::PI) / (2.0 * std::f64::consts::PI);
+                Luma([(1.0 + t.clamp(0.0, 1.0) * 254.0).round() as u8])
+            }
+            None => Luma([0]),
+        }
+    });
+    img.save(path).with_context(|| format!("writing {}", path.display()))
+}
+
+/// A perceptually ordered blue -> cyan -> green -> yellow -> red ramp, `t` in `[0, 1]`.
+fn colour(t: f64) -> [u8; 3] {
+    const STOPS: [[f64; 3]; 5] = [
+        [0.19, 0.07, 0.60],
+        [0.10, 0.60, 0.90],
+        [0.30, 0.85, 0.35],
+        [0.98, 0.85, 0.15],
+        [0.85, 0.10, 0.10],
+    ];
+    let x = t * (STOPS.len() - 1) as f64;
+    let i = (x.floor() as usize).min(STOPS.len() - 2);
+    let f = x - i as f64;
+    let mut out = [0u8; 3];
+    for k in 0..3 {
+        let v = STOPS[i][k] * (1.0 - f) + STOPS[i + 1][k] * f;
+        out[k] = (v * 255.0).round() as u8;
+    }
+    out
+}

@@ -1,0 +1,76 @@
+//! Packet streams: decoding a stream of row packets back into a height map, with the
+//! damage report (good, corrupt and resynchronised packets).
+
+use crate::heightmap::{HeightMap, HeightRow};
+use dpsa_core::packets::{self, PacketError};
+use serde::Serialize;
+
+/// A packet that could not be decoded, and where.
+#[derive(Clone, Debug, Serialize)]
+pub struct Damage {
+    /// Byte offset of the damaged packet (or of the garbage) in the stream.
+    pub offset: usize,
+    pub error: String,
+}
+
+/// Counts of a decoded stream.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct DecodeReport {
+    /// Packets whose CRC and layout checked out.
+    pub ok: usize,
+    /// Damaged packets (each reported once in `damage`).
+    pub corrupt: usize,
+    /// Times the decoder had to search for the next sync word.
+    pub resynced: usize,
+    pub damage: Vec<Damage>,
+}
+
+/// Decodes a whole packet stream. Damage never stops the decoder: it reports the packet and
+/// resynchronises on the next sync word. `lsb_um` labels the heights (the stream carries LSBs).
+pub fn decode_stream(bytes: &[u8], lsb_um: f64) -> (HeightMap, DecodeReport) {
+    let mut map = HeightMap::new(0, lsb_um);
+    let mut rep = DecodeReport::default();
+    let mut pos = 0;
+    while pos < bytes.len() {
+        match packets::decode(&bytes[pos..]) {
+            Ok((p, len)) => {
+                let w = p.header.width as usize;
+                let mut heights = vec![0i16; w];
+                let mut bits = vec![0u8; w.div_ceil(8)];
+                match p.unpack(&mut heights, &mut bits) {
+                    Ok(()) => {
+                        if map.width == 0 {
+                            map.width = w;
+                        }
+                        let valid = (0..w).map(|c| bits[c / 8] & (1 << (c % 8)) != 0).collect();
+                        map.rows.push(HeightRow {
+                            row: p.header.row,
+                            latch: p.header.latch,
+                            flags: p.header.flags,
+                            heights,
+                            valid,
+                        });
+                        rep.ok += 1;
+                    }
+                    Err(e) => damage(&mut rep, pos, e),
+                }
+                pos += len;
+            }
+            Err(e) => {
+                damage(&mut rep, pos, e);
+                rep.resynced += 1;
+                match packets::find_sync(bytes, pos + 1) {
+                    Some(next) => pos = next,
+                    None => break,
+                }
+            }
+        }
+    }
+    map.sort();
+    (map, rep)
+}
+
+fn damage(rep: &mut DecodeReport, offset: usize, e: PacketError) {
+    rep.corrupt += 1;
+    rep.damage.push(Damage { offset, error: format!("{e:?}") });
+}

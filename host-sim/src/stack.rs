@@ -1,0 +1,182 @@
+//! Phase of an ordinary phase-shifting image stack (real captures, any steps), with the same
+//! fixed-point kernel as the pipeline and an independent f64 least squares beside it.
+
+use anyhow::{anyhow, bail, Context, Result};
+use dpsa_core::{accumulate, height::Scale, phase, solve::Window};
+use nalgebra::{DMatrix, DVector};
+use serde::Serialize;
+use std::path::Path;
+
+/// A stack of same-size greyscale images with their phase steps.
+pub struct Stack {
+    pub width: usize,
+    pub height: usize,
+    /// Significant bits (8 or 16).
+    pub bit_depth: u8,
+    /// `images[j]` row-major.
+    pub images: Vec<Vec<u16>>,
+    /// Phase step of each image, rad: `I_j = B + C cos(Phi + step_j)`.
+    pub steps_rad: Vec<f64>,
+}
+
+impl Stack {
+    /// Loads PNG/JPEG/TIFF images (8 or 16 bit; colour is converted to luma).
+    pub fn load(paths: &[impl AsRef<Path>], steps_deg: &[f64]) -> Result<Stack> {
+        if paths.len() != steps_deg.len() {
+            bail!("{} images but {} steps: give one --step per --image", paths.len(), steps_deg.len());
+        }
+        if !(3..=8).contains(&paths.len()) {
+            bail!("a stack needs 3 to 8 images, got {}", paths.len());
+        }
+        let mut images = Vec::new();
+        let mut dims = None;
+        let mut bit_depth = 8;
+        for p in paths {
+            let p = p.as_ref();
+            let img = image::ImageReader::open(p)
+                .with_context(|| format!("opening {}", p.display()))?
+                .with_guessed_format()
+                .with_context(|| format!("reading {}", p.display()))?
+                .decode()
+                .with_context(|| format!("decoding {}", p.display()))?;
+            let sixteen = matches!(
+                img.color(),
+                image::ColorType::L16 | image::ColorType::La16 | image::ColorType::Rgb16 | image::ColorType::Rgba16
+            );
+            let (w, h, data) = if sixteen {
+                let g = img.to_luma16();
+                (g.width() as usize, g.height() as usize, g.into_raw())
+            } else {
+                let g = img.to_luma8();
+                (g.width() as usize, g.height() as usize, g.into_raw().into_iter().map(u16::from).collect())
+            };
+            if sixteen {
+                bit_depth = 16;
+            }
+            match dims {
+                None => dims = Some((w, h)),
+                Some(d) if d != (w, h) => {
+                    bail!("{} is {}x{}, the first image is {}x{}", p.display(), w, h, d.0, d.1)
+                }
+                _ => {}
+            }
+            images.push(data);
+        }
+        let (width, height) = dims.ok_or_else(|| anyhow!("no images"))?;
+        let steps_rad = steps_deg.iter().map(|d| d.to_radians()).collect();
+        Ok(Stack { width, height, bit_depth, images, steps_rad })
+    }
+}
+
+/// Result of both paths on a stack.
+pub struct StackPhase {
+    /// Fixed-point phase (rad) per pixel, `None` where invalid.
+    pub fixed: Vec<Option<f64>>,
+    /// f64 least-squares phase per pixel, `None` where invalid.
+    pub reference: Vec<Option<f64>>,
+}
+
+/// JSON report of `dpsa phase`.
+#[derive(Serialize, Debug, Clone)]
+pub struct PhaseReport {
+    pub width: usize,
+    pub height: usize,
+    pub total_pixels: usize,
+    pub valid_pixels: usize,
+    pub valid_mismatch: usize,
+    pub fixed_vs_ref_rms_rad: f64,
+    pub fixed_vs_ref_max_rad: f64,
+    pub min_modulation: f64,
+    pub noise_gain: f64,
+}
+
+/// Runs the fixed-point kernel and the f64 reference on every pixel.
+///
+/// A pixel is valid when no sample is saturated (`>= 2^bits - 1`) and its modulation
+/// `C = sqrt(v_2^2 + v_3^2)` is at least `min_modulation` (DN).
+pub fn run(stack: &Stack, min_modulation: f64) -> Result<(StackPhase, PhaseReport)> {
+    let n = stack.images.len();
+    let saturation: u16 = if stack.bit_depth == 8 { 255 } else { 65535 };
+    // Fixed path: integer window from the steps as binary angles.
+    let shifts: Vec<u32> = stack.steps_rad.iter().map(|&s| phase::from_rad(s)).collect();
+    let win = Window::solve(&shifts, 2048)
+        .map_err(|e| anyhow!("the phase steps give no usable solution ({e:?}): noise gain above 8"))?;
+    let scale = Scale::from_parts(1 << 16, (min_modulation * 4096.0).round() as u32);
+    // f64 path: P = (M^T M)^-1 M^T with rows [1, cos s, -sin s].
+    let m = DMatrix::from_fn(n, 3, |j, k| match k {
+        0 => 1.0,
+        1 => stack.steps_rad[j].cos(),
+        _ => -stack.steps_rad[j].sin(),
+    });
+    let mtm = m.transpose() * &m;
+    let inv = mtm.try_inverse().ok_or_else(|| anyhow!("the phase steps are singular"))?;
+    let p = inv * m.transpose();
+    // Noise gain from the centred 2x2 block, for the report.
+    let g = noise_gain(&stack.steps_rad);
+    let pixels = stack.width * stack.height;
+    let mut fixed = Vec::with_capacity(pixels);
+    let mut reference = Vec::with_capacity(pixels);
+    let mut samples = [0u16; 8];
+    let mut iv = DVector::zeros(n);
+    for i in 0..pixels {
+        let mut sat = false;
+        for j in 0..n {
+            samples[j] = stack.images[j][i];
+            iv[j] = samples[j] as f64;
+            sat |= samples[j] >= saturation;
+        }
+        let acc = accumulate::pixel(&win, &samples[..n], saturation);
+        fixed.push(scale.phase(&acc).ok().map(phase::to_rad));
+        let v = &p * &iv;
+        let c = v[1].hypot(v[2]);
+        reference.push((!sat && c >= min_modulation && c > 0.0).then(|| v[2].atan2(v[1])));
+    }
+    let mut valid = 0;
+    let mut mismatch = 0;
+    let (mut sum2, mut max) = (0f64, 0f64);
+    for (f, r) in fixed.iter().zip(&reference) {
+        match (f, r) {
+            (Some(f), Some(r)) => {
+                let d = wrap(f - r);
+                sum2 += d * d;
+                max = max.max(d.abs());
+                valid += 1;
+            }
+            (None, None) => {}
+            _ => mismatch += 1,
+        }
+    }
+    let report = PhaseReport {
+        width: stack.width,
+        height: stack.height,
+        total_pixels: pixels,
+        valid_pixels: valid,
+        valid_mismatch: mismatch,
+        fixed_vs_ref_rms_rad: if valid > 0 { (sum2 / valid as f64).sqrt() } else { 0.0 },
+        fixed_vs_ref_max_rad: max,
+        min_modulation,
+        noise_gain: g,
+    };
+    Ok((StackPhase { fixed, reference }, report))
+}
+
+fn wrap(d: f64) -> f64 {
+    use std::f64::consts::PI;
+    (d + PI).rem_euclid(2.0 * PI) - PI
+}
+
+/// `g = sqrt(n / (2 lambda_min(A)))` of a shift set (f64).
+pub fn noise_gain(steps: &[f64]) -> f64 {
+    let n = steps.len() as f64;
+    let cm = steps.iter().map(|s| s.cos()).sum::<f64>() / n;
+    let sm = steps.iter().map(|s| s.sin()).sum::<f64>() / n;
+    let (mut a, mut b, mut d) = (0.0, 0.0, 0.0);
+    for s in steps {
+        let (u, w) = (s.cos() - cm, -(s.sin() - sm));
+        a += u * u;
+        b += u * w;
+        d += w * w;
+    }
+    let lmin = 0.5 * (a + d - ((a - d).powi(2) + 4.0 * b * b).sqrt());
+    (n / (2.0 * lmin)).sqrt()
+}
