@@ -1,1 +1,119 @@
-fn main(){}
+//! Host benchmark of the per-pixel kernel (`v = P i`, phase, height, mask) and of the whole
+//! streaming pipeline. Host times are context only; the firmware benchmark reports Cortex-M7
+//! instruction counts.
+//!
+//! `cargo bench -p dpsa-core --bench kernel`
+
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use dpsa_core::{
+    accumulate,
+    height::Scale,
+    phase::from_rad,
+    pipeline::{Layout, Memory, Pipeline, Slot},
+    solve::Window,
+    Config, Row, Sink,
+};
+use std::hint::black_box;
+
+const W: usize = 2048;
+
+fn config() -> Config {
+    Config {
+        width: W as u16,
+        rows: 40,
+        n: 4,
+        camera: 0,
+        counts_per_pixel_q16: 10 << 16,
+        fx: 1 << 27,
+        lsb_per_turn_q16: 2000 << 16,
+        saturation: 4095,
+        min_modulation_q12: 60 << 12,
+        max_noise_gain_q8: 512,
+        max_step: 10,
+    }
+}
+
+/// Four lines of a flat board seen with shifts 0, -99, -180, -281 degrees.
+fn lines() -> Vec<Vec<u16>> {
+    let th = [0.0f64, -99.0, -180.0, -281.0];
+    th.iter()
+        .map(|t| {
+            (0..W)
+                .map(|c| (1800.0 + 700.0 * (0.3 + 0.01 * c as f64 + t.to_radians()).cos()) as u16)
+                .collect()
+        })
+        .collect()
+}
+
+fn kernel(c: &mut Criterion) {
+    let cfg = config();
+    let th = [0.0f64, -99.0, -180.0, -281.0];
+    let shifts: Vec<u32> = th.iter().map(|t| from_rad(t.to_radians())).collect();
+    let win = Window::solve(&shifts, 512).unwrap();
+    let scale = Scale::new(&cfg);
+    let l = lines();
+    let refp: Vec<u32> = (0..W).map(|c| from_rad(0.01 * c as f64)).collect();
+    let mut g = c.benchmark_group("kernel");
+    g.throughput(Throughput::Elements(W as u64));
+    g.bench_function(BenchmarkId::new("row", W), |b| {
+        let mut out = vec![0i16; W];
+        b.iter(|| {
+            for col in 0..W {
+                let s = [l[0][col], l[1][col], l[2][col], l[3][col]];
+                let acc = accumulate::pixel(&win, &s, cfg.saturation);
+                out[col] = scale.pixel(&acc, refp[col]).unwrap_or(0);
+            }
+            black_box(&out);
+        })
+    });
+    g.finish();
+    c.bench_function("solve/window n=4", |b| b.iter(|| Window::solve(black_box(&shifts), 512)));
+}
+
+struct Null;
+impl Sink for Null {
+    type Error = ();
+    fn row(&mut self, r: &Row<'_>) -> Result<(), ()> {
+        black_box(r.heights);
+        Ok(())
+    }
+}
+
+fn pipeline(c: &mut Criterion) {
+    let cfg = config();
+    let lay = Layout::of(&cfg);
+    let refp = vec![0u32; W];
+    // Fringe phase 2 pi r / 32 along the rows, as the projector throws it.
+    let frame: Vec<Vec<u16>> = (0..cfg.rows as usize)
+        .map(|r| {
+            (0..W)
+                .map(|c| (1800.0 + 700.0 * (r as f64 / 32.0 * std::f64::consts::TAU + 0.01 * c as f64).cos()) as u16)
+                .collect()
+        })
+        .collect();
+    let mut g = c.benchmark_group("pipeline");
+    // 8 new rows per frame at the default 8 px step.
+    g.throughput(Throughput::Elements(8 * W as u64));
+    g.bench_function("frame 40x2048 n=4", |b| {
+        let mut lines = vec![0u16; lay.pool_lines * W];
+        let mut free = vec![0u16; lay.pool_lines];
+        let mut slots = vec![Slot::default(); lay.slots];
+        let mut heights = vec![0i16; W];
+        let mut valid = vec![0u8; W / 8];
+        let mem = Memory { lines: &mut lines, free: &mut free, slots: &mut slots, heights: &mut heights, valid: &mut valid };
+        let mut p = Pipeline::new(cfg, &refp, mem).unwrap();
+        let mut k = 0u32;
+        b.iter(|| {
+            p.begin_frame(k, k as i64 * 80, &mut Null).unwrap();
+            for (r, line) in frame.iter().enumerate() {
+                p.push_line(r as u16, line, &mut Null).unwrap();
+            }
+            p.end_frame(&mut Null).unwrap();
+            k += 1;
+        })
+    });
+    g.finish();
+}
+
+criterion_group!(benches, kernel, pipeline);
+criterion_main!(benches);

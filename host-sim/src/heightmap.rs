@@ -5,28 +5,9 @@
 //! comparison tools treat both alike. Row flag bit values are those of `docs/model.md`
 //! ("Validity").
 
-/// Row flags (bit values of the packet header, `docs/model.md`).
+/// Row flags: the core's definitions (`dpsa_core::flags`) plus naming helpers.
 pub mod flags {
-    /// Window noise gain `g > max_noise_gain` (or the shift set is singular).
-    pub const ILL_CONDITIONED: u16 = 1;
-    /// Row not seen in `n` consecutive frames (left the ROI, recording ended).
-    pub const INCOMPLETE: u16 = 2;
-    /// Row never admitted (encoder step above `max_step_rows`, first frame).
-    pub const SKIPPED: u16 = 4;
-    /// Encoder count decreased while the row was open.
-    pub const ENCODER_REVERSAL: u16 = 8;
-    /// Frame sequence gap, or a frame that ended before delivering the row's line.
-    pub const FRAME_GAP: u16 = 16;
-    /// At least one pixel of the row had a saturated sample (per-pixel summary only).
-    pub const SATURATED: u16 = 32;
-    /// At least one pixel of the row had modulation below the threshold (summary only).
-    pub const LOW_MODULATION: u16 = 64;
-    /// The caller-supplied state ran out of line slots for this row.
-    pub const OVERFLOW: u16 = 128;
-
-    /// Flags that invalidate the whole row (bits 0-4 and 7).
-    pub const INVALIDATING: u16 =
-        ILL_CONDITIONED | INCOMPLETE | SKIPPED | ENCODER_REVERSAL | FRAME_GAP | OVERFLOW;
+    pub use dpsa_core::flags::*;
 
     /// All flags with their names, in bit order.
     pub const ALL: [(u16, &str); 8] = [
@@ -42,7 +23,7 @@ pub mod flags {
 
     /// True when `flags` contains a flag that invalidates the whole row.
     pub fn invalidates(flags: u16) -> bool {
-        flags & INVALIDATING != 0
+        flags & ROW_INVALID != 0
     }
 
     /// Names of the known flags set in `flags`, in bit order (unknown bits are ignored).
@@ -191,7 +172,7 @@ mod tests {
 
     #[test]
     fn flag_bits_match_model() {
-        assert_eq!(flags::INVALIDATING, 0b1001_1111);
+        assert_eq!(flags::ROW_INVALID, 0b1001_1111);
         assert_eq!(
             flags::names(flags::SKIPPED | flags::OVERFLOW),
             ["SKIPPED", "OVERFLOW"]

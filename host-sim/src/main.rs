@@ -23,7 +23,7 @@ struct Cli {
 enum Cmd {
     /// Simulate a recording (frames, manifest, ground truth) of a scene.
     Simulate {
-        /// `default` for the built-in scene, or a scene TOML file (see docs/scene.md).
+        /// `default` for the built-in scene, or a scene TOML file (knobs: README, "Scene files").
         #[arg(long, default_value = "default")]
         scene: String,
         /// Random seed (layout, motion and noise).

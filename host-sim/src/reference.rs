@@ -1236,24 +1236,4 @@ mod tests {
         );
         assert!(out.valid_pixels() > 2000 * 2000);
     }
-
-    #[test]
-    #[ignore]
-    fn scratch_e2e() {
-        let scene = crate::scene::Scene::default();
-        let sim = crate::simulate::Simulator::new(&scene, 7).unwrap();
-        let m = sim.manifest();
-        let frames: Vec<Frame> = m.frames.iter().enumerate().map(|(k, fe)| Frame {
-            seq: fe.seq, latch: fe.latch, rows: m.camera.rows as usize,
-            width: m.camera.width as usize, data: sim.render(k) }).collect();
-        let (h, bg, ct) = sim.truth();
-        let truth = Truth { first_row: 0, rows: scene.board_length as usize, width: 2048,
-            height_um: h, background: bg, contrast: ct };
-        let t0 = std::time::Instant::now();
-        let out = reconstruct(&m, &frames);
-        let base = psp(&m, &frames);
-        let fixed = out.to_height_map(&m);
-        let cmp = crate::compare::compare(&m, &fixed, &out, Some(&base), Some(&truth));
-        eprintln!("{:?}\n{}\n{}", t0.elapsed(), cmp.summary(), serde_json::to_string_pretty(&cmp).unwrap());
-    }
 }

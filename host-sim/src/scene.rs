@@ -1,7 +1,7 @@
 //! Simulator scene: every knob of `dpsa simulate`, loaded from TOML.
 //!
 //! Every field has a default, so a scene file only lists what it changes; [`Scene::default`]
-//! is the built-in default scene. Knobs, units and defaults are documented in `docs/scene.md`.
+//! is the built-in default scene. Knobs, units and defaults are documented in the README (section "Scene files").
 
 use crate::recording::{self, Calibration, Camera, Noise, Processing, MAX_ROWS, MAX_WIDTH};
 use serde::{Deserialize, Serialize};
@@ -65,7 +65,7 @@ pub struct Stall {
 }
 
 /// Everything the simulator needs to render a recording. Units are in the field docs and in
-/// `docs/scene.md`.
+/// the README (section "Scene files").
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 #[serde(default, deny_unknown_fields)]
 pub struct Scene {
@@ -650,10 +650,10 @@ mod tests {
         assert!((ill[0] - 0.85).abs() < 1e-12);
     }
 
-    /// `docs/scene.md` documents every knob and its example parses.
+    /// The README documents every scene knob and its example parses.
     #[test]
     fn documentation_is_in_sync() {
-        let doc = include_str!("../../docs/scene.md");
+        let doc = include_str!("../../README.md");
         let start = doc.find("```toml\n").expect("example block") + 8;
         let end = start + doc[start..].find("```").expect("end of example");
         let scene = Scene::from_toml_str(&doc[start..end]).unwrap();

@@ -20,6 +20,8 @@
 //! Raw payload (codec 0): the validity bitmask, `ceil(W/8)` bytes (bit `c % 8` of byte `c / 8`,
 //! 1 = valid), then `W` heights as i16 (LSB units, 0 where invalid).
 
+pub mod codec;
+
 use crate::sink::{Row, RowHeader};
 use crc::{Crc, CRC_32_ISO_HDLC};
 

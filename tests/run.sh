@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# The test command (README, CI): every test of the workspace, the benchmark build, and the
+# firmware crate build. Installs what is missing; needs ../shared/data/real beside the repo.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+have() { command -v "$1" >/dev/null 2>&1; }
+as_root() { if [ "$(id -u)" = 0 ]; then "$@"; else sudo "$@"; fi; }
+
+if ! have cargo; then
+    echo "== cargo not found: installing Debian's Rust toolchain"
+    as_root apt-get update -qq
+    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq cargo rustc
+fi
+
+if [ ! -d ../shared/data/real ]; then
+    echo "error: ../shared/data/real (real fringe stacks used by the tests) is missing" >&2
+    exit 1
+fi
+
+echo "== unit, property and end-to-end tests"
+cargo test --workspace --locked
+
+echo "== benchmarks compile"
+cargo bench --workspace --locked --no-run
+
+echo "== firmware crate builds against the core"
+cargo build --manifest-path firmware/Cargo.toml
