@@ -78,6 +78,11 @@ pub struct TruthStats {
     pub psp_bias_um: Option<f64>,
     /// `psp_rms_um / fixed_rms_um`.
     pub psp_over_fixed: Option<f64>,
+    /// Quantisation noise of the i16 output, `lsb / sqrt(12)`, um.
+    pub quantization_rms_um: Option<f64>,
+    /// `quantization_rms_um / ref_rms_um`: must stay under 0.1 so the LSB never limits the
+    /// measurement (the per-pixel height noise is measured by the f64 reference).
+    pub quantization_over_noise: Option<f64>,
 }
 
 /// Pixel counts.
@@ -288,6 +293,7 @@ fn truth_stats(
     union: &BTreeMap<i64, (Option<&HeightRow>, Option<usize>)>,
 ) -> TruthStats {
     let t_z = manifest.calibration.height_per_turn_um;
+    let lsb_um = manifest.calibration.height_lsb_um;
     let flat = flat_mask(truth);
     let is_flat = |ti: usize, c: usize| {
         c < truth.width && flat.get(ti * truth.width + c).copied().unwrap_or(false)
@@ -357,6 +363,8 @@ fn truth_stats(
         psp_rms_um: pe.rms(),
         psp_bias_um: pe.mean(),
         psp_over_fixed: ratio(pe.rms(), fe.rms()),
+        quantization_rms_um: Some(lsb_um / 12f64.sqrt()),
+        quantization_over_noise: ratio(Some(lsb_um / 12f64.sqrt()), re.rms()),
     }
 }
 
@@ -423,6 +431,12 @@ impl Comparison {
                     opt(t.ref_rms_um, 3),
                     opt(t.crb_rms_um, 3),
                     opt(t.fixed_over_crb, 2)
+                );
+                let _ = writeln!(
+                    s,
+                    "output LSB: quantisation {} um rms = {} of the height noise",
+                    opt(t.quantization_rms_um, 3),
+                    opt(t.quantization_over_noise, 3)
                 );
                 if let Some(pn) = t.psp_pixels {
                     let _ = writeln!(

@@ -65,8 +65,8 @@ pub struct RowPlan {
 
 /// Registration steps 1-4 of `docs/model.md`.
 ///
-/// Returns every board row from the lowest row ever visible (`min_k o_k`) to `E_last - 1`
-/// exactly once, in increasing order:
+/// Returns every board row from the first frame's top row (`o_0`) to `E_last - 1` exactly
+/// once, in increasing order (rows below `o_0`, visible only after a reversal, never enter):
 /// - rows that entered at frame `w` (`[max(E_{w-1}, o_w + H - max_step), o_w + H)`) carry
 ///   `first_frame = Some(w)` and the window flags: `INCOMPLETE` when the row is not visible
 ///   in one of the frames `w..w+n-1` or the window runs past the last frame, `FRAME_GAP` when
@@ -74,8 +74,8 @@ pub struct RowPlan {
 ///   `ENCODER_REVERSAL` when the latch decreases between consecutive window frames (a
 ///   decrease never re-admits rows because `E_k` is a running maximum). The flags of a window
 ///   truncated by the end of the recording are evaluated over the frames that exist;
-/// - all other rows (below the `max_step` bound of the frame that first showed them, or only
-///   ever visible below the first frame after a reversal) are `SKIPPED` with no frame.
+/// - all other rows (below the `max_step` bound of the frame that first showed them) are
+///   `SKIPPED` with no frame.
 ///
 /// Frame-content checks (a frame that did not deliver the row's line) are added by
 /// [`reconstruct`]. An empty manifest, `H = 0`, an unusable `counts_per_pixel` or a row span
@@ -88,7 +88,7 @@ pub fn plan(manifest: &Manifest) -> Vec<RowPlan> {
     let Some(o) = offsets(manifest) else {
         return Vec::new();
     };
-    let (Some(&lo), Some(&hi)) = (o.iter().min(), o.iter().max()) else {
+    let (Some(&lo), Some(&hi)) = (o.first(), o.iter().max()) else {
         return Vec::new();
     };
     let end = hi + h; // E_last
@@ -919,7 +919,7 @@ mod tests {
             for s in steps { latches.push(latches.last().unwrap() + s); }
             let m = manifest(1, h, 3, max_step, 1.0, &seqs(&latches));
             let p = plan(&m);
-            let lo = latches.iter().min().unwrap();
+            let lo = &latches[0];
             let end = latches.iter().max().unwrap() + i64::from(h);
             let rows: Vec<i64> = p.iter().map(|r| r.row).collect();
             proptest::prop_assert_eq!(rows, (*lo..end).collect::<Vec<_>>());

@@ -112,7 +112,7 @@ pub fn run(stack: &Stack, min_modulation: f64) -> Result<(StackPhase, PhaseRepor
     let inv = mtm.try_inverse().ok_or_else(|| anyhow!("the phase steps are singular"))?;
     let p = inv * m.transpose();
     // Noise gain from the centred 2x2 block, for the report.
-    let g = noise_gain(&stack.steps_rad);
+    let g = crate::reference::noise_gain(&stack.steps_rad);
     let pixels = stack.width * stack.height;
     let mut fixed = Vec::with_capacity(pixels);
     let mut reference = Vec::with_capacity(pixels);
@@ -163,20 +163,4 @@ pub fn run(stack: &Stack, min_modulation: f64) -> Result<(StackPhase, PhaseRepor
 fn wrap(d: f64) -> f64 {
     use std::f64::consts::PI;
     (d + PI).rem_euclid(2.0 * PI) - PI
-}
-
-/// `g = sqrt(n / (2 lambda_min(A)))` of a shift set (f64).
-pub fn noise_gain(steps: &[f64]) -> f64 {
-    let n = steps.len() as f64;
-    let cm = steps.iter().map(|s| s.cos()).sum::<f64>() / n;
-    let sm = steps.iter().map(|s| s.sin()).sum::<f64>() / n;
-    let (mut a, mut b, mut d) = (0.0, 0.0, 0.0);
-    for s in steps {
-        let (u, w) = (s.cos() - cm, -(s.sin() - sm));
-        a += u * u;
-        b += u * w;
-        d += w * w;
-    }
-    let lmin = 0.5 * (a + d - ((a - d).powi(2) + 4.0 * b * b).sqrt());
-    (n / (2.0 * lmin)).sqrt()
 }
