@@ -14,3 +14,4 @@ pub mod reconstruct;
 pub mod images;
 pub mod stack;
 pub mod jobs;
+pub mod codec_bench;

@@ -44,6 +44,11 @@ enum Cmd {
         /// false-colour PNG beside it (`*.colour.png`).
         #[arg(long)]
         png: Option<PathBuf>,
+        /// Codec intra period: 1 (default) makes every packet decodable on its own, so a
+        /// damaged packet loses only itself; K > 1 predicts rows from the previous one
+        /// (smaller, but a lost packet costs up to K - 1 more rows).
+        #[arg(long, default_value_t = dpsa_core::packets::STREAM_INTRA_PERIOD)]
+        intra_period: u32,
     },
     /// Compare the fixed-point core with the f64 reference, the PSP baseline, the CRB and the truth.
     Compare {
@@ -87,6 +92,15 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// Benchmark the row codec against lz4, zstd, heatshrink and PNG on the same height rows,
+    /// with the entropy of its predictor's residuals and the noise floor.
+    CodecBench {
+        /// A recording directory (run through the fixed-point core) or a packet stream file.
+        input: PathBuf,
+        /// Print one JSON object.
+        #[arg(long)]
+        json: bool,
+    },
     /// The main job: simulate the default scene, reconstruct, compare, write images, summarise.
     Demo {
         /// Working directory for the recording, stream, images and report.
@@ -99,6 +113,21 @@ enum Cmd {
         #[arg(long, default_value = "default")]
         scene: String,
     },
+}
+
+/// `println!` that never panics: a closed stdout (e.g. `dpsa ... | head`) ends the program
+/// quietly instead of panicking.
+macro_rules! out {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let mut o = std::io::stdout().lock();
+        if let Err(e) = writeln!(o, $($t)*) {
+            if e.kind() == std::io::ErrorKind::BrokenPipe {
+                std::process::exit(0);
+            }
+            return Err(anyhow::Error::new(e).context("writing to stdout"));
+        }
+    }};
 }
 
 fn main() {
@@ -128,30 +157,31 @@ fn run(cli: Cli) -> Result<()> {
             let sc = load_scene(&scene)?;
             let seed = seed.unwrap_or(sc.seed);
             let s = simulate::simulate(&sc, seed, &out, progress)?;
-            println!(
+            out!(
                 "simulated {} frames of {}x{} ({} deposits) into {}",
                 s.frames, s.rows, s.width, s.deposits_placed, out.display()
             );
         }
-        Cmd::Reconstruct { dir, out, png } => {
+        Cmd::Reconstruct { dir, out, png, intra_period } => {
             let rec = open(&dir)?;
             let file = std::fs::File::create(&out).with_context(|| format!("creating {}", out.display()))?;
-            let (stats, _) = dpsa_sim::reconstruct::run(&rec, std::io::BufWriter::new(file), progress)?;
-            println!("{} packets, {} bytes -> {}", stats.packets, stats.bytes, out.display());
+            let writer = std::io::BufWriter::new(file);
+            let (stats, _) = dpsa_sim::reconstruct::run_with(&rec, writer, intra_period, progress)?;
+            out!("{} packets, {} bytes -> {}", stats.packets, stats.bytes, out.display());
             if let Some(png) = png {
                 let bytes = std::fs::read(&out)?;
                 let (map, _) = packets::decode_stream(&bytes, rec.manifest.calibration.height_lsb_um);
                 let colour = jobs::write_pngs(&map, &png)?;
-                println!("heights -> {}, false colour -> {}", png.display(), colour.display());
+                out!("heights -> {}, false colour -> {}", png.display(), colour.display());
             }
         }
         Cmd::Compare { dir, json } => {
             let rec = open(&dir)?;
             let (cmp, _) = jobs::compare(&rec, progress)?;
             if json {
-                println!("{}", serde_json::to_string_pretty(&cmp)?);
+                out!("{}", serde_json::to_string_pretty(&cmp)?);
             } else {
-                println!("{}", cmp.summary());
+                out!("{}", cmp.summary());
             }
         }
         Cmd::Phase { images, steps, min_modulation, json, png } => {
@@ -162,9 +192,9 @@ fn run(cli: Cli) -> Result<()> {
                 dpsa_sim::images::write_phase_png(&ph.fixed, st.width, &png)?;
             }
             if json {
-                println!("{}", serde_json::to_string_pretty(&rep)?);
+                out!("{}", serde_json::to_string_pretty(&rep)?);
             } else {
-                println!(
+                out!(
                     "{}x{}: {} valid pixels of {} ({} differ in validity); fixed vs f64 phase: rms {:.2e} rad, max {:.2e} rad",
                     rep.width, rep.height, rep.valid_pixels, rep.total_pixels, rep.valid_mismatch,
                     rep.fixed_vs_ref_rms_rad, rep.fixed_vs_ref_max_rad
@@ -187,15 +217,16 @@ fn run(cli: Cli) -> Result<()> {
                 "damage": rep.damage,
             });
             if json {
-                println!("{}", serde_json::to_string_pretty(&out)?);
+                out!("{}", serde_json::to_string_pretty(&out)?);
             } else {
-                println!(
+                out!(
                     "{} packets ok, {} corrupt ({} resyncs); {} rows, {} valid pixels",
                     rep.ok, rep.corrupt, rep.resynced, map.rows.len(), map.valid_pixels()
                 );
             }
         }
         Cmd::Demo { out, seed, scene } => demo(&out, seed, &scene, progress)?,
+        Cmd::CodecBench { input, json } => out!("{}", dpsa_sim::codec_bench::cli(&input, json, progress)?),
     }
     Ok(())
 }
@@ -203,31 +234,31 @@ fn run(cli: Cli) -> Result<()> {
 fn demo(out: &Path, seed: u64, scene: &str, progress: bool) -> Result<()> {
     let sc = load_scene(scene)?;
     let rec_dir = out.join("recording");
-    println!("1/4 simulating the {scene} scene (seed {seed}) into {}", rec_dir.display());
+    out!("1/4 simulating the {scene} scene (seed {seed}) into {}", rec_dir.display());
     let s = simulate::simulate(&sc, seed, &rec_dir, progress)?;
-    println!(
+    out!(
         "    {} frames of {} rows x {} px, {} solder-paste deposits, {:.0} um per fringe turn",
         s.frames, s.rows, s.width, s.deposits_placed, sc.height_per_turn_um
     );
     let rec = open(&rec_dir)?;
-    println!("2/4 reconstructing with the fixed-point core (streaming, line by line)");
+    out!("2/4 reconstructing with the fixed-point core (streaming, line by line)");
     let (stats, bytes, map) = jobs::reconstruct_map(&rec, progress)?;
     let stream = out.join("heights.dpsa");
     std::fs::write(&stream, &bytes).with_context(|| format!("writing {}", stream.display()))?;
-    println!(
+    out!(
         "    {} row packets, {} bytes -> {}; core state {} bytes",
         stats.packets, stats.bytes, stream.display(), stats.state_bytes
     );
-    println!("3/4 comparing with the f64 reference, the 4-step PSP baseline and the ground truth");
+    out!("3/4 comparing with the f64 reference, the 4-step PSP baseline and the ground truth");
     let (cmp, _) = jobs::compare(&rec, progress)?;
     let report = out.join("compare.json");
     std::fs::write(&report, serde_json::to_string_pretty(&cmp)?)?;
-    println!("4/4 writing images");
+    out!("4/4 writing images");
     let png = out.join("heights.png");
     let colour = jobs::write_pngs(&map, &png)?;
-    println!("    {} (16-bit), {} (false colour)", png.display(), colour.display());
-    println!();
-    println!("{}", cmp.summary());
-    println!("full report: {}", report.display());
+    out!("    {} (16-bit), {} (false colour)", png.display(), colour.display());
+    out!("");
+    out!("{}", cmp.summary());
+    out!("full report: {}", report.display());
     Ok(())
 }

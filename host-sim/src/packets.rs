@@ -2,6 +2,7 @@
 //! damage report (good, corrupt and resynchronised packets).
 
 use crate::heightmap::{HeightMap, HeightRow};
+use crate::reconstruct::CodecState;
 use dpsa_core::packets::{self, PacketError};
 use serde::Serialize;
 
@@ -30,6 +31,12 @@ pub struct DecodeReport {
 pub fn decode_stream(bytes: &[u8], lsb_um: f64) -> (HeightMap, DecodeReport) {
     let mut map = HeightMap::new(0, lsb_um);
     let mut rep = DecodeReport::default();
+    // Codec reference state, sized by the first packet whose framing checks out; packets of
+    // another width are reported as damage (a stream has one width). One decoder serves the
+    // whole stream so that predicted rows (intra period > 1) find their reference.
+    let width = first_width(bytes).unwrap_or(1);
+    let mut state = CodecState::new(width);
+    let mut dec = state.decoder();
     let mut pos = 0;
     while pos < bytes.len() {
         match packets::decode(&bytes[pos..]) {
@@ -37,7 +44,11 @@ pub fn decode_stream(bytes: &[u8], lsb_um: f64) -> (HeightMap, DecodeReport) {
                 let w = p.header.width as usize;
                 let mut heights = vec![0i16; w];
                 let mut bits = vec![0u8; w.div_ceil(8)];
-                match p.unpack(&mut heights, &mut bits) {
+                let res = match dec.as_mut() {
+                    Some(d) if d.width() == w => p.unpack(d, &mut heights, &mut bits),
+                    _ => Err(PacketError::BadLength),
+                };
+                match res {
                     Ok(()) => {
                         if map.width == 0 {
                             map.width = w;
@@ -68,6 +79,17 @@ pub fn decode_stream(bytes: &[u8], lsb_um: f64) -> (HeightMap, DecodeReport) {
     }
     map.sort();
     (map, rep)
+}
+
+/// Width of the first packet in `bytes` whose framing and CRC check out.
+fn first_width(bytes: &[u8]) -> Option<usize> {
+    let mut pos = 0;
+    loop {
+        match packets::decode(bytes.get(pos..)?) {
+            Ok((p, _)) => return Some(p.header.width as usize),
+            Err(_) => pos = packets::find_sync(bytes, pos + 1)?,
+        }
+    }
 }
 
 fn damage(rep: &mut DecodeReport, offset: usize, e: PacketError) {

@@ -4,7 +4,8 @@
 use crate::recording::{Manifest, Recording};
 use anyhow::{anyhow, Context, Result};
 use dpsa_core::{
-    packets, phase,
+    packets::{self, codec},
+    phase,
     pipeline::{Layout, Memory, Pipeline, Slot},
     Config, Row, Sink,
 };
@@ -80,18 +81,46 @@ impl State {
     }
 }
 
-/// A sink that frames rows into packets and writes them to `out`.
-pub struct PacketSink<W: Write> {
+/// Codec reference rows (the previous row) for one end of a stream.
+pub struct CodecState {
+    heights: Vec<i16>,
+    valid: Vec<u8>,
+}
+
+impl CodecState {
+    pub fn new(width: usize) -> CodecState {
+        CodecState { heights: vec![0; width], valid: vec![0; width.div_ceil(8)] }
+    }
+
+    /// An encoder with intra period `k` (the stream default is [`packets::STREAM_INTRA_PERIOD`]).
+    pub fn encoder(&mut self, k: u32) -> Result<codec::Encoder<'_>> {
+        let w = self.heights.len();
+        let mut e = codec::Encoder::new(&mut self.heights, &mut self.valid, w)
+            .ok_or_else(|| anyhow!("width {w} is not supported by the codec"))?;
+        e.set_intra_period(k);
+        Ok(e)
+    }
+
+    pub fn decoder(&mut self) -> Option<codec::Decoder<'_>> {
+        let w = self.heights.len();
+        codec::Decoder::new(&mut self.heights, &mut self.valid, w)
+    }
+}
+
+/// A sink that frames rows into compressed packets and writes them to `out`.
+pub struct PacketSink<'e, W: Write> {
     out: W,
+    enc: codec::Encoder<'e>,
     buf: Vec<u8>,
     /// Packets and bytes written.
     pub packets: u64,
     pub bytes: u64,
 }
 
-impl<W: Write> PacketSink<W> {
-    pub fn new(out: W, width: usize) -> Self {
-        PacketSink { out, buf: vec![0; packets::max_packet_len(width)], packets: 0, bytes: 0 }
+impl<'e, W: Write> PacketSink<'e, W> {
+    pub fn new(out: W, enc: codec::Encoder<'e>) -> Self {
+        let w = enc.width();
+        PacketSink { out, enc, buf: vec![0; packets::max_packet_len(w)], packets: 0, bytes: 0 }
     }
 
     pub fn into_inner(self) -> W {
@@ -99,10 +128,10 @@ impl<W: Write> PacketSink<W> {
     }
 }
 
-impl<W: Write> Sink for PacketSink<W> {
+impl<W: Write> Sink for PacketSink<'_, W> {
     type Error = std::io::Error;
     fn row(&mut self, row: &Row<'_>) -> Result<(), Self::Error> {
-        let n = packets::encode(row, &mut self.buf)
+        let n = packets::encode(row, &mut self.enc, &mut self.buf)
             .map_err(|e| std::io::Error::other(format!("packet encode: {e:?}")))?;
         self.out.write_all(&self.buf[..n])?;
         self.packets += 1;
@@ -121,13 +150,21 @@ pub struct RunStats {
     pub pool_high_water: usize,
 }
 
-/// Streams every frame of `rec` through the core into `out` as a packet stream.
+/// Streams every frame of `rec` through the core into `out` as a packet stream (compressed
+/// payloads, intra period [`packets::STREAM_INTRA_PERIOD`]).
 pub fn run<W: Write>(rec: &Recording, out: W, progress: bool) -> Result<(RunStats, W)> {
+    run_with(rec, out, packets::STREAM_INTRA_PERIOD, progress)
+}
+
+/// [`run`] with a chosen codec intra period `k` (1: every packet decodes alone; `k > 1`: rows
+/// are predicted from the previous one, smaller but a lost packet costs up to `k - 1` more).
+pub fn run_with<W: Write>(rec: &Recording, out: W, k: u32, progress: bool) -> Result<(RunStats, W)> {
     let (cfg, ref_phase) = config(&rec.manifest)?;
     let mut state = State::new(&cfg);
     let mut pipe = Pipeline::new(cfg, &ref_phase, state.memory())
         .map_err(|e| anyhow!("cannot build the pipeline: {e:?}"))?;
-    let mut sink = PacketSink::new(out, cfg.width as usize);
+    let mut codec_state = CodecState::new(cfg.width as usize);
+    let mut sink = PacketSink::new(out, codec_state.encoder(k)?);
     let frames = &rec.manifest.frames;
     let bar = progress_bar(progress, frames.len() as u64, "reconstruct");
     let mut high = 0;

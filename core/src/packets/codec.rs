@@ -57,9 +57,11 @@
 //! row and 1 for an intra row, and `m(c) = valid(c) XOR ref(c)` (so for an intra row `m` marks
 //! the invalid pixels, for a predicted row the changes from the previous row).
 //! - `PLAIN_MASK = 1`: `W` bits, `valid(0)` first (the validity bits themselves, not `m`).
-//! - `PLAIN_MASK = 0`: `m` as alternating runs, starting with a run of 0s: the first run length
-//!   `r0 >= 0` as `gamma(r0 + 1)`, then runs of 1s, 0s, ... each `r >= 1` as `gamma(r)`, until
-//!   the lengths sum to `W` (a run past `W` is corrupt). `gamma(v)`, `v >= 1`, is Elias gamma:
+//! - `PLAIN_MASK = 0`: `m` as alternating runs, starting with a run of 0s (which may be empty).
+//!   A run that starts at pixel 0 is coded `gamma(r + 1)`, every later run `gamma(r)` (`r >= 1`).
+//!   So when `m(0) = 1` the empty first run is `gamma(1)` and the run of 1s after it, which also
+//!   starts at pixel 0, is `gamma(r + 1)` as well. Runs alternate until the lengths sum to `W`
+//!   (a run past `W` is corrupt). `gamma(v)`, `v >= 1`, is Elias gamma:
 //!   `floor(log2 v)` 0 bits, then `v` in binary in `floor(log2 v) + 1` bits, most significant
 //!   (a 1) first. A row equal to its reference mask (e.g. all valid, intra) is one run.
 //!

@@ -19,6 +19,11 @@
 //!
 //! Raw payload (codec 0): the validity bitmask, `ceil(W/8)` bytes (bit `c % 8` of byte `c / 8`,
 //! 1 = valid), then `W` heights as i16 (LSB units, 0 where invalid).
+//!
+//! Compressed payload (codec 1, what the pipeline emits): the lossless row code of [`codec`],
+//! at most [`codec::max_len`]`(W)` = raw + 2 bytes. Streams use intra period
+//! [`STREAM_INTRA_PERIOD`] = 1: every packet decodes on its own, so a damaged packet loses that
+//! packet only. The full stream format is in `docs/stream.md`.
 
 pub mod codec;
 
@@ -35,6 +40,10 @@ pub const HEADER_LEN: usize = 32;
 pub const TRAILER_LEN: usize = 4;
 /// Payload codec: raw bitmask + i16 heights.
 pub const CODEC_RAW: u8 = 0;
+/// Payload codec: the compressed row code of [`codec`].
+pub const CODEC_COMPRESSED: u8 = 1;
+/// Intra period of a packet stream: 1, every row decodable on its own.
+pub const STREAM_INTRA_PERIOD: u32 = 1;
 
 const CRC: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
 
@@ -43,9 +52,9 @@ pub const fn raw_payload_len(width: usize) -> usize {
     width.div_ceil(8) + 2 * width
 }
 
-/// Largest packet for a row of `width` pixels.
+/// Largest packet for a row of `width` pixels, any codec.
 pub const fn max_packet_len(width: usize) -> usize {
-    HEADER_LEN + raw_payload_len(width) + TRAILER_LEN
+    HEADER_LEN + codec::max_len(width) + TRAILER_LEN
 }
 
 /// Why bytes are not a packet.
@@ -65,26 +74,45 @@ pub enum PacketError {
     BadLength,
     /// CRC mismatch.
     BadCrc,
+    /// The compressed payload does not decode (or needs a reference the decoder lacks).
+    Codec(codec::CodecError),
 }
 
-/// Frames a row into `buf` with a raw payload; returns the packet length.
-pub fn encode(row: &Row<'_>, buf: &mut [u8]) -> Result<usize, PacketError> {
+/// Frames a row into `buf` with a compressed payload (codec 1); returns the packet length.
+/// `buf` must hold [`max_packet_len`]`(W)` bytes.
+pub fn encode(row: &Row<'_>, enc: &mut codec::Encoder<'_>, buf: &mut [u8]) -> Result<usize, PacketError> {
     let w = row.header.width as usize;
-    let plen = raw_payload_len(w);
-    let total = HEADER_LEN + plen + TRAILER_LEN;
-    if buf.len() < total || row.heights.len() < w || row.valid.len() < w.div_ceil(8) {
+    if buf.len() < max_packet_len(w) || enc.width() != w {
         return Err(PacketError::BufferTooSmall);
     }
-    write_header(&row.header, CODEC_RAW, plen as u32, &mut buf[..HEADER_LEN]);
+    let plen = enc
+        .encode(row.heights, row.valid, &mut buf[HEADER_LEN..HEADER_LEN + codec::max_len(w)])
+        .map_err(PacketError::Codec)?;
+    Ok(frame(&row.header, CODEC_COMPRESSED, plen, buf))
+}
+
+/// Frames a row into `buf` with a raw payload (codec 0); returns the packet length.
+pub fn encode_raw(row: &Row<'_>, buf: &mut [u8]) -> Result<usize, PacketError> {
+    let w = row.header.width as usize;
+    let plen = raw_payload_len(w);
+    if buf.len() < HEADER_LEN + plen + TRAILER_LEN || row.heights.len() < w || row.valid.len() < w.div_ceil(8) {
+        return Err(PacketError::BufferTooSmall);
+    }
     let payload = &mut buf[HEADER_LEN..HEADER_LEN + plen];
     let nb = w.div_ceil(8);
     payload[..nb].copy_from_slice(&row.valid[..nb]);
     for (dst, &h) in payload[nb..].chunks_exact_mut(2).zip(row.heights) {
         dst.copy_from_slice(&h.to_le_bytes());
     }
+    Ok(frame(&row.header, CODEC_RAW, plen, buf))
+}
+
+/// Writes the header before and the CRC after a payload of `plen` bytes already in place.
+fn frame(h: &RowHeader, codec: u8, plen: usize, buf: &mut [u8]) -> usize {
+    write_header(h, codec, plen as u32, &mut buf[..HEADER_LEN]);
     let crc = CRC.checksum(&buf[4..HEADER_LEN + plen]);
-    buf[HEADER_LEN + plen..total].copy_from_slice(&crc.to_le_bytes());
-    Ok(total)
+    buf[HEADER_LEN + plen..HEADER_LEN + plen + TRAILER_LEN].copy_from_slice(&crc.to_le_bytes());
+    HEADER_LEN + plen + TRAILER_LEN
 }
 
 fn write_header(h: &RowHeader, codec: u8, plen: u32, out: &mut [u8]) {
@@ -109,8 +137,9 @@ pub struct Packet<'a> {
 }
 
 impl Packet<'_> {
-    /// Unpacks the payload into `heights` (`W`) and `valid` (`ceil(W/8)`).
-    pub fn unpack(&self, heights: &mut [i16], valid: &mut [u8]) -> Result<(), PacketError> {
+    /// Unpacks the payload into `heights` (`W`) and `valid` (`ceil(W/8)`); `dec` decodes
+    /// compressed payloads (its width must be the packet's).
+    pub fn unpack(&self, dec: &mut codec::Decoder<'_>, heights: &mut [i16], valid: &mut [u8]) -> Result<(), PacketError> {
         let w = self.header.width as usize;
         let nb = w.div_ceil(8);
         if heights.len() < w || valid.len() < nb {
@@ -126,6 +155,12 @@ impl Packet<'_> {
                     *h = i16::from_le_bytes([src[0], src[1]]);
                 }
                 Ok(())
+            }
+            CODEC_COMPRESSED => {
+                if dec.width() != w {
+                    return Err(PacketError::BadLength);
+                }
+                dec.decode(self.payload, &mut heights[..w], &mut valid[..nb]).map_err(PacketError::Codec)
             }
             c => Err(PacketError::BadCodec(c)),
         }
@@ -155,8 +190,8 @@ pub fn decode(buf: &[u8]) -> Result<(Packet<'_>, usize), PacketError> {
     let codec = buf[5];
     let width = u16_at(26);
     let plen = u32::from_le_bytes([buf[28], buf[29], buf[30], buf[31]]) as usize;
-    // No codec may exceed the raw size (the compressed codec bounds its expansion).
-    if plen > raw_payload_len(width as usize) + 64 {
+    // No payload exceeds the compressed codec's bound (raw + 2 bytes).
+    if plen > codec::max_len(width as usize) {
         return Err(PacketError::BadLength);
     }
     let total = HEADER_LEN + plen + TRAILER_LEN;
@@ -203,22 +238,48 @@ mod tests {
         (header, heights, valid)
     }
 
+    /// Encoder and decoder state for `w` columns, intra period 1.
+    struct Ends {
+        eh: Vec<i16>,
+        ev: Vec<u8>,
+        dh: Vec<i16>,
+        dv: Vec<u8>,
+    }
+    impl Ends {
+        fn new(w: usize) -> Ends {
+            Ends { eh: vec![0; w], ev: vec![0; w.div_ceil(8)], dh: vec![0; w], dv: vec![0; w.div_ceil(8)] }
+        }
+    }
+
     #[test]
     fn round_trip() {
         for width in [1u16, 7, 8, 9, 2048] {
-            let (header, heights, valid) = sample(width);
-            let row = Row { header, heights: &heights, valid: &valid };
-            let mut buf = vec![0u8; max_packet_len(width as usize)];
-            let n = encode(&row, &mut buf).unwrap();
-            assert_eq!(n, buf.len());
-            let (p, used) = decode(&buf).unwrap();
-            assert_eq!(used, n);
-            assert_eq!(p.header, header);
-            let mut h2 = vec![0i16; width as usize];
-            let mut v2 = vec![0u8; valid.len()];
-            p.unpack(&mut h2, &mut v2).unwrap();
-            assert_eq!(h2, heights);
-            assert_eq!(v2, valid);
+            let w = width as usize;
+            let (header, heights, mut valid) = sample(width);
+            // Bits past W are padding: the codec does not carry them.
+            if w % 8 != 0 {
+                *valid.last_mut().unwrap() &= (1u8 << (w % 8)) - 1;
+            }
+            let want: Vec<i16> =
+                (0..w).map(|c| if valid[c / 8] & (1 << (c % 8)) != 0 { heights[c] } else { 0 }).collect();
+            let row = Row { header, heights: &want, valid: &valid };
+            let mut ends = Ends::new(w);
+            let mut enc = codec::Encoder::new(&mut ends.eh, &mut ends.ev, w).unwrap();
+            enc.set_intra_period(STREAM_INTRA_PERIOD);
+            let mut dec = codec::Decoder::new(&mut ends.dh, &mut ends.dv, w).unwrap();
+            let mut buf = vec![0u8; max_packet_len(w)];
+            for compressed in [false, true] {
+                let n = if compressed { encode(&row, &mut enc, &mut buf) } else { encode_raw(&row, &mut buf) }.unwrap();
+                let (p, used) = decode(&buf[..n]).unwrap();
+                assert_eq!(used, n);
+                assert_eq!(p.header, header);
+                assert_eq!(p.codec, if compressed { CODEC_COMPRESSED } else { CODEC_RAW });
+                let mut h2 = vec![0i16; w];
+                let mut v2 = vec![0u8; valid.len()];
+                p.unpack(&mut dec, &mut h2, &mut v2).unwrap();
+                assert_eq!(h2, want);
+                assert_eq!(v2, valid);
+            }
         }
     }
 
@@ -227,7 +288,7 @@ mod tests {
         let (header, heights, valid) = sample(40);
         let row = Row { header, heights: &heights, valid: &valid };
         let mut buf = vec![0u8; max_packet_len(40)];
-        let n = encode(&row, &mut buf).unwrap();
+        let n = encode_raw(&row, &mut buf).unwrap();
         for bit in 0..n * 8 {
             let mut b = buf.clone();
             b[bit / 8] ^= 1 << (bit % 8);
@@ -243,7 +304,7 @@ mod tests {
         let (header, heights, valid) = sample(16);
         let row = Row { header, heights: &heights, valid: &valid };
         let mut one = vec![0u8; max_packet_len(16)];
-        let n = encode(&row, &mut one).unwrap();
+        let n = encode_raw(&row, &mut one).unwrap();
         let mut stream = Vec::new();
         stream.extend_from_slice(b"garbage");
         stream.extend_from_slice(&one[..n]);
