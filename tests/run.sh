@@ -19,10 +19,17 @@ if [ ! -d ../shared/data/real ]; then
 fi
 
 echo "== unit, property and end-to-end tests"
-cargo test --workspace --locked
+log=$(mktemp)
+trap 'rm -f "$log"' EXIT
+cargo test --workspace --locked 2>&1 | tee "$log"
 
 echo "== benchmarks compile"
 cargo bench --workspace --locked --no-run
 
 echo "== firmware crate builds against the core"
 cargo build --manifest-path firmware/Cargo.toml
+
+# One closing line over every test binary (cargo's last line is a doc-test run of 0 tests).
+passed=$(grep -Eo '[0-9]+ passed' "$log" | awk '{s += $1} END {print s + 0}')
+failed=$(grep -Eo '[0-9]+ failed' "$log" | awk '{s += $1} END {print s + 0}')
+echo "tests: $passed passed, $failed failed"
