@@ -43,10 +43,15 @@ pub fn load_frames(rec: &Recording, progress: bool) -> Result<Vec<Frame>> {
 /// Fixed-point core vs f64 reference vs PSP baseline vs ground truth on one recording.
 pub fn compare(rec: &Recording, progress: bool) -> Result<(Comparison, HeightMap)> {
     let (_, _, fixed) = reconstruct_map(rec, progress)?;
+    Ok((compare_map(rec, &fixed, progress)?, fixed))
+}
+
+/// [`compare`] for a fixed-point height map the caller already has (from the same recording).
+pub fn compare_map(rec: &Recording, fixed: &HeightMap, progress: bool) -> Result<Comparison> {
     let frames = load_frames(rec, progress)?;
     let m = &rec.manifest;
     let r = reference::reconstruct(m, &frames);
     let psp = reference::psp(m, &frames);
     let truth = rec.truth().context("reading the ground truth")?;
-    Ok((compare::compare(m, &fixed, &r, Some(&psp), truth.as_ref()), fixed))
+    Ok(compare::compare(m, fixed, &r, Some(&psp), truth.as_ref()))
 }

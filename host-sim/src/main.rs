@@ -250,7 +250,7 @@ fn demo(out: &Path, seed: u64, scene: &str, progress: bool) -> Result<()> {
         stats.packets, stats.bytes, stream.display(), stats.state_bytes
     );
     out!("3/4 comparing with the f64 reference, the 4-step PSP baseline and the ground truth");
-    let (cmp, _) = jobs::compare(&rec, progress)?;
+    let cmp = jobs::compare_map(&rec, &map, progress)?;
     let report = out.join("compare.json");
     std::fs::write(&report, serde_json::to_string_pretty(&cmp)?)?;
     out!("4/4 writing images");
