@@ -6,6 +6,8 @@
 
 use crate::solve::{MAX_N, MIN_N};
 
+pub mod wire;
+
 /// Row flags carried in every row packet (bit values are part of the stream format).
 pub mod flags {
     /// Window noise gain above `max_noise_gain` (includes a stalled conveyor).

@@ -1,0 +1,19 @@
+#!/bin/sh
+# Cargo runner (.cargo/config.toml): runs the firmware ELF under QEMU through `dpsa target-run`,
+# which streams a recording in, writes the packet stream out and decodes the defmt log.
+#   cargo run                                    the built-in default scene
+#   cargo run -- RECORDING [target-run options]  a recording directory
+set -eu
+here=$(cd "$(dirname "$0")" && pwd)
+elf=$1
+shift
+cd "$here/.."   # the host workspace, away from this directory's cross-compiling config
+dpsa() { cargo run --release --quiet -p dpsa-sim -- "$@"; }
+if [ $# -eq 0 ]; then
+    rec=out/target/default-scene
+    [ -f "$rec/manifest.json" ] || dpsa simulate --scene default --seed 1 --out "$rec"
+    exec_args="$rec --out out/target/default-scene.dpsa"
+    dpsa target-run --elf "$elf" $exec_args
+else
+    dpsa target-run --elf "$elf" "$@"
+fi

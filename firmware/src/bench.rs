@@ -1,0 +1,233 @@
+//! Measurements the firmware makes of itself: instruction counts by stage, the cost of a
+//! window solve, the stack high-water mark.
+//!
+//! Under QEMU `-icount shift=0` every retired instruction advances virtual time by 1 ns and
+//! SysTick runs at the 25 MHz core clock, so one tick is 40 instructions; [`calibrate`] checks
+//! that on a loop of known length. Figures are written as `key value` lines for
+//! `dpsa target-run --bench`, which turns them into JSON.
+
+use crate::board::Clock;
+use crate::sink::SinkTicks;
+use core::fmt::Write;
+use dpsa_core::accumulate::{self, Acc};
+use dpsa_core::frames::flags;
+use dpsa_core::height::{Invalid, Scale};
+use dpsa_core::solve::{Window, MAX_N};
+use dpsa_core::Config;
+
+/// Ticks of the main run and of the window solves.
+pub struct Meter {
+    /// In the pipeline calls (begin_frame, push_line, end_frame, finish), sink included.
+    pub pipe: u64,
+    /// Reading lines and triggers.
+    pub io: u64,
+    /// Window solves timed, their ticks, the last good window.
+    pub solves: u64,
+    pub solve_ticks: u64,
+    pub window: Option<Window>,
+    offsets: [i64; MAX_N],
+    frames: usize,
+}
+
+impl Meter {
+    pub fn new(_cfg: &Config) -> Meter {
+        Meter { pipe: 0, io: 0, solves: 0, solve_ticks: 0, window: None, offsets: [0; MAX_N], frames: 0 }
+    }
+
+    /// Times a solve of the window ending at this frame, from the same shifts the pipeline
+    /// derives from the latches (`theta_j = -(o_j - o_0) 2 pi f_x`).
+    pub fn solve<C: Clock>(&mut self, cfg: &Config, latch: i64, clock: &C) {
+        let n = cfg.n as usize;
+        self.offsets.copy_within(1..MAX_N, 0);
+        self.offsets[MAX_N - 1] = cfg.offset(latch);
+        self.frames += 1;
+        if self.frames < n {
+            return;
+        }
+        let o = &self.offsets[MAX_N - n..];
+        let mut shifts = [0u32; MAX_N];
+        for (s, &oj) in shifts.iter_mut().zip(o) {
+            *s = (oj.wrapping_sub(o[0]) as u32).wrapping_mul(cfg.fx).wrapping_neg();
+        }
+        let t = clock.ticks();
+        let w = Window::solve(core::hint::black_box(&shifts[..n]), cfg.max_noise_gain_q8);
+        self.solve_ticks += clock.ticks() - t;
+        self.solves += 1;
+        if let Ok(w) = w {
+            self.window = Some(w);
+        }
+    }
+}
+
+/// The per-stage loops, timed apart.
+pub struct Stages {
+    pub pixels: u64,
+    pub accumulate: u64,
+    pub phase_height: u64,
+}
+
+/// Runs the two halves of the core's per-pixel loop (`Pipeline::compute`) separately over
+/// real samples (lines left in the pool by the run) with the last solved window:
+/// accumulate (`v = P i` and the saturation test) into `acc`, then phase, height and mask.
+#[allow(clippy::too_many_arguments)]
+pub fn stages<C: Clock>(
+    cfg: &Config,
+    meter: &Meter,
+    ref_phase: &[u32],
+    pool: &[u16],
+    heights: &mut [i16],
+    valid: &mut [u8],
+    acc: &mut [Acc],
+    clock: &C,
+) -> Stages {
+    let mut s = Stages { pixels: 0, accumulate: 0, phase_height: 0 };
+    let Some(win) = meter.window else { return s };
+    let (w, n) = (cfg.width as usize, cfg.n as usize);
+    let scale = Scale::new(cfg);
+    let groups = (pool.len() / (w * n)).min(16);
+    for g in 0..groups {
+        let base = &pool[g * w * n..(g + 1) * w * n];
+        let mut lines: [&[u16]; MAX_N] = [&[]; MAX_N];
+        for (j, l) in lines.iter_mut().enumerate().take(n) {
+            *l = &base[j * w..(j + 1) * w];
+        }
+        let t0 = clock.ticks();
+        let mut samples = [0u16; MAX_N];
+        for (c, a) in acc[..w].iter_mut().enumerate() {
+            for j in 0..n {
+                samples[j] = lines[j][c];
+            }
+            *a = accumulate::pixel(&win, &samples[..n], cfg.saturation);
+        }
+        let t1 = clock.ticks();
+        let rho = (g as u32).wrapping_mul(cfg.fx);
+        let mut row_flags = 0u16;
+        for c in 0..w {
+            match scale.pixel(&acc[c], rho.wrapping_add(ref_phase[c])) {
+                Ok(h) => {
+                    heights[c] = h;
+                    valid[c / 8] |= 1 << (c % 8);
+                }
+                Err(Invalid::Saturated) => row_flags |= flags::SATURATED,
+                Err(Invalid::LowModulation) => row_flags |= flags::LOW_MODULATION,
+            }
+        }
+        let t2 = clock.ticks();
+        core::hint::black_box((&heights, &valid, row_flags));
+        s.pixels += w as u64;
+        s.accumulate += t1 - t0;
+        s.phase_height += t2 - t1;
+    }
+    s
+}
+
+/// Instructions in the calibration loop and the ticks they took.
+pub fn calibrate<C: Clock>(clock: &C) -> (u64, u64) {
+    const ITER: u32 = 1 << 20;
+    let t0 = clock.ticks();
+    // Two instructions per iteration (subs, bne), plus the mov.
+    unsafe {
+        core::arch::asm!(
+            "mov {n}, {iter}",
+            "2:",
+            "subs {n}, {n}, #1",
+            "bne 2b",
+            n = out(reg) _,
+            iter = in(reg) ITER,
+            options(nomem, nostack)
+        );
+    }
+    let t1 = clock.ticks();
+    (2 * ITER as u64 + 1, t1 - t0)
+}
+
+const PAINT: u32 = 0x5AC3_A55A;
+
+extern "C" {
+    static mut __sheap: u32;
+    static _stack_start: u32;
+}
+
+/// Fills the free stack with a pattern (from the end of static RAM up to just below the
+/// current stack pointer), so that [`stack_high_water`] can see how deep it went.
+pub fn paint_stack() {
+    let sp = cortex_m::register::msp::read() as usize;
+    // SAFETY: the words between the end of statics and 256 bytes below the live stack pointer
+    // are unused stack; nothing else refers to them.
+    unsafe {
+        let mut p = core::ptr::addr_of_mut!(__sheap);
+        while (p as usize) < sp - 256 {
+            core::ptr::write_volatile(p, PAINT);
+            p = p.add(1);
+        }
+    }
+}
+
+/// Deepest stack use since [`paint_stack`], in bytes.
+pub fn stack_high_water() -> usize {
+    // SAFETY: reads the painted region only (see `paint_stack`).
+    unsafe {
+        let top = core::ptr::addr_of!(_stack_start) as usize;
+        let mut p = core::ptr::addr_of!(__sheap) as *const u32;
+        while (p as usize) < top && core::ptr::read_volatile(p) == PAINT {
+            p = p.add(1);
+        }
+        top - p as usize
+    }
+}
+
+/// A fixed text buffer.
+pub struct Text {
+    buf: [u8; 1024],
+    len: usize,
+}
+
+impl Text {
+    pub fn as_bytes(&self) -> &[u8] {
+        &self.buf[..self.len]
+    }
+}
+
+impl Write for Text {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        let b = s.as_bytes();
+        let end = self.len + b.len();
+        if end > self.buf.len() {
+            return Err(core::fmt::Error);
+        }
+        self.buf[self.len..end].copy_from_slice(b);
+        self.len = end;
+        Ok(())
+    }
+}
+
+/// The `key value` lines of a benchmark run.
+pub fn report<C: Clock>(cfg: &Config, m: &Meter, sink: &SinkTicks, st: &Stages, clock: &C) -> Text {
+    let (calib_instr, calib_ticks) = calibrate(clock);
+    let w = cfg.width as u64;
+    let mut t = Text { buf: [0; 1024], len: 0 };
+    let lines: [(&str, u64); 18] = [
+        ("calib_loop_instructions", calib_instr),
+        ("calib_ticks", calib_ticks),
+        ("rows_out", sink.rows),
+        ("pixels_out", sink.rows * w),
+        ("ticks_total", m.pipe - sink.send),
+        ("ticks_encode", sink.encode),
+        ("ticks_io", m.io + sink.send),
+        ("stage_pixels", st.pixels),
+        ("ticks_accumulate", st.accumulate),
+        ("ticks_phase_height", st.phase_height),
+        ("solves", m.solves),
+        ("ticks_solve", m.solve_ticks),
+        ("stack_high_water", stack_high_water() as u64),
+        ("state_bytes", dpsa_core::Layout::of(cfg).bytes() as u64),
+        ("state_total_bytes", crate::state::State::bytes_for(cfg) as u64),
+        ("width", w),
+        ("n", cfg.n as u64),
+        ("rows", cfg.rows as u64),
+    ];
+    for (k, v) in lines {
+        let _ = writeln!(t, "{k} {v}");
+    }
+    t
+}

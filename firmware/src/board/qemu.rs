@@ -1,0 +1,385 @@
+//! The QEMU board (`mps2-an500`, Cortex-M7): a recording stands in for the camera and the
+//! conveyor, a host file for the output link, SysTick for the instruction counter.
+//!
+//! Everything crosses to the host by semihosting: the command line names a target recording
+//! (format: [`dpsa_core::frames::wire`], written by `dpsa target-run`), the packet stream
+//! file, and optionally a benchmark file. The recording is read the way the camera delivers
+//! it: a trigger record (the pin goes high, the encoder count is latched), then the frame's
+//! lines one by one. Nothing is read ahead.
+//!
+//! What a real board has that this one fakes: the trigger strobe and the encoder capture are
+//! values in the file, not pins and a timer; lines arrive by a blocking host read instead of
+//! camera DMA into a line ring; the link is a host file with no back-pressure; the clock counts
+//! instructions (QEMU `-icount shift=0`), not cycles, so wait states and cache misses are not
+//! seen.
+
+use super::{Clock, EncoderCapture, LinePort, PacketLink};
+use core::cell::RefCell;
+use core::ffi::CStr;
+use core::sync::atomic::{AtomicU32, Ordering};
+use cortex_m::peripheral::{syst::SystClkSource, SYST};
+use cortex_m_rt::exception;
+use dpsa_core::frames::wire::{self, Header, Trigger, WireError};
+use semihosting::fs::File;
+use semihosting::io::{Read, Seek, SeekFrom, Write};
+
+/// Capacities of the state buffers on this board (see `crate::state`): the full-frame test
+/// recording (H = 2048 rows, four frames about 520 rows apart, W = 256) needs the largest pool.
+pub mod cap {
+    /// Widest line `W`.
+    pub const WIDTH: usize = 2048;
+    /// Samples in the raw-line pool.
+    pub const POOL_SAMPLES: usize = 1_700_000;
+    /// Lines in the pool (free-list entries).
+    pub const POOL_LINES: usize = 8192;
+    /// Open-row slots.
+    pub const SLOTS: usize = 4096;
+}
+
+/// A board failure.
+#[derive(Clone, Copy, Debug)]
+pub enum Error {
+    /// A semihosting call failed (host errno, -1 if unknown).
+    Io(i32),
+    /// The recording ended inside frame `frame` at line `line` (byte `offset`).
+    Truncated { frame: u32, line: u32, offset: u64 },
+    /// The recording's header or reference table is malformed.
+    Wire(WireError),
+    /// A line was read without a frame, or past the frame's last line.
+    LineOrder { frame: u32, line: u32 },
+    /// The encoder was read with no latched trigger.
+    NoTrigger,
+    /// The command line is not `dpsa-firmware RECORDING OUT [BENCH]`.
+    Usage,
+    /// A path longer than the board's buffer.
+    PathTooLong,
+}
+
+impl defmt::Format for Error {
+    fn format(&self, f: defmt::Formatter<'_>) {
+        match *self {
+            Error::Io(e) => defmt::write!(f, "host I/O error (errno {=i32})", e),
+            Error::Truncated { frame, line, offset } => defmt::write!(
+                f,
+                "recording truncated in frame {=u32} at line {=u32} (byte {=u64})",
+                frame,
+                line,
+                offset
+            ),
+            Error::Wire(e) => defmt::write!(f, "malformed recording: {}", defmt::Debug2Format(&e)),
+            Error::LineOrder { frame, line } => {
+                defmt::write!(f, "line {=u32} of frame {=u32} read out of order", line, frame)
+            }
+            Error::NoTrigger => defmt::write!(f, "encoder read without a trigger"),
+            Error::Usage => defmt::write!(f, "usage: dpsa-firmware RECORDING OUT [BENCH]"),
+            Error::PathTooLong => defmt::write!(f, "path too long"),
+        }
+    }
+}
+
+impl embedded_hal::digital::Error for Error {
+    fn kind(&self) -> embedded_hal::digital::ErrorKind {
+        embedded_hal::digital::ErrorKind::Other
+    }
+}
+
+fn io(e: semihosting::io::Error) -> Error {
+    Error::Io(e.raw_os_error().unwrap_or(-1))
+}
+
+/// A NUL-terminated copy of a path.
+pub struct Path {
+    buf: [u8; 512],
+}
+
+impl Path {
+    pub fn new(s: &str) -> Result<Path, Error> {
+        let mut buf = [0u8; 512];
+        if s.len() >= buf.len() || s.as_bytes().contains(&0) {
+            return Err(Error::PathTooLong);
+        }
+        buf[..s.len()].copy_from_slice(s.as_bytes());
+        Ok(Path { buf })
+    }
+
+    pub fn c_str(&self) -> &CStr {
+        // The buffer holds a NUL by construction.
+        CStr::from_bytes_until_nul(&self.buf).unwrap_or(c"")
+    }
+}
+
+/// The command line: recording, packet stream, optional benchmark file.
+pub struct Args {
+    pub recording: Path,
+    pub out: Path,
+    pub bench: Option<Path>,
+}
+
+impl Args {
+    pub fn get() -> Result<Args, Error> {
+        let args = semihosting::experimental::env::args::<2048>().map_err(io)?;
+        let mut it = (&args).skip(1);
+        let mut next = || -> Result<Option<Path>, Error> {
+            match it.next() {
+                None => Ok(None),
+                Some(Ok(s)) => Path::new(s).map(Some),
+                Some(Err(_)) => Err(Error::Usage),
+            }
+        };
+        let recording = next()?.ok_or(Error::Usage)?;
+        let out = next()?.ok_or(Error::Usage)?;
+        let bench = next()?;
+        if next()?.is_some() {
+            return Err(Error::Usage);
+        }
+        Ok(Args { recording, out, bench })
+    }
+}
+
+/// Read position in the recording.
+struct Reader {
+    file: File,
+    header: Header,
+    /// Byte offset of the next unread byte.
+    pos: u64,
+    /// Frames whose trigger was taken.
+    started: u32,
+    /// Lines read of the current frame.
+    line: u32,
+    /// A trigger record read but not yet taken (the strobe is high).
+    armed: Option<Trigger>,
+    /// Byte offset where frame data begins.
+    frames_at: u64,
+}
+
+impl Reader {
+    fn read(&mut self, buf: &mut [u8], frame: u32, line: u32) -> Result<(), Error> {
+        let mut done = 0;
+        while done < buf.len() {
+            let k = self.file.read(&mut buf[done..]).map_err(io)?;
+            if k == 0 {
+                return Err(Error::Truncated { frame, line, offset: self.pos + done as u64 });
+            }
+            done += k;
+        }
+        self.pos += done as u64;
+        Ok(())
+    }
+
+    fn frame_bytes(&self) -> u64 {
+        self.header.frame_len() as u64
+    }
+
+    /// Raises the strobe if another frame follows: skips what is left of the current frame and
+    /// reads the next trigger record.
+    fn arm(&mut self) -> Result<bool, Error> {
+        if self.armed.is_some() {
+            return Ok(true);
+        }
+        if self.started >= self.header.frames {
+            return Ok(false);
+        }
+        let next = self.frames_at + self.started as u64 * self.frame_bytes();
+        if self.pos != next {
+            self.file.seek(SeekFrom::Start(next)).map_err(io)?;
+            self.pos = next;
+        }
+        let mut b = [0u8; wire::TRIGGER_LEN];
+        self.read(&mut b, self.started, 0)?;
+        self.armed = Some(Trigger::decode(&b).map_err(Error::Wire)?);
+        Ok(true)
+    }
+}
+
+/// The recording, opened: header, and the shared reader behind the board's parts.
+pub struct Recording {
+    reader: RefCell<Reader>,
+}
+
+impl Recording {
+    /// Opens a recording and reads its header and reference-phase table into `ref_phase`
+    /// (at least `W` entries).
+    pub fn open(path: &Path, ref_phase: &mut [u32], scratch: &mut [u8]) -> Result<Recording, Error> {
+        let mut file = File::open(path.c_str()).map_err(io)?;
+        let mut h = [0u8; wire::HEADER_LEN];
+        let mut reader_pos = 0u64;
+        read_exact(&mut file, &mut h, &mut reader_pos)?;
+        let header = Header::decode(&h).map_err(Error::Wire)?;
+        let w = header.cfg.width as usize;
+        if w > ref_phase.len() || header.table_len() > scratch.len() {
+            return Err(Error::Wire(WireError::Length));
+        }
+        let t = &mut scratch[..header.table_len()];
+        read_exact(&mut file, t, &mut reader_pos)?;
+        wire::decode_table(t, &mut ref_phase[..w]).map_err(Error::Wire)?;
+        let reader = Reader {
+            file,
+            header,
+            pos: reader_pos,
+            started: 0,
+            line: 0,
+            armed: None,
+            frames_at: reader_pos,
+        };
+        Ok(Recording { reader: RefCell::new(reader) })
+    }
+
+    pub fn header(&self) -> Header {
+        self.reader.borrow().header
+    }
+
+    /// The board's parts over this recording.
+    pub fn parts(&self) -> (Strobe<'_>, Capture<'_>, Lines<'_>) {
+        (Strobe(&self.reader), Capture(&self.reader), Lines(&self.reader))
+    }
+}
+
+fn read_exact(file: &mut File, buf: &mut [u8], pos: &mut u64) -> Result<(), Error> {
+    let mut done = 0;
+    while done < buf.len() {
+        let k = file.read(&mut buf[done..]).map_err(io)?;
+        if k == 0 {
+            return Err(Error::Wire(WireError::Length));
+        }
+        done += k;
+    }
+    *pos += done as u64;
+    Ok(())
+}
+
+/// The frame strobe: high while a trigger is latched and not yet taken.
+pub struct Strobe<'a>(&'a RefCell<Reader>);
+/// The encoder capture register.
+pub struct Capture<'a>(&'a RefCell<Reader>);
+/// The camera line port.
+pub struct Lines<'a>(&'a RefCell<Reader>);
+
+impl embedded_hal::digital::ErrorType for Strobe<'_> {
+    type Error = Error;
+}
+
+impl embedded_hal::digital::InputPin for Strobe<'_> {
+    fn is_high(&mut self) -> Result<bool, Error> {
+        self.0.borrow_mut().arm()
+    }
+
+    fn is_low(&mut self) -> Result<bool, Error> {
+        self.is_high().map(|h| !h)
+    }
+}
+
+impl EncoderCapture for Capture<'_> {
+    type Error = Error;
+    fn captured(&mut self) -> Result<i64, Error> {
+        self.0.borrow().armed.map(|t| t.latch).ok_or(Error::NoTrigger)
+    }
+}
+
+impl LinePort for Lines<'_> {
+    type Error = Error;
+
+    fn frame_seq(&mut self) -> Result<u32, Error> {
+        let mut r = self.0.borrow_mut();
+        let t = r.armed.take().ok_or(Error::NoTrigger)?;
+        r.started += 1;
+        r.line = 0;
+        Ok(t.seq)
+    }
+
+    fn read_line(&mut self, line: &mut [u16]) -> Result<(), Error> {
+        let mut r = self.0.borrow_mut();
+        let (frame, l) = (r.started, r.line);
+        let c = r.header.cfg;
+        if frame == 0 || l >= c.rows as u32 || line.len() != c.width as usize {
+            return Err(Error::LineOrder { frame, line: l });
+        }
+        // Samples are little-endian u16, which is this core's byte order: read in place.
+        let bytes = as_bytes_mut(line);
+        r.read(bytes, frame - 1, l)?;
+        r.line += 1;
+        Ok(())
+    }
+
+    fn ended(&mut self) -> Result<bool, Error> {
+        let mut r = self.0.borrow_mut();
+        Ok(!r.arm()?)
+    }
+}
+
+/// The samples of a line as bytes (little-endian target, so the file's byte order).
+pub fn as_bytes_mut(line: &mut [u16]) -> &mut [u8] {
+    // SAFETY: u16 has no invalid bit patterns and alignment 2 >= 1; the byte slice covers
+    // exactly the memory of `line` and borrows it mutably for its lifetime.
+    unsafe { core::slice::from_raw_parts_mut(line.as_mut_ptr().cast::<u8>(), line.len() * 2) }
+}
+
+/// The output link: a host file.
+pub struct HostFile {
+    file: File,
+}
+
+impl HostFile {
+    pub fn create(path: &Path) -> Result<HostFile, Error> {
+        Ok(HostFile { file: File::create(path.c_str()).map_err(io)? })
+    }
+}
+
+impl PacketLink for HostFile {
+    type Error = Error;
+    fn send(&mut self, packet: &[u8]) -> Result<(), Error> {
+        self.file.write_all(packet).map_err(io)
+    }
+    fn flush(&mut self) -> Result<(), Error> {
+        self.file.flush().map_err(io)
+    }
+}
+
+/// SysTick wraps (every 2^24 ticks).
+static WRAPS: AtomicU32 = AtomicU32::new(0);
+
+#[exception]
+fn SysTick() {
+    WRAPS.fetch_add(1, Ordering::Relaxed);
+}
+
+/// SysTick on the core clock, extended to 64 bits by its wrap interrupt. On mps2 the core
+/// clock is 25 MHz; under `-icount shift=0` one instruction is 1 ns, so a tick is 40
+/// instructions (the benchmark calibrates this on a loop of known length).
+pub struct SysTickClock {
+    _syst: SYST,
+}
+
+impl SysTickClock {
+    pub fn start(mut syst: SYST) -> SysTickClock {
+        syst.set_clock_source(SystClkSource::Core);
+        syst.set_reload(0x00FF_FFFF);
+        syst.clear_current();
+        syst.enable_interrupt();
+        syst.enable_counter();
+        SysTickClock { _syst: syst }
+    }
+}
+
+impl Clock for SysTickClock {
+    fn ticks(&self) -> u64 {
+        loop {
+            let w0 = WRAPS.load(Ordering::Acquire);
+            let v = SYST::get_current();
+            let w1 = WRAPS.load(Ordering::Acquire);
+            if w0 == w1 {
+                return ((w0 as u64) << 24) | (0x00FF_FFFF - v) as u64;
+            }
+        }
+    }
+}
+
+/// Writes the benchmark results (`key value` lines).
+pub fn write_text(path: &Path, text: &[u8]) -> Result<(), Error> {
+    let mut f = File::create(path.c_str()).map_err(io)?;
+    f.write_all(text).map_err(io)
+}
+
+/// Ends the QEMU run with an exit status.
+pub fn exit(code: i32) -> ! {
+    semihosting::process::exit(code)
+}
