@@ -15,3 +15,4 @@ pub mod images;
 pub mod stack;
 pub mod jobs;
 pub mod codec_bench;
+pub mod target;
