@@ -248,61 +248,12 @@ fn run(cli: Cli) -> Result<()> {
             }
         }
         Cmd::TargetRun { recording, out, intra_period, elf, bench, json } => {
-            target_run(&recording, out.as_deref(), intra_period, elf, bench, json, progress)?
+            let rec = open(&recording)?;
+            let args = dpsa_sim::target::CliArgs { out: out.as_deref(), intra_period, elf, bench, json, progress };
+            out!("{}", dpsa_sim::target::cli(&rec, args)?)
         }
         Cmd::Demo { out, seed, scene } => demo(&out, seed, &scene, progress)?,
         Cmd::CodecBench { input, json } => out!("{}", dpsa_sim::codec_bench::cli(&input, json, progress)?),
-    }
-    Ok(())
-}
-
-fn target_run(
-    recording: &Path,
-    out: Option<&Path>,
-    intra_period: u32,
-    elf: Option<PathBuf>,
-    bench: bool,
-    json: bool,
-    progress: bool,
-) -> Result<()> {
-    use dpsa_sim::target;
-    let rec = open(recording)?;
-    let elf = match elf {
-        Some(e) => e,
-        None => target::firmware_elf(true)?,
-    };
-    let elf_bytes = std::fs::read(&elf).with_context(|| format!("reading {}", elf.display()))?;
-    let sizes = target::elf_sizes(&elf_bytes).with_context(|| format!("firmware ELF {}", elf.display()))?;
-    let opts = target::RunOptions { intra_period, bench, echo: target::Echo { log: true, progress } };
-    let run = target::run(&rec, &elf, opts)?;
-    if let Some(out) = out {
-        std::fs::write(out, &run.stream).with_context(|| format!("writing {}", out.display()))?;
-    }
-    let (map, rep) = packets::decode_stream(&run.stream, rec.manifest.calibration.height_lsb_um);
-    let report = run.bench.as_ref().map(|raw| target::bench_report(raw, &sizes)).transpose()?;
-    if json {
-        let mut v = match &report {
-            Some(r) => serde_json::to_value(r)?,
-            None => serde_json::json!({ "flash_bytes": sizes.flash, "ram_bytes": { "static": sizes.static_ram },
-                                        "elf_sections": sizes.sections }),
-        };
-        v["stream"] = serde_json::json!({
-            "bytes": run.stream.len(), "packets": rep.ok, "corrupt": rep.corrupt, "rows": map.rows.len(),
-            "file": out.map(|p| p.display().to_string()),
-        });
-        v["elf"] = serde_json::json!(elf.display().to_string());
-        v["qemu_seconds"] = serde_json::json!(run.outcome.elapsed.as_secs_f64());
-        out!("{}", serde_json::to_string_pretty(&v)?);
-    } else {
-        let dest = out.map(|p| format!(" -> {}", p.display())).unwrap_or_default();
-        out!(
-            "target: {} packets ({} corrupt), {} bytes{dest}; {:.1} s in QEMU",
-            rep.ok, rep.corrupt, run.stream.len(), run.outcome.elapsed.as_secs_f64()
-        );
-        match &report {
-            Some(r) => out!("{}", r.summary()),
-            None => out!("firmware: flash {} bytes, static RAM {} bytes", sizes.flash, sizes.static_ram),
-        }
     }
     Ok(())
 }

@@ -739,6 +739,74 @@ impl BenchReport {
     }
 }
 
+// ---------------------------------------------------------------------------------------------
+// `dpsa target-run`.
+
+/// Options of `dpsa target-run`.
+#[derive(Clone, Debug)]
+pub struct CliArgs<'a> {
+    /// Where to write the packet stream.
+    pub out: Option<&'a Path>,
+    pub intra_period: u32,
+    /// The firmware ELF; `None`: build it ([`firmware_elf`]).
+    pub elf: Option<PathBuf>,
+    pub bench: bool,
+    pub json: bool,
+    /// Progress bars on stderr (the decoded log is always printed there).
+    pub progress: bool,
+}
+
+/// `dpsa target-run`: runs the firmware on `rec`, writes the stream to `args.out` and returns
+/// what to print (a summary, or one JSON object with `--json`). The decoded log goes to stderr.
+pub fn cli(rec: &Recording, args: CliArgs<'_>) -> Result<String> {
+    let elf = match args.elf {
+        Some(e) => e,
+        None => firmware_elf(true)?,
+    };
+    let elf_bytes = std::fs::read(&elf).with_context(|| format!("reading {}", elf.display()))?;
+    let sizes = elf_sizes(&elf_bytes).with_context(|| format!("firmware ELF {}", elf.display()))?;
+    let opts = RunOptions { intra_period: args.intra_period, bench: args.bench, echo: Echo { log: true, progress: args.progress } };
+    let run = run(rec, &elf, opts)?;
+    if let Some(out) = args.out {
+        std::fs::write(out, &run.stream).with_context(|| format!("writing {}", out.display()))?;
+    }
+    let (map, rep) = crate::packets::decode_stream(&run.stream, rec.manifest.calibration.height_lsb_um);
+    let report = run.bench.as_ref().map(|raw| bench_report(raw, &sizes)).transpose()?;
+    let seconds = run.outcome.elapsed.as_secs_f64();
+    if args.json {
+        let mut v = match &report {
+            Some(r) => serde_json::to_value(r)?,
+            None => serde_json::json!({
+                "flash_bytes": sizes.flash,
+                "ram_bytes": { "static": sizes.static_ram },
+                "elf_sections": sizes.sections,
+            }),
+        };
+        v["stream"] = serde_json::json!({
+            "bytes": run.stream.len(),
+            "packets": rep.ok,
+            "corrupt": rep.corrupt,
+            "rows": map.rows.len(),
+            "file": args.out.map(|p| p.display().to_string()),
+        });
+        v["elf"] = serde_json::json!(elf.display().to_string());
+        v["qemu_seconds"] = serde_json::json!(seconds);
+        return Ok(serde_json::to_string_pretty(&v)?);
+    }
+    let dest = args.out.map(|p| format!(" -> {}", p.display())).unwrap_or_default();
+    let mut text = format!(
+        "target: {} packets ({} corrupt), {} bytes{dest}; {seconds:.1} s in QEMU\n",
+        rep.ok,
+        rep.corrupt,
+        run.stream.len()
+    );
+    match &report {
+        Some(r) => text.push_str(&r.summary()),
+        None => text.push_str(&format!("firmware: flash {} bytes, static RAM {} bytes", sizes.flash, sizes.static_ram)),
+    }
+    Ok(text)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
