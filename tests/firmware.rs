@@ -1,0 +1,299 @@
+//! The firmware under QEMU (Cortex-M7, mps2-an500) against the host.
+//!
+//! - Bit-exactness: on four recordings (the default scene and `scenes/jitter.toml`,
+//!   `scenes/defects.toml`, `scenes/fullframe.toml`) the packet stream the firmware emits is
+//!   byte for byte the one `dpsa reconstruct` writes on the host, and it decodes into rows that
+//!   show what the scene was made to contain.
+//! - Bad input: a truncated target recording, a corrupt header and a corrupt reference table
+//!   make the firmware exit with a failure status and a logged error naming the fault, never a
+//!   panic or a hang.
+//!
+//! These tests need the cross toolchain and `qemu-system-arm` (`bash firmware/build.sh
+//! --install` installs both; `tests/run.sh` does it first). Without them they fail with that
+//! advice, unless `DPSA_SKIP_FIRMWARE=1` is set.
+
+use dpsa_core::frames::wire;
+use dpsa_core::packets;
+use dpsa_sim::heightmap::{flags, HeightMap};
+use dpsa_sim::reconstruct;
+use dpsa_sim::scene::Scene;
+use dpsa_sim::target::{self, Echo, RunOptions};
+use dpsa_tests::{flag_names, simulate, small_scene, Sim};
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+/// The firmware ELF (built once per test binary), or `None` when `DPSA_SKIP_FIRMWARE=1`.
+/// Panics with what to install when QEMU or the cross build is missing.
+fn elf() -> Option<PathBuf> {
+    if std::env::var("DPSA_SKIP_FIRMWARE").is_ok_and(|v| v == "1") {
+        eprintln!("DPSA_SKIP_FIRMWARE=1: firmware test skipped");
+        return None;
+    }
+    static ELF: OnceLock<Result<PathBuf, String>> = OnceLock::new();
+    let r = ELF.get_or_init(|| {
+        let qemu = std::process::Command::new(target::QEMU).arg("--version").output();
+        match qemu {
+            Ok(o) if o.status.success() => {}
+            Ok(o) => return Err(format!("{} --version failed: {}", target::QEMU, String::from_utf8_lossy(&o.stderr))),
+            Err(e) => return Err(format!("{} cannot be run: {e}", target::QEMU)),
+        }
+        target::firmware_elf(true).map_err(|e| format!("{e:#}"))
+    });
+    match r {
+        Ok(p) => Some(p.clone()),
+        Err(e) => panic!(
+            "the firmware tests need QEMU and the Cortex-M7 build of the firmware:\n{e}\n\
+             Install what is missing with `bash firmware/build.sh --install` (tests/run.sh does), \
+             or set DPSA_SKIP_FIRMWARE=1 to skip these tests."
+        ),
+    }
+}
+
+fn scene_file(name: &str) -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes").join(name);
+    Scene::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+/// Echo the decoded firmware log (the test harness shows it for a failing test).
+const ECHO: Echo = Echo { log: true, progress: false };
+
+/// Index, start offset and board row of the packet of `stream` that holds byte `offset`.
+fn packet_at(stream: &[u8], offset: usize) -> (usize, usize, Option<i64>) {
+    let (mut pos, mut index) = (0, 0);
+    while pos < stream.len() {
+        match packets::decode(&stream[pos..]) {
+            Ok((p, len)) if offset < pos + len => return (index, pos, Some(p.header.row)),
+            Ok((_, len)) => pos += len,
+            Err(_) => break,
+        }
+        index += 1;
+    }
+    (index, pos, None)
+}
+
+/// Asserts that the target's stream is the host's, byte for byte; on a difference, says
+/// where (byte offset, packet index and board row in the host stream).
+#[track_caller]
+fn assert_identical(what: &str, host: &[u8], target: &[u8]) {
+    if host == target {
+        return;
+    }
+    let offset = host.iter().zip(target).position(|(a, b)| a != b).unwrap_or(host.len().min(target.len()));
+    let (index, start, row) = packet_at(host, offset);
+    panic!(
+        "{what}: the firmware's stream differs from the host's at byte {offset} (host packet {index}, \
+         which starts at byte {start}, board row {row:?}); host {} bytes, target {} bytes",
+        host.len(),
+        target.len()
+    );
+}
+
+/// Host and target streams of one recording, compared; returns the decoded target stream.
+fn host_and_target(what: &str, sim: &Sim, elf: &Path) -> HeightMap {
+    let (stats, host) = reconstruct::run(&sim.rec, Vec::new(), false).expect("host reconstruction");
+    let out = target::run(&sim.rec, elf, RunOptions { echo: ECHO, ..RunOptions::default() })
+        .unwrap_or_else(|e| panic!("{what}: firmware run failed: {e:#}"));
+    assert!(out.outcome.success() && out.outcome.errors().next().is_none(), "{what}: {:?}", out.outcome);
+    assert!(stats.packets > 0, "{what}: the host emitted no packets");
+    assert_identical(what, &host, &out.stream);
+
+    let (map, rep) = dpsa_sim::packets::decode_stream(&out.stream, sim.rec.manifest.calibration.height_lsb_um);
+    assert_eq!(rep.corrupt, 0, "{what}: damaged packets in the firmware's stream: {:?}", rep.damage);
+    assert_eq!(rep.ok as u64, stats.packets, "{what}");
+    assert_eq!(map.width, sim.rec.width(), "{what}");
+    // Every packet carries the recording's n.
+    let mut pos = 0;
+    while pos < out.stream.len() {
+        let (p, len) = packets::decode(&out.stream[pos..]).expect("packet");
+        assert_eq!(p.header.n, sim.rec.manifest.processing.n, "{what}: packet at byte {pos}");
+        pos += len;
+    }
+    map
+}
+
+fn count(map: &HeightMap, flag: u16) -> usize {
+    map.rows.iter().filter(|r| r.flags & flag != 0).count()
+}
+
+fn valid_rows(map: &HeightMap) -> usize {
+    map.rows.iter().filter(|r| r.is_valid()).count()
+}
+
+fn flag_summary(map: &HeightMap) -> String {
+    let mut seen = std::collections::BTreeMap::<String, usize>::new();
+    for r in &map.rows {
+        *seen.entry(flag_names(r.flags)).or_default() += 1;
+    }
+    format!("{seen:?}")
+}
+
+// ---------------------------------------------------------------------------------------------
+// Bit-exactness.
+
+#[test]
+fn default_scene_is_bit_exact() {
+    let Some(elf) = elf() else { return };
+    let sim = simulate(&Scene::default(), 1);
+    let map = host_and_target("default scene", &sim, &elf);
+    // Most of the board is valid and has height.
+    let valid = valid_rows(&map);
+    assert!(valid >= Scene::default().board_length as usize * 9 / 10, "{valid} valid rows: {}", flag_summary(&map));
+    assert!(map.valid_pixels() > valid * map.width * 9 / 10, "{}", map.valid_pixels());
+    assert!(map.rows.iter().any(|r| r.is_valid() && r.heights.iter().any(|&h| h > 200)), "no deposit heights");
+    assert_eq!(count(&map, flags::ILL_CONDITIONED), 0, "{}", flag_summary(&map));
+}
+
+#[test]
+fn jitter_scene_is_bit_exact() {
+    let Some(elf) = elf() else { return };
+    let scene = scene_file("jitter.toml");
+    assert_eq!(scene.n, 5);
+    assert_eq!(scene.jitter_pct, 20.0);
+    assert_ne!(scene.fringe_period_px, Scene::default().fringe_period_px);
+    let sim = simulate(&scene, scene.seed);
+    // The steps really are jittered by up to +/-20 %.
+    let cpp = sim.rec.manifest.calibration.counts_per_pixel;
+    let steps: Vec<f64> =
+        sim.rec.manifest.frames.windows(2).map(|f| (f[1].latch - f[0].latch) as f64 / cpp).collect();
+    let (lo, hi) = steps.iter().fold((f64::MAX, f64::MIN), |(a, b), &s| (a.min(s), b.max(s)));
+    let m = scene.mean_step_px;
+    assert!(lo < 0.9 * m && hi > 1.1 * m && lo >= 0.8 * m - 0.5 && hi <= 1.2 * m + 0.5, "steps {lo}..{hi}");
+    let map = host_and_target("jitter scene", &sim, &elf);
+    let valid = valid_rows(&map);
+    assert!(valid >= scene.board_length as usize * 9 / 10, "{valid} valid rows: {}", flag_summary(&map));
+}
+
+#[test]
+fn defects_scene_is_bit_exact() {
+    let Some(elf) = elf() else { return };
+    let scene = scene_file("defects.toml");
+    let sim = simulate(&scene, scene.seed);
+    let map = host_and_target("defects scene", &sim, &elf);
+    let summary = flag_summary(&map);
+    for (flag, name) in [
+        (flags::ILL_CONDITIONED, "ILL_CONDITIONED"),
+        (flags::SATURATED, "SATURATED"),
+        (flags::LOW_MODULATION, "LOW_MODULATION"),
+    ] {
+        assert!(count(&map, flag) > 0, "no {name} row: {summary}");
+    }
+    // The saturated and unmodulated pixels are invalid in otherwise valid rows, inside the
+    // patches that made them.
+    for (flag, patch) in [(flags::SATURATED, &scene.patches[0]), (flags::LOW_MODULATION, &scene.patches[1])] {
+        let rows: Vec<_> = map.rows.iter().filter(|r| r.is_valid() && r.flags & flag != 0).collect();
+        assert!(!rows.is_empty(), "{}: {summary}", flag_names(flag));
+        for r in rows {
+            assert!(patch.contains_row(r.row), "row {} flagged {} outside its patch", r.row, flag_names(flag));
+            let c = (patch.col + i64::from(patch.cols) / 2) as usize;
+            assert!(!r.pixel_valid(c), "row {}: the patch centre (column {c}) is valid", r.row);
+        }
+    }
+}
+
+#[test]
+fn fullframe_scene_is_bit_exact() {
+    let Some(elf) = elf() else { return };
+    let scene = scene_file("fullframe.toml");
+    assert_eq!((scene.rows, scene.n), (2048, 4));
+    let sim = simulate(&scene, scene.seed);
+    let frames = sim.rec.len();
+    assert!((6..=12).contains(&frames), "{frames} frames");
+    let map = host_and_target("full-frame scene", &sim, &elf);
+    // The windows span most of the frame: thousands of valid rows from a handful of frames.
+    let valid = valid_rows(&map);
+    assert!(valid > scene.rows as usize, "{valid} valid rows: {}", flag_summary(&map));
+    assert_eq!(count(&map, flags::ILL_CONDITIONED), 0, "{}", flag_summary(&map));
+}
+
+/// `--intra-period` reaches the firmware through the recording header: predicted rows are
+/// bit-exact too, and make a different (smaller) stream.
+#[test]
+fn predicted_rows_are_bit_exact() {
+    let Some(elf) = elf() else { return };
+    let sim = simulate(&small_scene(), 4);
+    let (_, host) = reconstruct::run_with(&sim.rec, Vec::new(), 8, false).unwrap();
+    let (_, intra) = reconstruct::run(&sim.rec, Vec::new(), false).unwrap();
+    assert!(host.len() < intra.len());
+    let out = target::run(&sim.rec, &elf, RunOptions { intra_period: 8, echo: ECHO, ..RunOptions::default() }).unwrap();
+    assert_identical("intra period 8", &host, &out.stream);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Bad input.
+
+/// A target recording of a small scene, and its header.
+fn exported(dir: &Path) -> (PathBuf, wire::Header, Vec<u8>) {
+    let sim = simulate(&small_scene(), 21);
+    let path = dir.join("recording.dpsr");
+    target::export(&sim.rec, 1, &path).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let header = wire::Header::decode(&bytes).expect("the export's header decodes");
+    assert_eq!(header.frames as usize, sim.rec.len());
+    assert_eq!(bytes.len(), wire::HEADER_LEN + header.table_len() + header.frames as usize * header.frame_len());
+    (path, header, bytes)
+}
+
+/// Runs the firmware on `bytes` as a recording: it must fail, log an error that contains
+/// every one of `needles`, not panic, and the error of [`target::run_files`] must carry it.
+#[track_caller]
+fn assert_refused(elf: &Path, dir: &Path, what: &str, bytes: &[u8], needles: &[&str]) {
+    let rec = dir.join(format!("{what}.dpsr"));
+    let out = dir.join(format!("{what}.dpsa"));
+    std::fs::write(&rec, bytes).unwrap();
+    let err = target::run_files(elf, &rec, &out, None, ECHO).expect_err(what);
+    let msg = format!("{err:#}");
+    for n in needles {
+        assert!(msg.contains(n), "{what}: the error does not mention {n:?}:\n{msg}");
+    }
+    assert!(!msg.to_lowercase().contains("panic") && !msg.contains("hard fault"), "{what}: {msg}");
+    // The same run, looked at directly: a failure status (not killed), and an ERROR log line.
+    let args = [rec.to_str().unwrap().to_string(), out.to_str().unwrap().to_string()];
+    let o = target::qemu(elf, &args, None, ECHO).unwrap();
+    assert!(matches!(o.code, Some(c) if c != 0), "{what}: exit {:?}", o.code);
+    let errors: Vec<String> = o.errors().map(|l| l.message.clone()).collect();
+    assert!(errors.iter().any(|e| needles.iter().all(|n| e.contains(n))), "{what}: error lines {errors:?}");
+    assert_eq!(o.malformed, 0, "{what}: undecodable log frames");
+}
+
+#[test]
+fn truncated_recording_is_refused() {
+    let Some(elf) = elf() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let (_, h, bytes) = exported(dir.path());
+    let frames_at = wire::HEADER_LEN + h.table_len();
+    let line_bytes = 2 * h.cfg.width as usize;
+    // In the middle of line 7 of frame 5 (0-based), and at the start of frame 9.
+    let mid = frames_at + 5 * h.frame_len() + wire::TRIGGER_LEN + 7 * line_bytes + line_bytes / 2;
+    let needle = format!("recording truncated in frame 5 at line 7 (byte {mid})");
+    assert_refused(&elf, dir.path(), "mid-line", &bytes[..mid], &[&needle]);
+    let at = frames_at + 9 * h.frame_len();
+    let needle = format!("recording truncated in frame 9 at line 0 (byte {at})");
+    assert_refused(&elf, dir.path(), "frame-boundary", &bytes[..at], &[&needle]);
+    // Inside the header: the header cannot even be read.
+    assert_refused(&elf, dir.path(), "short-header", &bytes[..40], &["opening the recording", "Length"]);
+}
+
+#[test]
+fn corrupt_header_and_table_are_refused() {
+    let Some(elf) = elf() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let (_, h, bytes) = exported(dir.path());
+    // One bit of the width: the header CRC catches it.
+    let mut b = bytes.clone();
+    b[8] ^= 0x10;
+    assert_refused(&elf, dir.path(), "header-bit", &b, &["opening the recording", "HeaderCrc"]);
+    // Not a target recording at all.
+    let mut b = bytes.clone();
+    b[..4].copy_from_slice(b"PNG\0");
+    assert_refused(&elf, dir.path(), "magic", &b, &["opening the recording", "Magic"]);
+    // One reference-phase entry: the table CRC catches it.
+    let mut b = bytes.clone();
+    b[wire::HEADER_LEN + 4 * 17] ^= 0x01;
+    assert_refused(&elf, dir.path(), "table", &b, &["opening the recording", "TableCrc"]);
+    // A valid header (CRC and all) whose configuration the core refuses.
+    let mut bad = h;
+    bad.cfg.max_step = bad.cfg.rows + 1;
+    let mut b = bytes.clone();
+    b[..wire::HEADER_LEN].copy_from_slice(&bad.encode());
+    assert_refused(&elf, dir.path(), "config", &b, &["opening the recording", "MaxStep"]);
+}
