@@ -1,0 +1,126 @@
+//! `dpsa target-run`: the firmware's measurements as one JSON object, and clean errors.
+//!
+//! The benchmark run needs QEMU and the Cortex-M7 build (`bash firmware/build.sh --install`);
+//! without them it fails with that advice unless `DPSA_SKIP_FIRMWARE=1` is set. The figures
+//! are checked for presence and sanity only: this is not a test that fails on time.
+
+use serde_json::Value;
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn dpsa(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_dpsa")).args(args).output().expect("run the dpsa binary")
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+fn skip_firmware() -> bool {
+    let skip = std::env::var("DPSA_SKIP_FIRMWARE").is_ok_and(|v| v == "1");
+    if skip {
+        eprintln!("DPSA_SKIP_FIRMWARE=1: firmware test skipped");
+    }
+    skip
+}
+
+#[track_caller]
+fn num(v: &Value, path: &str) -> f64 {
+    let x = path.split('.').fold(v, |v, k| v.get(k).unwrap_or_else(|| panic!("JSON has no key {path}: {v}")));
+    x.as_f64().unwrap_or_else(|| panic!("{path} is not a number: {x}"))
+}
+
+/// A small recording (W = 96, 160 board rows) in `dir`.
+fn small_recording(dir: &Path) -> String {
+    let scene = dir.join("scene.toml");
+    std::fs::write(&scene, "width = 96\nboard_length = 160\ndeposits = 6\n").unwrap();
+    let rec = dir.join("rec");
+    let out = dpsa(&["--quiet", "simulate", "--scene", scene.to_str().unwrap(), "--seed", "2", "--out", rec.to_str().unwrap()]);
+    assert!(out.status.success(), "simulate: {}", text(&out.stderr));
+    rec.to_str().unwrap().to_string()
+}
+
+#[test]
+fn bench_json_has_every_figure() {
+    if skip_firmware() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let rec = small_recording(dir.path());
+    let stream = dir.path().join("target.dpsa");
+    let out = dpsa(&["--quiet", "target-run", &rec, "--out", stream.to_str().unwrap(), "--bench", "--json"]);
+    let (so, se) = (text(&out.stdout), text(&out.stderr));
+    assert!(
+        out.status.success(),
+        "dpsa target-run failed ({}); it needs QEMU and the Cortex-M7 build: run \
+         `bash firmware/build.sh --install` or set DPSA_SKIP_FIRMWARE=1.\nstdout: {so}\nstderr: {se}",
+        out.status
+    );
+    assert!(!se.contains("panicked"), "{se}");
+    // The decoded firmware log is on stderr, stdout is exactly one JSON object.
+    assert!(se.lines().any(|l| l.starts_with("target: INFO")), "no decoded log on stderr: {se}");
+    let v: Value = serde_json::from_str(&so).unwrap_or_else(|e| panic!("not one JSON object ({e}): {so}"));
+
+    for key in [
+        "instructions_per_pixel.total",
+        "instructions_per_pixel.accumulate",
+        "instructions_per_pixel.phase_height",
+        "instructions_per_pixel.encode",
+        "instructions_per_window_solve",
+        "ram_bytes.static",
+        "ram_bytes.state",
+        "ram_bytes.stack_high_water",
+        "flash_bytes",
+        "pixels_out",
+        "elf_sections.text",
+        "elf_sections.itcm",
+    ] {
+        assert!(num(&v, key) > 0.0, "{key} = {} is not > 0", num(&v, key));
+    }
+    for key in ["elf_sections.rodata", "elf_sections.data", "elf_sections.bss"] {
+        assert!(num(&v, key) >= 0.0, "{key}");
+    }
+    // SysTick counts 40 retired instructions per tick on mps2 at -icount shift=0; the firmware
+    // calibrates it on a loop of known length.
+    let ipt = num(&v, "instructions_per_tick");
+    assert!((ipt / 40.0 - 1.0).abs() < 0.01, "instructions_per_tick {ipt}");
+    // Geometry as recorded, and figures that add up.
+    assert_eq!((num(&v, "width"), num(&v, "n")), (96.0, 4.0));
+    assert_eq!(num(&v, "pixels_out"), num(&v, "rows_out") * 96.0);
+    assert_eq!(num(&v, "stream.packets"), num(&v, "rows_out"));
+    assert_eq!(num(&v, "stream.corrupt"), 0.0);
+    let p = |k: &str| num(&v, &format!("instructions_per_pixel.{k}"));
+    assert!(p("total") > p("encode"), "{v}");
+    assert!(num(&v, "ram_bytes.state") <= num(&v, "ram_bytes.state_total"), "{v}");
+    assert!(num(&v, "flash_bytes") >= num(&v, "elf_sections.text") + num(&v, "elf_sections.itcm"), "{v}");
+    assert_eq!(std::fs::metadata(&stream).unwrap().len() as f64, num(&v, "stream.bytes"));
+
+    // Without --json: a short summary.
+    let out = dpsa(&["--quiet", "target-run", &rec, "--bench", "--elf", v["elf"].as_str().unwrap()]);
+    let so = text(&out.stdout);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(so.contains("instructions per pixel") && so.contains("flash"), "{so}");
+}
+
+#[test]
+fn target_run_refuses_bad_invocations() {
+    let help = text(&dpsa(&["target-run", "--help"]).stdout);
+    for opt in ["--out", "--intra-period", "--elf", "--bench", "--json"] {
+        assert!(help.contains(opt), "target-run --help lacks {opt}: {help}");
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let rec = small_recording(dir.path());
+    // Neither --out nor --bench: nothing to do.
+    let out = dpsa(&["target-run", &rec]);
+    assert!(!out.status.success());
+    assert!(text(&out.stderr).contains("--out"), "{}", text(&out.stderr));
+    // An ELF that does not exist, and a file that is not an ELF.
+    let missing = dir.path().join("missing.elf");
+    let out = dpsa(&["target-run", &rec, "--out", "/dev/null", "--elf", missing.to_str().unwrap()]);
+    let se = text(&out.stderr);
+    assert!(!out.status.success() && se.contains("error:") && se.contains("missing.elf"), "{se}");
+    let not_elf = dir.path().join("rec/manifest.json");
+    let out = dpsa(&["target-run", &rec, "--out", "/dev/null", "--elf", not_elf.to_str().unwrap()]);
+    let se = text(&out.stderr);
+    assert!(!out.status.success() && se.contains("error:") && !se.contains("panicked"), "{se}");
+}
