@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# The test command (README, CI): every test of the workspace, the benchmark build, and the
-# firmware crate build. Installs what is missing; needs ../shared/data/real beside the repo.
+# The test command (README, CI): the firmware's cross build, every test of the workspace
+# (the firmware tests run it under QEMU) and the benchmark build. Installs what is missing;
+# needs ../shared/data/real beside the repo.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -18,16 +19,17 @@ if [ ! -d ../shared/data/real ]; then
     exit 1
 fi
 
-echo "== unit, property and end-to-end tests"
+echo "== firmware: Cortex-M7 build (installs the cross toolchain and QEMU if missing)"
+elf=$(bash firmware/build.sh --install | tail -n 1)
+echo "   $elf"
+
+echo "== unit, property and end-to-end tests (the firmware tests run it under QEMU)"
 log=$(mktemp)
 trap 'rm -f "$log"' EXIT
 cargo test --workspace --locked 2>&1 | tee "$log"
 
 echo "== benchmarks compile"
 cargo bench --workspace --locked --no-run
-
-echo "== firmware crate builds against the core"
-cargo build --manifest-path firmware/Cargo.toml
 
 # One closing line over every test binary (cargo's last line is a doc-test run of 0 tests).
 passed=$(grep '^test result:' "$log" | grep -Eo '[0-9]+ passed' | awk '{s += $1} END {print s + 0}')
