@@ -1,11 +1,12 @@
 //! Phase to height, and the per-pixel validity mask.
 
-use crate::accumulate::Acc;
+use crate::accumulate::{Acc, SATURATED, V};
 use crate::frames::Config;
 use crate::phase::atan2;
 
-/// Largest height magnitude written (LSB); `i16::MIN` is never produced.
-pub const H_MAX: i32 = i16::MAX as i32;
+/// Largest height magnitude written (LSB): half a turn at the largest scale `Config` accepts
+/// (`< 2^15` LSB per turn); `i16::MIN` is never produced.
+pub const H_MAX: i32 = 1 << 14;
 
 /// Why a pixel has no height.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -20,7 +21,7 @@ pub enum Invalid {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Scale {
     /// Height LSBs per turn, Q16.16.
-    k: i64,
+    k: i32,
     /// `(min_modulation in Q12)^2`: threshold on `C^2` in DN^2 * 2^24.
     min_c2: u64,
 }
@@ -33,44 +34,86 @@ impl Scale {
     /// From LSB per turn (Q16.16) and the modulation threshold (DN, Q20.12).
     pub fn from_parts(lsb_per_turn_q16: u32, min_modulation_q12: u32) -> Scale {
         let m = min_modulation_q12 as u64;
-        Scale { k: lsb_per_turn_q16 as i64, min_c2: m.saturating_mul(m) }
+        // `Config::validate` keeps LSB per turn below 2^31; the clamp covers direct callers.
+        Scale { k: lsb_per_turn_q16.min(i32::MAX as u32) as i32, min_c2: m.saturating_mul(m) }
     }
 
     /// The pixel's phase `Phi = atan2(v_3, v_2)` if it is valid (not saturated, modulated).
-    ///
-    /// Modulation: `v >> 12` is DN in Q12, clamped to i32; `C^2` in u64 Q24 (`< 2^63`).
     #[inline(always)]
     pub fn phase(&self, acc: &Acc) -> Result<u32, Invalid> {
-        if acc.saturated {
+        self.phase_v(acc.reduce())
+    }
+
+    /// [`Scale::phase`] of a reduced pixel `[v_2, v_3]` (DN in Q20.12).
+    ///
+    /// Modulation: `C^2 = v_2^2 + v_3^2` in u64 Q24 (each square `< 2^62`, the sum `< 2^63`)
+    /// against the threshold squared; zero modulation is always invalid.
+    #[inline(always)]
+    pub fn phase_v(&self, v: V) -> Result<u32, Invalid> {
+        let [x, y] = v;
+        if x == SATURATED {
             return Err(Invalid::Saturated);
         }
-        let x = sat_i32(acc.v2 >> 12) as i64;
-        let y = sat_i32(acc.v3 >> 12) as i64;
-        if ((x * x) as u64 + (y * y) as u64) < self.min_c2 || (x == 0 && y == 0) {
+        let c2 = (x as i64 * x as i64) as u64 + (y as i64 * y as i64) as u64;
+        if c2 < self.min_c2 || c2 == 0 {
             return Err(Invalid::LowModulation);
         }
-        Ok(atan2(acc.v3, acc.v2))
+        Ok(atan2(y, x))
     }
 
-    /// Height of one pixel from its accumulated `v`, relative to the reference phase `phi_r`.
-    ///
-    /// Formats at each step:
-    /// - validity and `Phi = atan2(v_3, v_2)` from [`Scale::phase`] (binary angle, error
-    ///   <= 2e-6 rad, see [`crate::phase`]).
+    /// Height from a phase and the reference phase `phi_r` (binary angles):
     /// - `D = Phi - phi_r`, wrapping, read as i32: `[-pi, pi)` in units of `2 pi / 2^32`.
-    /// - `h = round(D * k / 2^48)` with `k` = LSB per turn in Q16.16: i64 product `< 2^62`,
-    ///   rounded half up, clamped to `+-32767`.
+    /// - `h = round(D * k / 2^48)` with `k` = LSB per turn in Q16.16 (`< 2^31`): one
+    ///   32 x 32 -> 64 product (`|D k| < 2^62`), rounded half up. Since `|D| <= 2^31` and
+    ///   `k < 2^31`, `|h| <= 2^14`: always inside i16 (and never `i16::MIN`), no clamp needed.
+    #[inline(always)]
+    pub fn height(&self, phi: u32, phi_r: u32) -> i16 {
+        let d = phi.wrapping_sub(phi_r) as i32 as i64;
+        let h = (d * self.k as i64 + (1 << 47)) >> 48;
+        h as i16
+    }
+
+    /// Height of one pixel from its accumulated `v`, relative to the reference phase `phi_r`:
+    /// validity and phase from [`Scale::phase`] (error at most
+    /// [`crate::phase::ATAN2_MAX_ERR_RAD`]), then [`Scale::height`].
     #[inline(always)]
     pub fn pixel(&self, acc: &Acc, phi_r: u32) -> Result<i16, Invalid> {
-        let d = self.phase(acc)?.wrapping_sub(phi_r) as i32 as i64;
-        let h = (d * self.k + (1 << 47)) >> 48;
-        Ok(h.clamp(-H_MAX as i64, H_MAX as i64) as i16)
+        Ok(self.height(self.phase(acc)?, phi_r))
+    }
+
+    /// The phase + height + mask stage over a run of columns starting at a multiple of 8:
+    /// pixel `k` has reduced `v[k]` and reference phase `rho + ref_phase[k]`. Writes
+    /// `heights[k]` of valid pixels (others are left alone) and the validity bytes
+    /// `valid[k / 8]` (whole bytes, bit `k % 8`); returns the per-pixel row flags seen.
+    #[inline(always)]
+    pub fn block(&self, v: &[V], rho: u32, ref_phase: &[u32], heights: &mut [i16], valid: &mut [u8]) -> u16 {
+        let (mut sat, mut low) = (false, false);
+        let len = v.len().min(ref_phase.len()).min(heights.len());
+        let (v, ref_phase, heights) = (&v[..len], &ref_phase[..len], &mut heights[..len]);
+        for (((v8, r8), h8), bits) in v.chunks(8).zip(ref_phase.chunks(8)).zip(heights.chunks_mut(8)).zip(valid.iter_mut()) {
+            let mut byte = 0u8;
+            for (b, ((&vk, &rk), hk)) in v8.iter().zip(r8).zip(h8.iter_mut()).enumerate() {
+                match self.phase_v(vk) {
+                    Ok(phi) => {
+                        *hk = self.height(phi, rho.wrapping_add(rk));
+                        byte |= 1 << b;
+                    }
+                    Err(Invalid::Saturated) => sat = true,
+                    Err(Invalid::LowModulation) => low = true,
+                }
+            }
+            *bits = byte;
+        }
+        (sat as u16 * crate::frames::flags::SATURATED) | (low as u16 * crate::frames::flags::LOW_MODULATION)
+    }
+
+    /// [`Scale::block`] as its own (never inlined) function, for timing the stage alone.
+    #[inline(never)]
+    pub fn row(&self, v: &[V], rho: u32, ref_phase: &[u32], heights: &mut [i16], valid: &mut [u8]) -> u16 {
+        self.block(v, rho, ref_phase, heights, valid)
     }
 }
 
-fn sat_i32(x: i64) -> i32 {
-    x.clamp(i32::MIN as i64 + 1, i32::MAX as i64) as i32
-}
 
 #[cfg(test)]
 mod tests {
@@ -111,17 +154,24 @@ mod tests {
             let exact = phi / (2.0 * PI) * 2000.37;
             worst = worst.max((h as f64 - exact).abs());
         }
-        // Rounding (0.5) plus phase error (2e-6 rad -> 6e-4 LSB).
-        assert!(worst <= 0.5 + 1e-3, "worst {worst}");
+        // Rounding (0.5) plus the phase error bound (2e-5 rad -> 0.0064 LSB at 2000 LSB/turn).
+        let bound = 0.5 + crate::phase::ATAN2_MAX_ERR_RAD / (2.0 * PI) * 2000.37;
+        assert!(worst <= bound, "worst {worst} > {bound}");
     }
 
     #[test]
     fn wraps_and_clamps() {
         // The largest scale Config accepts (< 2^15 LSB per turn) keeps +-pi inside i16.
         let s = Scale::new(&cfg(32767.99, 0.0));
-        let hi = s.pixel(&acc(500.0, 3.14159), 0).unwrap();
-        let lo = s.pixel(&acc(500.0, -3.14159), 0).unwrap();
+        // 1e-4 rad inside +-pi: further from the cut than the phase error bound.
+        let hi = s.pixel(&acc(500.0, PI - 1e-4), 0).unwrap();
+        let lo = s.pixel(&acc(500.0, -PI + 1e-4), 0).unwrap();
         assert!(hi > 16_380 && lo < -16_380, "{hi} {lo}");
+        // The extreme difference (-pi exactly) at the largest scale stays inside H_MAX.
+        let s_max = Scale::from_parts(u32::MAX, 0);
+        for (phi, r) in [(0x8000_0000u32, 0u32), (0, 0x8000_0000), (0x7FFF_FFFF, 0), (0, 0x7FFF_FFFF)] {
+            assert!((s_max.height(phi, r) as i32).abs() <= H_MAX);
+        }
         // Reference subtraction wraps: Phi = -3.1, phi_r = 3.1 -> D = 2 pi - 6.2 = +0.083.
         let s = Scale::new(&cfg(2000.0, 0.0));
         let h = s.pixel(&acc(500.0, -3.1), from_rad(3.1)).unwrap();

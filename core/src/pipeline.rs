@@ -18,7 +18,7 @@
 
 use crate::accumulate::{self, Pool};
 use crate::frames::{flags, Config, ConfigError};
-use crate::height::{Invalid, Scale};
+use crate::height::Scale;
 use crate::solve::{SolveError, Window, MAX_N};
 use crate::sink::{Row, RowHeader, Sink};
 
@@ -472,22 +472,51 @@ impl<'a> Pipeline<'a> {
         if lines[..n].iter().any(|l| l.len() < w) {
             return flags::OVERFLOW;
         }
-        let sat = self.cfg.saturation;
-        let mut row_flags = 0u16;
-        let mut samples = [0u16; MAX_N];
-        for c in 0..w {
-            for j in 0..n {
-                samples[j] = lines[j][c];
-            }
-            let acc = accumulate::pixel(win, &samples[..n], sat);
-            match self.scale.pixel(&acc, rho.wrapping_add(self.ref_phase[c])) {
-                Ok(h) => {
-                    self.heights[c] = h;
-                    self.valid[c / 8] |= 1 << (c % 8);
-                }
-                Err(Invalid::Saturated) => row_flags |= flags::SATURATED,
-                Err(Invalid::LowModulation) => row_flags |= flags::LOW_MODULATION,
-            }
+        let rows = Rows { lines, w, sat: self.cfg.saturation, rho, ref_phase: self.ref_phase };
+        let (heights, valid) = (&mut *self.heights, &mut *self.valid);
+        match n {
+            3 => rows.run::<3>(win, &self.scale, heights, valid),
+            4 => rows.run::<4>(win, &self.scale, heights, valid),
+            5 => rows.run::<5>(win, &self.scale, heights, valid),
+            6 => rows.run::<6>(win, &self.scale, heights, valid),
+            7 => rows.run::<7>(win, &self.scale, heights, valid),
+            _ => rows.run::<8>(win, &self.scale, heights, valid),
+        }
+    }
+}
+
+/// Columns processed per block: the accumulate stage fills `BLOCK` reduced pixels on the stack
+/// (512 B), the phase stage consumes them. A multiple of 8 so validity bytes stay whole.
+pub const BLOCK: usize = 64;
+
+/// The inputs of one completed row.
+struct Rows<'l> {
+    lines: [&'l [u16]; MAX_N],
+    w: usize,
+    sat: u16,
+    rho: u32,
+    ref_phase: &'l [u32],
+}
+
+impl Rows<'_> {
+    /// Both stages, block by block, with `n = N` known at compile time.
+    #[inline(never)]
+    fn run<const N: usize>(&self, win: &Window, scale: &Scale, heights: &mut [i16], valid: &mut [u8]) -> u16 {
+        let lines: [&[u16]; N] = core::array::from_fn(|j| self.lines[j]);
+        let mut v = [[0i32; 2]; BLOCK];
+        let mut row_flags = 0;
+        let mut c0 = 0;
+        while c0 < self.w {
+            let len = BLOCK.min(self.w - c0);
+            accumulate::block::<N>(win, &lines, c0, self.sat, &mut v[..len]);
+            row_flags |= scale.block(
+                &v[..len],
+                self.rho,
+                &self.ref_phase[c0..c0 + len],
+                &mut heights[c0..c0 + len],
+                &mut valid[c0 / 8..],
+            );
+            c0 += len;
         }
         row_flags
     }

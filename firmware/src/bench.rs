@@ -9,9 +9,8 @@
 use crate::board::Clock;
 use crate::sink::SinkTicks;
 use core::fmt::Write;
-use dpsa_core::accumulate::{self, Acc};
-use dpsa_core::frames::flags;
-use dpsa_core::height::{Invalid, Scale};
+use dpsa_core::accumulate::{self, V};
+use dpsa_core::height::Scale;
 use dpsa_core::solve::{Window, MAX_N};
 use dpsa_core::Config;
 
@@ -66,9 +65,11 @@ pub struct Stages {
     pub phase_height: u64,
 }
 
-/// Runs the two halves of the core's per-pixel loop (`Pipeline::compute`) separately over
-/// real samples (lines left in the pool by the run) with the last solved window:
-/// accumulate (`v = P i` and the saturation test) into `acc`, then phase, height and mask.
+/// Runs the two stages of the core's per-pixel loop (`accumulate::row` and `Scale::row`: the
+/// `accumulate::block` and `Scale::block` that `Pipeline::compute` runs block by block, as
+/// never-inlined core functions, so they are the core's code) timed apart, over
+/// real samples (lines left in the pool by the run) with the last solved window. `v` holds a
+/// whole row of reduced pixels between the stages (the pipeline keeps 64 on the stack).
 #[allow(clippy::too_many_arguments)]
 pub fn stages<C: Clock>(
     cfg: &Config,
@@ -77,7 +78,7 @@ pub fn stages<C: Clock>(
     pool: &[u16],
     heights: &mut [i16],
     valid: &mut [u8],
-    acc: &mut [Acc],
+    v: &mut [V],
     clock: &C,
 ) -> Stages {
     let mut s = Stages { pixels: 0, accumulate: 0, phase_height: 0 };
@@ -92,28 +93,12 @@ pub fn stages<C: Clock>(
             *l = &base[j * w..(j + 1) * w];
         }
         let t0 = clock.ticks();
-        let mut samples = [0u16; MAX_N];
-        for (c, a) in acc[..w].iter_mut().enumerate() {
-            for j in 0..n {
-                samples[j] = lines[j][c];
-            }
-            *a = accumulate::pixel(&win, &samples[..n], cfg.saturation);
-        }
+        accumulate::row(&win, &lines[..n], 0, cfg.saturation, &mut v[..w]);
         let t1 = clock.ticks();
         let rho = (g as u32).wrapping_mul(cfg.fx);
-        let mut row_flags = 0u16;
-        for c in 0..w {
-            match scale.pixel(&acc[c], rho.wrapping_add(ref_phase[c])) {
-                Ok(h) => {
-                    heights[c] = h;
-                    valid[c / 8] |= 1 << (c % 8);
-                }
-                Err(Invalid::Saturated) => row_flags |= flags::SATURATED,
-                Err(Invalid::LowModulation) => row_flags |= flags::LOW_MODULATION,
-            }
-        }
+        let f = scale.row(&v[..w], rho, &ref_phase[..w], &mut heights[..w], &mut valid[..w.div_ceil(8)]);
         let t2 = clock.ticks();
-        core::hint::black_box((&heights, &valid, row_flags));
+        core::hint::black_box((&heights, &valid, f));
         s.pixels += w as u64;
         s.accumulate += t1 - t0;
         s.phase_height += t2 - t1;

@@ -42,6 +42,8 @@ impl<'a, L: PacketLink, C: Clock> LinkSink<'a, L, C> {
 impl<L: PacketLink, C: Clock> Sink for LinkSink<'_, L, C> {
     type Error = SinkError<L::Error>;
 
+    // Per-row hot path (the codec is inlined here): in ITCM with the core (memory.x).
+    #[link_section = ".itcm.sink_row"]
     fn row(&mut self, row: &Row<'_>) -> Result<(), Self::Error> {
         let t0 = self.now();
         let n = packets::encode(row, &mut self.enc, self.buf).map_err(SinkError::Encode)?;

@@ -3,7 +3,7 @@
 //! DTCM on a real board).
 
 use crate::board::qemu::cap;
-use dpsa_core::accumulate::Acc;
+use dpsa_core::accumulate::V;
 use dpsa_core::packets;
 use dpsa_core::pipeline::{Layout, Slot};
 use dpsa_core::Config;
@@ -29,8 +29,8 @@ pub struct State {
     pub codec_valid: [u8; cap::WIDTH / 8],
     /// One packet.
     pub packet: [u8; PACKET_CAP],
-    /// Benchmark only: the accumulators of one row, between the two timed stages.
-    pub bench_acc: [Acc; cap::WIDTH],
+    /// Benchmark only: one row of reduced pixels, between the two timed stages.
+    pub bench_acc: [V; cap::WIDTH],
 }
 
 /// Why the state cannot hold a configuration.

@@ -80,6 +80,7 @@ pub enum PacketError {
 
 /// Frames a row into `buf` with a compressed payload (codec 1); returns the packet length.
 /// `buf` must hold [`max_packet_len`]`(W)` bytes.
+#[inline(never)]
 pub fn encode(row: &Row<'_>, enc: &mut codec::Encoder<'_>, buf: &mut [u8]) -> Result<usize, PacketError> {
     let w = row.header.width as usize;
     if buf.len() < max_packet_len(w) || enc.width() != w {
