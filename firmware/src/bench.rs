@@ -29,7 +29,7 @@ pub struct Meter {
 }
 
 impl Meter {
-    pub fn new(_cfg: &Config) -> Meter {
+    pub fn new() -> Meter {
         Meter { pipe: 0, io: 0, solves: 0, solve_ticks: 0, window: None, offsets: [0; MAX_N], frames: 0 }
     }
 

@@ -84,7 +84,7 @@ fn run() -> Result<(), Failed> {
         valid: &mut valid[..w.div_ceil(8)],
     };
     let mut pipe = Pipeline::new(cfg, &ref_phase[..w], mem).map_err(|e| fail("pipeline", defmt::Debug2Format(&e)))?;
-    let mut meter = bench::Meter::new(&cfg);
+    let mut meter = bench::Meter::new();
     let line = &mut line[..w];
 
     let mut frames = 0u32;
