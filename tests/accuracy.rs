@@ -1,9 +1,9 @@
 //! Accuracy: the fixed-point core against the f64 reference (written independently from the
 //! paper), against the simulator's ground truth and against the Cramer-Rao bound.
 
-use dpsa_sim::compare::Comparison;
-use dpsa_sim::jobs;
-use dpsa_sim::scene::Scene;
+use dpsa_sim::reference::compare::Comparison;
+use dpsa_sim::reference::compare::compare_recording;
+use dpsa_sim::simulation::scene::Scene;
 use dpsa_tests::{check_vs_truth, simulate};
 
 /// The fixed-point invariants every recording must satisfy: within one LSB of the f64
@@ -34,7 +34,7 @@ fn assert_matches_reference(cmp: &Comparison, what: &str) {
 #[test]
 fn default_scene_reaches_the_cramer_rao_bound() {
     let sim = simulate(&Scene::default(), 1);
-    let (cmp, fixed) = jobs::compare(&sim.rec, false).expect("compare");
+    let (cmp, fixed) = compare_recording(&sim.rec, false).expect("compare");
     let s = cmp.summary();
     assert_matches_reference(&cmp, "default scene");
 
@@ -134,7 +134,7 @@ fn run_case(c: Case) {
         "{what}: the matrix is meant to use non-90-degree steps"
     );
     let sim = simulate(&sc, 11);
-    let (cmp, fixed) = jobs::compare(&sim.rec, false).expect("compare");
+    let (cmp, fixed) = compare_recording(&sim.rec, false).expect("compare");
     let s = cmp.summary();
     assert_matches_reference(&cmp, &what);
 

@@ -1,11 +1,13 @@
 //! Bad input: damaged recordings, inconsistent manifests, bad scene files and corrupt packet
 //! streams give a clear error or flagged rows, never a panic and never wrong heights.
 
-use dpsa_sim::compare::Comparison;
+use dpsa_sim::reference::compare::Comparison;
 use dpsa_sim::heightmap::{flags, HeightMap};
-use dpsa_sim::recording::{write_frame_png, Recording};
-use dpsa_sim::scene::Scene;
-use dpsa_sim::{jobs, packets, reference};
+use dpsa_sim::simulation::recording::{write_frame_png, Recording};
+use dpsa_sim::simulation::scene::Scene;
+use dpsa_sim::reference::{self, compare::compare_recording};
+use dpsa_sim::simulation::recording::load_frames;
+use dpsa_sim::{reconstruct, stream};
 use dpsa_tests::{
     assert_flags_agree, check_vs_truth, edit_manifest_json, flag_names, row_is_empty, simulate,
     small_scene, Sim,
@@ -44,9 +46,9 @@ fn truncated_png_frame() {
     let bytes = std::fs::read(&path).unwrap();
     std::fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
     let rec = s.reopen();
-    let msg = err_text(jobs::reconstruct_bytes(&rec, false));
+    let msg = err_text(reconstruct::reconstruct_bytes(&rec, false));
     assert_mentions(&msg, &["frame 3", "000003.png", "decode"]);
-    let msg = err_text(jobs::compare(&rec, false));
+    let msg = err_text(compare_recording(&rec, false));
     assert_mentions(&msg, &["frame 3", "000003.png"]);
 }
 
@@ -61,7 +63,7 @@ fn frame_of_the_wrong_size() {
         &vec![100; rows * (width + 8)],
     )
     .unwrap();
-    let msg = err_text(jobs::reconstruct_bytes(&s.rec, false));
+    let msg = err_text(reconstruct::reconstruct_bytes(&s.rec, false));
     assert_mentions(
         &msg,
         &[
@@ -71,7 +73,7 @@ fn frame_of_the_wrong_size() {
             &format!("expected {rows} x {width}"),
         ],
     );
-    let msg = err_text(jobs::compare(&s.rec, false));
+    let msg = err_text(compare_recording(&s.rec, false));
     assert_mentions(&msg, &["frame 3", "000003.png"]);
 }
 
@@ -79,9 +81,9 @@ fn frame_of_the_wrong_size() {
 fn missing_frame_file() {
     let s = sim();
     std::fs::remove_file(s.path().join("frames/000003.png")).unwrap();
-    let msg = err_text(jobs::reconstruct_bytes(&s.rec, false));
+    let msg = err_text(reconstruct::reconstruct_bytes(&s.rec, false));
     assert_mentions(&msg, &["frame 3", "000003.png", "missing"]);
-    let msg = err_text(jobs::compare(&s.rec, false));
+    let msg = err_text(compare_recording(&s.rec, false));
     assert_mentions(&msg, &["frame 3", "missing"]);
 }
 
@@ -124,7 +126,7 @@ fn manifest_with_unknown_keys() {
 /// implementations must agree exactly on rows and flags and within 1 LSB on heights.
 fn run_edited(s: &Sim) -> (Comparison, HeightMap) {
     let rec = s.reopen();
-    let (cmp, fixed) = jobs::compare(&rec, false).expect("an edited manifest is still processed");
+    let (cmp, fixed) = compare_recording(&rec, false).expect("an edited manifest is still processed");
     let f = &cmp.fixed_vs_ref;
     assert_eq!(
         (
@@ -138,7 +140,7 @@ fn run_edited(s: &Sim) -> (Comparison, HeightMap) {
     );
     assert!(f.max_abs_lsb.unwrap_or(0.0) <= 1.0, "{f:?}");
     // Row by row: the same rows, the same validity, compatible flags.
-    let frames = jobs::load_frames(&rec, false).unwrap();
+    let frames = load_frames(&rec, false).unwrap();
     assert_flags_agree(&fixed, &reference::reconstruct(&rec.manifest, &frames));
     // Rows come out contiguous, each once, and invalid rows carry no heights.
     for w in fixed.rows.windows(2) {
@@ -304,9 +306,9 @@ fn packet_offsets(bytes: &[u8]) -> Vec<usize> {
 #[test]
 fn corrupt_packet_stream() {
     let s = sim();
-    let (_, bytes) = jobs::reconstruct_bytes(&s.rec, false).unwrap();
+    let (_, bytes) = reconstruct::reconstruct_bytes(&s.rec, false).unwrap();
     let lsb = s.rec.manifest.calibration.height_lsb_um;
-    let (clean, rep) = packets::decode_stream(&bytes, lsb);
+    let (clean, rep) = stream::decode_stream(&bytes, lsb);
     assert_eq!((rep.corrupt, rep.resynced), (0, 0));
     let offsets = packet_offsets(&bytes);
     assert_eq!(rep.ok, offsets.len());
@@ -321,7 +323,7 @@ fn corrupt_packet_stream() {
     bad[offsets[damaged[2]] + 32 + 17] ^= 0x01; // payload (one bit)
     let end = offsets[damaged[3] + 1];
     bad[end - 2] ^= 0x10; // CRC
-    let (map, rep) = packets::decode_stream(&bad, lsb);
+    let (map, rep) = stream::decode_stream(&bad, lsb);
     assert_eq!(rep.corrupt, 4, "{rep:?}");
     assert_eq!(rep.damage.len(), 4);
     for (d, &i) in rep.damage.iter().zip(&damaged) {
@@ -344,7 +346,7 @@ fn corrupt_packet_stream() {
     let mut bad = bytes[..offsets[10]].to_vec();
     bad.extend_from_slice(b"noise\x00\x01DPS");
     bad.extend_from_slice(&bytes[offsets[10]..bytes.len() - 5]);
-    let (map, rep) = packets::decode_stream(&bad, lsb);
+    let (map, rep) = stream::decode_stream(&bad, lsb);
     assert_eq!(rep.ok, offsets.len() - 1, "{rep:?}");
     assert_eq!(rep.corrupt, 2, "{rep:?}");
     assert_eq!(map.rows.len(), offsets.len() - 1);

@@ -2,11 +2,11 @@
 //!
 //! Everything that judges a result here is written independently of the library: the flat
 //! mask, the per-pixel noise bound and the truth check are derived from `docs/model.md` and
-//! textbook least-squares facts, not from `dpsa_sim::reference` or `dpsa_sim::compare`.
+//! textbook least-squares facts, not from `dpsa_sim::reference` or `dpsa_sim::reference::compare`.
 
 use dpsa_sim::heightmap::{flags, HeightMap, HeightRow};
-use dpsa_sim::recording::{Manifest, Recording, Truth};
-use dpsa_sim::scene::Scene;
+use dpsa_sim::simulation::recording::{Manifest, Recording, Truth};
+use dpsa_sim::simulation::scene::Scene;
 use std::f64::consts::TAU;
 use std::path::{Path, PathBuf};
 use tempfile::TempDir;
@@ -39,7 +39,7 @@ impl Sim {
 pub fn simulate(scene: &Scene, seed: u64) -> Sim {
     scene.validate().expect("test scene must be valid");
     let dir = tempfile::tempdir().expect("temp dir");
-    dpsa_sim::simulate::simulate(scene, seed, dir.path(), false).expect("simulate");
+    dpsa_sim::simulation::simulate::simulate(scene, seed, dir.path(), false).expect("simulate");
     let rec = Recording::open(dir.path()).expect("open the simulated recording");
     Sim { dir, rec }
 }

@@ -2,10 +2,11 @@
 //! flagged rows without heights, never plausible wrong heights.
 
 use dpsa_sim::heightmap::{flags, HeightMap};
-use dpsa_sim::recording::Manifest;
+use dpsa_sim::simulation::recording::Manifest;
 use dpsa_sim::reference::{self, RefOutput};
-use dpsa_sim::scene::{Scene, Stall};
-use dpsa_sim::{jobs, recording::Recording};
+use dpsa_sim::simulation::scene::{Scene, Stall};
+use dpsa_sim::reconstruct;
+use dpsa_sim::simulation::recording::{load_frames, Recording};
 use dpsa_tests::{
     assert_flags_agree, check_vs_truth, flag_names, noise_gain, row_is_empty, simulate, small_scene,
 };
@@ -13,8 +14,8 @@ use std::f64::consts::TAU;
 
 /// Runs the fixed-point core and the f64 reference on a recording.
 fn both(rec: &Recording) -> (HeightMap, RefOutput) {
-    let (_, _, fixed) = jobs::reconstruct_map(rec, false).expect("reconstruct");
-    let frames = jobs::load_frames(rec, false).expect("frames");
+    let (_, _, fixed) = reconstruct::reconstruct_map(rec, false).expect("reconstruct");
+    let frames = load_frames(rec, false).expect("frames");
     (fixed, reference::reconstruct(&rec.manifest, &frames))
 }
 

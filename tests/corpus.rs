@@ -1085,9 +1085,9 @@ fn decode(
     bytes: &[u8],
 ) -> (
     dpsa_sim::heightmap::HeightMap,
-    dpsa_sim::packets::DecodeReport,
+    dpsa_sim::stream::DecodeReport,
 ) {
-    std::panic::catch_unwind(|| dpsa_sim::packets::decode_stream(bytes, 0.25))
+    std::panic::catch_unwind(|| dpsa_sim::stream::decode_stream(bytes, 0.25))
         .unwrap_or_else(|_| panic!("{name}: decode_stream panicked"))
 }
 

@@ -16,7 +16,7 @@ use dpsa_core::frames::wire;
 use dpsa_core::packets;
 use dpsa_sim::heightmap::{flags, HeightMap};
 use dpsa_sim::reconstruct;
-use dpsa_sim::scene::Scene;
+use dpsa_sim::simulation::scene::Scene;
 use dpsa_sim::target::{self, Echo, RunOptions};
 use dpsa_tests::{flag_names, simulate, small_scene, Sim};
 use std::path::{Path, PathBuf};
@@ -97,7 +97,7 @@ fn host_and_target(what: &str, sim: &Sim, elf: &Path) -> HeightMap {
     assert!(stats.packets > 0, "{what}: the host emitted no packets");
     assert_identical(what, &host, &out.stream);
 
-    let (map, rep) = dpsa_sim::packets::decode_stream(&out.stream, sim.rec.manifest.calibration.height_lsb_um);
+    let (map, rep) = dpsa_sim::stream::decode_stream(&out.stream, sim.rec.manifest.calibration.height_lsb_um);
     assert_eq!(rep.corrupt, 0, "{what}: damaged packets in the firmware's stream: {:?}", rep.damage);
     assert_eq!(rep.ok as u64, stats.packets, "{what}");
     assert_eq!(map.width, sim.rec.width(), "{what}");

@@ -16,9 +16,9 @@ fuzz_target!(|data: &[u8]| {
     codec_payloads(data);
 });
 
-/// `dpsa_sim::packets::decode_stream`: never panics; the report adds up.
+/// `dpsa_sim::stream::decode_stream`: never panics; the report adds up.
 fn whole_stream(data: &[u8]) {
-    let (map, rep) = dpsa_sim::packets::decode_stream(data, 0.25);
+    let (map, rep) = dpsa_sim::stream::decode_stream(data, 0.25);
     assert_eq!(map.rows.len(), rep.ok);
     assert_eq!(rep.damage.len(), rep.corrupt);
     // Reports in stream order, each at a distinct offset inside the input.

@@ -73,3 +73,11 @@ fn colour(t: f64) -> [u8; 3] {
     }
     out
 }
+
+/// Writes `png` (16-bit heights) and `png` with `.colour.png` (false colour, -20..230 um).
+pub fn write_pngs(map: &HeightMap, png: &Path) -> Result<std::path::PathBuf> {
+    write_height_png(map, png)?;
+    let colour = png.with_extension("colour.png");
+    write_false_colour_png(map, -20.0, 230.0, &colour)?;
+    Ok(colour)
+}

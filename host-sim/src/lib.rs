@@ -1,18 +1,30 @@
-//! Host side of dpsa: recordings, simulator, f64 reference, packet decoding and images.
+//! # dpsa-sim: the host side of dpsa
 //!
-//! Data flow (same names as `dpsa-core`): frames -> solve -> accumulate -> phase -> height ->
-//! packets -> sink.
+//! The library behind the `dpsa` command, one folder per concern. The fixed-point measurement
+//! itself is `dpsa-core` (frames -> solve -> accumulate -> phase -> height -> packets -> sink);
+//! this crate feeds it, checks it and reads what it emits:
+//!
+//! | module | what |
+//! | --- | --- |
+//! | [`simulation`] | scenes, the simulator with ground truth, recordings on disk (the input of everything) |
+//! | [`reconstruct`] | runs `dpsa-core` on a recording through its streaming API, as the frame grabber does |
+//! | [`stream`] | packet streams back into height maps, with the damage report |
+//! | [`reference`] | the independent f64 D-PSA, the PSP baseline, the Cramer-Rao bound, truth statistics, and `compare` on top |
+//! | [`target`] | the firmware: feed export, build, ELF sizes, QEMU with its defmt log, its bench figures |
+//! | [`benches`] | `codec-bench`: our row codec against general-purpose compressors and the entropy bound |
+//! | [`stack`] | ordinary phase-shifting image stacks (real camera images) through the same kernel |
+//! | [`heightmap`], [`images`], [`progress`] | the common result type, image writers, progress bars |
+//!
+//! The `dpsa` binary (`src/main.rs`, `src/cli/`) only parses arguments and prints: one file per
+//! subcommand.
 
-pub mod recording;
-pub mod scene;
-pub mod simulate;
+pub mod benches;
 pub mod heightmap;
-pub mod reference;
-pub mod compare;
-pub mod packets;
-pub mod reconstruct;
 pub mod images;
+pub mod progress;
+pub mod reconstruct;
+pub mod reference;
+pub mod simulation;
 pub mod stack;
-pub mod jobs;
-pub mod codec_bench;
+pub mod stream;
 pub mod target;

@@ -154,8 +154,8 @@ fn simulate_reconstruct_compare_decode() {
     assert!(rec.join("truth/height_um.f32").is_file());
     // --seed overrides the scene's seed: the recording is the library's seed-3 simulation.
     let lib = tmp.path().join("lib");
-    let sc = dpsa_sim::scene::Scene::from_toml_str(SCENE).unwrap();
-    dpsa_sim::simulate::simulate(&sc, 3, &lib, false).unwrap();
+    let sc = dpsa_sim::simulation::scene::Scene::from_toml_str(SCENE).unwrap();
+    dpsa_sim::simulation::simulate::simulate(&sc, 3, &lib, false).unwrap();
     assert_eq!(
         std::fs::read(rec.join("manifest.json")).unwrap(),
         std::fs::read(lib.join("manifest.json")).unwrap()
@@ -167,7 +167,7 @@ fn simulate_reconstruct_compare_decode() {
             "{f}"
         );
     }
-    let recording = dpsa_sim::recording::Recording::open(&rec).unwrap();
+    let recording = dpsa_sim::simulation::recording::Recording::open(&rec).unwrap();
 
     // reconstruct: the stream and both images.
     let stream = tmp.path().join("s.dpsa");
@@ -182,7 +182,7 @@ fn simulate_reconstruct_compare_decode() {
     ]);
     let bytes = std::fs::read(&stream).unwrap();
     assert!(bytes.starts_with(b"DPSA"), "not a packet stream");
-    let (lib_stats, lib_bytes) = dpsa_sim::jobs::reconstruct_bytes(&recording, false).unwrap();
+    let (lib_stats, lib_bytes) = dpsa_sim::reconstruct::reconstruct_bytes(&recording, false).unwrap();
     assert_eq!(
         bytes, lib_bytes,
         "the CLI stream differs from the library's"
@@ -223,7 +223,7 @@ fn simulate_reconstruct_compare_decode() {
         "{cmp}"
     );
     // The CLI reports exactly what the library computes.
-    let (lib_cmp, _) = dpsa_sim::jobs::compare(&recording, false).unwrap();
+    let (lib_cmp, _) = dpsa_sim::reference::compare::compare_recording(&recording, false).unwrap();
     let lib_json = serde_json::to_value(&lib_cmp).unwrap();
     assert!(
         same_json(&cmp, &lib_json),

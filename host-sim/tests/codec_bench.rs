@@ -28,8 +28,9 @@
 //! the accounting behind the gap is checked.
 
 use dpsa_core::packets::codec::{self, Decoder, Encoder};
-use dpsa_sim::codec_bench::{self, BenchRows, Report};
-use dpsa_sim::{jobs, recording::Recording, scene::Scene, simulate};
+use dpsa_sim::benches::codec::{self as codec_bench, BenchRows, Report};
+use dpsa_sim::reconstruct;
+use dpsa_sim::simulation::{recording::Recording, scene::Scene, simulate};
 
 /// Simulates a `width` x `board_length` scene (the default scene's deposit density), runs the
 /// fixed-point core on it, and returns its rows and the encoded packet stream.
@@ -43,7 +44,7 @@ fn scene_rows(width: u32, board_length: u32, tmp: &std::path::Path) -> (BenchRow
     let dir = tmp.join(format!("rec{width}"));
     simulate::simulate(&scene, 1, &dir, false).unwrap();
     let rec = Recording::open(&dir).unwrap();
-    let (_, bytes, map) = jobs::reconstruct_map(&rec, false).unwrap();
+    let (_, bytes, map) = reconstruct::reconstruct_map(&rec, false).unwrap();
     (BenchRows::from_map(&map).unwrap(), bytes)
 }
 

@@ -7,8 +7,9 @@
 //! error, not a `T_z` error.
 
 use crate::heightmap::{flags, HeightMap, HeightRow};
-use crate::recording::{Manifest, Truth};
-use crate::reference::{crb, flat_mask, truth_row_index, RefOutput, RefRow};
+use crate::simulation::recording::{load_frames, Manifest, Recording, Truth};
+use anyhow::{Context, Result};
+use crate::reference::{crb, flat_mask, truth::truth_row_index, RefOutput, RefRow};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -453,17 +454,34 @@ impl Comparison {
     }
 }
 
+/// Fixed-point core vs f64 reference vs PSP baseline vs ground truth on one recording.
+pub fn compare_recording(rec: &Recording, progress: bool) -> Result<(Comparison, HeightMap)> {
+    let (_, _, fixed) = crate::reconstruct::reconstruct_map(rec, progress)?;
+    Ok((compare_map(rec, &fixed, progress)?, fixed))
+}
+
+/// [`compare_recording`] for a fixed-point height map the caller already has (from the same
+/// recording).
+pub fn compare_map(rec: &Recording, fixed: &HeightMap, progress: bool) -> Result<Comparison> {
+    let frames = load_frames(rec, progress)?;
+    let m = &rec.manifest;
+    let r = super::reconstruct(m, &frames);
+    let psp = super::psp(m, &frames);
+    let truth = rec.truth().context("reading the ground truth")?;
+    Ok(compare(m, fixed, &r, Some(&psp), truth.as_ref()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::recording::{Calibration, Camera, Noise, Processing};
+    use crate::simulation::recording::{Calibration, Camera, Noise, Processing};
     use crate::reference::Window;
     use std::f64::consts::{PI, TAU};
 
     fn manifest() -> Manifest {
         Manifest {
-            format: crate::recording::FORMAT.into(),
-            version: crate::recording::VERSION,
+            format: crate::simulation::recording::FORMAT.into(),
+            version: crate::simulation::recording::VERSION,
             camera: Camera {
                 id: 0,
                 width: 3,

@@ -24,11 +24,11 @@
 //! each frame, all derived from the seed, so changing e.g. the noise knobs does not move the
 //! deposits, and frames can be rendered in parallel with identical results.
 
-use crate::recording::{
+use crate::simulation::recording::{
     self, FrameEntry, Manifest, TruthInfo, FORMAT, MANIFEST_FILE, TRUTH_BACKGROUND_FILE,
     TRUTH_CONTRAST_FILE, TRUTH_HEIGHT_FILE, VERSION,
 };
-use crate::scene::Scene;
+use crate::simulation::scene::Scene;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::{RngExt, SeedableRng};
@@ -210,7 +210,7 @@ pub fn conveyor_positions(scene: &Scene, seed: u64) -> Vec<f64> {
     };
     let mut s = -f64::from(scene.rows);
     let mut positions = Vec::new();
-    while s <= limit && positions.len() as u64 <= crate::scene::MAX_FRAMES {
+    while s <= limit && positions.len() as u64 <= crate::simulation::scene::MAX_FRAMES {
         positions.push(s);
         let k = positions.len() as u64 - 1;
         if !stalled(k) {
@@ -288,7 +288,7 @@ impl<'a> Simulator<'a> {
     pub fn latch(&self, k: usize) -> i64 {
         latch(
             self.positions[k],
-            crate::scene::round_counts_per_pixel(self.scene.counts_per_pixel),
+            crate::simulation::scene::round_counts_per_pixel(self.scene.counts_per_pixel),
         )
     }
 
@@ -564,8 +564,8 @@ pub fn simulate(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::recording::Recording;
-    use crate::scene::{Patch, Stall};
+    use crate::simulation::recording::Recording;
+    use crate::simulation::scene::{Patch, Stall};
 
     fn small() -> Scene {
         Scene {

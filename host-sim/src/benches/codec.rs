@@ -53,8 +53,8 @@
 //! difference fails the benchmark.
 
 use crate::heightmap::HeightMap;
-use crate::recording::Recording;
-use crate::{jobs, packets, reconstruct};
+use crate::simulation::recording::Recording;
+use crate::{progress::progress_bar, reconstruct, stream};
 use anyhow::{bail, ensure, Context, Result};
 use dpsa_core::packets::codec::{self, Decoder, Encoder};
 use heatshrink::decoder::HeatshrinkDecoder;
@@ -197,12 +197,12 @@ pub enum Source {
 pub fn load(path: &Path, progress: bool) -> Result<(BenchRows, Source)> {
     if path.is_dir() {
         let rec = Recording::open(path).with_context(|| format!("recording {}", path.display()))?;
-        let (_, _, map) = jobs::reconstruct_map(&rec, progress)?;
+        let (_, _, map) = reconstruct::reconstruct_map(&rec, progress)?;
         Ok((BenchRows::from_map(&map)?, Source::Recording))
     } else {
         let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
         // The LSB only labels the map; the codecs see LSB integers.
-        let (map, rep) = packets::decode_stream(&bytes, 0.25);
+        let (map, rep) = stream::decode_stream(&bytes, 0.25);
         let rows = BenchRows::from_map(&map)
             .with_context(|| format!("packet stream {}", path.display()))?;
         Ok((
@@ -484,7 +484,7 @@ struct BarState {
 
 impl BarState {
     fn show(&mut self, stages: u64) {
-        let bar = reconstruct::progress_bar(true, stages, &self.what);
+        let bar = progress_bar(true, stages, &self.what);
         bar.set_position(self.pos);
         bar.enable_steady_tick(Duration::from_millis(200));
         self.bar = Some(bar);
@@ -1047,22 +1047,6 @@ pub fn run(rows: &BenchRows, progress: bool) -> Result<Report> {
             max_len: codec::max_len(w),
             raw_rows,
         },
-    })
-}
-
-/// `dpsa codec-bench INPUT [--json]`: the text to print (JSON or the table).
-pub fn cli(input: &Path, json: bool, progress: bool) -> Result<String> {
-    let (rows, source) = load(input, progress)?;
-    if let Source::Stream { ok, corrupt } = source {
-        if corrupt > 0 {
-            eprintln!("warning: {corrupt} damaged packets left out ({ok} decoded)");
-        }
-    }
-    let report = run(&rows, progress)?;
-    Ok(if json {
-        serde_json::to_string_pretty(&report)?
-    } else {
-        report.table()
     })
 }
 

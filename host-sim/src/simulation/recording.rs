@@ -687,6 +687,18 @@ pub fn write_frame_png(
     w.flush().map_err(io_err(path))
 }
 
+/// Loads every frame of a recording (the f64 reference needs them all at once).
+pub fn load_frames(rec: &Recording, progress: bool) -> anyhow::Result<Vec<Frame>> {
+    let bar = crate::progress::progress_bar(progress, rec.manifest.frames.len() as u64, "load frames");
+    let mut frames = Vec::with_capacity(rec.manifest.frames.len());
+    for k in 0..rec.manifest.frames.len() {
+        frames.push(rec.frame(k)?);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    Ok(frames)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -3,7 +3,7 @@
 //! Every field has a default, so a scene file only lists what it changes; [`Scene::default`]
 //! is the built-in default scene. Knobs, units and defaults are documented in the README (section "Scene files").
 
-use crate::recording::{self, Calibration, Camera, Noise, Processing, MAX_ROWS, MAX_WIDTH};
+use crate::simulation::recording::{self, Calibration, Camera, Noise, Processing, MAX_ROWS, MAX_WIDTH};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
@@ -653,7 +653,7 @@ mod tests {
     /// The README documents every scene knob and its example parses.
     #[test]
     fn documentation_is_in_sync() {
-        let doc = include_str!("../../README.md");
+        let doc = include_str!("../../../README.md");
         let start = doc.find("```toml\n").expect("example block") + 8;
         let end = start + doc[start..].find("```").expect("end of example");
         let scene = Scene::from_toml_str(&doc[start..end]).unwrap();

@@ -1,0 +1,7 @@
+//! Benchmarks the `dpsa` command runs and prints as JSON (speed and size are measured here,
+//! never in timed tests).
+//!
+//! - [`codec`]: `dpsa codec-bench`, our lossless row codec against lz4, heatshrink, zstd and
+//!   PNG-16 on the same height rows, with the entropy bound and the noise floor.
+
+pub mod codec;

@@ -1,0 +1,82 @@
+//! The `dpsa` command line: one file per subcommand, each with its arguments (clap) and its
+//! printing. The work itself is in the `dpsa_sim` library; nothing here computes a figure.
+
+pub mod codec_bench;
+pub mod compare;
+pub mod decode;
+pub mod demo;
+pub mod phase;
+pub mod reconstruct;
+pub mod simulate;
+pub mod target_run;
+
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand};
+use dpsa_sim::simulation::{recording::Recording, scene::Scene};
+use std::path::Path;
+
+#[derive(Parser)]
+#[command(name = "dpsa", version, about = "3D solder-paste measurement with the dynamic phase-shift algorithm (D-PSA)",
+    long_about = "Simulates conveyor recordings with ground truth, runs the same fixed-point core as the \
+frame-grabber firmware on them, and compares it with an independent f64 reference, a conventional \
+4-step PSP baseline and the Cramer-Rao bound.\n\nStart with `dpsa demo`.")]
+pub struct Cli {
+    /// Hide progress bars.
+    #[arg(long, global = true)]
+    pub quiet: bool,
+    #[command(subcommand)]
+    pub cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+pub enum Cmd {
+    /// Simulate a recording (frames, manifest, ground truth) of a scene.
+    Simulate(simulate::Args),
+    /// Run the fixed-point core on a recording through its streaming API; write the packet stream.
+    Reconstruct(reconstruct::Args),
+    /// Compare the fixed-point core with the f64 reference, the PSP baseline, the CRB and the truth.
+    Compare(compare::Args),
+    /// Phase of an ordinary phase-shifting image stack (PNG, JPEG, TIFF; 8 or 16 bit), fixed-point
+    /// core and f64 reference side by side.
+    Phase(phase::Args),
+    /// Decode a packet stream: report good/corrupt packets and optionally write images.
+    Decode(decode::Args),
+    /// Benchmark the row codec against lz4, zstd, heatshrink and PNG on the same height rows,
+    /// with the entropy of its predictor's residuals and the noise floor.
+    CodecBench(codec_bench::Args),
+    /// Run the firmware under QEMU (Cortex-M7, mps2-an500) on a recording: the same core on the
+    /// target, writing the packet stream it emitted; `--bench` adds its measured figures.
+    TargetRun(target_run::Args),
+    /// The main job: simulate the default scene, reconstruct, compare, write images, summarise.
+    Demo(demo::Args),
+}
+
+/// `println!` that never panics: a closed stdout (e.g. `dpsa ... | head`) ends the program
+/// quietly instead of panicking.
+macro_rules! out {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let mut o = std::io::stdout().lock();
+        if let Err(e) = writeln!(o, $($t)*) {
+            if e.kind() == std::io::ErrorKind::BrokenPipe {
+                std::process::exit(0);
+            }
+            return Err(anyhow::Error::new(e).context("writing to stdout"));
+        }
+    }};
+}
+pub(crate) use out;
+
+/// `default` for the built-in scene, or a scene TOML file.
+pub fn load_scene(spec: &str) -> Result<Scene> {
+    if spec == "default" {
+        Ok(Scene::default())
+    } else {
+        Scene::load(spec).with_context(|| format!("scene {spec}"))
+    }
+}
+
+/// Opens a recording directory, naming it in the error.
+pub fn open(dir: &Path) -> Result<Recording> {
+    Recording::open(dir).with_context(|| format!("recording {}", dir.display()))
+}

@@ -1,0 +1,86 @@
+//! `dpsa target-run`: the firmware under QEMU on a recording, its stream and its bench figures.
+
+use super::{open, out};
+use anyhow::{Context, Result};
+use dpsa_sim::{stream, target};
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Recording directory.
+    recording: PathBuf,
+    /// Packet stream output file (required unless --bench).
+    #[arg(long, required_unless_present = "bench")]
+    out: Option<PathBuf>,
+    /// Codec intra period of the stream (as for `dpsa reconstruct`).
+    #[arg(long, default_value_t = dpsa_core::packets::STREAM_INTRA_PERIOD)]
+    intra_period: u32,
+    /// Firmware ELF to run; default: build it with `firmware/build.sh` if needed.
+    #[arg(long)]
+    elf: Option<PathBuf>,
+    /// Have the firmware measure itself: instructions per pixel by stage, per window
+    /// solve, flash, static RAM, state RAM and stack high-water mark.
+    #[arg(long)]
+    bench: bool,
+    /// Print one JSON object.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Runs the firmware on the recording, writes the stream to `--out` and prints a summary (or
+/// one JSON object with `--json`). The decoded firmware log goes to stderr.
+pub fn run(a: Args, progress: bool) -> Result<()> {
+    let rec = open(&a.recording)?;
+    let elf = match a.elf {
+        Some(e) => e,
+        None => target::firmware_elf(true)?,
+    };
+    let elf_bytes = std::fs::read(&elf).with_context(|| format!("reading {}", elf.display()))?;
+    let sizes = target::elf_sizes(&elf_bytes).with_context(|| format!("firmware ELF {}", elf.display()))?;
+    let opts = target::RunOptions {
+        intra_period: a.intra_period,
+        bench: a.bench,
+        echo: target::Echo { log: true, progress },
+    };
+    let run = target::run(&rec, &elf, opts)?;
+    if let Some(out) = &a.out {
+        std::fs::write(out, &run.stream).with_context(|| format!("writing {}", out.display()))?;
+    }
+    let (map, rep) = stream::decode_stream(&run.stream, rec.manifest.calibration.height_lsb_um);
+    let report = run.bench.as_ref().map(|raw| target::bench_report(raw, &sizes)).transpose()?;
+    let seconds = run.outcome.elapsed.as_secs_f64();
+    if a.json {
+        let mut v = match &report {
+            Some(r) => serde_json::to_value(r)?,
+            None => serde_json::json!({
+                "flash_bytes": sizes.flash,
+                "ram_bytes": { "static": sizes.static_ram },
+                "elf_sections": sizes.sections,
+            }),
+        };
+        v["stream"] = serde_json::json!({
+            "bytes": run.stream.len(),
+            "packets": rep.ok,
+            "corrupt": rep.corrupt,
+            "rows": map.rows.len(),
+            "file": a.out.as_ref().map(|p| p.display().to_string()),
+        });
+        v["elf"] = serde_json::json!(elf.display().to_string());
+        v["qemu_seconds"] = serde_json::json!(seconds);
+        out!("{}", serde_json::to_string_pretty(&v)?);
+        return Ok(());
+    }
+    let dest = a.out.as_ref().map(|p| format!(" -> {}", p.display())).unwrap_or_default();
+    let mut text = format!(
+        "target: {} packets ({} corrupt), {} bytes{dest}; {seconds:.1} s in QEMU\n",
+        rep.ok,
+        rep.corrupt,
+        run.stream.len()
+    );
+    match &report {
+        Some(r) => text.push_str(&r.summary()),
+        None => text.push_str(&format!("firmware: flash {} bytes, static RAM {} bytes", sizes.flash, sizes.static_ram)),
+    }
+    out!("{text}");
+    Ok(())
+}

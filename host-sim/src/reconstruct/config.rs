@@ -1,0 +1,42 @@
+//! Calibration and processing values of a manifest -> the core's integer configuration.
+
+use crate::simulation::recording::Manifest;
+use anyhow::{anyhow, Result};
+use dpsa_core::{phase, Config};
+
+/// Integer core configuration and reference-phase table from a manifest.
+///
+/// This is the one place where calibration floats become the integers both the host and the
+/// firmware run on: `cpp` in Q16.16, `2 pi f_x` and `phi_0(c)` as binary angles, LSB per turn
+/// in Q16.16, the modulation threshold in Q12, the noise-gain limit in Q8.
+pub fn config(m: &Manifest) -> Result<(Config, Vec<u32>)> {
+    let cal = &m.calibration;
+    let p = &m.processing;
+    let to_u32 = |x: f64, what: &str| -> Result<u32> {
+        let r = x.round();
+        if r.is_finite() && (0.0..=u32::MAX as f64).contains(&r) {
+            Ok(r as u32)
+        } else {
+            Err(anyhow!("{what} = {x} is out of range for the fixed-point core"))
+        }
+    };
+    let narrow = |x: u32, what: &str| -> Result<u16> {
+        u16::try_from(x).map_err(|_| anyhow!("{what} = {x} exceeds 65535"))
+    };
+    let cfg = Config {
+        width: narrow(m.camera.width, "camera.width")?,
+        rows: narrow(m.camera.rows, "camera.rows")?,
+        n: p.n,
+        camera: m.camera.id,
+        counts_per_pixel_q16: to_u32(cal.counts_per_pixel * 65536.0, "counts_per_pixel")?,
+        fx: (4_294_967_296.0 / cal.fringe_period_px).round() as u64 as u32,
+        lsb_per_turn_q16: to_u32(cal.height_per_turn_um / cal.height_lsb_um * 65536.0, "lsb per turn")?,
+        saturation: m.camera.saturation,
+        min_modulation_q12: to_u32(p.min_modulation * 4096.0, "min_modulation")?,
+        max_noise_gain_q8: narrow(to_u32(p.max_noise_gain * 256.0, "max_noise_gain")?, "max_noise_gain")?,
+        max_step: narrow(p.max_step_rows, "max_step_rows")?,
+    };
+    cfg.validate().map_err(|e| anyhow!("calibration/processing out of range for the core: {e:?}"))?;
+    let ref_phase = cal.reference_phase_rad.iter().map(|&r| phase::from_rad(r)).collect();
+    Ok((cfg, ref_phase))
+}

@@ -1,0 +1,69 @@
+//! The Cramer-Rao bound of the height variance, per pixel, from the truth and the noise model.
+
+use super::truth::{truth_at, truth_row_index};
+use super::RefOutput;
+use crate::simulation::recording::{Manifest, Truth};
+use nalgebra::{Matrix3, Vector3};
+use std::f64::consts::TAU;
+
+/// Cramer-Rao bound on the height variance, um^2, of each pixel of `out` (which must come
+/// from [`reconstruct`]: the actual window shifts are used). Indexed `[i][c]` for
+/// `out.rows[i]`, column `c`.
+///
+/// Defined (Some) for pixels of valid rows with a window whose truth exists; parameters
+/// `(B, C, Phi)` with the true `B`, `C` (`truth.background` / `truth.contrast`) and the true
+/// `Phi = 2 pi f_x (b - o_w) + phi_0(c) + 2 pi h_true / T_z`. Samples
+/// `I_j = B + C cos(Phi + theta_j)` are modelled as independent Gaussians with variance
+/// `sigma_j^2 = read_noise^2 + I_j / gain + 1/12` DN^2: read noise, shot noise (Poisson with
+/// variance `I_j / gain` DN^2, approximated as Gaussian, which is accurate at the electron
+/// counts of interest) and rounding to whole DN (uniform, 1/12 DN^2). Saturation clipping and
+/// the lateral sub-pixel registration error are not modelled. With Jacobian rows
+/// `J_j = [1, cos(Phi + theta_j), -C sin(Phi + theta_j)]`, `F = sum_j J_j J_j^T / sigma_j^2`,
+/// `var_Phi = (F^-1)[2][2]` and `var_h = var_Phi (T_z / 2 pi)^2`.
+///
+/// Every entry is `None` when the manifest has no noise model.
+pub fn crb(manifest: &Manifest, truth: &Truth, out: &RefOutput) -> Vec<Vec<Option<f64>>> {
+    let width = out.width;
+    let Some(noise) = &manifest.noise else {
+        return out.rows.iter().map(|_| vec![None; width]).collect();
+    };
+    let cal = &manifest.calibration;
+    let f_x = 1.0 / cal.fringe_period_px;
+    let scale = (cal.height_per_turn_um / TAU).powi(2);
+    let read_var = noise.read_noise_dn * noise.read_noise_dn;
+
+    out.rows
+        .iter()
+        .map(|row| {
+            let mut v = vec![None; width];
+            let Some(window) = row.window.as_ref().filter(|_| row.is_valid()) else {
+                return v;
+            };
+            let Some(ti) = truth_row_index(truth, row.row) else {
+                return v;
+            };
+            let phi_r_row =
+                TAU * f_x * (row.row - window.offsets.first().copied().unwrap_or(0)) as f64;
+            for (c, slot) in v.iter_mut().enumerate() {
+                let Some((h_true, bg, ct)) = truth_at(truth, ti, c) else {
+                    continue;
+                };
+                let phi0 = cal.reference_phase_rad.get(c).copied().unwrap_or(f64::NAN);
+                let phi = phi_r_row + phi0 + TAU * h_true / cal.height_per_turn_um;
+                let mut fisher = Matrix3::<f64>::zeros();
+                for &t in &window.shifts_rad {
+                    let (s, co) = (phi + t).sin_cos();
+                    let i = (bg + ct * co).max(0.0);
+                    let var = read_var + i / noise.gain_e_per_dn + 1.0 / 12.0;
+                    let jac = Vector3::new(1.0, co, -ct * s);
+                    fisher += jac * jac.transpose() / var;
+                }
+                *slot = fisher
+                    .try_inverse()
+                    .map(|inv| inv[(2, 2)] * scale)
+                    .filter(|x| x.is_finite() && *x >= 0.0);
+            }
+            v
+        })
+        .collect()
+}

@@ -1,0 +1,554 @@
+//! The f64 reference implementation of D-PSA, written from the measurement model in
+//! `docs/model.md` (registration steps 1-8 and the validity rules).
+//!
+//! It is deliberately independent of the fixed-point core (`dpsa-core`): everything is f64,
+//! the least squares uses the full `n x 3` design matrix `M` with rows
+//! `[1, cos theta_j, -sin theta_j]` and `P = (M^T M)^-1 M^T` computed by nalgebra (not the
+//! centred 2x2 shortcut, which is only used for the noise gain, as the model defines it), the
+//! phase is an f64 `atan2` and the output is f64-rounded.
+//!
+//! Besides [`reconstruct`] this module provides the conventional baseline [`psp`] (nominal
+//! uniform shifts), the Cramer-Rao bound [`crb`] of the height variance and the truth mask
+//! [`flat_mask`] used by [`crate::reference::compare`].
+
+use crate::heightmap::{flags, HeightMap, HeightRow};
+use crate::simulation::recording::{Frame, Manifest};
+use nalgebra::{Dyn, Matrix2, Matrix3, OMatrix, SymmetricEigen, U3};
+use std::collections::HashMap;
+use std::f64::consts::{PI, TAU};
+
+/// Largest number of board rows [`plan`] will enumerate. Offsets spanning more rows than this
+/// (absurd latches or calibration) are treated as unusable data and give an empty plan rather
+/// than an enormous allocation.
+pub const MAX_PLAN_ROWS: i64 = 1 << 24;
+
+/// Largest absolute offset accepted, px; keeps `o_k + H` far from `i64` overflow.
+const MAX_ABS_OFFSET: f64 = (1u64 << 60) as f64;
+
+/// Registration step 1: `o = floor(e / cpp + 1/2)` (round half up), px.
+///
+/// Computed in f64. `cpp` is a multiple of 2^-16, so the exact quotient `e / cpp` is at least
+/// `1 / (2 * 65536 * cpp)` away from a half-integer unless it is one; the f64 quotient is
+/// correctly rounded, so the result is exact while `|e| < 2^36` counts (and `e` itself is exact
+/// in f64 up to 2^53). Returns `None` for a non-finite result or `|o| >= 2^60`
+/// (non-positive or non-finite `cpp`).
+pub fn offset(latch: i64, counts_per_pixel: f64) -> Option<i64> {
+    if !(counts_per_pixel > 0.0 && counts_per_pixel.is_finite()) {
+        return None;
+    }
+    let o = (latch as f64 / counts_per_pixel + 0.5).floor();
+    (o.is_finite() && o.abs() < MAX_ABS_OFFSET).then_some(o as i64)
+}
+
+/// Offsets `o_k` of all manifest frames, px; `None` when any is unusable (see [`offset`]).
+pub fn offsets(manifest: &Manifest) -> Option<Vec<i64>> {
+    let cpp = manifest.calibration.counts_per_pixel;
+    manifest
+        .frames
+        .iter()
+        .map(|f| offset(f.latch, cpp))
+        .collect()
+}
+
+/// The registration decision for one board row.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RowPlan {
+    /// Board row `b`.
+    pub row: i64,
+    /// Index into `manifest.frames` of the frame `w` at which the row entered; `None` for
+    /// rows that never entered (`SKIPPED`).
+    pub first_frame: Option<usize>,
+    /// Row-level flags decidable from the manifest alone: `SKIPPED`, `INCOMPLETE`,
+    /// `FRAME_GAP` (sequence gaps), `ENCODER_REVERSAL`. Zero when the window is usable.
+    pub flags: u16,
+}
+
+/// Registration steps 1-4 of `docs/model.md`.
+///
+/// Returns every board row from the first frame's top row (`o_0`) to `E_last - 1` exactly
+/// once, in increasing order (rows below `o_0`, visible only after a reversal, never enter):
+/// - rows that entered at frame `w` (`[max(E_{w-1}, o_w + H - max_step), o_w + H)`) carry
+///   `first_frame = Some(w)` and the window flags: `INCOMPLETE` when the row is not visible
+///   in one of the frames `w..w+n-1` or the window runs past the last frame, `FRAME_GAP` when
+///   consecutive window frames do not have consecutive `seq` (wrapping `u32` counter),
+///   `ENCODER_REVERSAL` when the latch decreases between consecutive window frames (a
+///   decrease never re-admits rows because `E_k` is a running maximum). The flags of a window
+///   truncated by the end of the recording are evaluated over the frames that exist;
+/// - all other rows (below the `max_step` bound of the frame that first showed them) are
+///   `SKIPPED` with no frame.
+///
+/// Frame-content checks (a frame that did not deliver the row's line) are added by
+/// [`reconstruct`]. An empty manifest, `H = 0`, an unusable `counts_per_pixel` or a row span
+/// above [`MAX_PLAN_ROWS`] gives an empty plan.
+pub fn plan(manifest: &Manifest) -> Vec<RowPlan> {
+    let h = i64::from(manifest.camera.rows);
+    let n = usize::from(manifest.processing.n);
+    let max_step = i64::from(manifest.processing.max_step_rows);
+    let frames = &manifest.frames;
+    let Some(o) = offsets(manifest) else {
+        return Vec::new();
+    };
+    let (Some(&lo), Some(&hi)) = (o.first(), o.iter().max()) else {
+        return Vec::new();
+    };
+    let end = hi + h; // E_last
+    if h == 0 || end - lo > MAX_PLAN_ROWS {
+        return Vec::new();
+    }
+
+    let mut rows: Vec<RowPlan> = (lo..end)
+        .map(|row| RowPlan {
+            row,
+            first_frame: None,
+            flags: flags::SKIPPED,
+        })
+        .collect();
+
+    let mut e_prev = i64::MIN; // E_{k-1}, -inf before the first frame
+    for (k, &ok) in o.iter().enumerate() {
+        let top = ok + h;
+        let from = e_prev.max(top - max_step).max(lo);
+        for b in from..top {
+            let f = window_flags(b, k, n, h, &o, frames);
+            rows[(b - lo) as usize] = RowPlan {
+                row: b,
+                first_frame: Some(k),
+                flags: f,
+            };
+        }
+        e_prev = e_prev.max(top);
+    }
+    rows
+}
+
+/// Window flags of board row `b` entering at frame `w` (step 4).
+fn window_flags(
+    b: i64,
+    w: usize,
+    n: usize,
+    h: i64,
+    o: &[i64],
+    frames: &[crate::simulation::recording::FrameEntry],
+) -> u16 {
+    let mut f = 0;
+    for j in 0..n {
+        let k = w + j;
+        if k >= o.len() {
+            f |= flags::INCOMPLETE;
+            break;
+        }
+        if !(o[k] <= b && b < o[k] + h) {
+            f |= flags::INCOMPLETE;
+        }
+        if j > 0 {
+            if frames[k].seq != frames[k - 1].seq.wrapping_add(1) {
+                f |= flags::FRAME_GAP;
+            }
+            if frames[k].latch < frames[k - 1].latch {
+                f |= flags::ENCODER_REVERSAL;
+            }
+        }
+    }
+    f
+}
+
+/// Noise gain `g = sqrt(n / (2 lambda_min(A)))` of a shift set (rad), `docs/model.md`.
+///
+/// `A` is the centred 2x2 matrix of the model; `g = 1` for `n` equally spaced shifts over a
+/// full turn. Returns `+inf` when `A` is singular (`lambda_min <= 0`: stalled conveyor, shifts
+/// confined to two phases) or `n = 0`. Shift sets that are singular only up to rounding
+/// (e.g. whole fringe periods) give a very large finite gain.
+pub fn noise_gain(shifts_rad: &[f64]) -> f64 {
+    let n = shifts_rad.len() as f64;
+    if shifts_rad.is_empty() {
+        return f64::INFINITY;
+    }
+    let mc = shifts_rad.iter().map(|t| t.cos()).sum::<f64>() / n;
+    let ms = shifts_rad.iter().map(|t| t.sin()).sum::<f64>() / n;
+    let (mut suu, mut suw, mut sww) = (0.0, 0.0, 0.0);
+    for t in shifts_rad {
+        let u = t.cos() - mc;
+        let w = -(t.sin() - ms);
+        suu += u * u;
+        suw += u * w;
+        sww += w * w;
+    }
+    let a = Matrix2::new(suu, suw, suw, sww);
+    let lambda_min = SymmetricEigen::new(a).eigenvalues.min();
+    if lambda_min > 0.0 {
+        (n / (2.0 * lambda_min)).sqrt()
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// Wraps a phase into `[-pi, pi)`, rad. Non-finite input gives NaN.
+pub fn wrap_phase(x: f64) -> f64 {
+    let mut d = x - TAU * ((x + PI) / TAU).floor();
+    // Guard the boundaries against rounding.
+    if d >= PI {
+        d -= TAU;
+    }
+    if d < -PI {
+        d += TAU;
+    }
+    d
+}
+
+/// The least-squares projector of a shift set: rows 2 and 3 of `P = (M^T M)^-1 M^T`, where
+/// `M` (`n x 3`) has rows `[1, cos theta_j, -sin theta_j]`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PhaseFit {
+    /// Row 2 of `P`: `v_2 = C cos Phi = sum_j cos_coef[j] * i_j`.
+    pub cos_coef: Vec<f64>,
+    /// Row 3 of `P`: `v_3 = C sin Phi = sum_j sin_coef[j] * i_j`.
+    pub sin_coef: Vec<f64>,
+}
+
+impl PhaseFit {
+    /// Builds `M`, inverts `M^T M` (3x3, f64) and keeps rows 2 and 3 of `P`. `None` when
+    /// `M^T M` is exactly singular or the result is not finite.
+    pub fn new(shifts_rad: &[f64]) -> Option<PhaseFit> {
+        let n = shifts_rad.len();
+        let m = OMatrix::<f64, Dyn, U3>::from_fn(n, |j, col| match col {
+            0 => 1.0,
+            1 => shifts_rad[j].cos(),
+            _ => -shifts_rad[j].sin(),
+        });
+        let mt = m.transpose();
+        let mtm: Matrix3<f64> = &mt * &m;
+        let p = mtm.try_inverse()? * mt; // 3 x n
+        if !p.iter().all(|x| x.is_finite()) {
+            return None;
+        }
+        Some(PhaseFit {
+            cos_coef: p.row(1).iter().copied().collect(),
+            sin_coef: p.row(2).iter().copied().collect(),
+        })
+    }
+
+    /// Fits samples `i_j` (DN, same order as the shifts): returns
+    /// `(Phi = atan2(v_3, v_2) in rad, modulation C^ = sqrt(v_2^2 + v_3^2) in DN)`.
+    /// Extra samples beyond the shift count are ignored; missing ones count as 0.
+    pub fn fit(&self, samples: &[f64]) -> (f64, f64) {
+        let v2: f64 = self.cos_coef.iter().zip(samples).map(|(p, i)| p * i).sum();
+        let v3: f64 = self.sin_coef.iter().zip(samples).map(|(p, i)| p * i).sum();
+        (v3.atan2(v2), v2.hypot(v3))
+    }
+}
+
+/// The frames and shifts forming one board row's least-squares problem.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Window {
+    /// Indices into `manifest.frames` of frames `w..w+n-1`.
+    pub frames: Vec<usize>,
+    /// Offsets `o_{w+j}`, px.
+    pub offsets: Vec<i64>,
+    /// Shifts `theta_j`, rad (actual `-2 pi f_x (o_{w+j} - o_w)` for [`reconstruct`],
+    /// nominal `-j delta` for [`psp`]).
+    pub shifts_rad: Vec<f64>,
+    /// Noise gain `g` of the shifts (see [`noise_gain`]); `+inf` when singular.
+    pub noise_gain: f64,
+}
+
+impl Window {
+    /// Builds a window and computes its noise gain.
+    pub fn new(frames: Vec<usize>, offsets: Vec<i64>, shifts_rad: Vec<f64>) -> Window {
+        let noise_gain = noise_gain(&shifts_rad);
+        Window {
+            frames,
+            offsets,
+            shifts_rad,
+            noise_gain,
+        }
+    }
+}
+
+/// One board row of the reference output. Per-pixel vectors always have `width` entries;
+/// where no samples could be gathered (no window, line not visible or not delivered) the
+/// phase, height and modulation are NaN, `height_lsb` is 0 and the pixel is invalid.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RefRow {
+    /// Board row `b`.
+    pub row: i64,
+    /// Row flags ([`flags`]): registration flags plus `FRAME_GAP` for undelivered lines,
+    /// `ILL_CONDITIONED`, and the pixel summaries `SATURATED` / `LOW_MODULATION`. The
+    /// summaries are evaluated whenever all `n` lines were gathered, also for rows that
+    /// another flag invalidates.
+    pub flags: u16,
+    /// The row's window, when all `n` window frames exist in the recording.
+    pub window: Option<Window>,
+    /// Wrapped phase difference `D = wrap(Phi - phi_r)` in `[-pi, pi)`, rad.
+    pub phase_rad: Vec<f64>,
+    /// Height `h = D / (2 pi) * T_z`, um.
+    pub height_um: Vec<f64>,
+    /// `round(h / lsb)` clamped to `[-32767, 32767]`, LSB.
+    pub height_lsb: Vec<i32>,
+    /// Pixel validity: row not invalidated, no saturated sample, modulation above threshold,
+    /// finite height.
+    pub valid: Vec<bool>,
+    /// Fitted modulation `C^`, DN.
+    pub modulation: Vec<f64>,
+}
+
+impl RefRow {
+    fn empty(row: i64, flags: u16, width: usize) -> RefRow {
+        RefRow {
+            row,
+            flags,
+            window: None,
+            phase_rad: vec![f64::NAN; width],
+            height_um: vec![f64::NAN; width],
+            height_lsb: vec![0; width],
+            valid: vec![false; width],
+            modulation: vec![f64::NAN; width],
+        }
+    }
+
+    /// True when the row carries no invalidating flag.
+    pub fn is_valid(&self) -> bool {
+        !flags::invalidates(self.flags)
+    }
+}
+
+/// Output of [`reconstruct`] or [`psp`]: one row per planned board row, sorted by `row`.
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct RefOutput {
+    /// Columns per row, px.
+    pub width: usize,
+    /// Rows in increasing board-row order.
+    pub rows: Vec<RefRow>,
+}
+
+impl RefOutput {
+    /// The row for board row `row`, if present.
+    pub fn get(&self, row: i64) -> Option<&RefRow> {
+        self.rows
+            .binary_search_by_key(&row, |r| r.row)
+            .ok()
+            .map(|i| &self.rows[i])
+    }
+
+    /// Number of valid pixels.
+    pub fn valid_pixels(&self) -> usize {
+        self.rows
+            .iter()
+            .map(|r| r.valid.iter().filter(|&&v| v).count())
+            .sum()
+    }
+
+    /// Converts to a [`HeightMap`] with the manifest's LSB. `latch` is the latch of the
+    /// row's first window frame `w` (0 without a window); heights are `height_lsb` (which is
+    /// already clamped to the i16 range).
+    pub fn to_height_map(&self, manifest: &Manifest) -> HeightMap {
+        let rows = self
+            .rows
+            .iter()
+            .map(|r| HeightRow {
+                row: r.row,
+                latch: r
+                    .window
+                    .as_ref()
+                    .and_then(|w| w.frames.first())
+                    .and_then(|&k| manifest.frames.get(k))
+                    .map_or(0, |f| f.latch),
+                flags: r.flags,
+                heights: r
+                    .height_lsb
+                    .iter()
+                    .map(|&h| h.clamp(-32767, 32767) as i16)
+                    .collect(),
+                valid: r.valid.clone(),
+            })
+            .collect();
+        HeightMap {
+            width: self.width,
+            lsb_um: manifest.calibration.height_lsb_um,
+            rows,
+        }
+    }
+}
+
+/// How the shifts of a window are obtained.
+#[derive(Clone, Copy, Debug)]
+pub(super) enum Shifts {
+    /// D-PSA: `theta_j = -2 pi f_x (o_{w+j} - o_w)`.
+    Actual,
+    /// Conventional PSP: `theta_j = -j delta`, rad per frame.
+    Nominal(f64),
+}
+
+/// D-PSA reconstruction per `docs/model.md` steps 1-8 and the validity rules.
+///
+/// `frames[k]` must correspond to `manifest.frames[k]`. Window frames missing from `frames`,
+/// frames of the wrong width and frames with fewer lines than the row's image row flag the row
+/// `FRAME_GAP` (the frame did not deliver its line). One [`PhaseFit`] is computed per window
+/// (rows entering at the same frame share it); each pixel then costs two dot products and an
+/// `atan2`. A window with `g > max_noise_gain` (or a singular `M^T M`) is `ILL_CONDITIONED`.
+/// Pixels of rows whose samples are available are computed even when the row is invalid (for
+/// diagnostics), but are marked invalid.
+pub fn reconstruct(manifest: &Manifest, frames: &[Frame]) -> RefOutput {
+    run(manifest, frames, Shifts::Actual)
+}
+
+/// Lines of `frame` actually delivered at `width` columns.
+fn delivered_lines(frame: &Frame, width: usize) -> usize {
+    if width == 0 {
+        frame.rows
+    } else if frame.width != width {
+        0
+    } else {
+        frame.rows.min(frame.data.len() / width)
+    }
+}
+
+pub(super) fn run(manifest: &Manifest, frames: &[Frame], shifts: Shifts) -> RefOutput {
+    let width = manifest.camera.width as usize;
+    let cal = &manifest.calibration;
+    let proc_ = &manifest.processing;
+    let n = usize::from(proc_.n);
+    let f_x = 1.0 / cal.fringe_period_px;
+    let phi0: Vec<f64> = (0..width)
+        .map(|c| cal.reference_phase_rad.get(c).copied().unwrap_or(f64::NAN))
+        .collect();
+
+    let plan = plan(manifest);
+    let o = offsets(manifest).unwrap_or_default();
+
+    // One window + projector per entry frame w.
+    let mut windows: HashMap<usize, (Window, Option<PhaseFit>)> = HashMap::new();
+    let mut rows = Vec::with_capacity(plan.len());
+
+    for p in &plan {
+        let mut row = RefRow::empty(p.row, p.flags, width);
+        let Some(w) = p.first_frame else {
+            rows.push(row);
+            continue;
+        };
+        if w + n > o.len() {
+            // Runs past the last frame: plan() already flagged INCOMPLETE.
+            rows.push(row);
+            continue;
+        }
+        let (window, fit) = windows
+            .entry(w)
+            .or_insert_with(|| {
+                let offs: Vec<i64> = o[w..w + n].to_vec();
+                let th: Vec<f64> = match shifts {
+                    Shifts::Actual => offs
+                        .iter()
+                        .map(|&ok| -TAU * f_x * (ok - offs[0]) as f64)
+                        .collect(),
+                    Shifts::Nominal(delta) => (0..n).map(|j| -(j as f64) * delta).collect(),
+                };
+                let fit = PhaseFit::new(&th);
+                (Window::new((w..w + n).collect(), offs, th), fit)
+            })
+            .clone();
+
+        let ill = match shifts {
+            Shifts::Actual => {
+                let g = window.noise_gain;
+                fit.is_none() || g.is_nan() || g > proc_.max_noise_gain
+            }
+            // The nominal set is the same for every window: this only fires when the
+            // conventional design itself is degenerate.
+            Shifts::Nominal(_) => {
+                let g = window.noise_gain;
+                fit.is_none() || g.is_nan() || g > proc_.max_noise_gain
+            }
+        };
+        if ill {
+            row.flags |= flags::ILL_CONDITIONED;
+        }
+
+        // Gather the row's line from each window frame.
+        let b = p.row;
+        let h = i64::from(manifest.camera.rows);
+        let mut lines: Vec<&[u16]> = Vec::with_capacity(n);
+        for (j, &k) in window.frames.iter().enumerate() {
+            let r = b - window.offsets[j];
+            if r < 0 || r >= h {
+                continue; // not visible: INCOMPLETE from plan()
+            }
+            let r = r as usize;
+            match frames.get(k) {
+                Some(fr) if r < delivered_lines(fr, width) => {
+                    lines.push(&fr.data[r * width..(r + 1) * width]);
+                }
+                _ => row.flags |= flags::FRAME_GAP,
+            }
+        }
+
+        if let (Some(fit), true) = (&fit, lines.len() == n) {
+            let phi_r_row = TAU * f_x * (b - window.offsets[0]) as f64;
+            let row_ok = !flags::invalidates(row.flags);
+            let summary = fill_pixels(&mut row, fit, &lines, phi_r_row, &phi0, manifest, row_ok);
+            row.flags |= summary;
+        }
+        row.window = Some(window);
+        rows.push(row);
+    }
+    // Pixel-level flags may have been added after the row flag decision; make the validity
+    // consistent with the final row flags.
+    for r in &mut rows {
+        if flags::invalidates(r.flags) {
+            r.valid.iter_mut().for_each(|v| *v = false);
+        }
+    }
+    RefOutput { width, rows }
+}
+
+/// Computes all pixels of one row from its `n` lines; returns the summary flags
+/// (`SATURATED`, `LOW_MODULATION`).
+fn fill_pixels(
+    row: &mut RefRow,
+    fit: &PhaseFit,
+    lines: &[&[u16]],
+    phi_r_row: f64,
+    phi0: &[f64],
+    manifest: &Manifest,
+    row_ok: bool,
+) -> u16 {
+    let width = phi0.len();
+    let saturation = manifest.camera.saturation;
+    let min_mod = manifest.processing.min_modulation;
+    let t_z = manifest.calibration.height_per_turn_um;
+    let lsb = manifest.calibration.height_lsb_um;
+
+    let mut v2 = vec![0.0f64; width];
+    let mut v3 = vec![0.0f64; width];
+    let mut max_sample = vec![0u16; width];
+    for (j, line) in lines.iter().enumerate() {
+        let (pc, ps) = (fit.cos_coef[j], fit.sin_coef[j]);
+        for c in 0..width {
+            let s = line[c];
+            let x = f64::from(s);
+            v2[c] += pc * x;
+            v3[c] += ps * x;
+            max_sample[c] = max_sample[c].max(s);
+        }
+    }
+
+    let mut summary = 0;
+    for c in 0..width {
+        let phi = v3[c].atan2(v2[c]);
+        let modulation = v2[c].hypot(v3[c]);
+        let d = wrap_phase(phi - (phi_r_row + phi0[c]));
+        let h = d / TAU * t_z;
+        let saturated = max_sample[c] >= saturation;
+        let low = modulation.is_nan() || modulation < min_mod;
+        if saturated {
+            summary |= flags::SATURATED;
+        }
+        if low {
+            summary |= flags::LOW_MODULATION;
+        }
+        row.phase_rad[c] = d;
+        row.height_um[c] = h;
+        row.height_lsb[c] = (h / lsb).round().clamp(-32767.0, 32767.0) as i32;
+        row.modulation[c] = modulation;
+        row.valid[c] = row_ok && !saturated && !low && h.is_finite();
+    }
+    summary
+}

@@ -1,0 +1,7 @@
+//! Simulation: scene files ([`scene`]), the conveyor simulator with ground truth
+//! ([`simulate`]) and the recording format on disk ([`recording`]) that every other command
+//! reads, simulated or real.
+
+pub mod recording;
+pub mod scene;
+pub mod simulate;

@@ -1,0 +1,223 @@
+//! The firmware's measurements of itself, as JSON figures.
+
+use super::elf::{ElfSizes, Sections};
+use anyhow::{anyhow, bail, ensure, Context, Result};
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// Every key the firmware's bench file must hold (integers; ticks are SysTick ticks).
+pub const BENCH_KEYS: [&str; 17] = [
+    "calib_loop_instructions",
+    "calib_ticks",
+    "rows_out",
+    "pixels_out",
+    "ticks_total",
+    "ticks_encode",
+    "ticks_io",
+    "stage_pixels",
+    "ticks_accumulate",
+    "ticks_phase_height",
+    "solves",
+    "ticks_solve",
+    "stack_high_water",
+    "state_bytes",
+    "state_total_bytes",
+    "width",
+    "n",
+];
+
+
+/// Parses a bench file: one `key value` pair (an integer) per line; blank lines are ignored.
+pub fn parse_bench(text: &str) -> Result<BTreeMap<String, i64>> {
+    let mut out = BTreeMap::new();
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() {
+            continue;
+        }
+        let mut it = line.split_whitespace();
+        let (Some(k), Some(v), None) = (it.next(), it.next(), it.next()) else {
+            bail!("bench file line {}: expected `key value`, got {line:?}", i + 1);
+        };
+        let v: i64 = v.parse().with_context(|| format!("bench file line {}: {k}: {v:?} is not an integer", i + 1))?;
+        if out.insert(k.to_string(), v).is_some() {
+            bail!("bench file line {}: {k} given twice", i + 1);
+        }
+    }
+    Ok(out)
+}
+
+/// Instructions per output pixel, by stage.
+#[derive(Clone, Debug, Serialize)]
+pub struct PerPixel {
+    /// The whole pipeline (accumulate, solve, phase, height, mask, encode), I/O excluded.
+    pub total: f64,
+    /// Raw samples into the line pool and `v = P i` per pixel.
+    pub accumulate: f64,
+    /// Phase, height and the validity mask.
+    pub phase_height: f64,
+    /// Packet framing and row compression.
+    pub encode: f64,
+}
+
+/// RAM figures, bytes.
+#[derive(Clone, Debug, Serialize)]
+pub struct Ram {
+    /// `.data + .bss + .uninit` of the ELF.
+    #[serde(rename = "static")]
+    pub static_: u64,
+    /// Core pipeline state for this recording's configuration (`Layout::bytes`).
+    pub state: u64,
+    /// Every configuration-sized buffer of the firmware (core state, codec reference row,
+    /// line and packet buffers).
+    pub state_total: u64,
+    /// Deepest stack use measured by the firmware.
+    pub stack_high_water: u64,
+}
+
+/// The firmware's measured figures (`dpsa target-run --bench --json`).
+#[derive(Clone, Debug, Serialize)]
+pub struct BenchReport {
+    pub instructions_per_pixel: PerPixel,
+    /// One-off cost of `P` for one window (the integer solve).
+    pub instructions_per_window_solve: f64,
+    pub ram_bytes: Ram,
+    /// Bytes the firmware occupies in flash.
+    pub flash_bytes: u64,
+    /// Retired instructions per SysTick tick, calibrated by the firmware (40 on mps2 at
+    /// `-icount shift=0`).
+    pub instructions_per_tick: f64,
+    pub width: i64,
+    pub n: i64,
+    pub rows_out: i64,
+    pub pixels_out: i64,
+    /// Pixels the per-stage loops (accumulate, phase + height) were timed over.
+    pub stage_pixels: i64,
+    pub solves: i64,
+    /// Instructions spent in semihosting file I/O (context: QEMU's host I/O, not the board's).
+    pub io_instructions: f64,
+    pub elf_sections: Sections,
+    /// The bench file as the firmware wrote it.
+    pub raw: BTreeMap<String, i64>,
+}
+
+/// Turns the firmware's bench file and the ELF sizes into figures. Every ratio needs a
+/// positive denominator.
+pub fn bench_report(raw: &BTreeMap<String, i64>, elf: &ElfSizes) -> Result<BenchReport> {
+    let missing: Vec<&str> = BENCH_KEYS.iter().copied().filter(|k| !raw.contains_key(*k)).collect();
+    ensure!(missing.is_empty(), "the firmware's bench file lacks {}", missing.join(", "));
+    let get = |k: &str| raw[k];
+    let positive = |k: &str| -> Result<f64> {
+        let v = get(k);
+        ensure!(v > 0, "bench {k} = {v}, expected > 0");
+        Ok(v as f64)
+    };
+    let unsigned = |k: &str| -> Result<u64> { u64::try_from(get(k)).map_err(|_| anyhow!("bench {k} = {} is negative", get(k))) };
+    let ipt = positive("calib_loop_instructions")? / positive("calib_ticks")?;
+    let ticks = |k: &str| -> Result<f64> { Ok(unsigned(k)? as f64 * ipt) };
+    let pixels = positive("pixels_out")?;
+    let stage = positive("stage_pixels")?;
+    let solves = positive("solves")?;
+    Ok(BenchReport {
+        instructions_per_pixel: PerPixel {
+            total: ticks("ticks_total")? / pixels,
+            accumulate: ticks("ticks_accumulate")? / stage,
+            phase_height: ticks("ticks_phase_height")? / stage,
+            encode: ticks("ticks_encode")? / pixels,
+        },
+        instructions_per_window_solve: ticks("ticks_solve")? / solves,
+        ram_bytes: Ram {
+            static_: elf.static_ram,
+            state: unsigned("state_bytes")?,
+            state_total: unsigned("state_total_bytes")?,
+            stack_high_water: unsigned("stack_high_water")?,
+        },
+        flash_bytes: elf.flash,
+        instructions_per_tick: ipt,
+        width: get("width"),
+        n: get("n"),
+        rows_out: get("rows_out"),
+        pixels_out: get("pixels_out"),
+        stage_pixels: get("stage_pixels"),
+        solves: get("solves"),
+        io_instructions: ticks("ticks_io")?,
+        elf_sections: elf.sections.clone(),
+        raw: raw.clone(),
+    })
+}
+
+impl BenchReport {
+    /// A few lines for people.
+    pub fn summary(&self) -> String {
+        let p = &self.instructions_per_pixel;
+        let r = &self.ram_bytes;
+        let s = &self.elf_sections;
+        format!(
+            "Cortex-M7 (QEMU, {:.2} instructions per SysTick tick), W = {}, n = {}, {} pixels out\n\
+             instructions per pixel: {:.1} total (accumulate {:.1}, phase + height {:.1}, encode {:.1})\n\
+             instructions per window solve: {:.0} ({} solves)\n\
+             flash {} bytes (text {}, rodata {}, data {}, itcm {}); static RAM {} bytes (data {}, bss {}, uninit {})\n\
+             core state {} bytes, all config-sized buffers {} bytes, stack high water {} bytes",
+            self.instructions_per_tick, self.width, self.n, self.pixels_out,
+            p.total, p.accumulate, p.phase_height, p.encode,
+            self.instructions_per_window_solve, self.solves,
+            self.flash_bytes, s.text, s.rodata, s.data, s.itcm, r.static_, s.data, s.bss, s.uninit,
+            r.state, r.state_total, r.stack_high_water
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn raw() -> BTreeMap<String, i64> {
+        let mut m: BTreeMap<String, i64> = BENCH_KEYS.iter().map(|k| (k.to_string(), 1)).collect();
+        for (k, v) in [
+            ("calib_loop_instructions", 4000),
+            ("calib_ticks", 100),
+            ("pixels_out", 1000),
+            ("ticks_total", 500),
+            ("ticks_encode", 50),
+            ("stage_pixels", 200),
+            ("ticks_accumulate", 20),
+            ("ticks_phase_height", 40),
+            ("solves", 4),
+            ("ticks_solve", 30),
+        ] {
+            m.insert(k.into(), v);
+        }
+        m
+    }
+
+    #[test]
+    fn bench_figures_are_ticks_times_instructions_per_tick_over_pixels() {
+        let r = bench_report(&raw(), &ElfSizes { flash: 9, static_ram: 7, ..Default::default() }).unwrap();
+        assert_eq!(r.instructions_per_tick, 40.0);
+        assert_eq!(r.instructions_per_pixel.total, 20.0);
+        assert_eq!(r.instructions_per_pixel.encode, 2.0);
+        assert_eq!(r.instructions_per_pixel.accumulate, 4.0);
+        assert_eq!(r.instructions_per_pixel.phase_height, 8.0);
+        assert_eq!(r.instructions_per_window_solve, 300.0);
+        assert_eq!((r.flash_bytes, r.ram_bytes.static_), (9, 7));
+        let v = serde_json::to_value(&r).unwrap();
+        assert_eq!(v["ram_bytes"]["static"], 7);
+        assert_eq!(v["instructions_per_pixel"]["total"], 20.0);
+    }
+
+    #[test]
+    fn bench_file_errors() {
+        let mut m = raw();
+        m.remove("ticks_solve");
+        let e = bench_report(&m, &ElfSizes::default()).unwrap_err().to_string();
+        assert!(e.contains("ticks_solve"), "{e}");
+        let mut m = raw();
+        m.insert("calib_ticks".into(), 0);
+        let e = bench_report(&m, &ElfSizes::default()).unwrap_err().to_string();
+        assert!(e.contains("calib_ticks"), "{e}");
+        assert_eq!(parse_bench("a 1\n\nb -2\n").unwrap(), BTreeMap::from([("a".into(), 1), ("b".into(), -2)]));
+        assert!(parse_bench("a 1 2").is_err());
+        assert!(parse_bench("a x").unwrap_err().to_string().contains("line 1"));
+        assert!(parse_bench("a 1\na 2").unwrap_err().to_string().contains("twice"));
+    }
+}

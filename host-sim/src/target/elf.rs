@@ -1,0 +1,68 @@
+//! Flash and RAM figures from the firmware ELF's sections.
+
+use anyhow::{ensure, Context, Result};
+use serde::Serialize;
+
+
+/// Sizes of the firmware image, bytes.
+#[derive(Clone, Debug, Default, Serialize, PartialEq, Eq)]
+pub struct ElfSizes {
+    /// Bytes loaded into flash: every allocated section with contents (vector table, code,
+    /// read-only data, the `.data` and `.itcm` load images).
+    pub flash: u64,
+    /// Static RAM: `.data + .bss + .uninit` (the `.state` region is not counted).
+    pub static_ram: u64,
+    pub sections: Sections,
+}
+
+/// Section sizes, bytes (a section absent from the ELF is 0).
+#[derive(Clone, Debug, Default, Serialize, PartialEq, Eq)]
+pub struct Sections {
+    pub vector_table: u64,
+    pub text: u64,
+    pub rodata: u64,
+    pub data: u64,
+    pub bss: u64,
+    pub uninit: u64,
+    /// Hot code run from ITCM (its load image is in flash too).
+    pub itcm: u64,
+    /// NOLOAD region of the configuration-sized buffers (capacity reserved by the link).
+    pub state: u64,
+}
+
+/// Section sizes of a firmware ELF.
+pub fn elf_sizes(elf: &[u8]) -> Result<ElfSizes> {
+    use object::{Object, ObjectSection, SectionFlags, SectionKind};
+    let file = object::File::parse(elf).context("parsing the firmware ELF")?;
+    let mut out = ElfSizes::default();
+    for s in file.sections() {
+        let name = s.name().unwrap_or("");
+        let size = s.size();
+        let alloc = match s.flags() {
+            SectionFlags::Elf { sh_flags } => sh_flags & u64::from(object::elf::SHF_ALLOC) != 0,
+            _ => false,
+        };
+        let nobits = matches!(s.kind(), SectionKind::UninitializedData | SectionKind::UninitializedTls)
+            || name == ".state";
+        if alloc && !nobits {
+            out.flash += size;
+        }
+        let is = |prefix: &str| name == prefix || name.starts_with(&format!("{prefix}."));
+        let t = &mut out.sections;
+        match () {
+            _ if is(".vector_table") => t.vector_table += size,
+            _ if is(".text") => t.text += size,
+            _ if is(".rodata") => t.rodata += size,
+            _ if is(".data") => t.data += size,
+            _ if is(".bss") => t.bss += size,
+            _ if is(".uninit") => t.uninit += size,
+            _ if is(".itcm") => t.itcm += size,
+            _ if is(".state") => t.state += size,
+            _ => {}
+        }
+    }
+    let t = &out.sections;
+    out.static_ram = t.data + t.bss + t.uninit;
+    ensure!(t.text > 0 || t.itcm > 0, "the ELF has no code sections: is it the firmware?");
+    Ok(out)
+}

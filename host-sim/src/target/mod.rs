@@ -1,0 +1,93 @@
+//! The firmware side of `dpsa`: target recordings, building the firmware, running it under
+//! QEMU (`mps2-an500`, Cortex-M7), decoding its defmt log, its ELF sizes and its measurements.
+//!
+//! The firmware is given its input and output as host paths on the semihosting command line
+//! (`dpsa-firmware RECORDING OUT [BENCH]`): it streams `RECORDING` (the target format of
+//! [`dpsa_core::frames::wire`], written by [`export`]) line by line through the core, writes the
+//! packet stream to `OUT` and, when `BENCH` is given, its measurements as `key value` lines.
+//! Its log is defmt over the semihosting console, which QEMU writes to a file; it is decoded
+//! here against the ELF's defmt table. Exit status 0 is success.
+//!
+//! Semihosting joins the arguments with spaces, so the firmware only ever sees paths that this
+//! module makes itself (a temporary directory without spaces); the stream is then copied to
+//! where the user asked.
+
+pub mod bench;
+pub mod elf;
+pub mod export;
+pub mod firmware;
+pub mod qemu;
+
+pub use bench::*;
+pub use elf::*;
+pub use export::*;
+pub use firmware::*;
+pub use qemu::*;
+
+use crate::simulation::recording::Recording;
+use anyhow::{Context, Result};
+use std::collections::BTreeMap;
+use std::io::{BufWriter, Write};
+use std::path::Path;
+
+/// Name of the firmware program (`argv[0]` on the semihosting command line).
+pub const PROGRAM: &str = "dpsa-firmware";
+
+/// QEMU binary that runs the firmware.
+pub const QEMU: &str = "qemu-system-arm";
+
+/// Environment variable: QEMU time limit in seconds (default [`DEFAULT_TIMEOUT_S`]).
+pub const TIMEOUT_ENV: &str = "DPSA_QEMU_TIMEOUT";
+/// Default QEMU time limit, seconds (a firmware that hangs is killed after it).
+pub const DEFAULT_TIMEOUT_S: u64 = 1800;
+
+
+#[derive(Clone, Debug)]
+pub struct TargetOutput {
+    /// The packet stream the firmware wrote.
+    pub stream: Vec<u8>,
+    pub outcome: Outcome,
+    /// The firmware's measurements (`--bench`), key by key.
+    pub bench: Option<BTreeMap<String, i64>>,
+}
+
+/// Options of [`run`].
+#[derive(Clone, Copy, Debug)]
+pub struct RunOptions {
+    /// Codec intra period of the stream (the host default is
+    /// [`dpsa_core::packets::STREAM_INTRA_PERIOD`]).
+    pub intra_period: u32,
+    /// Ask the firmware for its measurements.
+    pub bench: bool,
+    pub echo: Echo,
+}
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        RunOptions { intra_period: dpsa_core::packets::STREAM_INTRA_PERIOD, bench: false, echo: Echo::default() }
+    }
+}
+
+/// Runs the firmware `elf` under QEMU on the recording `rec`: exports it to a temporary target
+/// recording, runs QEMU and returns the packet stream (and the measurements with `bench`).
+pub fn run(rec: &Recording, elf: &Path, opts: RunOptions) -> Result<TargetOutput> {
+    let dir = tempfile::Builder::new().prefix("dpsa-target").tempdir().context("creating a temporary directory")?;
+    let rec_path = dir.path().join("recording.dpsr");
+    let out_path = dir.path().join("stream.dpsa");
+    let bench_path = dir.path().join("bench.txt");
+    {
+        let file = std::fs::File::create(&rec_path)?;
+        let mut w = BufWriter::with_capacity(1 << 20, file);
+        export_to(rec, opts.intra_period, &mut w, opts.echo.progress)?;
+        w.flush()?;
+    }
+    let outcome = run_files(elf, &rec_path, &out_path, opts.bench.then_some(bench_path.as_path()), opts.echo)?;
+    let stream = std::fs::read(&out_path).context("reading the packet stream the firmware wrote")?;
+    let bench = if opts.bench {
+        let text = std::fs::read_to_string(&bench_path).context("reading the firmware's bench file")?;
+        Some(parse_bench(&text)?)
+    } else {
+        None
+    };
+    Ok(TargetOutput { stream, outcome, bench })
+}
