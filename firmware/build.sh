@@ -10,10 +10,19 @@
 # DPSA_FIRMWARE_ROUTE=rustup|debian forces a route.
 #
 # --install: apt-get installs what is missing first (the route's packages and qemu-system-arm).
+# --clippy:  instead of building, runs clippy for the target with -D warnings (same route; the
+#            Debian route needs rust-web-clippy, which --install also brings).
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 install=0
-[ "${1:-}" = --install ] && install=1
+clippy=0
+for arg in "$@"; do
+    case "$arg" in
+        --install) install=1 ;;
+        --clippy) clippy=1 ;;
+        *) echo "error: unknown option $arg (known: --install, --clippy)" >&2; exit 2 ;;
+    esac
+done
 
 have() { command -v "$1" >/dev/null 2>&1; }
 as_root() { if [ "$(id -u)" = 0 ]; then "$@"; else sudo "$@"; fi; }
@@ -34,6 +43,7 @@ if [ "$route" = debian ]; then
     { [ -x /usr/bin/cargo ] && /usr/bin/cargo --version | grep -q '^cargo 1\.9'; } || pkgs+=(cargo-web)
     [ -d /usr/lib/rustlib/src/rust/library/core ] || pkgs+=(rust-web-src)
     have arm-none-eabi-ld || pkgs+=(binutils-arm-none-eabi)
+    [ $clippy = 0 ] || [ -x /usr/bin/cargo-clippy ] || pkgs+=(rust-web-clippy)
 fi
 if [ ${#pkgs[@]} -gt 0 ]; then
     if [ $install = 1 ]; then
@@ -51,6 +61,17 @@ fi
 unset RUSTFLAGS CARGO_ENCODED_RUSTFLAGS CARGO_BUILD_TARGET CARGO_BUILD_RUSTFLAGS RUSTC_WRAPPER
 export CARGO_TARGET_DIR="$here/target"
 cd "$here"
+if [ $clippy = 1 ]; then
+    if [ "$route" = rustup ]; then
+        cargo clippy --release --locked -- -D warnings
+    else
+        # Debian's cargo must find Debian's cargo-clippy, not a rustup proxy earlier in PATH.
+        PATH=/usr/bin:$PATH RUSTC=/usr/bin/rustc RUSTC_BOOTSTRAP=1 /usr/bin/cargo clippy --release --locked \
+            -Zbuild-std=core -Zbuild-std-features=compiler-builtins-mem \
+            --config 'target.thumbv7em-none-eabihf.linker="arm-none-eabi-ld"' -- -D warnings
+    fi
+    exit 0
+fi
 if [ "$route" = rustup ]; then
     cargo build --release --locked >&2
 else

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# The test command (README, CI): the firmware's cross build, every test of the workspace
-# (the firmware tests run it under QEMU) and the benchmark build. Installs what is missing;
+# The test command (README, CI): the firmware's cross build, rustfmt and clippy (host and
+# target, warnings are errors), every test of the workspace (the firmware tests run it under
+# QEMU) and the benchmark build. Installs what is missing;
 # needs ../shared/data/real beside the repo.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -22,6 +23,12 @@ fi
 echo "== firmware: Cortex-M7 build (installs the cross toolchain and QEMU if missing)"
 elf=$(bash firmware/build.sh --install | tail -n 1)
 echo "   $elf"
+
+echo "== formatting and lints (host workspace, then the firmware for its target)"
+cargo fmt --all --check
+(cd firmware && cargo fmt --check)
+cargo clippy --workspace --all-targets --locked -- -D warnings
+bash firmware/build.sh --install --clippy
 
 echo "== unit, property and end-to-end tests (the firmware tests run it under QEMU)"
 log=$(mktemp)

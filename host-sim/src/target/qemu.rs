@@ -310,8 +310,6 @@ fn absolute(p: &Path) -> Result<PathBuf> {
     std::path::absolute(p).with_context(|| format!("{}: cannot make the path absolute", p.display()))
 }
 
-/// What [`run`] returns.
-
 #[cfg(test)]
 mod tests {
     use super::*;
