@@ -3,7 +3,7 @@
 //!
 //! The firmware is given its input and output as host paths on the semihosting command line
 //! (`dpsa-firmware RECORDING OUT [BENCH]`): it streams `RECORDING` (the target format of
-//! [`dpsa_core::frames::wire`], written by [`export`]) line by line through the core, writes the
+//! [`dpsa_core::frames::feed`], written by [`export`]) line by line through the core, writes the
 //! packet stream to `OUT` and, when `BENCH` is given, its measurements as `key value` lines.
 //! Its log is defmt over the semihosting console, which QEMU writes to a file; it is decoded
 //! here against the ELF's defmt table. Exit status 0 is success.
@@ -15,7 +15,7 @@
 use crate::reconstruct::{config, progress_bar};
 use crate::recording::Recording;
 use anyhow::{anyhow, bail, ensure, Context, Result};
-use dpsa_core::frames::wire;
+use dpsa_core::frames::{feed, Trigger};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::io::{BufRead, BufReader, BufWriter, Read, Write};
@@ -58,7 +58,7 @@ pub const BENCH_KEYS: [&str; 17] = [
 // ---------------------------------------------------------------------------------------------
 // Target recordings.
 
-/// Writes `rec` as a target recording (format: [`dpsa_core::frames::wire`]) to `path`. The
+/// Writes `rec` as a target recording (format: [`dpsa_core::frames::feed`]) to `path`. The
 /// packet stream the firmware emits from it uses codec intra period `intra_period`.
 /// Returns the bytes written.
 pub fn export(rec: &Recording, intra_period: u32, path: &Path) -> Result<u64> {
@@ -75,17 +75,17 @@ pub fn export_to<W: Write>(rec: &Recording, intra_period: u32, mut out: W, progr
     ensure!(intra_period >= 1, "the codec intra period must be at least 1");
     let (cfg, ref_phase) = config(&rec.manifest)?;
     let frames = &rec.manifest.frames;
-    let header = wire::Header {
+    let header = feed::Header {
         cfg,
         frames: u32::try_from(frames.len()).map_err(|_| anyhow!("{} frames do not fit a target recording", frames.len()))?,
         intra_period,
     };
     // Check that the header reads back as written (the firmware applies the same checks).
     let head = header.encode();
-    wire::Header::decode(&head).map_err(|e| anyhow!("the recording's configuration is not valid for the target: {e:?}"))?;
+    feed::Header::decode(&head).map_err(|e| anyhow!("the recording's configuration is not valid for the target: {e}"))?;
     out.write_all(&head)?;
     let mut table = vec![0u8; header.table_len()];
-    wire::encode_table(&ref_phase, &mut table).map_err(|e| anyhow!("reference-phase table: {e:?}"))?;
+    feed::encode_table(&ref_phase, &mut table).map_err(|e| anyhow!("reference-phase table: {e}"))?;
     out.write_all(&table)?;
     let mut written = (head.len() + table.len()) as u64;
 
@@ -94,7 +94,7 @@ pub fn export_to<W: Write>(rec: &Recording, intra_period: u32, mut out: W, progr
     for (k, entry) in frames.iter().enumerate() {
         let frame = rec.frame(k)?;
         bytes.clear();
-        bytes.extend_from_slice(&wire::Trigger { seq: entry.seq, latch: entry.latch }.encode());
+        bytes.extend_from_slice(&Trigger { seq: entry.seq, latch: entry.latch }.encode());
         for s in &frame.data {
             bytes.extend_from_slice(&s.to_le_bytes());
         }
