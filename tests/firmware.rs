@@ -12,7 +12,7 @@
 //! --install` installs both; `tests/run.sh` does it first). Without them they fail with that
 //! advice, unless `DPSA_SKIP_FIRMWARE=1` is set.
 
-use dpsa_core::frames::wire;
+use dpsa_core::frames::feed;
 use dpsa_core::packets;
 use dpsa_sim::heightmap::{flags, HeightMap};
 use dpsa_sim::reconstruct;
@@ -222,14 +222,14 @@ fn predicted_rows_are_bit_exact() {
 // Bad input.
 
 /// A target recording of a small scene, and its header.
-fn exported(dir: &Path) -> (PathBuf, wire::Header, Vec<u8>) {
+fn exported(dir: &Path) -> (PathBuf, feed::Header, Vec<u8>) {
     let sim = simulate(&small_scene(), 21);
     let path = dir.join("recording.dpsr");
-    target::export(&sim.rec, 1, &path).unwrap();
+    target::write_feed(&sim.rec, 1, &path).unwrap();
     let bytes = std::fs::read(&path).unwrap();
-    let header = wire::Header::decode(&bytes).expect("the export's header decodes");
+    let header = feed::Header::decode(&bytes).expect("the export's header decodes");
     assert_eq!(header.frames as usize, sim.rec.len());
-    assert_eq!(bytes.len(), wire::HEADER_LEN + header.table_len() + header.frames as usize * header.frame_len());
+    assert_eq!(bytes.len(), feed::HEADER_LEN + header.table_len() + header.frames as usize * header.frame_len());
     (path, header, bytes)
 }
 
@@ -260,17 +260,17 @@ fn truncated_recording_is_refused() {
     let Some(elf) = elf() else { return };
     let dir = tempfile::tempdir().unwrap();
     let (_, h, bytes) = exported(dir.path());
-    let frames_at = wire::HEADER_LEN + h.table_len();
+    let frames_at = feed::HEADER_LEN + h.table_len();
     let line_bytes = 2 * h.cfg.width as usize;
     // In the middle of line 7 of frame 5 (0-based), and at the start of frame 9.
-    let mid = frames_at + 5 * h.frame_len() + wire::TRIGGER_LEN + 7 * line_bytes + line_bytes / 2;
-    let needle = format!("recording truncated in frame 5 at line 7 (byte {mid})");
+    let mid = frames_at + 5 * h.frame_len() + feed::TRIGGER_LEN + 7 * line_bytes + line_bytes / 2;
+    let needle = format!("feed truncated in frame 5 at line 7 (byte {mid})");
     assert_refused(&elf, dir.path(), "mid-line", &bytes[..mid], &[&needle]);
     let at = frames_at + 9 * h.frame_len();
-    let needle = format!("recording truncated in frame 9 at line 0 (byte {at})");
+    let needle = format!("feed truncated in frame 9 at line 0 (byte {at})");
     assert_refused(&elf, dir.path(), "frame-boundary", &bytes[..at], &[&needle]);
     // Inside the header: the header cannot even be read.
-    assert_refused(&elf, dir.path(), "short-header", &bytes[..40], &["opening the recording", "Length"]);
+    assert_refused(&elf, dir.path(), "short-header", &bytes[..40], &["opening the feed", "length does not match the feed layout"]);
 }
 
 #[test]
@@ -281,19 +281,19 @@ fn corrupt_header_and_table_are_refused() {
     // One bit of the width: the header CRC catches it.
     let mut b = bytes.clone();
     b[8] ^= 0x10;
-    assert_refused(&elf, dir.path(), "header-bit", &b, &["opening the recording", "HeaderCrc"]);
+    assert_refused(&elf, dir.path(), "header-bit", &b, &["opening the feed", "header CRC does not match"]);
     // Not a target recording at all.
     let mut b = bytes.clone();
     b[..4].copy_from_slice(b"PNG\0");
-    assert_refused(&elf, dir.path(), "magic", &b, &["opening the recording", "Magic"]);
+    assert_refused(&elf, dir.path(), "magic", &b, &["opening the feed", "not a feed"]);
     // One reference-phase entry: the table CRC catches it.
     let mut b = bytes.clone();
-    b[wire::HEADER_LEN + 4 * 17] ^= 0x01;
-    assert_refused(&elf, dir.path(), "table", &b, &["opening the recording", "TableCrc"]);
+    b[feed::HEADER_LEN + 4 * 17] ^= 0x01;
+    assert_refused(&elf, dir.path(), "table", &b, &["opening the feed", "reference-phase table CRC does not match"]);
     // A valid header (CRC and all) whose configuration the core refuses.
     let mut bad = h;
-    bad.cfg.max_step = bad.cfg.rows + 1;
+    bad.cfg.max_step_rows = bad.cfg.rows + 1;
     let mut b = bytes.clone();
-    b[..wire::HEADER_LEN].copy_from_slice(&bad.encode());
-    assert_refused(&elf, dir.path(), "config", &b, &["opening the recording", "MaxStep"]);
+    b[..feed::HEADER_LEN].copy_from_slice(&bad.encode());
+    assert_refused(&elf, dir.path(), "config", &b, &["opening the feed", "max_step_rows is out of range"]);
 }

@@ -9,9 +9,9 @@ use dpsa_core::{
     accumulate,
     height::Scale,
     phase::from_rad,
-    pipeline::{Layout, Memory, Pipeline, Slot},
+    pipeline::{Pipeline, State},
     solve::Window,
-    Config, Row, Sink,
+    Config, Row, Sink, Trigger,
 };
 use std::hint::black_box;
 
@@ -29,7 +29,7 @@ fn config() -> Config {
         saturation: 4095,
         min_modulation_q12: 60 << 12,
         max_noise_gain_q8: 512,
-        max_step: 10,
+        max_step_rows: 10,
     }
 }
 
@@ -81,7 +81,6 @@ impl Sink for Null {
 
 fn pipeline(c: &mut Criterion) {
     let cfg = config();
-    let lay = Layout::of(&cfg);
     let refp = vec![0u32; W];
     // Fringe phase 2 pi r / 32 along the rows, as the projector throws it.
     let frame: Vec<Vec<u16>> = (0..cfg.rows as usize)
@@ -95,16 +94,11 @@ fn pipeline(c: &mut Criterion) {
     // 8 new rows per frame at the default 8 px step.
     g.throughput(Throughput::Elements(8 * W as u64));
     g.bench_function("frame 40x2048 n=4", |b| {
-        let mut lines = vec![0u16; lay.pool_lines * W];
-        let mut free = vec![0u16; lay.pool_lines];
-        let mut slots = vec![Slot::default(); lay.slots];
-        let mut heights = vec![0i16; W];
-        let mut valid = vec![0u8; W / 8];
-        let mem = Memory { lines: &mut lines, free: &mut free, slots: &mut slots, heights: &mut heights, valid: &mut valid };
-        let mut p = Pipeline::new(cfg, &refp, mem).unwrap();
+        let mut state = State::new(&cfg);
+        let mut p = Pipeline::new(cfg, &refp, state.memory()).unwrap();
         let mut k = 0u32;
         b.iter(|| {
-            p.begin_frame(k, k as i64 * 80, &mut Null).unwrap();
+            p.begin_frame(Trigger { seq: k, latch: k as i64 * 80 }, &mut Null).unwrap();
             for (r, line) in frame.iter().enumerate() {
                 p.push_line(r as u16, line, &mut Null).unwrap();
             }

@@ -4,7 +4,7 @@
 //! known once the encoder latch of its last frame arrives. So the first `n - 1` samples of
 //! every open row are kept raw (u16) in a pool of line slots, and the `n`-th line is combined
 //! with them as it streams in. Open rows entered in the last `n - 1` frames hold `1..n-1`
-//! lines each, so the pool needs at most `max_step * n (n - 1) / 2` lines: a triangle, not
+//! lines each, so the pool needs at most `max_step_rows * n (n - 1) / 2` lines: a triangle, not
 //! the `(n - 1)` full frames a frame buffer would take.
 
 use crate::solve::{Window, MAX_N};

@@ -104,7 +104,7 @@ impl Scale {
             }
             *bits = byte;
         }
-        (sat as u16 * crate::frames::flags::SATURATED) | (low as u16 * crate::frames::flags::LOW_MODULATION)
+        (sat as u16 * crate::flags::SATURATED) | (low as u16 * crate::flags::LOW_MODULATION)
     }
 
     /// [`Scale::block`] as its own (never inlined) function, for timing the stage alone.
@@ -134,7 +134,7 @@ mod tests {
             saturation: 4095,
             min_modulation_q12: (min_mod * 4096.0).round() as u32,
             max_noise_gain_q8: 512,
-            max_step: 4,
+            max_step_rows: 4,
         }
     }
 

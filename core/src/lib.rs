@@ -3,6 +3,10 @@
 //! `#![no_std]`, no allocation, no I/O. The same code runs on the Cortex-M7 frame grabber and
 //! on the host, and both produce the same bytes.
 //!
+//! Features (all off by default): `alloc` adds owned, heap-allocated state
+//! ([`pipeline::State`], [`packets::codec::ReferenceRow`]) for hosts; `defmt` adds
+//! `defmt::Format` for the core's types and errors (all in one file, `src/defmt.rs`).
+//!
 //! ## Measurement model (units)
 //!
 //! A board rides a conveyor under a projector that throws one fixed sinusoidal fringe pattern.
@@ -28,23 +32,30 @@
 //!
 //! ## Data flow (one module per stage)
 //!
-//! frames -> [`solve`] -> [`accumulate`] -> [`phase`] -> [`height`] -> [`packets`] -> [`sink`]
+//! frames -> [`solve`] -> [`accumulate`] -> [`phase`] -> [`height`] -> [`row`] -> [`packets`] -> [`sink`]
 //!
-//! - [`frames`]: integer [`frames::Config`], encoder latch to row offset, row flags.
+//! - [`frames`]: integer [`frames::Config`], the frame [`frames::Trigger`], encoder latch to row
+//!   offset and phase shift ([`frames::Config::shift`]); [`frames::registration`]: which board
+//!   rows a frame admits or skips, the slot ring of open rows; [`frames::feed`]: the byte format
+//!   a frame grabber is fed (configuration, reference phase, triggers and lines).
 //! - [`solve`]: `P = (M^T M)^-1 M^T` once per window, integer, with the ill-conditioning test.
 //! - [`accumulate`]: raw samples of open rows in a line pool; `v = P i` per pixel.
 //! - [`phase`]: binary angles, integer `atan2`, `sin`/`cos`.
 //! - [`height`]: phase to height, validity mask.
-//! - [`packets`]: CRC-framed row packets.
-//! - [`sink`]: where rows go.
+//! - [`row`]: the output row ([`Row`], [`RowHeader`]) and its [`flags`].
+//! - [`packets`]: CRC-framed row packets, the walk through a damaged stream
+//!   ([`packets::Stream`]); [`packets::codec`]: lossless row compression.
+//! - [`sink`]: where rows go: the [`Sink`] trait, and [`sink::PacketSink`], which frames rows
+//!   into packets over any [`sink::Link`].
 //! - [`pipeline`]: the streaming API that runs all of the above line by line.
 //!
 //! ## State memory
 //!
 //! The caller supplies all state, sized by [`pipeline::Layout`]: a pool of
-//! `max_step * n (n-1) / 2` raw lines (`W` x u16), `max_step * n` row slots, one output row and
-//! the `W`-entry reference-phase table. No frame is buffered whole. For the default geometry
-//! (`W = 2048`, `n = 4`, `max_step = 10`): 60 lines = 245 760 B, plus 120 B free list,
+//! `max_step_rows * n (n-1) / 2` raw lines (`W` x u16), `max_step_rows * n` row slots, one output
+//! row and the `W`-entry reference-phase table. No frame is buffered whole (with `alloc`,
+//! [`pipeline::State`] allocates it). For the default geometry
+//! (`W = 2048`, `n = 4`, `max_step_rows = 10`): 60 lines = 245 760 B, plus 120 B free list,
 //! 40 slots x 24 B, 4096 + 256 B output row and 8192 B phase table: 259 384 B in all.
 //!
 //! ## Fixed-point error budget (each bound is tested beside its code)
@@ -60,15 +71,23 @@
 #![no_std]
 #![forbid(unsafe_code)]
 
+#[cfg(feature = "alloc")]
+extern crate alloc;
+
 pub mod accumulate;
+#[cfg(feature = "defmt")]
+mod defmt;
+mod error;
 pub mod frames;
 pub mod height;
 pub mod packets;
 pub mod phase;
 pub mod pipeline;
+pub mod row;
 pub mod sink;
 pub mod solve;
 
-pub use frames::{flags, Config};
+pub use frames::{Config, Trigger};
 pub use pipeline::{Layout, Memory, Pipeline};
-pub use sink::{Row, RowHeader, Sink};
+pub use row::{flags, Row, RowHeader};
+pub use sink::Sink;

@@ -1,54 +1,46 @@
 //! The streaming pipeline: frames arrive line by line, completed board rows go to a [`Sink`].
 //!
 //! ```text
-//! begin_frame(seq, latch) -> push_line(0, ..) ... push_line(H-1, ..) -> end_frame()  (repeat)
+//! begin_frame(trigger) -> push_line(0, ..) ... push_line(H-1, ..) -> end_frame()  (repeat)
 //! finish()
 //! ```
 //!
 //! At `begin_frame` the encoder latch gives the frame's row offset `o`; rows that left the ROI
-//! are closed, new rows at the bottom are admitted, and the window of the rows that complete in
+//! are closed, new rows at the bottom are admitted ([`crate::frames::registration`]), and the window of the rows that complete in
 //! this frame is solved (once, see [`crate::solve`]). Each `push_line` either stores the line for
 //! the rows it opens or continues, or combines it with the stored lines of the rows it completes
 //! and emits them. Rows reach the sink in increasing board-row order, each exactly once, with
-//! flags that say why a row or pixel is invalid (see [`crate::frames::flags`]).
+//! flags that say why a row or pixel is invalid (see [`crate::flags`]).
 //!
 //! All state lives in caller-supplied [`Memory`] sized by [`Layout`]: nothing is allocated, and
 //! bad input (lines out of order, wrong width, truncated frames, sequence gaps, encoder stalls or
 //! reversals, exhausted state) yields an error or flagged rows, never a panic.
 
 use crate::accumulate::{self, Pool};
-use crate::frames::{flags, Config, ConfigError};
+use crate::frames::registration::{Kind, Registry};
+use crate::frames::{Config, ConfigError, Trigger};
 use crate::height::Scale;
+use crate::row::{flags, Row, RowHeader};
+use crate::sink::Sink;
 use crate::solve::{SolveError, Window, MAX_N};
-use crate::sink::{Row, RowHeader, Sink};
 
-/// Frame records kept: the `n <= MAX_N` frames of the current window plus one.
-const HIST: usize = MAX_N + 1;
-
-/// Per open board row: its stored lines and how far it got.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct Slot {
-    lines: [u16; MAX_N - 1],
-    count: u8,
-    flags: u16,
-    enter: u32,
-}
+pub use crate::frames::registration::Slot;
 
 /// Sizes of the caller-supplied state for a configuration.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Layout {
     /// Columns `W`.
     pub width: usize,
-    /// Line slots of the raw-sample pool: `max_step * n (n - 1) / 2`.
+    /// Line slots of the raw-sample pool: `max_step_rows * n (n - 1) / 2`.
     pub pool_lines: usize,
-    /// Open-row slots: `max_step * n`.
+    /// Open-row slots: `max_step_rows * n`.
     pub slots: usize,
 }
 
 impl Layout {
     pub const fn of(cfg: &Config) -> Layout {
         let n = cfg.n as usize;
-        let m = cfg.max_step as usize;
+        let m = cfg.max_step_rows as usize;
         Layout { width: cfg.width as usize, pool_lines: m * n * (n - 1) / 2, slots: m * n }
     }
 
@@ -78,6 +70,44 @@ pub struct Memory<'a> {
     pub valid: &'a mut [u8],
 }
 
+/// Owned pipeline state sized by [`Layout`] (`alloc` feature): the same buffers as [`Memory`],
+/// on the heap. [`State::memory`] lends them to [`Pipeline::new`].
+#[cfg(feature = "alloc")]
+pub struct State {
+    lines: alloc::boxed::Box<[u16]>,
+    free: alloc::boxed::Box<[u16]>,
+    slots: alloc::boxed::Box<[Slot]>,
+    heights: alloc::boxed::Box<[i16]>,
+    valid: alloc::boxed::Box<[u8]>,
+}
+
+#[cfg(feature = "alloc")]
+impl State {
+    /// Zeroed state for `cfg` (`Layout::of(cfg)`).
+    pub fn new(cfg: &Config) -> State {
+        use alloc::vec;
+        let l = Layout::of(cfg);
+        State {
+            lines: vec![0; l.pool_lines * l.width].into_boxed_slice(),
+            free: vec![0; l.pool_lines].into_boxed_slice(),
+            slots: vec![Slot::default(); l.slots].into_boxed_slice(),
+            heights: vec![0; l.width].into_boxed_slice(),
+            valid: vec![0; l.width.div_ceil(8)].into_boxed_slice(),
+        }
+    }
+
+    /// The borrowed view a [`Pipeline`] runs on.
+    pub fn memory(&mut self) -> Memory<'_> {
+        Memory {
+            lines: &mut self.lines,
+            free: &mut self.free,
+            slots: &mut self.slots,
+            heights: &mut self.heights,
+            valid: &mut self.valid,
+        }
+    }
+}
+
 /// Why a pipeline could not be built.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum NewError {
@@ -101,45 +131,17 @@ pub enum Error<E> {
     LineWidth { expected: u16, got: usize },
 }
 
-#[derive(Clone, Copy, Debug, Default)]
-struct FrameRec {
-    index: u32,
-    offset: i64,
-    latch: i64,
-    /// Rows `[skip_start, admit_start)` were never admitted.
-    skip_start: i64,
-    /// Rows `[admit_start, admit_end)` entered at this frame.
-    admit_start: i64,
-    admit_end: i64,
-    /// Slot-ring position of `admit_start`.
-    slot_base: u32,
-}
-
-/// What a board row is, for the pipeline.
-enum Kind {
-    Skipped,
-    Admitted(usize),
-    Gone,
-}
-
 /// The streaming D-PSA pipeline.
 pub struct Pipeline<'a> {
     cfg: Config,
     scale: Scale,
     ref_phase: &'a [u32],
     pool: Pool<'a>,
-    slots: &'a mut [Slot],
+    reg: Registry<'a>,
     heights: &'a mut [i16],
     valid: &'a mut [u8],
-    hist: [FrameRec; HIST],
-    /// Frames begun so far (index of the open or next frame).
-    frames: u32,
     /// Next board row to emit.
     next_row: i64,
-    /// One past the highest row admitted or skipped.
-    entered_end: i64,
-    /// Admitted rows so far (slot-ring cursor).
-    admitted: u32,
     open: bool,
     next_line: u16,
     prev_seq: u32,
@@ -172,14 +174,10 @@ impl<'a> Pipeline<'a> {
             scale: Scale::new(&cfg),
             ref_phase: &ref_phase[..w],
             pool,
-            slots: &mut mem.slots[..lay.slots],
+            reg: Registry::new(&mut mem.slots[..lay.slots]),
             heights,
             valid,
-            hist: [FrameRec::default(); HIST],
-            frames: 0,
             next_row: 0,
-            entered_end: 0,
-            admitted: 0,
             open: false,
             next_line: 0,
             prev_seq: 0,
@@ -197,21 +195,17 @@ impl<'a> Pipeline<'a> {
         self.pool.used()
     }
 
-    fn rec(&self, index: u32) -> &FrameRec {
-        &self.hist[index as usize % HIST]
-    }
-
-    /// Starts frame `seq` whose trigger latched encoder count `latch`.
-    pub fn begin_frame<S: Sink>(&mut self, seq: u32, latch: i64, sink: &mut S) -> Result<(), Error<S::Error>> {
+    /// Starts the frame of `trigger` (frame counter `seq`, latched encoder count `latch`).
+    pub fn begin_frame<S: Sink>(&mut self, trigger: Trigger, sink: &mut S) -> Result<(), Error<S::Error>> {
         if self.open {
             return Err(Error::FrameOpen);
         }
-        let f = self.frames;
+        let Trigger { seq, latch } = trigger;
+        let f = self.reg.begun();
         let o = self.cfg.offset(latch);
-        let h = self.cfg.rows as i64;
         if f == 0 {
             self.next_row = o;
-            self.entered_end = o;
+            self.reg.entered_end = o;
         } else {
             if seq != self.prev_seq.wrapping_add(1) {
                 self.kill_open(flags::FRAME_GAP);
@@ -223,39 +217,18 @@ impl<'a> Pipeline<'a> {
         // Rows above the ROI can no longer be observed.
         self.drain_until(o, flags::INCOMPLETE, sink)?;
         // Admission of the rows that entered at the bottom.
-        let end = o + h;
-        let mut rec = FrameRec {
-            index: f,
-            offset: o,
-            latch,
-            skip_start: self.entered_end,
-            admit_start: self.entered_end,
-            admit_end: self.entered_end,
-            slot_base: self.admitted,
-        };
-        if end > self.entered_end {
-            rec.admit_start = self.entered_end.max(end - self.cfg.max_step as i64);
-            rec.admit_end = end;
-            let count = (end - rec.admit_start) as u32;
-            for k in 0..count {
-                let s = rec.slot_base.wrapping_add(k) as usize % self.slots.len();
-                self.slots[s] = Slot { enter: f, ..Slot::default() };
-            }
-            self.admitted = self.admitted.wrapping_add(count);
-            self.entered_end = end;
-        }
-        self.hist[f as usize % HIST] = rec;
+        self.reg.admit(o, latch, self.cfg.rows, self.cfg.max_step_rows);
         // Window of the rows that entered n-1 frames ago and complete now.
         let n = self.cfg.n as usize;
         self.win = Err(SolveError::BadCount);
         if f as usize + 1 >= n {
             let w0 = f + 1 - n as u32;
-            let o0 = self.rec(w0).offset;
-            let mut shifts = [0u32; MAX_N];
-            for (j, s) in shifts.iter_mut().enumerate().take(n) {
-                let d = self.rec(w0 + j as u32).offset.wrapping_sub(o0);
-                *s = (d as u32).wrapping_mul(self.cfg.fx).wrapping_neg();
+            let mut offsets = [0i64; MAX_N];
+            for (j, o) in offsets.iter_mut().enumerate().take(n) {
+                *o = self.reg.admission(w0 + j as u32).offset;
             }
+            let mut shifts = [0u32; MAX_N];
+            self.cfg.shifts(&offsets[..n], &mut shifts);
             self.win = Window::solve(&shifts[..n], self.cfg.max_noise_gain_q8);
         }
         self.open = true;
@@ -277,16 +250,16 @@ impl<'a> Pipeline<'a> {
             return Err(Error::LineWidth { expected: self.cfg.width, got: line.len() });
         }
         self.next_line += 1;
-        let f = self.frames;
-        let b = self.rec(f).offset + r as i64;
+        let f = self.reg.begun().wrapping_sub(1);
+        let b = self.reg.admission(f).offset + r as i64;
         if b < self.next_row {
             return Ok(()); // emitted already (more than n observations, or after a reversal)
         }
-        let Kind::Admitted(s) = self.kind(b) else {
+        let Kind::Admitted(s) = self.reg.kind(b) else {
             return Ok(()); // skipped rows carry no samples
         };
         let n = self.cfg.n as usize;
-        let slot = &mut self.slots[s];
+        let slot = &mut self.reg.slots[s];
         if slot.flags & flags::ROW_INVALID != 0 {
             return Ok(());
         }
@@ -298,7 +271,7 @@ impl<'a> Pipeline<'a> {
         if j + 1 < n {
             match self.pool.store(line) {
                 Some(l) => {
-                    let slot = &mut self.slots[s];
+                    let slot = &mut self.reg.slots[s];
                     slot.lines[j] = l;
                     slot.count += 1;
                 }
@@ -316,8 +289,8 @@ impl<'a> Pipeline<'a> {
             }
         };
         let w0 = f + 1 - n as u32;
-        let (o0, latch0) = (self.rec(w0).offset, self.rec(w0).latch);
-        let rho = ((b - o0) as u32).wrapping_mul(self.cfg.fx);
+        let (o0, latch0) = (self.reg.admission(w0).offset, self.reg.admission(w0).latch);
+        let rho = self.cfg.row_phase(b - o0);
         let row_flags = self.compute(s, &win, rho, line);
         self.release(s);
         let header = self.header(b, latch0, row_flags);
@@ -334,24 +307,23 @@ impl<'a> Pipeline<'a> {
         if !self.open {
             return Err(Error::NoFrame);
         }
-        let f = self.frames;
-        let o = self.rec(f).offset;
+        let f = self.reg.begun().wrapping_sub(1);
+        let o = self.reg.admission(f).offset;
         let missing_from = (o + self.next_line as i64).max(self.next_row);
         for b in missing_from..o + self.cfg.rows as i64 {
-            if let Kind::Admitted(s) = self.kind(b) {
-                if self.slots[s].flags & flags::ROW_INVALID == 0 {
+            if let Kind::Admitted(s) = self.reg.kind(b) {
+                if self.reg.slots[s].flags & flags::ROW_INVALID == 0 {
                     self.kill(s, flags::FRAME_GAP);
                 }
             }
         }
         self.open = false;
-        self.frames = f.wrapping_add(1);
         // Emit finished rows at the front: skipped rows and dead rows whose window has ended.
         let n = self.cfg.n as u32;
-        while self.next_row < self.entered_end {
-            match self.kind(self.next_row) {
+        while self.next_row < self.reg.entered_end {
+            match self.reg.kind(self.next_row) {
                 Kind::Admitted(s) => {
-                    let slot = self.slots[s];
+                    let slot = self.reg.slots[s];
                     let ended = f.wrapping_sub(slot.enter) + 1 >= n;
                     if slot.flags & flags::ROW_INVALID == 0 || !ended {
                         break;
@@ -369,36 +341,17 @@ impl<'a> Pipeline<'a> {
         if self.open {
             self.end_frame(sink)?;
         }
-        self.drain_until(self.entered_end, flags::INCOMPLETE, sink)
-    }
-
-    /// Classifies board row `b >= next_row`.
-    fn kind(&self, b: i64) -> Kind {
-        let f = self.frames.wrapping_sub(if self.open { 0 } else { 1 });
-        for back in 0..HIST as u32 {
-            if back > f {
-                break;
-            }
-            let r = self.rec(f - back);
-            if b >= r.skip_start && b < r.admit_end {
-                if b < r.admit_start {
-                    return Kind::Skipped;
-                }
-                let k = r.slot_base.wrapping_add((b - r.admit_start) as u32);
-                return Kind::Admitted(k as usize % self.slots.len());
-            }
-        }
-        Kind::Gone
+        self.drain_until(self.reg.entered_end, flags::INCOMPLETE, sink)
     }
 
     /// Marks an admitted row invalid and returns its lines to the pool.
     fn kill(&mut self, s: usize, flag: u16) {
         self.release(s);
-        self.slots[s].flags |= flag;
+        self.reg.slots[s].flags |= flag;
     }
 
     fn release(&mut self, s: usize) {
-        let slot = &mut self.slots[s];
+        let slot = &mut self.reg.slots[s];
         let used = (slot.count as usize).min(MAX_N - 1);
         for &l in &slot.lines[..used] {
             self.pool.release(l);
@@ -409,8 +362,8 @@ impl<'a> Pipeline<'a> {
     /// Marks every open admitted row invalid.
     fn kill_open(&mut self, flag: u16) {
         let mut b = self.next_row;
-        while b < self.entered_end {
-            if let Kind::Admitted(s) = self.kind(b) {
+        while b < self.reg.entered_end {
+            if let Kind::Admitted(s) = self.reg.kind(b) {
                 self.kill(s, flag);
             }
             b += 1;
@@ -419,10 +372,10 @@ impl<'a> Pipeline<'a> {
 
     /// Emits every row in `[next_row, until)` as invalid; open rows get `reason`.
     fn drain_until<S: Sink>(&mut self, until: i64, reason: u16, sink: &mut S) -> Result<(), Error<S::Error>> {
-        let until = until.min(self.entered_end);
+        let until = until.min(self.reg.entered_end);
         while self.next_row < until {
-            if let Kind::Admitted(s) = self.kind(self.next_row) {
-                if self.slots[s].flags & flags::ROW_INVALID == 0 {
+            if let Kind::Admitted(s) = self.reg.kind(self.next_row) {
+                if self.reg.slots[s].flags & flags::ROW_INVALID == 0 {
                     self.kill(s, reason);
                 }
             }
@@ -433,26 +386,17 @@ impl<'a> Pipeline<'a> {
 
     /// Emits row `b` (== next_row) without heights.
     fn emit_dead<S: Sink>(&mut self, b: i64, sink: &mut S) -> Result<(), Error<S::Error>> {
-        let (fl, latch) = match self.kind(b) {
+        let (fl, latch) = match self.reg.kind(b) {
             Kind::Admitted(s) => {
-                let slot = self.slots[s];
+                let slot = self.reg.slots[s];
                 self.release(s);
-                (slot.flags, self.window_latch(slot.enter))
+                (slot.flags, self.reg.window_latch(slot.enter))
             }
             Kind::Skipped | Kind::Gone => (flags::SKIPPED, 0),
         };
         let header = self.header(b, latch, fl);
         self.next_row = b + 1;
         sink.row(&Row { header, heights: self.heights, valid: self.valid }).map_err(Error::Sink)
-    }
-
-    fn window_latch(&self, enter: u32) -> i64 {
-        let r = self.rec(enter);
-        if r.index == enter {
-            r.latch
-        } else {
-            0
-        }
     }
 
     fn header(&self, row: i64, latch: i64, flags: u16) -> RowHeader {
@@ -462,7 +406,7 @@ impl<'a> Pipeline<'a> {
     /// The hot loop: `v = P i`, phase, height and mask for every column of a completed row.
     fn compute(&mut self, s: usize, win: &Window, rho: u32, last: &[u16]) -> u16 {
         let n = win.n;
-        let slot = self.slots[s];
+        let slot = self.reg.slots[s];
         let mut lines: [&[u16]; MAX_N] = [&[]; MAX_N];
         for (j, l) in lines.iter_mut().enumerate().take(n - 1) {
             *l = self.pool.line(slot.lines[j]);
@@ -547,7 +491,7 @@ mod tests {
             saturation: 4095,
             min_modulation_q12: 40 << 12,
             max_noise_gain_q8: 512,
-            max_step: 8,
+            max_step_rows: 8,
         }
     }
 
@@ -558,35 +502,6 @@ mod tests {
         fn row(&mut self, r: &Row<'_>) -> Result<(), ()> {
             self.0.push((r.header, r.heights.to_vec(), r.valid.to_vec()));
             Ok(())
-        }
-    }
-
-    struct Mem {
-        lines: Vec<u16>,
-        free: Vec<u16>,
-        slots: Vec<Slot>,
-        heights: Vec<i16>,
-        valid: Vec<u8>,
-    }
-    impl Mem {
-        fn new(c: &Config) -> Mem {
-            let l = Layout::of(c);
-            Mem {
-                lines: vec![0; l.pool_lines * l.width],
-                free: vec![0; l.pool_lines],
-                slots: vec![Slot::default(); l.slots],
-                heights: vec![0; l.width],
-                valid: vec![0; l.width.div_ceil(8)],
-            }
-        }
-        fn mem(&mut self) -> Memory<'_> {
-            Memory {
-                lines: &mut self.lines,
-                free: &mut self.free,
-                slots: &mut self.slots,
-                heights: &mut self.heights,
-                valid: &mut self.valid,
-            }
         }
     }
 
@@ -620,11 +535,11 @@ mod tests {
     fn run(latches: &[i64], seqs: &[u32], lines_per_frame: &[u16]) -> (Collect, usize) {
         let c = cfg();
         let refp: Vec<u32> = (0..W).map(|c| from_rad(phi0(c))).collect();
-        let mut m = Mem::new(&c);
-        let mut p = Pipeline::new(c, &refp, m.mem()).unwrap();
+        let mut m = State::new(&c);
+        let mut p = Pipeline::new(c, &refp, m.memory()).unwrap();
         let mut sink = Collect::default();
         for (k, &e) in latches.iter().enumerate() {
-            p.begin_frame(seqs[k], e, &mut sink).unwrap();
+            p.begin_frame(Trigger { seq: seqs[k], latch: e }, &mut sink).unwrap();
             let fr = frame(c.offset(e));
             for r in 0..lines_per_frame[k] {
                 p.push_line(r, &fr[r as usize], &mut sink).unwrap();
@@ -708,21 +623,22 @@ mod tests {
     fn api_misuse_is_an_error() {
         let c = cfg();
         let refp = vec![0u32; W];
-        let mut m = Mem::new(&c);
-        let mut p = Pipeline::new(c, &refp, m.mem()).unwrap();
+        let mut m = State::new(&c);
+        let mut p = Pipeline::new(c, &refp, m.memory()).unwrap();
         let mut s = Collect::default();
         assert_eq!(p.push_line(0, &[0; W], &mut s), Err(Error::NoFrame));
         assert_eq!(p.end_frame(&mut s), Err(Error::NoFrame));
-        p.begin_frame(0, 0, &mut s).unwrap();
-        assert_eq!(p.begin_frame(1, 0, &mut s), Err(Error::FrameOpen));
+        p.begin_frame(Trigger { seq: 0, latch: 0 }, &mut s).unwrap();
+        assert_eq!(p.begin_frame(Trigger { seq: 1, latch: 0 }, &mut s), Err(Error::FrameOpen));
         assert_eq!(p.push_line(1, &[0; W], &mut s), Err(Error::LineOrder { expected: 0, got: 1 }));
         assert_eq!(p.push_line(0, &[0; 3], &mut s), Err(Error::LineWidth { expected: W as u16, got: 3 }));
-        let mut small = Mem::new(&c);
-        small.free.truncate(1);
-        assert!(matches!(Pipeline::new(c, &refp, small.mem()), Err(NewError::Memory)));
+        let mut small = State::new(&c);
+        let Memory { lines, free, slots, heights, valid } = small.memory();
+        let mem = Memory { lines, free: &mut free[..1], slots, heights, valid };
+        assert!(matches!(Pipeline::new(c, &refp, mem), Err(NewError::Memory)));
         let mut bad = c;
         bad.n = 9;
-        assert!(matches!(Pipeline::new(bad, &refp, Mem::new(&c).mem()), Err(NewError::Config(_))));
+        assert!(matches!(Pipeline::new(bad, &refp, State::new(&c).memory()), Err(NewError::Config(_))));
     }
 
     proptest! {

@@ -1,40 +1,87 @@
-//! Sink: where completed height rows go (a file on the host, a link on the frame grabber).
+//! Sink: where completed height rows go. [`PacketSink`] frames each row into a compressed
+//! packet ([`crate::packets`]) and sends it over a [`Link`]: a file or pipe on the host, the
+//! frame grabber's output link on the target.
 
-/// Header of one height row; the same fields are framed into every row packet.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct RowHeader {
-    /// Camera id.
-    pub camera: u8,
-    /// Observations per row `n`.
-    pub n: u8,
-    /// Board row index `b` (pixels of travel from the encoder zero).
-    pub row: i64,
-    /// Encoder latch of the first frame of the row's window (0 for rows without a window).
-    pub latch: i64,
-    /// Row flags, see [`crate::frames::flags`].
-    pub flags: u16,
-    /// Columns `W`.
-    pub width: u16,
-}
-
-/// One completed board row. `heights[c]` is in LSB; bit `c % 8` of `valid[c / 8]` is 1 when
-/// pixel `c` is valid. Invalid pixels carry height 0.
-#[derive(Clone, Copy, Debug)]
-pub struct Row<'a> {
-    pub header: RowHeader,
-    pub heights: &'a [i16],
-    pub valid: &'a [u8],
-}
-
-impl Row<'_> {
-    /// Whether pixel `c` is valid.
-    pub fn is_valid(&self, c: usize) -> bool {
-        self.valid.get(c / 8).is_some_and(|b| b & (1 << (c % 8)) != 0)
-    }
-}
+use crate::packets::{self, codec, PacketError};
+use crate::row::Row;
 
 /// Receives completed rows in increasing board-row order, each board row exactly once.
 pub trait Sink {
     type Error;
     fn row(&mut self, row: &Row<'_>) -> Result<(), Self::Error>;
+}
+
+/// The link a packet stream leaves by (Ethernet, USB, a FIFO to the host PC, a file).
+pub trait Link {
+    type Error;
+    /// Sends one whole packet (the link may queue it).
+    fn send(&mut self, packet: &[u8]) -> Result<(), Self::Error>;
+    /// Waits until every packet has left.
+    fn flush(&mut self) -> Result<(), Self::Error>;
+}
+
+/// Why a row could not leave a [`PacketSink`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SinkError<E> {
+    /// The row could not be framed (a buffer too small for the row's width).
+    Encode(PacketError),
+    /// The link failed.
+    Link(E),
+}
+
+/// A [`Sink`] that frames every row into a compressed packet (codec 1) and sends it over `L`.
+///
+/// `buf` must hold [`packets::max_packet_len`]`(W)` bytes; the encoder's reference row and
+/// intra period decide how rows are coded ([`codec::Encoder`]).
+pub struct PacketSink<'a, L> {
+    link: L,
+    enc: codec::Encoder<'a>,
+    buf: &'a mut [u8],
+    packets: u64,
+    bytes: u64,
+}
+
+impl<'a, L: Link> PacketSink<'a, L> {
+    pub fn new(link: L, enc: codec::Encoder<'a>, buf: &'a mut [u8]) -> Self {
+        PacketSink { link, enc, buf, packets: 0, bytes: 0 }
+    }
+
+    /// Packets sent.
+    pub fn packets(&self) -> u64 {
+        self.packets
+    }
+
+    /// Bytes sent.
+    pub fn bytes(&self) -> u64 {
+        self.bytes
+    }
+
+    pub fn link(&self) -> &L {
+        &self.link
+    }
+
+    pub fn link_mut(&mut self) -> &mut L {
+        &mut self.link
+    }
+
+    /// Flushes the link.
+    pub fn flush(&mut self) -> Result<(), L::Error> {
+        self.link.flush()
+    }
+
+    pub fn into_link(self) -> L {
+        self.link
+    }
+}
+
+impl<L: Link> Sink for PacketSink<'_, L> {
+    type Error = SinkError<L::Error>;
+
+    fn row(&mut self, row: &Row<'_>) -> Result<(), Self::Error> {
+        let n = packets::encode(row, &mut self.enc, self.buf).map_err(SinkError::Encode)?;
+        self.link.send(&self.buf[..n]).map_err(SinkError::Link)?;
+        self.packets += 1;
+        self.bytes += n as u64;
+        Ok(())
+    }
 }

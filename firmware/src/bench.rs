@@ -34,7 +34,7 @@ impl Meter {
     }
 
     /// Times a solve of the window ending at this frame, from the same shifts the pipeline
-    /// derives from the latches (`theta_j = -(o_j - o_0) 2 pi f_x`).
+    /// derives from the latches ([`Config::shifts`]: `theta_j = -(o_j - o_0) 2 pi f_x`).
     pub fn solve<C: Clock>(&mut self, cfg: &Config, latch: i64, clock: &C) {
         let n = cfg.n as usize;
         self.offsets.copy_within(1..MAX_N, 0);
@@ -43,11 +43,8 @@ impl Meter {
         if self.frames < n {
             return;
         }
-        let o = &self.offsets[MAX_N - n..];
         let mut shifts = [0u32; MAX_N];
-        for (s, &oj) in shifts.iter_mut().zip(o) {
-            *s = (oj.wrapping_sub(o[0]) as u32).wrapping_mul(cfg.fx).wrapping_neg();
-        }
+        cfg.shifts(&self.offsets[MAX_N - n..], &mut shifts);
         let t = clock.ticks();
         let w = Window::solve(core::hint::black_box(&shifts[..n]), cfg.max_noise_gain_q8);
         self.solve_ticks += clock.ticks() - t;
@@ -83,6 +80,11 @@ pub fn stages<C: Clock>(
 ) -> Stages {
     let mut s = Stages { pixels: 0, accumulate: 0, phase_height: 0 };
     let Some(win) = meter.window else { return s };
+    // The output row as a run-time pointer: otherwise LTO folds the address of the static
+    // state into `accumulate::row` (its only caller is this function), and the cost of that
+    // constant (1 or 2 instructions per pixel, depending on where the buffer lands) would be
+    // measured instead of the pipeline's code, which always has a pointer.
+    let v = core::hint::black_box(v);
     let (w, n) = (cfg.width as usize, cfg.n as usize);
     let scale = Scale::new(cfg);
     let groups = (pool.len() / (w * n)).min(16);
@@ -95,7 +97,7 @@ pub fn stages<C: Clock>(
         let t0 = clock.ticks();
         accumulate::row(&win, &lines[..n], 0, cfg.saturation, &mut v[..w]);
         let t1 = clock.ticks();
-        let rho = (g as u32).wrapping_mul(cfg.fx);
+        let rho = cfg.row_phase(g as i64);
         let f = scale.row(&v[..w], rho, &ref_phase[..w], &mut heights[..w], &mut valid[..w.div_ceil(8)]);
         let t2 = clock.ticks();
         core::hint::black_box((&heights, &valid, f));
@@ -161,36 +163,14 @@ pub fn stack_high_water() -> usize {
     }
 }
 
-/// A fixed text buffer.
-pub struct Text {
-    buf: [u8; 1024],
-    len: usize,
-}
-
-impl Text {
-    pub fn as_bytes(&self) -> &[u8] {
-        &self.buf[..self.len]
-    }
-}
-
-impl Write for Text {
-    fn write_str(&mut self, s: &str) -> core::fmt::Result {
-        let b = s.as_bytes();
-        let end = self.len + b.len();
-        if end > self.buf.len() {
-            return Err(core::fmt::Error);
-        }
-        self.buf[self.len..end].copy_from_slice(b);
-        self.len = end;
-        Ok(())
-    }
-}
+/// The text of a benchmark report.
+pub type Text = heapless::String<1024>;
 
 /// The `key value` lines of a benchmark run.
 pub fn report<C: Clock>(cfg: &Config, m: &Meter, sink: &SinkTicks, st: &Stages, clock: &C) -> Text {
     let (calib_instr, calib_ticks) = calibrate(clock);
     let w = cfg.width as u64;
-    let mut t = Text { buf: [0; 1024], len: 0 };
+    let mut t = Text::new();
     let lines: [(&str, u64); 18] = [
         ("calib_loop_instructions", calib_instr),
         ("calib_ticks", calib_ticks),

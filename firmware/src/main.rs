@@ -2,11 +2,12 @@
 //!
 //! Data flow, the same as on the host (`dpsa reconstruct`):
 //! frames (board [`LineSource`]) -> solve/accumulate/phase/height (`dpsa_core::Pipeline`,
-//! line by line, `P` solved on the target once per window) -> packets -> sink ([`LinkSink`]
-//! over the board's [`PacketLink`]).
+//! line by line, `P` solved on the target once per window) -> packets -> sink (the core's
+//! `PacketSink` over the board's link, which implements `dpsa_core::sink::Link`; timed for the
+//! benchmark by [`TimedSink`]).
 //!
 //! The board layer is in [`board`]; this file only wires it to the core. Under QEMU the
-//! command line is `dpsa-firmware RECORDING OUT [BENCH]` (semihosting) and the exit status
+//! command line is `dpsa-firmware FEED OUT [BENCH]` (semihosting) and the exit status
 //! says whether the run succeeded; the reason of a failure is in the defmt log.
 #![no_std]
 #![no_main]
@@ -16,12 +17,12 @@ mod board;
 mod sink;
 mod state;
 
-use board::qemu::{self, HostFile, Recording, SysTickClock};
-use board::{Clock, LineSource, PacketLink, Triggered};
+use board::qemu::{self, Feed, HostFile, SysTickClock};
+use board::{Clock, LineSource, Triggered};
 use dpsa_core::packets::codec;
 use dpsa_core::pipeline::{Memory, Pipeline};
 use defmt_semihosting as _;
-use sink::LinkSink;
+use sink::TimedSink;
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
@@ -48,34 +49,34 @@ fn run() -> Result<(), Failed> {
     let clock = SysTickClock::start(cp.SYST);
     let args = qemu::Args::get().map_err(|e| fail("command line", e))?;
     let st = state::take().ok_or_else(|| fail("state", "taken twice"))?;
-    let state::State { lines, free, slots, heights, valid, ref_phase, line, codec_heights, codec_valid, packet, bench_acc } = st;
 
-    // Calibration and geometry come with the recording (on a real board: from its flash).
-    let rec = Recording::open(&args.recording, ref_phase, qemu::as_bytes_mut(lines))
-        .map_err(|e| fail("opening the recording", e))?;
-    let header = rec.header();
+    // Calibration and geometry come with the feed (on a real board: from its flash).
+    st.open_ref_phase();
+    let feed = Feed::open(&args.feed, &mut st.ref_phase, qemu::as_bytes_mut(&mut st.lines))
+        .map_err(|e| fail("opening the feed", e))?;
+    let header = feed.header();
     let cfg = header.cfg;
-    let layout = state::State::check(&cfg).map_err(|e| fail("state too small for this geometry", e))?;
+    let layout = st.size_for(&cfg).map_err(|e| fail("state too small for this geometry", e))?;
+    let state::State { lines, free, slots, heights, valid, ref_phase, line, codec_heights, codec_valid, packet, bench_acc } = st;
     let w = layout.width;
     defmt::info!(
-        "W {=usize} H {=u16} n {=u8} max step {=u16}: {=u32} frames, state {=usize} B (pipeline {=usize} B)",
+        "W {=usize} H {=u16} n {=u8} max step {=u16} rows: {=u32} frames, state {=usize} B (pipeline {=usize} B)",
         w,
         cfg.rows,
         cfg.n,
-        cfg.max_step,
+        cfg.max_step_rows,
         header.frames,
         state::State::bytes_for(&cfg),
         layout.bytes()
     );
 
-    let (strobe, capture, port) = rec.parts();
+    let (strobe, capture, port) = feed.parts();
     let mut source = Triggered { trigger: strobe, encoder: capture, port };
     let link = HostFile::create(&args.out).map_err(|e| fail("creating the output", e))?;
-    let mut enc = codec::Encoder::new(&mut codec_heights[..w], &mut codec_valid[..], w)
+    let enc = codec::Encoder::new(&mut codec_heights[..w], &mut codec_valid[..], w, header.intra_period)
         .ok_or_else(|| fail("codec", "width not supported"))?;
-    enc.set_intra_period(header.intra_period);
     let bench_on = args.bench.is_some();
-    let mut sink = LinkSink::new(link, enc, &mut packet[..], bench_on.then_some(&clock));
+    let mut sink = TimedSink::new(link, enc, &mut packet[..], bench_on.then_some(&clock));
     let mem = Memory {
         lines: &mut lines[..layout.pool_lines * w],
         free: &mut free[..layout.pool_lines],
@@ -83,7 +84,7 @@ fn run() -> Result<(), Failed> {
         heights: &mut heights[..w],
         valid: &mut valid[..w.div_ceil(8)],
     };
-    let mut pipe = Pipeline::new(cfg, &ref_phase[..w], mem).map_err(|e| fail("pipeline", defmt::Debug2Format(&e)))?;
+    let mut pipe = Pipeline::new(cfg, &ref_phase[..w], mem).map_err(|e| fail("pipeline", e))?;
     let mut meter = bench::Meter::new();
     let line = &mut line[..w];
 
@@ -92,41 +93,42 @@ fn run() -> Result<(), Failed> {
         let t = clock.ticks();
         let next = source.next_frame().map_err(|e| fail("camera", e))?;
         meter.io += clock.ticks() - t;
-        let Some(f) = next else { break };
+        let Some(trigger) = next else { break };
         let t = clock.ticks();
-        pipe.begin_frame(f.seq, f.latch, &mut sink).map_err(|e| fail("begin_frame", defmt::Debug2Format(&e)))?;
+        pipe.begin_frame(trigger, &mut sink).map_err(|e| fail("begin_frame", e))?;
         meter.pipe += clock.ticks() - t;
         if bench_on {
-            meter.solve(&cfg, f.latch, &clock);
+            meter.solve(&cfg, trigger.latch, &clock);
         }
         for r in 0..cfg.rows {
             let t = clock.ticks();
             source.read_line(line).map_err(|e| fail("camera", e))?;
             let t1 = clock.ticks();
-            pipe.push_line(r, line, &mut sink).map_err(|e| fail("push_line", defmt::Debug2Format(&e)))?;
+            pipe.push_line(r, line, &mut sink).map_err(|e| fail("push_line", e))?;
             let t2 = clock.ticks();
             meter.io += t1 - t;
             meter.pipe += t2 - t1;
         }
         let t = clock.ticks();
-        pipe.end_frame(&mut sink).map_err(|e| fail("end_frame", defmt::Debug2Format(&e)))?;
+        pipe.end_frame(&mut sink).map_err(|e| fail("end_frame", e))?;
         meter.pipe += clock.ticks() - t;
         frames += 1;
     }
     let t = clock.ticks();
-    pipe.finish(&mut sink).map_err(|e| fail("finish", defmt::Debug2Format(&e)))?;
+    pipe.finish(&mut sink).map_err(|e| fail("finish", e))?;
     meter.pipe += clock.ticks() - t;
-    sink.link.flush().map_err(|e| fail("link", e))?;
-    let rows = sink.ticks.rows;
+    sink.sink.flush().map_err(|e| fail("link", e))?;
+    let ticks = sink.ticks();
+    let rows = ticks.rows;
     defmt::info!("{=u32} frames in, {=u64} rows out", frames, rows);
     if frames != header.frames {
-        return Err(fail("recording", "fewer frames than its header says"));
+        return Err(fail("feed", "fewer frames than its header says"));
     }
 
     if let Some(path) = &args.bench {
         drop(pipe);
         let stages = bench::stages(&cfg, &meter, ref_phase, lines, heights, valid, bench_acc, &clock);
-        let report = bench::report(&cfg, &meter, &sink.ticks, &stages, &clock);
+        let report = bench::report(&cfg, &meter, &ticks, &stages, &clock);
         qemu::write_text(path, report.as_bytes()).map_err(|e| fail("bench file", e))?;
     }
     Ok(())

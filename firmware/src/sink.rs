@@ -1,8 +1,9 @@
-//! Packets -> link: the core's [`Sink`] that frames each finished row into a compressed packet
-//! and sends it, exactly as `dpsa reconstruct` does on the host.
+//! Packets -> link, timed for the benchmark: the core's [`PacketSink`] (the same code as
+//! `dpsa reconstruct` runs on the host) over the board's link, wrapped so that a benchmark run
+//! can split the sink's time into encoding and sending.
 
-use crate::board::{Clock, PacketLink};
-use dpsa_core::packets::{self, codec, PacketError};
+use crate::board::Clock;
+use dpsa_core::sink::{Link, PacketSink, SinkError};
 use dpsa_core::{Row, Sink};
 
 /// Ticks spent in the sink, split into encoding and sending (benchmark only).
@@ -13,46 +14,65 @@ pub struct SinkTicks {
     pub rows: u64,
 }
 
-/// Why a row could not leave.
-#[derive(Clone, Copy, Debug, defmt::Format)]
-pub enum SinkError<E> {
-    Encode(#[defmt(Debug2Format)] PacketError),
-    Link(E),
-}
-
-pub struct LinkSink<'a, L, C> {
+/// A link whose sends are timed when a clock is given.
+pub struct Timed<'c, L, C> {
     pub link: L,
-    enc: codec::Encoder<'a>,
-    buf: &'a mut [u8],
-    clock: Option<&'a C>,
-    pub ticks: SinkTicks,
+    clock: Option<&'c C>,
+    /// Ticks in `send`.
+    send: u64,
+    /// Tick at the start of the last send.
+    started: u64,
 }
 
-impl<'a, L: PacketLink, C: Clock> LinkSink<'a, L, C> {
-    /// `clock`: time the encoder and the link (benchmark runs).
-    pub fn new(link: L, enc: codec::Encoder<'a>, buf: &'a mut [u8], clock: Option<&'a C>) -> Self {
-        LinkSink { link, enc, buf, clock, ticks: SinkTicks::default() }
-    }
-
+impl<L, C: Clock> Timed<'_, L, C> {
     fn now(&self) -> u64 {
         self.clock.map_or(0, |c| c.ticks())
     }
 }
 
-impl<L: PacketLink, C: Clock> Sink for LinkSink<'_, L, C> {
+impl<L: Link, C: Clock> Link for Timed<'_, L, C> {
+    type Error = L::Error;
+
+    fn send(&mut self, packet: &[u8]) -> Result<(), L::Error> {
+        let t0 = self.now();
+        self.started = t0;
+        self.link.send(packet)?;
+        self.send += self.now() - t0;
+        Ok(())
+    }
+
+    fn flush(&mut self) -> Result<(), L::Error> {
+        self.link.flush()
+    }
+}
+
+/// The core's packet sink over a [`Timed`] link, timed as a whole: the encode time of a row is
+/// the sink's time up to the start of its send.
+pub struct TimedSink<'a, L, C> {
+    pub sink: PacketSink<'a, Timed<'a, L, C>>,
+    clock: Option<&'a C>,
+    encode: u64,
+}
+
+impl<'a, L: Link, C: Clock> TimedSink<'a, L, C> {
+    /// `clock`: time the encoder and the link (benchmark runs).
+    pub fn new(link: L, enc: dpsa_core::packets::codec::Encoder<'a>, buf: &'a mut [u8], clock: Option<&'a C>) -> Self {
+        let link = Timed { link, clock, send: 0, started: 0 };
+        TimedSink { sink: PacketSink::new(link, enc, buf), clock, encode: 0 }
+    }
+
+    pub fn ticks(&self) -> SinkTicks {
+        SinkTicks { encode: self.encode, send: self.sink.link().send, rows: self.sink.packets() }
+    }
+}
+
+impl<L: Link, C: Clock> Sink for TimedSink<'_, L, C> {
     type Error = SinkError<L::Error>;
 
-    // Per-row hot path (the codec is inlined here): in ITCM with the core (memory.x).
-    #[link_section = ".itcm.sink_row"]
     fn row(&mut self, row: &Row<'_>) -> Result<(), Self::Error> {
-        let t0 = self.now();
-        let n = packets::encode(row, &mut self.enc, self.buf).map_err(SinkError::Encode)?;
-        let t1 = self.now();
-        self.link.send(&self.buf[..n]).map_err(SinkError::Link)?;
-        let t2 = self.now();
-        self.ticks.encode += t1 - t0;
-        self.ticks.send += t2 - t1;
-        self.ticks.rows += 1;
+        let t0 = self.clock.map_or(0, |c| c.ticks());
+        self.sink.row(row)?;
+        self.encode += self.sink.link().started - t0;
         Ok(())
     }
 }

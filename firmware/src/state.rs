@@ -1,36 +1,40 @@
-//! The configuration-sized state, with capacities fixed by the board (heapless style: no
-//! allocator, the capacity is in the type). It lives in the `.state` section (`memory.x`:
-//! DTCM on a real board).
+//! The configuration-sized state, with capacities fixed by the board (heapless: no allocator,
+//! the capacity is in the type, the length is what the configuration needs). It lives in the
+//! `.state` section (`memory.x`: DTCM on a real board).
 
 use crate::board::qemu::cap;
 use dpsa_core::accumulate::V;
+use dpsa_core::frames::registration::Slot;
 use dpsa_core::packets;
-use dpsa_core::pipeline::{Layout, Slot};
+use dpsa_core::pipeline::Layout;
 use dpsa_core::Config;
+use heapless::Vec;
 
 /// Packet buffer for the widest line: header, worst-case payload, CRC.
 pub const PACKET_CAP: usize = packets::max_packet_len(cap::WIDTH);
 
 /// Every buffer the firmware sizes by the configuration.
 pub struct State {
-    /// Raw-line pool of the pipeline.
+    /// Raw-line pool of the pipeline. A plain array, not a `Vec`: before the configuration is
+    /// known it is the scratch buffer for the feed's reference-phase table, and the benchmark
+    /// reads samples from its whole capacity.
     pub lines: [u16; cap::POOL_SAMPLES],
-    pub free: [u16; cap::POOL_LINES],
-    pub slots: [Slot; cap::SLOTS],
+    pub free: Vec<u16, { cap::POOL_LINES }>,
+    pub slots: Vec<Slot, { cap::SLOTS }>,
     /// Output row: heights and validity.
-    pub heights: [i16; cap::WIDTH],
-    pub valid: [u8; cap::WIDTH / 8],
+    pub heights: Vec<i16, { cap::WIDTH }>,
+    pub valid: Vec<u8, { cap::WIDTH / 8 }>,
     /// Reference phase `phi_0(c)` (calibration).
-    pub ref_phase: [u32; cap::WIDTH],
+    pub ref_phase: Vec<u32, { cap::WIDTH }>,
     /// The line being received.
-    pub line: [u16; cap::WIDTH],
+    pub line: Vec<u16, { cap::WIDTH }>,
     /// Codec reference row (the previous row, for predicted rows).
-    pub codec_heights: [i16; cap::WIDTH],
-    pub codec_valid: [u8; cap::WIDTH / 8],
+    pub codec_heights: Vec<i16, { cap::WIDTH }>,
+    pub codec_valid: Vec<u8, { cap::WIDTH / 8 }>,
     /// One packet.
-    pub packet: [u8; PACKET_CAP],
+    pub packet: Vec<u8, PACKET_CAP>,
     /// Benchmark only: one row of reduced pixels, between the two timed stages.
-    pub bench_acc: [V; cap::WIDTH],
+    pub bench_acc: Vec<V, { cap::WIDTH }>,
 }
 
 /// Why the state cannot hold a configuration.
@@ -40,14 +44,41 @@ pub struct TooSmall {
     pub have_samples: usize,
 }
 
+/// Sets `v` to `len` zero elements.
+fn zeroed<T: Clone + Default, const N: usize>(v: &mut Vec<T, N>, len: usize) -> Result<(), ()> {
+    v.clear();
+    v.resize(len, T::default()).map_err(|_| ())
+}
+
 impl State {
-    /// The pipeline memory for `cfg`, or what is missing.
-    pub fn check(cfg: &Config) -> Result<Layout, TooSmall> {
+    /// Gives `ref_phase` its full capacity, for reading a feed's table of any supported width.
+    pub fn open_ref_phase(&mut self) {
+        let _ = zeroed(&mut self.ref_phase, cap::WIDTH);
+    }
+
+    /// Sizes every buffer for `cfg` (zeroed; `ref_phase` keeps its first `W` entries), or says
+    /// what is missing.
+    pub fn size_for(&mut self, cfg: &Config) -> Result<Layout, TooSmall> {
         let l = Layout::of(cfg);
-        let needed = l.pool_lines * l.width;
-        if l.width > cap::WIDTH || l.pool_lines > cap::POOL_LINES || l.slots > cap::SLOTS || needed > cap::POOL_SAMPLES {
-            return Err(TooSmall { needed_samples: needed, have_samples: cap::POOL_SAMPLES });
+        let (w, nb) = (l.width, l.width.div_ceil(8));
+        let needed = l.pool_lines * w;
+        let too_small = TooSmall { needed_samples: needed, have_samples: cap::POOL_SAMPLES };
+        if needed > cap::POOL_SAMPLES || w > self.ref_phase.len() {
+            return Err(too_small);
         }
+        self.ref_phase.truncate(w);
+        (|| {
+            zeroed(&mut self.free, l.pool_lines)?;
+            zeroed(&mut self.slots, l.slots)?;
+            zeroed(&mut self.heights, w)?;
+            zeroed(&mut self.valid, nb)?;
+            zeroed(&mut self.line, w)?;
+            zeroed(&mut self.codec_heights, w)?;
+            zeroed(&mut self.codec_valid, nb)?;
+            zeroed(&mut self.packet, packets::max_packet_len(w))?;
+            zeroed(&mut self.bench_acc, w)
+        })()
+        .map_err(|()| too_small)?;
         Ok(l)
     }
 
@@ -60,7 +91,7 @@ impl State {
     }
 }
 
-/// Takes the state, once, zeroed.
+/// Takes the state, once, zeroed: every `Vec` empty.
 pub fn take() -> Option<&'static mut State> {
     use core::mem::MaybeUninit;
     use core::sync::atomic::{AtomicBool, Ordering};
@@ -70,9 +101,11 @@ pub fn take() -> Option<&'static mut State> {
     if TAKEN.swap(true, Ordering::AcqRel) {
         return None;
     }
-    // SAFETY: the flag makes this the only reference ever handed out. Every field is an array
-    // of integers or of `Slot` (integers only), for which all-zero bytes are a valid value, so
-    // the zeroed memory is an initialised `State`. `.state` is NOLOAD: it must be zeroed here.
+    // SAFETY: the flag makes this the only reference ever handed out. `.state` is NOLOAD, so it
+    // is zeroed here, and all-zero bytes are a valid `State`: the pool is an array of integers,
+    // and every field that is a `heapless::Vec` holds a length (0: empty) and a buffer of
+    // `MaybeUninit` elements, for which any bytes are valid; so the zeroed memory is a `State`
+    // whose vectors are all empty.
     unsafe {
         let p = &mut *core::ptr::addr_of_mut!(STATE);
         core::ptr::write_bytes(p.as_mut_ptr(), 0, 1);

@@ -1,7 +1,8 @@
-//! Arbitrary bytes as a packet stream (docs/stream.md): the whole-stream decoder of the host,
-//! the packet parser at every sync word, and the row codec's decoder, directly.
+//! Arbitrary bytes as a packet stream (docs/stream.md): the core's stream walk
+//! (`packets::Stream`, what the host's decoder runs on), the packet parser at every sync word,
+//! and the row codec's decoder, directly.
 //!
-//! Oracles besides "no panic, no hang, no overflow": the stream report is self-consistent, a
+//! Oracles besides "no panic, no hang, no overflow": the stream walk is self-consistent, a
 //! parsed packet lies inside the input, and every row the codec decodes is well formed (heights
 //! 0 where invalid, padding bits 0) and survives a re-encode / decode round trip unchanged.
 
@@ -16,21 +17,37 @@ fuzz_target!(|data: &[u8]| {
     codec_payloads(data);
 });
 
-/// `dpsa_sim::stream::decode_stream`: never panics; the report adds up.
+/// `packets::Stream`: never panics; items in stream order at increasing offsets inside the
+/// input; a packet starts with the sync word and ends inside the input, the next item starts
+/// right after it; damage is followed by the next sync word after it (or the end); every byte
+/// of the input is covered by a packet or skipped after damage.
 fn whole_stream(data: &[u8]) {
-    let (map, rep) = dpsa_sim::stream::decode_stream(data, 0.25);
-    assert_eq!(map.rows.len(), rep.ok);
-    assert_eq!(rep.damage.len(), rep.corrupt);
-    // Reports in stream order, each at a distinct offset inside the input.
-    for w in rep.damage.windows(2) {
-        assert!(w[0].offset < w[1].offset, "{:?}", rep.damage);
+    let mut next_at = 0usize;
+    let (mut ok, mut damage) = (0usize, 0usize);
+    for item in packets::Stream::new(data) {
+        match item {
+            packets::Item::Packet { offset, packet } => {
+                assert_eq!(offset, next_at, "a packet where the walk did not stand");
+                assert_eq!(data[offset..offset + 4], packets::SYNC);
+                let len = packets::HEADER_LEN + packet.payload.len() + packets::TRAILER_LEN;
+                assert!(offset + len <= data.len());
+                // The packet re-parses alone to itself.
+                let (again, l2) = packets::decode(&data[offset..offset + len]).unwrap();
+                assert_eq!((again.header, l2), (packet.header, len));
+                next_at = offset + len;
+                ok += 1;
+            }
+            packets::Item::Damage { offset, error } => {
+                assert_eq!(offset, next_at, "damage where the walk did not stand");
+                assert!(offset < data.len());
+                assert!(packets::decode(&data[offset..]).err() == Some(error));
+                next_at = packets::find_sync(data, offset + 1).unwrap_or(data.len());
+                damage += 1;
+            }
+        }
     }
-    if let Some(d) = rep.damage.last() {
-        assert!(d.offset < data.len());
-    }
-    for r in &map.rows {
-        assert_eq!(r.heights.len(), r.valid.len());
-    }
+    assert_eq!(next_at, data.len(), "the walk stopped early");
+    assert!(ok + damage <= data.len());
 }
 
 /// Well-framed packets at or after every sync word (`packets::decode` tried at each).
@@ -112,8 +129,7 @@ fn check_row(w: usize, h: &[i16], v: &[u8]) {
     }
     let (mut eh, mut ev, mut dh, mut dv) =
         (vec![0i16; w], vec![0u8; nb], vec![0i16; w], vec![0u8; nb]);
-    let mut enc = codec::Encoder::new(&mut eh, &mut ev, w).unwrap();
-    enc.set_intra_period(1);
+    let mut enc = codec::Encoder::new(&mut eh, &mut ev, w, packets::STREAM_INTRA_PERIOD).unwrap();
     let mut buf = vec![0u8; codec::max_len(w)];
     let n = enc.encode(h, v, &mut buf).unwrap();
     assert!(n <= codec::max_len(w));

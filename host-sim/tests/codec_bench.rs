@@ -107,8 +107,7 @@ fn small_scene_every_method_compresses_and_ours_wins() {
     // each through a fresh decoder.
     let nb = w.div_ceil(8);
     let (mut eh, mut ev) = (vec![0i16; w], vec![0u8; nb]);
-    let mut enc = Encoder::new(&mut eh, &mut ev, w).unwrap();
-    enc.set_intra_period(1);
+    let mut enc = Encoder::new(&mut eh, &mut ev, w, 1).unwrap();
     let mut buf = vec![0u8; codec::max_len(w)];
     let mut total = 0;
     for i in 0..rows.rows {

@@ -1,34 +1,25 @@
-//! Frames in: configuration, encoder latch to row offset, row flags.
+//! Frames in: configuration, frame triggers, encoder latch to row offset and phase shift, and
+//! the registration of board rows.
 //!
 //! The configuration is all integers, converted once from the calibration (on the host, from
 //! the recording manifest). The host and the firmware run on the same `Config` values, which
 //! is what makes their outputs bit-identical.
+//!
+//! - [`feed`]: the byte format a frame grabber is fed (configuration, reference phase, frames).
+//! - [`registration`]: which board rows a frame admits or skips, and where open rows live.
 
 use crate::solve::{MAX_N, MIN_N};
 
-pub mod wire;
+pub mod feed;
+pub mod registration;
 
-/// Row flags carried in every row packet (bit values are part of the stream format).
-pub mod flags {
-    /// Window noise gain above `max_noise_gain` (includes a stalled conveyor).
-    pub const ILL_CONDITIONED: u16 = 1 << 0;
-    /// Row not seen in `n` consecutive frames (left the ROI, recording ended).
-    pub const INCOMPLETE: u16 = 1 << 1;
-    /// Row never admitted (first frame, encoder step above `max_step`).
-    pub const SKIPPED: u16 = 1 << 2;
-    /// Encoder count decreased while the row was open.
-    pub const ENCODER_REVERSAL: u16 = 1 << 3;
-    /// Frame sequence gap, or a frame that ended before delivering the row's line.
-    pub const FRAME_GAP: u16 = 1 << 4;
-    /// At least one pixel had a saturated sample (per-pixel summary).
-    pub const SATURATED: u16 = 1 << 5;
-    /// At least one pixel had modulation below the threshold (per-pixel summary).
-    pub const LOW_MODULATION: u16 = 1 << 6;
-    /// The caller-supplied state had no free line slot for this row.
-    pub const OVERFLOW: u16 = 1 << 7;
-    /// Flags that invalidate the whole row.
-    pub const ROW_INVALID: u16 =
-        ILL_CONDITIONED | INCOMPLETE | SKIPPED | ENCODER_REVERSAL | FRAME_GAP | OVERFLOW;
+/// A frame's trigger: the camera's frame counter and the encoder count latched at its trigger.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Trigger {
+    /// Camera frame counter (consecutive frames have consecutive values, mod 2^32).
+    pub seq: u32,
+    /// Encoder count latched by the trigger (counts).
+    pub latch: i64,
 }
 
 /// Processing configuration (geometry, calibration, thresholds) in integer form.
@@ -54,8 +45,8 @@ pub struct Config {
     pub min_modulation_q12: u32,
     /// Largest accepted window noise gain, Q8.8 (256..=2048).
     pub max_noise_gain_q8: u16,
-    /// Largest number of new board rows admitted per frame (`max_step_rows`).
-    pub max_step: u16,
+    /// Largest number of new board rows admitted per frame.
+    pub max_step_rows: u16,
 }
 
 /// A configuration value out of range.
@@ -91,7 +82,7 @@ impl Config {
         if !(256..=2048).contains(&self.max_noise_gain_q8) {
             return Err(ConfigError::NoiseGain);
         }
-        if self.max_step == 0 || self.max_step > self.rows {
+        if self.max_step_rows == 0 || self.max_step_rows > self.rows {
             return Err(ConfigError::MaxStep);
         }
         Ok(())
@@ -102,6 +93,29 @@ impl Config {
         let q = self.counts_per_pixel_q16 as i128;
         let num = ((latch as i128) << 17) + q;
         num.div_euclid(2 * q) as i64
+    }
+
+    /// Fringe phase advance over `rows` image rows, `2 pi f_x rows`, as a binary angle (wrapping).
+    #[inline(always)]
+    pub fn row_phase(&self, rows: i64) -> u32 {
+        (rows as u32).wrapping_mul(self.fx)
+    }
+
+    /// Phase shift of a frame whose row offset is `offset_delta` rows past the window's first
+    /// frame: `theta_j = -(o_j - o_0) 2 pi f_x`, as a binary angle.
+    #[inline(always)]
+    pub fn shift(&self, offset_delta: i64) -> u32 {
+        self.row_phase(offset_delta).wrapping_neg()
+    }
+
+    /// The shifts `theta_j` of a window from its frames' row offsets `o_0 .. o_{n-1}`
+    /// (`shifts.len() >= offsets.len()`; the first `offsets.len()` entries are written).
+    #[inline(always)]
+    pub fn shifts(&self, offsets: &[i64], shifts: &mut [u32]) {
+        let o0 = offsets.first().copied().unwrap_or(0);
+        for (s, &o) in shifts.iter_mut().zip(offsets) {
+            *s = self.shift(o.wrapping_sub(o0));
+        }
     }
 }
 
@@ -122,7 +136,7 @@ mod tests {
             saturation: 4095,
             min_modulation_q12: 0,
             max_noise_gain_q8: 512,
-            max_step: 4,
+            max_step_rows: 4,
         }
     }
 

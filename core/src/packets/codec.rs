@@ -13,8 +13,9 @@
 //! that the encoder increments by one per row (mod 256), whatever the row kind.
 //!
 //! - The [`Encoder`] codes a row intra when it has no reference (after [`Encoder::new`] and
-//!   [`Encoder::reset`]) and at least every `K` rows ([`Encoder::set_intra_period`], default
-//!   [`DEFAULT_INTRA_PERIOD`] = 32): row `i` after an intra row is intra when `i == K`, so at
+//!   [`Encoder::reset`]) and at least every `K` rows (the intra period, an argument of
+//!   [`Encoder::new`]; [`Encoder::set_intra_period`] changes it): row `i` after an intra row is
+//!   intra when `i == K`, so at
 //!   most `K - 1` predicted rows follow an intra row. `K = 1` codes every row intra; `K = 0`
 //!   never forces an intra row (only the first row after a reset is intra).
 //! - The [`Decoder`] accepts a predicted row only if it holds a reference and the row's
@@ -133,8 +134,6 @@ use core::cell::Cell;
 
 /// Largest supported row width.
 pub const MAX_WIDTH: usize = 8192;
-/// Default intra period `K` (see the module docs).
-pub const DEFAULT_INTRA_PERIOD: u32 = 32;
 /// Bytes of the payload header.
 pub const HEADER_LEN: usize = 2;
 
@@ -531,7 +530,7 @@ impl<'i> BitReader<'i> {
 /// Row encoder. Holds the reference row in caller memory.
 pub struct Encoder<'a> {
     r: Reference<'a>,
-    period: u32,
+    intra_period: u32,
     /// Predicted rows still allowed before the next intra row.
     budget: u32,
     next_seq: u8,
@@ -540,15 +539,17 @@ pub struct Encoder<'a> {
 impl<'a> Encoder<'a> {
     /// An encoder for rows of `width` (`1 ..= MAX_WIDTH`) pixels keeping its reference in
     /// `prev_heights` (`>= width`) and `prev_valid` (`>= ceil(width/8)` bytes); `None` if the
-    /// width or a buffer does not fit. Intra period [`DEFAULT_INTRA_PERIOD`].
+    /// width or a buffer does not fit. `intra_period` is the intra period `K` (see the module
+    /// docs; a packet stream uses [`super::STREAM_INTRA_PERIOD`]).
     pub fn new(
         prev_heights: &'a mut [i16],
         prev_valid: &'a mut [u8],
         width: usize,
+        intra_period: u32,
     ) -> Option<Self> {
         Some(Self {
             r: Reference::new(prev_heights, prev_valid, width)?,
-            period: DEFAULT_INTRA_PERIOD,
+            intra_period,
             budget: 0,
             next_seq: 0,
         })
@@ -556,9 +557,9 @@ impl<'a> Encoder<'a> {
 
     /// Sets the intra period `K` (see the module docs). A shorter period takes effect at once:
     /// no more than `K - 1` predicted rows follow the last intra row.
-    pub fn set_intra_period(&mut self, k: u32) {
-        self.period = k;
-        self.budget = self.budget.min(k.saturating_sub(1));
+    pub fn set_intra_period(&mut self, intra_period: u32) {
+        self.intra_period = intra_period;
+        self.budget = self.budget.min(intra_period.saturating_sub(1));
     }
 
     /// Forgets the reference: the next row is intra.
@@ -592,7 +593,7 @@ impl<'a> Encoder<'a> {
         let body = &mut body[..raw_len(w)];
         let seq = self.next_seq;
         self.next_seq = seq.wrapping_add(1);
-        let predicted = self.r.present && (self.period == 0 || self.budget > 0);
+        let predicted = self.r.present && (self.intra_period == 0 || self.budget > 0);
 
         let coded = encode_body(&mut self.r, predicted, heights, valid, body);
         let len = match coded {
@@ -611,7 +612,7 @@ impl<'a> Encoder<'a> {
         if predicted && coded.is_some() {
             self.budget = self.budget.saturating_sub(1);
         } else {
-            self.budget = self.period.saturating_sub(1);
+            self.budget = self.intra_period.saturating_sub(1);
         }
         Ok(HEADER_LEN + len)
     }
@@ -959,6 +960,43 @@ impl<'a> Decoder<'a> {
     }
 }
 
+/// Owned reference-row memory for one end of a stream: `W` heights and `ceil(W/8)` validity
+/// bytes, from which an [`Encoder`] or a [`Decoder`] borrows (`alloc` feature).
+#[cfg(feature = "alloc")]
+pub struct ReferenceRow {
+    heights: alloc::boxed::Box<[i16]>,
+    valid: alloc::boxed::Box<[u8]>,
+}
+
+#[cfg(feature = "alloc")]
+impl ReferenceRow {
+    /// Reference memory for rows of `width` pixels.
+    pub fn new(width: usize) -> ReferenceRow {
+        ReferenceRow {
+            heights: alloc::vec![0; width].into_boxed_slice(),
+            valid: alloc::vec![0; width.div_ceil(8)].into_boxed_slice(),
+        }
+    }
+
+    /// Row width.
+    pub fn width(&self) -> usize {
+        self.heights.len()
+    }
+
+    /// An encoder over this memory with intra period `intra_period`; `None` if the width is not
+    /// supported (`1 ..= MAX_WIDTH`).
+    pub fn encoder(&mut self, intra_period: u32) -> Option<Encoder<'_>> {
+        let w = self.width();
+        Encoder::new(&mut self.heights, &mut self.valid, w, intra_period)
+    }
+
+    /// A decoder over this memory; `None` if the width is not supported.
+    pub fn decoder(&mut self) -> Option<Decoder<'_>> {
+        let w = self.width();
+        Decoder::new(&mut self.heights, &mut self.valid, w)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     extern crate std;
@@ -1096,13 +1134,12 @@ mod tests {
 
     /// Codes and decodes every row (resetting both ends before the rows in `resets`); returns
     /// the payloads.
-    fn round_trip(img: &Img, period: u32, resets: &[usize]) -> Vec<Vec<u8>> {
+    fn round_trip(img: &Img, intra_period: u32, resets: &[usize]) -> Vec<Vec<u8>> {
         let w = img.w;
         let nb = w.div_ceil(8);
         let (mut eh, mut ev, mut dh, mut dv) =
             (vec![0i16; w], vec![0u8; nb], vec![0i16; w], vec![0u8; nb]);
-        let mut enc = Encoder::new(&mut eh, &mut ev, w).unwrap();
-        enc.set_intra_period(period);
+        let mut enc = Encoder::new(&mut eh, &mut ev, w, intra_period).unwrap();
         let mut dec = Decoder::new(&mut dh, &mut dv, w).unwrap();
         let mut out = vec![0u8; max_len(w)];
         let (mut oh, mut ov) = (vec![0i16; w], vec![0u8; nb]);
@@ -1115,7 +1152,7 @@ mod tests {
             let n = enc.encode(h, v, &mut out).unwrap();
             assert!(n <= max_len(w));
             let kind = peek(&out[..n]).unwrap().0;
-            if resets.contains(&r) || r == 0 || period == 1 {
+            if resets.contains(&r) || r == 0 || intra_period == 1 {
                 assert_ne!(kind, RowKind::Predicted, "row {r}");
             }
             dec.decode(&out[..n], &mut oh, &mut ov)
@@ -1133,8 +1170,8 @@ mod tests {
         let mut rng = Rng(7);
         for w in [1usize, 2, 3, 7, 8, 9, 16, 31, 33, 100, 2048] {
             for (i, img) in kinds(&mut rng, w, 24).iter().enumerate() {
-                for period in [0, 1, 5, 32] {
-                    let p = round_trip(img, period, &[9, 10, 17]);
+                for intra_period in [0, 1, 5, 32] {
+                    let p = round_trip(img, intra_period, &[9, 10, 17]);
                     if i == 3 {
                         // All invalid: a few bytes per row.
                         assert!(
@@ -1222,12 +1259,12 @@ mod tests {
     #[test]
     fn buffer_checks() {
         let (mut h, mut v) = (vec![0i16; 16], vec![0u8; 2]);
-        assert!(Encoder::new(&mut h, &mut v, 0).is_none());
-        assert!(Encoder::new(&mut h, &mut v, 17).is_none());
+        assert!(Encoder::new(&mut h, &mut v, 0, 1).is_none());
+        assert!(Encoder::new(&mut h, &mut v, 17, 1).is_none());
         assert!(Decoder::new(&mut h, &mut v, 17).is_none());
         let (mut h2, mut v2) = (vec![0i16; MAX_WIDTH + 1], vec![0u8; MAX_WIDTH]);
-        assert!(Encoder::new(&mut h2, &mut v2, MAX_WIDTH + 1).is_none());
-        let mut enc = Encoder::new(&mut h, &mut v, 16).unwrap();
+        assert!(Encoder::new(&mut h2, &mut v2, MAX_WIDTH + 1, 1).is_none());
+        let mut enc = Encoder::new(&mut h, &mut v, 16, super::super::PREDICTED_INTRA_PERIOD).unwrap();
         let mut out = vec![0u8; max_len(16) - 1];
         assert_eq!(enc.encode(&[0; 16], &[0xFF; 2], &mut out), Err(CodecError::BufferTooSmall));
         let mut out = vec![0u8; max_len(16)];
@@ -1300,8 +1337,8 @@ mod tests {
         }
     }
 
-    /// Residuals of the predictor on an all-valid image coded with intra period `period`.
-    fn residuals(img: &Img, period: usize) -> Vec<i16> {
+    /// Residuals of the predictor on an all-valid image coded with intra period `intra_period`.
+    fn residuals(img: &Img, intra_period: usize) -> Vec<i16> {
         let w = img.w;
         let mut res = Vec::new();
         for (r, row) in img.h.iter().enumerate() {
@@ -1310,7 +1347,7 @@ mod tests {
                     |row: &[i16], c: isize| i32::from(row[c.clamp(0, w as isize - 1) as usize]);
                 let x = i32::from(row[c]);
                 let c = c as isize;
-                let p = if r % period == 0 {
+                let p = if r % intra_period == 0 {
                     let a = if c >= 1 { at(row, c - 1) } else { 0 };
                     let aa = if c >= 2 { at(row, c - 2) } else { 0 };
                     predict_i(a, aa).0
@@ -1342,9 +1379,9 @@ mod tests {
             let img = board(&mut rng, w, rows, sigma, deposits);
             let cover =
                 img.h.iter().flatten().filter(|&&x| x > 120).count() as f64 / (w * rows) as f64;
-            let p = round_trip(&img, DEFAULT_INTRA_PERIOD, &[]);
+            let p = round_trip(&img, super::super::PREDICTED_INTRA_PERIOD, &[]);
             let bits = p.iter().map(|p| p.len() * 8).sum::<usize>() as f64 / (w * rows) as f64;
-            let h = entropy(&residuals(&img, DEFAULT_INTRA_PERIOD as usize));
+            let h = entropy(&residuals(&img, super::super::PREDICTED_INTRA_PERIOD as usize));
             let ratio = 17.0 / bits;
             std::println!(
                 "sigma {sigma} deposit cover {:.0} %: {bits:.3} bits/px, residual entropy {h:.3} ({:+.1} %), ratio {ratio:.2}",
@@ -1368,7 +1405,7 @@ mod tests {
         let nb = w.div_ceil(8);
         let (mut eh, mut ev, mut dh, mut dv) =
             (vec![0i16; w], vec![0u8; nb], vec![0i16; w], vec![0u8; nb]);
-        let mut enc = Encoder::new(&mut eh, &mut ev, w).unwrap();
+        let mut enc = Encoder::new(&mut eh, &mut ev, w, super::super::PREDICTED_INTRA_PERIOD).unwrap();
         let mut dec = Decoder::new(&mut dh, &mut dv, w).unwrap();
         let mut buf = vec![0u8; rows * max_len(w)];
         buf.fill(1);
@@ -1568,7 +1605,7 @@ mod tests {
         #![proptest_config(ProptestConfig::with_cases(400))]
 
         #[test]
-        fn random_rows_round_trip(w in 1usize..200, rows in 1usize..8, seed in any::<u64>(), period in 0u32..4,
+        fn random_rows_round_trip(w in 1usize..200, rows in 1usize..8, seed in any::<u64>(), intra_period in 0u32..4,
                                   style in proptest::collection::vec(0u8..4, 8)) {
             let mut rng = Rng(seed);
             let mut img = Img { w, h: Vec::new(), v: Vec::new() };
@@ -1588,7 +1625,7 @@ mod tests {
                 img.h.push(h);
                 img.v.push(v);
             }
-            round_trip(&img, period, &[3]);
+            round_trip(&img, intra_period, &[3]);
         }
 
         #[test]

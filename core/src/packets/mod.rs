@@ -27,7 +27,7 @@
 
 pub mod codec;
 
-use crate::sink::{Row, RowHeader};
+use crate::row::{Row, RowHeader};
 use crc::{Crc, CRC_32_ISO_HDLC};
 
 /// Sync word at the start of every packet.
@@ -44,6 +44,9 @@ pub const CODEC_RAW: u8 = 0;
 pub const CODEC_COMPRESSED: u8 = 1;
 /// Intra period of a packet stream: 1, every row decodable on its own.
 pub const STREAM_INTRA_PERIOD: u32 = 1;
+/// Intra period of predicted streams in the codec benchmark (`dpsa codec-bench`): rows are
+/// predicted from the previous one, with an intra row every 32 rows.
+pub const PREDICTED_INTRA_PERIOD: u32 = 32;
 
 const CRC: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
 
@@ -224,6 +227,57 @@ pub fn find_sync(buf: &[u8], from: usize) -> Option<usize> {
     buf.get(from..)?.windows(4).position(|w| w == SYNC).map(|p| p + from)
 }
 
+/// One step through a packet stream: a packet whose framing and CRC check out, or damage.
+#[derive(Clone, Copy, Debug)]
+pub enum Item<'a> {
+    /// A packet starting at byte `offset`.
+    Packet { offset: usize, packet: Packet<'a> },
+    /// Bytes at `offset` that are not a packet (bad sync, truncation, bad length, bad CRC, ...).
+    /// The stream resynchronises on the next sync word after `offset`.
+    Damage { offset: usize, error: PacketError },
+}
+
+/// The packets of a byte stream, in order, with damage reported and skipped.
+///
+/// From the start of the stream: a packet that parses ([`decode`]) is yielded and the walk
+/// continues right after it; bytes that do not parse are yielded as [`Item::Damage`] at their
+/// offset and the walk resynchronises on the next sync word after that offset ([`find_sync`]),
+/// or ends if there is none. Offsets strictly increase and lie inside the stream; every
+/// [`Item::Damage`] is one resynchronisation.
+#[derive(Clone, Debug)]
+pub struct Stream<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Stream<'a> {
+    pub fn new(bytes: &'a [u8]) -> Self {
+        Stream { bytes, pos: 0 }
+    }
+}
+
+impl<'a> Iterator for Stream<'a> {
+    type Item = Item<'a>;
+
+    fn next(&mut self) -> Option<Item<'a>> {
+        let bytes = self.bytes;
+        let offset = self.pos;
+        if offset >= bytes.len() {
+            return None;
+        }
+        match decode(&bytes[offset..]) {
+            Ok((packet, len)) => {
+                self.pos = offset + len;
+                Some(Item::Packet { offset, packet })
+            }
+            Err(error) => {
+                self.pos = find_sync(bytes, offset + 1).unwrap_or(bytes.len());
+                Some(Item::Damage { offset, error })
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     extern crate std;
@@ -265,8 +319,7 @@ mod tests {
                 (0..w).map(|c| if valid[c / 8] & (1 << (c % 8)) != 0 { heights[c] } else { 0 }).collect();
             let row = Row { header, heights: &want, valid: &valid };
             let mut ends = Ends::new(w);
-            let mut enc = codec::Encoder::new(&mut ends.eh, &mut ends.ev, w).unwrap();
-            enc.set_intra_period(STREAM_INTRA_PERIOD);
+            let mut enc = codec::Encoder::new(&mut ends.eh, &mut ends.ev, w, STREAM_INTRA_PERIOD).unwrap();
             let mut dec = codec::Decoder::new(&mut ends.dh, &mut ends.dv, w).unwrap();
             let mut buf = vec![0u8; max_packet_len(w)];
             for compressed in [false, true] {
@@ -312,5 +365,15 @@ mod tests {
         assert_eq!(find_sync(&stream, 0), Some(7));
         assert!(decode(&stream[7..]).is_ok());
         assert_eq!(find_sync(&stream, 8), None);
+        // The same stream walked: damage at 0, the packet at 7; then a cut packet.
+        stream.extend_from_slice(&one[..n - 1]);
+        let items: Vec<_> = Stream::new(&stream)
+            .map(|i| match i {
+                Item::Packet { offset, .. } => (offset, None),
+                Item::Damage { offset, error } => (offset, Some(error)),
+            })
+            .collect();
+        assert_eq!(items, [(0, Some(PacketError::BadSync)), (7, None), (7 + n, Some(PacketError::Truncated))]);
+        assert_eq!(Stream::new(&[]).count(), 0);
     }
 }

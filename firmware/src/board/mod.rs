@@ -7,8 +7,9 @@
 //!   that strobe ([`EncoderCapture`]);
 //! - the camera's **line port**: the frame counter and the lines of the frame, in order, as the
 //!   camera DMA delivers them ([`LinePort`]);
-//! - an output **link** for the packet stream ([`PacketLink`]): Ethernet, USB, a FIFO to the
-//!   host PC.
+//! - an output **link** for the packet stream: Ethernet, USB, a FIFO to the host PC; it
+//!   implements the core's [`dpsa_core::sink::Link`], over which `dpsa_core::sink::PacketSink`
+//!   sends the packets.
 //!
 //! [`Triggered`] puts the first three together into the [`LineSource`] the firmware runs on.
 //! A [`Clock`] counts instructions for the benchmark. Adding a real board means implementing
@@ -16,14 +17,8 @@
 
 pub mod qemu;
 
+use dpsa_core::Trigger;
 use embedded_hal::digital::InputPin;
-
-/// Start of a frame: the camera's frame counter and the encoder count latched at its trigger.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
-pub struct FrameStart {
-    pub seq: u32,
-    pub latch: i64,
-}
 
 /// The encoder counter's capture register, latched by the frame trigger.
 pub trait EncoderCapture {
@@ -39,26 +34,18 @@ pub trait LinePort {
     fn frame_seq(&mut self) -> Result<u32, Self::Error>;
     /// The next line of that frame (`W` samples), in order `0..H`.
     fn read_line(&mut self, line: &mut [u16]) -> Result<(), Self::Error>;
-    /// No further frame will come (the board has left the field of view, the recording ended).
+    /// No further frame will come (the board has left the field of view, the feed ended).
     fn ended(&mut self) -> Result<bool, Self::Error>;
 }
 
 /// Frames as the pipeline consumes them.
 pub trait LineSource {
     type Error: defmt::Format;
-    /// Waits for the next frame; `Ok(None)` when acquisition has ended.
-    fn next_frame(&mut self) -> Result<Option<FrameStart>, Self::Error>;
+    /// Waits for the next frame's trigger (frame counter, latched encoder count); `Ok(None)`
+    /// when acquisition has ended.
+    fn next_frame(&mut self) -> Result<Option<Trigger>, Self::Error>;
     /// The next line of the current frame (`W` samples), in order `0..H`.
     fn read_line(&mut self, line: &mut [u16]) -> Result<(), Self::Error>;
-}
-
-/// The link the packet stream leaves by.
-pub trait PacketLink {
-    type Error: defmt::Format;
-    /// Sends one whole packet (the link may queue it).
-    fn send(&mut self, packet: &[u8]) -> Result<(), Self::Error>;
-    /// Waits until every packet has left.
-    fn flush(&mut self) -> Result<(), Self::Error>;
 }
 
 /// A free-running tick counter for instruction counts (the benchmark only).
@@ -91,12 +78,12 @@ where
 {
     type Error = SourceError<T::Error, E::Error, P::Error>;
 
-    fn next_frame(&mut self) -> Result<Option<FrameStart>, Self::Error> {
+    fn next_frame(&mut self) -> Result<Option<Trigger>, Self::Error> {
         loop {
             if self.trigger.is_high().map_err(SourceError::Trigger)? {
                 let latch = self.encoder.captured().map_err(SourceError::Encoder)?;
                 let seq = self.port.frame_seq().map_err(SourceError::Port)?;
-                return Ok(Some(FrameStart { seq, latch }));
+                return Ok(Some(Trigger { seq, latch }));
             }
             if self.port.ended().map_err(SourceError::Port)? {
                 return Ok(None);

@@ -1,9 +1,9 @@
-//! The QEMU board (`mps2-an500`, Cortex-M7): a recording stands in for the camera and the
+//! The QEMU board (`mps2-an500`, Cortex-M7): a feed file stands in for the camera and the
 //! conveyor, a host file for the output link, SysTick for the instruction counter.
 //!
-//! Everything crosses to the host by semihosting: the command line names a target recording
-//! (format: [`dpsa_core::frames::wire`], written by `dpsa target-run`), the packet stream
-//! file, and optionally a benchmark file. The recording is read the way the camera delivers
+//! Everything crosses to the host by semihosting: the command line names a feed
+//! (format: [`dpsa_core::frames::feed`], written by `dpsa target-run`), the packet stream
+//! file, and optionally a benchmark file. The feed is read the way the camera delivers
 //! it: a trigger record (the pin goes high, the encoder count is latched), then the frame's
 //! lines one by one. Nothing is read ahead.
 //!
@@ -13,18 +13,20 @@
 //! instructions (QEMU `-icount shift=0`), not cycles, so wait states and cache misses are not
 //! seen.
 
-use super::{Clock, EncoderCapture, LinePort, PacketLink};
+use super::{Clock, EncoderCapture, LinePort};
 use core::cell::RefCell;
 use core::ffi::CStr;
 use core::sync::atomic::{AtomicU32, Ordering};
 use cortex_m::peripheral::{syst::SystClkSource, SYST};
 use cortex_m_rt::exception;
-use dpsa_core::frames::wire::{self, Header, Trigger, WireError};
+use dpsa_core::frames::feed::{self, FeedError, Header};
+use dpsa_core::frames::Trigger;
+use dpsa_core::sink::Link;
 use semihosting::fs::File;
 use semihosting::io::{Read, Seek, SeekFrom, Write};
 
 /// Capacities of the state buffers on this board (see `crate::state`): the full-frame test
-/// recording (H = 2048 rows, four frames about 520 rows apart, W = 256) needs the largest pool.
+/// feed (H = 2048 rows, four frames about 520 rows apart, W = 256) needs the largest pool.
 pub mod cap {
     /// Widest line `W`.
     pub const WIDTH: usize = 2048;
@@ -41,15 +43,15 @@ pub mod cap {
 pub enum Error {
     /// A semihosting call failed (host errno, -1 if unknown).
     Io(i32),
-    /// The recording ended inside frame `frame` at line `line` (byte `offset`).
+    /// The feed ended inside frame `frame` at line `line` (byte `offset`).
     Truncated { frame: u32, line: u32, offset: u64 },
-    /// The recording's header or reference table is malformed.
-    Wire(WireError),
+    /// The feed's header or reference table is malformed.
+    Feed(FeedError),
     /// A line was read without a frame, or past the frame's last line.
     LineOrder { frame: u32, line: u32 },
     /// The encoder was read with no latched trigger.
     NoTrigger,
-    /// The command line is not `dpsa-firmware RECORDING OUT [BENCH]`.
+    /// The command line is not `dpsa-firmware FEED OUT [BENCH]`.
     Usage,
     /// A path longer than the board's buffer.
     PathTooLong,
@@ -61,17 +63,17 @@ impl defmt::Format for Error {
             Error::Io(e) => defmt::write!(f, "host I/O error (errno {=i32})", e),
             Error::Truncated { frame, line, offset } => defmt::write!(
                 f,
-                "recording truncated in frame {=u32} at line {=u32} (byte {=u64})",
+                "feed truncated in frame {=u32} at line {=u32} (byte {=u64})",
                 frame,
                 line,
                 offset
             ),
-            Error::Wire(e) => defmt::write!(f, "malformed recording: {}", defmt::Debug2Format(&e)),
+            Error::Feed(e) => defmt::write!(f, "malformed feed: {}", e),
             Error::LineOrder { frame, line } => {
                 defmt::write!(f, "line {=u32} of frame {=u32} read out of order", line, frame)
             }
             Error::NoTrigger => defmt::write!(f, "encoder read without a trigger"),
-            Error::Usage => defmt::write!(f, "usage: dpsa-firmware RECORDING OUT [BENCH]"),
+            Error::Usage => defmt::write!(f, "usage: dpsa-firmware FEED OUT [BENCH]"),
             Error::PathTooLong => defmt::write!(f, "path too long"),
         }
     }
@@ -108,9 +110,9 @@ impl Path {
     }
 }
 
-/// The command line: recording, packet stream, optional benchmark file.
+/// The command line: feed, packet stream, optional benchmark file.
 pub struct Args {
-    pub recording: Path,
+    pub feed: Path,
     pub out: Path,
     pub bench: Option<Path>,
 }
@@ -126,17 +128,17 @@ impl Args {
                 Some(Err(_)) => Err(Error::Usage),
             }
         };
-        let recording = next()?.ok_or(Error::Usage)?;
+        let feed = next()?.ok_or(Error::Usage)?;
         let out = next()?.ok_or(Error::Usage)?;
         let bench = next()?;
         if next()?.is_some() {
             return Err(Error::Usage);
         }
-        Ok(Args { recording, out, bench })
+        Ok(Args { feed, out, bench })
     }
 }
 
-/// Read position in the recording.
+/// Read position in the feed.
 struct Reader {
     file: File,
     header: Header,
@@ -184,34 +186,34 @@ impl Reader {
             self.file.seek(SeekFrom::Start(next)).map_err(io)?;
             self.pos = next;
         }
-        let mut b = [0u8; wire::TRIGGER_LEN];
+        let mut b = [0u8; feed::TRIGGER_LEN];
         self.read(&mut b, self.started, 0)?;
-        self.armed = Some(Trigger::decode(&b).map_err(Error::Wire)?);
+        self.armed = Some(Trigger::decode(&b).map_err(Error::Feed)?);
         Ok(true)
     }
 }
 
-/// The recording, opened: header, and the shared reader behind the board's parts.
-pub struct Recording {
+/// The feed, opened: header, and the shared reader behind the board's parts.
+pub struct Feed {
     reader: RefCell<Reader>,
 }
 
-impl Recording {
-    /// Opens a recording and reads its header and reference-phase table into `ref_phase`
+impl Feed {
+    /// Opens a feed and reads its header and reference-phase table into `ref_phase`
     /// (at least `W` entries).
-    pub fn open(path: &Path, ref_phase: &mut [u32], scratch: &mut [u8]) -> Result<Recording, Error> {
+    pub fn open(path: &Path, ref_phase: &mut [u32], scratch: &mut [u8]) -> Result<Feed, Error> {
         let mut file = File::open(path.c_str()).map_err(io)?;
-        let mut h = [0u8; wire::HEADER_LEN];
+        let mut h = [0u8; feed::HEADER_LEN];
         let mut reader_pos = 0u64;
         read_exact(&mut file, &mut h, &mut reader_pos)?;
-        let header = Header::decode(&h).map_err(Error::Wire)?;
+        let header = Header::decode(&h).map_err(Error::Feed)?;
         let w = header.cfg.width as usize;
         if w > ref_phase.len() || header.table_len() > scratch.len() {
-            return Err(Error::Wire(WireError::Length));
+            return Err(Error::Feed(FeedError::Length));
         }
         let t = &mut scratch[..header.table_len()];
         read_exact(&mut file, t, &mut reader_pos)?;
-        wire::decode_table(t, &mut ref_phase[..w]).map_err(Error::Wire)?;
+        feed::decode_table(t, &mut ref_phase[..w]).map_err(Error::Feed)?;
         let reader = Reader {
             file,
             header,
@@ -221,14 +223,14 @@ impl Recording {
             armed: None,
             frames_at: reader_pos,
         };
-        Ok(Recording { reader: RefCell::new(reader) })
+        Ok(Feed { reader: RefCell::new(reader) })
     }
 
     pub fn header(&self) -> Header {
         self.reader.borrow().header
     }
 
-    /// The board's parts over this recording.
+    /// The board's parts over this feed.
     pub fn parts(&self) -> (Strobe<'_>, Capture<'_>, Lines<'_>) {
         (Strobe(&self.reader), Capture(&self.reader), Lines(&self.reader))
     }
@@ -239,7 +241,7 @@ fn read_exact(file: &mut File, buf: &mut [u8], pos: &mut u64) -> Result<(), Erro
     while done < buf.len() {
         let k = file.read(&mut buf[done..]).map_err(io)?;
         if k == 0 {
-            return Err(Error::Wire(WireError::Length));
+            return Err(Error::Feed(FeedError::Length));
         }
         done += k;
     }
@@ -324,7 +326,7 @@ impl HostFile {
     }
 }
 
-impl PacketLink for HostFile {
+impl Link for HostFile {
     type Error = Error;
     fn send(&mut self, packet: &[u8]) -> Result<(), Error> {
         self.file.write_all(packet).map_err(io)

@@ -68,8 +68,6 @@ use std::time::{Duration, Instant};
 
 /// Bytes of packet framing per row: header 32 + CRC 4.
 pub const FRAMING_BYTES: usize = dpsa_core::packets::HEADER_LEN + dpsa_core::packets::TRAILER_LEN;
-/// Intra period of `ours_predicted`.
-pub const PREDICTED_PERIOD: u32 = 32;
 
 /// The MCU compressor: crate (pinned in Cargo.toml, so the label stays true).
 pub const MCU_NAME: &str = "heatshrink-lib";
@@ -573,7 +571,7 @@ fn best_time(mut f: impl FnMut() -> Result<()>) -> Result<f64> {
     Ok(best.max(1e-9))
 }
 
-/// `ours` at intra period `period`: payloads (stride `max_len`), their lengths, and the best
+/// `ours` at intra period `intra_period`: payloads (stride `max_len`), their lengths, and the best
 /// encode and decode times. Fails if a decoded row differs from the input.
 struct Coded {
     lens: Vec<usize>,
@@ -581,21 +579,20 @@ struct Coded {
     decode_s: f64,
 }
 
-fn run_ours(rows: &BenchRows, period: u32) -> Result<Coded> {
+fn run_ours(rows: &BenchRows, intra_period: u32) -> Result<Coded> {
     let (w, nb, n) = (rows.width, rows.nb(), rows.rows);
     let stride = codec::max_len(w);
     let mut buf = vec![0u8; n * stride];
     let mut lens = vec![0usize; n];
     let (mut eh, mut ev) = (vec![0i16; w], vec![0u8; nb]);
-    let mut enc = Encoder::new(&mut eh, &mut ev, w).context("codec encoder")?;
-    enc.set_intra_period(period);
+    let mut enc = Encoder::new(&mut eh, &mut ev, w, intra_period).context("codec encoder")?;
     let encode_s = best_time(|| {
         enc.reset();
         for (r, (out, len)) in buf.chunks_exact_mut(stride).zip(&mut lens).enumerate() {
             let (h, v) = rows.row(r);
             *len = enc
                 .encode(h, v, out)
-                .map_err(|e| anyhow::anyhow!("codec encode row {r}: {e:?}"))?;
+                .map_err(|e| anyhow::anyhow!("codec encode row {r}: {e}"))?;
         }
         Ok(())
     })?;
@@ -611,14 +608,14 @@ fn run_ours(rows: &BenchRows, period: u32) -> Result<Coded> {
             .enumerate()
         {
             dec.decode(&p[..lens[r]], h, v)
-                .map_err(|e| anyhow::anyhow!("codec decode row {r}: {e:?}"))?;
+                .map_err(|e| anyhow::anyhow!("codec decode row {r}: {e}"))?;
         }
         Ok(())
     })?;
     for r in 0..n {
         let (h, v) = rows.row(r);
         if oh[r * w..(r + 1) * w] != *h || ov[r * nb..(r + 1) * nb] != *v {
-            bail!("row codec (intra period {period}): row {r} does not round-trip");
+            bail!("row codec (intra period {intra_period}): row {r} does not round-trip");
         }
     }
     Ok(Coded {
@@ -880,7 +877,7 @@ pub fn run(rows: &BenchRows, progress: bool) -> Result<Report> {
     stages.next();
 
     stages.start("predicted");
-    let pred = run_ours(rows, PREDICTED_PERIOD)?;
+    let pred = run_ours(rows, dpsa_core::packets::PREDICTED_INTRA_PERIOD)?;
     let pred_bytes: usize = pred.lens.iter().sum();
     stages.next();
 

@@ -34,9 +34,9 @@ pub fn config(m: &Manifest) -> Result<(Config, Vec<u32>)> {
         saturation: m.camera.saturation,
         min_modulation_q12: to_u32(p.min_modulation * 4096.0, "min_modulation")?,
         max_noise_gain_q8: narrow(to_u32(p.max_noise_gain * 256.0, "max_noise_gain")?, "max_noise_gain")?,
-        max_step: narrow(p.max_step_rows, "max_step_rows")?,
+        max_step_rows: narrow(p.max_step_rows, "max_step_rows")?,
     };
-    cfg.validate().map_err(|e| anyhow!("calibration/processing out of range for the core: {e:?}"))?;
+    cfg.validate().map_err(|e| anyhow!("calibration/processing out of range for the core: {e}"))?;
     let ref_phase = cal.reference_phase_rad.iter().map(|&r| phase::from_rad(r)).collect();
     Ok((cfg, ref_phase))
 }

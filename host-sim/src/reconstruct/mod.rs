@@ -5,13 +5,17 @@ pub mod config;
 pub mod sink;
 
 pub use config::config;
-pub use sink::{CodecState, PacketSink, State};
+pub use sink::IoLink;
 
 use crate::heightmap::HeightMap;
 use crate::progress::progress_bar;
 use crate::simulation::recording::Recording;
 use anyhow::{anyhow, Context, Result};
-use dpsa_core::{packets, pipeline::{Layout, Pipeline}};
+use dpsa_core::{
+    packets::{self, codec},
+    pipeline::{Layout, Pipeline, State},
+    sink::PacketSink,
+};
 use std::io::Write;
 
 /// Summary of one reconstruction run.
@@ -30,40 +34,44 @@ pub fn run<W: Write>(rec: &Recording, out: W, progress: bool) -> Result<(RunStat
     run_with(rec, out, packets::STREAM_INTRA_PERIOD, progress)
 }
 
-/// [`run`] with a chosen codec intra period `k` (1: every packet decodes alone; `k > 1`: rows
-/// are predicted from the previous one, smaller but a lost packet costs up to `k - 1` more).
-pub fn run_with<W: Write>(rec: &Recording, out: W, k: u32, progress: bool) -> Result<(RunStats, W)> {
+/// [`run`] with a chosen codec intra period (1: every packet decodes alone; `intra_period > 1`:
+/// rows are predicted from the previous one, smaller but a lost packet costs up to
+/// `intra_period - 1` more).
+pub fn run_with<W: Write>(rec: &Recording, out: W, intra_period: u32, progress: bool) -> Result<(RunStats, W)> {
     let (cfg, ref_phase) = config(&rec.manifest)?;
     let mut state = State::new(&cfg);
-    let mut pipe = Pipeline::new(cfg, &ref_phase, state.memory())
-        .map_err(|e| anyhow!("cannot build the pipeline: {e:?}"))?;
-    let mut codec_state = CodecState::new(cfg.width as usize);
-    let mut sink = PacketSink::new(out, codec_state.encoder(k)?);
+    let mut pipe =
+        Pipeline::new(cfg, &ref_phase, state.memory()).map_err(|e| anyhow!("cannot build the pipeline: {e}"))?;
+    let w = cfg.width as usize;
+    let mut reference = codec::ReferenceRow::new(w);
+    let enc = reference.encoder(intra_period).ok_or_else(|| anyhow!("width {w} is not supported by the codec"))?;
+    let mut buf = vec![0u8; packets::max_packet_len(w)];
+    let mut sink = PacketSink::new(IoLink(out), enc, &mut buf);
     let frames = &rec.manifest.frames;
     let bar = progress_bar(progress, frames.len() as u64, "reconstruct");
     let mut high = 0;
     for (k, entry) in frames.iter().enumerate() {
         let frame = rec.frame(k)?;
         let w = frame.width;
-        pipe.begin_frame(entry.seq, entry.latch, &mut sink).map_err(|e| anyhow!("frame {k}: {e:?}"))?;
+        pipe.begin_frame(entry.trigger(), &mut sink).map_err(|e| anyhow!("frame {k}: {e}"))?;
         for (r, line) in frame.data.chunks_exact(w).enumerate() {
-            pipe.push_line(r as u16, line, &mut sink).map_err(|e| anyhow!("frame {k} line {r}: {e:?}"))?;
+            pipe.push_line(r as u16, line, &mut sink).map_err(|e| anyhow!("frame {k} line {r}: {e}"))?;
         }
-        pipe.end_frame(&mut sink).map_err(|e| anyhow!("frame {k}: {e:?}"))?;
+        pipe.end_frame(&mut sink).map_err(|e| anyhow!("frame {k}: {e}"))?;
         high = high.max(pipe.pool_used());
         bar.inc(1);
     }
-    pipe.finish(&mut sink).map_err(|e| anyhow!("finish: {e:?}"))?;
+    pipe.finish(&mut sink).map_err(|e| anyhow!("finish: {e}"))?;
     bar.finish_and_clear();
-    sink.out.flush().context("flushing the packet stream")?;
+    sink.flush().context("flushing the packet stream")?;
     let stats = RunStats {
         frames: frames.len(),
-        packets: sink.packets,
-        bytes: sink.bytes,
+        packets: sink.packets(),
+        bytes: sink.bytes(),
         state_bytes: Layout::of(&cfg).bytes(),
         pool_high_water: high,
     };
-    Ok((stats, sink.into_inner()))
+    Ok((stats, sink.into_link().0))
 }
 
 /// Runs the fixed-point core on a recording and returns the packet stream bytes.

@@ -85,6 +85,13 @@ pub struct FrameEntry {
     pub file: String,
 }
 
+impl FrameEntry {
+    /// The frame's trigger (`seq`, `latch`), as the core takes it.
+    pub fn trigger(&self) -> dpsa_core::Trigger {
+        dpsa_core::Trigger { seq: self.seq, latch: self.latch }
+    }
+}
+
 /// Noise model used by the simulator (simulated recordings only).
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 #[serde(deny_unknown_fields)]

@@ -2,8 +2,7 @@
 //! damage report (good, corrupt and resynchronised packets).
 
 use crate::heightmap::{HeightMap, HeightRow};
-use crate::reconstruct::CodecState;
-use dpsa_core::packets::{self, PacketError};
+use dpsa_core::packets::{codec, Item, PacketError, Stream};
 use serde::Serialize;
 
 /// A packet that could not be decoded, and where.
@@ -35,12 +34,11 @@ pub fn decode_stream(bytes: &[u8], lsb_um: f64) -> (HeightMap, DecodeReport) {
     // another width are reported as damage (a stream has one width). One decoder serves the
     // whole stream so that predicted rows (intra period > 1) find their reference.
     let width = first_width(bytes).unwrap_or(1);
-    let mut state = CodecState::new(width);
-    let mut dec = state.decoder();
-    let mut pos = 0;
-    while pos < bytes.len() {
-        match packets::decode(&bytes[pos..]) {
-            Ok((p, len)) => {
+    let mut reference = codec::ReferenceRow::new(width);
+    let mut dec = reference.decoder();
+    for item in Stream::new(bytes) {
+        match item {
+            Item::Packet { offset, packet: p } => {
                 let w = p.header.width as usize;
                 let mut heights = vec![0i16; w];
                 let mut bits = vec![0u8; w.div_ceil(8)];
@@ -63,17 +61,12 @@ pub fn decode_stream(bytes: &[u8], lsb_um: f64) -> (HeightMap, DecodeReport) {
                         });
                         rep.ok += 1;
                     }
-                    Err(e) => damage(&mut rep, pos, e),
+                    Err(e) => damage(&mut rep, offset, e),
                 }
-                pos += len;
             }
-            Err(e) => {
-                damage(&mut rep, pos, e);
+            Item::Damage { offset, error } => {
+                damage(&mut rep, offset, error);
                 rep.resynced += 1;
-                match packets::find_sync(bytes, pos + 1) {
-                    Some(next) => pos = next,
-                    None => break,
-                }
             }
         }
     }
@@ -83,16 +76,13 @@ pub fn decode_stream(bytes: &[u8], lsb_um: f64) -> (HeightMap, DecodeReport) {
 
 /// Width of the first packet in `bytes` whose framing and CRC check out.
 fn first_width(bytes: &[u8]) -> Option<usize> {
-    let mut pos = 0;
-    loop {
-        match packets::decode(bytes.get(pos..)?) {
-            Ok((p, _)) => return Some(p.header.width as usize),
-            Err(_) => pos = packets::find_sync(bytes, pos + 1)?,
-        }
-    }
+    Stream::new(bytes).find_map(|item| match item {
+        Item::Packet { packet, .. } => Some(packet.header.width as usize),
+        Item::Damage { .. } => None,
+    })
 }
 
 fn damage(rep: &mut DecodeReport, offset: usize, e: PacketError) {
     rep.corrupt += 1;
-    rep.damage.push(Damage { offset, error: format!("{e:?}") });
+    rep.damage.push(Damage { offset, error: e.to_string() });
 }

@@ -1,9 +1,9 @@
-//! The firmware side of `dpsa`: target recordings, building the firmware, running it under
+//! The firmware side of `dpsa`: feeds, building the firmware, running it under
 //! QEMU (`mps2-an500`, Cortex-M7), decoding its defmt log, its ELF sizes and its measurements.
 //!
 //! The firmware is given its input and output as host paths on the semihosting command line
-//! (`dpsa-firmware RECORDING OUT [BENCH]`): it streams `RECORDING` (the target format of
-//! [`dpsa_core::frames::wire`], written by [`export`]) line by line through the core, writes the
+//! (`dpsa-firmware FEED OUT [BENCH]`): it streams `FEED` (the format of
+//! [`dpsa_core::frames::feed`], written by [`write_feed`]) line by line through the core, writes the
 //! packet stream to `OUT` and, when `BENCH` is given, its measurements as `key value` lines.
 //! Its log is defmt over the semihosting console, which QEMU writes to a file; it is decoded
 //! here against the ELF's defmt table. Exit status 0 is success.
@@ -14,13 +14,13 @@
 
 pub mod bench;
 pub mod elf;
-pub mod export;
+pub mod feed;
 pub mod firmware;
 pub mod qemu;
 
 pub use bench::*;
 pub use elf::*;
-pub use export::*;
+pub use feed::*;
 pub use firmware::*;
 pub use qemu::*;
 
@@ -68,20 +68,19 @@ impl Default for RunOptions {
     }
 }
 
-/// Runs the firmware `elf` under QEMU on the recording `rec`: exports it to a temporary target
-/// recording, runs QEMU and returns the packet stream (and the measurements with `bench`).
+/// Runs the firmware `elf` under QEMU on the recording `rec`: exports it to a temporary feed, runs QEMU and returns the packet stream (and the measurements with `bench`).
 pub fn run(rec: &Recording, elf: &Path, opts: RunOptions) -> Result<TargetOutput> {
     let dir = tempfile::Builder::new().prefix("dpsa-target").tempdir().context("creating a temporary directory")?;
-    let rec_path = dir.path().join("recording.dpsr");
+    let feed_path = dir.path().join("feed.dpsr");
     let out_path = dir.path().join("stream.dpsa");
     let bench_path = dir.path().join("bench.txt");
     {
-        let file = std::fs::File::create(&rec_path)?;
+        let file = std::fs::File::create(&feed_path)?;
         let mut w = BufWriter::with_capacity(1 << 20, file);
-        export_to(rec, opts.intra_period, &mut w, opts.echo.progress)?;
+        write_feed_to(rec, opts.intra_period, &mut w, opts.echo.progress)?;
         w.flush()?;
     }
-    let outcome = run_files(elf, &rec_path, &out_path, opts.bench.then_some(bench_path.as_path()), opts.echo)?;
+    let outcome = run_files(elf, &feed_path, &out_path, opts.bench.then_some(bench_path.as_path()), opts.echo)?;
     let stream = std::fs::read(&out_path).context("reading the packet stream the firmware wrote")?;
     let bench = if opts.bench {
         let text = std::fs::read_to_string(&bench_path).context("reading the firmware's bench file")?;

@@ -291,11 +291,11 @@ pub fn qemu(elf: &Path, args: &[String], watch: Option<&Path>, echo: Echo) -> Re
     Ok(Outcome { code: status.and_then(|s| s.code()), log: lines, malformed, qemu_output, elapsed })
 }
 
-/// Runs the firmware on a target recording file: `dpsa-firmware RECORDING OUT [BENCH]`. The
+/// Runs the firmware on a feed file: `dpsa-firmware FEED OUT [BENCH]`. The
 /// paths go on the semihosting command line as they are (absolute, without whitespace). A
 /// failed run is an error carrying the firmware's error lines.
-pub fn run_files(elf: &Path, recording: &Path, out: &Path, bench: Option<&Path>, echo: Echo) -> Result<Outcome> {
-    let mut args = vec![arg_path(&absolute(recording)?)?, arg_path(&absolute(out)?)?];
+pub fn run_files(elf: &Path, feed: &Path, out: &Path, bench: Option<&Path>, echo: Echo) -> Result<Outcome> {
+    let mut args = vec![arg_path(&absolute(feed)?)?, arg_path(&absolute(out)?)?];
     if let Some(b) = bench {
         args.push(arg_path(&absolute(b)?)?);
     }

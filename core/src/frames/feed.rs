@@ -1,4 +1,5 @@
-//! The target recording: frames and calibration as one little-endian byte stream.
+//! The feed: frames and calibration as one little-endian byte stream, as a camera feeds a frame
+//! grabber.
 //!
 //! This is what a frame grabber receives, in the order it receives it: the integer
 //! [`Config`] and the reference-phase table (its calibration), then every frame as a
@@ -10,7 +11,7 @@
 //! header (64 B)   0 "DPSR"  4 version u16 = 1  6 header length u16 = 64
 //!                 8 W u16  10 H u16  12 n u8  13 camera u8  14 saturation u16
 //!                16 counts_per_pixel_q16 u32  20 fx u32  24 lsb_per_turn_q16 u32
-//!                28 min_modulation_q12 u32  32 max_noise_gain_q8 u16  34 max_step u16
+//!                28 min_modulation_q12 u32  32 max_noise_gain_q8 u16  34 max_step_rows u16
 //!                36 frames u32  40 intra period u32  44..60 zero
 //!                60 CRC-32 (ISO-HDLC) of bytes 0..60
 //! ref phase      W x u32 binary angles, then CRC-32 of those 4W bytes
@@ -21,14 +22,14 @@
 //! The sample data carries no checksum (a camera link checks its own lines); a short file is
 //! caught by the reader as a truncation at a named frame and line.
 
-use super::Config;
+use super::{Config, Trigger};
 use crc::{Crc, CRC_32_ISO_HDLC};
 
-/// Magic of a target recording.
+/// Magic of a feed.
 pub const MAGIC: [u8; 4] = *b"DPSR";
 /// Format version.
 pub const VERSION: u16 = 1;
-/// Bytes of the recording header.
+/// Bytes of the feed header.
 pub const HEADER_LEN: usize = 64;
 /// Bytes of a frame's trigger record.
 pub const TRIGGER_LEN: usize = 16;
@@ -47,7 +48,7 @@ pub struct Header {
 
 /// A malformed header or table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum WireError {
+pub enum FeedError {
     Magic,
     Version(u16),
     HeaderLen(u16),
@@ -88,7 +89,7 @@ impl Header {
         b[24..28].copy_from_slice(&c.lsb_per_turn_q16.to_le_bytes());
         b[28..32].copy_from_slice(&c.min_modulation_q12.to_le_bytes());
         b[32..34].copy_from_slice(&c.max_noise_gain_q8.to_le_bytes());
-        b[34..36].copy_from_slice(&c.max_step.to_le_bytes());
+        b[34..36].copy_from_slice(&c.max_step_rows.to_le_bytes());
         b[36..40].copy_from_slice(&self.frames.to_le_bytes());
         b[40..44].copy_from_slice(&self.intra_period.to_le_bytes());
         let crc = CRC.checksum(&b[..60]);
@@ -98,24 +99,24 @@ impl Header {
 
     /// Parses and checks a header: magic, version, length, CRC, reserved bytes, and the
     /// configuration ranges ([`Config::validate`]).
-    pub fn decode(b: &[u8]) -> Result<Header, WireError> {
+    pub fn decode(b: &[u8]) -> Result<Header, FeedError> {
         if b.len() < HEADER_LEN {
-            return Err(WireError::Length);
+            return Err(FeedError::Length);
         }
         if b[0..4] != MAGIC {
-            return Err(WireError::Magic);
+            return Err(FeedError::Magic);
         }
         if u16_at(b, 4) != VERSION {
-            return Err(WireError::Version(u16_at(b, 4)));
+            return Err(FeedError::Version(u16_at(b, 4)));
         }
         if u16_at(b, 6) as usize != HEADER_LEN {
-            return Err(WireError::HeaderLen(u16_at(b, 6)));
+            return Err(FeedError::HeaderLen(u16_at(b, 6)));
         }
         if CRC.checksum(&b[..60]) != u32_at(b, 60) {
-            return Err(WireError::HeaderCrc);
+            return Err(FeedError::HeaderCrc);
         }
         if b[44..60].iter().any(|&x| x != 0) {
-            return Err(WireError::Reserved);
+            return Err(FeedError::Reserved);
         }
         let cfg = Config {
             width: u16_at(b, 8),
@@ -128,12 +129,12 @@ impl Header {
             lsb_per_turn_q16: u32_at(b, 24),
             min_modulation_q12: u32_at(b, 28),
             max_noise_gain_q8: u16_at(b, 32),
-            max_step: u16_at(b, 34),
+            max_step_rows: u16_at(b, 34),
         };
-        cfg.validate().map_err(WireError::Config)?;
+        cfg.validate().map_err(FeedError::Config)?;
         let intra_period = u32_at(b, 40);
         if intra_period == 0 {
-            return Err(WireError::IntraPeriod);
+            return Err(FeedError::IntraPeriod);
         }
         Ok(Header { cfg, frames: u32_at(b, 36), intra_period })
     }
@@ -150,10 +151,10 @@ impl Header {
 }
 
 /// Writes the reference-phase table and its CRC into `out` (`4 W + 4` bytes).
-pub fn encode_table(ref_phase: &[u32], out: &mut [u8]) -> Result<(), WireError> {
+pub fn encode_table(ref_phase: &[u32], out: &mut [u8]) -> Result<(), FeedError> {
     let n = ref_phase.len() * 4;
     if out.len() != n + 4 {
-        return Err(WireError::Length);
+        return Err(FeedError::Length);
     }
     for (o, p) in out.chunks_exact_mut(4).zip(ref_phase) {
         o.copy_from_slice(&p.to_le_bytes());
@@ -164,13 +165,13 @@ pub fn encode_table(ref_phase: &[u32], out: &mut [u8]) -> Result<(), WireError> 
 }
 
 /// Checks the table CRC of `b` (`4 W + 4` bytes) and fills `ref_phase` (`W` entries).
-pub fn decode_table(b: &[u8], ref_phase: &mut [u32]) -> Result<(), WireError> {
+pub fn decode_table(b: &[u8], ref_phase: &mut [u32]) -> Result<(), FeedError> {
     let n = ref_phase.len() * 4;
     if b.len() != n + 4 {
-        return Err(WireError::Length);
+        return Err(FeedError::Length);
     }
     if CRC.checksum(&b[..n]) != u32_at(b, n) {
-        return Err(WireError::TableCrc);
+        return Err(FeedError::TableCrc);
     }
     for (p, c) in ref_phase.iter_mut().zip(b.chunks_exact(4)) {
         *p = u32::from_le_bytes([c[0], c[1], c[2], c[3]]);
@@ -178,13 +179,7 @@ pub fn decode_table(b: &[u8], ref_phase: &mut [u32]) -> Result<(), WireError> {
     Ok(())
 }
 
-/// A frame's trigger record: camera frame counter and the encoder count latched at the trigger.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Trigger {
-    pub seq: u32,
-    pub latch: i64,
-}
-
+/// A frame's trigger record in the feed (16 bytes: `seq` u32, 4 zero bytes, `latch` i64).
 impl Trigger {
     pub fn encode(&self) -> [u8; TRIGGER_LEN] {
         let mut b = [0u8; TRIGGER_LEN];
@@ -193,9 +188,9 @@ impl Trigger {
         b
     }
 
-    pub fn decode(b: &[u8; TRIGGER_LEN]) -> Result<Trigger, WireError> {
+    pub fn decode(b: &[u8; TRIGGER_LEN]) -> Result<Trigger, FeedError> {
         if b[4..8] != [0; 4] {
-            return Err(WireError::Reserved);
+            return Err(FeedError::Reserved);
         }
         let mut l = [0u8; 8];
         l.copy_from_slice(&b[8..16]);
@@ -204,9 +199,9 @@ impl Trigger {
 }
 
 /// Decodes a line of little-endian u16 samples (`2 W` bytes) in place of `line`.
-pub fn decode_line(b: &[u8], line: &mut [u16]) -> Result<(), WireError> {
+pub fn decode_line(b: &[u8], line: &mut [u16]) -> Result<(), FeedError> {
     if b.len() != line.len() * 2 {
-        return Err(WireError::Length);
+        return Err(FeedError::Length);
     }
     for (s, c) in line.iter_mut().zip(b.chunks_exact(2)) {
         *s = u16::from_le_bytes([c[0], c[1]]);
@@ -231,7 +226,7 @@ mod tests {
                 saturation: 4095,
                 min_modulation_q12: 60 << 12,
                 max_noise_gain_q8: 512,
-                max_step: 10,
+                max_step_rows: 10,
             },
             frames: 277,
             intra_period: 1,
@@ -248,17 +243,17 @@ mod tests {
             c[bit / 8] ^= 1 << (bit % 8);
             assert!(Header::decode(&c).is_err(), "bit {bit}");
         }
-        assert_eq!(Header::decode(&b[..63]), Err(WireError::Length));
+        assert_eq!(Header::decode(&b[..63]), Err(FeedError::Length));
     }
 
     #[test]
     fn header_with_good_crc_but_bad_config_is_refused() {
         let mut h = header();
         h.cfg.n = 9;
-        assert_eq!(Header::decode(&h.encode()), Err(WireError::Config(super::super::ConfigError::Count)));
+        assert_eq!(Header::decode(&h.encode()), Err(FeedError::Config(super::super::ConfigError::Count)));
         let mut h = header();
         h.intra_period = 0;
-        assert_eq!(Header::decode(&h.encode()), Err(WireError::IntraPeriod));
+        assert_eq!(Header::decode(&h.encode()), Err(FeedError::IntraPeriod));
     }
 
     #[test]
@@ -270,11 +265,11 @@ mod tests {
         decode_table(&b, &mut back).unwrap();
         assert_eq!(back, t);
         b[7] ^= 4;
-        assert_eq!(decode_table(&b, &mut back), Err(WireError::TableCrc));
+        assert_eq!(decode_table(&b, &mut back), Err(FeedError::TableCrc));
         let tr = Trigger { seq: 0xFFFF_FFFF, latch: -5 };
         assert_eq!(Trigger::decode(&tr.encode()), Ok(tr));
         let mut e = tr.encode();
         e[5] = 1;
-        assert_eq!(Trigger::decode(&e), Err(WireError::Reserved));
+        assert_eq!(Trigger::decode(&e), Err(FeedError::Reserved));
     }
 }

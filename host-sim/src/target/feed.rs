@@ -4,39 +4,39 @@ use crate::progress::progress_bar;
 use crate::reconstruct::config;
 use crate::simulation::recording::Recording;
 use anyhow::{anyhow, ensure, Context, Result};
-use dpsa_core::frames::wire;
+use dpsa_core::frames::feed;
 use std::io::{BufWriter, Write};
 use std::path::Path;
 
 
-/// Writes `rec` as a target recording (format: [`dpsa_core::frames::wire`]) to `path`. The
+/// Writes `rec` as a feed (format: [`dpsa_core::frames::feed`]) to `path`. The
 /// packet stream the firmware emits from it uses codec intra period `intra_period`.
 /// Returns the bytes written.
-pub fn export(rec: &Recording, intra_period: u32, path: &Path) -> Result<u64> {
+pub fn write_feed(rec: &Recording, intra_period: u32, path: &Path) -> Result<u64> {
     let file = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
     let mut w = BufWriter::with_capacity(1 << 20, file);
-    let n = export_to(rec, intra_period, &mut w, false)
-        .with_context(|| format!("writing the target recording {}", path.display()))?;
+    let n = write_feed_to(rec, intra_period, &mut w, false)
+        .with_context(|| format!("writing the feed {}", path.display()))?;
     w.flush().with_context(|| format!("writing {}", path.display()))?;
     Ok(n)
 }
 
-/// [`export`] into any writer, one frame in memory at a time, with an optional progress bar.
-pub fn export_to<W: Write>(rec: &Recording, intra_period: u32, mut out: W, progress: bool) -> Result<u64> {
+/// [`write_feed`] into any writer, one frame in memory at a time, with an optional progress bar.
+pub fn write_feed_to<W: Write>(rec: &Recording, intra_period: u32, mut out: W, progress: bool) -> Result<u64> {
     ensure!(intra_period >= 1, "the codec intra period must be at least 1");
     let (cfg, ref_phase) = config(&rec.manifest)?;
     let frames = &rec.manifest.frames;
-    let header = wire::Header {
+    let header = feed::Header {
         cfg,
-        frames: u32::try_from(frames.len()).map_err(|_| anyhow!("{} frames do not fit a target recording", frames.len()))?,
+        frames: u32::try_from(frames.len()).map_err(|_| anyhow!("{} frames do not fit a feed", frames.len()))?,
         intra_period,
     };
     // Check that the header reads back as written (the firmware applies the same checks).
     let head = header.encode();
-    wire::Header::decode(&head).map_err(|e| anyhow!("the recording's configuration is not valid for the target: {e:?}"))?;
+    feed::Header::decode(&head).map_err(|e| anyhow!("the recording's configuration is not valid for the target: {e}"))?;
     out.write_all(&head)?;
     let mut table = vec![0u8; header.table_len()];
-    wire::encode_table(&ref_phase, &mut table).map_err(|e| anyhow!("reference-phase table: {e:?}"))?;
+    feed::encode_table(&ref_phase, &mut table).map_err(|e| anyhow!("reference-phase table: {e}"))?;
     out.write_all(&table)?;
     let mut written = (head.len() + table.len()) as u64;
 
@@ -45,7 +45,7 @@ pub fn export_to<W: Write>(rec: &Recording, intra_period: u32, mut out: W, progr
     for (k, entry) in frames.iter().enumerate() {
         let frame = rec.frame(k)?;
         bytes.clear();
-        bytes.extend_from_slice(&wire::Trigger { seq: entry.seq, latch: entry.latch }.encode());
+        bytes.extend_from_slice(&entry.trigger().encode());
         for s in &frame.data {
             bytes.extend_from_slice(&s.to_le_bytes());
         }

@@ -1,0 +1,134 @@
+//! Registration: which board rows each frame admits or skips, and where the open rows live.
+//!
+//! Frame `k` with row offset `o_k` shows board rows `o_k .. o_k + H`. The rows that enter at the
+//! bottom of the ROI (those past every row entered so far) are *admitted*, at most
+//! `max_step_rows` of them per frame: each gets a [`Slot`] in a ring of `max_step_rows * n`
+//! slots. Rows that entered beyond that bound are *skipped* (they never get samples). The
+//! [`Admission`] of each of the last `n + 1` frames records both ranges, so a board row can be
+//! classified ([`Registry::kind`]) and its window's latch found ([`Registry::window_latch`])
+//! without per-row bookkeeping beyond the slot. The full rule is in `docs/model.md`.
+
+use crate::solve::MAX_N;
+
+/// Admissions kept: the `n <= MAX_N` frames of the current window plus one.
+pub(crate) const HIST: usize = MAX_N + 1;
+
+/// Per open board row: its stored lines and how far it got.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Slot {
+    pub(crate) lines: [u16; MAX_N - 1],
+    pub(crate) count: u8,
+    pub(crate) flags: u16,
+    pub(crate) enter: u32,
+}
+
+/// What one frame admitted: its offset and latch, and the board rows it skipped and admitted.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Admission {
+    pub(crate) index: u32,
+    pub(crate) offset: i64,
+    pub(crate) latch: i64,
+    /// Rows `[skip_start, admit_start)` were never admitted.
+    pub(crate) skip_start: i64,
+    /// Rows `[admit_start, admit_end)` entered at this frame.
+    pub(crate) admit_start: i64,
+    pub(crate) admit_end: i64,
+    /// Slot-ring position of `admit_start`.
+    pub(crate) slot_base: u32,
+}
+
+/// What a board row is.
+pub(crate) enum Kind {
+    /// Entered, but beyond the frame's `max_step_rows`: no samples.
+    Skipped,
+    /// Open in this slot.
+    Admitted(usize),
+    /// Entered more than `n` frames ago (or never): its admission is forgotten.
+    Gone,
+}
+
+/// The admissions of the last frames and the ring of row slots.
+pub(crate) struct Registry<'a> {
+    pub(crate) slots: &'a mut [Slot],
+    hist: [Admission; HIST],
+    /// Frames registered so far (index of the next frame).
+    begun: u32,
+    /// One past the highest row admitted or skipped.
+    pub(crate) entered_end: i64,
+    /// Admitted rows so far (slot-ring cursor).
+    admitted: u32,
+}
+
+impl<'a> Registry<'a> {
+    pub(crate) fn new(slots: &'a mut [Slot]) -> Self {
+        Registry { slots, hist: [Admission::default(); HIST], begun: 0, entered_end: 0, admitted: 0 }
+    }
+
+    /// Frames registered so far: the index the next frame gets.
+    pub(crate) fn begun(&self) -> u32 {
+        self.begun
+    }
+
+    /// The admission of frame `index` (one of the last [`HIST`] frames).
+    pub(crate) fn admission(&self, index: u32) -> &Admission {
+        &self.hist[index as usize % HIST]
+    }
+
+    /// Registers the next frame (offset `offset`, latch `latch`, `rows` ROI rows): admits the
+    /// rows that entered at the bottom, at most `max_step_rows`, each in a fresh slot.
+    pub(crate) fn admit(&mut self, offset: i64, latch: i64, rows: u16, max_step_rows: u16) {
+        let f = self.begun;
+        let end = offset + rows as i64;
+        let mut adm = Admission {
+            index: f,
+            offset,
+            latch,
+            skip_start: self.entered_end,
+            admit_start: self.entered_end,
+            admit_end: self.entered_end,
+            slot_base: self.admitted,
+        };
+        if end > self.entered_end {
+            adm.admit_start = self.entered_end.max(end - max_step_rows as i64);
+            adm.admit_end = end;
+            let count = (end - adm.admit_start) as u32;
+            for k in 0..count {
+                let s = adm.slot_base.wrapping_add(k) as usize % self.slots.len();
+                self.slots[s] = Slot { enter: f, ..Slot::default() };
+            }
+            self.admitted = self.admitted.wrapping_add(count);
+            self.entered_end = end;
+        }
+        self.hist[f as usize % HIST] = adm;
+        self.begun = f.wrapping_add(1);
+    }
+
+    /// Classifies board row `b` (not yet emitted) against the admissions of the last frames.
+    pub(crate) fn kind(&self, b: i64) -> Kind {
+        let f = self.begun.wrapping_sub(1);
+        for back in 0..HIST as u32 {
+            if back > f {
+                break;
+            }
+            let r = self.admission(f - back);
+            if b >= r.skip_start && b < r.admit_end {
+                if b < r.admit_start {
+                    return Kind::Skipped;
+                }
+                let k = r.slot_base.wrapping_add((b - r.admit_start) as u32);
+                return Kind::Admitted(k as usize % self.slots.len());
+            }
+        }
+        Kind::Gone
+    }
+
+    /// Latch of frame `enter` (the first frame of a row's window), 0 if it is forgotten.
+    pub(crate) fn window_latch(&self, enter: u32) -> i64 {
+        let r = self.admission(enter);
+        if r.index == enter {
+            r.latch
+        } else {
+            0
+        }
+    }
+}
