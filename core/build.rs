@@ -10,8 +10,13 @@ const SEGMENTS: usize = 256;
 
 fn main() {
     let turn = 2f64.powi(32);
-    let mut s = String::from("/// `atan(i / 256)` in binary-angle units (2^32 per turn), i = 0..=256, plus a guard.\n");
-    s.push_str(&format!("pub(crate) static ATAN: [u32; {}] = [\n", SEGMENTS + 2));
+    let mut s = String::from(
+        "/// `atan(i / 256)` in binary-angle units (2^32 per turn), i = 0..=256, plus a guard.\n",
+    );
+    s.push_str(&format!(
+        "pub(crate) static ATAN: [u32; {}] = [\n",
+        SEGMENTS + 2
+    ));
     for i in 0..=SEGMENTS + 1 {
         let t = (i.min(SEGMENTS) as f64) / SEGMENTS as f64;
         let a = (t.atan() / (2.0 * std::f64::consts::PI) * turn).round() as u32;

@@ -1,8 +1,8 @@
 //! Accuracy: the fixed-point core against the f64 reference (written independently from the
 //! paper), against the simulator's ground truth and against the Cramer-Rao bound.
 
-use dpsa_sim::reference::compare::Comparison;
 use dpsa_sim::reference::compare::compare_recording;
+use dpsa_sim::reference::compare::Comparison;
 use dpsa_sim::simulation::scene::Scene;
 use dpsa_tests::{check_vs_truth, simulate};
 

@@ -1,12 +1,12 @@
 //! Bad input: damaged recordings, inconsistent manifests, bad scene files and corrupt packet
 //! streams give a clear error or flagged rows, never a panic and never wrong heights.
 
-use dpsa_sim::reference::compare::Comparison;
 use dpsa_sim::heightmap::{flags, HeightMap};
-use dpsa_sim::simulation::recording::{write_frame_png, Recording};
-use dpsa_sim::simulation::scene::Scene;
+use dpsa_sim::reference::compare::Comparison;
 use dpsa_sim::reference::{self, compare::compare_recording};
 use dpsa_sim::simulation::recording::load_frames;
+use dpsa_sim::simulation::recording::{write_frame_png, Recording};
+use dpsa_sim::simulation::scene::Scene;
 use dpsa_sim::{reconstruct, stream};
 use dpsa_tests::{
     assert_flags_agree, check_vs_truth, edit_manifest_json, flag_names, row_is_empty, simulate,
@@ -126,7 +126,8 @@ fn manifest_with_unknown_keys() {
 /// implementations must agree exactly on rows and flags and within 1 LSB on heights.
 fn run_edited(s: &Sim) -> (Comparison, HeightMap) {
     let rec = s.reopen();
-    let (cmp, fixed) = compare_recording(&rec, false).expect("an edited manifest is still processed");
+    let (cmp, fixed) =
+        compare_recording(&rec, false).expect("an edited manifest is still processed");
     let f = &cmp.fixed_vs_ref;
     assert_eq!(
         (

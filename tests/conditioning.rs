@@ -2,11 +2,11 @@
 //! flagged rows without heights, never plausible wrong heights.
 
 use dpsa_sim::heightmap::{flags, HeightMap};
-use dpsa_sim::simulation::recording::Manifest;
-use dpsa_sim::reference::{self, RefOutput};
-use dpsa_sim::simulation::scene::{Scene, Stall};
 use dpsa_sim::reconstruct;
+use dpsa_sim::reference::{self, RefOutput};
+use dpsa_sim::simulation::recording::Manifest;
 use dpsa_sim::simulation::recording::{load_frames, Recording};
+use dpsa_sim::simulation::scene::{Scene, Stall};
 use dpsa_tests::{
     assert_flags_agree, check_vs_truth, flag_names, noise_gain, row_is_empty, simulate, small_scene,
 };

@@ -86,7 +86,8 @@ fn frame_rows(rows: &[TestRow]) -> Vec<Vec<u8>> {
     };
     let w = first.heights.len();
     let (mut eh, mut ev) = (vec![0i16; w], vec![0u8; w.div_ceil(8)]);
-    let mut enc = codec::Encoder::new(&mut eh, &mut ev, w, packets::STREAM_INTRA_PERIOD).expect("encoder");
+    let mut enc =
+        codec::Encoder::new(&mut eh, &mut ev, w, packets::STREAM_INTRA_PERIOD).expect("encoder");
     rows.iter()
         .map(|r| {
             let row = Row {

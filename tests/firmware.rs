@@ -31,10 +31,18 @@ fn elf() -> Option<PathBuf> {
     }
     static ELF: OnceLock<Result<PathBuf, String>> = OnceLock::new();
     let r = ELF.get_or_init(|| {
-        let qemu = std::process::Command::new(target::QEMU).arg("--version").output();
+        let qemu = std::process::Command::new(target::QEMU)
+            .arg("--version")
+            .output();
         match qemu {
             Ok(o) if o.status.success() => {}
-            Ok(o) => return Err(format!("{} --version failed: {}", target::QEMU, String::from_utf8_lossy(&o.stderr))),
+            Ok(o) => {
+                return Err(format!(
+                    "{} --version failed: {}",
+                    target::QEMU,
+                    String::from_utf8_lossy(&o.stderr)
+                ))
+            }
             Err(e) => return Err(format!("{} cannot be run: {e}", target::QEMU)),
         }
         target::firmware_elf(true).map_err(|e| format!("{e:#}"))
@@ -50,12 +58,17 @@ fn elf() -> Option<PathBuf> {
 }
 
 fn scene_file(name: &str) -> Scene {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes").join(name);
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../scenes")
+        .join(name);
     Scene::load(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
 /// Echo the decoded firmware log (the test harness shows it for a failing test).
-const ECHO: Echo = Echo { log: true, progress: false };
+const ECHO: Echo = Echo {
+    log: true,
+    progress: false,
+};
 
 /// Index, start offset and board row of the packet of `stream` that holds byte `offset`.
 fn packet_at(stream: &[u8], offset: usize) -> (usize, usize, Option<i64>) {
@@ -78,7 +91,11 @@ fn assert_identical(what: &str, host: &[u8], target: &[u8]) {
     if host == target {
         return;
     }
-    let offset = host.iter().zip(target).position(|(a, b)| a != b).unwrap_or(host.len().min(target.len()));
+    let offset = host
+        .iter()
+        .zip(target)
+        .position(|(a, b)| a != b)
+        .unwrap_or(host.len().min(target.len()));
     let (index, start, row) = packet_at(host, offset);
     panic!(
         "{what}: the firmware's stream differs from the host's at byte {offset} (host packet {index}, \
@@ -91,21 +108,40 @@ fn assert_identical(what: &str, host: &[u8], target: &[u8]) {
 /// Host and target streams of one recording, compared; returns the decoded target stream.
 fn host_and_target(what: &str, sim: &Sim, elf: &Path) -> HeightMap {
     let (stats, host) = reconstruct::run(&sim.rec, Vec::new(), false).expect("host reconstruction");
-    let out = target::run(&sim.rec, elf, RunOptions { echo: ECHO, ..RunOptions::default() })
-        .unwrap_or_else(|e| panic!("{what}: firmware run failed: {e:#}"));
-    assert!(out.outcome.success() && out.outcome.errors().next().is_none(), "{what}: {:?}", out.outcome);
+    let out = target::run(
+        &sim.rec,
+        elf,
+        RunOptions {
+            echo: ECHO,
+            ..RunOptions::default()
+        },
+    )
+    .unwrap_or_else(|e| panic!("{what}: firmware run failed: {e:#}"));
+    assert!(
+        out.outcome.success() && out.outcome.errors().next().is_none(),
+        "{what}: {:?}",
+        out.outcome
+    );
     assert!(stats.packets > 0, "{what}: the host emitted no packets");
     assert_identical(what, &host, &out.stream);
 
-    let (map, rep) = dpsa_sim::stream::decode_stream(&out.stream, sim.rec.manifest.calibration.height_lsb_um);
-    assert_eq!(rep.corrupt, 0, "{what}: damaged packets in the firmware's stream: {:?}", rep.damage);
+    let (map, rep) =
+        dpsa_sim::stream::decode_stream(&out.stream, sim.rec.manifest.calibration.height_lsb_um);
+    assert_eq!(
+        rep.corrupt, 0,
+        "{what}: damaged packets in the firmware's stream: {:?}",
+        rep.damage
+    );
     assert_eq!(rep.ok as u64, stats.packets, "{what}");
     assert_eq!(map.width, sim.rec.width(), "{what}");
     // Every packet carries the recording's n.
     let mut pos = 0;
     while pos < out.stream.len() {
         let (p, len) = packets::decode(&out.stream[pos..]).expect("packet");
-        assert_eq!(p.header.n, sim.rec.manifest.processing.n, "{what}: packet at byte {pos}");
+        assert_eq!(
+            p.header.n, sim.rec.manifest.processing.n,
+            "{what}: packet at byte {pos}"
+        );
         pos += len;
     }
     map
@@ -137,10 +173,28 @@ fn default_scene_is_bit_exact() {
     let map = host_and_target("default scene", &sim, &elf);
     // Most of the board is valid and has height.
     let valid = valid_rows(&map);
-    assert!(valid >= Scene::default().board_length as usize * 9 / 10, "{valid} valid rows: {}", flag_summary(&map));
-    assert!(map.valid_pixels() > valid * map.width * 9 / 10, "{}", map.valid_pixels());
-    assert!(map.rows.iter().any(|r| r.is_valid() && r.heights.iter().any(|&h| h > 200)), "no deposit heights");
-    assert_eq!(count(&map, flags::ILL_CONDITIONED), 0, "{}", flag_summary(&map));
+    assert!(
+        valid >= Scene::default().board_length as usize * 9 / 10,
+        "{valid} valid rows: {}",
+        flag_summary(&map)
+    );
+    assert!(
+        map.valid_pixels() > valid * map.width * 9 / 10,
+        "{}",
+        map.valid_pixels()
+    );
+    assert!(
+        map.rows
+            .iter()
+            .any(|r| r.is_valid() && r.heights.iter().any(|&h| h > 200)),
+        "no deposit heights"
+    );
+    assert_eq!(
+        count(&map, flags::ILL_CONDITIONED),
+        0,
+        "{}",
+        flag_summary(&map)
+    );
 }
 
 #[test]
@@ -153,14 +207,28 @@ fn jitter_scene_is_bit_exact() {
     let sim = simulate(&scene, scene.seed);
     // The steps really are jittered by up to +/-20 %.
     let cpp = sim.rec.manifest.calibration.counts_per_pixel;
-    let steps: Vec<f64> =
-        sim.rec.manifest.frames.windows(2).map(|f| (f[1].latch - f[0].latch) as f64 / cpp).collect();
-    let (lo, hi) = steps.iter().fold((f64::MAX, f64::MIN), |(a, b), &s| (a.min(s), b.max(s)));
+    let steps: Vec<f64> = sim
+        .rec
+        .manifest
+        .frames
+        .windows(2)
+        .map(|f| (f[1].latch - f[0].latch) as f64 / cpp)
+        .collect();
+    let (lo, hi) = steps
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), &s| (a.min(s), b.max(s)));
     let m = scene.mean_step_px;
-    assert!(lo < 0.9 * m && hi > 1.1 * m && lo >= 0.8 * m - 0.5 && hi <= 1.2 * m + 0.5, "steps {lo}..{hi}");
+    assert!(
+        lo < 0.9 * m && hi > 1.1 * m && lo >= 0.8 * m - 0.5 && hi <= 1.2 * m + 0.5,
+        "steps {lo}..{hi}"
+    );
     let map = host_and_target("jitter scene", &sim, &elf);
     let valid = valid_rows(&map);
-    assert!(valid >= scene.board_length as usize * 9 / 10, "{valid} valid rows: {}", flag_summary(&map));
+    assert!(
+        valid >= scene.board_length as usize * 9 / 10,
+        "{valid} valid rows: {}",
+        flag_summary(&map)
+    );
 }
 
 #[test]
@@ -179,13 +247,29 @@ fn defects_scene_is_bit_exact() {
     }
     // The saturated and unmodulated pixels are invalid in otherwise valid rows, inside the
     // patches that made them.
-    for (flag, patch) in [(flags::SATURATED, &scene.patches[0]), (flags::LOW_MODULATION, &scene.patches[1])] {
-        let rows: Vec<_> = map.rows.iter().filter(|r| r.is_valid() && r.flags & flag != 0).collect();
+    for (flag, patch) in [
+        (flags::SATURATED, &scene.patches[0]),
+        (flags::LOW_MODULATION, &scene.patches[1]),
+    ] {
+        let rows: Vec<_> = map
+            .rows
+            .iter()
+            .filter(|r| r.is_valid() && r.flags & flag != 0)
+            .collect();
         assert!(!rows.is_empty(), "{}: {summary}", flag_names(flag));
         for r in rows {
-            assert!(patch.contains_row(r.row), "row {} flagged {} outside its patch", r.row, flag_names(flag));
+            assert!(
+                patch.contains_row(r.row),
+                "row {} flagged {} outside its patch",
+                r.row,
+                flag_names(flag)
+            );
             let c = (patch.col + i64::from(patch.cols) / 2) as usize;
-            assert!(!r.pixel_valid(c), "row {}: the patch centre (column {c}) is valid", r.row);
+            assert!(
+                !r.pixel_valid(c),
+                "row {}: the patch centre (column {c}) is valid",
+                r.row
+            );
         }
     }
 }
@@ -201,8 +285,17 @@ fn fullframe_scene_is_bit_exact() {
     let map = host_and_target("full-frame scene", &sim, &elf);
     // The windows span most of the frame: thousands of valid rows from a handful of frames.
     let valid = valid_rows(&map);
-    assert!(valid > scene.rows as usize, "{valid} valid rows: {}", flag_summary(&map));
-    assert_eq!(count(&map, flags::ILL_CONDITIONED), 0, "{}", flag_summary(&map));
+    assert!(
+        valid > scene.rows as usize,
+        "{valid} valid rows: {}",
+        flag_summary(&map)
+    );
+    assert_eq!(
+        count(&map, flags::ILL_CONDITIONED),
+        0,
+        "{}",
+        flag_summary(&map)
+    );
 }
 
 /// `--intra-period` reaches the firmware through the recording header: predicted rows are
@@ -214,7 +307,16 @@ fn predicted_rows_are_bit_exact() {
     let (_, host) = reconstruct::run_with(&sim.rec, Vec::new(), 8, false).unwrap();
     let (_, intra) = reconstruct::run(&sim.rec, Vec::new(), false).unwrap();
     assert!(host.len() < intra.len());
-    let out = target::run(&sim.rec, &elf, RunOptions { intra_period: 8, echo: ECHO, ..RunOptions::default() }).unwrap();
+    let out = target::run(
+        &sim.rec,
+        &elf,
+        RunOptions {
+            intra_period: 8,
+            echo: ECHO,
+            ..RunOptions::default()
+        },
+    )
+    .unwrap();
     assert_identical("intra period 8", &host, &out.stream);
 }
 
@@ -229,7 +331,10 @@ fn exported(dir: &Path) -> (PathBuf, feed::Header, Vec<u8>) {
     let bytes = std::fs::read(&path).unwrap();
     let header = feed::Header::decode(&bytes).expect("the export's header decodes");
     assert_eq!(header.frames as usize, sim.rec.len());
-    assert_eq!(bytes.len(), feed::HEADER_LEN + header.table_len() + header.frames as usize * header.frame_len());
+    assert_eq!(
+        bytes.len(),
+        feed::HEADER_LEN + header.table_len() + header.frames as usize * header.frame_len()
+    );
     (path, header, bytes)
 }
 
@@ -243,15 +348,31 @@ fn assert_refused(elf: &Path, dir: &Path, what: &str, bytes: &[u8], needles: &[&
     let err = target::run_files(elf, &rec, &out, None, ECHO).expect_err(what);
     let msg = format!("{err:#}");
     for n in needles {
-        assert!(msg.contains(n), "{what}: the error does not mention {n:?}:\n{msg}");
+        assert!(
+            msg.contains(n),
+            "{what}: the error does not mention {n:?}:\n{msg}"
+        );
     }
-    assert!(!msg.to_lowercase().contains("panic") && !msg.contains("hard fault"), "{what}: {msg}");
+    assert!(
+        !msg.to_lowercase().contains("panic") && !msg.contains("hard fault"),
+        "{what}: {msg}"
+    );
     // The same run, looked at directly: a failure status (not killed), and an ERROR log line.
-    let args = [rec.to_str().unwrap().to_string(), out.to_str().unwrap().to_string()];
+    let args = [
+        rec.to_str().unwrap().to_string(),
+        out.to_str().unwrap().to_string(),
+    ];
     let o = target::qemu(elf, &args, None, ECHO).unwrap();
-    assert!(matches!(o.code, Some(c) if c != 0), "{what}: exit {:?}", o.code);
+    assert!(
+        matches!(o.code, Some(c) if c != 0),
+        "{what}: exit {:?}",
+        o.code
+    );
     let errors: Vec<String> = o.errors().map(|l| l.message.clone()).collect();
-    assert!(errors.iter().any(|e| needles.iter().all(|n| e.contains(n))), "{what}: error lines {errors:?}");
+    assert!(
+        errors.iter().any(|e| needles.iter().all(|n| e.contains(n))),
+        "{what}: error lines {errors:?}"
+    );
     assert_eq!(o.malformed, 0, "{what}: undecodable log frames");
 }
 
@@ -270,7 +391,13 @@ fn truncated_recording_is_refused() {
     let needle = format!("feed truncated in frame 9 at line 0 (byte {at})");
     assert_refused(&elf, dir.path(), "frame-boundary", &bytes[..at], &[&needle]);
     // Inside the header: the header cannot even be read.
-    assert_refused(&elf, dir.path(), "short-header", &bytes[..40], &["opening the feed", "length does not match the feed layout"]);
+    assert_refused(
+        &elf,
+        dir.path(),
+        "short-header",
+        &bytes[..40],
+        &["opening the feed", "length does not match the feed layout"],
+    );
 }
 
 #[test]
@@ -281,19 +408,46 @@ fn corrupt_header_and_table_are_refused() {
     // One bit of the width: the header CRC catches it.
     let mut b = bytes.clone();
     b[8] ^= 0x10;
-    assert_refused(&elf, dir.path(), "header-bit", &b, &["opening the feed", "header CRC does not match"]);
+    assert_refused(
+        &elf,
+        dir.path(),
+        "header-bit",
+        &b,
+        &["opening the feed", "header CRC does not match"],
+    );
     // Not a target recording at all.
     let mut b = bytes.clone();
     b[..4].copy_from_slice(b"PNG\0");
-    assert_refused(&elf, dir.path(), "magic", &b, &["opening the feed", "not a feed"]);
+    assert_refused(
+        &elf,
+        dir.path(),
+        "magic",
+        &b,
+        &["opening the feed", "not a feed"],
+    );
     // One reference-phase entry: the table CRC catches it.
     let mut b = bytes.clone();
     b[feed::HEADER_LEN + 4 * 17] ^= 0x01;
-    assert_refused(&elf, dir.path(), "table", &b, &["opening the feed", "reference-phase table CRC does not match"]);
+    assert_refused(
+        &elf,
+        dir.path(),
+        "table",
+        &b,
+        &[
+            "opening the feed",
+            "reference-phase table CRC does not match",
+        ],
+    );
     // A valid header (CRC and all) whose configuration the core refuses.
     let mut bad = h;
     bad.cfg.max_step_rows = bad.cfg.rows + 1;
     let mut b = bytes.clone();
     b[..feed::HEADER_LEN].copy_from_slice(&bad.encode());
-    assert_refused(&elf, dir.path(), "config", &b, &["opening the feed", "max_step_rows is out of range"]);
+    assert_refused(
+        &elf,
+        dir.path(),
+        "config",
+        &b,
+        &["opening the feed", "max_step_rows is out of range"],
+    );
 }

@@ -67,7 +67,9 @@ fn kernel(c: &mut Criterion) {
         })
     });
     g.finish();
-    c.bench_function("solve/window n=4", |b| b.iter(|| Window::solve(black_box(&shifts), 512)));
+    c.bench_function("solve/window n=4", |b| {
+        b.iter(|| Window::solve(black_box(&shifts), 512))
+    });
 }
 
 struct Null;
@@ -86,7 +88,11 @@ fn pipeline(c: &mut Criterion) {
     let frame: Vec<Vec<u16>> = (0..cfg.rows as usize)
         .map(|r| {
             (0..W)
-                .map(|c| (1800.0 + 700.0 * (r as f64 / 32.0 * std::f64::consts::TAU + 0.01 * c as f64).cos()) as u16)
+                .map(|c| {
+                    (1800.0
+                        + 700.0 * (r as f64 / 32.0 * std::f64::consts::TAU + 0.01 * c as f64).cos())
+                        as u16
+                })
                 .collect()
         })
         .collect();
@@ -98,7 +104,14 @@ fn pipeline(c: &mut Criterion) {
         let mut p = Pipeline::new(cfg, &refp, state.memory()).unwrap();
         let mut k = 0u32;
         b.iter(|| {
-            p.begin_frame(Trigger { seq: k, latch: k as i64 * 80 }, &mut Null).unwrap();
+            p.begin_frame(
+                Trigger {
+                    seq: k,
+                    latch: k as i64 * 80,
+                },
+                &mut Null,
+            )
+            .unwrap();
             for (r, line) in frame.iter().enumerate() {
                 p.push_line(r as u16, line, &mut Null).unwrap();
             }

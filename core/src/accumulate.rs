@@ -82,7 +82,13 @@ pub fn pixel(win: &Window, samples: &[u16], saturation: u16) -> Acc {
 /// Every line must hold at least `c0 + out.len()` samples (the caller checks; a shorter line
 /// would be a programming error and panics).
 #[inline(always)]
-pub fn block<const N: usize>(win: &Window, lines: &[&[u16]; N], c0: usize, saturation: u16, out: &mut [V]) {
+pub fn block<const N: usize>(
+    win: &Window,
+    lines: &[&[u16]; N],
+    c0: usize,
+    saturation: u16,
+    out: &mut [V],
+) {
     let len = out.len();
     let p2: [i32; N] = core::array::from_fn(|j| win.p2[j]);
     let p3: [i32; N] = core::array::from_fn(|j| win.p3[j]);
@@ -95,7 +101,11 @@ pub fn block<const N: usize>(win: &Window, lines: &[&[u16]; N], c0: usize, satur
             v3 += p3[j] as i64 * x as i64;
             top = top.max(x);
         }
-        *o = if top >= saturation { [SATURATED, 0] } else { [q12(v2), q12(v3)] };
+        *o = if top >= saturation {
+            [SATURATED, 0]
+        } else {
+            [q12(v2), q12(v3)]
+        };
     }
 }
 
@@ -138,7 +148,12 @@ impl<'a> Pool<'a> {
             // Pop order is ascending (slot 0 first): free[top-1] is taken first.
             *f = (count - 1 - i) as u16;
         }
-        Some(Pool { width, lines, free, top: count })
+        Some(Pool {
+            width,
+            lines,
+            free,
+            top: count,
+        })
     }
 
     /// Takes a slot and copies `line` into it; `None` when the pool is exhausted.
@@ -149,7 +164,9 @@ impl<'a> Pool<'a> {
         self.top -= 1;
         let slot = self.free[self.top];
         let w = self.width;
-        let dst = self.lines.get_mut(slot as usize * w..slot as usize * w + w)?;
+        let dst = self
+            .lines
+            .get_mut(slot as usize * w..slot as usize * w + w)?;
         let n = w.min(line.len());
         dst[..n].copy_from_slice(&line[..n]);
         Some(slot)
@@ -166,7 +183,9 @@ impl<'a> Pool<'a> {
     /// The samples of a slot.
     pub fn line(&self, slot: u16) -> &[u16] {
         let w = self.width;
-        self.lines.get(slot as usize * w..slot as usize * w + w).unwrap_or(&[])
+        self.lines
+            .get(slot as usize * w..slot as usize * w + w)
+            .unwrap_or(&[])
     }
 
     /// Slots in use.
@@ -189,8 +208,10 @@ mod tests {
         let bam: std::vec::Vec<u32> = th.iter().map(|&t| from_rad(t)).collect();
         let w = Window::solve(&bam, 2048).unwrap();
         let (b, c, phi) = (1800.0, 700.0, 0.9f64);
-        let s: std::vec::Vec<u16> =
-            th.iter().map(|t| (b + c * (phi + t).cos()).round() as u16).collect();
+        let s: std::vec::Vec<u16> = th
+            .iter()
+            .map(|t| (b + c * (phi + t).cos()).round() as u16)
+            .collect();
         let a = pixel(&w, &s, 4095);
         let q = (1u64 << 24) as f64;
         // Integer rounding of the samples (<= 0.5 DN) bounds the error.
@@ -202,10 +223,17 @@ mod tests {
 
     #[test]
     fn block_is_pixel_reduced() {
-        let bam: std::vec::Vec<u32> = [0.0f64, -1.9, -3.7, -5.8].iter().map(|&t| from_rad(t)).collect();
+        let bam: std::vec::Vec<u32> = [0.0f64, -1.9, -3.7, -5.8]
+            .iter()
+            .map(|&t| from_rad(t))
+            .collect();
         let w = Window::solve(&bam, 2048).unwrap();
         let l: std::vec::Vec<std::vec::Vec<u16>> = (0..4u32)
-            .map(|j| (0..37u32).map(|c| ((c * 977 + j * 3331) % 4200) as u16).collect())
+            .map(|j| {
+                (0..37u32)
+                    .map(|c| ((c * 977 + j * 3331) % 4200) as u16)
+                    .collect()
+            })
             .collect();
         let lines: [&[u16]; 4] = core::array::from_fn(|j| &l[j][..]);
         let mut out = [[0i32; 2]; 30];
@@ -217,10 +245,22 @@ mod tests {
         assert!(out.iter().any(|o| o[0] == SATURATED) && out.iter().any(|o| o[0] != SATURATED));
         // Clamping keeps reduced values off the saturation marker; both paths agree with
         // the plain shift-and-clamp at and around every boundary.
-        let big = Acc { v2: i64::MIN >> 1, v3: i64::MAX >> 1, saturated: false };
+        let big = Acc {
+            v2: i64::MIN >> 1,
+            v3: i64::MAX >> 1,
+            saturated: false,
+        };
         assert_eq!(big.reduce(), [i32::MIN + 1, i32::MAX]);
         let plain = |v: i64| (v >> 12).clamp(i32::MIN as i64 + 1, i32::MAX as i64) as i32;
-        for edge in [0i64, 1 << 43, -(1 << 43), (1 << 43) - (1 << 32), -(1 << 43) + (1 << 32), 1 << 32, -(1 << 32)] {
+        for edge in [
+            0i64,
+            1 << 43,
+            -(1 << 43),
+            (1 << 43) - (1 << 32),
+            -(1 << 43) + (1 << 32),
+            1 << 32,
+            -(1 << 32),
+        ] {
             for d in -5000i64..5000 {
                 let v = edge.wrapping_add(d);
                 assert_eq!(q12(v), plain(v), "v = {v}");

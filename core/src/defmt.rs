@@ -19,9 +19,15 @@ impl Format for ConfigError {
         match self {
             ConfigError::Width => write!(f, "width 0 is out of range (at least 1)"),
             ConfigError::Rows => write!(f, "rows 0 is out of range (at least 1)"),
-            ConfigError::Count => write!(f, "n is out of range ({=usize}..={=usize})", MIN_N, MAX_N),
-            ConfigError::CountsPerPixel => write!(f, "counts_per_pixel 0 is out of range (must be > 0)"),
-            ConfigError::LsbPerTurn => write!(f, "lsb_per_turn is out of range (0 < lsb_per_turn < 32768)"),
+            ConfigError::Count => {
+                write!(f, "n is out of range ({=usize}..={=usize})", MIN_N, MAX_N)
+            }
+            ConfigError::CountsPerPixel => {
+                write!(f, "counts_per_pixel 0 is out of range (must be > 0)")
+            }
+            ConfigError::LsbPerTurn => {
+                write!(f, "lsb_per_turn is out of range (0 < lsb_per_turn < 32768)")
+            }
             ConfigError::NoiseGain => write!(f, "max_noise_gain is out of range (1..=8)"),
             ConfigError::MaxStep => write!(f, "max_step_rows is out of range (1..=rows)"),
         }
@@ -33,7 +39,12 @@ impl Format for FeedError {
         match self {
             FeedError::Magic => write!(f, "the magic is not \"DPSR\": not a feed"),
             FeedError::Version(v) => {
-                write!(f, "feed version {=u16} is not supported (expected {=u16})", v, feed::VERSION)
+                write!(
+                    f,
+                    "feed version {=u16} is not supported (expected {=u16})",
+                    v,
+                    feed::VERSION
+                )
             }
             FeedError::HeaderLen(l) => write!(f, "header length {=u16} is not 64", l),
             FeedError::HeaderCrc => write!(f, "the header CRC does not match"),
@@ -41,7 +52,10 @@ impl Format for FeedError {
             FeedError::Config(e) => write!(f, "configuration: {}", e),
             FeedError::IntraPeriod => write!(f, "intra period 0 is out of range (at least 1)"),
             FeedError::TableCrc => write!(f, "the reference-phase table CRC does not match"),
-            FeedError::Length => write!(f, "length does not match the feed layout (short or oversized input)"),
+            FeedError::Length => write!(
+                f,
+                "length does not match the feed layout (short or oversized input)"
+            ),
         }
     }
 }
@@ -50,7 +64,10 @@ impl Format for NewError {
     fn format(&self, f: Formatter<'_>) {
         match self {
             NewError::Config(e) => write!(f, "configuration: {}", e),
-            NewError::Memory => write!(f, "memory or reference-phase table smaller than the layout needs"),
+            NewError::Memory => write!(
+                f,
+                "memory or reference-phase table smaller than the layout needs"
+            ),
         }
     }
 }
@@ -62,10 +79,18 @@ impl<E: Format> Format for Error<E> {
             Error::FrameOpen => write!(f, "begin_frame while a frame is open"),
             Error::NoFrame => write!(f, "line or frame end without an open frame"),
             Error::LineOrder { expected, got } => {
-                write!(f, "line {=u16} out of order (expected line {=u16})", got, expected)
+                write!(
+                    f,
+                    "line {=u16} out of order (expected line {=u16})",
+                    got, expected
+                )
             }
             Error::LineWidth { expected, got } => {
-                write!(f, "line of {=usize} samples (expected width {=u16})", got, expected)
+                write!(
+                    f,
+                    "line of {=usize} samples (expected width {=u16})",
+                    got, expected
+                )
             }
         }
     }
@@ -74,8 +99,15 @@ impl<E: Format> Format for Error<E> {
 impl Format for SolveError {
     fn format(&self, f: Formatter<'_>) {
         match self {
-            SolveError::BadCount => write!(f, "window size is out of range ({=usize}..={=usize} shifts)", MIN_N, MAX_N),
-            SolveError::IllConditioned => write!(f, "window noise gain above max_noise_gain (ill-conditioned shifts)"),
+            SolveError::BadCount => write!(
+                f,
+                "window size is out of range ({=usize}..={=usize} shifts)",
+                MIN_N, MAX_N
+            ),
+            SolveError::IllConditioned => write!(
+                f,
+                "window noise gain above max_noise_gain (ill-conditioned shifts)"
+            ),
         }
     }
 }
@@ -131,7 +163,11 @@ impl<E: Format> Format for SinkError<E> {
 
 impl Format for Trigger {
     fn format(&self, f: Formatter<'_>) {
-        write!(f, "Trigger {{ seq: {=u32}, latch: {=i64} }}", self.seq, self.latch)
+        write!(
+            f,
+            "Trigger {{ seq: {=u32}, latch: {=i64} }}",
+            self.seq, self.latch
+        )
     }
 }
 
@@ -151,7 +187,11 @@ impl Format for Config {
 
 impl Format for feed::Header {
     fn format(&self, f: Formatter<'_>) {
-        write!(f, "{} frames {=u32} intra_period {=u32}", self.cfg, self.frames, self.intra_period)
+        write!(
+            f,
+            "{} frames {=u32} intra_period {=u32}",
+            self.cfg, self.frames, self.intra_period
+        )
     }
 }
 
@@ -160,9 +200,7 @@ impl Format for Layout {
         write!(
             f,
             "Layout {{ width: {=usize}, pool_lines: {=usize}, slots: {=usize} }}",
-            self.width,
-            self.pool_lines,
-            self.slots
+            self.width, self.pool_lines, self.slots
         )
     }
 }

@@ -21,8 +21,12 @@ impl Display for ConfigError {
             ConfigError::Width => f.write_str("width 0 is out of range (at least 1)"),
             ConfigError::Rows => f.write_str("rows 0 is out of range (at least 1)"),
             ConfigError::Count => write!(f, "n is out of range ({MIN_N}..={MAX_N})"),
-            ConfigError::CountsPerPixel => f.write_str("counts_per_pixel 0 is out of range (must be > 0)"),
-            ConfigError::LsbPerTurn => f.write_str("lsb_per_turn is out of range (0 < lsb_per_turn < 32768)"),
+            ConfigError::CountsPerPixel => {
+                f.write_str("counts_per_pixel 0 is out of range (must be > 0)")
+            }
+            ConfigError::LsbPerTurn => {
+                f.write_str("lsb_per_turn is out of range (0 < lsb_per_turn < 32768)")
+            }
             ConfigError::NoiseGain => f.write_str("max_noise_gain is out of range (1..=8)"),
             ConfigError::MaxStep => f.write_str("max_step_rows is out of range (1..=rows)"),
         }
@@ -35,14 +39,19 @@ impl Display for FeedError {
     fn fmt(&self, f: &mut Formatter<'_>) -> fmt::Result {
         match self {
             FeedError::Magic => f.write_str("the magic is not \"DPSR\": not a feed"),
-            FeedError::Version(v) => write!(f, "feed version {v} is not supported (expected {FEED_VERSION})"),
+            FeedError::Version(v) => write!(
+                f,
+                "feed version {v} is not supported (expected {FEED_VERSION})"
+            ),
             FeedError::HeaderLen(l) => write!(f, "header length {l} is not 64"),
             FeedError::HeaderCrc => f.write_str("the header CRC does not match"),
             FeedError::Reserved => f.write_str("reserved bytes are not zero"),
             FeedError::Config(e) => write!(f, "configuration: {e}"),
             FeedError::IntraPeriod => f.write_str("intra period 0 is out of range (at least 1)"),
             FeedError::TableCrc => f.write_str("the reference-phase table CRC does not match"),
-            FeedError::Length => f.write_str("length does not match the feed layout (short or oversized input)"),
+            FeedError::Length => {
+                f.write_str("length does not match the feed layout (short or oversized input)")
+            }
         }
     }
 }
@@ -60,7 +69,9 @@ impl Display for NewError {
     fn fmt(&self, f: &mut Formatter<'_>) -> fmt::Result {
         match self {
             NewError::Config(e) => write!(f, "configuration: {e}"),
-            NewError::Memory => f.write_str("memory or reference-phase table smaller than the layout needs"),
+            NewError::Memory => {
+                f.write_str("memory or reference-phase table smaller than the layout needs")
+            }
         }
     }
 }
@@ -80,8 +91,12 @@ impl<E: Display> Display for Error<E> {
             Error::Sink(e) => write!(f, "sink: {e}"),
             Error::FrameOpen => f.write_str("begin_frame while a frame is open"),
             Error::NoFrame => f.write_str("line or frame end without an open frame"),
-            Error::LineOrder { expected, got } => write!(f, "line {got} out of order (expected line {expected})"),
-            Error::LineWidth { expected, got } => write!(f, "line of {got} samples (expected width {expected})"),
+            Error::LineOrder { expected, got } => {
+                write!(f, "line {got} out of order (expected line {expected})")
+            }
+            Error::LineWidth { expected, got } => {
+                write!(f, "line of {got} samples (expected width {expected})")
+            }
         }
     }
 }
@@ -98,8 +113,12 @@ impl<E: StdError + 'static> StdError for Error<E> {
 impl Display for SolveError {
     fn fmt(&self, f: &mut Formatter<'_>) -> fmt::Result {
         match self {
-            SolveError::BadCount => write!(f, "window size is out of range ({MIN_N}..={MAX_N} shifts)"),
-            SolveError::IllConditioned => f.write_str("window noise gain above max_noise_gain (ill-conditioned shifts)"),
+            SolveError::BadCount => {
+                write!(f, "window size is out of range ({MIN_N}..={MAX_N} shifts)")
+            }
+            SolveError::IllConditioned => {
+                f.write_str("window noise gain above max_noise_gain (ill-conditioned shifts)")
+            }
         }
     }
 }
@@ -123,9 +142,14 @@ impl Display for PacketError {
             PacketError::BufferTooSmall => f.write_str("buffer too small for the packet"),
             PacketError::Truncated => f.write_str("packet truncated"),
             PacketError::BadSync => f.write_str("no sync word"),
-            PacketError::BadVersion(v) => write!(f, "packet version {v} is not supported (expected {PACKET_VERSION})"),
+            PacketError::BadVersion(v) => write!(
+                f,
+                "packet version {v} is not supported (expected {PACKET_VERSION})"
+            ),
             PacketError::BadCodec(c) => write!(f, "payload codec {c} is unknown"),
-            PacketError::BadLength => f.write_str("payload length does not fit the codec and width"),
+            PacketError::BadLength => {
+                f.write_str("payload length does not fit the codec and width")
+            }
             PacketError::BadCrc => f.write_str("CRC mismatch"),
             PacketError::Codec(e) => write!(f, "payload: {e}"),
         }

@@ -35,7 +35,10 @@ impl Scale {
     pub fn from_parts(lsb_per_turn_q16: u32, min_modulation_q12: u32) -> Scale {
         let m = min_modulation_q12 as u64;
         // `Config::validate` keeps LSB per turn below 2^31; the clamp covers direct callers.
-        Scale { k: lsb_per_turn_q16.min(i32::MAX as u32) as i32, min_c2: m.saturating_mul(m) }
+        Scale {
+            k: lsb_per_turn_q16.min(i32::MAX as u32) as i32,
+            min_c2: m.saturating_mul(m),
+        }
     }
 
     /// The pixel's phase `Phi = atan2(v_3, v_2)` if it is valid (not saturated, modulated).
@@ -86,11 +89,23 @@ impl Scale {
     /// `heights[k]` of valid pixels (others are left alone) and the validity bytes
     /// `valid[k / 8]` (whole bytes, bit `k % 8`); returns the per-pixel row flags seen.
     #[inline(always)]
-    pub fn block(&self, v: &[V], rho: u32, ref_phase: &[u32], heights: &mut [i16], valid: &mut [u8]) -> u16 {
+    pub fn block(
+        &self,
+        v: &[V],
+        rho: u32,
+        ref_phase: &[u32],
+        heights: &mut [i16],
+        valid: &mut [u8],
+    ) -> u16 {
         let (mut sat, mut low) = (false, false);
         let len = v.len().min(ref_phase.len()).min(heights.len());
         let (v, ref_phase, heights) = (&v[..len], &ref_phase[..len], &mut heights[..len]);
-        for (((v8, r8), h8), bits) in v.chunks(8).zip(ref_phase.chunks(8)).zip(heights.chunks_mut(8)).zip(valid.iter_mut()) {
+        for (((v8, r8), h8), bits) in v
+            .chunks(8)
+            .zip(ref_phase.chunks(8))
+            .zip(heights.chunks_mut(8))
+            .zip(valid.iter_mut())
+        {
             let mut byte = 0u8;
             for (b, ((&vk, &rk), hk)) in v8.iter().zip(r8).zip(h8.iter_mut()).enumerate() {
                 match self.phase_v(vk) {
@@ -109,11 +124,17 @@ impl Scale {
 
     /// [`Scale::block`] as its own (never inlined) function, for timing the stage alone.
     #[inline(never)]
-    pub fn row(&self, v: &[V], rho: u32, ref_phase: &[u32], heights: &mut [i16], valid: &mut [u8]) -> u16 {
+    pub fn row(
+        &self,
+        v: &[V],
+        rho: u32,
+        ref_phase: &[u32],
+        heights: &mut [i16],
+        valid: &mut [u8],
+    ) -> u16 {
         self.block(v, rho, ref_phase, heights, valid)
     }
 }
-
 
 #[cfg(test)]
 mod tests {
@@ -140,7 +161,11 @@ mod tests {
 
     fn acc(c: f64, phi: f64) -> Acc {
         let q = (1u64 << 24) as f64;
-        Acc { v2: (c * phi.cos() * q) as i64, v3: (c * phi.sin() * q) as i64, saturated: false }
+        Acc {
+            v2: (c * phi.cos() * q) as i64,
+            v3: (c * phi.sin() * q) as i64,
+            saturated: false,
+        }
     }
 
     #[test]
@@ -169,7 +194,12 @@ mod tests {
         assert!(hi > 16_380 && lo < -16_380, "{hi} {lo}");
         // The extreme difference (-pi exactly) at the largest scale stays inside H_MAX.
         let s_max = Scale::from_parts(u32::MAX, 0);
-        for (phi, r) in [(0x8000_0000u32, 0u32), (0, 0x8000_0000), (0x7FFF_FFFF, 0), (0, 0x7FFF_FFFF)] {
+        for (phi, r) in [
+            (0x8000_0000u32, 0u32),
+            (0, 0x8000_0000),
+            (0x7FFF_FFFF, 0),
+            (0, 0x7FFF_FFFF),
+        ] {
             assert!((s_max.height(phi, r) as i32).abs() <= H_MAX);
         }
         // Reference subtraction wraps: Phi = -3.1, phi_r = 3.1 -> D = 2 pi - 6.2 = +0.083.
@@ -189,7 +219,11 @@ mod tests {
         a.saturated = true;
         assert_eq!(s.pixel(&a, 0), Err(Invalid::Saturated));
         // Extreme accumulators do not overflow.
-        let big = Acc { v2: i64::MAX >> 14, v3: i64::MIN >> 14, saturated: false };
+        let big = Acc {
+            v2: i64::MAX >> 14,
+            v3: i64::MIN >> 14,
+            saturated: false,
+        };
         assert!(s.pixel(&big, 0).is_ok());
     }
 }

@@ -67,7 +67,11 @@ fn floor(x: f64) -> f64 {
 pub fn atan2(y: i32, x: i32) -> u32 {
     let ax = x.unsigned_abs();
     let ay = y.unsigned_abs();
-    let (hi, lo, swap) = if ax >= ay { (ax, ay, false) } else { (ay, ax, true) };
+    let (hi, lo, swap) = if ax >= ay {
+        (ax, ay, false)
+    } else {
+        (ay, ax, true)
+    };
     let s = hi.leading_zeros();
     // Top bit of `hi << s` is set, so `d >= 2^15`: the `| 0x8000` only tells the compiler.
     // `(0, 0)` needs no branch: `s = 32` wraps to a shift by 0, `lo = 0` gives `t = 0`, and
@@ -101,7 +105,11 @@ pub fn sincos(a: u32) -> (i32, i32) {
     let quadrant = a >> 30;
     let r = a & (QUARTER - 1);
     // Fold to [0, pi/4]: beyond the octant use the complement and swap sin/cos.
-    let (r, swap) = if r > OCTANT { (QUARTER - r, true) } else { (r, false) };
+    let (r, swap) = if r > OCTANT {
+        (QUARTER - r, true)
+    } else {
+        (r, false)
+    };
     // x = r * (pi/2) / 2^30, in Q30 radians (<= 0.786 * 2^30).
     let x = ((r as u64 * HALF_PI_Q30 + (1 << 29)) >> 30) as i64;
     let x2 = mul_q30(x, x);
@@ -192,7 +200,13 @@ mod tests {
         assert_eq!(atan2(-5, 0), 3 * QUARTER);
         assert_eq!(atan2(7, 7), OCTANT);
         // Extremes must not overflow.
-        for &(y, x) in &[(i32::MIN, i32::MIN), (i32::MAX, i32::MIN), (i32::MIN, 1), (1, i32::MAX), (i32::MAX, i32::MAX - 1)] {
+        for &(y, x) in &[
+            (i32::MIN, i32::MIN),
+            (i32::MAX, i32::MIN),
+            (i32::MIN, 1),
+            (1, i32::MAX),
+            (i32::MAX, i32::MAX - 1),
+        ] {
             let e = ang_err(atan2(y, x), (y as f64).atan2(x as f64)).abs();
             assert!(e <= ATAN2_MAX_ERR_RAD, "({y},{x}) err {e:e}");
         }

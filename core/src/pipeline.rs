@@ -41,7 +41,11 @@ impl Layout {
     pub const fn of(cfg: &Config) -> Layout {
         let n = cfg.n as usize;
         let m = cfg.max_step_rows as usize;
-        Layout { width: cfg.width as usize, pool_lines: m * n * (n - 1) / 2, slots: m * n }
+        Layout {
+            width: cfg.width as usize,
+            pool_lines: m * n * (n - 1) / 2,
+            slots: m * n,
+        }
     }
 
     /// Bytes of pipeline state: the line pool, its free list, the row slots, the output row
@@ -164,7 +168,8 @@ impl<'a> Pipeline<'a> {
         {
             return Err(NewError::Memory);
         }
-        let pool = Pool::new(w, mem.lines, &mut mem.free[..lay.pool_lines]).ok_or(NewError::Memory)?;
+        let pool =
+            Pool::new(w, mem.lines, &mut mem.free[..lay.pool_lines]).ok_or(NewError::Memory)?;
         let heights = &mut mem.heights[..w];
         let valid = &mut mem.valid[..w.div_ceil(8)];
         heights.fill(0);
@@ -196,7 +201,11 @@ impl<'a> Pipeline<'a> {
     }
 
     /// Starts the frame of `trigger` (frame counter `seq`, latched encoder count `latch`).
-    pub fn begin_frame<S: Sink>(&mut self, trigger: Trigger, sink: &mut S) -> Result<(), Error<S::Error>> {
+    pub fn begin_frame<S: Sink>(
+        &mut self,
+        trigger: Trigger,
+        sink: &mut S,
+    ) -> Result<(), Error<S::Error>> {
         if self.open {
             return Err(Error::FrameOpen);
         }
@@ -217,7 +226,8 @@ impl<'a> Pipeline<'a> {
         // Rows above the ROI can no longer be observed.
         self.drain_until(o, flags::INCOMPLETE, sink)?;
         // Admission of the rows that entered at the bottom.
-        self.reg.admit(o, latch, self.cfg.rows, self.cfg.max_step_rows);
+        self.reg
+            .admit(o, latch, self.cfg.rows, self.cfg.max_step_rows);
         // Window of the rows that entered n-1 frames ago and complete now.
         let n = self.cfg.n as usize;
         self.win = Err(SolveError::BadCount);
@@ -239,15 +249,26 @@ impl<'a> Pipeline<'a> {
     }
 
     /// Delivers image row `r` (in order `0..H`) of the open frame.
-    pub fn push_line<S: Sink>(&mut self, r: u16, line: &[u16], sink: &mut S) -> Result<(), Error<S::Error>> {
+    pub fn push_line<S: Sink>(
+        &mut self,
+        r: u16,
+        line: &[u16],
+        sink: &mut S,
+    ) -> Result<(), Error<S::Error>> {
         if !self.open {
             return Err(Error::NoFrame);
         }
         if r != self.next_line || r >= self.cfg.rows {
-            return Err(Error::LineOrder { expected: self.next_line, got: r });
+            return Err(Error::LineOrder {
+                expected: self.next_line,
+                got: r,
+            });
         }
         if line.len() != self.cfg.width as usize {
-            return Err(Error::LineWidth { expected: self.cfg.width, got: line.len() });
+            return Err(Error::LineWidth {
+                expected: self.cfg.width,
+                got: line.len(),
+            });
         }
         self.next_line += 1;
         let f = self.reg.begun().wrapping_sub(1);
@@ -294,7 +315,11 @@ impl<'a> Pipeline<'a> {
         let row_flags = self.compute(s, &win, rho, line);
         self.release(s);
         let header = self.header(b, latch0, row_flags);
-        let res = sink.row(&Row { header, heights: self.heights, valid: self.valid });
+        let res = sink.row(&Row {
+            header,
+            heights: self.heights,
+            valid: self.valid,
+        });
         self.heights.fill(0);
         self.valid.fill(0);
         self.next_row = b + 1;
@@ -371,7 +396,12 @@ impl<'a> Pipeline<'a> {
     }
 
     /// Emits every row in `[next_row, until)` as invalid; open rows get `reason`.
-    fn drain_until<S: Sink>(&mut self, until: i64, reason: u16, sink: &mut S) -> Result<(), Error<S::Error>> {
+    fn drain_until<S: Sink>(
+        &mut self,
+        until: i64,
+        reason: u16,
+        sink: &mut S,
+    ) -> Result<(), Error<S::Error>> {
         let until = until.min(self.reg.entered_end);
         while self.next_row < until {
             if let Kind::Admitted(s) = self.reg.kind(self.next_row) {
@@ -396,11 +426,23 @@ impl<'a> Pipeline<'a> {
         };
         let header = self.header(b, latch, fl);
         self.next_row = b + 1;
-        sink.row(&Row { header, heights: self.heights, valid: self.valid }).map_err(Error::Sink)
+        sink.row(&Row {
+            header,
+            heights: self.heights,
+            valid: self.valid,
+        })
+        .map_err(Error::Sink)
     }
 
     fn header(&self, row: i64, latch: i64, flags: u16) -> RowHeader {
-        RowHeader { camera: self.cfg.camera, n: self.cfg.n, row, latch, flags, width: self.cfg.width }
+        RowHeader {
+            camera: self.cfg.camera,
+            n: self.cfg.n,
+            row,
+            latch,
+            flags,
+            width: self.cfg.width,
+        }
     }
 
     /// The hot loop: `v = P i`, phase, height and mask for every column of a completed row.
@@ -416,7 +458,13 @@ impl<'a> Pipeline<'a> {
         if lines[..n].iter().any(|l| l.len() < w) {
             return flags::OVERFLOW;
         }
-        let rows = Rows { lines, w, sat: self.cfg.saturation, rho, ref_phase: self.ref_phase };
+        let rows = Rows {
+            lines,
+            w,
+            sat: self.cfg.saturation,
+            rho,
+            ref_phase: self.ref_phase,
+        };
         let (heights, valid) = (&mut *self.heights, &mut *self.valid);
         match n {
             3 => rows.run::<3>(win, &self.scale, heights, valid),
@@ -445,7 +493,13 @@ struct Rows<'l> {
 impl Rows<'_> {
     /// Both stages, block by block, with `n = N` known at compile time.
     #[inline(never)]
-    fn run<const N: usize>(&self, win: &Window, scale: &Scale, heights: &mut [i16], valid: &mut [u8]) -> u16 {
+    fn run<const N: usize>(
+        &self,
+        win: &Window,
+        scale: &Scale,
+        heights: &mut [i16],
+        valid: &mut [u8],
+    ) -> u16 {
         let lines: [&[u16]; N] = core::array::from_fn(|j| self.lines[j]);
         let mut v = [[0i32; 2]; BLOCK];
         let mut row_flags = 0;
@@ -500,7 +554,8 @@ mod tests {
     impl Sink for Collect {
         type Error = ();
         fn row(&mut self, r: &Row<'_>) -> Result<(), ()> {
-            self.0.push((r.header, r.heights.to_vec(), r.valid.to_vec()));
+            self.0
+                .push((r.header, r.heights.to_vec(), r.valid.to_vec()));
             Ok(())
         }
     }
@@ -524,7 +579,9 @@ mod tests {
             .map(|r| {
                 (0..W)
                     .map(|c| {
-                        let ph = 2.0 * PI * r as f64 / 32.0 + phi0(c) + 2.0 * PI * truth(r + pos, c) / 500.0;
+                        let ph = 2.0 * PI * r as f64 / 32.0
+                            + phi0(c)
+                            + 2.0 * PI * truth(r + pos, c) / 500.0;
                         (1800.0 + 700.0 * ph.cos()).round() as u16
                     })
                     .collect()
@@ -539,7 +596,14 @@ mod tests {
         let mut p = Pipeline::new(c, &refp, m.memory()).unwrap();
         let mut sink = Collect::default();
         for (k, &e) in latches.iter().enumerate() {
-            p.begin_frame(Trigger { seq: seqs[k], latch: e }, &mut sink).unwrap();
+            p.begin_frame(
+                Trigger {
+                    seq: seqs[k],
+                    latch: e,
+                },
+                &mut sink,
+            )
+            .unwrap();
             let fr = frame(c.offset(e));
             for r in 0..lines_per_frame[k] {
                 p.push_line(r, &fr[r as usize], &mut sink).unwrap();
@@ -553,7 +617,11 @@ mod tests {
 
     fn check_order(rows: &[(RowHeader, Vec<i16>, Vec<u8>)]) {
         for w in rows.windows(2) {
-            assert_eq!(w[1].0.row, w[0].0.row + 1, "rows must be contiguous and increasing");
+            assert_eq!(
+                w[1].0.row,
+                w[0].0.row + 1,
+                "rows must be contiguous and increasing"
+            );
         }
     }
 
@@ -579,14 +647,21 @@ mod tests {
             for c in 0..W {
                 assert!(valid[c / 8] & (1 << (c % 8)) != 0);
                 let want = truth(b, c) / 0.25;
-                assert!((heights[c] as f64 - want).abs() <= 1.0, "row {b} col {c}: {} vs {want}", heights[c]);
+                assert!(
+                    (heights[c] as f64 - want).abs() <= 1.0,
+                    "row {b} col {c}: {} vs {want}",
+                    heights[c]
+                );
             }
         }
         let fl: Vec<(i64, u16)> = out.0.iter().map(|r| (r.0.row, r.0.flags)).collect();
         assert!(valid_rows > 200, "{valid_rows} {fl:?}");
         // First frame: rows above the admission band are SKIPPED; the end is INCOMPLETE.
         assert_eq!(out.0[0].0.flags, flags::SKIPPED);
-        assert_eq!(out.0.last().unwrap().0.flags & flags::INCOMPLETE, flags::INCOMPLETE);
+        assert_eq!(
+            out.0.last().unwrap().0.flags & flags::INCOMPLETE,
+            flags::INCOMPLETE
+        );
     }
 
     #[test]
@@ -598,13 +673,18 @@ mod tests {
         let (out, used) = run(&latches, &seqs, &[H; 26]);
         assert_eq!(used, 0);
         check_order(&out.0);
-        assert!(out.0.iter().any(|r| r.0.flags & flags::ILL_CONDITIONED != 0));
+        assert!(out
+            .0
+            .iter()
+            .any(|r| r.0.flags & flags::ILL_CONDITIONED != 0));
         assert!(out.0.iter().any(|r| r.0.flags == 0));
     }
 
     #[test]
     fn reversal_gap_and_truncation_are_flagged() {
-        let latches: Vec<i64> = vec![0, 80, 160, 240, 320, 400, 300, 380, 460, 540, 620, 700, 780, 860, 940, 1020];
+        let latches: Vec<i64> = vec![
+            0, 80, 160, 240, 320, 400, 300, 380, 460, 540, 620, 700, 780, 860, 940, 1020,
+        ];
         let mut seqs: Vec<u32> = (0..16).collect();
         for s in seqs.iter_mut().skip(12) {
             *s += 1; // frame 12 lost
@@ -629,16 +709,49 @@ mod tests {
         assert_eq!(p.push_line(0, &[0; W], &mut s), Err(Error::NoFrame));
         assert_eq!(p.end_frame(&mut s), Err(Error::NoFrame));
         p.begin_frame(Trigger { seq: 0, latch: 0 }, &mut s).unwrap();
-        assert_eq!(p.begin_frame(Trigger { seq: 1, latch: 0 }, &mut s), Err(Error::FrameOpen));
-        assert_eq!(p.push_line(1, &[0; W], &mut s), Err(Error::LineOrder { expected: 0, got: 1 }));
-        assert_eq!(p.push_line(0, &[0; 3], &mut s), Err(Error::LineWidth { expected: W as u16, got: 3 }));
+        assert_eq!(
+            p.begin_frame(Trigger { seq: 1, latch: 0 }, &mut s),
+            Err(Error::FrameOpen)
+        );
+        assert_eq!(
+            p.push_line(1, &[0; W], &mut s),
+            Err(Error::LineOrder {
+                expected: 0,
+                got: 1
+            })
+        );
+        assert_eq!(
+            p.push_line(0, &[0; 3], &mut s),
+            Err(Error::LineWidth {
+                expected: W as u16,
+                got: 3
+            })
+        );
         let mut small = State::new(&c);
-        let Memory { lines, free, slots, heights, valid } = small.memory();
-        let mem = Memory { lines, free: &mut free[..1], slots, heights, valid };
-        assert!(matches!(Pipeline::new(c, &refp, mem), Err(NewError::Memory)));
+        let Memory {
+            lines,
+            free,
+            slots,
+            heights,
+            valid,
+        } = small.memory();
+        let mem = Memory {
+            lines,
+            free: &mut free[..1],
+            slots,
+            heights,
+            valid,
+        };
+        assert!(matches!(
+            Pipeline::new(c, &refp, mem),
+            Err(NewError::Memory)
+        ));
         let mut bad = c;
         bad.n = 9;
-        assert!(matches!(Pipeline::new(bad, &refp, State::new(&c).memory()), Err(NewError::Config(_))));
+        assert!(matches!(
+            Pipeline::new(bad, &refp, State::new(&c).memory()),
+            Err(NewError::Config(_))
+        ));
     }
 
     proptest! {

@@ -53,6 +53,8 @@ pub struct Row<'a> {
 impl Row<'_> {
     /// Whether pixel `c` is valid.
     pub fn is_valid(&self, c: usize) -> bool {
-        self.valid.get(c / 8).is_some_and(|b| b & (1 << (c % 8)) != 0)
+        self.valid
+            .get(c / 8)
+            .is_some_and(|b| b & (1 << (c % 8)) != 0)
     }
 }

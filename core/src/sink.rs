@@ -43,7 +43,13 @@ pub struct PacketSink<'a, L> {
 
 impl<'a, L: Link> PacketSink<'a, L> {
     pub fn new(link: L, enc: codec::Encoder<'a>, buf: &'a mut [u8]) -> Self {
-        PacketSink { link, enc, buf, packets: 0, bytes: 0 }
+        PacketSink {
+            link,
+            enc,
+            buf,
+            packets: 0,
+            bytes: 0,
+        }
     }
 
     /// Packets sent.

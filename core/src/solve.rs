@@ -99,7 +99,11 @@ impl Window {
         if det <= 0 {
             return Err(SolveError::IllConditioned);
         }
-        let mut win = Window { n, p2: [0; MAX_N], p3: [0; MAX_N] };
+        let mut win = Window {
+            n,
+            p2: [0; MAX_N],
+            p3: [0; MAX_N],
+        };
         // P_q = n 2^48 num / det; num < 2^90, so scale det down by 2^48 instead of num up.
         // det >> 48 > 2^42 keeps the quotient exact to about 2^-42 relative.
         let dq = det >> 48;
@@ -168,7 +172,9 @@ mod tests {
         }
         let inv = |i: usize, j: usize| a[i][3 + j];
         let p = |row: usize| -> Vec<f64> {
-            (0..n).map(|k| (0..3).map(|j| inv(row, j) * m[k][j]).sum()).collect()
+            (0..n)
+                .map(|k| (0..3).map(|j| inv(row, j) * m[k][j]).sum())
+                .collect()
         };
         // Noise gain from the centred 2x2 block.
         let cm = th.iter().map(|t| t.cos()).sum::<f64>() / n as f64;
@@ -202,9 +208,15 @@ mod tests {
     #[test]
     fn stalled_and_two_phase_windows_are_ill_conditioned() {
         let stalled = [0u32; 4];
-        assert_eq!(Window::solve(&stalled, 2048), Err(SolveError::IllConditioned));
+        assert_eq!(
+            Window::solve(&stalled, 2048),
+            Err(SolveError::IllConditioned)
+        );
         let full_period = [0u32, 0, 0, 0, 0];
-        assert_eq!(Window::solve(&full_period, 512), Err(SolveError::IllConditioned));
+        assert_eq!(
+            Window::solve(&full_period, 512),
+            Err(SolveError::IllConditioned)
+        );
         let two = [0u32, 1 << 31, 0, 1 << 31];
         assert_eq!(Window::solve(&two, 2048), Err(SolveError::IllConditioned));
         assert_eq!(Window::solve(&[0, 1], 512), Err(SolveError::BadCount));

@@ -30,7 +30,15 @@ pub struct Meter {
 
 impl Meter {
     pub fn new() -> Meter {
-        Meter { pipe: 0, io: 0, solves: 0, solve_ticks: 0, window: None, offsets: [0; MAX_N], frames: 0 }
+        Meter {
+            pipe: 0,
+            io: 0,
+            solves: 0,
+            solve_ticks: 0,
+            window: None,
+            offsets: [0; MAX_N],
+            frames: 0,
+        }
     }
 
     /// Times a solve of the window ending at this frame, from the same shifts the pipeline
@@ -78,7 +86,11 @@ pub fn stages<C: Clock>(
     v: &mut [V],
     clock: &C,
 ) -> Stages {
-    let mut s = Stages { pixels: 0, accumulate: 0, phase_height: 0 };
+    let mut s = Stages {
+        pixels: 0,
+        accumulate: 0,
+        phase_height: 0,
+    };
     let Some(win) = meter.window else { return s };
     // The output row as a run-time pointer: otherwise LTO folds the address of the static
     // state into `accumulate::row` (its only caller is this function), and the cost of that
@@ -98,7 +110,13 @@ pub fn stages<C: Clock>(
         accumulate::row(&win, &lines[..n], 0, cfg.saturation, &mut v[..w]);
         let t1 = clock.ticks();
         let rho = cfg.row_phase(g as i64);
-        let f = scale.row(&v[..w], rho, &ref_phase[..w], &mut heights[..w], &mut valid[..w.div_ceil(8)]);
+        let f = scale.row(
+            &v[..w],
+            rho,
+            &ref_phase[..w],
+            &mut heights[..w],
+            &mut valid[..w.div_ceil(8)],
+        );
         let t2 = clock.ticks();
         core::hint::black_box((&heights, &valid, f));
         s.pixels += w as u64;
@@ -186,7 +204,10 @@ pub fn report<C: Clock>(cfg: &Config, m: &Meter, sink: &SinkTicks, st: &Stages, 
         ("ticks_solve", m.solve_ticks),
         ("stack_high_water", stack_high_water() as u64),
         ("state_bytes", dpsa_core::Layout::of(cfg).bytes() as u64),
-        ("state_total_bytes", crate::state::State::bytes_for(cfg) as u64),
+        (
+            "state_total_bytes",
+            crate::state::State::bytes_for(cfg) as u64,
+        ),
         ("width", w),
         ("n", cfg.n as u64),
         ("rows", cfg.rows as u64),

@@ -19,9 +19,9 @@ mod state;
 
 use board::qemu::{self, Feed, HostFile, SysTickClock};
 use board::{Clock, LineSource, Triggered};
+use defmt_semihosting as _;
 use dpsa_core::packets::codec;
 use dpsa_core::pipeline::{Memory, Pipeline};
-use defmt_semihosting as _;
 use sink::TimedSink;
 
 #[cortex_m_rt::entry]
@@ -52,12 +52,30 @@ fn run() -> Result<(), Failed> {
 
     // Calibration and geometry come with the feed (on a real board: from its flash).
     st.open_ref_phase();
-    let feed = Feed::open(&args.feed, &mut st.ref_phase, qemu::as_bytes_mut(&mut st.lines))
-        .map_err(|e| fail("opening the feed", e))?;
+    let feed = Feed::open(
+        &args.feed,
+        &mut st.ref_phase,
+        qemu::as_bytes_mut(&mut st.lines),
+    )
+    .map_err(|e| fail("opening the feed", e))?;
     let header = feed.header();
     let cfg = header.cfg;
-    let layout = st.size_for(&cfg).map_err(|e| fail("state too small for this geometry", e))?;
-    let state::State { lines, free, slots, heights, valid, ref_phase, line, codec_heights, codec_valid, packet, bench_acc } = st;
+    let layout = st
+        .size_for(&cfg)
+        .map_err(|e| fail("state too small for this geometry", e))?;
+    let state::State {
+        lines,
+        free,
+        slots,
+        heights,
+        valid,
+        ref_phase,
+        line,
+        codec_heights,
+        codec_valid,
+        packet,
+        bench_acc,
+    } = st;
     let w = layout.width;
     defmt::info!(
         "W {=usize} H {=u16} n {=u8} max step {=u16} rows: {=u32} frames, state {=usize} B (pipeline {=usize} B)",
@@ -71,10 +89,19 @@ fn run() -> Result<(), Failed> {
     );
 
     let (strobe, capture, port) = feed.parts();
-    let mut source = Triggered { trigger: strobe, encoder: capture, port };
+    let mut source = Triggered {
+        trigger: strobe,
+        encoder: capture,
+        port,
+    };
     let link = HostFile::create(&args.out).map_err(|e| fail("creating the output", e))?;
-    let enc = codec::Encoder::new(&mut codec_heights[..w], &mut codec_valid[..], w, header.intra_period)
-        .ok_or_else(|| fail("codec", "width not supported"))?;
+    let enc = codec::Encoder::new(
+        &mut codec_heights[..w],
+        &mut codec_valid[..],
+        w,
+        header.intra_period,
+    )
+    .ok_or_else(|| fail("codec", "width not supported"))?;
     let bench_on = args.bench.is_some();
     let mut sink = TimedSink::new(link, enc, &mut packet[..], bench_on.then_some(&clock));
     let mem = Memory {
@@ -95,7 +122,8 @@ fn run() -> Result<(), Failed> {
         meter.io += clock.ticks() - t;
         let Some(trigger) = next else { break };
         let t = clock.ticks();
-        pipe.begin_frame(trigger, &mut sink).map_err(|e| fail("begin_frame", e))?;
+        pipe.begin_frame(trigger, &mut sink)
+            .map_err(|e| fail("begin_frame", e))?;
         meter.pipe += clock.ticks() - t;
         if bench_on {
             meter.solve(&cfg, trigger.latch, &clock);
@@ -104,13 +132,15 @@ fn run() -> Result<(), Failed> {
             let t = clock.ticks();
             source.read_line(line).map_err(|e| fail("camera", e))?;
             let t1 = clock.ticks();
-            pipe.push_line(r, line, &mut sink).map_err(|e| fail("push_line", e))?;
+            pipe.push_line(r, line, &mut sink)
+                .map_err(|e| fail("push_line", e))?;
             let t2 = clock.ticks();
             meter.io += t1 - t;
             meter.pipe += t2 - t1;
         }
         let t = clock.ticks();
-        pipe.end_frame(&mut sink).map_err(|e| fail("end_frame", e))?;
+        pipe.end_frame(&mut sink)
+            .map_err(|e| fail("end_frame", e))?;
         meter.pipe += clock.ticks() - t;
         frames += 1;
     }
@@ -127,7 +157,9 @@ fn run() -> Result<(), Failed> {
 
     if let Some(path) = &args.bench {
         drop(pipe);
-        let stages = bench::stages(&cfg, &meter, ref_phase, lines, heights, valid, bench_acc, &clock);
+        let stages = bench::stages(
+            &cfg, &meter, ref_phase, lines, heights, valid, bench_acc, &clock,
+        );
         let report = bench::report(&cfg, &meter, &ticks, &stages, &clock);
         qemu::write_text(path, report.as_bytes()).map_err(|e| fail("bench file", e))?;
     }

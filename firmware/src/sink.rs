@@ -56,13 +56,31 @@ pub struct TimedSink<'a, L, C> {
 
 impl<'a, L: Link, C: Clock> TimedSink<'a, L, C> {
     /// `clock`: time the encoder and the link (benchmark runs).
-    pub fn new(link: L, enc: dpsa_core::packets::codec::Encoder<'a>, buf: &'a mut [u8], clock: Option<&'a C>) -> Self {
-        let link = Timed { link, clock, send: 0, started: 0 };
-        TimedSink { sink: PacketSink::new(link, enc, buf), clock, encode: 0 }
+    pub fn new(
+        link: L,
+        enc: dpsa_core::packets::codec::Encoder<'a>,
+        buf: &'a mut [u8],
+        clock: Option<&'a C>,
+    ) -> Self {
+        let link = Timed {
+            link,
+            clock,
+            send: 0,
+            started: 0,
+        };
+        TimedSink {
+            sink: PacketSink::new(link, enc, buf),
+            clock,
+            encode: 0,
+        }
     }
 
     pub fn ticks(&self) -> SinkTicks {
-        SinkTicks { encode: self.encode, send: self.sink.link().send, rows: self.sink.packets() }
+        SinkTicks {
+            encode: self.encode,
+            send: self.sink.link().send,
+            rows: self.sink.packets(),
+        }
     }
 }
 

@@ -62,7 +62,10 @@ impl State {
         let l = Layout::of(cfg);
         let (w, nb) = (l.width, l.width.div_ceil(8));
         let needed = l.pool_lines * w;
-        let too_small = TooSmall { needed_samples: needed, have_samples: cap::POOL_SAMPLES };
+        let too_small = TooSmall {
+            needed_samples: needed,
+            have_samples: cap::POOL_SAMPLES,
+        };
         if needed > cap::POOL_SAMPLES || w > self.ref_phase.len() {
             return Err(too_small);
         }

@@ -19,7 +19,8 @@ pub fn write_height_png(map: &HeightMap, path: &Path) -> Result<()> {
             Luma([0])
         }
     });
-    img.save(path).with_context(|| format!("writing {}", path.display()))
+    img.save(path)
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 /// Writes a false-colour PNG of the heights over `[lo_um, hi_um]`; invalid pixels are dark grey.
@@ -36,7 +37,8 @@ pub fn write_false_colour_png(map: &HeightMap, lo_um: f64, hi_um: f64, path: &Pa
             Rgb([40, 40, 40])
         }
     });
-    img.save(path).with_context(|| format!("writing {}", path.display()))
+    img.save(path)
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 /// Writes a wrapped phase map (`[-pi, pi)` -> 1..=255) as 8-bit grey; `None` (invalid) is 0.
@@ -51,7 +53,8 @@ pub fn write_phase_png(phase: &[Option<f64>], width: usize, path: &Path) -> Resu
             None => Luma([0]),
         }
     });
-    img.save(path).with_context(|| format!("writing {}", path.display()))
+    img.save(path)
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 /// A perceptually ordered blue -> cyan -> green -> yellow -> red ramp, `t` in `[0, 1]`.

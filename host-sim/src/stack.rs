@@ -23,7 +23,11 @@ impl Stack {
     /// Loads PNG/JPEG/TIFF images (8 or 16 bit; colour is converted to luma).
     pub fn load(paths: &[impl AsRef<Path>], steps_deg: &[f64]) -> Result<Stack> {
         if paths.len() != steps_deg.len() {
-            bail!("{} images but {} steps: give one --step per --image", paths.len(), steps_deg.len());
+            bail!(
+                "{} images but {} steps: give one --step per --image",
+                paths.len(),
+                steps_deg.len()
+            );
         }
         if !(3..=8).contains(&paths.len()) {
             bail!("a stack needs 3 to 8 images, got {}", paths.len());
@@ -41,14 +45,21 @@ impl Stack {
                 .with_context(|| format!("decoding {}", p.display()))?;
             let sixteen = matches!(
                 img.color(),
-                image::ColorType::L16 | image::ColorType::La16 | image::ColorType::Rgb16 | image::ColorType::Rgba16
+                image::ColorType::L16
+                    | image::ColorType::La16
+                    | image::ColorType::Rgb16
+                    | image::ColorType::Rgba16
             );
             let (w, h, data) = if sixteen {
                 let g = img.to_luma16();
                 (g.width() as usize, g.height() as usize, g.into_raw())
             } else {
                 let g = img.to_luma8();
-                (g.width() as usize, g.height() as usize, g.into_raw().into_iter().map(u16::from).collect())
+                (
+                    g.width() as usize,
+                    g.height() as usize,
+                    g.into_raw().into_iter().map(u16::from).collect(),
+                )
             };
             if sixteen {
                 bit_depth = 16;
@@ -56,7 +67,14 @@ impl Stack {
             match dims {
                 None => dims = Some((w, h)),
                 Some(d) if d != (w, h) => {
-                    bail!("{} is {}x{}, the first image is {}x{}", p.display(), w, h, d.0, d.1)
+                    bail!(
+                        "{} is {}x{}, the first image is {}x{}",
+                        p.display(),
+                        w,
+                        h,
+                        d.0,
+                        d.1
+                    )
                 }
                 _ => {}
             }
@@ -64,7 +82,13 @@ impl Stack {
         }
         let (width, height) = dims.ok_or_else(|| anyhow!("no images"))?;
         let steps_rad = steps_deg.iter().map(|d| d.to_radians()).collect();
-        Ok(Stack { width, height, bit_depth, images, steps_rad })
+        Ok(Stack {
+            width,
+            height,
+            bit_depth,
+            images,
+            steps_rad,
+        })
     }
 }
 
@@ -98,9 +122,14 @@ pub fn run(stack: &Stack, min_modulation: f64) -> Result<(StackPhase, PhaseRepor
     let n = stack.images.len();
     let saturation: u16 = if stack.bit_depth == 8 { 255 } else { 65535 };
     // Fixed path: integer window from the steps as binary angles.
-    let shifts: Vec<u32> = stack.steps_rad.iter().map(|&s| phase::from_rad(s)).collect();
-    let win = Window::solve(&shifts, 2048)
-        .map_err(|e| anyhow!("the phase steps give no usable solution ({e:?}): noise gain above 8"))?;
+    let shifts: Vec<u32> = stack
+        .steps_rad
+        .iter()
+        .map(|&s| phase::from_rad(s))
+        .collect();
+    let win = Window::solve(&shifts, 2048).map_err(|e| {
+        anyhow!("the phase steps give no usable solution ({e:?}): noise gain above 8")
+    })?;
     let scale = Scale::from_parts(1 << 16, (min_modulation * 4096.0).round() as u32);
     // f64 path: P = (M^T M)^-1 M^T with rows [1, cos s, -sin s].
     let m = DMatrix::from_fn(n, 3, |j, k| match k {
@@ -109,7 +138,9 @@ pub fn run(stack: &Stack, min_modulation: f64) -> Result<(StackPhase, PhaseRepor
         _ => -stack.steps_rad[j].sin(),
     });
     let mtm = m.transpose() * &m;
-    let inv = mtm.try_inverse().ok_or_else(|| anyhow!("the phase steps are singular"))?;
+    let inv = mtm
+        .try_inverse()
+        .ok_or_else(|| anyhow!("the phase steps are singular"))?;
     let p = inv * m.transpose();
     // Noise gain from the centred 2x2 block, for the report.
     let g = crate::reference::noise_gain(&stack.steps_rad);
@@ -152,7 +183,11 @@ pub fn run(stack: &Stack, min_modulation: f64) -> Result<(StackPhase, PhaseRepor
         total_pixels: pixels,
         valid_pixels: valid,
         valid_mismatch: mismatch,
-        fixed_vs_ref_rms_rad: if valid > 0 { (sum2 / valid as f64).sqrt() } else { 0.0 },
+        fixed_vs_ref_rms_rad: if valid > 0 {
+            (sum2 / valid as f64).sqrt()
+        } else {
+            0.0
+        },
         fixed_vs_ref_max_rad: max,
         min_modulation,
         noise_gain: g,

@@ -182,7 +182,8 @@ fn simulate_reconstruct_compare_decode() {
     ]);
     let bytes = std::fs::read(&stream).unwrap();
     assert!(bytes.starts_with(b"DPSA"), "not a packet stream");
-    let (lib_stats, lib_bytes) = dpsa_sim::reconstruct::reconstruct_bytes(&recording, false).unwrap();
+    let (lib_stats, lib_bytes) =
+        dpsa_sim::reconstruct::reconstruct_bytes(&recording, false).unwrap();
     assert_eq!(
         bytes, lib_bytes,
         "the CLI stream differs from the library's"

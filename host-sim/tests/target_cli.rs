@@ -9,7 +9,10 @@ use std::path::Path;
 use std::process::{Command, Output};
 
 fn dpsa(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_dpsa")).args(args).output().expect("run the dpsa binary")
+    Command::new(env!("CARGO_BIN_EXE_dpsa"))
+        .args(args)
+        .output()
+        .expect("run the dpsa binary")
 }
 
 fn text(b: &[u8]) -> String {
@@ -26,8 +29,12 @@ fn skip_firmware() -> bool {
 
 #[track_caller]
 fn num(v: &Value, path: &str) -> f64 {
-    let x = path.split('.').fold(v, |v, k| v.get(k).unwrap_or_else(|| panic!("JSON has no key {path}: {v}")));
-    x.as_f64().unwrap_or_else(|| panic!("{path} is not a number: {x}"))
+    let x = path.split('.').fold(v, |v, k| {
+        v.get(k)
+            .unwrap_or_else(|| panic!("JSON has no key {path}: {v}"))
+    });
+    x.as_f64()
+        .unwrap_or_else(|| panic!("{path} is not a number: {x}"))
 }
 
 /// A small recording (W = 96, 160 board rows) in `dir`.
@@ -35,7 +42,16 @@ fn small_recording(dir: &Path) -> String {
     let scene = dir.join("scene.toml");
     std::fs::write(&scene, "width = 96\nboard_length = 160\ndeposits = 6\n").unwrap();
     let rec = dir.join("rec");
-    let out = dpsa(&["--quiet", "simulate", "--scene", scene.to_str().unwrap(), "--seed", "2", "--out", rec.to_str().unwrap()]);
+    let out = dpsa(&[
+        "--quiet",
+        "simulate",
+        "--scene",
+        scene.to_str().unwrap(),
+        "--seed",
+        "2",
+        "--out",
+        rec.to_str().unwrap(),
+    ]);
     assert!(out.status.success(), "simulate: {}", text(&out.stderr));
     rec.to_str().unwrap().to_string()
 }
@@ -48,7 +64,15 @@ fn bench_json_has_every_figure() {
     let dir = tempfile::tempdir().unwrap();
     let rec = small_recording(dir.path());
     let stream = dir.path().join("target.dpsa");
-    let out = dpsa(&["--quiet", "target-run", &rec, "--out", stream.to_str().unwrap(), "--bench", "--json"]);
+    let out = dpsa(&[
+        "--quiet",
+        "target-run",
+        &rec,
+        "--out",
+        stream.to_str().unwrap(),
+        "--bench",
+        "--json",
+    ]);
     let (so, se) = (text(&out.stdout), text(&out.stderr));
     assert!(
         out.status.success(),
@@ -58,8 +82,12 @@ fn bench_json_has_every_figure() {
     );
     assert!(!se.contains("panicked"), "{se}");
     // The decoded firmware log is on stderr, stdout is exactly one JSON object.
-    assert!(se.lines().any(|l| l.starts_with("target: INFO")), "no decoded log on stderr: {se}");
-    let v: Value = serde_json::from_str(&so).unwrap_or_else(|e| panic!("not one JSON object ({e}): {so}"));
+    assert!(
+        se.lines().any(|l| l.starts_with("target: INFO")),
+        "no decoded log on stderr: {se}"
+    );
+    let v: Value =
+        serde_json::from_str(&so).unwrap_or_else(|e| panic!("not one JSON object ({e}): {so}"));
 
     for key in [
         "instructions_per_pixel.total",
@@ -77,13 +105,20 @@ fn bench_json_has_every_figure() {
     ] {
         assert!(num(&v, key) > 0.0, "{key} = {} is not > 0", num(&v, key));
     }
-    for key in ["elf_sections.rodata", "elf_sections.data", "elf_sections.bss"] {
+    for key in [
+        "elf_sections.rodata",
+        "elf_sections.data",
+        "elf_sections.bss",
+    ] {
         assert!(num(&v, key) >= 0.0, "{key}");
     }
     // SysTick counts 40 retired instructions per tick on mps2 at -icount shift=0; the firmware
     // calibrates it on a loop of known length.
     let ipt = num(&v, "instructions_per_tick");
-    assert!((ipt / 40.0 - 1.0).abs() < 0.01, "instructions_per_tick {ipt}");
+    assert!(
+        (ipt / 40.0 - 1.0).abs() < 0.01,
+        "instructions_per_tick {ipt}"
+    );
     // Geometry as recorded, and figures that add up.
     assert_eq!((num(&v, "width"), num(&v, "n")), (96.0, 4.0));
     assert_eq!(num(&v, "pixels_out"), num(&v, "rows_out") * 96.0);
@@ -91,15 +126,34 @@ fn bench_json_has_every_figure() {
     assert_eq!(num(&v, "stream.corrupt"), 0.0);
     let p = |k: &str| num(&v, &format!("instructions_per_pixel.{k}"));
     assert!(p("total") > p("encode"), "{v}");
-    assert!(num(&v, "ram_bytes.state") <= num(&v, "ram_bytes.state_total"), "{v}");
-    assert!(num(&v, "flash_bytes") >= num(&v, "elf_sections.text") + num(&v, "elf_sections.itcm"), "{v}");
-    assert_eq!(std::fs::metadata(&stream).unwrap().len() as f64, num(&v, "stream.bytes"));
+    assert!(
+        num(&v, "ram_bytes.state") <= num(&v, "ram_bytes.state_total"),
+        "{v}"
+    );
+    assert!(
+        num(&v, "flash_bytes") >= num(&v, "elf_sections.text") + num(&v, "elf_sections.itcm"),
+        "{v}"
+    );
+    assert_eq!(
+        std::fs::metadata(&stream).unwrap().len() as f64,
+        num(&v, "stream.bytes")
+    );
 
     // Without --json: a short summary.
-    let out = dpsa(&["--quiet", "target-run", &rec, "--bench", "--elf", v["elf"].as_str().unwrap()]);
+    let out = dpsa(&[
+        "--quiet",
+        "target-run",
+        &rec,
+        "--bench",
+        "--elf",
+        v["elf"].as_str().unwrap(),
+    ]);
     let so = text(&out.stdout);
     assert!(out.status.success(), "{}", text(&out.stderr));
-    assert!(so.contains("instructions per pixel") && so.contains("flash"), "{so}");
+    assert!(
+        so.contains("instructions per pixel") && so.contains("flash"),
+        "{so}"
+    );
 }
 
 #[test]
@@ -116,11 +170,31 @@ fn target_run_refuses_bad_invocations() {
     assert!(text(&out.stderr).contains("--out"), "{}", text(&out.stderr));
     // An ELF that does not exist, and a file that is not an ELF.
     let missing = dir.path().join("missing.elf");
-    let out = dpsa(&["target-run", &rec, "--out", "/dev/null", "--elf", missing.to_str().unwrap()]);
+    let out = dpsa(&[
+        "target-run",
+        &rec,
+        "--out",
+        "/dev/null",
+        "--elf",
+        missing.to_str().unwrap(),
+    ]);
     let se = text(&out.stderr);
-    assert!(!out.status.success() && se.contains("error:") && se.contains("missing.elf"), "{se}");
+    assert!(
+        !out.status.success() && se.contains("error:") && se.contains("missing.elf"),
+        "{se}"
+    );
     let not_elf = dir.path().join("rec/manifest.json");
-    let out = dpsa(&["target-run", &rec, "--out", "/dev/null", "--elf", not_elf.to_str().unwrap()]);
+    let out = dpsa(&[
+        "target-run",
+        &rec,
+        "--out",
+        "/dev/null",
+        "--elf",
+        not_elf.to_str().unwrap(),
+    ]);
     let se = text(&out.stderr);
-    assert!(!out.status.success() && se.contains("error:") && !se.contains("panicked"), "{se}");
+    assert!(
+        !out.status.success() && se.contains("error:") && !se.contains("panicked"),
+        "{se}"
+    );
 }

@@ -136,7 +136,11 @@ impl Header {
         if intra_period == 0 {
             return Err(FeedError::IntraPeriod);
         }
-        Ok(Header { cfg, frames: u32_at(b, 36), intra_period })
+        Ok(Header {
+            cfg,
+            frames: u32_at(b, 36),
+            intra_period,
+        })
     }
 
     /// Bytes of the reference-phase table and its CRC.
@@ -194,7 +198,10 @@ impl Trigger {
         }
         let mut l = [0u8; 8];
         l.copy_from_slice(&b[8..16]);
-        Ok(Trigger { seq: u32_at(b, 0), latch: i64::from_le_bytes(l) })
+        Ok(Trigger {
+            seq: u32_at(b, 0),
+            latch: i64::from_le_bytes(l),
+        })
     }
 }
 
@@ -250,7 +257,10 @@ mod tests {
     fn header_with_good_crc_but_bad_config_is_refused() {
         let mut h = header();
         h.cfg.n = 9;
-        assert_eq!(Header::decode(&h.encode()), Err(FeedError::Config(super::super::ConfigError::Count)));
+        assert_eq!(
+            Header::decode(&h.encode()),
+            Err(FeedError::Config(super::super::ConfigError::Count))
+        );
         let mut h = header();
         h.intra_period = 0;
         assert_eq!(Header::decode(&h.encode()), Err(FeedError::IntraPeriod));
@@ -266,7 +276,10 @@ mod tests {
         assert_eq!(back, t);
         b[7] ^= 4;
         assert_eq!(decode_table(&b, &mut back), Err(FeedError::TableCrc));
-        let tr = Trigger { seq: 0xFFFF_FFFF, latch: -5 };
+        let tr = Trigger {
+            seq: 0xFFFF_FFFF,
+            latch: -5,
+        };
         assert_eq!(Trigger::decode(&tr.encode()), Ok(tr));
         let mut e = tr.encode();
         e[5] = 1;

@@ -61,7 +61,13 @@ pub(crate) struct Registry<'a> {
 
 impl<'a> Registry<'a> {
     pub(crate) fn new(slots: &'a mut [Slot]) -> Self {
-        Registry { slots, hist: [Admission::default(); HIST], begun: 0, entered_end: 0, admitted: 0 }
+        Registry {
+            slots,
+            hist: [Admission::default(); HIST],
+            begun: 0,
+            entered_end: 0,
+            admitted: 0,
+        }
     }
 
     /// Frames registered so far: the index the next frame gets.
@@ -94,7 +100,10 @@ impl<'a> Registry<'a> {
             let count = (end - adm.admit_start) as u32;
             for k in 0..count {
                 let s = adm.slot_base.wrapping_add(k) as usize % self.slots.len();
-                self.slots[s] = Slot { enter: f, ..Slot::default() };
+                self.slots[s] = Slot {
+                    enter: f,
+                    ..Slot::default()
+                };
             }
             self.admitted = self.admitted.wrapping_add(count);
             self.entered_end = end;

@@ -370,7 +370,12 @@ struct BitWriter<'o> {
 
 impl<'o> BitWriter<'o> {
     fn new(out: &'o mut [u8]) -> Self {
-        Self { out, pos: 0, acc: 0, free: 32 }
+        Self {
+            out,
+            pos: 0,
+            acc: 0,
+            free: 32,
+        }
     }
 
     /// Appends the low `len` bits of `v` (`1 <= len <= 32`, `v < 2^len`).
@@ -432,7 +437,12 @@ struct BitReader<'i> {
 
 impl<'i> BitReader<'i> {
     fn new(data: &'i [u8]) -> Self {
-        Self { data, pos: 0, acc: 0, n: 0 }
+        Self {
+            data,
+            pos: 0,
+            acc: 0,
+            n: 0,
+        }
     }
 
     /// Ensures at least 32 bits in the accumulator.
@@ -722,8 +732,10 @@ fn write_raw(r: &mut Reference<'_>, heights: &[i16], valid: &[u8], body: &mut [u
     mask.copy_from_slice(valid);
     clear_padding(mask, w);
     let mut fill = 0i16;
-    for (c, (dst, (&x, rh))) in
-        hs.chunks_exact_mut(2).zip(heights.iter().zip(r.heights.iter_mut())).enumerate()
+    for (c, (dst, (&x, rh))) in hs
+        .chunks_exact_mut(2)
+        .zip(heights.iter().zip(r.heights.iter_mut()))
+        .enumerate()
     {
         let x = if bit(valid, c) {
             fill = x;
@@ -750,7 +762,11 @@ fn decode_px(
             model.update(q, z);
             Ok((pred + i32::from(unzigzag(z))) as i16)
         }
-        Err(e) => Err(if br.overrun() { CodecError::Truncated } else { e }),
+        Err(e) => Err(if br.overrun() {
+            CodecError::Truncated
+        } else {
+            e
+        }),
     }
 }
 
@@ -766,7 +782,9 @@ impl<'a> Decoder<'a> {
         prev_valid: &'a mut [u8],
         width: usize,
     ) -> Option<Self> {
-        Some(Self { r: Reference::new(prev_heights, prev_valid, width)? })
+        Some(Self {
+            r: Reference::new(prev_heights, prev_valid, width)?,
+        })
     }
 
     /// Forgets the reference: predicted rows fail with [`CodecError::MissingReference`] until
@@ -1056,7 +1074,10 @@ mod tests {
     fn board(rng: &mut Rng, w: usize, rows: usize, sigma: f64, deposits: usize) -> Img {
         let mut base = vec![vec![0f64; w]; rows];
         for _ in 0..deposits {
-            let (r0, c0) = (rng.below(rows as u64) as usize, rng.below(w as u64) as usize);
+            let (r0, c0) = (
+                rng.below(rows as u64) as usize,
+                rng.below(w as u64) as usize,
+            );
             let (dh, dw) = (20 + rng.below(60) as usize, 20 + rng.below(60) as usize);
             let z = 240.0 + rng.below(561) as f64;
             for row in base.iter_mut().skip(r0).take(dh) {
@@ -1067,9 +1088,17 @@ mod tests {
         }
         let h = base
             .iter()
-            .map(|row| row.iter().map(|&z| (z + sigma * rng.gauss()).round() as i16).collect())
+            .map(|row| {
+                row.iter()
+                    .map(|&z| (z + sigma * rng.gauss()).round() as i16)
+                    .collect()
+            })
             .collect();
-        Img { w, h, v: vec![all_valid(w); rows] }
+        Img {
+            w,
+            h,
+            v: vec![all_valid(w); rows],
+        }
     }
 
     fn kinds(rng: &mut Rng, w: usize, rows: usize) -> Vec<Img> {
@@ -1082,7 +1111,11 @@ mod tests {
                     .collect()
             })
             .collect();
-        out.push(Img { w, h: smooth.clone(), v: vec![all_valid(w); rows] });
+        out.push(Img {
+            w,
+            h: smooth.clone(),
+            v: vec![all_valid(w); rows],
+        });
         // Noisy board with deposits, with invalid margins, holes and a few whole invalid rows.
         let mut b = board(rng, w, rows, 8.0, 1 + w * rows / 4000);
         out.push(b.clone());
@@ -1097,30 +1130,64 @@ mod tests {
         }
         out.push(b);
         // All invalid (with garbage heights that must be ignored).
-        out.push(Img { w, h: smooth.clone(), v: vec![vec![0; w.div_ceil(8)]; rows] });
+        out.push(Img {
+            w,
+            h: smooth.clone(),
+            v: vec![vec![0; w.div_ceil(8)]; rows],
+        });
         // Alternating validity.
         out.push(Img {
             w,
             h: smooth.clone(),
-            v: (0..rows).map(|r| mask_from(w, |c| (c + r) % 2 == 0)).collect(),
+            v: (0..rows)
+                .map(|r| mask_from(w, |c| (c + r) % 2 == 0))
+                .collect(),
         });
         // Random validity (with garbage padding bits).
-        let v = (0..rows).map(|_| (0..w.div_ceil(8)).map(|_| rng.next() as u8).collect()).collect();
+        let v = (0..rows)
+            .map(|_| (0..w.div_ceil(8)).map(|_| rng.next() as u8).collect())
+            .collect();
         out.push(Img { w, h: smooth, v });
         // Extremes.
         let ext = (0..rows)
-            .map(|_| (0..w).map(|_| if rng.below(2) == 0 { i16::MIN } else { i16::MAX }).collect())
-            .collect();
-        out.push(Img { w, h: ext, v: vec![all_valid(w); rows] });
-        let ramp = (0..rows)
-            .map(|r| {
-                (0..w).map(|c| (c as i16).wrapping_mul(4099).wrapping_add(r as i16 * 7)).collect()
+            .map(|_| {
+                (0..w)
+                    .map(|_| {
+                        if rng.below(2) == 0 {
+                            i16::MIN
+                        } else {
+                            i16::MAX
+                        }
+                    })
+                    .collect()
             })
             .collect();
-        out.push(Img { w, h: ramp, v: vec![all_valid(w); rows] });
+        out.push(Img {
+            w,
+            h: ext,
+            v: vec![all_valid(w); rows],
+        });
+        let ramp = (0..rows)
+            .map(|r| {
+                (0..w)
+                    .map(|c| (c as i16).wrapping_mul(4099).wrapping_add(r as i16 * 7))
+                    .collect()
+            })
+            .collect();
+        out.push(Img {
+            w,
+            h: ramp,
+            v: vec![all_valid(w); rows],
+        });
         // Random i16 noise.
-        let noise = (0..rows).map(|_| (0..w).map(|_| rng.next() as i16).collect()).collect();
-        out.push(Img { w, h: noise, v: vec![all_valid(w); rows] });
+        let noise = (0..rows)
+            .map(|_| (0..w).map(|_| rng.next() as i16).collect())
+            .collect();
+        out.push(Img {
+            w,
+            h: noise,
+            v: vec![all_valid(w); rows],
+        });
         out
     }
 
@@ -1200,15 +1267,23 @@ mod tests {
         // Random i16 noise costs about 16.5 bits per pixel coded, still below the raw 17.
         let img = Img {
             w,
-            h: (0..4).map(|_| (0..w).map(|_| rng.next() as i16).collect()).collect(),
+            h: (0..4)
+                .map(|_| (0..w).map(|_| rng.next() as i16).collect())
+                .collect(),
             v: vec![all_valid(w); 4],
         };
         for p in round_trip(&img, 32, &[]) {
             assert!(p.len() <= max_len(w));
         }
         // Every residual -32768 (z = 65535): 17 bits per pixel plus the escapes while k adapts.
-        let alt: Vec<i16> = (0..w).map(|c| if c % 2 == 0 { 0 } else { i16::MIN }).collect();
-        let img = Img { w, h: vec![alt; 3], v: vec![all_valid(w); 3] };
+        let alt: Vec<i16> = (0..w)
+            .map(|c| if c % 2 == 0 { 0 } else { i16::MIN })
+            .collect();
+        let img = Img {
+            w,
+            h: vec![alt; 3],
+            v: vec![all_valid(w); 3],
+        };
         for p in round_trip(&img, 1, &[]) {
             assert_eq!(p.len(), max_len(w));
             assert_eq!(peek(&p).unwrap().0, RowKind::Raw);
@@ -1252,7 +1327,10 @@ mod tests {
         }
         // A predicted row straight after a reset.
         dec.reset();
-        assert_eq!(dec.decode(&p[1], &mut oh, &mut ov), Err(CodecError::MissingReference));
+        assert_eq!(
+            dec.decode(&p[1], &mut oh, &mut ov),
+            Err(CodecError::MissingReference)
+        );
         assert!(!dec.has_reference());
     }
 
@@ -1264,12 +1342,22 @@ mod tests {
         assert!(Decoder::new(&mut h, &mut v, 17).is_none());
         let (mut h2, mut v2) = (vec![0i16; MAX_WIDTH + 1], vec![0u8; MAX_WIDTH]);
         assert!(Encoder::new(&mut h2, &mut v2, MAX_WIDTH + 1, 1).is_none());
-        let mut enc = Encoder::new(&mut h, &mut v, 16, super::super::PREDICTED_INTRA_PERIOD).unwrap();
+        let mut enc =
+            Encoder::new(&mut h, &mut v, 16, super::super::PREDICTED_INTRA_PERIOD).unwrap();
         let mut out = vec![0u8; max_len(16) - 1];
-        assert_eq!(enc.encode(&[0; 16], &[0xFF; 2], &mut out), Err(CodecError::BufferTooSmall));
+        assert_eq!(
+            enc.encode(&[0; 16], &[0xFF; 2], &mut out),
+            Err(CodecError::BufferTooSmall)
+        );
         let mut out = vec![0u8; max_len(16)];
-        assert_eq!(enc.encode(&[0; 15], &[0xFF; 2], &mut out), Err(CodecError::BufferTooSmall));
-        assert_eq!(enc.encode(&[0; 16], &[0xFF; 1], &mut out), Err(CodecError::BufferTooSmall));
+        assert_eq!(
+            enc.encode(&[0; 15], &[0xFF; 2], &mut out),
+            Err(CodecError::BufferTooSmall)
+        );
+        assert_eq!(
+            enc.encode(&[0; 16], &[0xFF; 1], &mut out),
+            Err(CodecError::BufferTooSmall)
+        );
         let n = enc.encode(&[0; 16], &[0xFF; 2], &mut out).unwrap();
         assert!(n <= 12, "{n}");
         let (mut dh, mut dv) = (vec![0i16; 16], vec![0u8; 2]);
@@ -1282,8 +1370,14 @@ mod tests {
             dec.decode(&out[..n], &mut [0; 16], &mut [0; 1]),
             Err(CodecError::BufferTooSmall)
         );
-        assert_eq!(dec.decode(&[], &mut [0; 16], &mut [0; 2]), Err(CodecError::Truncated));
-        assert_eq!(dec.decode(&[0x08, 0], &mut [0; 16], &mut [0; 2]), Err(CodecError::Corrupt));
+        assert_eq!(
+            dec.decode(&[], &mut [0; 16], &mut [0; 2]),
+            Err(CodecError::Truncated)
+        );
+        assert_eq!(
+            dec.decode(&[0x08, 0], &mut [0; 16], &mut [0; 2]),
+            Err(CodecError::Corrupt)
+        );
     }
 
     #[test]
@@ -1368,7 +1462,10 @@ mod tests {
             hist[x as u16 as usize] += 1;
         }
         let n = xs.len() as f64;
-        hist.iter().filter(|&&k| k > 0).map(|&k| -(k as f64 / n) * (k as f64 / n).log2()).sum()
+        hist.iter()
+            .filter(|&&k| k > 0)
+            .map(|&k| -(k as f64 / n) * (k as f64 / n).log2())
+            .sum()
     }
 
     #[test]
@@ -1381,7 +1478,10 @@ mod tests {
                 img.h.iter().flatten().filter(|&&x| x > 120).count() as f64 / (w * rows) as f64;
             let p = round_trip(&img, super::super::PREDICTED_INTRA_PERIOD, &[]);
             let bits = p.iter().map(|p| p.len() * 8).sum::<usize>() as f64 / (w * rows) as f64;
-            let h = entropy(&residuals(&img, super::super::PREDICTED_INTRA_PERIOD as usize));
+            let h = entropy(&residuals(
+                &img,
+                super::super::PREDICTED_INTRA_PERIOD as usize,
+            ));
             let ratio = 17.0 / bits;
             std::println!(
                 "sigma {sigma} deposit cover {:.0} %: {bits:.3} bits/px, residual entropy {h:.3} ({:+.1} %), ratio {ratio:.2}",
@@ -1405,7 +1505,8 @@ mod tests {
         let nb = w.div_ceil(8);
         let (mut eh, mut ev, mut dh, mut dv) =
             (vec![0i16; w], vec![0u8; nb], vec![0i16; w], vec![0u8; nb]);
-        let mut enc = Encoder::new(&mut eh, &mut ev, w, super::super::PREDICTED_INTRA_PERIOD).unwrap();
+        let mut enc =
+            Encoder::new(&mut eh, &mut ev, w, super::super::PREDICTED_INTRA_PERIOD).unwrap();
         let mut dec = Decoder::new(&mut dh, &mut dv, w).unwrap();
         let mut buf = vec![0u8; rows * max_len(w)];
         buf.fill(1);
@@ -1431,7 +1532,11 @@ mod tests {
             td = td.min(t.elapsed().as_secs_f64());
         }
         let px = (w * rows) as f64;
-        std::println!("encode {:.2} ns/px, decode {:.2} ns/px", te / px * 1e9, td / px * 1e9);
+        std::println!(
+            "encode {:.2} ns/px, decode {:.2} ns/px",
+            te / px * 1e9,
+            td / px * 1e9
+        );
     }
 
     // ---- A slow decoder written from the module docs alone, to check the docs. ----
@@ -1493,7 +1598,11 @@ mod tests {
                     0
                 };
             }
-            *st = SpecRef { u: r, v: v.clone(), seq: Some(seq) };
+            *st = SpecRef {
+                u: r,
+                v: v.clone(),
+                seq: Some(seq),
+            };
             return Ok((h, v));
         }
         if pred && st.seq != Some(seq.wrapping_sub(1)) {
@@ -1501,7 +1610,9 @@ mod tests {
         }
         let mut b = Bits { d: body, i: 0 };
         let v: Vec<bool> = if flags & 4 != 0 {
-            (0..w).map(|_| b.bit().map(|x| x == 1)).collect::<Result<_, _>>()?
+            (0..w)
+                .map(|_| b.bit().map(|x| x == 1))
+                .collect::<Result<_, _>>()?
         } else {
             let mut m = Vec::new();
             let mut val = false;
@@ -1515,7 +1626,9 @@ mod tests {
             if m.len() != w {
                 return Err(());
             }
-            (0..w).map(|c| m[c] ^ if pred { st.v[c] } else { true }).collect()
+            (0..w)
+                .map(|c| m[c] ^ if pred { st.v[c] } else { true })
+                .collect()
         };
         let mut am = [14u32 * 32; 3];
         let mut r = vec![0i32; w];
@@ -1567,16 +1680,28 @@ mod tests {
             while zeros < 16 && b.bit()? == 0 {
                 zeros += 1;
             }
-            let z = if zeros == 16 { b.bits(16)? } else { zeros << k | b.bits(k)? };
+            let z = if zeros == 16 {
+                b.bits(16)?
+            } else {
+                zeros << k | b.bits(k)?
+            };
             am[q] = am[q] - (am[q] >> 5) + z;
-            let e = if z % 2 == 0 { (z / 2) as i32 } else { -((z / 2) as i32) - 1 };
+            let e = if z % 2 == 0 {
+                (z / 2) as i32
+            } else {
+                -((z / 2) as i32) - 1
+            };
             r[c] = i32::from((p + e) as i16);
             out[c] = r[c];
         }
         if b.i.div_ceil(8) != body.len() {
             return Err(());
         }
-        *st = SpecRef { u: r, v: v.clone(), seq: Some(seq) };
+        *st = SpecRef {
+            u: r,
+            v: v.clone(),
+            seq: Some(seq),
+        };
         Ok((out, v))
     }
 

@@ -84,13 +84,21 @@ pub enum PacketError {
 /// Frames a row into `buf` with a compressed payload (codec 1); returns the packet length.
 /// `buf` must hold [`max_packet_len`]`(W)` bytes.
 #[inline(never)]
-pub fn encode(row: &Row<'_>, enc: &mut codec::Encoder<'_>, buf: &mut [u8]) -> Result<usize, PacketError> {
+pub fn encode(
+    row: &Row<'_>,
+    enc: &mut codec::Encoder<'_>,
+    buf: &mut [u8],
+) -> Result<usize, PacketError> {
     let w = row.header.width as usize;
     if buf.len() < max_packet_len(w) || enc.width() != w {
         return Err(PacketError::BufferTooSmall);
     }
     let plen = enc
-        .encode(row.heights, row.valid, &mut buf[HEADER_LEN..HEADER_LEN + codec::max_len(w)])
+        .encode(
+            row.heights,
+            row.valid,
+            &mut buf[HEADER_LEN..HEADER_LEN + codec::max_len(w)],
+        )
         .map_err(PacketError::Codec)?;
     Ok(frame(&row.header, CODEC_COMPRESSED, plen, buf))
 }
@@ -99,7 +107,10 @@ pub fn encode(row: &Row<'_>, enc: &mut codec::Encoder<'_>, buf: &mut [u8]) -> Re
 pub fn encode_raw(row: &Row<'_>, buf: &mut [u8]) -> Result<usize, PacketError> {
     let w = row.header.width as usize;
     let plen = raw_payload_len(w);
-    if buf.len() < HEADER_LEN + plen + TRAILER_LEN || row.heights.len() < w || row.valid.len() < w.div_ceil(8) {
+    if buf.len() < HEADER_LEN + plen + TRAILER_LEN
+        || row.heights.len() < w
+        || row.valid.len() < w.div_ceil(8)
+    {
         return Err(PacketError::BufferTooSmall);
     }
     let payload = &mut buf[HEADER_LEN..HEADER_LEN + plen];
@@ -143,7 +154,12 @@ pub struct Packet<'a> {
 impl Packet<'_> {
     /// Unpacks the payload into `heights` (`W`) and `valid` (`ceil(W/8)`); `dec` decodes
     /// compressed payloads (its width must be the packet's).
-    pub fn unpack(&self, dec: &mut codec::Decoder<'_>, heights: &mut [i16], valid: &mut [u8]) -> Result<(), PacketError> {
+    pub fn unpack(
+        &self,
+        dec: &mut codec::Decoder<'_>,
+        heights: &mut [i16],
+        valid: &mut [u8],
+    ) -> Result<(), PacketError> {
         let w = self.header.width as usize;
         let nb = w.div_ceil(8);
         if heights.len() < w || valid.len() < nb {
@@ -164,7 +180,8 @@ impl Packet<'_> {
                 if dec.width() != w {
                     return Err(PacketError::BadLength);
                 }
-                dec.decode(self.payload, &mut heights[..w], &mut valid[..nb]).map_err(PacketError::Codec)
+                dec.decode(self.payload, &mut heights[..w], &mut valid[..nb])
+                    .map_err(PacketError::Codec)
             }
             c => Err(PacketError::BadCodec(c)),
         }
@@ -219,12 +236,22 @@ pub fn decode(buf: &[u8]) -> Result<(Packet<'_>, usize), PacketError> {
         flags: u16_at(24),
         width,
     };
-    Ok((Packet { header, codec, payload: &buf[HEADER_LEN..HEADER_LEN + plen] }, total))
+    Ok((
+        Packet {
+            header,
+            codec,
+            payload: &buf[HEADER_LEN..HEADER_LEN + plen],
+        },
+        total,
+    ))
 }
 
 /// Offset of the next sync word at or after `from`, for resynchronising after damage.
 pub fn find_sync(buf: &[u8], from: usize) -> Option<usize> {
-    buf.get(from..)?.windows(4).position(|w| w == SYNC).map(|p| p + from)
+    buf.get(from..)?
+        .windows(4)
+        .position(|w| w == SYNC)
+        .map(|p| p + from)
 }
 
 /// One step through a packet stream: a packet whose framing and CRC check out, or damage.
@@ -288,8 +315,17 @@ mod tests {
     fn sample(width: u16) -> (RowHeader, Vec<i16>, Vec<u8>) {
         let w = width as usize;
         let heights: Vec<i16> = (0..w).map(|c| (c as i16).wrapping_mul(331)).collect();
-        let valid: Vec<u8> = (0..w.div_ceil(8)).map(|i| (i as u8).wrapping_mul(37)).collect();
-        let header = RowHeader { camera: 2, n: 4, row: -77, latch: 1 << 40, flags: 0x21, width };
+        let valid: Vec<u8> = (0..w.div_ceil(8))
+            .map(|i| (i as u8).wrapping_mul(37))
+            .collect();
+        let header = RowHeader {
+            camera: 2,
+            n: 4,
+            row: -77,
+            latch: 1 << 40,
+            flags: 0x21,
+            width,
+        };
         (header, heights, valid)
     }
 
@@ -302,7 +338,12 @@ mod tests {
     }
     impl Ends {
         fn new(w: usize) -> Ends {
-            Ends { eh: vec![0; w], ev: vec![0; w.div_ceil(8)], dh: vec![0; w], dv: vec![0; w.div_ceil(8)] }
+            Ends {
+                eh: vec![0; w],
+                ev: vec![0; w.div_ceil(8)],
+                dh: vec![0; w],
+                dv: vec![0; w.div_ceil(8)],
+            }
         }
     }
 
@@ -315,19 +356,43 @@ mod tests {
             if w % 8 != 0 {
                 *valid.last_mut().unwrap() &= (1u8 << (w % 8)) - 1;
             }
-            let want: Vec<i16> =
-                (0..w).map(|c| if valid[c / 8] & (1 << (c % 8)) != 0 { heights[c] } else { 0 }).collect();
-            let row = Row { header, heights: &want, valid: &valid };
+            let want: Vec<i16> = (0..w)
+                .map(|c| {
+                    if valid[c / 8] & (1 << (c % 8)) != 0 {
+                        heights[c]
+                    } else {
+                        0
+                    }
+                })
+                .collect();
+            let row = Row {
+                header,
+                heights: &want,
+                valid: &valid,
+            };
             let mut ends = Ends::new(w);
-            let mut enc = codec::Encoder::new(&mut ends.eh, &mut ends.ev, w, STREAM_INTRA_PERIOD).unwrap();
+            let mut enc =
+                codec::Encoder::new(&mut ends.eh, &mut ends.ev, w, STREAM_INTRA_PERIOD).unwrap();
             let mut dec = codec::Decoder::new(&mut ends.dh, &mut ends.dv, w).unwrap();
             let mut buf = vec![0u8; max_packet_len(w)];
             for compressed in [false, true] {
-                let n = if compressed { encode(&row, &mut enc, &mut buf) } else { encode_raw(&row, &mut buf) }.unwrap();
+                let n = if compressed {
+                    encode(&row, &mut enc, &mut buf)
+                } else {
+                    encode_raw(&row, &mut buf)
+                }
+                .unwrap();
                 let (p, used) = decode(&buf[..n]).unwrap();
                 assert_eq!(used, n);
                 assert_eq!(p.header, header);
-                assert_eq!(p.codec, if compressed { CODEC_COMPRESSED } else { CODEC_RAW });
+                assert_eq!(
+                    p.codec,
+                    if compressed {
+                        CODEC_COMPRESSED
+                    } else {
+                        CODEC_RAW
+                    }
+                );
                 let mut h2 = vec![0i16; w];
                 let mut v2 = vec![0u8; valid.len()];
                 p.unpack(&mut dec, &mut h2, &mut v2).unwrap();
@@ -340,7 +405,11 @@ mod tests {
     #[test]
     fn every_single_bit_flip_is_detected() {
         let (header, heights, valid) = sample(40);
-        let row = Row { header, heights: &heights, valid: &valid };
+        let row = Row {
+            header,
+            heights: &heights,
+            valid: &valid,
+        };
         let mut buf = vec![0u8; max_packet_len(40)];
         let n = encode_raw(&row, &mut buf).unwrap();
         for bit in 0..n * 8 {
@@ -356,7 +425,11 @@ mod tests {
     #[test]
     fn resync_finds_next_packet() {
         let (header, heights, valid) = sample(16);
-        let row = Row { header, heights: &heights, valid: &valid };
+        let row = Row {
+            header,
+            heights: &heights,
+            valid: &valid,
+        };
         let mut one = vec![0u8; max_packet_len(16)];
         let n = encode_raw(&row, &mut one).unwrap();
         let mut stream = Vec::new();
@@ -373,7 +446,14 @@ mod tests {
                 Item::Damage { offset, error } => (offset, Some(error)),
             })
             .collect();
-        assert_eq!(items, [(0, Some(PacketError::BadSync)), (7, None), (7 + n, Some(PacketError::Truncated))]);
+        assert_eq!(
+            items,
+            [
+                (0, Some(PacketError::BadSync)),
+                (7, None),
+                (7 + n, Some(PacketError::Truncated))
+            ]
+        );
         assert_eq!(Stream::new(&[]).count(), 0);
     }
 }

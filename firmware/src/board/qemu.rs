@@ -61,7 +61,11 @@ impl defmt::Format for Error {
     fn format(&self, f: defmt::Formatter<'_>) {
         match *self {
             Error::Io(e) => defmt::write!(f, "host I/O error (errno {=i32})", e),
-            Error::Truncated { frame, line, offset } => defmt::write!(
+            Error::Truncated {
+                frame,
+                line,
+                offset,
+            } => defmt::write!(
                 f,
                 "feed truncated in frame {=u32} at line {=u32} (byte {=u64})",
                 frame,
@@ -70,7 +74,12 @@ impl defmt::Format for Error {
             ),
             Error::Feed(e) => defmt::write!(f, "malformed feed: {}", e),
             Error::LineOrder { frame, line } => {
-                defmt::write!(f, "line {=u32} of frame {=u32} read out of order", line, frame)
+                defmt::write!(
+                    f,
+                    "line {=u32} of frame {=u32} read out of order",
+                    line,
+                    frame
+                )
             }
             Error::NoTrigger => defmt::write!(f, "encoder read without a trigger"),
             Error::Usage => defmt::write!(f, "usage: dpsa-firmware FEED OUT [BENCH]"),
@@ -160,7 +169,11 @@ impl Reader {
         while done < buf.len() {
             let k = self.file.read(&mut buf[done..]).map_err(io)?;
             if k == 0 {
-                return Err(Error::Truncated { frame, line, offset: self.pos + done as u64 });
+                return Err(Error::Truncated {
+                    frame,
+                    line,
+                    offset: self.pos + done as u64,
+                });
             }
             done += k;
         }
@@ -223,7 +236,9 @@ impl Feed {
             armed: None,
             frames_at: reader_pos,
         };
-        Ok(Feed { reader: RefCell::new(reader) })
+        Ok(Feed {
+            reader: RefCell::new(reader),
+        })
     }
 
     pub fn header(&self) -> Header {
@@ -232,7 +247,11 @@ impl Feed {
 
     /// The board's parts over this feed.
     pub fn parts(&self) -> (Strobe<'_>, Capture<'_>, Lines<'_>) {
-        (Strobe(&self.reader), Capture(&self.reader), Lines(&self.reader))
+        (
+            Strobe(&self.reader),
+            Capture(&self.reader),
+            Lines(&self.reader),
+        )
     }
 }
 
@@ -273,7 +292,11 @@ impl embedded_hal::digital::InputPin for Strobe<'_> {
 impl EncoderCapture for Capture<'_> {
     type Error = Error;
     fn captured(&mut self) -> Result<i64, Error> {
-        self.0.borrow().armed.map(|t| t.latch).ok_or(Error::NoTrigger)
+        self.0
+            .borrow()
+            .armed
+            .map(|t| t.latch)
+            .ok_or(Error::NoTrigger)
     }
 }
 
@@ -322,7 +345,9 @@ pub struct HostFile {
 
 impl HostFile {
     pub fn create(path: &Path) -> Result<HostFile, Error> {
-        Ok(HostFile { file: File::create(path.c_str()).map_err(io)? })
+        Ok(HostFile {
+            file: File::create(path.c_str()).map_err(io)?,
+        })
     }
 }
 

@@ -21,7 +21,8 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let bytes = std::fs::read(&a.stream).with_context(|| format!("reading {}", a.stream.display()))?;
+    let bytes =
+        std::fs::read(&a.stream).with_context(|| format!("reading {}", a.stream.display()))?;
     let (map, rep) = stream::decode_stream(&bytes, a.lsb_um);
     if let Some(png) = a.png {
         if map.rows.is_empty() {
@@ -40,7 +41,11 @@ pub fn run(a: Args) -> Result<()> {
     } else {
         out!(
             "{} packets ok, {} corrupt ({} resyncs); {} rows, {} valid pixels",
-            rep.ok, rep.corrupt, rep.resynced, map.rows.len(), map.valid_pixels()
+            rep.ok,
+            rep.corrupt,
+            rep.resynced,
+            map.rows.len(),
+            map.valid_pixels()
         );
     }
     Ok(())

@@ -22,11 +22,18 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
     let (out, seed, scene) = (&a.out, a.seed, a.scene.as_str());
     let sc = load_scene(scene)?;
     let rec_dir = out.join("recording");
-    out!("1/4 simulating the {scene} scene (seed {seed}) into {}", rec_dir.display());
+    out!(
+        "1/4 simulating the {scene} scene (seed {seed}) into {}",
+        rec_dir.display()
+    );
     let s = simulate::simulate(&sc, seed, &rec_dir, progress)?;
     out!(
         "    {} frames of {} rows x {} px, {} solder-paste deposits, {:.0} um per fringe turn",
-        s.frames, s.rows, s.width, s.deposits_placed, sc.height_per_turn_um
+        s.frames,
+        s.rows,
+        s.width,
+        s.deposits_placed,
+        sc.height_per_turn_um
     );
     let rec = open(&rec_dir)?;
     out!("2/4 reconstructing with the fixed-point core (streaming, line by line)");
@@ -35,7 +42,10 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
     std::fs::write(&stream, &bytes).with_context(|| format!("writing {}", stream.display()))?;
     out!(
         "    {} row packets, {} bytes -> {}; core state {} bytes",
-        stats.packets, stats.bytes, stream.display(), stats.state_bytes
+        stats.packets,
+        stats.bytes,
+        stream.display(),
+        stats.state_bytes
     );
     out!("3/4 comparing with the f64 reference, the 4-step PSP baseline and the ground truth");
     let cmp = compare_map(&rec, &map, progress)?;
@@ -44,7 +54,11 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
     out!("4/4 writing images");
     let png = out.join("heights.png");
     let colour = images::write_pngs(&map, &png)?;
-    out!("    {} (16-bit), {} (false colour)", png.display(), colour.display());
+    out!(
+        "    {} (16-bit), {} (false colour)",
+        png.display(),
+        colour.display()
+    );
     out!("");
     out!("{}", cmp.summary());
     out!("full report: {}", report.display());

@@ -16,10 +16,14 @@ use dpsa_sim::simulation::{recording::Recording, scene::Scene};
 use std::path::Path;
 
 #[derive(Parser)]
-#[command(name = "dpsa", version, about = "3D solder-paste measurement with the dynamic phase-shift algorithm (D-PSA)",
+#[command(
+    name = "dpsa",
+    version,
+    about = "3D solder-paste measurement with the dynamic phase-shift algorithm (D-PSA)",
     long_about = "Simulates conveyor recordings with ground truth, runs the same fixed-point core as the \
 frame-grabber firmware on them, and compares it with an independent f64 reference, a conventional \
-4-step PSP baseline and the Cramer-Rao bound.\n\nStart with `dpsa demo`.")]
+4-step PSP baseline and the Cramer-Rao bound.\n\nStart with `dpsa demo`."
+)]
 pub struct Cli {
     /// Hide progress bars.
     #[arg(long, global = true)]

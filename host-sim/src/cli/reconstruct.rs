@@ -25,15 +25,25 @@ pub struct Args {
 
 pub fn run(a: Args, progress: bool) -> Result<()> {
     let rec = open(&a.dir)?;
-    let file = std::fs::File::create(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let file =
+        std::fs::File::create(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let writer = std::io::BufWriter::new(file);
     let (stats, _) = reconstruct::run_with(&rec, writer, a.intra_period, progress)?;
-    out!("{} packets, {} bytes -> {}", stats.packets, stats.bytes, a.out.display());
+    out!(
+        "{} packets, {} bytes -> {}",
+        stats.packets,
+        stats.bytes,
+        a.out.display()
+    );
     if let Some(png) = a.png {
         let bytes = std::fs::read(&a.out)?;
         let (map, _) = stream::decode_stream(&bytes, rec.manifest.calibration.height_lsb_um);
         let colour = images::write_pngs(&map, &png)?;
-        out!("heights -> {}, false colour -> {}", png.display(), colour.display());
+        out!(
+            "heights -> {}, false colour -> {}",
+            png.display(),
+            colour.display()
+        );
     }
     Ok(())
 }

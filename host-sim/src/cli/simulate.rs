@@ -22,6 +22,13 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
     let sc = load_scene(&a.scene)?;
     let seed = a.seed.unwrap_or(sc.seed);
     let s = simulate::simulate(&sc, seed, &a.out, progress)?;
-    out!("simulated {} frames of {}x{} ({} deposits) into {}", s.frames, s.rows, s.width, s.deposits_placed, a.out.display());
+    out!(
+        "simulated {} frames of {}x{} ({} deposits) into {}",
+        s.frames,
+        s.rows,
+        s.width,
+        s.deposits_placed,
+        a.out.display()
+    );
     Ok(())
 }

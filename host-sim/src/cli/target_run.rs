@@ -36,18 +36,26 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
         None => target::firmware_elf(true)?,
     };
     let elf_bytes = std::fs::read(&elf).with_context(|| format!("reading {}", elf.display()))?;
-    let sizes = target::elf_sizes(&elf_bytes).with_context(|| format!("firmware ELF {}", elf.display()))?;
+    let sizes =
+        target::elf_sizes(&elf_bytes).with_context(|| format!("firmware ELF {}", elf.display()))?;
     let opts = target::RunOptions {
         intra_period: a.intra_period,
         bench: a.bench,
-        echo: target::Echo { log: true, progress },
+        echo: target::Echo {
+            log: true,
+            progress,
+        },
     };
     let run = target::run(&rec, &elf, opts)?;
     if let Some(out) = &a.out {
         std::fs::write(out, &run.stream).with_context(|| format!("writing {}", out.display()))?;
     }
     let (map, rep) = stream::decode_stream(&run.stream, rec.manifest.calibration.height_lsb_um);
-    let report = run.bench.as_ref().map(|raw| target::bench_report(raw, &sizes)).transpose()?;
+    let report = run
+        .bench
+        .as_ref()
+        .map(|raw| target::bench_report(raw, &sizes))
+        .transpose()?;
     let seconds = run.outcome.elapsed.as_secs_f64();
     if a.json {
         let mut v = match &report {
@@ -70,7 +78,11 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
         out!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
     }
-    let dest = a.out.as_ref().map(|p| format!(" -> {}", p.display())).unwrap_or_default();
+    let dest = a
+        .out
+        .as_ref()
+        .map(|p| format!(" -> {}", p.display()))
+        .unwrap_or_default();
     let mut text = format!(
         "target: {} packets ({} corrupt), {} bytes{dest}; {seconds:.1} s in QEMU\n",
         rep.ok,
@@ -79,7 +91,10 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
     );
     match &report {
         Some(r) => text.push_str(&r.summary()),
-        None => text.push_str(&format!("firmware: flash {} bytes, static RAM {} bytes", sizes.flash, sizes.static_ram)),
+        None => text.push_str(&format!(
+            "firmware: flash {} bytes, static RAM {} bytes",
+            sizes.flash, sizes.static_ram
+        )),
     }
     out!("{text}");
     Ok(())

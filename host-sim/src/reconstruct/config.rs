@@ -17,7 +17,9 @@ pub fn config(m: &Manifest) -> Result<(Config, Vec<u32>)> {
         if r.is_finite() && (0.0..=u32::MAX as f64).contains(&r) {
             Ok(r as u32)
         } else {
-            Err(anyhow!("{what} = {x} is out of range for the fixed-point core"))
+            Err(anyhow!(
+                "{what} = {x} is out of range for the fixed-point core"
+            ))
         }
     };
     let narrow = |x: u32, what: &str| -> Result<u16> {
@@ -30,13 +32,24 @@ pub fn config(m: &Manifest) -> Result<(Config, Vec<u32>)> {
         camera: m.camera.id,
         counts_per_pixel_q16: to_u32(cal.counts_per_pixel * 65536.0, "counts_per_pixel")?,
         fx: (4_294_967_296.0 / cal.fringe_period_px).round() as u64 as u32,
-        lsb_per_turn_q16: to_u32(cal.height_per_turn_um / cal.height_lsb_um * 65536.0, "lsb per turn")?,
+        lsb_per_turn_q16: to_u32(
+            cal.height_per_turn_um / cal.height_lsb_um * 65536.0,
+            "lsb per turn",
+        )?,
         saturation: m.camera.saturation,
         min_modulation_q12: to_u32(p.min_modulation * 4096.0, "min_modulation")?,
-        max_noise_gain_q8: narrow(to_u32(p.max_noise_gain * 256.0, "max_noise_gain")?, "max_noise_gain")?,
+        max_noise_gain_q8: narrow(
+            to_u32(p.max_noise_gain * 256.0, "max_noise_gain")?,
+            "max_noise_gain",
+        )?,
         max_step_rows: narrow(p.max_step_rows, "max_step_rows")?,
     };
-    cfg.validate().map_err(|e| anyhow!("calibration/processing out of range for the core: {e}"))?;
-    let ref_phase = cal.reference_phase_rad.iter().map(|&r| phase::from_rad(r)).collect();
+    cfg.validate()
+        .map_err(|e| anyhow!("calibration/processing out of range for the core: {e}"))?;
+    let ref_phase = cal
+        .reference_phase_rad
+        .iter()
+        .map(|&r| phase::from_rad(r))
+        .collect();
     Ok((cfg, ref_phase))
 }

@@ -37,14 +37,21 @@ pub fn run<W: Write>(rec: &Recording, out: W, progress: bool) -> Result<(RunStat
 /// [`run`] with a chosen codec intra period (1: every packet decodes alone; `intra_period > 1`:
 /// rows are predicted from the previous one, smaller but a lost packet costs up to
 /// `intra_period - 1` more).
-pub fn run_with<W: Write>(rec: &Recording, out: W, intra_period: u32, progress: bool) -> Result<(RunStats, W)> {
+pub fn run_with<W: Write>(
+    rec: &Recording,
+    out: W,
+    intra_period: u32,
+    progress: bool,
+) -> Result<(RunStats, W)> {
     let (cfg, ref_phase) = config(&rec.manifest)?;
     let mut state = State::new(&cfg);
-    let mut pipe =
-        Pipeline::new(cfg, &ref_phase, state.memory()).map_err(|e| anyhow!("cannot build the pipeline: {e}"))?;
+    let mut pipe = Pipeline::new(cfg, &ref_phase, state.memory())
+        .map_err(|e| anyhow!("cannot build the pipeline: {e}"))?;
     let w = cfg.width as usize;
     let mut reference = codec::ReferenceRow::new(w);
-    let enc = reference.encoder(intra_period).ok_or_else(|| anyhow!("width {w} is not supported by the codec"))?;
+    let enc = reference
+        .encoder(intra_period)
+        .ok_or_else(|| anyhow!("width {w} is not supported by the codec"))?;
     let mut buf = vec![0u8; packets::max_packet_len(w)];
     let mut sink = PacketSink::new(IoLink(out), enc, &mut buf);
     let frames = &rec.manifest.frames;
@@ -53,11 +60,14 @@ pub fn run_with<W: Write>(rec: &Recording, out: W, intra_period: u32, progress: 
     for (k, entry) in frames.iter().enumerate() {
         let frame = rec.frame(k)?;
         let w = frame.width;
-        pipe.begin_frame(entry.trigger(), &mut sink).map_err(|e| anyhow!("frame {k}: {e}"))?;
+        pipe.begin_frame(entry.trigger(), &mut sink)
+            .map_err(|e| anyhow!("frame {k}: {e}"))?;
         for (r, line) in frame.data.chunks_exact(w).enumerate() {
-            pipe.push_line(r as u16, line, &mut sink).map_err(|e| anyhow!("frame {k} line {r}: {e}"))?;
+            pipe.push_line(r as u16, line, &mut sink)
+                .map_err(|e| anyhow!("frame {k} line {r}: {e}"))?;
         }
-        pipe.end_frame(&mut sink).map_err(|e| anyhow!("frame {k}: {e}"))?;
+        pipe.end_frame(&mut sink)
+            .map_err(|e| anyhow!("frame {k}: {e}"))?;
         high = high.max(pipe.pool_used());
         bar.inc(1);
     }
@@ -83,6 +93,10 @@ pub fn reconstruct_bytes(rec: &Recording, progress: bool) -> Result<(RunStats, V
 pub fn reconstruct_map(rec: &Recording, progress: bool) -> Result<(RunStats, Vec<u8>, HeightMap)> {
     let (stats, bytes) = reconstruct_bytes(rec, progress)?;
     let (map, rep) = crate::stream::decode_stream(&bytes, rec.manifest.calibration.height_lsb_um);
-    anyhow::ensure!(rep.corrupt == 0, "internal error: the core's own stream has {} bad packets", rep.corrupt);
+    anyhow::ensure!(
+        rep.corrupt == 0,
+        "internal error: the core's own stream has {} bad packets",
+        rep.corrupt
+    );
     Ok((stats, bytes, map))
 }

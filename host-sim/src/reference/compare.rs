@@ -7,9 +7,9 @@
 //! error, not a `T_z` error.
 
 use crate::heightmap::{flags, HeightMap, HeightRow};
+use crate::reference::{crb, flat_mask, truth::truth_row_index, RefOutput, RefRow};
 use crate::simulation::recording::{load_frames, Manifest, Recording, Truth};
 use anyhow::{Context, Result};
-use crate::reference::{crb, flat_mask, truth::truth_row_index, RefOutput, RefRow};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -474,8 +474,8 @@ pub fn compare_map(rec: &Recording, fixed: &HeightMap, progress: bool) -> Result
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::simulation::recording::{Calibration, Camera, Noise, Processing};
     use crate::reference::Window;
+    use crate::simulation::recording::{Calibration, Camera, Noise, Processing};
     use std::f64::consts::{PI, TAU};
 
     fn manifest() -> Manifest {

@@ -11,9 +11,9 @@ pub mod compare;
 pub mod crb;
 pub mod dpsa;
 pub mod psp;
-pub mod truth;
 #[cfg(test)]
 mod tests;
+pub mod truth;
 
 pub use crb::crb;
 pub use dpsa::*;

@@ -2,9 +2,9 @@
 
 use super::*;
 use crate::heightmap::flags;
+use crate::simulation::recording::{Calibration, Camera, FrameEntry, Noise, Processing};
 use crate::simulation::recording::{Frame, Manifest, Truth};
 use std::f64::consts::{PI, TAU};
-use crate::simulation::recording::{Calibration, Camera, FrameEntry, Noise, Processing};
 
 const F: u16 = flags::INCOMPLETE;
 const S: u16 = flags::SKIPPED;

@@ -88,7 +88,10 @@ pub struct FrameEntry {
 impl FrameEntry {
     /// The frame's trigger (`seq`, `latch`), as the core takes it.
     pub fn trigger(&self) -> dpsa_core::Trigger {
-        dpsa_core::Trigger { seq: self.seq, latch: self.latch }
+        dpsa_core::Trigger {
+            seq: self.seq,
+            latch: self.latch,
+        }
     }
 }
 
@@ -696,7 +699,8 @@ pub fn write_frame_png(
 
 /// Loads every frame of a recording (the f64 reference needs them all at once).
 pub fn load_frames(rec: &Recording, progress: bool) -> anyhow::Result<Vec<Frame>> {
-    let bar = crate::progress::progress_bar(progress, rec.manifest.frames.len() as u64, "load frames");
+    let bar =
+        crate::progress::progress_bar(progress, rec.manifest.frames.len() as u64, "load frames");
     let mut frames = Vec::with_capacity(rec.manifest.frames.len());
     for k in 0..rec.manifest.frames.len() {
         frames.push(rec.frame(k)?);

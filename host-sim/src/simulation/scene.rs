@@ -3,7 +3,9 @@
 //! Every field has a default, so a scene file only lists what it changes; [`Scene::default`]
 //! is the built-in default scene. Knobs, units and defaults are documented in the README (section "Scene files").
 
-use crate::simulation::recording::{self, Calibration, Camera, Noise, Processing, MAX_ROWS, MAX_WIDTH};
+use crate::simulation::recording::{
+    self, Calibration, Camera, Noise, Processing, MAX_ROWS, MAX_WIDTH,
+};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};

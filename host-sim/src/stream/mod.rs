@@ -84,5 +84,8 @@ fn first_width(bytes: &[u8]) -> Option<usize> {
 
 fn damage(rep: &mut DecodeReport, offset: usize, e: PacketError) {
     rep.corrupt += 1;
-    rep.damage.push(Damage { offset, error: e.to_string() });
+    rep.damage.push(Damage {
+        offset,
+        error: e.to_string(),
+    });
 }

@@ -26,7 +26,6 @@ pub const BENCH_KEYS: [&str; 17] = [
     "n",
 ];
 
-
 /// Parses a bench file: one `key value` pair (an integer) per line; blank lines are ignored.
 pub fn parse_bench(text: &str) -> Result<BTreeMap<String, i64>> {
     let mut out = BTreeMap::new();
@@ -37,9 +36,14 @@ pub fn parse_bench(text: &str) -> Result<BTreeMap<String, i64>> {
         }
         let mut it = line.split_whitespace();
         let (Some(k), Some(v), None) = (it.next(), it.next(), it.next()) else {
-            bail!("bench file line {}: expected `key value`, got {line:?}", i + 1);
+            bail!(
+                "bench file line {}: expected `key value`, got {line:?}",
+                i + 1
+            );
         };
-        let v: i64 = v.parse().with_context(|| format!("bench file line {}: {k}: {v:?} is not an integer", i + 1))?;
+        let v: i64 = v
+            .parse()
+            .with_context(|| format!("bench file line {}: {k}: {v:?} is not an integer", i + 1))?;
         if out.insert(k.to_string(), v).is_some() {
             bail!("bench file line {}: {k} given twice", i + 1);
         }
@@ -104,15 +108,25 @@ pub struct BenchReport {
 /// Turns the firmware's bench file and the ELF sizes into figures. Every ratio needs a
 /// positive denominator.
 pub fn bench_report(raw: &BTreeMap<String, i64>, elf: &ElfSizes) -> Result<BenchReport> {
-    let missing: Vec<&str> = BENCH_KEYS.iter().copied().filter(|k| !raw.contains_key(*k)).collect();
-    ensure!(missing.is_empty(), "the firmware's bench file lacks {}", missing.join(", "));
+    let missing: Vec<&str> = BENCH_KEYS
+        .iter()
+        .copied()
+        .filter(|k| !raw.contains_key(*k))
+        .collect();
+    ensure!(
+        missing.is_empty(),
+        "the firmware's bench file lacks {}",
+        missing.join(", ")
+    );
     let get = |k: &str| raw[k];
     let positive = |k: &str| -> Result<f64> {
         let v = get(k);
         ensure!(v > 0, "bench {k} = {v}, expected > 0");
         Ok(v as f64)
     };
-    let unsigned = |k: &str| -> Result<u64> { u64::try_from(get(k)).map_err(|_| anyhow!("bench {k} = {} is negative", get(k))) };
+    let unsigned = |k: &str| -> Result<u64> {
+        u64::try_from(get(k)).map_err(|_| anyhow!("bench {k} = {} is negative", get(k)))
+    };
     let ipt = positive("calib_loop_instructions")? / positive("calib_ticks")?;
     let ticks = |k: &str| -> Result<f64> { Ok(unsigned(k)? as f64 * ipt) };
     let pixels = positive("pixels_out")?;
@@ -192,7 +206,15 @@ mod tests {
 
     #[test]
     fn bench_figures_are_ticks_times_instructions_per_tick_over_pixels() {
-        let r = bench_report(&raw(), &ElfSizes { flash: 9, static_ram: 7, ..Default::default() }).unwrap();
+        let r = bench_report(
+            &raw(),
+            &ElfSizes {
+                flash: 9,
+                static_ram: 7,
+                ..Default::default()
+            },
+        )
+        .unwrap();
         assert_eq!(r.instructions_per_tick, 40.0);
         assert_eq!(r.instructions_per_pixel.total, 20.0);
         assert_eq!(r.instructions_per_pixel.encode, 2.0);
@@ -209,15 +231,28 @@ mod tests {
     fn bench_file_errors() {
         let mut m = raw();
         m.remove("ticks_solve");
-        let e = bench_report(&m, &ElfSizes::default()).unwrap_err().to_string();
+        let e = bench_report(&m, &ElfSizes::default())
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("ticks_solve"), "{e}");
         let mut m = raw();
         m.insert("calib_ticks".into(), 0);
-        let e = bench_report(&m, &ElfSizes::default()).unwrap_err().to_string();
+        let e = bench_report(&m, &ElfSizes::default())
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("calib_ticks"), "{e}");
-        assert_eq!(parse_bench("a 1\n\nb -2\n").unwrap(), BTreeMap::from([("a".into(), 1), ("b".into(), -2)]));
+        assert_eq!(
+            parse_bench("a 1\n\nb -2\n").unwrap(),
+            BTreeMap::from([("a".into(), 1), ("b".into(), -2)])
+        );
         assert!(parse_bench("a 1 2").is_err());
-        assert!(parse_bench("a x").unwrap_err().to_string().contains("line 1"));
-        assert!(parse_bench("a 1\na 2").unwrap_err().to_string().contains("twice"));
+        assert!(parse_bench("a x")
+            .unwrap_err()
+            .to_string()
+            .contains("line 1"));
+        assert!(parse_bench("a 1\na 2")
+            .unwrap_err()
+            .to_string()
+            .contains("twice"));
     }
 }

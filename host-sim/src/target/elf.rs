@@ -3,7 +3,6 @@
 use anyhow::{ensure, Context, Result};
 use serde::Serialize;
 
-
 /// Sizes of the firmware image, bytes.
 #[derive(Clone, Debug, Default, Serialize, PartialEq, Eq)]
 pub struct ElfSizes {
@@ -42,8 +41,10 @@ pub fn elf_sizes(elf: &[u8]) -> Result<ElfSizes> {
             SectionFlags::Elf { sh_flags } => sh_flags & u64::from(object::elf::SHF_ALLOC) != 0,
             _ => false,
         };
-        let nobits = matches!(s.kind(), SectionKind::UninitializedData | SectionKind::UninitializedTls)
-            || name == ".state";
+        let nobits = matches!(
+            s.kind(),
+            SectionKind::UninitializedData | SectionKind::UninitializedTls
+        ) || name == ".state";
         if alloc && !nobits {
             out.flash += size;
         }
@@ -63,6 +64,9 @@ pub fn elf_sizes(elf: &[u8]) -> Result<ElfSizes> {
     }
     let t = &out.sections;
     out.static_ram = t.data + t.bss + t.uninit;
-    ensure!(t.text > 0 || t.itcm > 0, "the ELF has no code sections: is it the firmware?");
+    ensure!(
+        t.text > 0 || t.itcm > 0,
+        "the ELF has no code sections: is it the firmware?"
+    );
     Ok(out)
 }

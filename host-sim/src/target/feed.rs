@@ -8,35 +8,47 @@ use dpsa_core::frames::feed;
 use std::io::{BufWriter, Write};
 use std::path::Path;
 
-
 /// Writes `rec` as a feed (format: [`dpsa_core::frames::feed`]) to `path`. The
 /// packet stream the firmware emits from it uses codec intra period `intra_period`.
 /// Returns the bytes written.
 pub fn write_feed(rec: &Recording, intra_period: u32, path: &Path) -> Result<u64> {
-    let file = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+    let file =
+        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
     let mut w = BufWriter::with_capacity(1 << 20, file);
     let n = write_feed_to(rec, intra_period, &mut w, false)
         .with_context(|| format!("writing the feed {}", path.display()))?;
-    w.flush().with_context(|| format!("writing {}", path.display()))?;
+    w.flush()
+        .with_context(|| format!("writing {}", path.display()))?;
     Ok(n)
 }
 
 /// [`write_feed`] into any writer, one frame in memory at a time, with an optional progress bar.
-pub fn write_feed_to<W: Write>(rec: &Recording, intra_period: u32, mut out: W, progress: bool) -> Result<u64> {
-    ensure!(intra_period >= 1, "the codec intra period must be at least 1");
+pub fn write_feed_to<W: Write>(
+    rec: &Recording,
+    intra_period: u32,
+    mut out: W,
+    progress: bool,
+) -> Result<u64> {
+    ensure!(
+        intra_period >= 1,
+        "the codec intra period must be at least 1"
+    );
     let (cfg, ref_phase) = config(&rec.manifest)?;
     let frames = &rec.manifest.frames;
     let header = feed::Header {
         cfg,
-        frames: u32::try_from(frames.len()).map_err(|_| anyhow!("{} frames do not fit a feed", frames.len()))?,
+        frames: u32::try_from(frames.len())
+            .map_err(|_| anyhow!("{} frames do not fit a feed", frames.len()))?,
         intra_period,
     };
     // Check that the header reads back as written (the firmware applies the same checks).
     let head = header.encode();
-    feed::Header::decode(&head).map_err(|e| anyhow!("the recording's configuration is not valid for the target: {e}"))?;
+    feed::Header::decode(&head)
+        .map_err(|e| anyhow!("the recording's configuration is not valid for the target: {e}"))?;
     out.write_all(&head)?;
     let mut table = vec![0u8; header.table_len()];
-    feed::encode_table(&ref_phase, &mut table).map_err(|e| anyhow!("reference-phase table: {e}"))?;
+    feed::encode_table(&ref_phase, &mut table)
+        .map_err(|e| anyhow!("reference-phase table: {e}"))?;
     out.write_all(&table)?;
     let mut written = (head.len() + table.len()) as u64;
 

@@ -6,7 +6,6 @@ use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
-
 /// The firmware crate (`firmware/` of this repository).
 pub fn firmware_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware")
@@ -14,7 +13,9 @@ pub fn firmware_dir() -> PathBuf {
 
 /// Where `firmware/build.sh` leaves the release ELF (it always builds into `firmware/target`).
 pub fn default_elf_path() -> PathBuf {
-    firmware_dir().join("target/thumbv7em-none-eabihf/release").join(PROGRAM)
+    firmware_dir()
+        .join("target/thumbv7em-none-eabihf/release")
+        .join(PROGRAM)
 }
 
 /// The firmware ELF. `build`: run `firmware/build.sh` (it builds what is out of date and prints
@@ -55,7 +56,11 @@ pub fn firmware_elf(build: bool) -> Result<PathBuf> {
         tail.into_iter().collect::<Vec<_>>().join("\n")
     });
     let mut stdout = String::new();
-    child.stdout.take().expect("piped stdout").read_to_string(&mut stdout)?;
+    child
+        .stdout
+        .take()
+        .expect("piped stdout")
+        .read_to_string(&mut stdout)?;
     let status = child.wait()?;
     let tail = log.join().unwrap_or_default();
     ensure!(
@@ -63,7 +68,12 @@ pub fn firmware_elf(build: bool) -> Result<PathBuf> {
         "bash firmware/build.sh failed ({status}); if the cross toolchain or QEMU is missing, run \
          `bash firmware/build.sh --install`. Last lines of its log:\n{tail}"
     );
-    let last = stdout.lines().rev().find(|l| !l.trim().is_empty()).unwrap_or("").trim();
+    let last = stdout
+        .lines()
+        .rev()
+        .find(|l| !l.trim().is_empty())
+        .unwrap_or("")
+        .trim();
     let elf = PathBuf::from(last);
     ensure!(
         elf.is_absolute() && elf.is_file(),

@@ -41,7 +41,6 @@ pub const TIMEOUT_ENV: &str = "DPSA_QEMU_TIMEOUT";
 /// Default QEMU time limit, seconds (a firmware that hangs is killed after it).
 pub const DEFAULT_TIMEOUT_S: u64 = 1800;
 
-
 #[derive(Clone, Debug)]
 pub struct TargetOutput {
     /// The packet stream the firmware wrote.
@@ -64,13 +63,20 @@ pub struct RunOptions {
 
 impl Default for RunOptions {
     fn default() -> Self {
-        RunOptions { intra_period: dpsa_core::packets::STREAM_INTRA_PERIOD, bench: false, echo: Echo::default() }
+        RunOptions {
+            intra_period: dpsa_core::packets::STREAM_INTRA_PERIOD,
+            bench: false,
+            echo: Echo::default(),
+        }
     }
 }
 
 /// Runs the firmware `elf` under QEMU on the recording `rec`: exports it to a temporary feed, runs QEMU and returns the packet stream (and the measurements with `bench`).
 pub fn run(rec: &Recording, elf: &Path, opts: RunOptions) -> Result<TargetOutput> {
-    let dir = tempfile::Builder::new().prefix("dpsa-target").tempdir().context("creating a temporary directory")?;
+    let dir = tempfile::Builder::new()
+        .prefix("dpsa-target")
+        .tempdir()
+        .context("creating a temporary directory")?;
     let feed_path = dir.path().join("feed.dpsr");
     let out_path = dir.path().join("stream.dpsa");
     let bench_path = dir.path().join("bench.txt");
@@ -80,13 +86,25 @@ pub fn run(rec: &Recording, elf: &Path, opts: RunOptions) -> Result<TargetOutput
         write_feed_to(rec, opts.intra_period, &mut w, opts.echo.progress)?;
         w.flush()?;
     }
-    let outcome = run_files(elf, &feed_path, &out_path, opts.bench.then_some(bench_path.as_path()), opts.echo)?;
-    let stream = std::fs::read(&out_path).context("reading the packet stream the firmware wrote")?;
+    let outcome = run_files(
+        elf,
+        &feed_path,
+        &out_path,
+        opts.bench.then_some(bench_path.as_path()),
+        opts.echo,
+    )?;
+    let stream =
+        std::fs::read(&out_path).context("reading the packet stream the firmware wrote")?;
     let bench = if opts.bench {
-        let text = std::fs::read_to_string(&bench_path).context("reading the firmware's bench file")?;
+        let text =
+            std::fs::read_to_string(&bench_path).context("reading the firmware's bench file")?;
         Some(parse_bench(&text)?)
     } else {
         None
     };
-    Ok(TargetOutput { stream, outcome, bench })
+    Ok(TargetOutput {
+        stream,
+        outcome,
+        bench,
+    })
 }

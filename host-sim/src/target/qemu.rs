@@ -8,7 +8,6 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
-
 /// Escapes a value for QEMU's option parser (a comma is written twice).
 fn qemu_value(v: &str) -> String {
     v.replace(',', ",,")
@@ -16,7 +15,9 @@ fn qemu_value(v: &str) -> String {
 
 /// A path as UTF-8, refused if the semihosting command line could not carry it.
 fn arg_path(p: &Path) -> Result<String> {
-    let s = p.to_str().ok_or_else(|| anyhow!("{}: not UTF-8, cannot pass it to the firmware", p.display()))?;
+    let s = p
+        .to_str()
+        .ok_or_else(|| anyhow!("{}: not UTF-8, cannot pass it to the firmware", p.display()))?;
     ensure!(
         !s.chars().any(char::is_whitespace),
         "{s}: the semihosting command line is split at spaces, so the firmware cannot be given a path \
@@ -34,17 +35,27 @@ pub fn qemu_command(elf: &Path, args: &[String], log: &Path) -> Result<Command> 
         semi.push_str(",arg=");
         semi.push_str(&qemu_value(&a));
     }
-    let log = log.to_str().ok_or_else(|| anyhow!("{}: not UTF-8", log.display()))?;
+    let log = log
+        .to_str()
+        .ok_or_else(|| anyhow!("{}: not UTF-8", log.display()))?;
     let mut cmd = Command::new(QEMU);
-    cmd.args(["-machine", "mps2-an500", "-cpu", "cortex-m7", "-nographic", "-monitor", "none"])
-        .args(["-serial", "none", "-icount", "shift=0"])
-        .arg("-semihosting-config")
-        .arg(semi)
-        .arg("-chardev")
-        .arg(format!("file,id=dlog,path={}", qemu_value(log)))
-        .arg("-kernel")
-        .arg(elf)
-        .stdin(Stdio::null());
+    cmd.args([
+        "-machine",
+        "mps2-an500",
+        "-cpu",
+        "cortex-m7",
+        "-nographic",
+        "-monitor",
+        "none",
+    ])
+    .args(["-serial", "none", "-icount", "shift=0"])
+    .arg("-semihosting-config")
+    .arg(semi)
+    .arg("-chardev")
+    .arg(format!("file,id=dlog,path={}", qemu_value(log)))
+    .arg("-kernel")
+    .arg(elf)
+    .stdin(Stdio::null());
     Ok(cmd)
 }
 
@@ -102,7 +113,10 @@ impl Outcome {
     pub fn failure(&self) -> anyhow::Error {
         let status = match self.code {
             Some(c) => format!("the firmware exited with status {c}"),
-            None => format!("the firmware did not finish (killed after {:.0} s)", self.elapsed.as_secs_f64()),
+            None => format!(
+                "the firmware did not finish (killed after {:.0} s)",
+                self.elapsed.as_secs_f64()
+            ),
         };
         let mut lines: Vec<String> = self.errors().map(|l| l.to_string()).collect();
         if lines.is_empty() {
@@ -141,7 +155,12 @@ impl<'t> LogDecoder<'t> {
     fn new(table: &'t defmt_decoder::Table, elf: &[u8]) -> Self {
         let locations = table.get_locations(elf).ok().filter(|l| !l.is_empty());
         let root = firmware_dir().parent().and_then(|p| p.canonicalize().ok());
-        LogDecoder { decoder: table.new_stream_decoder(), locations, root, malformed: 0 }
+        LogDecoder {
+            decoder: table.new_stream_decoder(),
+            locations,
+            root,
+            malformed: 0,
+        }
     }
 
     /// Feeds `bytes` and returns the lines that decoded.
@@ -151,12 +170,27 @@ impl<'t> LogDecoder<'t> {
         loop {
             match self.decoder.decode() {
                 Ok(frame) => {
-                    let location = self.locations.as_ref().and_then(|l| l.get(&frame.index())).map(|l| {
-                        let file = self.root.as_deref().and_then(|r| l.file.strip_prefix(r).ok()).unwrap_or(&l.file);
-                        format!("{}:{}", file.display(), l.line)
+                    let location = self
+                        .locations
+                        .as_ref()
+                        .and_then(|l| l.get(&frame.index()))
+                        .map(|l| {
+                            let file = self
+                                .root
+                                .as_deref()
+                                .and_then(|r| l.file.strip_prefix(r).ok())
+                                .unwrap_or(&l.file);
+                            format!("{}:{}", file.display(), l.line)
+                        });
+                    let level = frame
+                        .level()
+                        .map(|l| l.as_str().to_uppercase())
+                        .unwrap_or_default();
+                    lines.push(LogLine {
+                        level,
+                        message: frame.display_message().to_string(),
+                        location,
                     });
-                    let level = frame.level().map(|l| l.as_str().to_uppercase()).unwrap_or_default();
-                    lines.push(LogLine { level, message: frame.display_message().to_string(), location });
                 }
                 Err(defmt_decoder::DecodeError::UnexpectedEof) => break,
                 Err(defmt_decoder::DecodeError::Malformed) => self.malformed += 1,
@@ -182,7 +216,9 @@ impl LogSource<'_> {
         let mut out = Vec::new();
         if let Some(f) = self.file.as_mut() {
             loop {
-                let n = f.read(buf).with_context(|| format!("reading {}", self.path.display()))?;
+                let n = f
+                    .read(buf)
+                    .with_context(|| format!("reading {}", self.path.display()))?;
                 if n == 0 {
                     break;
                 }
@@ -195,7 +231,10 @@ impl LogSource<'_> {
 
 /// QEMU time limit ([`TIMEOUT_ENV`], default [`DEFAULT_TIMEOUT_S`]).
 pub fn timeout() -> Duration {
-    let s = std::env::var(TIMEOUT_ENV).ok().and_then(|v| v.trim().parse().ok()).unwrap_or(DEFAULT_TIMEOUT_S);
+    let s = std::env::var(TIMEOUT_ENV)
+        .ok()
+        .and_then(|v| v.trim().parse().ok())
+        .unwrap_or(DEFAULT_TIMEOUT_S);
     Duration::from_secs(s.max(1))
 }
 
@@ -213,12 +252,21 @@ pub struct Echo {
 /// packet stream). Fails only when QEMU cannot be run or the log cannot be decoded at all; the
 /// firmware's own failure is in [`Outcome::code`].
 pub fn qemu(elf: &Path, args: &[String], watch: Option<&Path>, echo: Echo) -> Result<Outcome> {
-    let elf_bytes = std::fs::read(elf).with_context(|| format!("reading the firmware ELF {}", elf.display()))?;
+    let elf_bytes = std::fs::read(elf)
+        .with_context(|| format!("reading the firmware ELF {}", elf.display()))?;
     let table = defmt_decoder::Table::parse(&elf_bytes)
         .with_context(|| format!("reading the defmt table of {}", elf.display()))?
-        .ok_or_else(|| anyhow!("{} has no .defmt section: not a defmt firmware", elf.display()))?;
+        .ok_or_else(|| {
+            anyhow!(
+                "{} has no .defmt section: not a defmt firmware",
+                elf.display()
+            )
+        })?;
 
-    let dir = tempfile::Builder::new().prefix("dpsa-qemu").tempdir().context("creating a temporary directory")?;
+    let dir = tempfile::Builder::new()
+        .prefix("dpsa-qemu")
+        .tempdir()
+        .context("creating a temporary directory")?;
     // The defmt frames arrive on the semihosting console. QEMU 7.2 (Debian 12) writes what the
     // firmware writes to `:tt` on its own stdout and only SYS_WRITEC/WRITE0 to the console
     // chardev; later versions send both to the chardev. Both are captured and decoded (each
@@ -227,7 +275,8 @@ pub fn qemu(elf: &Path, args: &[String], watch: Option<&Path>, echo: Echo) -> Re
     let stdout_path = dir.path().join("qemu.stdout");
     let stderr_path = dir.path().join("qemu.stderr");
     let mut cmd = qemu_command(elf, args, &console_path)?;
-    cmd.stdout(std::fs::File::create(&stdout_path)?).stderr(std::fs::File::create(&stderr_path)?);
+    cmd.stdout(std::fs::File::create(&stdout_path)?)
+        .stderr(std::fs::File::create(&stderr_path)?);
     let start = Instant::now();
     let mut child = cmd.spawn().map_err(|e| {
         if e.kind() == std::io::ErrorKind::NotFound {
@@ -239,7 +288,9 @@ pub fn qemu(elf: &Path, args: &[String], watch: Option<&Path>, echo: Echo) -> Re
 
     let bar = if echo.progress {
         let b = indicatif::ProgressBar::new_spinner();
-        if let Ok(style) = indicatif::ProgressStyle::with_template("{prefix:>12} {spinner} {elapsed} {msg}") {
+        if let Ok(style) =
+            indicatif::ProgressStyle::with_template("{prefix:>12} {spinner} {elapsed} {msg}")
+        {
             b.set_style(style);
         }
         b.set_prefix("qemu");
@@ -249,8 +300,16 @@ pub fn qemu(elf: &Path, args: &[String], watch: Option<&Path>, echo: Echo) -> Re
     };
     let limit = timeout();
     let mut sources = [
-        LogSource { path: stdout_path, file: None, dec: LogDecoder::new(&table, &elf_bytes) },
-        LogSource { path: console_path, file: None, dec: LogDecoder::new(&table, &elf_bytes) },
+        LogSource {
+            path: stdout_path,
+            file: None,
+            dec: LogDecoder::new(&table, &elf_bytes),
+        },
+        LogSource {
+            path: console_path,
+            file: None,
+            dec: LogDecoder::new(&table, &elf_bytes),
+        },
     ];
     let mut lines = Vec::new();
     let mut buf = vec![0u8; 1 << 16];
@@ -288,13 +347,25 @@ pub fn qemu(elf: &Path, args: &[String], watch: Option<&Path>, echo: Echo) -> Re
     let elapsed = start.elapsed();
     let qemu_output = std::fs::read_to_string(&stderr_path).unwrap_or_default();
     let malformed = sources.iter().map(|s| s.dec.malformed).sum();
-    Ok(Outcome { code: status.and_then(|s| s.code()), log: lines, malformed, qemu_output, elapsed })
+    Ok(Outcome {
+        code: status.and_then(|s| s.code()),
+        log: lines,
+        malformed,
+        qemu_output,
+        elapsed,
+    })
 }
 
 /// Runs the firmware on a feed file: `dpsa-firmware FEED OUT [BENCH]`. The
 /// paths go on the semihosting command line as they are (absolute, without whitespace). A
 /// failed run is an error carrying the firmware's error lines.
-pub fn run_files(elf: &Path, feed: &Path, out: &Path, bench: Option<&Path>, echo: Echo) -> Result<Outcome> {
+pub fn run_files(
+    elf: &Path,
+    feed: &Path,
+    out: &Path,
+    bench: Option<&Path>,
+    echo: Echo,
+) -> Result<Outcome> {
     let mut args = vec![arg_path(&absolute(feed)?)?, arg_path(&absolute(out)?)?];
     if let Some(b) = bench {
         args.push(arg_path(&absolute(b)?)?);
@@ -307,7 +378,8 @@ pub fn run_files(elf: &Path, feed: &Path, out: &Path, bench: Option<&Path>, echo
 }
 
 fn absolute(p: &Path) -> Result<PathBuf> {
-    std::path::absolute(p).with_context(|| format!("{}: cannot make the path absolute", p.display()))
+    std::path::absolute(p)
+        .with_context(|| format!("{}: cannot make the path absolute", p.display()))
 }
 
 #[cfg(test)]
@@ -317,11 +389,32 @@ mod tests {
     #[test]
     fn qemu_values_double_commas_and_paths_with_spaces_are_refused() {
         assert_eq!(qemu_value("/a,b/c,,d"), "/a,,b/c,,,,d");
-        let cmd = qemu_command(Path::new("/x/fw.elf"), &["/t/r,1".into(), "/t/o".into()], Path::new("/l,og")).unwrap();
-        let args: Vec<String> = cmd.get_args().map(|a| a.to_string_lossy().into_owned()).collect();
-        let semi = &args[args.iter().position(|a| a == "-semihosting-config").unwrap() + 1];
-        assert!(semi.ends_with(",arg=dpsa-firmware,arg=/t/r,,1,arg=/t/o"), "{semi}");
-        assert!(args.contains(&"file,id=dlog,path=/l,,og".to_string()), "{args:?}");
-        assert!(arg_path(Path::new("/a b/c")).unwrap_err().to_string().contains("whitespace"));
+        let cmd = qemu_command(
+            Path::new("/x/fw.elf"),
+            &["/t/r,1".into(), "/t/o".into()],
+            Path::new("/l,og"),
+        )
+        .unwrap();
+        let args: Vec<String> = cmd
+            .get_args()
+            .map(|a| a.to_string_lossy().into_owned())
+            .collect();
+        let semi = &args[args
+            .iter()
+            .position(|a| a == "-semihosting-config")
+            .unwrap()
+            + 1];
+        assert!(
+            semi.ends_with(",arg=dpsa-firmware,arg=/t/r,,1,arg=/t/o"),
+            "{semi}"
+        );
+        assert!(
+            args.contains(&"file,id=dlog,path=/l,,og".to_string()),
+            "{args:?}"
+        );
+        assert!(arg_path(Path::new("/a b/c"))
+            .unwrap_err()
+            .to_string()
+            .contains("whitespace"));
     }
 }
