@@ -205,10 +205,10 @@ mod tests {
     fn pixel_recovers_cos_and_sin() {
         // Noiseless samples B + C cos(Phi + theta_j) with non-uniform shifts.
         let th = [0.0f64, -1.4, -3.3, -4.6, -6.0];
-        let bam: std::vec::Vec<u32> = th.iter().map(|&t| from_rad(t)).collect();
+        let bam: vec::Vec<u32> = th.iter().map(|&t| from_rad(t)).collect();
         let w = Window::solve(&bam, 2048).unwrap();
         let (b, c, phi) = (1800.0, 700.0, 0.9f64);
-        let s: std::vec::Vec<u16> = th
+        let s: vec::Vec<u16> = th
             .iter()
             .map(|t| (b + c * (phi + t).cos()).round() as u16)
             .collect();
@@ -223,12 +223,12 @@ mod tests {
 
     #[test]
     fn block_is_pixel_reduced() {
-        let bam: std::vec::Vec<u32> = [0.0f64, -1.9, -3.7, -5.8]
+        let bam: vec::Vec<u32> = [0.0f64, -1.9, -3.7, -5.8]
             .iter()
             .map(|&t| from_rad(t))
             .collect();
         let w = Window::solve(&bam, 2048).unwrap();
-        let l: std::vec::Vec<std::vec::Vec<u16>> = (0..4u32)
+        let l: vec::Vec<vec::Vec<u16>> = (0..4u32)
             .map(|j| {
                 (0..37u32)
                     .map(|c| ((c * 977 + j * 3331) % 4200) as u16)
@@ -239,7 +239,7 @@ mod tests {
         let mut out = [[0i32; 2]; 30];
         block(&w, &lines, 5, 4095, &mut out);
         for (k, o) in out.iter().enumerate() {
-            let s: std::vec::Vec<u16> = (0..4).map(|j| l[j][5 + k]).collect();
+            let s: vec::Vec<u16> = (0..4).map(|j| l[j][5 + k]).collect();
             assert_eq!(*o, pixel(&w, &s, 4095).reduce(), "column {}", 5 + k);
         }
         assert!(out.iter().any(|o| o[0] == SATURATED) && out.iter().any(|o| o[0] != SATURATED));

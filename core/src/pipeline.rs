@@ -53,7 +53,7 @@ impl Layout {
     pub const fn bytes(&self) -> usize {
         self.pool_lines * self.width * 2
             + self.pool_lines * 2
-            + self.slots * core::mem::size_of::<Slot>()
+            + self.slots * size_of::<Slot>()
             + self.width * 2
             + self.width.div_ceil(8)
             + self.width * 4

@@ -158,14 +158,15 @@ mod tests {
             if p.abs() < 1e-12 {
                 return None;
             }
-            for k in 0..6 {
-                a[col][k] /= p;
+            for x in a[col].iter_mut() {
+                *x /= p;
             }
-            for r in 0..3 {
+            let pivot = a[col];
+            for (r, row) in a.iter_mut().enumerate() {
                 if r != col {
-                    let f = a[r][col];
-                    for k in 0..6 {
-                        a[r][k] -= f * a[col][k];
+                    let f = row[col];
+                    for (x, q) in row.iter_mut().zip(pivot) {
+                        *x -= f * q;
                     }
                 }
             }

@@ -173,7 +173,7 @@ pub fn stack_high_water() -> usize {
     // SAFETY: reads the painted region only (see `paint_stack`).
     unsafe {
         let top = core::ptr::addr_of!(_stack_start) as usize;
-        let mut p = core::ptr::addr_of!(__sheap) as *const u32;
+        let mut p = core::ptr::addr_of!(__sheap);
         while (p as usize) < top && core::ptr::read_volatile(p) == PAINT {
             p = p.add(1);
         }

@@ -156,7 +156,6 @@ fn run() -> Result<(), Failed> {
     }
 
     if let Some(path) = &args.bench {
-        drop(pipe);
         let stages = bench::stages(
             &cfg, &meter, ref_phase, lines, heights, valid, bench_acc, &clock,
         );
