@@ -29,6 +29,7 @@ cargo fmt --all --check
 (cd firmware && cargo fmt --check)
 cargo clippy --workspace --all-targets --locked -- -D warnings
 bash firmware/build.sh --install --clippy
+(cd fuzz && cargo fmt --check && cargo check --quiet)   # the fuzz target builds on dpsa-core alone
 
 echo "== unit, property and end-to-end tests (the firmware tests run it under QEMU)"
 log=$(mktemp)
