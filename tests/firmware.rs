@@ -4,7 +4,7 @@
 //!   `scenes/defects.toml`, `scenes/fullframe.toml`) the packet stream the firmware emits is
 //!   byte for byte the one `dpsa reconstruct` writes on the host, and it decodes into rows that
 //!   show what the scene was made to contain.
-//! - Bad input: a truncated target recording, a corrupt header and a corrupt reference table
+//! - Bad input: a truncated feed, a corrupt header and a corrupt reference table
 //!   make the firmware exit with a failure status and a logged error naming the fault, never a
 //!   panic or a hang.
 //!
@@ -323,7 +323,7 @@ fn predicted_rows_are_bit_exact() {
 // ---------------------------------------------------------------------------------------------
 // Bad input.
 
-/// A target recording of a small scene, and its header.
+/// A feed of a small scene, and its header.
 fn exported(dir: &Path) -> (PathBuf, feed::Header, Vec<u8>) {
     let sim = simulate(&small_scene(), 21);
     let path = dir.join("recording.dpsr");
@@ -415,7 +415,7 @@ fn corrupt_header_and_table_are_refused() {
         &b,
         &["opening the feed", "header CRC does not match"],
     );
-    // Not a target recording at all.
+    // Not a feed at all.
     let mut b = bytes.clone();
     b[..4].copy_from_slice(b"PNG\0");
     assert_refused(

@@ -67,14 +67,14 @@ pub struct RowPlan {
 ///
 /// Returns every board row from the first frame's top row (`o_0`) to `E_last - 1` exactly
 /// once, in increasing order (rows below `o_0`, visible only after a reversal, never enter):
-/// - rows that entered at frame `w` (`[max(E_{w-1}, o_w + H - max_step), o_w + H)`) carry
+/// - rows that entered at frame `w` (`[max(E_{w-1}, o_w + H - max_step_rows), o_w + H)`) carry
 ///   `first_frame = Some(w)` and the window flags: `INCOMPLETE` when the row is not visible
 ///   in one of the frames `w..w+n-1` or the window runs past the last frame, `FRAME_GAP` when
 ///   consecutive window frames do not have consecutive `seq` (wrapping `u32` counter),
 ///   `ENCODER_REVERSAL` when the latch decreases between consecutive window frames (a
 ///   decrease never re-admits rows because `E_k` is a running maximum). The flags of a window
 ///   truncated by the end of the recording are evaluated over the frames that exist;
-/// - all other rows (below the `max_step` bound of the frame that first showed them) are
+/// - all other rows (below the `max_step_rows` bound of the frame that first showed them) are
 ///   `SKIPPED` with no frame.
 ///
 /// Frame-content checks (a frame that did not deliver the row's line) are added by
@@ -83,7 +83,7 @@ pub struct RowPlan {
 pub fn plan(manifest: &Manifest) -> Vec<RowPlan> {
     let h = i64::from(manifest.camera.rows);
     let n = usize::from(manifest.processing.n);
-    let max_step = i64::from(manifest.processing.max_step_rows);
+    let max_step_rows = i64::from(manifest.processing.max_step_rows);
     let frames = &manifest.frames;
     let Some(o) = offsets(manifest) else {
         return Vec::new();
@@ -107,7 +107,7 @@ pub fn plan(manifest: &Manifest) -> Vec<RowPlan> {
     let mut e_prev = i64::MIN; // E_{k-1}, -inf before the first frame
     for (k, &ok) in o.iter().enumerate() {
         let top = ok + h;
-        let from = e_prev.max(top - max_step).max(lo);
+        let from = e_prev.max(top - max_step_rows).max(lo);
         for b in from..top {
             let f = window_flags(b, k, n, h, &o, frames);
             rows[(b - lo) as usize] = RowPlan {

@@ -11,7 +11,7 @@ const S: u16 = flags::SKIPPED;
 const G: u16 = flags::FRAME_GAP;
 const R: u16 = flags::ENCODER_REVERSAL;
 
-fn manifest(width: u32, h: u32, n: u8, max_step: u32, cpp: f64, fr: &[(u32, i64)]) -> Manifest {
+fn manifest(width: u32, h: u32, n: u8, max_step_rows: u32, cpp: f64, fr: &[(u32, i64)]) -> Manifest {
     Manifest {
         format: crate::simulation::recording::FORMAT.into(),
         version: crate::simulation::recording::VERSION,
@@ -31,7 +31,7 @@ fn manifest(width: u32, h: u32, n: u8, max_step: u32, cpp: f64, fr: &[(u32, i64)
         },
         processing: Processing {
             n,
-            max_step_rows: max_step,
+            max_step_rows,
             min_modulation: 60.0,
             max_noise_gain: 2.0,
         },
@@ -215,10 +215,10 @@ fn plan_degenerate_inputs() {
 proptest::proptest! {
     #[test]
     fn plan_covers_each_row_once(steps in proptest::collection::vec(-3i64..9, 0..30),
-                                 h in 1u32..12, max_step in 0u32..10) {
+                                 h in 1u32..12, max_step_rows in 0u32..10) {
         let mut latches = vec![0i64];
         for s in steps { latches.push(latches.last().unwrap() + s); }
-        let m = manifest(1, h, 3, max_step, 1.0, &seqs(&latches));
+        let m = manifest(1, h, 3, max_step_rows, 1.0, &seqs(&latches));
         let p = plan(&m);
         let lo = &latches[0];
         let end = latches.iter().max().unwrap() + i64::from(h);
