@@ -11,7 +11,14 @@ const S: u16 = flags::SKIPPED;
 const G: u16 = flags::FRAME_GAP;
 const R: u16 = flags::ENCODER_REVERSAL;
 
-fn manifest(width: u32, h: u32, n: u8, max_step_rows: u32, cpp: f64, fr: &[(u32, i64)]) -> Manifest {
+fn manifest(
+    width: u32,
+    h: u32,
+    n: u8,
+    max_step_rows: u32,
+    cpp: f64,
+    fr: &[(u32, i64)],
+) -> Manifest {
     Manifest {
         format: crate::simulation::recording::FORMAT.into(),
         version: crate::simulation::recording::VERSION,
