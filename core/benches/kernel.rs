@@ -7,6 +7,7 @@
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use dpsa_core::{
     accumulate,
+    fixed::types::{U16F16, U20F12, U8F8},
     height::Scale,
     phase::from_rad,
     pipeline::{Pipeline, State},
@@ -23,12 +24,12 @@ fn config() -> Config {
         rows: 40,
         n: 4,
         camera: 0,
-        counts_per_pixel_q16: 10 << 16,
+        counts_per_pixel: U16F16::from_num(10),
         fx: 1 << 27,
-        lsb_per_turn_q16: 2000 << 16,
+        lsb_per_turn: U16F16::from_num(2000),
         saturation: 4095,
-        min_modulation_q12: 60 << 12,
-        max_noise_gain_q8: 512,
+        min_modulation: U20F12::from_num(60),
+        max_noise_gain: U8F8::from_num(2),
         max_step_rows: 10,
     }
 }
@@ -49,7 +50,7 @@ fn kernel(c: &mut Criterion) {
     let cfg = config();
     let th = [0.0f64, -99.0, -180.0, -281.0];
     let shifts: Vec<u32> = th.iter().map(|t| from_rad(t.to_radians())).collect();
-    let win = Window::solve(&shifts, 512).unwrap();
+    let win = Window::solve(&shifts, U8F8::from_num(2)).unwrap();
     let scale = Scale::new(&cfg);
     let l = lines();
     let refp: Vec<u32> = (0..W).map(|c| from_rad(0.01 * c as f64)).collect();
@@ -68,7 +69,7 @@ fn kernel(c: &mut Criterion) {
     });
     g.finish();
     c.bench_function("solve/window n=4", |b| {
-        b.iter(|| Window::solve(black_box(&shifts), 512))
+        b.iter(|| Window::solve(black_box(&shifts), U8F8::from_num(2)))
     });
 }
 

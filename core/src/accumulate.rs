@@ -206,7 +206,7 @@ mod tests {
         // Noiseless samples B + C cos(Phi + theta_j) with non-uniform shifts.
         let th = [0.0f64, -1.4, -3.3, -4.6, -6.0];
         let bam: vec::Vec<u32> = th.iter().map(|&t| from_rad(t)).collect();
-        let w = Window::solve(&bam, 2048).unwrap();
+        let w = Window::solve(&bam, fixed::types::U8F8::from_num(8)).unwrap();
         let (b, c, phi) = (1800.0, 700.0, 0.9f64);
         let s: vec::Vec<u16> = th
             .iter()
@@ -227,7 +227,7 @@ mod tests {
             .iter()
             .map(|&t| from_rad(t))
             .collect();
-        let w = Window::solve(&bam, 2048).unwrap();
+        let w = Window::solve(&bam, fixed::types::U8F8::from_num(8)).unwrap();
         let l: vec::Vec<vec::Vec<u16>> = (0..4u32)
             .map(|j| {
                 (0..37u32)

@@ -3,6 +3,7 @@
 use crate::accumulate::{Acc, SATURATED, V};
 use crate::frames::Config;
 use crate::phase::atan2;
+use fixed::types::{U16F16, U20F12};
 
 /// Largest height magnitude written (LSB): half a turn at the largest scale `Config` accepts
 /// (`< 2^15` LSB per turn); `i16::MIN` is never produced.
@@ -18,25 +19,34 @@ pub enum Invalid {
 }
 
 /// Constants of the phase-to-height step, derived once from [`Config`].
+///
+/// Both fields are read for every pixel ([`Scale::height`], [`Scale::phase_v`]), so they are
+/// the raw integers the per-pixel arithmetic multiplies and compares, with their Q-formats
+/// stated here; the fixed-point types end at [`Scale::from_parts`] (`to_bits()` once per
+/// pipeline):
+/// - `k`: height LSBs per turn, Q16.16 in an `i32` (the bits of [`Config::lsb_per_turn`],
+///   `< 2^31`), the factor of the signed 32 x 32 -> 64 product in [`Scale::height`];
+/// - `min_c2`: the square of [`Config::min_modulation`]'s Q20.12 bits, a threshold on
+///   `C^2` in DN^2 with 24 fractional bits (Q40.24 in a `u64`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Scale {
     /// Height LSBs per turn, Q16.16.
     k: i32,
-    /// `(min_modulation in Q12)^2`: threshold on `C^2` in DN^2 * 2^24.
+    /// `min_modulation^2`, Q40.24: threshold on `C^2` in DN^2 * 2^24.
     min_c2: u64,
 }
 
 impl Scale {
     pub fn new(cfg: &Config) -> Scale {
-        Scale::from_parts(cfg.lsb_per_turn_q16, cfg.min_modulation_q12)
+        Scale::from_parts(cfg.lsb_per_turn, cfg.min_modulation)
     }
 
-    /// From LSB per turn (Q16.16) and the modulation threshold (DN, Q20.12).
-    pub fn from_parts(lsb_per_turn_q16: u32, min_modulation_q12: u32) -> Scale {
-        let m = min_modulation_q12 as u64;
+    /// From LSB per turn and the modulation threshold (DN).
+    pub fn from_parts(lsb_per_turn: U16F16, min_modulation: U20F12) -> Scale {
+        let m = min_modulation.to_bits() as u64;
         // `Config::validate` keeps LSB per turn below 2^31; the clamp covers direct callers.
         Scale {
-            k: lsb_per_turn_q16.min(i32::MAX as u32) as i32,
+            k: lsb_per_turn.to_bits().min(i32::MAX as u32) as i32,
             min_c2: m.saturating_mul(m),
         }
     }
@@ -149,12 +159,12 @@ mod tests {
             rows: 8,
             n: 4,
             camera: 0,
-            counts_per_pixel_q16: 1 << 16,
+            counts_per_pixel: U16F16::ONE,
             fx: 1 << 27,
-            lsb_per_turn_q16: (lsb_per_turn * 65536.0).round() as u32,
+            lsb_per_turn: U16F16::from_bits((lsb_per_turn * 65536.0).round() as u32),
             saturation: 4095,
-            min_modulation_q12: (min_mod * 4096.0).round() as u32,
-            max_noise_gain_q8: 512,
+            min_modulation: U20F12::from_bits((min_mod * 4096.0).round() as u32),
+            max_noise_gain: fixed::types::U8F8::from_num(2),
             max_step_rows: 4,
         }
     }
@@ -193,7 +203,7 @@ mod tests {
         let lo = s.pixel(&acc(500.0, -PI + 1e-4), 0).unwrap();
         assert!(hi > 16_380 && lo < -16_380, "{hi} {lo}");
         // The extreme difference (-pi exactly) at the largest scale stays inside H_MAX.
-        let s_max = Scale::from_parts(u32::MAX, 0);
+        let s_max = Scale::from_parts(U16F16::MAX, U20F12::ZERO);
         for (phi, r) in [
             (0x8000_0000u32, 0u32),
             (0, 0x8000_0000),

@@ -34,7 +34,7 @@
 //!
 //! frames -> [`solve`] -> [`accumulate`] -> [`phase`] -> [`height`] -> [`row`] -> [`packets`] -> [`sink`]
 //!
-//! - [`frames`]: integer [`frames::Config`], the frame [`frames::Trigger`], encoder latch to row
+//! - [`frames`]: integer and fixed-point [`frames::Config`], the frame [`frames::Trigger`], encoder latch to row
 //!   offset and phase shift ([`frames::Config::shift`]); [`frames::registration`]: which board
 //!   rows a frame admits or skips, the slot ring of open rows; [`frames::feed`]: the byte format
 //!   a frame grabber is fed (configuration, reference phase, triggers and lines).
@@ -67,6 +67,18 @@
 //! | `v = P i` | i64, DN * 2^24 | exact given `P` |
 //! | `atan2` | u32 binary angle | `2e-6` rad |
 //! | height | i16 LSB | `<= 0.5` LSB rounding + phase error |
+//!
+//! ## Q-formats as types
+//!
+//! The configuration's Q-formats are [`fixed`] types (re-exported as [`crate::fixed`], so a
+//! dependent needs no version of its own): [`Config::counts_per_pixel`] and
+//! [`Config::lsb_per_turn`] `U16F16`, [`Config::min_modulation`] `U20F12`,
+//! [`Config::max_noise_gain`] `U8F8` (also the limit [`solve::Window::solve`] takes), and
+//! [`height::Scale::from_parts`] takes the same types. Their bits are taken once per
+//! configuration or window (`to_bits()`), never in a per-pixel loop. What the per-pixel loops
+//! read stays a plain integer with its format documented: the `P` entries of
+//! [`solve::Window`] (Q7.24 `i32`), the constants inside [`height::Scale`], and binary angles
+//! (`u32`, wrapping by design: see [`phase`]).
 
 #![no_std]
 #![forbid(unsafe_code)]
@@ -87,6 +99,7 @@ pub mod row;
 pub mod sink;
 pub mod solve;
 
+pub use fixed;
 pub use frames::{Config, Trigger};
 pub use pipeline::{Layout, Memory, Pipeline};
 pub use row::{flags, Row, RowHeader};

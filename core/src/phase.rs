@@ -4,6 +4,13 @@
 //! phases with `wrapping_add`/`wrapping_sub` wraps modulo `2 pi` for free, and reading the result
 //! as `i32` maps it into `[-pi, pi)`.
 //!
+//! Binary angles (phases, shifts, `Config::fx`, the reference-phase table) stay plain `u32`
+//! rather than `fixed`'s `U0F32` (turns): a binary angle is a wrapping `u32` by design, and
+//! the phase arithmetic is integer wrapping arithmetic on it (sums and differences modulo a
+//! turn, the difference read as a signed `i32`, `rows * fx` as a wrapping integer product, the
+//! top bits indexing the `atan`/`sin` tables), none of which a `U0F32` would express more
+//! clearly than the `u32` it would have to be converted back to.
+//!
 //! Error bounds (tested below on dense grids over the full circle and at small magnitudes):
 //! - [`atan2`]: at most [`ATAN2_MAX_ERR_RAD`] from the exact angle for any input pair except
 //!   `(0, 0)` (which returns 0 and is caught as zero modulation upstream).

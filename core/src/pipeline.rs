@@ -155,7 +155,8 @@ pub struct Pipeline<'a> {
 }
 
 impl<'a> Pipeline<'a> {
-    /// Builds a pipeline. `ref_phase[c]` is `phi_0(c)` as a binary angle.
+    /// Builds a pipeline. `ref_phase[c]` is `phi_0(c)` as a binary angle (a wrapping `u32`,
+    /// see [`crate::phase`]).
     pub fn new(cfg: Config, ref_phase: &'a [u32], mem: Memory<'a>) -> Result<Self, NewError> {
         cfg.validate().map_err(NewError::Config)?;
         let lay = Layout::of(&cfg);
@@ -239,7 +240,7 @@ impl<'a> Pipeline<'a> {
             }
             let mut shifts = [0u32; MAX_N];
             self.cfg.shifts(&offsets[..n], &mut shifts);
-            self.win = Window::solve(&shifts[..n], self.cfg.max_noise_gain_q8);
+            self.win = Window::solve(&shifts[..n], self.cfg.max_noise_gain);
         }
         self.open = true;
         self.next_line = 0;
@@ -525,6 +526,7 @@ mod tests {
     extern crate std;
     use super::*;
     use crate::phase::from_rad;
+    use fixed::types::{U16F16, U20F12, U8F8};
     use proptest::prelude::*;
     use std::f64::consts::PI;
     use std::vec;
@@ -539,12 +541,12 @@ mod tests {
             rows: H,
             n: 4,
             camera: 3,
-            counts_per_pixel_q16: 10 << 16,
+            counts_per_pixel: U16F16::from_num(10),
             fx: 1 << 27, // period 32 px
-            lsb_per_turn_q16: 2000 << 16,
+            lsb_per_turn: U16F16::from_num(2000),
             saturation: 4095,
-            min_modulation_q12: 40 << 12,
-            max_noise_gain_q8: 512,
+            min_modulation: U20F12::from_num(40),
+            max_noise_gain: U8F8::from_num(2),
             max_step_rows: 8,
         }
     }

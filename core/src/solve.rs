@@ -22,6 +22,7 @@
 //! times the noise gain for random non-uniform shift sets.
 
 use crate::phase::sincos;
+use fixed::types::U8F8;
 
 /// Largest number of observations per board row.
 pub const MAX_N: usize = 8;
@@ -40,6 +41,11 @@ pub enum SolveError {
 }
 
 /// Rows 2 and 3 of `P` for one window, Q7.24.
+///
+/// The entries stay raw `i32` (Q7.24, [`P_FRAC`] fractional bits) rather than `fixed`'s
+/// `I8F24`, because they are consumed as raw integers by the per-pixel multiply-accumulate
+/// `v = P i` (`p as i64 * sample as i64`, an `SMLAL` on the Cortex-M7, in [`crate::accumulate`]),
+/// the hot loop this type exists for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Window {
     /// Observations in the window.
@@ -53,17 +59,18 @@ pub struct Window {
 impl Window {
     /// Solves a window from its phase shifts `theta_j` (binary angles).
     ///
-    /// `max_gain_q8` is the largest accepted noise gain `g` in Q8.8 (`256` = 1.0, allowed
-    /// `256..=2048`). `g = sqrt(n / (2 lambda_min(A)))` is the worst-case amplification of phase
-    /// noise relative to an ideal equally spaced `n`-step set (`g = 1`).
+    /// `max_gain` is the largest accepted noise gain `g` (Q8.8, clamped to `1..=8`).
+    /// `g = sqrt(n / (2 lambda_min(A)))` is the worst-case amplification of phase noise
+    /// relative to an ideal equally spaced `n`-step set (`g = 1`).
     /// `lambda_min(A) >= L` is tested as `A - L I` positive semi-definite:
     /// `a - L >= 0`, `d - L >= 0`, `(a - L)(d - L) >= b^2`, in i128.
-    pub fn solve(shifts: &[u32], max_gain_q8: u16) -> Result<Window, SolveError> {
+    pub fn solve(shifts: &[u32], max_gain: U8F8) -> Result<Window, SolveError> {
         let n = shifts.len();
         if !(MIN_N..=MAX_N).contains(&n) {
             return Err(SolveError::BadCount);
         }
-        let g = max_gain_q8.clamp(256, 2048) as i128;
+        // g_q8: the Q8.8 bits of the limit.
+        let g = max_gain.to_bits().clamp(256, 2048) as i128;
         // cos, sin in Q1.24.
         let mut c = [0i64; MAX_N];
         let mut s = [0i64; MAX_N];
@@ -199,7 +206,7 @@ mod tests {
     #[test]
     fn uniform_four_step_is_exact() {
         let th = [0.0, -PI / 2.0, -PI, -1.5 * PI];
-        let w = Window::solve(&shifts_bam(&th), 256).unwrap();
+        let w = Window::solve(&shifts_bam(&th), U8F8::ONE).unwrap();
         // Orthogonal set: P_2 = (2/n) cos theta, P_3 = -(2/n) sin theta, sin theta = 0,-1,0,1.
         let half = 1i32 << 23;
         assert_eq!(&w.p2[..4], &[half, 0, -half, 0]);
@@ -210,17 +217,23 @@ mod tests {
     fn stalled_and_two_phase_windows_are_ill_conditioned() {
         let stalled = [0u32; 4];
         assert_eq!(
-            Window::solve(&stalled, 2048),
+            Window::solve(&stalled, U8F8::from_num(8)),
             Err(SolveError::IllConditioned)
         );
         let full_period = [0u32, 0, 0, 0, 0];
         assert_eq!(
-            Window::solve(&full_period, 512),
+            Window::solve(&full_period, U8F8::from_num(2)),
             Err(SolveError::IllConditioned)
         );
         let two = [0u32, 1 << 31, 0, 1 << 31];
-        assert_eq!(Window::solve(&two, 2048), Err(SolveError::IllConditioned));
-        assert_eq!(Window::solve(&[0, 1], 512), Err(SolveError::BadCount));
+        assert_eq!(
+            Window::solve(&two, U8F8::from_num(8)),
+            Err(SolveError::IllConditioned)
+        );
+        assert_eq!(
+            Window::solve(&[0, 1], U8F8::from_num(2)),
+            Err(SolveError::BadCount)
+        );
     }
 
     proptest! {
@@ -232,7 +245,7 @@ mod tests {
                          gain in 256u16..=2048) {
             let th: Vec<f64> = raw[..n].iter().map(|x| -2.0 * PI * x).collect();
             let gmax = gain as f64 / 256.0;
-            let res = Window::solve(&shifts_bam(&th), gain);
+            let res = Window::solve(&shifts_bam(&th), U8F8::from_bits(gain));
             match p_f64(&th) {
                 Some((p2, p3, g)) if g.is_finite() && g < gmax * (1.0 - 1e-6) => {
                     let w = res.expect("well-conditioned window rejected");
@@ -267,7 +280,9 @@ mod tests {
                 bam.push(b);
                 th.push(b as i32 as f64 / UNITS_PER_RAD);
             }
-            if let (Ok(w), Some((p2, p3, g))) = (Window::solve(&bam, 2048), p_f64(&th)) {
+            if let (Ok(w), Some((p2, p3, g))) =
+                (Window::solve(&bam, U8F8::from_num(8)), p_f64(&th))
+            {
                 let q = (1u64 << P_FRAC) as f64;
                 for j in 0..n {
                     prop_assert!((w.p2[j] as f64 / q - p2[j]).abs() <= 3e-7 * g * g + 1.0 / q);

@@ -54,7 +54,7 @@ impl Meter {
         let mut shifts = [0u32; MAX_N];
         cfg.shifts(&self.offsets[MAX_N - n..], &mut shifts);
         let t = clock.ticks();
-        let w = Window::solve(core::hint::black_box(&shifts[..n]), cfg.max_noise_gain_q8);
+        let w = Window::solve(core::hint::black_box(&shifts[..n]), cfg.max_noise_gain);
         self.solve_ticks += clock.ticks() - t;
         self.solves += 1;
         if let Ok(w) = w {

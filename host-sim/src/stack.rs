@@ -2,6 +2,7 @@
 //! fixed-point kernel as the pipeline and an independent f64 least squares beside it.
 
 use anyhow::{anyhow, bail, Context, Result};
+use dpsa_core::fixed::types::{U16F16, U20F12, U8F8};
 use dpsa_core::{accumulate, height::Scale, phase, solve::Window};
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
@@ -127,10 +128,13 @@ pub fn run(stack: &Stack, min_modulation: f64) -> Result<(StackPhase, PhaseRepor
         .iter()
         .map(|&s| phase::from_rad(s))
         .collect();
-    let win = Window::solve(&shifts, 2048).map_err(|e| {
+    let win = Window::solve(&shifts, U8F8::from_num(8)).map_err(|e| {
         anyhow!("the phase steps give no usable solution ({e:?}): noise gain above 8")
     })?;
-    let scale = Scale::from_parts(1 << 16, (min_modulation * 4096.0).round() as u32);
+    let scale = Scale::from_parts(
+        U16F16::ONE,
+        U20F12::from_bits((min_modulation * 4096.0).round() as u32),
+    );
     // f64 path: P = (M^T M)^-1 M^T with rows [1, cos s, -sin s].
     let m = DMatrix::from_fn(n, 3, |j, k| match k {
         0 => 1.0,

@@ -10,8 +10,8 @@
 //! ```text
 //! header (64 B)   0 "DPSR"  4 version u16 = 1  6 header length u16 = 64
 //!                 8 W u16  10 H u16  12 n u8  13 camera u8  14 saturation u16
-//!                16 counts_per_pixel_q16 u32  20 fx u32  24 lsb_per_turn_q16 u32
-//!                28 min_modulation_q12 u32  32 max_noise_gain_q8 u16  34 max_step_rows u16
+//!                16 counts_per_pixel U16F16  20 fx u32  24 lsb_per_turn U16F16
+//!                28 min_modulation U20F12  32 max_noise_gain U8F8  34 max_step_rows u16
 //!                36 frames u32  40 intra period u32  44..60 zero
 //!                60 CRC-32 (ISO-HDLC) of bytes 0..60
 //! ref phase      W x u32 binary angles, then CRC-32 of those 4W bytes
@@ -24,6 +24,7 @@
 
 use super::{Config, Trigger};
 use crc::{Crc, CRC_32_ISO_HDLC};
+use fixed::types::{U16F16, U20F12, U8F8};
 
 /// Magic of a feed.
 pub const MAGIC: [u8; 4] = *b"DPSR";
@@ -84,11 +85,11 @@ impl Header {
         b[12] = c.n;
         b[13] = c.camera;
         b[14..16].copy_from_slice(&c.saturation.to_le_bytes());
-        b[16..20].copy_from_slice(&c.counts_per_pixel_q16.to_le_bytes());
+        b[16..20].copy_from_slice(&c.counts_per_pixel.to_bits().to_le_bytes());
         b[20..24].copy_from_slice(&c.fx.to_le_bytes());
-        b[24..28].copy_from_slice(&c.lsb_per_turn_q16.to_le_bytes());
-        b[28..32].copy_from_slice(&c.min_modulation_q12.to_le_bytes());
-        b[32..34].copy_from_slice(&c.max_noise_gain_q8.to_le_bytes());
+        b[24..28].copy_from_slice(&c.lsb_per_turn.to_bits().to_le_bytes());
+        b[28..32].copy_from_slice(&c.min_modulation.to_bits().to_le_bytes());
+        b[32..34].copy_from_slice(&c.max_noise_gain.to_bits().to_le_bytes());
         b[34..36].copy_from_slice(&c.max_step_rows.to_le_bytes());
         b[36..40].copy_from_slice(&self.frames.to_le_bytes());
         b[40..44].copy_from_slice(&self.intra_period.to_le_bytes());
@@ -124,11 +125,11 @@ impl Header {
             n: b[12],
             camera: b[13],
             saturation: u16_at(b, 14),
-            counts_per_pixel_q16: u32_at(b, 16),
+            counts_per_pixel: U16F16::from_bits(u32_at(b, 16)),
             fx: u32_at(b, 20),
-            lsb_per_turn_q16: u32_at(b, 24),
-            min_modulation_q12: u32_at(b, 28),
-            max_noise_gain_q8: u16_at(b, 32),
+            lsb_per_turn: U16F16::from_bits(u32_at(b, 24)),
+            min_modulation: U20F12::from_bits(u32_at(b, 28)),
+            max_noise_gain: U8F8::from_bits(u16_at(b, 32)),
             max_step_rows: u16_at(b, 34),
         };
         cfg.validate().map_err(FeedError::Config)?;
@@ -227,12 +228,12 @@ mod tests {
                 rows: 40,
                 n: 4,
                 camera: 2,
-                counts_per_pixel_q16: 10 << 16 | 0x4000,
+                counts_per_pixel: U16F16::from_bits(10 << 16 | 0x4000),
                 fx: 1 << 27,
-                lsb_per_turn_q16: 2000 << 16,
+                lsb_per_turn: U16F16::from_num(2000),
                 saturation: 4095,
-                min_modulation_q12: 60 << 12,
-                max_noise_gain_q8: 512,
+                min_modulation: U20F12::from_num(60),
+                max_noise_gain: U8F8::from_num(2),
                 max_step_rows: 10,
             },
             frames: 277,

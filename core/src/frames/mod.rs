@@ -3,12 +3,16 @@
 //!
 //! The configuration is all integers, converted once from the calibration (on the host, from
 //! the recording manifest). The host and the firmware run on the same `Config` values, which
-//! is what makes their outputs bit-identical.
+//! is what makes their outputs bit-identical. A Q-format field is a [`fixed`] type
+//! (`U16F16`, `U20F12`, `U8F8`): the format is in the type, the bits are the integer the
+//! arithmetic uses (`to_bits()`, taken once per configuration, never per pixel). Binary
+//! angles (`fx`, the reference phase) stay `u32`: see [`crate::phase`].
 //!
 //! - [`feed`]: the byte format a frame grabber is fed (configuration, reference phase, frames).
 //! - [`registration`]: which board rows a frame admits or skips, and where open rows live.
 
 use crate::solve::{MAX_N, MIN_N};
+use fixed::types::{U16F16, U20F12, U8F8};
 
 pub mod feed;
 pub mod registration;
@@ -22,7 +26,7 @@ pub struct Trigger {
     pub latch: i64,
 }
 
-/// Processing configuration (geometry, calibration, thresholds) in integer form.
+/// Processing configuration (geometry, calibration, thresholds) in integer and fixed-point form.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Config {
     /// Columns `W`.
@@ -33,18 +37,18 @@ pub struct Config {
     pub n: u8,
     /// Camera id written into packets.
     pub camera: u8,
-    /// Encoder counts per pixel of travel, Q16.16 (must be > 0).
-    pub counts_per_pixel_q16: u32,
+    /// Encoder counts per pixel of travel (Q16.16, must be > 0).
+    pub counts_per_pixel: U16F16,
     /// Fringe phase advance per image row `2 pi f_x`, binary angle.
     pub fx: u32,
-    /// Height LSBs per fringe turn `T_z / lsb`, Q16.16 (`< 2^31`).
-    pub lsb_per_turn_q16: u32,
+    /// Height LSBs per fringe turn `T_z / lsb` (Q16.16, `0 < lsb_per_turn < 32768`).
+    pub lsb_per_turn: U16F16,
     /// A sample `>= saturation` (DN) is saturated.
     pub saturation: u16,
-    /// Minimum modulation `C` of a valid pixel, DN in Q20.12.
-    pub min_modulation_q12: u32,
-    /// Largest accepted window noise gain, Q8.8 (256..=2048).
-    pub max_noise_gain_q8: u16,
+    /// Minimum modulation `C` of a valid pixel, DN (Q20.12).
+    pub min_modulation: U20F12,
+    /// Largest accepted window noise gain (Q8.8, `1..=8`).
+    pub max_noise_gain: U8F8,
     /// Largest number of new board rows admitted per frame.
     pub max_step_rows: u16,
 }
@@ -73,13 +77,14 @@ impl Config {
         if !(MIN_N..=MAX_N).contains(&(self.n as usize)) {
             return Err(ConfigError::Count);
         }
-        if self.counts_per_pixel_q16 == 0 {
+        if self.counts_per_pixel.to_bits() == 0 {
             return Err(ConfigError::CountsPerPixel);
         }
-        if self.lsb_per_turn_q16 == 0 || self.lsb_per_turn_q16 >= 1 << 31 {
+        let lsb_per_turn = self.lsb_per_turn.to_bits();
+        if lsb_per_turn == 0 || lsb_per_turn >= 1 << 31 {
             return Err(ConfigError::LsbPerTurn);
         }
-        if !(256..=2048).contains(&self.max_noise_gain_q8) {
+        if !(256..=2048).contains(&self.max_noise_gain.to_bits()) {
             return Err(ConfigError::NoiseGain);
         }
         if self.max_step_rows == 0 || self.max_step_rows > self.rows {
@@ -90,7 +95,7 @@ impl Config {
 
     /// Board-row offset of a frame: `floor(latch / cpp + 1/2)`, exact in integers.
     pub fn offset(&self, latch: i64) -> i64 {
-        let q = self.counts_per_pixel_q16 as i128;
+        let q = self.counts_per_pixel.to_bits() as i128;
         let num = ((latch as i128) << 17) + q;
         num.div_euclid(2 * q) as i64
     }
@@ -130,12 +135,12 @@ mod tests {
             rows: 8,
             n: 4,
             camera: 0,
-            counts_per_pixel_q16: (cpp * 65536.0) as u32,
+            counts_per_pixel: U16F16::from_bits((cpp * 65536.0) as u32),
             fx: 1 << 27,
-            lsb_per_turn_q16: 2000 << 16,
+            lsb_per_turn: U16F16::from_num(2000),
             saturation: 4095,
-            min_modulation_q12: 0,
-            max_noise_gain_q8: 512,
+            min_modulation: U20F12::ZERO,
+            max_noise_gain: U8F8::from_num(2),
             max_step_rows: 4,
         }
     }
@@ -144,7 +149,7 @@ mod tests {
     fn offset_rounds_half_up_like_f64() {
         for &cpp in &[10.25, 1.0, 0.5, 7.015625, 3.0 + 1.0 / 65536.0] {
             let c = cfg(cpp);
-            let cppq = c.counts_per_pixel_q16 as f64 / 65536.0;
+            let cppq = c.counts_per_pixel.to_bits() as f64 / 65536.0;
             for e in -5000i64..5000 {
                 let want = (e as f64 / cppq + 0.5).floor() as i64;
                 assert_eq!(c.offset(e), want, "cpp {cpp} e {e}");

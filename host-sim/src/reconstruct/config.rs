@@ -2,13 +2,16 @@
 
 use crate::simulation::recording::Manifest;
 use anyhow::{anyhow, Result};
+use dpsa_core::fixed::types::{U16F16, U20F12, U8F8};
 use dpsa_core::{phase, Config};
 
 /// Integer core configuration and reference-phase table from a manifest.
 ///
 /// This is the one place where calibration floats become the integers both the host and the
-/// firmware run on: `cpp` in Q16.16, `2 pi f_x` and `phi_0(c)` as binary angles, LSB per turn
-/// in Q16.16, the modulation threshold in Q12, the noise-gain limit in Q8.
+/// firmware run on: `cpp` as `U16F16`, `2 pi f_x` and `phi_0(c)` as binary angles (`u32`), LSB
+/// per turn as `U16F16`, the modulation threshold as `U20F12`, the noise-gain limit as `U8F8`.
+/// Each fixed-point value is `from_bits(round(x * 2^frac))` (round half away from zero, range
+/// checked): `fixed`'s `from_num` truncates, so it is not used here.
 pub fn config(m: &Manifest) -> Result<(Config, Vec<u32>)> {
     let cal = &m.calibration;
     let p = &m.processing;
@@ -30,18 +33,21 @@ pub fn config(m: &Manifest) -> Result<(Config, Vec<u32>)> {
         rows: narrow(m.camera.rows, "camera.rows")?,
         n: p.n,
         camera: m.camera.id,
-        counts_per_pixel_q16: to_u32(cal.counts_per_pixel * 65536.0, "counts_per_pixel")?,
+        counts_per_pixel: U16F16::from_bits(to_u32(
+            cal.counts_per_pixel * 65536.0,
+            "counts_per_pixel",
+        )?),
         fx: (4_294_967_296.0 / cal.fringe_period_px).round() as u64 as u32,
-        lsb_per_turn_q16: to_u32(
+        lsb_per_turn: U16F16::from_bits(to_u32(
             cal.height_per_turn_um / cal.height_lsb_um * 65536.0,
             "lsb per turn",
-        )?,
+        )?),
         saturation: m.camera.saturation,
-        min_modulation_q12: to_u32(p.min_modulation * 4096.0, "min_modulation")?,
-        max_noise_gain_q8: narrow(
+        min_modulation: U20F12::from_bits(to_u32(p.min_modulation * 4096.0, "min_modulation")?),
+        max_noise_gain: U8F8::from_bits(narrow(
             to_u32(p.max_noise_gain * 256.0, "max_noise_gain")?,
             "max_noise_gain",
-        )?,
+        )?),
         max_step_rows: narrow(p.max_step_rows, "max_step_rows")?,
     };
     cfg.validate()
