@@ -76,7 +76,7 @@ pub fn load_scene(spec: &str) -> Result<Scene> {
     let scene = if spec == "default" {
         Scene::default()
     } else {
-        Scene::load(spec).with_context(|| format!("scene {spec}"))?
+        Scene::load(spec)? // the error names the file
     };
     warn(&scene.warnings());
     Ok(scene)

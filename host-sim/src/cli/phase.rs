@@ -13,10 +13,10 @@ pub struct Args {
     /// Phase step of the matching image in degrees (repeat, one per --image):
     /// I = B + C cos(phase + step).
     /// Finite, within +/-36000 degrees; negative steps are fine.
-    #[arg(long = "step", required = true, allow_negative_numbers = true, value_parser = super::step_deg)]
+    #[arg(long = "step", required = true, allow_hyphen_values = true, value_parser = super::step_deg)]
     steps: Vec<f64>,
     /// Minimum fringe modulation C of a valid pixel, DN (default: 4% of full scale; >= 0).
-    #[arg(long, allow_negative_numbers = true, value_parser = super::non_negative)]
+    #[arg(long, allow_hyphen_values = true, value_parser = super::non_negative)]
     min_modulation: Option<f64>,
     /// Print one JSON object.
     #[arg(long)]
