@@ -438,7 +438,7 @@ impl Scene {
             .map(|j| -2.0 * PI * fx * (f64::from(j) * self.mean_step_px).round())
             .collect();
         let g = crate::reference::noise_gain(&shifts);
-        if w.is_empty() && !(g <= self.max_noise_gain) {
+        if w.is_empty() && (g.is_nan() || g > self.max_noise_gain) {
             w.push(format!(
                 "the nominal window ({} frames {} px apart, {:.1} degrees of phase per step) has noise gain {g:.3e}, above max_noise_gain {}: most windows will be ILL_CONDITIONED",
                 self.n,
