@@ -95,6 +95,20 @@ pub fn io_cause(e: &std::io::Error) -> String {
     }
 }
 
+/// The cause of a failed write as a predicate after a path: "cannot be written: no space
+/// left on the device (disk full)", "is a directory", ...
+pub fn write_cause(e: &std::io::Error) -> String {
+    match e.raw_os_error() {
+        Some(28) => "cannot be written: no space left on the device (disk full)".into(),
+        Some(21) => "is a directory".into(),
+        _ if e.kind() == std::io::ErrorKind::PermissionDenied => {
+            "cannot be written: permission denied".into()
+        }
+        _ if e.raw_os_error().is_none() => format!("cannot be written: {e}"),
+        _ => format!("cannot be written: {}", plain(e)),
+    }
+}
+
 /// An I/O error's text without the `(os error N)` suffix.
 pub fn plain(e: &std::io::Error) -> String {
     let s = e.to_string();
@@ -119,9 +133,7 @@ enum Inner {
 impl AtomicFile {
     /// Starts writing `path`. Refuses a directory; creates the temporary in `path`'s directory.
     pub fn create(path: &Path) -> Result<AtomicFile> {
-        let fail = |e: std::io::Error| {
-            anyhow::anyhow!("cannot write {}: {}", path.display(), io_cause(&e))
-        };
+        let fail = |e: std::io::Error| anyhow::anyhow!("{} {}", path.display(), write_cause(&e));
         match std::fs::metadata(path) {
             Ok(m) if m.is_dir() => bail!("cannot write {}: it is a directory", path.display()),
             Ok(m) if !m.is_file() => {
@@ -152,7 +164,7 @@ impl AtomicFile {
                     "cannot write {}: a temporary file in {} {}",
                     path.display(),
                     dir.display(),
-                    io_cause(&e)
+                    write_cause(&e)
                 )
             })?;
         Ok(AtomicFile {
@@ -169,9 +181,7 @@ impl AtomicFile {
     /// Flushes and renames the temporary into place (the destination appears whole or not at all).
     pub fn commit(self) -> Result<()> {
         let path = self.path;
-        let fail = |e: std::io::Error| {
-            anyhow::anyhow!("cannot write {}: {}", path.display(), io_cause(&e))
-        };
+        let fail = |e: std::io::Error| anyhow::anyhow!("{} {}", path.display(), write_cause(&e));
         match self.inner {
             Inner::Temp(mut t) => {
                 t.flush().map_err(fail)?;
@@ -226,7 +236,7 @@ pub fn write_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
 /// One sentence for a failed write to `path`: an I/O cause found in the chain is stated once.
 pub fn write_error(path: &Path, e: anyhow::Error) -> anyhow::Error {
     match e.chain().find_map(|c| c.downcast_ref::<std::io::Error>()) {
-        Some(io) => anyhow::anyhow!("cannot write {}: {}", path.display(), io_cause(io)),
+        Some(io) => anyhow::anyhow!("{} {}", path.display(), write_cause(io)),
         None => e,
     }
 }

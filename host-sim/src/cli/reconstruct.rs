@@ -49,11 +49,7 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
     let stats = match (res, tee.error.take()) {
         (Ok(s), _) => s,
         (Err(_), Some(io)) => {
-            return Err(anyhow!(
-                "cannot write {}: {}",
-                a.out.display(),
-                files::io_cause(&io)
-            ))
+            return Err(anyhow!("{} {}", a.out.display(), files::write_cause(&io)))
         }
         (Err(e), None) => return Err(e),
     };
