@@ -206,13 +206,21 @@ fn encoder_latch_goes_backwards() {
 #[test]
 fn repeated_latches_stalled_conveyor() {
     let s = sim();
+    // Frames 31 and 32 repeat frame 30 (latch and image); every entry keeps its own file,
+    // as a manifest requires.
     edit_manifest_json(s.path(), |v| {
         let f = v["frames"].as_array_mut().unwrap();
         for k in [31, 32] {
             f[k]["latch"] = f[30]["latch"].clone();
-            f[k]["file"] = f[30]["file"].clone();
         }
     });
+    for k in [31, 32] {
+        std::fs::copy(
+            s.path().join("frames/000030.png"),
+            s.path().join(format!("frames/{k:06}.png")),
+        )
+        .unwrap();
+    }
     let (cmp, fixed) = run_edited(&s);
     let flagged = fixed.rows_with(flags::ILL_CONDITIONED | flags::SKIPPED | flags::INCOMPLETE);
     assert!(cmp.rows.ill_conditioned > 0, "{}", cmp.summary());

@@ -1,6 +1,6 @@
 //! Images out: 16-bit height PNGs, false-colour PNGs and wrapped-phase PNGs.
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use image::{GrayImage, ImageBuffer, Luma, Rgb, RgbImage};
 use std::path::Path;
 
@@ -19,8 +19,7 @@ pub fn write_height_png(map: &HeightMap, path: &Path) -> Result<()> {
             Luma([0])
         }
     });
-    img.save(path)
-        .with_context(|| format!("writing {}", path.display()))
+    save_png(&img, path)
 }
 
 /// Writes a false-colour PNG of the heights over `[lo_um, hi_um]`; invalid pixels are dark grey.
@@ -37,8 +36,7 @@ pub fn write_false_colour_png(map: &HeightMap, lo_um: f64, hi_um: f64, path: &Pa
             Rgb([40, 40, 40])
         }
     });
-    img.save(path)
-        .with_context(|| format!("writing {}", path.display()))
+    save_png(&img, path)
 }
 
 /// Writes a wrapped phase map (`[-pi, pi)` -> 1..=255) as 8-bit grey; `None` (invalid) is 0.
@@ -53,8 +51,20 @@ pub fn write_phase_png(phase: &[Option<f64>], width: usize, path: &Path) -> Resu
             None => Luma([0]),
         }
     });
-    img.save(path)
-        .with_context(|| format!("writing {}", path.display()))
+    save_png(&img, path)
+}
+
+/// Writes an image as PNG atomically (temporary file renamed into place when complete).
+fn save_png<P, C>(img: &ImageBuffer<P, C>, path: &Path) -> Result<()>
+where
+    P: image::PixelWithColorType,
+    [P::Subpixel]: image::EncodableLayout,
+    C: std::ops::Deref<Target = [P::Subpixel]>,
+{
+    crate::files::write_atomic(path, |w| {
+        img.write_to(w, image::ImageFormat::Png)?;
+        Ok(())
+    })
 }
 
 /// A perceptually ordered blue -> cyan -> green -> yellow -> red ramp, `t` in `[0, 1]`.
@@ -77,10 +87,15 @@ fn colour(t: f64) -> [u8; 3] {
     out
 }
 
+/// The false-colour companion of a height PNG: `x.png` -> `x.colour.png`.
+pub fn colour_path(png: &Path) -> std::path::PathBuf {
+    png.with_extension("colour.png")
+}
+
 /// Writes `png` (16-bit heights) and `png` with `.colour.png` (false colour, -20..230 um).
 pub fn write_pngs(map: &HeightMap, png: &Path) -> Result<std::path::PathBuf> {
     write_height_png(map, png)?;
-    let colour = png.with_extension("colour.png");
+    let colour = colour_path(png);
     write_false_colour_png(map, -20.0, 230.0, &colour)?;
     Ok(colour)
 }

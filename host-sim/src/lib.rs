@@ -19,6 +19,7 @@
 //! subcommand.
 
 pub mod benches;
+pub mod files;
 pub mod heightmap;
 pub mod images;
 pub mod progress;

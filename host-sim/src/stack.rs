@@ -1,12 +1,16 @@
 //! Phase of an ordinary phase-shifting image stack (real captures, any steps), with the same
 //! fixed-point kernel as the pipeline and an independent f64 least squares beside it.
 
-use anyhow::{anyhow, bail, Context, Result};
+use anyhow::{anyhow, bail, Result};
 use dpsa_core::fixed::types::{U16F16, U20F12, U8F8};
 use dpsa_core::{accumulate, height::Scale, phase, solve::Window};
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 use std::path::Path;
+
+/// Largest image `dpsa phase` decodes, pixels (64 Mpx), checked from the header before
+/// decoding. Memory is about 60 bytes per pixel of one image, plus 2 bytes per pixel per image.
+pub const MAX_PIXELS: u64 = 64 << 20;
 
 /// A stack of same-size greyscale images with their phase steps.
 pub struct Stack {
@@ -38,12 +42,34 @@ impl Stack {
         let mut bit_depth = 8;
         for p in paths {
             let p = p.as_ref();
-            let img = image::ImageReader::open(p)
-                .with_context(|| format!("opening {}", p.display()))?
-                .with_guessed_format()
-                .with_context(|| format!("reading {}", p.display()))?
+            let reader = || -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>> {
+                crate::files::check_regular(p)
+                    .map_err(|e| anyhow!("{} {}", p.display(), crate::files::io_cause(&e)))?;
+                image::ImageReader::open(p)
+                    .map_err(|e| anyhow!("{} {}", p.display(), crate::files::io_cause(&e)))?
+                    .with_guessed_format()
+                    .map_err(|e| anyhow!("{} {}", p.display(), crate::files::io_cause(&e)))
+            };
+            // The header first: the pixel limit is checked before anything is decoded.
+            let (w, h) = reader()?
+                .into_dimensions()
+                .map_err(|e| anyhow!("cannot decode {}: {e}", p.display()))?;
+            let px = u64::from(w) * u64::from(h);
+            if px > MAX_PIXELS {
+                bail!(
+                    "{} is {w} x {h} = {px} pixels, more than the {MAX_PIXELS} (64 Mpx) dpsa phase takes per image",
+                    p.display()
+                );
+            }
+            let mut limits = image::Limits::default();
+            limits.max_image_width = Some(w);
+            limits.max_image_height = Some(h);
+            limits.max_alloc = Some(px * 8 + (1 << 20));
+            let mut r = reader()?;
+            r.limits(limits);
+            let img = r
                 .decode()
-                .with_context(|| format!("decoding {}", p.display()))?;
+                .map_err(|e| anyhow!("cannot decode {}: {e}", p.display()))?;
             let sixteen = matches!(
                 img.color(),
                 image::ColorType::L16

@@ -198,7 +198,8 @@ pub fn load(path: &Path, progress: bool) -> Result<(BenchRows, Source)> {
         let (_, _, map) = reconstruct::reconstruct_map(&rec, progress)?;
         Ok((BenchRows::from_map(&map)?, Source::Recording))
     } else {
-        let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+        let bytes =
+            crate::files::read_capped(path, crate::files::MAX_STREAM_BYTES, "packet stream")?;
         // The LSB only labels the map; the codecs see LSB integers.
         let (map, rep) = stream::decode_stream(&bytes, 0.25);
         let rows = BenchRows::from_map(&map)

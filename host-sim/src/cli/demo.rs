@@ -1,8 +1,8 @@
 //! `dpsa demo`: the main job on a built-in scene: simulate, reconstruct, compare, write images.
 
 use super::{load_scene, open, out};
-use anyhow::{Context, Result};
-use dpsa_sim::{images, reconstruct, reference::compare::compare_map, simulation::simulate};
+use anyhow::Result;
+use dpsa_sim::{files, images, reconstruct, reference::compare::compare_map, simulation::simulate};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -39,7 +39,7 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
     out!("2/4 reconstructing with the fixed-point core (streaming, line by line)");
     let (stats, bytes, map) = reconstruct::reconstruct_map(&rec, progress)?;
     let stream = out.join("heights.dpsa");
-    std::fs::write(&stream, &bytes).with_context(|| format!("writing {}", stream.display()))?;
+    files::write_bytes(&stream, &bytes)?;
     out!(
         "    {} row packets, {} bytes -> {}; core state {} bytes",
         stats.packets,
@@ -50,7 +50,7 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
     out!("3/4 comparing with the f64 reference, the 4-step PSP baseline and the ground truth");
     let cmp = compare_map(&rec, &map, progress)?;
     let report = out.join("compare.json");
-    std::fs::write(&report, serde_json::to_string_pretty(&cmp)?)?;
+    files::write_bytes(&report, serde_json::to_string_pretty(&cmp)?.as_bytes())?;
     out!("4/4 writing images");
     let png = out.join("heights.png");
     let colour = images::write_pngs(&map, &png)?;

@@ -71,16 +71,76 @@ macro_rules! out {
 }
 pub(crate) use out;
 
-/// `default` for the built-in scene, or a scene TOML file.
+/// `default` for the built-in scene, or a scene TOML file. Prints the scene's warnings.
 pub fn load_scene(spec: &str) -> Result<Scene> {
-    if spec == "default" {
-        Ok(Scene::default())
+    let scene = if spec == "default" {
+        Scene::default()
     } else {
-        Scene::load(spec).with_context(|| format!("scene {spec}"))
+        Scene::load(spec)? // the error names the file
+    };
+    warn(&scene.warnings());
+    Ok(scene)
+}
+
+/// Opens a recording directory, naming it in the error. Prints the manifest's warnings.
+pub fn open(dir: &Path) -> Result<Recording> {
+    let rec = Recording::open(dir).with_context(|| format!("recording {}", dir.display()))?;
+    warn(&rec.manifest.warnings());
+    Ok(rec)
+}
+
+/// Prints each warning on stderr as `warning: ...`.
+pub fn warn(warnings: &[String]) {
+    for w in warnings {
+        eprintln!("warning: {w}");
     }
 }
 
-/// Opens a recording directory, naming it in the error.
-pub fn open(dir: &Path) -> Result<Recording> {
-    Recording::open(dir).with_context(|| format!("recording {}", dir.display()))
+/// clap value parser: a finite number (no NaN or infinity).
+pub fn finite(s: &str) -> Result<f64, String> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("{s:?} is not a number"))?;
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(format!("{s} is not a finite number"))
+    }
+}
+
+/// clap value parser: a finite number >= 0.
+pub fn non_negative(s: &str) -> Result<f64, String> {
+    let v = finite(s)?;
+    if v >= 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("{s} is negative, expected a value >= 0"))
+    }
+}
+
+/// clap value parser: a finite number > 0 (e.g. for `decode --lsb-um`).
+#[allow(dead_code)]
+pub fn positive(s: &str) -> Result<f64, String> {
+    let v = finite(s)?;
+    if v > 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("{s}, expected a value > 0"))
+    }
+}
+
+/// Largest phase step `dpsa phase` takes, degrees (either sign): 100 turns.
+pub const MAX_STEP_DEG: f64 = 36_000.0;
+
+/// clap value parser: a phase step in degrees, finite and within +/- [`MAX_STEP_DEG`].
+pub fn step_deg(s: &str) -> Result<f64, String> {
+    let v = finite(s)?;
+    if v.abs() <= MAX_STEP_DEG {
+        Ok(v)
+    } else {
+        Err(format!(
+            "{s} degrees, expected -{MAX_STEP_DEG}..={MAX_STEP_DEG}"
+        ))
+    }
 }

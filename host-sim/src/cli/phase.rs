@@ -2,7 +2,7 @@
 
 use super::out;
 use anyhow::Result;
-use dpsa_sim::{images, stack};
+use dpsa_sim::{files, images, stack};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -12,10 +12,11 @@ pub struct Args {
     images: Vec<PathBuf>,
     /// Phase step of the matching image in degrees (repeat, one per --image):
     /// I = B + C cos(phase + step).
-    #[arg(long = "step", required = true, allow_negative_numbers = true)]
+    /// Finite, within +/-36000 degrees; negative steps are fine.
+    #[arg(long = "step", required = true, allow_hyphen_values = true, value_parser = super::step_deg)]
     steps: Vec<f64>,
-    /// Minimum fringe modulation C of a valid pixel, DN (default: 4% of full scale).
-    #[arg(long)]
+    /// Minimum fringe modulation C of a valid pixel, DN (default: 4% of full scale; >= 0).
+    #[arg(long, allow_hyphen_values = true, value_parser = super::non_negative)]
     min_modulation: Option<f64>,
     /// Print one JSON object.
     #[arg(long)]
@@ -26,6 +27,11 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    if let Some(png) = &a.png {
+        files::require_png("--png", png)?;
+        let inputs: Vec<_> = a.images.iter().map(|p| files::Input::File(p)).collect();
+        files::refuse_overwrite("--png", png, &inputs)?;
+    }
     let st = stack::Stack::load(&a.images, &a.steps)?;
     let full = if st.bit_depth == 8 { 255.0 } else { 65535.0 };
     let (ph, rep) = stack::run(&st, a.min_modulation.unwrap_or(0.04 * full))?;

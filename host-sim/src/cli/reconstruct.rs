@@ -1,19 +1,22 @@
 //! `dpsa reconstruct`: the core through its streaming API, into a packet stream.
 
 use super::{open, out};
-use anyhow::{Context, Result};
+use anyhow::{anyhow, Result};
+use dpsa_sim::files::{self, AtomicFile, Input, Tee};
 use dpsa_sim::{images, reconstruct, stream};
+use std::io::{BufWriter, Write};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct Args {
     /// Recording directory.
     dir: PathBuf,
-    /// Packet stream output file.
+    /// Packet stream output file (written to a temporary file beside it and renamed into place
+    /// when complete; may not be inside the recording).
     #[arg(long)]
     out: PathBuf,
     /// Also write a 16-bit height PNG here (h + 32768 in LSB, 0 = invalid) and a
-    /// false-colour PNG beside it (`*.colour.png`).
+    /// false-colour PNG beside it (`*.colour.png`). The name must end in `.png`.
     #[arg(long)]
     png: Option<PathBuf>,
     /// Codec intra period: 1 (default) makes every packet decodable on its own, so a
@@ -24,19 +27,44 @@ pub struct Args {
 }
 
 pub fn run(a: Args, progress: bool) -> Result<()> {
+    // Every output is checked before any work.
+    let inputs = [Input::Dir(&a.dir)];
+    files::refuse_overwrite("--out", &a.out, &inputs)?;
+    if let Some(png) = &a.png {
+        files::require_png("--png", png)?;
+        let colour = images::colour_path(png);
+        files::refuse_overwrite("--png", png, &inputs)?;
+        files::refuse_overwrite("--png", &colour, &inputs)?;
+        files::refuse_same(("--out", &a.out), ("--png", png))?;
+        files::refuse_same(("--out", &a.out), ("--png's false-colour file", &colour))?;
+    }
     let rec = open(&a.dir)?;
-    let file =
-        std::fs::File::create(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    let writer = std::io::BufWriter::new(file);
-    let (stats, _) = reconstruct::run_with(&rec, writer, a.intra_period, progress)?;
+    let file = AtomicFile::create(&a.out)?;
+    let mut tee = Tee::new(BufWriter::new(file), a.png.is_some());
+    let res = reconstruct::run_with(&rec, &mut tee, a.intra_period, progress).map(|(s, _)| s);
+    let res = res.and_then(|stats| {
+        tee.flush()?;
+        Ok(stats)
+    });
+    let stats = match (res, tee.error.take()) {
+        (Ok(s), _) => s,
+        (Err(_), Some(io)) => {
+            return Err(anyhow!("{} {}", a.out.display(), files::write_cause(&io)))
+        }
+        (Err(e), None) => return Err(e),
+    };
+    let Tee { inner, copy, .. } = tee;
+    let file = inner
+        .into_inner()
+        .map_err(|e| files::write_error(&a.out, anyhow::Error::new(e.into_error())))?;
+    file.commit()?;
     out!(
         "{} packets, {} bytes -> {}",
         stats.packets,
         stats.bytes,
         a.out.display()
     );
-    if let Some(png) = a.png {
-        let bytes = std::fs::read(&a.out)?;
+    if let (Some(png), Some(bytes)) = (a.png, copy) {
         let (map, _) = stream::decode_stream(&bytes, rec.manifest.calibration.height_lsb_um);
         let colour = images::write_pngs(&map, &png)?;
         out!(

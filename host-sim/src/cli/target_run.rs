@@ -2,7 +2,7 @@
 
 use super::{open, out};
 use anyhow::{Context, Result};
-use dpsa_sim::{stream, target};
+use dpsa_sim::{files, stream, target};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -30,6 +30,13 @@ pub struct Args {
 /// Runs the firmware on the recording, writes the stream to `--out` and prints a summary (or
 /// one JSON object with `--json`). The decoded firmware log goes to stderr.
 pub fn run(a: Args, progress: bool) -> Result<()> {
+    if let Some(out) = &a.out {
+        let mut inputs = vec![files::Input::Dir(&a.recording)];
+        if let Some(elf) = &a.elf {
+            inputs.push(files::Input::File(elf));
+        }
+        files::refuse_overwrite("--out", out, &inputs)?;
+    }
     let rec = open(&a.recording)?;
     let elf = match a.elf {
         Some(e) => e,
@@ -48,7 +55,7 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
     };
     let run = target::run(&rec, &elf, opts)?;
     if let Some(out) = &a.out {
-        std::fs::write(out, &run.stream).with_context(|| format!("writing {}", out.display()))?;
+        files::write_bytes(out, &run.stream)?;
     }
     let (map, rep) = stream::decode_stream(&run.stream, rec.manifest.calibration.height_lsb_um);
     let report = run

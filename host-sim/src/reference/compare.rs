@@ -8,7 +8,7 @@
 
 use crate::heightmap::{flags, HeightMap, HeightRow};
 use crate::reference::{crb, flat_mask, truth::truth_row_index, RefOutput, RefRow};
-use crate::simulation::recording::{load_frames, Manifest, Recording, Truth};
+use crate::simulation::recording::{Manifest, Recording, Truth};
 use anyhow::{Context, Result};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -463,10 +463,12 @@ pub fn compare_recording(rec: &Recording, progress: bool) -> Result<(Comparison,
 /// [`compare_recording`] for a fixed-point height map the caller already has (from the same
 /// recording).
 pub fn compare_map(rec: &Recording, fixed: &HeightMap, progress: bool) -> Result<Comparison> {
-    let frames = load_frames(rec, progress)?;
+    // Frames are decoded per window (at most `n` held at a time), once for the reference and
+    // once for the PSP baseline, instead of all at once.
+    let _ = progress;
     let m = &rec.manifest;
-    let r = super::reconstruct(m, &frames);
-    let psp = super::psp(m, &frames);
+    let r = super::reconstruct_from(m, &mut super::LazyFrames::new(rec))?;
+    let psp = super::psp_from(m, &mut super::LazyFrames::new(rec))?;
     let truth = rec.truth().context("reading the ground truth")?;
     Ok(compare(m, fixed, &r, Some(&psp), truth.as_ref()))
 }

@@ -388,7 +388,79 @@ pub(super) enum Shifts {
 /// Pixels of rows whose samples are available are computed even when the row is invalid (for
 /// diagnostics), but are marked invalid.
 pub fn reconstruct(manifest: &Manifest, frames: &[Frame]) -> RefOutput {
+    let mut src = frames;
+    infallible(run(manifest, &mut src, Shifts::Actual))
+}
+
+/// [`reconstruct`] on frames read on demand (e.g. [`LazyFrames`]): the same result, bit for
+/// bit, with only the window's frames in memory.
+pub fn reconstruct_from(
+    manifest: &Manifest,
+    frames: &mut dyn FrameSource,
+) -> anyhow::Result<RefOutput> {
     run(manifest, frames, Shifts::Actual)
+}
+
+/// A result whose frame source cannot fail (frames in memory).
+pub(super) fn infallible(r: anyhow::Result<RefOutput>) -> RefOutput {
+    match r {
+        Ok(o) => o,
+        Err(e) => unreachable!("in-memory frames cannot fail: {e}"),
+    }
+}
+
+/// Where the reference takes its frames from: all in memory (`&[Frame]`) or read on demand
+/// ([`LazyFrames`]). Rows are evaluated in board-row order, so the frames a window needs move
+/// forward through the recording.
+pub trait FrameSource {
+    /// Makes frames `range` available to [`FrameSource::get`]; frames outside it may be dropped.
+    fn window(&mut self, range: std::ops::Range<usize>) -> anyhow::Result<()>;
+    /// Frame `k`, if it exists (and is inside the last [`FrameSource::window`]).
+    fn get(&self, k: usize) -> Option<&Frame>;
+}
+
+impl FrameSource for &[Frame] {
+    fn window(&mut self, _: std::ops::Range<usize>) -> anyhow::Result<()> {
+        Ok(())
+    }
+    fn get(&self, k: usize) -> Option<&Frame> {
+        <[Frame]>::get(self, k)
+    }
+}
+
+/// The frames of a recording, decoded when a window first needs them and dropped when the
+/// window has moved past them: at most one window (`n` frames) is held.
+pub struct LazyFrames<'a> {
+    rec: &'a crate::simulation::recording::Recording,
+    held: Vec<(usize, Frame)>,
+    /// Frames decoded so far (a frame is decoded again only if a later window goes back).
+    pub loads: usize,
+}
+
+impl<'a> LazyFrames<'a> {
+    pub fn new(rec: &'a crate::simulation::recording::Recording) -> Self {
+        LazyFrames {
+            rec,
+            held: Vec::new(),
+            loads: 0,
+        }
+    }
+}
+
+impl FrameSource for LazyFrames<'_> {
+    fn window(&mut self, range: std::ops::Range<usize>) -> anyhow::Result<()> {
+        self.held.retain(|(k, _)| range.contains(k));
+        for k in range.start..range.end.min(self.rec.len()) {
+            if !self.held.iter().any(|(j, _)| *j == k) {
+                self.held.push((k, self.rec.frame(k)?));
+                self.loads += 1;
+            }
+        }
+        Ok(())
+    }
+    fn get(&self, k: usize) -> Option<&Frame> {
+        self.held.iter().find(|(j, _)| *j == k).map(|(_, f)| f)
+    }
 }
 
 /// Lines of `frame` actually delivered at `width` columns.
@@ -402,7 +474,11 @@ fn delivered_lines(frame: &Frame, width: usize) -> usize {
     }
 }
 
-pub(super) fn run(manifest: &Manifest, frames: &[Frame], shifts: Shifts) -> RefOutput {
+pub(super) fn run(
+    manifest: &Manifest,
+    frames: &mut dyn FrameSource,
+    shifts: Shifts,
+) -> anyhow::Result<RefOutput> {
     let width = manifest.camera.width as usize;
     let cal = &manifest.calibration;
     let proc_ = &manifest.processing;
@@ -463,6 +539,7 @@ pub(super) fn run(manifest: &Manifest, frames: &[Frame], shifts: Shifts) -> RefO
         }
 
         // Gather the row's line from each window frame.
+        frames.window(w..w + n)?;
         let b = p.row;
         let h = i64::from(manifest.camera.rows);
         let mut lines: Vec<&[u16]> = Vec::with_capacity(n);
@@ -496,7 +573,7 @@ pub(super) fn run(manifest: &Manifest, frames: &[Frame], shifts: Shifts) -> RefO
             r.valid.iter_mut().for_each(|v| *v = false);
         }
     }
-    RefOutput { width, rows }
+    Ok(RefOutput { width, rows })
 }
 
 /// Computes all pixels of one row from its `n` lines; returns the summary flags

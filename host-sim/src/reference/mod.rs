@@ -17,5 +17,5 @@ pub mod truth;
 
 pub use crb::crb;
 pub use dpsa::*;
-pub use psp::{nominal_step_px, psp};
+pub use psp::{nominal_step_px, psp, psp_from};
 pub use truth::{flat_mask, truth_height};

@@ -1,6 +1,6 @@
 //! The conventional phase-shift baseline: the reference's registration with nominal shifts.
 
-use super::dpsa::{offsets, run, RefOutput, Shifts};
+use super::dpsa::{infallible, offsets, run, FrameSource, RefOutput, Shifts};
 use crate::simulation::recording::{Frame, Manifest};
 use std::f64::consts::TAU;
 
@@ -25,6 +25,12 @@ pub fn nominal_step_px(manifest: &Manifest) -> f64 {
 /// recording with no net motion, or a nominal step of a whole fringe period) is every
 /// windowed row flagged `ILL_CONDITIONED`.
 pub fn psp(manifest: &Manifest, frames: &[Frame]) -> RefOutput {
+    let mut src = frames;
+    infallible(psp_from(manifest, &mut src))
+}
+
+/// [`psp`] on frames read on demand (see [`super::dpsa::LazyFrames`]).
+pub fn psp_from(manifest: &Manifest, frames: &mut dyn FrameSource) -> anyhow::Result<RefOutput> {
     let f_x = 1.0 / manifest.calibration.fringe_period_px;
     run(
         manifest,

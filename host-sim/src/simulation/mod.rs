@@ -2,6 +2,7 @@
 //! ([`simulate`]) and the recording format on disk ([`recording`]) that every other command
 //! reads, simulated or real.
 
+pub mod checks;
 pub mod recording;
 pub mod scene;
 pub mod simulate;

@@ -4,7 +4,7 @@
 use image::codecs::png::{CompressionType, FilterType, PngDecoder, PngEncoder};
 use image::{ColorType, ExtendedColorType, ImageDecoder, ImageEncoder};
 use serde::{Deserialize, Serialize};
-use std::io::{BufWriter, Cursor, Write};
+use std::io::{Cursor, Write};
 use std::path::{Path, PathBuf};
 
 /// Format tag in every manifest.
@@ -157,6 +157,54 @@ pub const MAX_WIDTH: u32 = 8192;
 /// Largest number of rows per frame accepted, px.
 pub const MAX_ROWS: u32 = 4096;
 
+/// A serde_json error as one sentence that names the key it failed at; a NaN or infinity
+/// (not JSON numbers) is said so.
+fn json_message(text: &str, e: &serde_json::Error) -> String {
+    let offset: usize = text
+        .split_inclusive('\n')
+        .take(e.line().saturating_sub(1))
+        .map(str::len)
+        .sum::<usize>()
+        + e.column().saturating_sub(1);
+    let offset = offset.min(text.len());
+    let (before, rest) = text.split_at(
+        (0..=offset)
+            .rev()
+            .find(|&i| text.is_char_boundary(i))
+            .unwrap_or(0),
+    );
+    let key = before.rfind(':').and_then(|colon| {
+        let k = before[..colon].trim_end().strip_suffix('"')?;
+        let start = k.rfind('"')?;
+        Some(k[start + 1..].to_string())
+    });
+    let token: String = rest
+        .trim_start()
+        .chars()
+        .take_while(|c| c.is_ascii_alphanumeric() || *c == '-' || *c == '+' || *c == '.')
+        .collect();
+    let lower = token.to_ascii_lowercase();
+    let non_finite = [
+        "nan",
+        "inf",
+        "infinity",
+        "-inf",
+        "-infinity",
+        "+inf",
+        "+infinity",
+    ]
+    .contains(&lower.as_str());
+    match key {
+        Some(k) if non_finite => format!(
+            "`{k}` is {token}: JSON has no NaN or infinity, expected a finite number (line {}, column {})",
+            e.line(),
+            e.column()
+        ),
+        Some(k) if e.is_syntax() || e.is_data() => format!("{e} (at `{k}`)"),
+        _ => e.to_string(),
+    }
+}
+
 /// Everything that can go wrong reading or writing a recording.
 #[derive(Debug, thiserror::Error)]
 pub enum RecordingError {
@@ -164,19 +212,14 @@ pub enum RecordingError {
     #[error("{}: no manifest (is this a recording directory?)", path.display())]
     MissingManifest { path: PathBuf },
     /// A file could not be read or written.
-    #[error("{}: {source}", path.display())]
+    #[error("{} {}", path.display(), crate::files::io_cause(cause))]
     Io {
         path: PathBuf,
-        #[source]
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// The manifest is not valid JSON or does not match the schema (unknown or missing key, wrong type).
-    #[error("{}: {source}", path.display())]
-    Json {
-        path: PathBuf,
-        #[source]
-        source: serde_json::Error,
-    },
+    #[error("{}: {message}", path.display())]
+    Json { path: PathBuf, message: String },
     /// The manifest's `format` tag is not [`FORMAT`].
     #[error("{}: format is {found:?}, expected {expected:?}", path.display())]
     Format {
@@ -259,15 +302,18 @@ pub enum RecordingError {
     /// The writer was given a buffer of the wrong length or impossible dimensions.
     #[error("{}: {message}", path.display())]
     BadData { path: PathBuf, message: String },
+    /// A file could not be written (one sentence with its cause).
+    #[error("{message}")]
+    Write { path: PathBuf, message: String },
     /// PNG encoding failed.
     #[error("{}: cannot encode PNG: {message}", path.display())]
     Encode { path: PathBuf, message: String },
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> RecordingError + '_ {
-    move |source| RecordingError::Io {
+    move |cause| RecordingError::Io {
         path: path.to_path_buf(),
-        source,
+        cause,
     }
 }
 
@@ -319,103 +365,12 @@ impl Manifest {
             });
         }
         let ck = Checker { path };
-        let cam = &self.camera;
-        ck.check((1..=MAX_WIDTH).contains(&cam.width), "camera.width", || {
-            format!("{} px, expected 1..={MAX_WIDTH}", cam.width)
-        })?;
-        ck.check((1..=MAX_ROWS).contains(&cam.rows), "camera.rows", || {
-            format!("{} px, expected 1..={MAX_ROWS}", cam.rows)
-        })?;
-        ck.check(
-            (8..=16).contains(&cam.bit_depth),
-            "camera.bit_depth",
-            || format!("{} bits, expected 8..=16", cam.bit_depth),
-        )?;
-        ck.check(cam.saturation >= 1, "camera.saturation", || {
-            "0 DN, expected >= 1".into()
-        })?;
-
-        let cal = &self.calibration;
-        let cpp = cal.counts_per_pixel;
-        let q16 = cpp * 65536.0;
-        ck.check(
-            cpp.is_finite() && cpp > 0.0,
-            "calibration.counts_per_pixel",
-            || format!("{cpp} counts/px, expected a finite value > 0"),
-        )?;
-        ck.check(q16.fract() == 0.0 && q16 < 4_294_967_296.0, "calibration.counts_per_pixel", || {
-            format!("{cpp} counts/px is not a multiple of 2^-16 below 65536 (counts_per_pixel * 65536 = {q16} must be an integer < 2^32)")
-        })?;
-        ck.check(
-            cal.fringe_period_px.is_finite() && cal.fringe_period_px >= 2.0,
-            "calibration.fringe_period_px",
-            || format!("{} px, expected a finite value >= 2", cal.fringe_period_px),
-        )?;
-        ck.check(
-            cal.reference_phase_rad.len() == cam.width as usize,
-            "calibration.reference_phase_rad",
-            || {
-                format!(
-                    "{} values, expected one per column ({})",
-                    cal.reference_phase_rad.len(),
-                    cam.width
-                )
-            },
-        )?;
-        if let Some(c) = cal.reference_phase_rad.iter().position(|p| !p.is_finite()) {
-            ck.check(
-                false,
-                format!("calibration.reference_phase_rad[{c}]"),
-                || {
-                    format!(
-                        "{}, expected a finite phase (rad)",
-                        cal.reference_phase_rad[c]
-                    )
-                },
-            )?;
-        }
-        ck.check(
-            cal.height_per_turn_um.is_finite() && cal.height_per_turn_um > 0.0,
-            "calibration.height_per_turn_um",
-            || format!("{} um, expected a finite value > 0", cal.height_per_turn_um),
-        )?;
-        ck.check(
-            cal.height_lsb_um.is_finite() && cal.height_lsb_um > 0.0,
-            "calibration.height_lsb_um",
-            || format!("{} um, expected a finite value > 0", cal.height_lsb_um),
-        )?;
-        let turn_lsb = cal.height_per_turn_um / cal.height_lsb_um;
-        ck.check(turn_lsb < 32768.0, "calibration.height_per_turn_um", || {
-            format!(
-                "one fringe turn is {turn_lsb} LSB (height_per_turn_um {} / height_lsb_um {}), expected < 32768 so it fits the i16 output",
-                cal.height_per_turn_um, cal.height_lsb_um
-            )
-        })?;
-
-        let p = &self.processing;
-        ck.check((3..=8).contains(&p.n), "processing.n", || {
-            format!("{}, expected 3..=8", p.n)
-        })?;
-        ck.check(
-            (1..=cam.rows).contains(&p.max_step_rows),
-            "processing.max_step_rows",
-            || {
-                format!(
-                    "{} rows, expected 1..={} (camera.rows)",
-                    p.max_step_rows, cam.rows
-                )
-            },
-        )?;
-        ck.check(
-            p.min_modulation.is_finite() && p.min_modulation >= 0.0,
-            "processing.min_modulation",
-            || format!("{} DN, expected a finite value >= 0", p.min_modulation),
-        )?;
-        ck.check(
-            (1.0..=8.0).contains(&p.max_noise_gain),
-            "processing.max_noise_gain",
-            || format!("{}, expected 1..=8", p.max_noise_gain),
-        )?;
+        crate::simulation::checks::check_blocks(&self.camera, &self.calibration, &self.processing)
+            .map_err(|e| RecordingError::Invalid {
+                path: path.to_path_buf(),
+                field: e.field,
+                message: e.message,
+            })?;
 
         ck.check(!self.frames.is_empty(), "frames", || {
             "the recording lists no frames".into()
@@ -424,6 +379,26 @@ impl Manifest {
             let (prev, cur) = (pair[0].seq, pair[1].seq);
             ck.check(cur > prev, format!("frames[{}].seq", i + 1), || {
                 format!("{cur} after {prev} (frames[{i}]): seq must be strictly increasing (gaps mean lost frames)")
+            })?;
+        }
+        let mut seen = std::collections::HashSet::new();
+        for (i, f) in self.frames.iter().enumerate() {
+            let p = Path::new(&f.file);
+            let plain = !f.file.is_empty()
+                && p.components()
+                    .all(|c| matches!(c, std::path::Component::Normal(_)));
+            ck.check(plain, format!("frames[{i}].file"), || {
+                format!(
+                    "{:?}: a frame path must be relative to the recording directory, without `..`",
+                    f.file
+                )
+            })?;
+            let key: PathBuf = p.components().collect();
+            ck.check(seen.insert(key), format!("frames[{i}].file"), || {
+                format!(
+                    "{:?} is listed twice: every frame needs its own file",
+                    f.file
+                )
             })?;
         }
         if let Some(t) = &self.truth {
@@ -444,16 +419,39 @@ impl Manifest {
         Ok(())
     }
 
+    /// Legal settings that make the result useless, one sentence each (see
+    /// [`checks::warnings`](crate::simulation::checks::warnings)); also a recording whose
+    /// latches all round to the same board-row offset (the encoder does not resolve the motion).
+    pub fn warnings(&self) -> Vec<String> {
+        let mut w =
+            crate::simulation::checks::warnings(&self.camera, &self.calibration, &self.processing);
+        let q = (self.calibration.counts_per_pixel * 65536.0) as i128;
+        let offset = |latch: i64| (((latch as i128) << 17) + q).div_euclid(2 * q.max(1));
+        if self.frames.len() > 1 {
+            let o0 = offset(self.frames[0].latch);
+            if self.frames.iter().all(|f| offset(f.latch) == o0) {
+                w.push(format!(
+                    "all {} frame latches round to the same board-row offset at counts_per_pixel = {}: the encoder does not resolve the motion and no board row can be measured",
+                    self.frames.len(),
+                    self.calibration.counts_per_pixel
+                ));
+            }
+        }
+        w
+    }
+
     /// Writes `dir/manifest.json` (pretty JSON). The directory must exist.
     pub fn save(&self, dir: &Path) -> Result<(), RecordingError> {
         let path = dir.join(MANIFEST_FILE);
-        let mut text =
-            serde_json::to_string_pretty(self).map_err(|source| RecordingError::Json {
-                path: path.clone(),
-                source,
-            })?;
+        let mut text = serde_json::to_string_pretty(self).map_err(|e| RecordingError::Json {
+            path: path.clone(),
+            message: e.to_string(),
+        })?;
         text.push('\n');
-        std::fs::write(&path, text).map_err(io_err(&path))
+        crate::files::write_bytes(&path, text.as_bytes()).map_err(|e| RecordingError::Write {
+            path: path.clone(),
+            message: format!("{e:#}"),
+        })
     }
 
     /// Largest sample value of the camera, `2^bit_depth - 1` (DN).
@@ -480,18 +478,31 @@ impl Recording {
     pub fn open(dir: impl AsRef<Path>) -> Result<Recording, RecordingError> {
         let dir = dir.as_ref().to_path_buf();
         let path = dir.join(MANIFEST_FILE);
-        let text = match std::fs::read_to_string(&path) {
+        match std::fs::metadata(&dir) {
+            Ok(m) if !m.is_dir() => {
+                return Err(RecordingError::Io {
+                    path: dir,
+                    cause: std::io::Error::new(
+                        std::io::ErrorKind::InvalidInput,
+                        "is not a directory (a recording is a directory with a manifest.json)",
+                    ),
+                })
+            }
+            Err(cause) => return Err(RecordingError::Io { path: dir, cause }),
+            Ok(_) => {}
+        }
+        let bytes = match crate::files::read_capped_io(&path, crate::files::MAX_MANIFEST_BYTES) {
             Ok(t) => t,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
                 return Err(RecordingError::MissingManifest { path })
             }
-            Err(source) => return Err(RecordingError::Io { path, source }),
+            Err(cause) => return Err(RecordingError::Io { path, cause }),
         };
-        let manifest: Manifest =
-            serde_json::from_str(&text).map_err(|source| RecordingError::Json {
-                path: path.clone(),
-                source,
-            })?;
+        let text = String::from_utf8_lossy(&bytes);
+        let manifest: Manifest = serde_json::from_str(&text).map_err(|e| RecordingError::Json {
+            path: path.clone(),
+            message: json_message(&text, &e),
+        })?;
         manifest.validate_at(&path)?;
         Ok(Recording { dir, manifest })
     }
@@ -534,19 +545,32 @@ impl Recording {
                 count: self.len(),
             })?;
         let path = self.dir.join(&entry.file);
-        let bytes = match std::fs::read(&path) {
+        let cap = crate::files::max_frame_png_bytes(self.rows(), self.width());
+        let bytes = match crate::files::read_capped_io(&path, cap) {
             Ok(b) => b,
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
                 return Err(RecordingError::MissingFrame { index: k, path })
             }
-            Err(source) => return Err(RecordingError::Io { path, source }),
+            Err(cause) => {
+                return Err(RecordingError::Io {
+                    path,
+                    cause: std::io::Error::new(
+                        cause.kind(),
+                        format!("(frame {k}) {}", crate::files::io_cause(&cause)),
+                    ),
+                })
+            }
         };
         let decode_err = |e: image::ImageError| RecordingError::Decode {
             index: k,
             path: path.clone(),
             message: e.to_string(),
         };
-        let decoder = PngDecoder::new(Cursor::new(&bytes)).map_err(decode_err)?;
+        // Dimensions are checked against the camera below, before the pixels are decoded;
+        // the decoder itself may allocate no more than the frame's size cap.
+        let mut limits = image::Limits::default();
+        limits.max_alloc = Some(cap);
+        let decoder = PngDecoder::with_limits(Cursor::new(&bytes), limits).map_err(decode_err)?;
         let (w, h) = decoder.dimensions();
         let (rows, width) = (self.rows(), self.width());
         if (h as usize, w as usize) != (rows, width) {
@@ -640,8 +664,16 @@ impl Truth {
 
 /// Reads a raw little-endian f32 file that must hold exactly `count` values.
 pub fn read_f32(path: &Path, count: usize) -> Result<Vec<f32>, RecordingError> {
-    let bytes = std::fs::read(path).map_err(io_err(path))?;
     let expected = count as u64 * 4;
+    let meta = crate::files::check_regular(path).map_err(io_err(path))?;
+    if meta.len() != expected {
+        return Err(RecordingError::TruthLength {
+            path: path.to_path_buf(),
+            expected,
+            actual: meta.len(),
+        });
+    }
+    let bytes = crate::files::read_capped_io(path, expected).map_err(io_err(path))?;
     if bytes.len() as u64 != expected {
         return Err(RecordingError::TruthLength {
             path: path.to_path_buf(),
@@ -657,12 +689,16 @@ pub fn read_f32(path: &Path, count: usize) -> Result<Vec<f32>, RecordingError> {
 
 /// Writes `data` as raw little-endian f32 (the truth file format).
 pub fn write_f32(path: &Path, data: &[f32]) -> Result<(), RecordingError> {
-    let file = std::fs::File::create(path).map_err(io_err(path))?;
-    let mut w = BufWriter::new(file);
-    for v in data {
-        w.write_all(&v.to_le_bytes()).map_err(io_err(path))?;
-    }
-    w.flush().map_err(io_err(path))
+    crate::files::write_atomic(path, |w| {
+        for v in data {
+            w.write_all(&v.to_le_bytes())?;
+        }
+        Ok(())
+    })
+    .map_err(|e| RecordingError::Write {
+        path: path.to_path_buf(),
+        message: format!("{e:#}"),
+    })
 }
 
 /// Writes a `rows x width` frame (row-major, DN) as a 16-bit greyscale PNG with fast compression.
@@ -686,15 +722,19 @@ pub fn write_frame_png(
         )));
     }
     let bytes: Vec<u8> = data.iter().flat_map(|v| v.to_ne_bytes()).collect();
-    let file = std::fs::File::create(path).map_err(io_err(path))?;
-    let mut w = BufWriter::new(file);
-    PngEncoder::new_with_quality(&mut w, CompressionType::Fast, FilterType::Sub)
-        .write_image(&bytes, width as u32, rows as u32, ExtendedColorType::L16)
-        .map_err(|e| RecordingError::Encode {
-            path: path.to_path_buf(),
-            message: e.to_string(),
-        })?;
-    w.flush().map_err(io_err(path))
+    crate::files::write_atomic(path, |w| {
+        PngEncoder::new_with_quality(&mut *w, CompressionType::Fast, FilterType::Sub).write_image(
+            &bytes,
+            width as u32,
+            rows as u32,
+            ExtendedColorType::L16,
+        )?;
+        Ok(())
+    })
+    .map_err(|e| RecordingError::Write {
+        path: path.to_path_buf(),
+        message: format!("{e:#}"),
+    })
 }
 
 /// Loads every frame of a recording (the f64 reference needs them all at once).

@@ -3,6 +3,7 @@
 //! Every field has a default, so a scene file only lists what it changes; [`Scene::default`]
 //! is the built-in default scene. Knobs, units and defaults are documented in the README (section "Scene files").
 
+use crate::simulation::checks;
 use crate::simulation::recording::{
     self, Calibration, Camera, Noise, Processing, MAX_ROWS, MAX_WIDTH,
 };
@@ -182,11 +183,10 @@ impl Default for Scene {
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
     /// The scene file could not be read.
-    #[error("{}: {source}", path.display())]
+    #[error("{} {}", path.display(), crate::files::io_cause(cause))]
     Io {
         path: PathBuf,
-        #[source]
-        source: std::io::Error,
+        cause: std::io::Error,
     },
     /// The TOML is malformed or does not match the schema (unknown key, wrong type).
     #[error("{}scene TOML: {message}", origin(path))]
@@ -243,17 +243,25 @@ impl Scene {
             path: None,
             message: e.to_string(),
         })?;
-        scene.counts_per_pixel = round_counts_per_pixel(scene.counts_per_pixel);
         scene.validate()?;
+        scene.counts_per_pixel = round_counts_per_pixel(scene.counts_per_pixel);
         Ok(scene)
     }
 
     /// Reads and parses a scene file (see [`Scene::from_toml_str`]); errors name the file.
     pub fn load(path: impl AsRef<Path>) -> Result<Scene, SceneError> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|source| SceneError::Io {
+        let io = |cause| SceneError::Io {
             path: path.to_path_buf(),
-            source,
+            cause,
+        };
+        let bytes =
+            crate::files::read_capped_io(path, crate::files::MAX_SCENE_BYTES).map_err(io)?;
+        let text = String::from_utf8(bytes).map_err(|_| {
+            io(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                "is not UTF-8 text (a scene is a TOML file)",
+            ))
         })?;
         Scene::from_toml_str(&text).map_err(|e| match e {
             SceneError::Parse { message, .. } => SceneError::Parse {
@@ -301,40 +309,13 @@ impl Scene {
         check((8..=16).contains(&self.bit_depth), "bit_depth", || {
             format!("{} bits, expected 8..=16", self.bit_depth)
         })?;
-        let max = recording::max_value(self.bit_depth);
-        if let Some(s) = self.saturation {
-            check((1..=max).contains(&s), "saturation", || {
-                format!("{s} DN, expected 1..={max} (2^bit_depth - 1)")
-            })?;
-        }
-
-        check(
-            self.fringe_period_px.is_finite() && self.fringe_period_px >= 2.0,
-            "fringe_period_px",
-            || format!("{} px, expected a finite value >= 2", self.fringe_period_px),
-        )?;
-        for (v, knob) in [
-            (self.height_per_turn_um, "height_per_turn_um"),
-            (self.height_lsb_um, "height_lsb_um"),
-        ] {
-            check(v.is_finite() && v > 0.0, knob, || {
-                format!("{v} um, expected a finite value > 0")
-            })?;
-        }
-        let turn_lsb = self.height_per_turn_um / self.height_lsb_um;
-        check(turn_lsb < 32768.0, "height_per_turn_um", || {
-            format!(
-                "one fringe turn is {turn_lsb} LSB ({} um / height_lsb_um {} um), expected < 32768",
-                self.height_per_turn_um, self.height_lsb_um
-            )
-        })?;
         let cpp = round_counts_per_pixel(self.counts_per_pixel);
         check(
             self.counts_per_pixel.is_finite() && cpp > 0.0 && cpp * 65536.0 < 4_294_967_296.0,
             "counts_per_pixel",
             || {
                 format!(
-                    "{} counts/px, expected 2^-16 ..< 65536",
+                    "{} counts/px rounds to {cpp} (a multiple of 2^-16), expected 2^-16 ..< 65536",
                     self.counts_per_pixel
                 )
             },
@@ -397,17 +378,13 @@ impl Scene {
         check_finite_min(self.deposit_corner_px, 0.0, "deposit_corner_px", "px")?;
         check_finite_min(self.deposit_edge_px, 0.0, "deposit_edge_px", "px")?;
 
-        check_finite_min(self.min_modulation, 0.0, "min_modulation", "DN")?;
-        check(
-            (1.0..=8.0).contains(&self.max_noise_gain),
-            "max_noise_gain",
-            || format!("{}, expected 1..=8", self.max_noise_gain),
+        // Camera, calibration and processing: the same checks as a manifest's.
+        checks::check_blocks(&self.camera(), &self.calibration(), &self.processing()).map_err(
+            |e| {
+                let (knob, note) = self.knob_of(&e.field);
+                invalid(knob, e.message + &note)
+            },
         )?;
-        if let Some(m) = self.max_step_rows {
-            check((1..=self.rows).contains(&m), "max_step_rows", || {
-                format!("{m} rows, expected 1..={} (rows)", self.rows)
-            })?;
-        }
 
         for (i, p) in self.patches.iter().enumerate() {
             let knob = format!("patches[{i}]");
@@ -426,6 +403,51 @@ impl Scene {
             format!("the scene could need up to {frames:.0} frames (board_length, mean_step_px, jitter_pct, stalls), at most {MAX_FRAMES} are supported")
         })?;
         Ok(())
+    }
+
+    /// The scene knob behind a manifest field (`camera.saturation` -> `saturation`; a derived
+    /// `max_step_rows` is named through `mean_step_px`).
+    fn knob_of(&self, field: &str) -> (String, String) {
+        let name = field.rsplit('.').next().unwrap_or(field);
+        let name = name.split('[').next().unwrap_or(name);
+        if name == "max_step_rows" && self.max_step_rows.is_none() {
+            let note = format!(
+                " (max_step_rows is derived from mean_step_px: min(ceil(1.25 * mean_step_px), rows) = {}; lower mean_step_px or set max_step_rows)",
+                self.max_step_rows()
+            );
+            return ("mean_step_px".into(), note);
+        }
+        (name.into(), String::new())
+    }
+
+    /// Legal knob settings that make the recording useless, one sentence each (printed as
+    /// `warning: ...` by `dpsa simulate` and `dpsa demo`).
+    pub fn warnings(&self) -> Vec<String> {
+        let mut w = checks::warnings(&self.camera(), &self.calibration(), &self.processing());
+        let cpp = round_counts_per_pixel(self.counts_per_pixel);
+        if cpp * self.mean_step_px < 2.0 {
+            w.push(format!(
+                "counts_per_pixel = {} gives {:.3} encoder counts per mean frame step ({} px): latches cannot resolve the motion and most rows are lost",
+                self.counts_per_pixel,
+                cpp * self.mean_step_px,
+                self.mean_step_px
+            ));
+        }
+        let fx = 1.0 / self.fringe_period_px;
+        let shifts: Vec<f64> = (0..self.n)
+            .map(|j| -2.0 * PI * fx * (f64::from(j) * self.mean_step_px).round())
+            .collect();
+        let g = crate::reference::noise_gain(&shifts);
+        if w.is_empty() && (g.is_nan() || g > self.max_noise_gain) {
+            w.push(format!(
+                "the nominal window ({} frames {} px apart, {:.1} degrees of phase per step) has noise gain {g:.3e}, above max_noise_gain {}: most windows will be ILL_CONDITIONED",
+                self.n,
+                self.mean_step_px,
+                360.0 * fx * self.mean_step_px,
+                self.max_noise_gain
+            ));
+        }
+        w
     }
 
     /// Upper bound of the number of frames the scene produces.

@@ -464,27 +464,155 @@ fn file_size(path: &Path) -> u64 {
 /// returns a summary. Frames are rendered and encoded in parallel; the result does not depend
 /// on the number of threads. `manifest.json` is written last, so an interrupted run leaves no
 /// readable recording.
+///
+/// Refuses an output that would exceed [`MAX_OUTPUT_BYTES`] (see [`simulate_with`] to force
+/// it) and an output directory that is neither new, empty nor a recording (see
+/// [`prepare_out_dir`]).
 pub fn simulate(
     scene: &Scene,
     seed: u64,
     out: &Path,
     progress: bool,
 ) -> anyhow::Result<SimSummary> {
+    simulate_with(scene, seed, out, progress, false)
+}
+
+/// Largest recording `simulate` writes without `force`, bytes (20 GB, estimated by
+/// [`output_size_estimate`]).
+pub const MAX_OUTPUT_BYTES: u64 = 20_000_000_000;
+
+/// Upper bound of a recording's size on disk, bytes: `frames` 16-bit PNGs of `rows x width`
+/// (raw size plus filter bytes and framing; the PNGs are usually smaller), the three truth
+/// files (12 bytes per board pixel) and the manifest.
+pub fn output_size_estimate(scene: &Scene, frames: u64) -> u64 {
+    let (rows, width) = (u64::from(scene.rows), u64::from(scene.width));
+    let png = rows * width * 2 + rows + 1024;
+    let truth = 12 * u64::from(scene.board_length) * width;
+    let manifest = frames * 100 + width * 25 + 4096;
+    frames * png + truth + manifest
+}
+
+/// Makes `out` ready for a new recording, before anything is rendered: a missing directory is
+/// fine (created later), an empty one too; a directory holding a dpsa recording (a
+/// `manifest.json` of format `dpsa-recording`, or only the `frames/` and `truth/` of an
+/// interrupted run) is cleared of that recording's files (manifest first, then every
+/// `frames/NNNNNN.png` and the truth files) so no stale frame survives. Anything else is
+/// refused.
+pub fn prepare_out_dir(out: &Path) -> anyhow::Result<()> {
+    let meta = match std::fs::metadata(out) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => anyhow::bail!(
+            "output directory {} {}",
+            out.display(),
+            crate::files::io_cause(&e)
+        ),
+    };
+    anyhow::ensure!(
+        meta.is_dir(),
+        "output {} exists and is not a directory",
+        out.display()
+    );
+    let names: Vec<String> = std::fs::read_dir(out)
+        .and_then(|d| {
+            d.map(|e| e.map(|e| e.file_name().to_string_lossy().into_owned()))
+                .collect()
+        })
+        .map_err(|e| {
+            anyhow::anyhow!(
+                "output directory {} {}",
+                out.display(),
+                crate::files::io_cause(&e)
+            )
+        })?;
+    if names.is_empty() {
+        return Ok(());
+    }
+    let manifest_path = out.join(MANIFEST_FILE);
+    let ours = crate::files::read_capped_io(&manifest_path, crate::files::MAX_MANIFEST_BYTES)
+        .ok()
+        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+        .is_some_and(|v| v.get("format").and_then(|f| f.as_str()) == Some(FORMAT));
+    let only_layout = names.iter().all(|n| n == "frames" || n == "truth");
+    if !ours && !only_layout {
+        let other = names
+            .iter()
+            .find(|n| *n != "frames" && *n != "truth")
+            .cloned()
+            .unwrap_or_default();
+        anyhow::bail!(
+            "refusing to write a recording into {}: it is not empty and holds no dpsa recording (it has {other:?}); choose a new or empty directory",
+            out.display()
+        );
+    }
+    let remove = |p: &Path| -> anyhow::Result<()> {
+        match std::fs::remove_file(p) {
+            Ok(()) => Ok(()),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+            Err(e) => anyhow::bail!(
+                "cannot remove the old {}: it {}",
+                p.display(),
+                crate::files::io_cause(&e)
+            ),
+        }
+    };
+    remove(&manifest_path)?;
+    if let Ok(entries) = std::fs::read_dir(out.join("frames")) {
+        for e in entries.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let stem = name.strip_suffix(".png").unwrap_or("");
+            let frame = !stem.is_empty() && stem.bytes().all(|b| b.is_ascii_digit());
+            let temp = name.starts_with('.') && name.contains(".png.");
+            if frame || temp {
+                remove(&e.path())?;
+            }
+        }
+    }
+    for name in [
+        TRUTH_HEIGHT_FILE,
+        TRUTH_BACKGROUND_FILE,
+        TRUTH_CONTRAST_FILE,
+    ] {
+        remove(&out.join(name))?;
+    }
+    Ok(())
+}
+
+/// [`simulate`]; `force` lifts the [`MAX_OUTPUT_BYTES`] limit.
+pub fn simulate_with(
+    scene: &Scene,
+    seed: u64,
+    out: &Path,
+    progress: bool,
+    force: bool,
+) -> anyhow::Result<SimSummary> {
     let sim = Simulator::new(scene, seed).context("invalid scene")?;
     let manifest = sim.manifest();
     manifest
         .validate()
         .context("internal error: simulated manifest is invalid")?;
+    let estimate = output_size_estimate(scene, manifest.frames.len() as u64);
+    anyhow::ensure!(
+        force || estimate <= MAX_OUTPUT_BYTES,
+        "the recording would take up to {:.1} GB ({} frames of {} x {} px as 16-bit PNG, plus ground truth), more than the {} GB limit; pass --force to write it anyway",
+        estimate as f64 / 1e9,
+        manifest.frames.len(),
+        scene.rows,
+        scene.width,
+        MAX_OUTPUT_BYTES / 1_000_000_000
+    );
+    prepare_out_dir(out)?;
 
     for dir in [out.to_path_buf(), out.join("frames"), out.join("truth")] {
-        std::fs::create_dir_all(&dir)
-            .with_context(|| format!("cannot create {}", dir.display()))?;
+        std::fs::create_dir_all(&dir).map_err(|e| {
+            anyhow::anyhow!(
+                "cannot create {}: it {}",
+                dir.display(),
+                crate::files::io_cause(&e)
+            )
+        })?;
     }
     let manifest_path = out.join(MANIFEST_FILE);
-    if manifest_path.exists() {
-        std::fs::remove_file(&manifest_path)
-            .with_context(|| format!("cannot remove the old {}", manifest_path.display()))?;
-    }
 
     let frames = manifest.frames.len();
     let bar = if progress {
