@@ -349,6 +349,17 @@ impl Manifest {
     }
 
     /// [`Manifest::validate`] with `path` named in the errors.
+    /// Parses and validates the bytes of a `manifest.json` (`path` names it in errors).
+    pub fn parse(bytes: &[u8], path: &Path) -> Result<Manifest, RecordingError> {
+        let text = String::from_utf8_lossy(bytes);
+        let manifest: Manifest = serde_json::from_str(&text).map_err(|e| RecordingError::Json {
+            path: path.to_path_buf(),
+            message: json_message(&text, &e),
+        })?;
+        manifest.validate_at(path)?;
+        Ok(manifest)
+    }
+
     fn validate_at(&self, path: &Path) -> Result<(), RecordingError> {
         if self.format != FORMAT {
             return Err(RecordingError::Format {
@@ -498,12 +509,7 @@ impl Recording {
             }
             Err(cause) => return Err(RecordingError::Io { path, cause }),
         };
-        let text = String::from_utf8_lossy(&bytes);
-        let manifest: Manifest = serde_json::from_str(&text).map_err(|e| RecordingError::Json {
-            path: path.clone(),
-            message: json_message(&text, &e),
-        })?;
-        manifest.validate_at(&path)?;
+        let manifest = Manifest::parse(&bytes, &path)?;
         Ok(Recording { dir, manifest })
     }
 
@@ -561,71 +567,7 @@ impl Recording {
                 })
             }
         };
-        let decode_err = |e: image::ImageError| RecordingError::Decode {
-            index: k,
-            path: path.clone(),
-            message: e.to_string(),
-        };
-        // Dimensions are checked against the camera below, before the pixels are decoded;
-        // the decoder itself may allocate no more than the frame's size cap.
-        let mut limits = image::Limits::default();
-        limits.max_alloc = Some(cap);
-        let decoder = PngDecoder::with_limits(Cursor::new(&bytes), limits).map_err(decode_err)?;
-        let (w, h) = decoder.dimensions();
-        let (rows, width) = (self.rows(), self.width());
-        if (h as usize, w as usize) != (rows, width) {
-            return Err(RecordingError::FrameSize {
-                index: k,
-                path,
-                expected_rows: rows,
-                expected_width: width,
-                actual_rows: h as usize,
-                actual_width: w as usize,
-            });
-        }
-        let bit_depth = self.manifest.camera.bit_depth;
-        let color = decoder.color_type();
-        let data: Vec<u16> = match color {
-            ColorType::L16 => {
-                let mut buf = vec![0u8; rows * width * 2];
-                decoder.read_image(&mut buf).map_err(decode_err)?;
-                buf.chunks_exact(2)
-                    .map(|b| u16::from_ne_bytes([b[0], b[1]]))
-                    .collect()
-            }
-            ColorType::L8 if bit_depth == 8 => {
-                let mut buf = vec![0u8; rows * width];
-                decoder.read_image(&mut buf).map_err(decode_err)?;
-                buf.into_iter().map(u16::from).collect()
-            }
-            other => {
-                return Err(RecordingError::BitDepth {
-                    index: k,
-                    path,
-                    found: format!("{other:?}"),
-                    bit_depth,
-                })
-            }
-        };
-        let max = max_value(bit_depth);
-        if let Some(i) = data.iter().position(|&v| v > max) {
-            return Err(RecordingError::PixelRange {
-                index: k,
-                path,
-                row: i / width,
-                col: i % width,
-                value: data[i],
-                bit_depth,
-                max,
-            });
-        }
-        Ok(Frame {
-            seq: entry.seq,
-            latch: entry.latch,
-            rows,
-            width,
-            data,
-        })
+        decode_frame(&self.manifest, k, &bytes, &path)
     }
 
     /// Reads the simulator ground truth, `Ok(None)` if the manifest has no `truth` block.
@@ -734,6 +676,93 @@ pub fn write_frame_png(
     .map_err(|e| RecordingError::Write {
         path: path.to_path_buf(),
         message: format!("{e:#}"),
+    })
+}
+
+/// Decodes the PNG `bytes` of frame `k` of `manifest` (the file at `path`, named in errors):
+/// checks its size against the camera before decoding (the decoder may allocate no more than
+/// the frame's size cap), its colour type against the bit depth and every sample's range.
+///
+/// Accepts 16-bit greyscale PNG, and 8-bit greyscale PNG only when `bit_depth` is 8.
+pub fn decode_frame(
+    manifest: &Manifest,
+    k: usize,
+    bytes: &[u8],
+    path: &Path,
+) -> Result<Frame, RecordingError> {
+    let entry = manifest.frames.get(k).ok_or(RecordingError::FrameIndex {
+        index: k,
+        count: manifest.frames.len(),
+    })?;
+    let (rows, width) = (
+        manifest.camera.rows as usize,
+        manifest.camera.width as usize,
+    );
+    let cap = crate::files::max_frame_png_bytes(rows, width);
+    let path = path.to_path_buf();
+    let decode_err = |e: image::ImageError| RecordingError::Decode {
+        index: k,
+        path: path.clone(),
+        message: e.to_string(),
+    };
+    // Dimensions are checked against the camera below, before the pixels are decoded;
+    // the decoder itself may allocate no more than the frame's size cap.
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(cap);
+    let decoder = PngDecoder::with_limits(Cursor::new(bytes), limits).map_err(decode_err)?;
+    let (w, h) = decoder.dimensions();
+    if (h as usize, w as usize) != (rows, width) {
+        return Err(RecordingError::FrameSize {
+            index: k,
+            path,
+            expected_rows: rows,
+            expected_width: width,
+            actual_rows: h as usize,
+            actual_width: w as usize,
+        });
+    }
+    let bit_depth = manifest.camera.bit_depth;
+    let color = decoder.color_type();
+    let data: Vec<u16> = match color {
+        ColorType::L16 => {
+            let mut buf = vec![0u8; rows * width * 2];
+            decoder.read_image(&mut buf).map_err(decode_err)?;
+            buf.chunks_exact(2)
+                .map(|b| u16::from_ne_bytes([b[0], b[1]]))
+                .collect()
+        }
+        ColorType::L8 if bit_depth == 8 => {
+            let mut buf = vec![0u8; rows * width];
+            decoder.read_image(&mut buf).map_err(decode_err)?;
+            buf.into_iter().map(u16::from).collect()
+        }
+        other => {
+            return Err(RecordingError::BitDepth {
+                index: k,
+                path,
+                found: format!("{other:?}"),
+                bit_depth,
+            })
+        }
+    };
+    let max = max_value(bit_depth);
+    if let Some(i) = data.iter().position(|&v| v > max) {
+        return Err(RecordingError::PixelRange {
+            index: k,
+            path,
+            row: i / width,
+            col: i % width,
+            value: data[i],
+            bit_depth,
+            max,
+        });
+    }
+    Ok(Frame {
+        seq: entry.seq,
+        latch: entry.latch,
+        rows,
+        width,
+        data,
     })
 }
 
