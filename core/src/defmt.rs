@@ -92,6 +92,7 @@ impl<E: Format> Format for Error<E> {
                     got, expected
                 )
             }
+            Error::Finished => write!(f, "begin_frame after finish"),
         }
     }
 }

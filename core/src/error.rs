@@ -97,6 +97,7 @@ impl<E: Display> Display for Error<E> {
             Error::LineWidth { expected, got } => {
                 write!(f, "line of {got} samples (expected width {expected})")
             }
+            Error::Finished => f.write_str("begin_frame after finish"),
         }
     }
 }

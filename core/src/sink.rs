@@ -3,12 +3,28 @@
 //! frame grabber's output link on the target.
 
 use crate::packets::{self, codec, PacketError};
-use crate::row::Row;
+use crate::row::{Gap, Row, StreamInfo};
 
-/// Receives completed rows in increasing board-row order, each board row exactly once.
+/// Receives the pipeline's output in increasing board-row order: every board row exactly
+/// once, either as a row or inside a gap record; [`Sink::start`] before anything else and
+/// [`Sink::end`] last (from `Pipeline::finish`).
 pub trait Sink {
     type Error;
+    /// A completed board row.
     fn row(&mut self, row: &Row<'_>) -> Result<(), Self::Error>;
+    /// The stream starts (once, before the first row or gap). Default: nothing.
+    fn start(&mut self, _info: &StreamInfo) -> Result<(), Self::Error> {
+        Ok(())
+    }
+    /// Board rows that no frame showed (encoder jump), as one record instead of one row each.
+    /// Default: nothing, so a sink that keeps a map sees a hole there.
+    fn gap(&mut self, _gap: &Gap) -> Result<(), Self::Error> {
+        Ok(())
+    }
+    /// The stream ended (once, after the last row). Default: nothing.
+    fn end(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
 }
 
 /// The link a packet stream leaves by (Ethernet, USB, a FIFO to the host PC, a file).
