@@ -96,7 +96,7 @@ fn frame_rows(rows: &[TestRow]) -> Vec<Vec<u8>> {
                 valid: &r.valid,
             };
             let mut buf = vec![0u8; packets::max_packet_len(w)];
-            let n = packets::encode(&row, &mut enc, &mut buf).expect("encode");
+            let n = packets::encode_v1(&row, &mut enc, &mut buf).expect("encode");
             buf.truncate(n);
             buf
         })
