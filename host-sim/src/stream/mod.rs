@@ -9,8 +9,7 @@
 
 use crate::heightmap::{HeightMap, HeightRow};
 use dpsa_core::packets::{
-    codec, Item, Kind, Packet, PacketError, Summary, Totals, Tracker, Verdict, Walk,
-    MAX_PACKET_LEN,
+    codec, Item, Kind, Packet, PacketError, Summary, Totals, Tracker, Verdict, Walk, MAX_PACKET_LEN,
 };
 use serde::Serialize;
 use std::io::Read;
@@ -177,7 +176,10 @@ impl Decoder {
                 let w = self.tracker.summary().info.map_or(0, |i| i.width);
                 self.rep.damage(
                     offset,
-                    format!("width {} differs from the stream's width {w}", p.header.width),
+                    format!(
+                        "width {} differs from the stream's width {w}",
+                        p.header.width
+                    ),
                 );
                 return;
             }
@@ -270,8 +272,10 @@ impl Decoder {
         }
         for (off, w) in other {
             self.rep.ok -= 1;
-            self.rep
-                .damage(off, format!("width {w} differs from the stream's width {width}"));
+            self.rep.damage(
+                off,
+                format!("width {w} differs from the stream's width {width}"),
+            );
         }
         self.rep.damage.sort_by_key(|d| d.offset);
         // Rows by board row; a board row that arrived twice counts once (the first copy).
@@ -314,7 +318,10 @@ impl Decoder {
 /// never stops the decoder: it reports the packet and resynchronises on the next sync word.
 /// Rows are placed by their board row (`map.rows` sorted, one per board row); `lsb_um` labels
 /// the heights (the stream carries LSBs).
-pub fn decode_reader<R: Read>(mut input: R, lsb_um: f64) -> std::io::Result<(HeightMap, DecodeReport)> {
+pub fn decode_reader<R: Read>(
+    mut input: R,
+    lsb_um: f64,
+) -> std::io::Result<(HeightMap, DecodeReport)> {
     let mut d = Decoder {
         map: HeightMap::new(0, lsb_um),
         rep: DecodeReport::default(),
