@@ -3,8 +3,8 @@
 //! can split the sink's time into encoding and sending.
 
 use crate::board::Clock;
-use dpsa_core::sink::{Link, PacketSink, SinkError};
 use dpsa_core::row::{Gap, StreamInfo};
+use dpsa_core::sink::{Link, PacketSink, SinkError};
 use dpsa_core::{Row, Sink};
 
 /// Ticks spent in the sink, split into encoding and sending (benchmark only).

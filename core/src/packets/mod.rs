@@ -102,9 +102,16 @@ pub const fn raw_payload_len(width: usize) -> usize {
     width.div_ceil(8) + 2 * width
 }
 
-/// Largest (version 2) packet for a row of `width` pixels, any codec.
+/// Largest (version 2) packet of a stream of `width` pixels: a row of any codec, or the end
+/// packet (the buffer a `PacketSink` needs).
 pub const fn max_packet_len(width: usize) -> usize {
-    HEADER_LEN + codec::max_len(width) + TRAILER_LEN
+    let row = codec::max_len(width);
+    let p = if row > END_PAYLOAD_LEN {
+        row
+    } else {
+        END_PAYLOAD_LEN
+    };
+    HEADER_LEN + p + TRAILER_LEN
 }
 
 /// Largest packet of any version and width a decoder accepts: a chunked reader that keeps
@@ -1041,9 +1048,12 @@ mod tests {
         let mut stray = buf[..n].to_vec();
         stray.extend(pk.concat());
         let s = track(&stray);
-        // The stray packet takes seq 0 before the header arrives; the header is then a
-        // duplicate of seq 0: a stray packet is reported, the rows all count.
-        assert_eq!(s.rows, 7);
+        // The stream header restarts the sequence bookkeeping: the stray packet is reported as
+        // before the header, every good packet counts.
+        assert_eq!(
+            (s.rows, s.before_header, s.missing, s.duplicated),
+            (7, 1, 0, 0)
+        );
         assert!(!s.clean());
         // After the header, another width is refused per packet.
         let mut late = pk.clone();

@@ -55,6 +55,9 @@ pub struct Summary {
     pub wrong_width: u64,
     /// Packets after the end packet (by arrival).
     pub after_end: u64,
+    /// Version 2 packets that arrived before the stream header (a stray packet or the tail of
+    /// another stream; the header restarts the sequence bookkeeping).
+    pub before_header: u64,
     /// Damage items (bytes that were not a packet).
     pub damage: u64,
     /// Version 2: no end packet, or its totals disagree with what arrived.
@@ -179,6 +182,15 @@ impl Tracker {
     pub fn packet(&mut self, p: &Packet<'_>) -> Verdict {
         if self.s.version == 0 {
             self.s.version = p.version;
+        }
+        if p.version == VERSION && p.kind == Kind::StreamHeader && self.s.info.is_none() {
+            // The stream starts here: what came before belongs to no stream of this header.
+            self.s.before_header = self.s.packets;
+            self.s.missing = 0;
+            self.s.duplicated = 0;
+            self.s.reordered = 0;
+            self.next = None;
+            self.seen = [0; (SEQ_WINDOW / 64) as usize];
         }
         if p.version == VERSION && !self.sequence(p.seq) {
             return Verdict::Duplicate;

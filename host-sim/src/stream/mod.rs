@@ -57,6 +57,8 @@ pub struct StreamReport {
     pub wrong_width: u64,
     /// Packets after the end packet.
     pub after_end: u64,
+    /// Packets before the stream header (a stray packet, the tail of another stream).
+    pub before_header: u64,
     /// Version 2: no end packet, or totals that disagree with what arrived.
     pub truncated: bool,
     pub end_totals: Option<TotalsReport>,
@@ -130,6 +132,7 @@ impl DecodeReport {
             || s.row_order > 0
             || s.wrong_width > 0
             || s.after_end > 0
+            || s.before_header > 0
             || s.truncated
             || s.rows_missing > 0
         {
@@ -300,6 +303,7 @@ impl Decoder {
         st.row_order = s.row_order;
         st.wrong_width = s.wrong_width;
         st.after_end = s.after_end;
+        st.before_header = s.before_header;
         st.truncated = s.truncated;
         st.end_totals = s.totals.map(Into::into);
         st.gap_records = s.gaps;
