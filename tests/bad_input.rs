@@ -297,16 +297,16 @@ fn out_of_range_scene_knob_is_named() {
 // ---------------------------------------------------------------------------------------------
 // Packet streams.
 
-/// Byte offsets of the packets of a well-formed stream, from the documented layout: a 32-byte
-/// header whose bytes 28..32 are the payload length, the payload and a 4-byte CRC.
+/// Byte offsets of the packets of a well-formed (version 2) stream, from the documented layout:
+/// a 40-byte header whose bytes 32..36 are the payload length, the payload and a 4-byte CRC.
 fn packet_offsets(bytes: &[u8]) -> Vec<usize> {
     let mut out = Vec::new();
     let mut pos = 0;
     while pos < bytes.len() {
         assert_eq!(&bytes[pos..pos + 4], b"DPSA", "sync word at {pos}");
         out.push(pos);
-        let plen = u32::from_le_bytes(bytes[pos + 28..pos + 32].try_into().unwrap()) as usize;
-        pos += 32 + plen + 4;
+        let plen = u32::from_le_bytes(bytes[pos + 32..pos + 36].try_into().unwrap()) as usize;
+        pos += 40 + plen + 4;
     }
     assert_eq!(pos, bytes.len());
     out
@@ -321,15 +321,17 @@ fn corrupt_packet_stream() {
     assert_eq!((rep.corrupt, rep.resynced), (0, 0));
     let offsets = packet_offsets(&bytes);
     assert_eq!(rep.ok, offsets.len());
-    assert_eq!(clean.rows.len(), offsets.len());
+    // The stream header first and the end packet last; rows in between.
+    assert_eq!(clean.rows.len(), offsets.len() - 2);
+    assert!(!rep.stream.truncated && rep.stream.missing == 0);
     let m = offsets.len() / 2;
 
     // Damage four packets in the middle of the stream, each in a different place.
     let mut bad = bytes.clone();
     let damaged = [m - 20, m - 7, m, m + 13];
     bad[offsets[damaged[0]]] ^= 0xff; // sync word
-    bad[offsets[damaged[1]] + 28] ^= 0x40; // payload length
-    bad[offsets[damaged[2]] + 32 + 17] ^= 0x01; // payload (one bit)
+    bad[offsets[damaged[1]] + 32] ^= 0x40; // payload length
+    bad[offsets[damaged[2]] + 40 + 17] ^= 0x01; // payload (one bit)
     let end = offsets[damaged[3] + 1];
     bad[end - 2] ^= 0x10; // CRC
     let (map, rep) = stream::decode_stream(&bad, lsb);
@@ -339,8 +341,12 @@ fn corrupt_packet_stream() {
         assert_eq!(d.offset, offsets[i], "{rep:?}");
     }
     assert_eq!(rep.ok, offsets.len() - 4, "{rep:?}");
+    // The lost packets are reported as missing (sequence numbers), the stream as incomplete.
+    assert_eq!(rep.stream.missing, 4, "{rep:?}");
+    assert!(rep.stream.truncated);
+    assert_eq!(rep.stream.rows_missing, 4);
     // Every other row decodes exactly as before.
-    let lost: Vec<i64> = damaged.iter().map(|&i| clean.rows[i].row).collect();
+    let lost: Vec<i64> = damaged.iter().map(|&i| clean.rows[i - 1].row).collect();
     let expected: Vec<_> = clean
         .rows
         .iter()
@@ -358,6 +364,7 @@ fn corrupt_packet_stream() {
     let (map, rep) = stream::decode_stream(&bad, lsb);
     assert_eq!(rep.ok, offsets.len() - 1, "{rep:?}");
     assert_eq!(rep.corrupt, 2, "{rep:?}");
-    assert_eq!(map.rows.len(), offsets.len() - 1);
-    assert_eq!(map.rows[..], clean.rows[..clean.rows.len() - 1]);
+    // The cut packet is the end packet: every row decodes, the stream is truncated.
+    assert_eq!(map.rows[..], clean.rows[..]);
+    assert!(rep.stream.truncated && rep.stream.end_totals.is_none());
 }

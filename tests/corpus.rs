@@ -96,7 +96,7 @@ fn frame_rows(rows: &[TestRow]) -> Vec<Vec<u8>> {
                 valid: &r.valid,
             };
             let mut buf = vec![0u8; packets::max_packet_len(w)];
-            let n = packets::encode(&row, &mut enc, &mut buf).expect("encode");
+            let n = packets::encode_v1(&row, &mut enc, &mut buf).expect("encode");
             buf.truncate(n);
             buf
         })
@@ -1242,4 +1242,122 @@ fn stream_doc_definitions_match() {
         let (pk, len) = packets::decode(&raw).expect("hand-built raw packet decodes");
         assert_eq!((len, pk.codec, pk.header), (raw.len(), 0, r.header));
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Version 2 cases (built on the fly through the core's PacketSink, the pipeline's framing).
+
+struct VecLink(Vec<Vec<u8>>);
+impl dpsa_core::sink::Link for VecLink {
+    type Error = std::convert::Infallible;
+    fn send(&mut self, p: &[u8]) -> Result<(), Self::Error> {
+        self.0.push(p.to_vec());
+        Ok(())
+    }
+    fn flush(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
+}
+
+/// Header, the rows, a gap after the third row, end: one packet per entry.
+fn v2_packets(rows: &[TestRow]) -> Vec<Vec<u8>> {
+    use dpsa_core::row::{Gap, StreamInfo};
+    use dpsa_core::Sink as _;
+    let w = rows[0].heights.len();
+    let mut reference = codec::ReferenceRow::new(w);
+    let enc = reference.encoder(packets::STREAM_INTRA_PERIOD).unwrap();
+    let mut buf = vec![0u8; packets::max_packet_len(w)];
+    let mut sink = dpsa_core::sink::PacketSink::new(VecLink(Vec::new()), enc, &mut buf);
+    sink.set_run_id(0xfeed);
+    let info = StreamInfo {
+        camera: rows[0].header.camera,
+        n: rows[0].header.n,
+        width: w as u16,
+        rows: 40,
+        max_step_rows: 10,
+        config_hash: 0xabc,
+        ..StreamInfo::default()
+    };
+    sink.start(&info).unwrap();
+    for (i, r) in rows.iter().enumerate() {
+        sink.row(&Row {
+            header: r.header,
+            heights: &r.heights,
+            valid: &r.valid,
+        })
+        .unwrap();
+        if i == 2 {
+            sink.gap(&Gap {
+                camera: info.camera,
+                first: r.header.row + 1,
+                count: 1_000_000_000_000,
+                flags: flags::SKIPPED | flags::ENCODER_FAULT,
+            })
+            .unwrap();
+        }
+    }
+    sink.end().unwrap();
+    sink.into_link().0
+}
+
+#[test]
+fn v2_streams_decode_and_report() {
+    let mut rows = make_rows(7, 33, 6, 10, 0);
+    // Rows after the gap continue past it.
+    for r in rows.iter_mut().skip(3) {
+        r.header.row += 1_000_000_000_000;
+    }
+    let pk = v2_packets(&rows);
+    assert_eq!(pk.len(), rows.len() + 3);
+    let clean = pk.concat();
+    let (map, rep) = decode("v2-clean", &clean);
+    assert_eq!((rep.ok, rep.corrupt), (pk.len(), 0));
+    assert_eq!(map.rows.len(), rows.len());
+    let s = &rep.stream;
+    assert_eq!((s.version, s.run_id, s.width), (2, Some(0xfeed), Some(33)));
+    assert_eq!(
+        (s.gap_records, s.gap_rows, s.rows_missing),
+        (1, 1_000_000_000_000, 0)
+    );
+    assert!(!s.truncated && s.missing == 0);
+    assert_eq!(rep.verdict(&map), dpsa_sim::stream::Verdict2::Clean);
+    for (got, want) in map.rows.iter().zip(&rows) {
+        assert_eq!(got.row, want.header.row);
+        assert_eq!(got.heights, want.heights);
+        assert_eq!(got.valid, want.valid_bools());
+    }
+
+    // One bit flipped in a row payload: lost, reported missing, the rest at their rows.
+    let mut bad = pk.clone();
+    let l = bad[2].len();
+    bad[2][l - 8] ^= 0x10;
+    let (map, rep) = decode("v2-flip", &bad.concat());
+    assert_eq!(
+        (rep.corrupt, rep.stream.missing, rep.stream.rows_missing),
+        (1, 1, 1)
+    );
+    assert!(map.get(rows[1].header.row).is_none());
+    assert_eq!(map.rows.len(), rows.len() - 1);
+
+    // Duplicate and reorder.
+    let mut dr = pk.clone();
+    dr.insert(3, pk[2].clone());
+    dr.swap(5, 6);
+    let (map, rep) = decode("v2-dup-reorder", &dr.concat());
+    assert_eq!((rep.stream.duplicated, rep.stream.reordered), (1, 1));
+    assert_eq!(map.rows.len(), rows.len());
+    assert_eq!(rep.verdict(&map), dpsa_sim::stream::Verdict2::Damaged);
+
+    // Truncated: no end packet.
+    let (_, rep) = decode("v2-cut", &pk[..pk.len() - 1].concat());
+    assert!(rep.stream.truncated);
+
+    // A version 1 stream and a version 2 stream of another width before the good one.
+    let other = v2_packets(&make_rows(8, 9, 4, 0, 0));
+    let mut mixed = other[1].clone();
+    mixed.extend(&clean);
+    let (map, rep) = decode("v2-stray-width", &mixed);
+    assert_eq!(map.width, 33);
+    assert_eq!(map.rows.len(), rows.len());
+    assert!(rep.ok >= pk.len());
 }

@@ -300,6 +300,48 @@ fn fullframe_scene_is_bit_exact() {
 
 /// `--intra-period` reaches the firmware through the recording header: predicted rows are
 /// bit-exact too, and make a different (smaller) stream.
+/// Encoder faults: a latch jump of +1e12 counts at frame 20 and a reversal at frame 45. The
+/// firmware emits the host's stream byte for byte: one gap record for the jump (not one packet
+/// per skipped row), flagged rows around both faults, and at most K packets per frame.
+#[test]
+fn encoder_jump_and_reversal_are_bit_exact_and_bounded() {
+    let Some(elf) = elf() else { return };
+    let mut sim = simulate(&small_scene(), 5);
+    let frames = &mut sim.rec.manifest.frames;
+    assert!(frames.len() > 60, "{} frames", frames.len());
+    for f in frames.iter_mut().skip(20) {
+        f.latch += 1_000_000_000_000;
+    }
+    frames[45].latch = frames[43].latch - 50;
+    let map = host_and_target("encoder jump and reversal", &sim, &elf);
+    let (_, host) = reconstruct::run(&sim.rec, Vec::new(), false).unwrap();
+    let (_, rep) = dpsa_sim::stream::decode_stream(&host, 0.25);
+    assert_eq!(rep.stream.gap_records, 1, "{:?}", rep.stream);
+    assert!(rep.stream.gap_rows > 1_000_000_000, "{:?}", rep.stream);
+    assert!(!rep.stream.truncated && rep.stream.missing == 0);
+    assert!(
+        count(&map, flags::ENCODER_FAULT) > 0,
+        "{}",
+        flag_summary(&map)
+    );
+    assert!(
+        count(&map, flags::ENCODER_REVERSAL) > 0,
+        "{}",
+        flag_summary(&map)
+    );
+    assert!(valid_rows(&map) > 100, "{}", flag_summary(&map));
+    let cfg = &sim.rec.manifest;
+    let k = dpsa_core::frames::registration::max_output_per_frame(
+        cfg.processing.n,
+        sim.rec.manifest.camera.rows as u16,
+    );
+    let packets = rep.ok as u64;
+    assert!(
+        packets <= (sim.rec.manifest.frames.len() as u64 + 1) * k + 2,
+        "{packets} packets"
+    );
+}
+
 #[test]
 fn predicted_rows_are_bit_exact() {
     let Some(elf) = elf() else { return };

@@ -92,6 +92,7 @@ impl<E: Format> Format for Error<E> {
                     got, expected
                 )
             }
+            Error::Finished => write!(f, "begin_frame after finish"),
         }
     }
 }
@@ -129,13 +130,18 @@ impl Format for PacketError {
             PacketError::BadSync => write!(f, "no sync word"),
             PacketError::BadVersion(v) => write!(
                 f,
-                "packet version {=u8} is not supported (expected {=u8})",
+                "packet version {=u8} is not supported (expected 1 or {=u8})",
                 v,
                 crate::packets::VERSION
             ),
             PacketError::BadCodec(c) => write!(f, "payload codec {=u8} is unknown", c),
-            PacketError::BadLength => write!(f, "payload length does not fit the codec and width"),
+            PacketError::BadLength => {
+                write!(f, "payload length does not fit the kind, codec and width")
+            }
             PacketError::BadCrc => write!(f, "CRC mismatch"),
+            PacketError::BadKind(k) => write!(f, "packet kind {=u8} is unknown", k),
+            PacketError::BadWidth(w) => write!(f, "width {=u16} is out of range (1..=8192)", w),
+            PacketError::BadHeaderCrc => write!(f, "header CRC mismatch"),
             PacketError::Codec(e) => write!(f, "payload: {}", e),
         }
     }

@@ -97,6 +97,7 @@ impl<E: Display> Display for Error<E> {
             Error::LineWidth { expected, got } => {
                 write!(f, "line of {got} samples (expected width {expected})")
             }
+            Error::Finished => f.write_str("begin_frame after finish"),
         }
     }
 }
@@ -144,13 +145,16 @@ impl Display for PacketError {
             PacketError::BadSync => f.write_str("no sync word"),
             PacketError::BadVersion(v) => write!(
                 f,
-                "packet version {v} is not supported (expected {PACKET_VERSION})"
+                "packet version {v} is not supported (expected 1 or {PACKET_VERSION})"
             ),
             PacketError::BadCodec(c) => write!(f, "payload codec {c} is unknown"),
             PacketError::BadLength => {
-                f.write_str("payload length does not fit the codec and width")
+                f.write_str("payload length does not fit the kind, codec and width")
             }
             PacketError::BadCrc => f.write_str("CRC mismatch"),
+            PacketError::BadKind(k) => write!(f, "packet kind {k} is unknown"),
+            PacketError::BadWidth(w) => write!(f, "width {w} is out of range (1..=8192)"),
+            PacketError::BadHeaderCrc => f.write_str("header CRC mismatch"),
             PacketError::Codec(e) => write!(f, "payload: {e}"),
         }
     }

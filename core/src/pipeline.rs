@@ -17,10 +17,10 @@
 //! reversals, exhausted state) yields an error or flagged rows, never a panic.
 
 use crate::accumulate::{self, Pool};
-use crate::frames::registration::{Kind, Registry};
+use crate::frames::registration::{self, Kind, Registry, Step};
 use crate::frames::{Config, ConfigError, Trigger};
 use crate::height::Scale;
-use crate::row::{flags, Row, RowHeader};
+use crate::row::{flags, Gap, Row, RowHeader, StreamInfo};
 use crate::sink::Sink;
 use crate::solve::{SolveError, Window, MAX_N};
 
@@ -133,6 +133,8 @@ pub enum Error<E> {
     LineOrder { expected: u16, got: u16 },
     /// A line of the wrong width.
     LineWidth { expected: u16, got: usize },
+    /// `begin_frame` after `finish`.
+    Finished,
 }
 
 /// The streaming D-PSA pipeline.
@@ -152,6 +154,11 @@ pub struct Pipeline<'a> {
     prev_latch: i64,
     /// Window of the rows completing in the open frame.
     win: Result<Window, SolveError>,
+    /// `Config::hash` of the configuration and reference phase.
+    hash: u64,
+    /// The sink was told the stream started / ended.
+    started: bool,
+    ended: bool,
 }
 
 impl<'a> Pipeline<'a> {
@@ -189,7 +196,33 @@ impl<'a> Pipeline<'a> {
             prev_seq: 0,
             prev_latch: 0,
             win: Err(SolveError::BadCount),
+            hash: cfg.hash(&ref_phase[..w]),
+            started: false,
+            ended: false,
         })
+    }
+
+    /// What the stream holds ([`Sink::start`]); `run_id` and `intra_period` are 0 (the sink
+    /// sets them).
+    pub fn stream_info(&self) -> StreamInfo {
+        StreamInfo {
+            camera: self.cfg.camera,
+            n: self.cfg.n,
+            width: self.cfg.width,
+            rows: self.cfg.rows,
+            max_step_rows: self.cfg.max_step_rows,
+            config_hash: self.hash,
+            run_id: 0,
+            intra_period: 0,
+        }
+    }
+
+    fn start<S: Sink>(&mut self, sink: &mut S) -> Result<(), Error<S::Error>> {
+        if !self.started {
+            self.started = true;
+            sink.start(&self.stream_info()).map_err(Error::Sink)?;
+        }
+        Ok(())
     }
 
     pub fn config(&self) -> &Config {
@@ -210,22 +243,43 @@ impl<'a> Pipeline<'a> {
         if self.open {
             return Err(Error::FrameOpen);
         }
+        if self.ended {
+            return Err(Error::Finished);
+        }
+        self.start(sink)?;
         let Trigger { seq, latch } = trigger;
         let f = self.reg.begun();
         let o = self.cfg.offset(latch);
-        if f == 0 {
+        let step = registration::classify(f == 0, self.prev_latch, latch, self.reg.entered_end, o);
+        if step == Step::First {
             self.next_row = o;
             self.reg.entered_end = o;
-        } else {
-            if seq != self.prev_seq.wrapping_add(1) {
-                self.kill_open(flags::FRAME_GAP);
-            }
-            if latch < self.prev_latch {
-                self.kill_open(flags::ENCODER_REVERSAL);
-            }
+        } else if seq != self.prev_seq.wrapping_add(1) {
+            self.kill_open(flags::FRAME_GAP);
+        }
+        match step {
+            Step::Reversal => self.kill_open(flags::ENCODER_REVERSAL),
+            Step::Jump { .. } => self.kill_open(flags::ENCODER_FAULT),
+            Step::First | Step::Forward => {}
         }
         // Rows above the ROI can no longer be observed.
         self.drain_until(o, flags::INCOMPLETE, sink)?;
+        if let Step::Jump {
+            gap_first,
+            gap_rows,
+        } = step
+        {
+            // One record for the rows no frame showed; registration restarts at `o`.
+            self.reg.restart(o);
+            self.next_row = o;
+            sink.gap(&Gap {
+                camera: self.cfg.camera,
+                first: gap_first,
+                count: gap_rows,
+                flags: flags::SKIPPED | flags::ENCODER_FAULT,
+            })
+            .map_err(Error::Sink)?;
+        }
         // Admission of the rows that entered at the bottom.
         self.reg
             .admit(o, latch, self.cfg.rows, self.cfg.max_step_rows);
@@ -362,12 +416,20 @@ impl<'a> Pipeline<'a> {
         Ok(())
     }
 
-    /// Ends the stream: closes an open frame and emits every open row as `INCOMPLETE`.
+    /// Ends the stream: closes an open frame, emits every open row as `INCOMPLETE` and tells
+    /// the sink the stream ended ([`Sink::end`], once; a stream without frames is announced
+    /// and ended too). Afterwards `begin_frame` is an error; `finish` again does nothing.
     pub fn finish<S: Sink>(&mut self, sink: &mut S) -> Result<(), Error<S::Error>> {
+        if self.ended {
+            return Ok(());
+        }
+        self.start(sink)?;
         if self.open {
             self.end_frame(sink)?;
         }
-        self.drain_until(self.reg.entered_end, flags::INCOMPLETE, sink)
+        self.drain_until(self.reg.entered_end, flags::INCOMPLETE, sink)?;
+        self.ended = true;
+        sink.end().map_err(Error::Sink)
     }
 
     /// Marks an admitted row invalid and returns its lines to the pool.
@@ -754,6 +816,134 @@ mod tests {
             Pipeline::new(bad, &refp, State::new(&c).memory()),
             Err(NewError::Config(_))
         ));
+    }
+
+    /// Rows and gap records in order, start / end calls.
+    #[derive(Default)]
+    struct Items {
+        /// (first board row, rows covered, flags)
+        items: Vec<(i64, u64, u16)>,
+        starts: usize,
+        ends: usize,
+    }
+    impl Sink for Items {
+        type Error = ();
+        fn row(&mut self, r: &Row<'_>) -> Result<(), ()> {
+            self.items.push((r.header.row, 1, r.header.flags));
+            Ok(())
+        }
+        fn start(&mut self, _: &StreamInfo) -> Result<(), ()> {
+            self.starts += 1;
+            Ok(())
+        }
+        fn gap(&mut self, g: &Gap) -> Result<(), ()> {
+            self.items.push((g.first, g.count, g.flags));
+            Ok(())
+        }
+        fn end(&mut self) -> Result<(), ()> {
+            self.ends += 1;
+            Ok(())
+        }
+    }
+
+    /// Runs `latches` (consecutive seqs, whole frames) with counts per pixel `cpp_q16`; checks
+    /// the per-frame output bound and that the items tile increasing board rows; returns them.
+    fn run_faults(latches: &[i64], cpp_q16: u32) -> Items {
+        let mut c = cfg();
+        c.counts_per_pixel = U16F16::from_bits(cpp_q16);
+        let refp: Vec<u32> = (0..W).map(|c| from_rad(phi0(c))).collect();
+        let mut m = State::new(&c);
+        let mut p = Pipeline::new(c, &refp, m.memory()).unwrap();
+        let mut sink = Items::default();
+        let k = registration::max_output_per_frame(c.n, c.rows) as usize;
+        for (i, &e) in latches.iter().enumerate() {
+            let before = sink.items.len();
+            p.begin_frame(
+                Trigger {
+                    seq: i as u32,
+                    latch: e,
+                },
+                &mut sink,
+            )
+            .unwrap();
+            let fr = frame(c.offset(e).clamp(-1 << 40, 1 << 40));
+            for (r, line) in fr.iter().enumerate() {
+                p.push_line(r as u16, line, &mut sink).unwrap();
+            }
+            p.end_frame(&mut sink).unwrap();
+            let out = sink.items.len() - before;
+            assert!(out <= k, "frame {i}: {out} items > K = {k}");
+        }
+        let before = sink.items.len();
+        p.finish(&mut sink).unwrap();
+        assert!(sink.items.len() - before <= k);
+        p.finish(&mut sink).unwrap();
+        assert_eq!((sink.starts, sink.ends), (1, 1));
+        assert_eq!(p.pool_used(), 0);
+        for w in sink.items.windows(2) {
+            assert_eq!(w[1].0 as i128, w[0].0 as i128 + w[0].1 as i128, "{w:?}");
+        }
+        sink
+    }
+
+    #[test]
+    fn jump_is_one_gap_record_and_registration_restarts() {
+        // 8 px per frame, then +1e12 counts, then 8 px per frame again.
+        let mut latches: Vec<i64> = (0..12).map(|k| k * 80).collect();
+        let j = 1_000_000_000_000i64;
+        latches.extend((0..12).map(|k| j + k * 80));
+        let out = run_faults(&latches, 10 << 16);
+        let gaps: Vec<_> = out.items.iter().filter(|i| i.1 > 1).collect();
+        assert_eq!(gaps.len(), 1, "{gaps:?}");
+        let g = gaps[0];
+        assert_eq!(g.2, flags::SKIPPED | flags::ENCODER_FAULT);
+        assert_eq!(g.0 + g.1 as i64, j / 10, "the gap ends at the new top row");
+        // Rows after the jump are measured again (valid rows both before and after).
+        assert!(out.items.iter().any(|i| i.0 < g.0 && i.2 == 0));
+        assert!(out.items.iter().any(|i| i.0 > g.0 && i.2 == 0));
+        // Rows open at the jump carry ENCODER_FAULT.
+        assert!(out
+            .items
+            .iter()
+            .any(|i| i.0 < g.0 && i.2 & flags::ENCODER_FAULT != 0));
+        // The same with i64::MAX and back down (a reversal): bounded, no overflow.
+        let mut latches: Vec<i64> = (0..6).map(|k| k * 80).collect();
+        latches.extend([i64::MAX, i64::MAX, i64::MIN, 480, 560, 640, 720, 800]);
+        let out = run_faults(&latches, 10 << 16);
+        assert!(out
+            .items
+            .iter()
+            .any(|i| i.2 & flags::ENCODER_FAULT != 0 && i.1 > 1));
+        // A tiny counts per pixel: every latch step is a jump.
+        let latches: Vec<i64> = (0..10).map(|k| k * 3).collect();
+        let out = run_faults(&latches, 1);
+        assert_eq!(out.items.iter().filter(|i| i.1 > 1).count(), 9);
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(200))]
+        /// Any latch sequence (steps small and huge, both ways, i64 extremes), any counts per
+        /// pixel: at most K items per frame, rows and gaps tile increasing board rows, start
+        /// and end once, no overflow, no leaked line slots.
+        #[test]
+        fn encoder_faults_are_bounded(
+            latches in proptest::collection::vec(prop_oneof![
+                4 => -200i64..2000,
+                1 => Just(i64::MAX),
+                1 => Just(i64::MIN),
+                1 => any::<i64>(),
+                1 => -(1i64 << 40)..(1i64 << 40),
+            ], 1..24),
+            cumulative in any::<bool>(),
+            cpp in prop_oneof![Just(1u32), Just(10 << 16), 1u32..(40 << 16), Just(u32::MAX)],
+        ) {
+            let latches: Vec<i64> = if cumulative {
+                latches.iter().scan(0i64, |e, &s| { *e = e.saturating_add(s); Some(*e) }).collect()
+            } else {
+                latches
+            };
+            run_faults(&latches, cpp);
+        }
     }
 
     proptest! {

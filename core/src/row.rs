@@ -19,9 +19,17 @@ pub mod flags {
     pub const LOW_MODULATION: u16 = 1 << 6;
     /// The caller-supplied state had no free line slot for this row.
     pub const OVERFLOW: u16 = 1 << 7;
+    /// An encoder jump (`crate::frames::registration::Step::Jump`): the row was open when the
+    /// latch leapt past every row seen so far, or lies in the gap the jump left (gap records).
+    pub const ENCODER_FAULT: u16 = 1 << 8;
     /// Flags that invalidate the whole row.
-    pub const ROW_INVALID: u16 =
-        ILL_CONDITIONED | INCOMPLETE | SKIPPED | ENCODER_REVERSAL | FRAME_GAP | OVERFLOW;
+    pub const ROW_INVALID: u16 = ILL_CONDITIONED
+        | INCOMPLETE
+        | SKIPPED
+        | ENCODER_REVERSAL
+        | FRAME_GAP
+        | OVERFLOW
+        | ENCODER_FAULT;
 }
 
 /// Header of one height row; the same fields are framed into every row packet.
@@ -57,4 +65,41 @@ impl Row<'_> {
             .get(c / 8)
             .is_some_and(|b| b & (1 << (c % 8)) != 0)
     }
+}
+
+/// A bounded record of board rows that were never imaged: `count` rows from board row
+/// `first`, all invalid with `flags` (`SKIPPED | ENCODER_FAULT`). The pipeline emits one per
+/// encoder jump instead of one row per skipped board row.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Gap {
+    /// Camera id.
+    pub camera: u8,
+    /// First board row of the gap.
+    pub first: i64,
+    /// Board rows in the gap (at least 1).
+    pub count: u64,
+    /// Row flags of every row in the gap.
+    pub flags: u16,
+}
+
+/// What a stream holds, announced once before its first row (the stream header packet).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StreamInfo {
+    /// Camera id.
+    pub camera: u8,
+    /// Observations per row `n`.
+    pub n: u8,
+    /// Columns `W` of every row of the stream.
+    pub width: u16,
+    /// ROI rows per frame `H`.
+    pub rows: u16,
+    /// `Config::max_step_rows`.
+    pub max_step_rows: u16,
+    /// FNV-1a 64 of the integer configuration and the reference-phase table
+    /// ([`crate::frames::Config::hash`]).
+    pub config_hash: u64,
+    /// Run identity chosen by the caller (0 if none); set by the sink, not the pipeline.
+    pub run_id: u64,
+    /// Codec intra period of the stream; set by the sink (0 when the pipeline announces it).
+    pub intra_period: u32,
 }

@@ -3,12 +3,28 @@
 //! frame grabber's output link on the target.
 
 use crate::packets::{self, codec, PacketError};
-use crate::row::Row;
+use crate::row::{Gap, Row, StreamInfo};
 
-/// Receives completed rows in increasing board-row order, each board row exactly once.
+/// Receives the pipeline's output in increasing board-row order: every board row exactly
+/// once, either as a row or inside a gap record; [`Sink::start`] before anything else and
+/// [`Sink::end`] last (from `Pipeline::finish`).
 pub trait Sink {
     type Error;
+    /// A completed board row.
     fn row(&mut self, row: &Row<'_>) -> Result<(), Self::Error>;
+    /// The stream starts (once, before the first row or gap). Default: nothing.
+    fn start(&mut self, _info: &StreamInfo) -> Result<(), Self::Error> {
+        Ok(())
+    }
+    /// Board rows that no frame showed (encoder jump), as one record instead of one row each.
+    /// Default: nothing, so a sink that keeps a map sees a hole there.
+    fn gap(&mut self, _gap: &Gap) -> Result<(), Self::Error> {
+        Ok(())
+    }
+    /// The stream ended (once, after the last row). Default: nothing.
+    fn end(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
 }
 
 /// The link a packet stream leaves by (Ethernet, USB, a FIFO to the host PC, a file).
@@ -29,7 +45,11 @@ pub enum SinkError<E> {
     Link(E),
 }
 
-/// A [`Sink`] that frames every row into a compressed packet (codec 1) and sends it over `L`.
+/// A [`Sink`] that frames the pipeline's output into a version 2 packet stream over `L`: the
+/// stream header at [`Sink::start`] (with the run id of [`PacketSink::set_run_id`] and the
+/// encoder's intra period), one compressed row packet (codec 1) per row, one gap packet per
+/// gap record, the end-of-stream packet with the totals at [`Sink::end`]; sequence numbers
+/// count every packet from 0.
 ///
 /// `buf` must hold [`packets::max_packet_len`]`(W)` bytes; the encoder's reference row and
 /// intra period decide how rows are coded ([`codec::Encoder`]).
@@ -37,7 +57,9 @@ pub struct PacketSink<'a, L> {
     link: L,
     enc: codec::Encoder<'a>,
     buf: &'a mut [u8],
-    packets: u64,
+    run_id: u64,
+    info: StreamInfo,
+    totals: packets::Totals,
     bytes: u64,
 }
 
@@ -47,14 +69,29 @@ impl<'a, L: Link> PacketSink<'a, L> {
             link,
             enc,
             buf,
-            packets: 0,
+            run_id: 0,
+            info: StreamInfo::default(),
+            totals: packets::Totals {
+                last_row: -1,
+                ..packets::Totals::default()
+            },
             bytes: 0,
         }
     }
 
-    /// Packets sent.
+    /// The run identity written into the stream header (default 0).
+    pub fn set_run_id(&mut self, run_id: u64) {
+        self.run_id = run_id;
+    }
+
+    /// Packets sent (every kind).
     pub fn packets(&self) -> u64 {
-        self.packets
+        self.totals.packets
+    }
+
+    /// Row packets sent.
+    pub fn rows(&self) -> u64 {
+        self.totals.rows
     }
 
     /// Bytes sent.
@@ -78,16 +115,69 @@ impl<'a, L: Link> PacketSink<'a, L> {
     pub fn into_link(self) -> L {
         self.link
     }
+
+    fn send(&mut self, n: usize) -> Result<(), SinkError<L::Error>> {
+        self.link.send(&self.buf[..n]).map_err(SinkError::Link)?;
+        self.totals.packets += 1;
+        self.bytes += n as u64;
+        Ok(())
+    }
+
+    fn cover(&mut self, first: i64, last: i64) {
+        if self.totals.first_row > self.totals.last_row {
+            self.totals.first_row = first;
+        }
+        self.totals.last_row = last;
+    }
+
+    fn seq(&self) -> u32 {
+        self.totals.packets as u32
+    }
 }
 
 impl<L: Link> Sink for PacketSink<'_, L> {
     type Error = SinkError<L::Error>;
 
     fn row(&mut self, row: &Row<'_>) -> Result<(), Self::Error> {
-        let n = packets::encode(row, &mut self.enc, self.buf).map_err(SinkError::Encode)?;
-        self.link.send(&self.buf[..n]).map_err(SinkError::Link)?;
-        self.packets += 1;
-        self.bytes += n as u64;
+        let n =
+            packets::encode(row, self.seq(), &mut self.enc, self.buf).map_err(SinkError::Encode)?;
+        self.send(n)?;
+        self.totals.rows += 1;
+        self.cover(row.header.row, row.header.row);
         Ok(())
+    }
+
+    fn start(&mut self, info: &StreamInfo) -> Result<(), Self::Error> {
+        self.info = StreamInfo {
+            run_id: self.run_id,
+            intra_period: self.enc.intra_period(),
+            ..*info
+        };
+        let n = packets::encode_stream_header(&self.info, self.buf).map_err(SinkError::Encode)?;
+        self.send(n)
+    }
+
+    fn gap(&mut self, gap: &Gap) -> Result<(), Self::Error> {
+        let n = packets::encode_gap(gap, self.info.n, self.info.width, self.seq(), self.buf)
+            .map_err(SinkError::Encode)?;
+        self.send(n)?;
+        self.totals.gap_rows = self.totals.gap_rows.saturating_add(gap.count);
+        let last = gap
+            .first
+            .saturating_add(gap.count.saturating_sub(1).min(i64::MAX as u64) as i64);
+        self.cover(gap.first, last);
+        Ok(())
+    }
+
+    fn end(&mut self) -> Result<(), Self::Error> {
+        let mut t = self.totals;
+        t.packets += 1;
+        if t.first_row > t.last_row {
+            (t.first_row, t.last_row) = (0, -1);
+        }
+        let (camera, n, width, seq) = (self.info.camera, self.info.n, self.info.width, self.seq());
+        let len =
+            packets::encode_end(&t, camera, n, width, seq, self.buf).map_err(SinkError::Encode)?;
+        self.send(len)
     }
 }

@@ -3,6 +3,7 @@
 //! can split the sink's time into encoding and sending.
 
 use crate::board::Clock;
+use dpsa_core::row::{Gap, StreamInfo};
 use dpsa_core::sink::{Link, PacketSink, SinkError};
 use dpsa_core::{Row, Sink};
 
@@ -79,7 +80,7 @@ impl<'a, L: Link, C: Clock> TimedSink<'a, L, C> {
         SinkTicks {
             encode: self.encode,
             send: self.sink.link().send,
-            rows: self.sink.packets(),
+            rows: self.sink.rows(),
         }
     }
 }
@@ -92,5 +93,17 @@ impl<L: Link, C: Clock> Sink for TimedSink<'_, L, C> {
         self.sink.row(row)?;
         self.encode += self.sink.link().started - t0;
         Ok(())
+    }
+
+    fn start(&mut self, info: &StreamInfo) -> Result<(), Self::Error> {
+        self.sink.start(info)
+    }
+
+    fn gap(&mut self, gap: &Gap) -> Result<(), Self::Error> {
+        self.sink.gap(gap)
+    }
+
+    fn end(&mut self) -> Result<(), Self::Error> {
+        self.sink.end()
     }
 }

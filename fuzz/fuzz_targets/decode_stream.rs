@@ -24,30 +24,62 @@ fuzz_target!(|data: &[u8]| {
 fn whole_stream(data: &[u8]) {
     let mut next_at = 0usize;
     let (mut ok, mut damage) = (0usize, 0usize);
-    for item in packets::Stream::new(data) {
+    let mut walk = packets::Stream::new(data);
+    let mut tracker = packets::Tracker::new();
+    while let Some(item) = walk.next() {
         match item {
             packets::Item::Packet { offset, packet } => {
                 assert_eq!(offset, next_at, "a packet where the walk did not stand");
                 assert_eq!(data[offset..offset + 4], packets::SYNC);
-                let len = packets::HEADER_LEN + packet.payload.len() + packets::TRAILER_LEN;
+                let len = header_len(packet.version) + packet.payload.len() + packets::TRAILER_LEN;
                 assert!(offset + len <= data.len());
                 // The packet re-parses alone to itself.
                 let (again, l2) = packets::decode(&data[offset..offset + len]).unwrap();
-                assert_eq!((again.header, l2), (packet.header, len));
+                assert_eq!(
+                    (again.header, again.seq, l2),
+                    (packet.header, packet.seq, len)
+                );
                 next_at = offset + len;
                 ok += 1;
+                tracker.packet(&packet);
             }
             packets::Item::Damage { offset, error } => {
                 assert_eq!(offset, next_at, "damage where the walk did not stand");
                 assert!(offset < data.len());
                 assert!(packets::decode(&data[offset..]).err() == Some(error));
-                next_at = packets::find_sync(data, offset + 1).unwrap_or(data.len());
+                // Resynchronised on the next sync word, or (a version 2 packet whose header
+                // checked out, payload CRC bad) skipped whole.
+                let resync = packets::find_sync(data, offset + 1).unwrap_or(data.len());
+                let at = walk.position();
+                if error == packets::PacketError::BadCrc && data[offset + 4] == packets::VERSION {
+                    assert!(at > offset + packets::HEADER_LEN && at <= data.len());
+                    next_at = at;
+                } else {
+                    assert!(at == offset + 1 || at == resync);
+                    next_at = resync;
+                }
                 damage += 1;
+                tracker.damage();
             }
         }
     }
-    assert_eq!(next_at, data.len(), "the walk stopped early");
+    assert_eq!(
+        next_at.max(walk.position()),
+        data.len(),
+        "the walk stopped early"
+    );
     assert!(ok + damage <= data.len());
+    let s = tracker.summary();
+    assert_eq!(s.damage as usize, damage);
+    assert!(s.packets as usize <= ok);
+}
+
+fn header_len(version: u8) -> usize {
+    if version == packets::VERSION {
+        packets::HEADER_LEN
+    } else {
+        packets::HEADER_LEN_V1
+    }
 }
 
 /// Well-framed packets at or after every sync word (`packets::decode` tried at each).
@@ -60,7 +92,7 @@ fn framed(data: &[u8]) -> impl Iterator<Item = packets::Packet<'_>> {
             assert!(len <= data.len() - p);
             assert_eq!(
                 len,
-                packets::HEADER_LEN + pkt.payload.len() + packets::TRAILER_LEN
+                header_len(pkt.version) + pkt.payload.len() + packets::TRAILER_LEN
             );
             return Some(pkt);
         }
@@ -72,7 +104,8 @@ fn framed(data: &[u8]) -> impl Iterator<Item = packets::Packet<'_>> {
 /// predicted rows can decode; a fresh one for other widths).
 fn packets_at_syncs(data: &[u8]) {
     let usable = |p: &packets::Packet<'_>| {
-        p.codec == packets::CODEC_COMPRESSED
+        p.kind == packets::Kind::Row
+            && p.codec == packets::CODEC_COMPRESSED
             && (1..=codec::MAX_WIDTH).contains(&(p.header.width as usize))
     };
     let Some(w0) = framed(data).find(usable).map(|p| p.header.width as usize) else {

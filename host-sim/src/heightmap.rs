@@ -10,7 +10,7 @@ pub mod flags {
     pub use dpsa_core::flags::*;
 
     /// All flags with their names, in bit order.
-    pub const ALL: [(u16, &str); 8] = [
+    pub const ALL: [(u16, &str); 9] = [
         (ILL_CONDITIONED, "ILL_CONDITIONED"),
         (INCOMPLETE, "INCOMPLETE"),
         (SKIPPED, "SKIPPED"),
@@ -19,6 +19,7 @@ pub mod flags {
         (SATURATED, "SATURATED"),
         (LOW_MODULATION, "LOW_MODULATION"),
         (OVERFLOW, "OVERFLOW"),
+        (ENCODER_FAULT, "ENCODER_FAULT"),
     ];
 
     /// True when `flags` contains a flag that invalidates the whole row.
@@ -172,7 +173,7 @@ mod tests {
 
     #[test]
     fn flag_bits_match_model() {
-        assert_eq!(flags::ROW_INVALID, 0b1001_1111);
+        assert_eq!(flags::ROW_INVALID, 0b1_1001_1111);
         assert_eq!(
             flags::names(flags::SKIPPED | flags::OVERFLOW),
             ["SKIPPED", "OVERFLOW"]

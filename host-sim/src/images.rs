@@ -6,12 +6,37 @@ use std::path::Path;
 
 use crate::heightmap::HeightMap;
 
+/// Largest number of board rows without a row (lost packets, encoder-fault gaps) an image
+/// may span beyond the rows it has.
+pub const MAX_HOLE_ROWS: u64 = 1 << 16;
+
+/// Image rows of a map placed by board row: `(first board row, image height)`. Rows sit at
+/// their board row, so a missing row is an invalid image row, not a shift of the rows after
+/// it. Refuses a span of more than [`MAX_HOLE_ROWS`] board rows beyond the rows present.
+fn span(map: &HeightMap) -> Result<(i64, u32)> {
+    let (Some(first), Some(last)) = (map.first_row(), map.last_row()) else {
+        return Ok((0, 0));
+    };
+    let span = (last as i128 - first as i128 + 1) as u64;
+    if span > map.rows.len() as u64 + MAX_HOLE_ROWS || span > u32::MAX as u64 {
+        anyhow::bail!(
+            "the rows span {span} board rows ({first} to {last}) but only {} are present: more than {MAX_HOLE_ROWS} missing rows (an encoder-fault gap?) cannot be drawn",
+            map.rows.len()
+        );
+    }
+    Ok((first, span as u32))
+}
+
 /// Writes the height map as a 16-bit greyscale PNG: value `h + 32768` (h in LSB) for valid
-/// pixels, 0 for invalid ones. Image row `i` is board row `first_row + i`.
+/// pixels, 0 for invalid ones. Image row `i` is board row `first_row + i` (missing rows are
+/// invalid).
 pub fn write_height_png(map: &HeightMap, path: &Path) -> Result<()> {
-    let (w, h) = (map.width as u32, map.rows.len() as u32);
+    let (first, h) = span(map)?;
+    let w = map.width as u32;
     let img: ImageBuffer<Luma<u16>, Vec<u16>> = ImageBuffer::from_fn(w, h, |x, y| {
-        let row = &map.rows[y as usize];
+        let Some(row) = map.get(first + y as i64) else {
+            return Luma([0]);
+        };
         let c = x as usize;
         if row.pixel_valid(c) {
             Luma([(row.heights[c] as i32 + 32768).clamp(1, 65535) as u16])
@@ -24,10 +49,13 @@ pub fn write_height_png(map: &HeightMap, path: &Path) -> Result<()> {
 
 /// Writes a false-colour PNG of the heights over `[lo_um, hi_um]`; invalid pixels are dark grey.
 pub fn write_false_colour_png(map: &HeightMap, lo_um: f64, hi_um: f64, path: &Path) -> Result<()> {
-    let (w, h) = (map.width as u32, map.rows.len() as u32);
+    let (first, h) = span(map)?;
+    let w = map.width as u32;
     let span = (hi_um - lo_um).max(1e-9);
     let img: RgbImage = ImageBuffer::from_fn(w, h, |x, y| {
-        let row = &map.rows[y as usize];
+        let Some(row) = map.get(first + y as i64) else {
+            return Rgb([40, 40, 40]);
+        };
         let c = x as usize;
         if row.pixel_valid(c) {
             let t = ((row.heights[c] as f64 * map.lsb_um - lo_um) / span).clamp(0.0, 1.0);

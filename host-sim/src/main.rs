@@ -16,7 +16,14 @@ fn main() {
         Cmd::Reconstruct(a) => cli::reconstruct::run(a, progress),
         Cmd::Compare(a) => cli::compare::run(a, progress),
         Cmd::Phase(a) => cli::phase::run(a),
-        Cmd::Decode(a) => cli::decode::run(a),
+        // 0 clean, 2 damaged or incomplete, 3 nothing decodable (cli/decode.rs).
+        Cmd::Decode(a) => cli::decode::run(a).map(|code| {
+            if code != 0 {
+                use std::io::Write as _;
+                let _ = std::io::stdout().flush();
+                std::process::exit(code);
+            }
+        }),
         Cmd::CodecBench(a) => cli::codec_bench::run(a, progress),
         Cmd::TargetRun(a) => cli::target_run::run(a, progress),
         Cmd::Demo(a) => cli::demo::run(a, progress),

@@ -191,7 +191,8 @@ fn simulate_reconstruct_compare_decode() {
     let colour = tmp.path().join("h.colour.png");
     let h = image::open(&png).expect("h.png is an image");
     let c = image::open(&colour).expect("h.colour.png is an image");
-    assert_eq!((h.width(), h.height()), (128, lib_stats.packets as u32));
+    // One image row per row packet (the stream header and end packets carry no row).
+    assert_eq!((h.width(), h.height()), (128, lib_stats.packets as u32 - 2));
     assert_eq!((c.width(), c.height()), (h.width(), h.height()));
     assert!(
         matches!(h.color(), image::ColorType::L16),
@@ -218,7 +219,7 @@ fn simulate_reconstruct_compare_decode() {
     assert_eq!(num(&cmp, "fixed_vs_ref.valid_mismatch"), 0.0, "{cmp}");
     let (valid, total) = (num(&cmp, "pixels.valid"), num(&cmp, "pixels.total"));
     assert!(valid > 0.5 * 128.0 * 300.0 && valid <= total, "{cmp}");
-    assert_eq!(total, 128.0 * lib_stats.packets as f64);
+    assert_eq!(total, 128.0 * (lib_stats.packets - 2) as f64);
     assert!(
         num(&cmp, "truth.fixed_rms_um") < num(&cmp, "truth.psp_rms_um"),
         "{cmp}"
@@ -241,7 +242,12 @@ fn simulate_reconstruct_compare_decode() {
     let dec = json(&ok(&["decode", s(&stream), "--json"]));
     assert_eq!(num(&dec, "packets.ok"), lib_stats.packets as f64, "{dec}");
     assert_eq!(num(&dec, "packets.corrupt"), 0.0, "{dec}");
-    assert_eq!(num(&dec, "rows.decoded"), lib_stats.packets as f64, "{dec}");
+    // Every packet but the stream header and the end packet is a row.
+    assert_eq!(
+        num(&dec, "rows.decoded"),
+        lib_stats.packets as f64 - 2.0,
+        "{dec}"
+    );
     assert_eq!(num(&dec, "pixels.valid"), valid, "{dec}");
 
     // A damaged stream decodes with the damage reported.
@@ -250,7 +256,9 @@ fn simulate_reconstruct_compare_decode() {
     bad[mid] ^= 0x55;
     let bad_stream = tmp.path().join("bad.dpsa");
     std::fs::write(&bad_stream, &bad).unwrap();
-    let dec = json(&ok(&["decode", s(&bad_stream), "--json"]));
+    let out = dpsa(&["decode", s(&bad_stream), "--json"]);
+    assert_eq!(out.status.code(), Some(2), "damage: exit status 2");
+    let dec = json(&text(&out.stdout));
     assert_eq!(num(&dec, "packets.corrupt"), 1.0, "{dec}");
     assert_eq!(
         num(&dec, "packets.ok"),
@@ -259,7 +267,7 @@ fn simulate_reconstruct_compare_decode() {
     );
     assert_eq!(
         num(&dec, "rows.decoded"),
-        lib_stats.packets as f64 - 1.0,
+        lib_stats.packets as f64 - 3.0,
         "{dec}"
     );
 }

@@ -123,7 +123,10 @@ fn small_scene_every_method_compresses_and_ours_wins() {
         assert_eq!((&oh[..], &ov[..]), (h, v), "row {i}");
     }
     assert_eq!(total, r.compressed_bytes.ours);
-    assert_eq!(r.compressed_bytes.ours_framed, total + 36 * rows.rows);
+    assert_eq!(
+        r.compressed_bytes.ours_framed,
+        total + 44 * rows.rows + 52 + 68
+    );
     // The core's own stream is that codec at intra period 1, with the same framing.
     assert_eq!(stream.len(), r.compressed_bytes.ours_framed);
     assert!(r.worst_row_payload.bytes <= codec::max_len(w));

@@ -17,6 +17,23 @@ use fixed::types::{U16F16, U20F12, U8F8};
 pub mod feed;
 pub mod registration;
 
+/// Largest row offset magnitude ([`Config::offset`] clamps to it): 2^62 rows.
+pub const MAX_OFFSET: i64 = 1 << 62;
+
+/// FNV-1a, 64 bit (offset basis `0xcbf29ce484222325`, prime `0x100000001b3`).
+struct Fnv64(u64);
+
+impl Fnv64 {
+    fn new() -> Self {
+        Fnv64(0xcbf2_9ce4_8422_2325)
+    }
+    fn bytes(&mut self, b: &[u8]) {
+        for &x in b {
+            self.0 = (self.0 ^ x as u64).wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+}
+
 /// A frame's trigger: the camera's frame counter and the encoder count latched at its trigger.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Trigger {
@@ -93,11 +110,38 @@ impl Config {
         Ok(())
     }
 
-    /// Board-row offset of a frame: `floor(latch / cpp + 1/2)`, exact in integers.
+    /// Board-row offset of a frame: `floor(latch / cpp + 1/2)`, exact in integers, clamped to
+    /// `[-MAX_OFFSET, MAX_OFFSET]` (so `offset + rows` and differences of offsets never
+    /// overflow an i64, whatever the latch and `cpp`; an offset that far out is an encoder
+    /// fault anyway).
     pub fn offset(&self, latch: i64) -> i64 {
-        let q = self.counts_per_pixel.to_bits() as i128;
+        let q = (self.counts_per_pixel.to_bits() as i128).max(1);
         let num = ((latch as i128) << 17) + q;
-        num.div_euclid(2 * q) as i64
+        num.div_euclid(2 * q)
+            .clamp(-(MAX_OFFSET as i128), MAX_OFFSET as i128) as i64
+    }
+
+    /// FNV-1a 64 of the configuration and the reference-phase table, the stream header's
+    /// `config_hash`: the fields in declaration order (`width`, `rows` u16; `n`, `camera` u8;
+    /// `counts_per_pixel`, `fx`, `lsb_per_turn` u32; `saturation` u16; `min_modulation`
+    /// u32; `max_noise_gain`, `max_step_rows` u16; the fixed-point fields by their bits), then
+    /// the `W` reference phases as u32, all little-endian.
+    pub fn hash(&self, ref_phase: &[u32]) -> u64 {
+        let mut h = Fnv64::new();
+        h.bytes(&self.width.to_le_bytes());
+        h.bytes(&self.rows.to_le_bytes());
+        h.bytes(&[self.n, self.camera]);
+        h.bytes(&self.counts_per_pixel.to_bits().to_le_bytes());
+        h.bytes(&self.fx.to_le_bytes());
+        h.bytes(&self.lsb_per_turn.to_bits().to_le_bytes());
+        h.bytes(&self.saturation.to_le_bytes());
+        h.bytes(&self.min_modulation.to_bits().to_le_bytes());
+        h.bytes(&self.max_noise_gain.to_bits().to_le_bytes());
+        h.bytes(&self.max_step_rows.to_le_bytes());
+        for p in ref_phase {
+            h.bytes(&p.to_le_bytes());
+        }
+        h.0
     }
 
     /// Fringe phase advance over `rows` image rows, `2 pi f_x rows`, as a binary angle (wrapping).
@@ -161,7 +205,24 @@ mod tests {
     fn offset_extremes_do_not_overflow() {
         let c = cfg(1.0 / 65536.0);
         assert_eq!(c.offset(i64::MAX >> 17), (i64::MAX >> 17) << 16);
-        let _ = c.offset(i64::MIN);
-        let _ = c.offset(i64::MAX);
+        assert_eq!(c.offset(i64::MIN), -MAX_OFFSET);
+        assert_eq!(c.offset(i64::MAX), MAX_OFFSET);
+        let c = cfg(1e-3);
+        assert_eq!(c.offset(i64::MAX), MAX_OFFSET);
+    }
+
+    #[test]
+    fn hash_covers_config_and_table() {
+        let c = cfg(10.25);
+        let h = c.hash(&[1, 2, 3]);
+        assert_ne!(h, c.hash(&[1, 2, 4]));
+        let mut d = c;
+        d.max_step_rows = 3;
+        assert_ne!(h, d.hash(&[1, 2, 3]));
+        // FNV-1a 64 of nothing is the offset basis; of "a" the published value.
+        let mut f = Fnv64::new();
+        assert_eq!(f.0, 0xcbf29ce484222325);
+        f.bytes(b"a");
+        assert_eq!(f.0, 0xaf63dc4c8601ec8c);
     }
 }

@@ -8,7 +8,68 @@
 //! classified ([`Registry::kind`]) and its window's latch found ([`Registry::window_latch`])
 //! without per-row bookkeeping beyond the slot. The full rule is in `docs/model.md`.
 
+//!
+//! ## Encoder faults
+//!
+//! Every trigger is classified against the previous one ([`classify`], [`Step`]):
+//! - a latch below the previous latch is a **reversal**: the open rows are flagged
+//!   `ENCODER_REVERSAL`; rows already emitted are never seen again, and registration goes on
+//!   when the motion passes the highest row entered so far (the output stays increasing);
+//! - a frame whose top row `o_k` lies beyond every row entered so far (`o_k > E_{k-1}`, i.e. a
+//!   forward step of more than the ROI height `H` over the previous bottom) is a **jump**: the
+//!   board rows `[E_{k-1}, o_k)` were never in any frame. They are emitted as ONE gap record
+//!   (`SKIPPED | ENCODER_FAULT`), the open rows are flagged `ENCODER_FAULT`, and registration
+//!   restarts at `o_k` exactly as at the first frame ([`Registry::restart`]).
+//!
+//! So a frame enters at most `H` board rows (plus at most one gap record), whatever the latch:
+//! with every row emitted once, the pipeline's output per input frame is bounded by
+//! [`MAX_OUTPUT_PER_FRAME`]`(n, H)` items (rows and gap records), see `docs/model.md`.
+
 use crate::solve::MAX_N;
+
+/// Largest number of sink items (rows and gap records) the pipeline emits between the start of
+/// one `begin_frame` and the start of the next: `K = n * H + 1`. The rows still pending after
+/// a frame entered in its last `n - 1` frames (at most `H` each), the frame enters at most `H`
+/// more, and a jump adds one gap record. The stream header and end-of-stream records come on
+/// top, once per stream.
+pub const fn max_output_per_frame(n: u8, rows: u16) -> u64 {
+    n as u64 * rows as u64 + 1
+}
+
+/// [`max_output_per_frame`] for the largest `n` and `H`.
+pub const MAX_OUTPUT_PER_FRAME: u64 = max_output_per_frame(MAX_N as u8, u16::MAX);
+
+/// How a frame's trigger relates to the previous frames.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Step {
+    /// The first frame of the stream.
+    First,
+    /// Forward or standing still within the plausibility bound.
+    Forward,
+    /// The latch decreased.
+    Reversal,
+    /// The frame's top row lies past every row entered so far: board rows
+    /// `[gap_first, gap_first + gap_rows)` were never imaged.
+    Jump { gap_first: i64, gap_rows: u64 },
+}
+
+/// Classifies a trigger: `first` for the stream's first frame, `prev_latch` / `latch` the
+/// latches of the previous and this frame, `entered_end` one past the highest board row
+/// entered so far (`E_{k-1}`), `offset` this frame's row offset `o_k`.
+pub fn classify(first: bool, prev_latch: i64, latch: i64, entered_end: i64, offset: i64) -> Step {
+    if first {
+        Step::First
+    } else if latch < prev_latch {
+        Step::Reversal
+    } else if offset > entered_end {
+        Step::Jump {
+            gap_first: entered_end,
+            gap_rows: offset.abs_diff(entered_end),
+        }
+    } else {
+        Step::Forward
+    }
+}
 
 /// Admissions kept: the `n <= MAX_N` frames of the current window plus one.
 pub(crate) const HIST: usize = MAX_N + 1;
@@ -68,6 +129,12 @@ impl<'a> Registry<'a> {
             entered_end: 0,
             admitted: 0,
         }
+    }
+
+    /// Restarts registration at row offset `offset` (after a jump, see [`Step::Jump`]): the
+    /// next frame enters rows from `offset` on, as the first frame does.
+    pub(crate) fn restart(&mut self, offset: i64) {
+        self.entered_end = offset;
     }
 
     /// Frames registered so far: the index the next frame gets.

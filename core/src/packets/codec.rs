@@ -577,6 +577,11 @@ impl<'a> Encoder<'a> {
         self.r.present = false;
     }
 
+    /// The intra period `K`.
+    pub fn intra_period(&self) -> u32 {
+        self.intra_period
+    }
+
     /// Row width.
     pub fn width(&self) -> usize {
         self.r.width

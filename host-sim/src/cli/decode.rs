@@ -2,14 +2,21 @@
 
 use super::out;
 use anyhow::{bail, Context, Result};
+use dpsa_sim::stream::Verdict2;
 use dpsa_sim::{images, stream};
 use std::path::PathBuf;
 
+/// Exit status: 0 clean; 2 damage, missing / duplicated / reordered packets or a truncated
+/// stream; 3 nothing decodable (1: the command failed, e.g. the file cannot be read).
 #[derive(clap::Args)]
+#[command(
+    after_help = "Exit status: 0 clean (a version 2 stream ended with matching totals); 2 damage, missing, duplicated or reordered packets, or a truncated stream (no end packet, or totals that disagree); 3 nothing decodable; 1 the command failed."
+)]
 pub struct Args {
-    /// Packet stream file.
+    /// Packet stream file (read in 64 KiB chunks, any size).
     stream: PathBuf,
-    /// Write a 16-bit height PNG (and a false-colour PNG beside it).
+    /// Write a 16-bit height PNG (and a false-colour PNG beside it); rows sit at their board
+    /// row, missing rows are invalid.
     #[arg(long)]
     png: Option<PathBuf>,
     /// Height LSB in um, for the false-colour scale.
@@ -20,22 +27,30 @@ pub struct Args {
     json: bool,
 }
 
-pub fn run(a: Args) -> Result<()> {
-    let bytes =
-        std::fs::read(&a.stream).with_context(|| format!("reading {}", a.stream.display()))?;
-    let (map, rep) = stream::decode_stream(&bytes, a.lsb_um);
+/// Decodes; returns the exit status.
+pub fn run(a: Args) -> Result<i32> {
+    let file = std::fs::File::open(&a.stream)
+        .with_context(|| format!("cannot open {}", a.stream.display()))?;
+    let (map, rep) = stream::decode_reader(std::io::BufReader::new(file), a.lsb_um)
+        .with_context(|| format!("cannot read {}", a.stream.display()))?;
+    let verdict = rep.verdict(&map);
     if let Some(png) = a.png {
         if map.rows.is_empty() {
             bail!("no decodable rows: nothing to draw");
         }
         images::write_pngs(&map, &png)?;
     }
+    let s = &rep.stream;
     if a.json {
         let v = serde_json::json!({
             "packets": { "ok": rep.ok, "corrupt": rep.corrupt, "resynced": rep.resynced },
             "rows": { "decoded": map.rows.len(), "valid": map.rows.iter().filter(|r| r.is_valid()).count() },
             "pixels": { "valid": map.valid_pixels(), "total": map.total_pixels() },
             "damage": rep.damage,
+            "damage_listed_max": stream::MAX_DAMAGE_ENTRIES,
+            "stream": s,
+            "bytes": rep.bytes,
+            "status": verdict as i32,
         });
         out!("{}", serde_json::to_string_pretty(&v)?);
     } else {
@@ -47,6 +62,28 @@ pub fn run(a: Args) -> Result<()> {
             map.rows.len(),
             map.valid_pixels()
         );
+        if s.version >= 2 {
+            out!(
+                "stream v{}: {} missing, {} duplicated, {} reordered packets, {} rows missing, {} gap records ({} rows){}",
+                s.version,
+                s.missing,
+                s.duplicated,
+                s.reordered,
+                s.rows_missing,
+                s.gap_records,
+                s.gap_rows,
+                if s.truncated {
+                    "; TRUNCATED (no end packet or totals disagree)"
+                } else {
+                    ""
+                }
+            );
+        }
+        match verdict {
+            Verdict2::Clean => {}
+            Verdict2::Damaged => out!("the stream is damaged or incomplete (exit status 2)"),
+            Verdict2::Nothing => out!("nothing decodable (exit status 3)"),
+        }
     }
-    Ok(())
+    Ok(verdict as i32)
 }

@@ -1,9 +1,25 @@
-//! Packet streams: decoding a stream of row packets back into a height map, with the
-//! damage report (good, corrupt and resynchronised packets).
+//! Packet streams: decoding a stream of packets back into a height map, with the damage report
+//! (good and corrupt packets, resynchronisations) and, for version 2 streams, what the stream
+//! says about itself: its header, gap records, missing / duplicated / reordered packets and
+//! whether it ended (`dpsa_core::packets::Tracker`).
+//!
+//! The input is read in chunks ([`decode_reader`]): memory is the chunk buffer, the decoded rows
+//! and at most [`MAX_DAMAGE_ENTRIES`] damage entries and [`MAX_GAP_ENTRIES`] gap entries (the
+//! counts are always complete); time is linear in the input (`dpsa_core::packets::Walk`).
 
 use crate::heightmap::{HeightMap, HeightRow};
-use dpsa_core::packets::{codec, Item, PacketError, Stream};
+use dpsa_core::packets::{
+    codec, Item, Kind, Packet, PacketError, Summary, Totals, Tracker, Verdict, Walk, MAX_PACKET_LEN,
+};
 use serde::Serialize;
+use std::io::Read;
+
+/// Damage entries kept in a report (the counts go on).
+pub const MAX_DAMAGE_ENTRIES: usize = 100;
+/// Gap records kept in a report (the counts go on).
+pub const MAX_GAP_ENTRIES: usize = 100;
+/// Bytes read at a time.
+const CHUNK: usize = 1 << 16;
 
 /// A packet that could not be decoded, and where.
 #[derive(Clone, Debug, Serialize)]
@@ -13,79 +29,350 @@ pub struct Damage {
     pub error: String,
 }
 
+/// A gap record: board rows `first .. first + count` never imaged (encoder fault).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct GapEntry {
+    pub first: i64,
+    pub count: u64,
+    pub flags: u16,
+}
+
+/// What a version 2 stream said about itself, and what the decoder found.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct StreamReport {
+    /// Format version of the first packet (0: none).
+    pub version: u8,
+    pub camera: Option<u8>,
+    pub width: Option<u16>,
+    pub run_id: Option<u64>,
+    pub config_hash: Option<String>,
+    pub intra_period: Option<u32>,
+    /// Packets lost (sequence numbers never seen, and packets the end's total says exist).
+    pub missing: u64,
+    pub duplicated: u64,
+    pub reordered: u64,
+    /// Rows or gaps that arrived below a board row already seen.
+    pub row_order: u64,
+    /// Packets of another width than the stream's (not used).
+    pub wrong_width: u64,
+    /// Packets after the end packet.
+    pub after_end: u64,
+    /// Packets before the stream header (a stray packet, the tail of another stream).
+    pub before_header: u64,
+    /// Version 2: no end packet, or totals that disagree with what arrived.
+    pub truncated: bool,
+    pub end_totals: Option<TotalsReport>,
+    /// Gap records (first [`MAX_GAP_ENTRIES`]), and their counts.
+    pub gaps: Vec<GapEntry>,
+    pub gap_records: u64,
+    pub gap_rows: u64,
+    /// Board rows between the first and the last row or gap that no packet covers.
+    pub rows_missing: u64,
+}
+
+/// The end packet's totals.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct TotalsReport {
+    pub packets: u64,
+    pub rows: u64,
+    pub gap_rows: u64,
+    pub first_row: i64,
+    pub last_row: i64,
+}
+
+impl From<Totals> for TotalsReport {
+    fn from(t: Totals) -> Self {
+        TotalsReport {
+            packets: t.packets,
+            rows: t.rows,
+            gap_rows: t.gap_rows,
+            first_row: t.first_row,
+            last_row: t.last_row,
+        }
+    }
+}
+
 /// Counts of a decoded stream.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct DecodeReport {
-    /// Packets whose CRC and layout checked out.
+    /// Packets whose framing and CRC checked out and that were used.
     pub ok: usize,
-    /// Damaged packets (each reported once in `damage`).
+    /// Damage reports: bytes that are not a packet, packets that do not unpack, packets of
+    /// another width (each counted; the first [`MAX_DAMAGE_ENTRIES`] listed in `damage`).
     pub corrupt: usize,
     /// Times the decoder had to search for the next sync word.
     pub resynced: usize,
     pub damage: Vec<Damage>,
+    /// Bytes read.
+    pub bytes: u64,
+    pub stream: StreamReport,
 }
 
-/// Decodes a whole packet stream. Damage never stops the decoder: it reports the packet and
-/// resynchronises on the next sync word. `lsb_um` labels the heights (the stream carries LSBs).
-pub fn decode_stream(bytes: &[u8], lsb_um: f64) -> (HeightMap, DecodeReport) {
-    let mut map = HeightMap::new(0, lsb_um);
-    let mut rep = DecodeReport::default();
-    // Codec reference state, sized by the first packet whose framing checks out; packets of
-    // another width are reported as damage (a stream has one width). One decoder serves the
-    // whole stream so that predicted rows (intra period > 1) find their reference.
-    let width = first_width(bytes).unwrap_or(1);
-    let mut reference = codec::ReferenceRow::new(width);
-    let mut dec = reference.decoder();
-    for item in Stream::new(bytes) {
-        match item {
-            Item::Packet { offset, packet: p } => {
-                let w = p.header.width as usize;
-                let mut heights = vec![0i16; w];
-                let mut bits = vec![0u8; w.div_ceil(8)];
-                let res = match dec.as_mut() {
-                    Some(d) if d.width() == w => p.unpack(d, &mut heights, &mut bits),
-                    _ => Err(PacketError::BadLength),
-                };
-                match res {
-                    Ok(()) => {
-                        if map.width == 0 {
-                            map.width = w;
-                        }
-                        let valid = (0..w).map(|c| bits[c / 8] & (1 << (c % 8)) != 0).collect();
-                        map.rows.push(HeightRow {
-                            row: p.header.row,
-                            latch: p.header.latch,
-                            flags: p.header.flags,
-                            heights,
-                            valid,
-                        });
-                        rep.ok += 1;
-                    }
-                    Err(e) => damage(&mut rep, offset, e),
-                }
-            }
-            Item::Damage { offset, error } => {
-                damage(&mut rep, offset, error);
-                rep.resynced += 1;
-            }
+/// How `dpsa decode` ends (its exit status).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Verdict2 {
+    /// Everything decoded; a version 2 stream ended with matching totals.
+    Clean = 0,
+    /// Rows decoded, but damage, missing / duplicated / reordered packets or a truncated stream.
+    Damaged = 2,
+    /// No decodable row.
+    Nothing = 3,
+}
+
+impl DecodeReport {
+    /// The exit status class of a decode that gave `map`.
+    pub fn verdict(&self, map: &HeightMap) -> Verdict2 {
+        let s = &self.stream;
+        if map.rows.is_empty() && s.gap_records == 0 {
+            Verdict2::Nothing
+        } else if self.corrupt > 0
+            || s.missing > 0
+            || s.duplicated > 0
+            || s.reordered > 0
+            || s.row_order > 0
+            || s.wrong_width > 0
+            || s.after_end > 0
+            || s.before_header > 0
+            || s.truncated
+            || s.rows_missing > 0
+        {
+            Verdict2::Damaged
+        } else {
+            Verdict2::Clean
         }
     }
-    map.sort();
-    (map, rep)
+
+    fn damage(&mut self, offset: u64, e: impl ToString) {
+        self.corrupt += 1;
+        if self.damage.len() < MAX_DAMAGE_ENTRIES {
+            self.damage.push(Damage {
+                offset: offset as usize,
+                error: e.to_string(),
+            });
+        }
+    }
 }
 
-/// Width of the first packet in `bytes` whose framing and CRC check out.
-fn first_width(bytes: &[u8]) -> Option<usize> {
-    Stream::new(bytes).find_map(|item| match item {
-        Item::Packet { packet, .. } => Some(packet.header.width as usize),
-        Item::Damage { .. } => None,
-    })
+/// Decodes a whole packet stream held in memory (see [`decode_reader`]).
+pub fn decode_stream(bytes: &[u8], lsb_um: f64) -> (HeightMap, DecodeReport) {
+    decode_reader(bytes, lsb_um).expect("reading a slice cannot fail")
 }
 
-fn damage(rep: &mut DecodeReport, offset: usize, e: PacketError) {
-    rep.corrupt += 1;
-    rep.damage.push(Damage {
-        offset,
-        error: e.to_string(),
-    });
+/// The decoder's state between chunks.
+struct Decoder {
+    map: HeightMap,
+    rep: DecodeReport,
+    tracker: Tracker,
+    /// Codec reference state per width (at most 4 widths; one serves a whole stream so that
+    /// predicted rows find their reference).
+    refs: Vec<(usize, codec::ReferenceRow)>,
+    /// Decoded rows with their offsets and widths (width chosen at the end).
+    rows: Vec<(u64, HeightRow)>,
+}
+
+impl Decoder {
+    fn packet(&mut self, offset: u64, p: &Packet<'_>) {
+        match self.tracker.packet(p) {
+            Verdict::Accept => {}
+            Verdict::Duplicate => return,
+            Verdict::WrongWidth => {
+                let w = self.tracker.summary().info.map_or(0, |i| i.width);
+                self.rep.damage(
+                    offset,
+                    format!(
+                        "width {} differs from the stream's width {w}",
+                        p.header.width
+                    ),
+                );
+                return;
+            }
+        }
+        match p.kind {
+            Kind::Row => self.row(offset, p),
+            Kind::Gap => {
+                self.rep.ok += 1;
+                if let Some(g) = p.gap() {
+                    if self.rep.stream.gaps.len() < MAX_GAP_ENTRIES {
+                        self.rep.stream.gaps.push(GapEntry {
+                            first: g.first,
+                            count: g.count,
+                            flags: g.flags,
+                        });
+                    }
+                }
+            }
+            Kind::StreamHeader | Kind::End => self.rep.ok += 1,
+        }
+    }
+
+    fn row(&mut self, offset: u64, p: &Packet<'_>) {
+        let w = p.header.width as usize;
+        let mut heights = vec![0i16; w];
+        let mut bits = vec![0u8; w.div_ceil(8)];
+        if !self.refs.iter().any(|(rw, _)| *rw == w) {
+            if self.refs.len() >= 4 {
+                self.refs.remove(0);
+            }
+            self.refs.push((w, codec::ReferenceRow::new(w)));
+        }
+        let res = match self.refs.iter_mut().find(|(rw, _)| *rw == w) {
+            Some((_, r)) => match r.decoder() {
+                Some(mut d) => p.unpack(&mut d, &mut heights, &mut bits),
+                None => Err(PacketError::BadLength),
+            },
+            None => Err(PacketError::BadLength),
+        };
+        match res {
+            Ok(()) => {
+                let valid = (0..w).map(|c| bits[c / 8] & (1 << (c % 8)) != 0).collect();
+                self.rows.push((
+                    offset,
+                    HeightRow {
+                        row: p.header.row,
+                        latch: p.header.latch,
+                        flags: p.header.flags,
+                        heights,
+                        valid,
+                    },
+                ));
+                self.rep.ok += 1;
+            }
+            Err(e) => self.rep.damage(offset, e),
+        }
+    }
+
+    fn finish(mut self) -> (HeightMap, DecodeReport) {
+        let s: Summary = self.tracker.summary();
+        // The map's width: the stream header's, else the most common among decoded rows.
+        let width = match s.info {
+            Some(i) => i.width as usize,
+            None => {
+                let mut counts: Vec<(usize, usize)> = Vec::new();
+                for (_, r) in &self.rows {
+                    match counts.iter_mut().find(|(w, _)| *w == r.heights.len()) {
+                        Some(c) => c.1 += 1,
+                        None => counts.push((r.heights.len(), 1)),
+                    }
+                }
+                // Most rows; on a tie the width that came first.
+                counts
+                    .iter()
+                    .fold(None::<(usize, usize)>, |best, &c| match best {
+                        Some(b) if b.1 >= c.1 => Some(b),
+                        _ => Some(c),
+                    })
+                    .map_or(0, |c| c.0)
+            }
+        };
+        let mut other = Vec::new();
+        let mut rows = Vec::with_capacity(self.rows.len());
+        for (off, r) in self.rows.drain(..) {
+            if r.heights.len() == width {
+                rows.push(r);
+            } else {
+                other.push((off, r.heights.len()));
+            }
+        }
+        for (off, w) in other {
+            self.rep.ok -= 1;
+            self.rep.damage(
+                off,
+                format!("width {w} differs from the stream's width {width}"),
+            );
+        }
+        self.rep.damage.sort_by_key(|d| d.offset);
+        // Rows by board row; a board row that arrived twice counts once (the first copy).
+        rows.sort_by_key(|r| r.row);
+        let before = rows.len();
+        rows.dedup_by_key(|r| r.row);
+        let dup_rows = (before - rows.len()) as u64;
+        self.map.width = if rows.is_empty() { 0 } else { width };
+        self.map.rows = rows;
+        let st = &mut self.rep.stream;
+        st.version = s.version;
+        if let Some(i) = s.info {
+            st.camera = Some(i.camera);
+            st.width = Some(i.width);
+            st.run_id = Some(i.run_id);
+            st.config_hash = Some(format!("{:016x}", i.config_hash));
+            st.intra_period = Some(i.intra_period);
+        }
+        st.missing = s.missing;
+        st.duplicated = s.duplicated + if s.version == 1 { dup_rows } else { 0 };
+        st.reordered = s.reordered;
+        st.row_order = s.row_order;
+        st.wrong_width = s.wrong_width;
+        st.after_end = s.after_end;
+        st.before_header = s.before_header;
+        st.truncated = s.truncated;
+        st.end_totals = s.totals.map(Into::into);
+        st.gap_records = s.gaps;
+        st.gap_rows = s.gap_rows;
+        if s.first_row <= s.last_row {
+            let span = (s.last_row as i128 - s.first_row as i128 + 1) as u128;
+            let covered = self.map.rows.len() as u128 + s.gap_rows as u128;
+            st.rows_missing = span.saturating_sub(covered).min(u64::MAX as u128) as u64;
+        }
+        (self.map, self.rep)
+    }
+}
+
+/// Decodes a packet stream read from `input` in chunks of 64 KiB, in memory bounded by the
+/// chunk, the decoded rows and the capped report lists, and time linear in the input. Damage
+/// never stops the decoder: it reports the packet and resynchronises on the next sync word.
+/// Rows are placed by their board row (`map.rows` sorted, one per board row); `lsb_um` labels
+/// the heights (the stream carries LSBs).
+pub fn decode_reader<R: Read>(
+    mut input: R,
+    lsb_um: f64,
+) -> std::io::Result<(HeightMap, DecodeReport)> {
+    let mut d = Decoder {
+        map: HeightMap::new(0, lsb_um),
+        rep: DecodeReport::default(),
+        tracker: Tracker::new(),
+        refs: Vec::new(),
+        rows: Vec::new(),
+    };
+    let mut walk = Walk::new();
+    let mut buf: Vec<u8> = Vec::with_capacity(CHUNK + MAX_PACKET_LEN);
+    let mut base = 0u64;
+    let mut eof = false;
+    loop {
+        while let Some(item) = walk.next(&buf, eof) {
+            match item {
+                Item::Packet { offset, packet } => d.packet(base + offset as u64, &packet),
+                Item::Damage { offset, error } => {
+                    d.tracker.damage();
+                    d.rep.damage(base + offset as u64, error);
+                    d.rep.resynced += 1;
+                }
+            }
+        }
+        if eof {
+            break;
+        }
+        // Drop what the walk is done with, then top the buffer up (a packet is at most
+        // MAX_PACKET_LEN bytes, so the walk can always decide its next item).
+        let done = walk.position().min(buf.len());
+        buf.drain(..done);
+        walk.shift(done);
+        base += done as u64;
+        let have = buf.len();
+        buf.resize(have + CHUNK, 0);
+        let mut got = 0;
+        while got < CHUNK {
+            match input.read(&mut buf[have + got..]) {
+                Ok(0) => {
+                    eof = true;
+                    break;
+                }
+                Ok(n) => got += n,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+                Err(e) => return Err(e),
+            }
+        }
+        buf.truncate(have + got);
+        d.rep.bytes += got as u64;
+    }
+    Ok(d.finish())
 }
