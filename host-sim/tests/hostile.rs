@@ -294,6 +294,38 @@ fn case06_manifest_saturation_above_bit_depth_is_refused() {
     assert!(!out.exists());
 }
 
+/// Case 8: one encoder glitch (a latch jump of +1e12 counts, then i64::MAX) used to make
+/// `reconstruct` emit one packet per skipped row (terabytes). Now the jump is one gap record:
+/// the stream stays the size of a clean run, and `decode` reports the gap and exits non-zero.
+#[test]
+fn case08_encoder_jump_gives_one_gap_record_not_a_flood() {
+    let (dir, rec) = rec0("");
+    let clean = dir.path().join("clean.dpsa");
+    ok(&["reconstruct", s(&rec), "--out", s(&clean)]);
+    edit_manifest(&rec, |v| {
+        let frames = v["frames"].as_array_mut().unwrap();
+        for f in frames.iter_mut().skip(20) {
+            let l = f["latch"].as_i64().unwrap();
+            f["latch"] = serde_json::json!(l.saturating_add(1_000_000_000_000));
+        }
+        let last = frames.len() - 1;
+        frames[last]["latch"] = serde_json::json!(i64::MAX);
+    });
+    let out = dir.path().join("jump.dpsa");
+    ok(&["reconstruct", s(&rec), "--out", s(&out)]);
+    let (a, b) = (
+        std::fs::metadata(&clean).unwrap().len(),
+        std::fs::metadata(&out).unwrap().len(),
+    );
+    assert!(
+        b <= a + a / 4,
+        "a glitch grew the stream from {a} to {b} bytes"
+    );
+    let r = run(&["decode", s(&out), "--json"]);
+    let v: serde_json::Value = serde_json::from_str(&r.stdout).expect("decode --json prints JSON");
+    assert!(v.to_string().contains("gap"), "no gap record reported: {v}");
+}
+
 #[test]
 fn case09_frames_that_are_devices_or_fifos_are_refused() {
     let (dir, rec) = rec0("");
@@ -563,6 +595,16 @@ fn case17_messages_are_one_sentence_with_the_cause_once() {
         &["--png", ".png"],
     );
     assert!(!out.exists());
+}
+
+#[test]
+fn case18_lsb_um_must_be_a_positive_number() {
+    let (dir, rec) = rec0("");
+    let out = dir.path().join("r.dpsa");
+    ok(&["reconstruct", s(&rec), "--out", s(&out)]);
+    for bad in ["nan", "inf", "0", "-0.25"] {
+        fails(&["decode", s(&out), "--lsb-um", bad], &["--lsb-um"]);
+    }
 }
 
 #[test]

@@ -19,8 +19,8 @@ pub struct Args {
     /// row, missing rows are invalid.
     #[arg(long)]
     png: Option<PathBuf>,
-    /// Height LSB in um, for the false-colour scale.
-    #[arg(long, default_value_t = 0.25)]
+    /// Height LSB in um, for the false-colour scale (finite, > 0).
+    #[arg(long, default_value_t = 0.25, value_parser = super::positive, allow_hyphen_values = true)]
     lsb_um: f64,
     /// Print one JSON object.
     #[arg(long)]
