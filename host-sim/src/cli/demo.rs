@@ -41,7 +41,7 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
     let stream = out.join("heights.dpsa");
     files::write_bytes(&stream, &bytes)?;
     out!(
-        "    {} row packets, {} bytes -> {}; core state {} bytes",
+        "    {} packets (stream header, rows, end), {} bytes -> {}; core state {} bytes",
         stats.packets,
         stats.bytes,
         stream.display(),
