@@ -198,15 +198,7 @@ pub fn encode(
 
 /// Frames a row into `buf` with a raw payload (codec 0, version 2); returns the packet length.
 pub fn encode_raw(row: &Row<'_>, seq: u32, buf: &mut [u8]) -> Result<usize, PacketError> {
-    let w = row.header.width as usize;
-    let plen = raw_payload_len(w);
-    if buf.len() < HEADER_LEN + plen + TRAILER_LEN
-        || row.heights.len() < w
-        || row.valid.len() < w.div_ceil(8)
-    {
-        return Err(PacketError::BufferTooSmall);
-    }
-    raw_payload(row, &mut buf[HEADER_LEN..HEADER_LEN + plen]);
+    let plen = raw_payload(row, HEADER_LEN, buf)?;
     Ok(frame_row(&row.header, CODEC_RAW, seq, plen, buf))
 }
 
@@ -232,25 +224,25 @@ pub fn encode_v1(
 
 /// Frames a row as a version 1 packet with a raw payload (legacy streams).
 pub fn encode_raw_v1(row: &Row<'_>, buf: &mut [u8]) -> Result<usize, PacketError> {
-    let w = row.header.width as usize;
-    let plen = raw_payload_len(w);
-    if buf.len() < HEADER_LEN_V1 + plen + TRAILER_LEN
-        || row.heights.len() < w
-        || row.valid.len() < w.div_ceil(8)
-    {
-        return Err(PacketError::BufferTooSmall);
-    }
-    raw_payload(row, &mut buf[HEADER_LEN_V1..HEADER_LEN_V1 + plen]);
+    let plen = raw_payload(row, HEADER_LEN_V1, buf)?;
     Ok(frame_v1(&row.header, CODEC_RAW, plen, buf))
 }
 
-fn raw_payload(row: &Row<'_>, payload: &mut [u8]) {
+/// Writes the raw payload (codec 0) of `row` into `buf` after a header of `header_len` bytes,
+/// checking that the row and the whole packet fit; returns the payload length.
+fn raw_payload(row: &Row<'_>, header_len: usize, buf: &mut [u8]) -> Result<usize, PacketError> {
     let w = row.header.width as usize;
-    let nb = w.div_ceil(8);
+    let (nb, plen) = (w.div_ceil(8), raw_payload_len(w));
+    if buf.len() < header_len + plen + TRAILER_LEN || row.heights.len() < w || row.valid.len() < nb
+    {
+        return Err(PacketError::BufferTooSmall);
+    }
+    let payload = &mut buf[header_len..header_len + plen];
     payload[..nb].copy_from_slice(&row.valid[..nb]);
     for (dst, &h) in payload[nb..].chunks_exact_mut(2).zip(row.heights) {
         dst.copy_from_slice(&h.to_le_bytes());
     }
+    Ok(plen)
 }
 
 /// Frames the stream header packet (sequence number 0); returns its length
