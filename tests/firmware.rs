@@ -134,6 +134,9 @@ fn host_and_target(what: &str, sim: &Sim, elf: &Path) -> HeightMap {
     );
     assert_eq!(rep.ok as u64, stats.packets, "{what}");
     assert_eq!(map.width, sim.rec.width(), "{what}");
+    // Both tag the stream with the recording's identity (the feed carries it to the target).
+    assert_eq!(rep.stream.run_id, Some(sim.rec.run_id()), "{what}");
+    assert_ne!(sim.rec.run_id(), 0, "{what}");
     // Every packet carries the recording's n.
     let mut pos = 0;
     while pos < out.stream.len() {

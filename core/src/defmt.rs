@@ -142,6 +142,7 @@ impl Format for PacketError {
             PacketError::BadKind(k) => write!(f, "packet kind {=u8} is unknown", k),
             PacketError::BadWidth(w) => write!(f, "width {=u16} is out of range (1..=8192)", w),
             PacketError::BadHeaderCrc => write!(f, "header CRC mismatch"),
+            PacketError::Unchecked => write!(f, "version 1 packet not checked (CRC budget)"),
             PacketError::Codec(e) => write!(f, "payload: {}", e),
         }
     }

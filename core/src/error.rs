@@ -155,6 +155,9 @@ impl Display for PacketError {
             PacketError::BadKind(k) => write!(f, "packet kind {k} is unknown"),
             PacketError::BadWidth(w) => write!(f, "width {w} is out of range (1..=8192)"),
             PacketError::BadHeaderCrc => f.write_str("header CRC mismatch"),
+            PacketError::Unchecked => f.write_str(
+                "version 1 packet not checked: the CRC budget for false sync words is spent",
+            ),
             PacketError::Codec(e) => write!(f, "payload: {e}"),
         }
     }

@@ -104,6 +104,7 @@ fn run() -> Result<(), Failed> {
     .ok_or_else(|| fail("codec", "width not supported"))?;
     let bench_on = args.bench.is_some();
     let mut sink = TimedSink::new(link, enc, &mut packet[..], bench_on.then_some(&clock));
+    sink.set_run_id(header.run_id);
     let mem = Memory {
         lines: &mut lines[..layout.pool_lines * w],
         free: &mut free[..layout.pool_lines],

@@ -76,6 +76,11 @@ impl<'a, L: Link, C: Clock> TimedSink<'a, L, C> {
         }
     }
 
+    /// The run identity of the stream header (the feed's).
+    pub fn set_run_id(&mut self, run_id: u64) {
+        self.sink.set_run_id(run_id);
+    }
+
     pub fn ticks(&self) -> SinkTicks {
         SinkTicks {
             encode: self.encode,

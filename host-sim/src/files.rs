@@ -22,8 +22,6 @@ use std::path::{Path, PathBuf};
 pub const MAX_MANIFEST_BYTES: u64 = 64 << 20;
 /// Largest scene TOML read, bytes.
 pub const MAX_SCENE_BYTES: u64 = 16 << 20;
-/// Largest packet stream `codec-bench` reads, bytes.
-pub const MAX_STREAM_BYTES: u64 = 1 << 30;
 
 /// Largest frame PNG accepted for a `rows x width` camera: twice the raw 16-bit size plus
 /// 1 MiB (filter bytes, zlib and chunk framing, ancillary chunks).
@@ -46,6 +44,14 @@ pub fn check_regular(path: &Path) -> std::io::Result<std::fs::Metadata> {
         std::io::ErrorKind::InvalidInput,
         format!("is {kind}"),
     ))
+}
+
+/// Opens a regular file for reading in pieces (a packet stream of any size): a directory, FIFO
+/// or device is refused with one sentence naming the file, before anything is read.
+pub fn open_regular(path: &Path, what: &str) -> Result<File> {
+    check_regular(path)
+        .and_then(|_| File::open(path))
+        .map_err(|e| anyhow::anyhow!("{what} {} {}", path.display(), io_cause(&e)))
 }
 
 /// Reads a regular file of at most `cap` bytes (see the module docs). The error is one
@@ -124,10 +130,51 @@ pub struct AtomicFile {
     inner: Inner,
 }
 
+/// Temporary files of unfinished [`AtomicFile`]s, removed by the interrupt handler.
+static UNFINISHED: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+fn unfinished() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
+    UNFINISHED.lock().unwrap_or_else(|p| p.into_inner())
+}
+
+/// Makes SIGINT, SIGTERM and SIGHUP remove the temporary files of every unfinished output
+/// before the process exits (status 130): an interrupted run leaves neither a partial output
+/// nor a hidden temporary behind, and an earlier output at the destination stays as it was.
+/// Without it the temporaries of [`AtomicFile`] outlive a signal (they are only removed when
+/// dropped). Called once by `main`; a second call is ignored.
+pub fn remove_unfinished_on_interrupt() {
+    let _ = ctrlc::set_handler(|| {
+        let paths = std::mem::take(&mut *unfinished());
+        for p in &paths {
+            let _ = std::fs::remove_file(p);
+        }
+        eprintln!(
+            "error: interrupted{}",
+            if paths.is_empty() {
+                String::new()
+            } else {
+                format!("; {} unfinished output(s) removed", paths.len())
+            }
+        );
+        std::process::exit(130);
+    });
+}
+
 enum Inner {
     Temp(tempfile::NamedTempFile),
     /// The destination exists and is not a regular file: written in place.
     Direct(File),
+    /// Committed.
+    Done,
+}
+
+impl Drop for AtomicFile {
+    fn drop(&mut self) {
+        if let Inner::Temp(t) = &self.inner {
+            let tmp = t.path().to_path_buf();
+            unfinished().retain(|p| *p != tmp);
+        }
+    }
 }
 
 impl AtomicFile {
@@ -167,6 +214,7 @@ impl AtomicFile {
                     write_cause(&e)
                 )
             })?;
+        unfinished().push(tmp.path().to_path_buf());
         Ok(AtomicFile {
             path: path.to_path_buf(),
             inner: Inner::Temp(tmp),
@@ -179,39 +227,46 @@ impl AtomicFile {
     }
 
     /// Flushes and renames the temporary into place (the destination appears whole or not at all).
-    pub fn commit(self) -> Result<()> {
-        let path = self.path;
+    pub fn commit(mut self) -> Result<()> {
+        let path = std::mem::take(&mut self.path);
         let fail = |e: std::io::Error| anyhow::anyhow!("{} {}", path.display(), write_cause(&e));
-        match self.inner {
+        match std::mem::replace(&mut self.inner, Inner::Done) {
             Inner::Temp(mut t) => {
                 t.flush().map_err(fail)?;
+                // Hold the registry while renaming, so an interrupt either removes the
+                // temporary before the rename or finds it gone after.
+                let mut list = unfinished();
+                let tmp = t.path().to_path_buf();
                 t.persist(&path).map_err(|e| fail(e.error))?;
+                list.retain(|p| *p != tmp);
             }
             Inner::Direct(mut f) => f.flush().map_err(fail)?,
+            Inner::Done => {}
         }
         Ok(())
     }
 
-    fn file(&mut self) -> &mut File {
+    fn file(&mut self) -> std::io::Result<&mut File> {
         match &mut self.inner {
-            Inner::Temp(t) => t.as_file_mut(),
-            Inner::Direct(f) => f,
+            Inner::Temp(t) => Ok(t.as_file_mut()),
+            Inner::Direct(f) => Ok(f),
+            Inner::Done => Err(std::io::Error::other("the output was already committed")),
         }
     }
 }
 
 impl Write for AtomicFile {
     fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
-        self.file().write(buf)
+        self.file()?.write(buf)
     }
     fn flush(&mut self) -> std::io::Result<()> {
-        self.file().flush()
+        self.file()?.flush()
     }
 }
 
 impl Seek for AtomicFile {
     fn seek(&mut self, pos: SeekFrom) -> std::io::Result<u64> {
-        self.file().seek(pos)
+        self.file()?.seek(pos)
     }
 }
 

@@ -10,6 +10,7 @@ use cli::{Cli, Cmd};
 
 fn main() {
     let args = Cli::parse();
+    dpsa_sim::files::remove_unfinished_on_interrupt();
     let progress = !args.quiet;
     let res = match args.cmd {
         Cmd::Simulate(a) => cli::simulate::run(a, progress),

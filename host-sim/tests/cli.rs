@@ -225,7 +225,7 @@ fn simulate_reconstruct_compare_decode() {
         "{cmp}"
     );
     // The CLI reports exactly what the library computes.
-    let (lib_cmp, _) = dpsa_sim::reference::compare::compare_recording(&recording, false).unwrap();
+    let lib_cmp = dpsa_sim::reference::compare::compare_recording(&recording, false).unwrap();
     let lib_json = serde_json::to_value(&lib_cmp).unwrap();
     assert!(
         same_json(&cmp, &lib_json),

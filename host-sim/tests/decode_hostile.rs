@@ -209,5 +209,96 @@ fn hostile_floods_decode_in_bounded_memory_and_linear_time() {
     let out = run(&["--quiet", "decode", f.to_str().unwrap()], true);
     assert_eq!(out.status.code(), Some(3));
     assert!(out.stdout.len() < 1000);
+    // 8 MiB of version 1 headers whose fields all look right (codec 1, width 8192, the
+    // largest payload), one every 32 bytes: each would cost a 16 KB CRC, 4 GB in all. The
+    // walk's CRC budget (8 bytes per stream byte) stops that; the rest is flagged unchecked.
+    let mut head = b"DPSA\x01\x01\x00\x04".to_vec();
+    head.extend_from_slice(&[0; 18]);
+    head.extend_from_slice(&8192u16.to_le_bytes());
+    head.extend_from_slice(&16386u32.to_le_bytes());
+    let f = d.join("v1plausible.bin");
+    std::fs::write(&f, head.repeat(1 << 18)).unwrap();
+    let (code, v) = decode(&f, true);
+    assert_eq!(code, 3);
+    let damage = v["damage"].to_string();
+    assert!(damage.contains("CRC mismatch"), "{damage}");
+    assert!(damage.contains("not checked"), "{damage}");
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+/// A well-formed version 2 stream whose rows compress to almost nothing: 60,000 rows of 8,192
+/// pixels (491 Mpx, 1.5 GB as a height map) in a few megabytes. `decode` keeps no heights
+/// without `--png` and reports every row; with `--png` it refuses the map above its
+/// documented pixel limit instead of running out of memory.
+#[test]
+fn a_small_stream_of_a_huge_map_decodes_in_bounded_memory() {
+    use dpsa_core::packets::{self, codec};
+    use dpsa_core::row::{Row, RowHeader, StreamInfo};
+    use dpsa_core::Sink as _;
+    let d = dir("huge-map");
+    let w = 8192usize;
+    let rows = 60_000i64;
+    let mut reference = codec::ReferenceRow::new(w);
+    let enc = reference.encoder(packets::STREAM_INTRA_PERIOD).unwrap();
+    let mut buf = vec![0u8; packets::max_packet_len(w)];
+    let file = std::io::BufWriter::new(std::fs::File::create(d.join("huge.dpsa")).unwrap());
+    let mut sink =
+        dpsa_core::sink::PacketSink::new(dpsa_sim::reconstruct::IoLink(file), enc, &mut buf);
+    let info = StreamInfo {
+        camera: 0,
+        n: 4,
+        width: w as u16,
+        rows: 40,
+        max_step_rows: 10,
+        ..StreamInfo::default()
+    };
+    sink.start(&info).unwrap();
+    let heights = vec![0i16; w];
+    let valid = vec![0u8; w / 8];
+    for b in 0..rows {
+        let header = RowHeader {
+            camera: 0,
+            n: 4,
+            row: b,
+            latch: 0,
+            flags: 0,
+            width: w as u16,
+        };
+        sink.row(&Row {
+            header,
+            heights: &heights,
+            valid: &valid,
+        })
+        .unwrap();
+    }
+    sink.end().unwrap();
+    sink.flush().unwrap();
+    drop(sink);
+    let f = d.join("huge.dpsa");
+    assert!(std::fs::metadata(&f).unwrap().len() < 8 << 20);
+    let (code, v) = decode(&f, true);
+    assert_eq!(code, 0, "{v}");
+    assert_eq!(v["rows"]["decoded"].as_u64(), Some(rows as u64));
+    assert_eq!(v["pixels"]["total"].as_u64(), Some(rows as u64 * w as u64));
+    let png = d.join("huge.png");
+    let out = run(
+        &[
+            "--quiet",
+            "decode",
+            f.to_str().unwrap(),
+            "--png",
+            png.to_str().unwrap(),
+        ],
+        true,
+    );
+    let se = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{se}");
+    assert!(se.contains("64 Mpx"), "{se}");
+    assert!(!png.exists());
+    // codec-bench holds the map several times over: it refuses it from its documented limit.
+    let out = run(&["--quiet", "codec-bench", f.to_str().unwrap()], true);
+    let se = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{se}");
+    assert!(se.contains("8 Mpx"), "{se}");
     let _ = std::fs::remove_dir_all(&d);
 }

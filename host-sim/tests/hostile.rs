@@ -190,7 +190,14 @@ fn case02_sigint_leaves_no_complete_looking_stream() {
         assert_eq!(std::fs::read(&out).unwrap(), std::fs::read(&full).unwrap());
     } else {
         assert!(!out.exists(), "an interrupted run left {}", out.display());
+        assert_eq!(status.code(), Some(130), "{status:?}");
     }
+    // Neither way leaves a hidden temporary (`.r.dpsa.XXXXXX`) beside the output.
+    let left: Vec<String> = names(dir.path())
+        .into_iter()
+        .filter(|n| n.starts_with(".r.dpsa"))
+        .collect();
+    assert!(left.is_empty(), "temporaries left: {left:?}");
 }
 
 #[test]
@@ -215,6 +222,19 @@ fn case03_concurrent_writers_leave_one_whole_stream() {
             "the stream is a mix of two runs"
         );
     }
+    // The two boards' streams say which board they hold: their run ids (the recordings'
+    // identities) differ, and a second reconstruct of one recording carries the same id.
+    let run_id = |p: &Path| {
+        let r = run(&["decode", s(p), "--json"]);
+        let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
+        v["stream"]["run_id"].as_u64().expect("a run id")
+    };
+    let (ia, ib) = (run_id(&a), run_id(&b));
+    assert_ne!(ia, ib);
+    assert_ne!(ia, 0);
+    let again = dir.path().join("again.dpsa");
+    ok(&["reconstruct", s(&rec), "--out", s(&again)]);
+    assert_eq!(run_id(&again), ia);
 }
 
 #[test]
@@ -360,6 +380,22 @@ fn case09_frames_that_are_devices_or_fifos_are_refused() {
         &["manifest.json", "not a regular file"],
     );
     assert!(!out.exists());
+    // Streams are read in pieces, but only from regular files: a device never ends.
+    fails(
+        &["decode", "/dev/zero"],
+        &["/dev/zero", "not a regular file"],
+    );
+    fails(
+        &["codec-bench", "/dev/zero"],
+        &["/dev/zero", "not a regular file"],
+    );
+    let fifo = dir.path().join("fifo.dpsa");
+    assert!(Command::new("mkfifo")
+        .arg(&fifo)
+        .status()
+        .unwrap()
+        .success());
+    fails(&["decode", s(&fifo)], &["fifo.dpsa", "not a regular file"]);
 }
 
 fn crc32(bytes: &[u8]) -> u32 {
@@ -420,7 +456,24 @@ fn case13_compare_holds_one_window_of_frames() {
     let r = run_capped(&["compare", s(&rec), "--json"], 256 << 20);
     assert!(r.ok, "{}", r.stderr);
     let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
-    assert!(v.is_object());
+    assert!(v["fixed_vs_ref"]["max_abs_lsb"].as_f64().unwrap() <= 1.0);
+}
+
+#[test]
+fn case13_compare_of_a_long_board_streams_its_rows() {
+    // 131,072 board rows x 64 px = 8.4 Mpx. Holding the fixed map, the f64 reference, the PSP
+    // baseline and the truth took ~90 bytes per board pixel (~750 MB); folded row by row the
+    // comparison fits in 192 MiB of address space, and every board row is compared.
+    let (_dir, rec) = rec0("width = 64\nboard_length = 131072\n");
+    let r = run_capped(&["compare", s(&rec), "--json"], 192 << 20);
+    assert!(r.ok, "{}", r.stderr);
+    let v: serde_json::Value = serde_json::from_str(&r.stdout).unwrap();
+    let num = |a: &str, b: &str| v[a][b].as_f64().unwrap();
+    assert!(num("fixed_vs_ref", "max_abs_lsb") <= 1.0, "{v}");
+    assert_eq!(num("fixed_vs_ref", "valid_mismatch"), 0.0, "{v}");
+    assert!(num("rows", "total") >= 131_072.0, "{v}");
+    assert!(num("truth", "pixels") > 0.9 * 131_072.0 * 62.0, "{v}");
+    assert!(num("truth", "fixed_over_crb") < 1.1, "{v}");
 }
 
 #[test]

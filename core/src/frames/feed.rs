@@ -12,7 +12,7 @@
 //!                 8 W u16  10 H u16  12 n u8  13 camera u8  14 saturation u16
 //!                16 counts_per_pixel U16F16  20 fx u32  24 lsb_per_turn U16F16
 //!                28 min_modulation U20F12  32 max_noise_gain U8F8  34 max_step_rows u16
-//!                36 frames u32  40 intra period u32  44..60 zero
+//!                36 frames u32  40 intra period u32  44 run id u64  52..60 zero
 //!                60 CRC-32 (ISO-HDLC) of bytes 0..60
 //! ref phase      W x u32 binary angles, then CRC-32 of those 4W bytes
 //! frame k        16 B trigger record: 0 seq u32, 4 zero u32, 8 latch i64
@@ -45,6 +45,10 @@ pub struct Header {
     pub frames: u32,
     /// Codec intra period of the packet stream to emit (1: every packet decodes alone).
     pub intra_period: u32,
+    /// Run identity for the packet stream's header (`dpsa` writes the recording's identity,
+    /// so a camera's firmware and the host tag the same board alike). Feeds written before it
+    /// existed hold 0 here, their reserved bytes.
+    pub run_id: u64,
 }
 
 /// A malformed header or table.
@@ -93,6 +97,7 @@ impl Header {
         b[34..36].copy_from_slice(&c.max_step_rows.to_le_bytes());
         b[36..40].copy_from_slice(&self.frames.to_le_bytes());
         b[40..44].copy_from_slice(&self.intra_period.to_le_bytes());
+        b[44..52].copy_from_slice(&self.run_id.to_le_bytes());
         let crc = CRC.checksum(&b[..60]);
         b[60..64].copy_from_slice(&crc.to_le_bytes());
         b
@@ -116,7 +121,7 @@ impl Header {
         if CRC.checksum(&b[..60]) != u32_at(b, 60) {
             return Err(FeedError::HeaderCrc);
         }
-        if b[44..60].iter().any(|&x| x != 0) {
+        if b[52..60].iter().any(|&x| x != 0) {
             return Err(FeedError::Reserved);
         }
         let cfg = Config {
@@ -141,6 +146,7 @@ impl Header {
             cfg,
             frames: u32_at(b, 36),
             intra_period,
+            run_id: u64::from_le_bytes([b[44], b[45], b[46], b[47], b[48], b[49], b[50], b[51]]),
         })
     }
 
@@ -238,6 +244,7 @@ mod tests {
             },
             frames: 277,
             intra_period: 1,
+            run_id: 0x0123_4567_89ab_cdef,
         }
     }
 

@@ -20,6 +20,14 @@ pub mod registration;
 /// Largest row offset magnitude ([`Config::offset`] clamps to it): 2^62 rows.
 pub const MAX_OFFSET: i64 = 1 << 62;
 
+/// FNV-1a 64 of `bytes` (the hash of [`Config::hash`]; `dpsa` also derives a recording's run
+/// identity with it).
+pub fn fnv1a64(bytes: &[u8]) -> u64 {
+    let mut h = Fnv64::new();
+    h.bytes(bytes);
+    h.0
+}
+
 /// FNV-1a, 64 bit (offset basis `0xcbf29ce484222325`, prime `0x100000001b3`).
 struct Fnv64(u64);
 

@@ -143,6 +143,9 @@ pub enum PacketError {
     BadWidth(u16),
     /// Header CRC mismatch (version 2).
     BadHeaderCrc,
+    /// A version 1 packet left unchecked: the walk's budget for payload CRCs over false sync
+    /// words is spent (see [`Walk`]).
+    Unchecked,
 }
 
 /// What a packet holds.
@@ -513,12 +516,18 @@ fn i64_at(buf: &[u8], i: usize) -> i64 {
 /// kind, width, length bound, and in version 2 the header CRC), so a false sync word costs
 /// O(header) bytes.
 pub fn decode(buf: &[u8]) -> Result<(Packet<'_>, usize), PacketError> {
-    decode_inner(buf).map_err(|(e, _)| e)
+    decode_inner(buf, true).map_err(|(e, _)| e)
 }
 
 /// [`decode`], and on error the length of the packet when its version 2 header checked out
 /// (so a walk may skip it whole).
-fn decode_inner(buf: &[u8]) -> Result<(Packet<'_>, usize), (PacketError, Option<usize>)> {
+///
+/// `v1_crc == false` rejects a version 1 packet that would need its payload CRC with
+/// [`PacketError::Unchecked`].
+fn decode_inner(
+    buf: &[u8],
+    v1_crc: bool,
+) -> Result<(Packet<'_>, usize), (PacketError, Option<usize>)> {
     if buf.len() < 4 {
         return Err((PacketError::Truncated, None));
     }
@@ -529,24 +538,35 @@ fn decode_inner(buf: &[u8]) -> Result<(Packet<'_>, usize), (PacketError, Option<
         return Err((PacketError::Truncated, None));
     }
     match buf[4] {
-        VERSION_1 => decode_v1(buf).map_err(|e| (e, None)),
+        VERSION_1 => decode_v1(buf, v1_crc).map_err(|e| (e, None)),
         VERSION => decode_v2(buf),
         v => Err((PacketError::BadVersion(v), None)),
     }
 }
 
-fn decode_v1(buf: &[u8]) -> Result<(Packet<'_>, usize), PacketError> {
+fn decode_v1(buf: &[u8], crc: bool) -> Result<(Packet<'_>, usize), PacketError> {
     let codec = buf[5];
     let width = u16_at(buf, 26);
     let plen = u32_at(buf, 28) as usize;
-    // No payload exceeds the compressed codec's bound (raw + 2 bytes); no width exceeds the
-    // codec's (a decoder could not unpack it).
-    if width as usize > codec::MAX_WIDTH || plen > codec::max_len(width as usize) {
+    // Version 1 wrote codecs 0 and 1 only, a raw payload of exactly its width's size, no
+    // payload above the compressed codec's bound (raw + 2 bytes) and no width above the
+    // codec's (a decoder could not unpack it): all checked before the CRC.
+    if codec != CODEC_RAW && codec != CODEC_COMPRESSED {
+        return Err(PacketError::BadCodec(codec));
+    }
+    if width == 0
+        || width as usize > codec::MAX_WIDTH
+        || plen > codec::max_len(width as usize)
+        || (codec == CODEC_RAW && plen != raw_payload_len(width as usize))
+    {
         return Err(PacketError::BadLength);
     }
     let total = HEADER_LEN_V1 + plen + TRAILER_LEN;
     if buf.len() < total {
         return Err(PacketError::Truncated);
+    }
+    if !crc {
+        return Err(PacketError::Unchecked);
     }
     if CRC.checksum(&buf[4..HEADER_LEN_V1 + plen]) != u32_at(buf, total - 4) {
         return Err(PacketError::BadCrc);
@@ -653,11 +673,29 @@ pub enum Item<'a> {
 /// Every byte is looked at O(1) times: a false sync word costs at most a header (40 bytes)
 /// before it is rejected, the payload CRC is computed only for a header that checked out, and
 /// such a packet is then skipped whole.
+///
+/// Version 1 has no header CRC: a false sync word whose header fields look plausible costs a
+/// payload CRC (up to [`MAX_PACKET_LEN`] bytes) before the walk moves on by one byte. The
+/// payload bytes of failed version 1 CRCs are therefore budgeted: at most
+/// [`V1_CRC_BUDGET_PER_BYTE`] per stream byte walked past plus [`V1_CRC_BUDGET_BASE`]. Past the
+/// budget a version 1 candidate that would need its CRC is reported as damage
+/// ([`PacketError::Unchecked`]) without one, so hostile input stays linear in time; genuine
+/// version 1 streams never fail a CRC unless damaged and never come near the budget.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Walk {
     pos: usize,
     seeking: bool,
+    /// Stream bytes dropped by [`Walk::shift`] so far.
+    base: u64,
+    /// Payload bytes of failed version 1 CRCs so far.
+    v1_failed: u64,
 }
+
+/// Failed version 1 CRC bytes allowed per stream byte ([`Walk`]).
+pub const V1_CRC_BUDGET_PER_BYTE: u64 = 8;
+/// Failed version 1 CRC bytes always allowed ([`Walk`]): a few damaged packets of the widest
+/// rows.
+pub const V1_CRC_BUDGET_BASE: u64 = 1 << 20;
 
 impl Walk {
     pub fn new() -> Self {
@@ -671,7 +709,18 @@ impl Walk {
 
     /// The caller dropped the first `n <= position()` bytes of its buffer.
     pub fn shift(&mut self, n: usize) {
-        self.pos -= n.min(self.pos);
+        let n = n.min(self.pos);
+        self.pos -= n;
+        self.base += n as u64;
+    }
+
+    /// True while failed version 1 CRCs stay within the budget at stream offset `at`.
+    fn v1_budget(&self, at: usize) -> bool {
+        let walked = self.base.saturating_add(at as u64);
+        self.v1_failed
+            <= walked
+                .saturating_mul(V1_CRC_BUDGET_PER_BYTE)
+                .saturating_add(V1_CRC_BUDGET_BASE)
     }
 
     /// The next item in `bytes`, or `None` (end of the stream with `eof`, or more bytes
@@ -698,13 +747,19 @@ impl Walk {
         if offset >= bytes.len() {
             return None;
         }
-        match decode_inner(&bytes[offset..]) {
+        match decode_inner(&bytes[offset..], self.v1_budget(offset)) {
             Ok((packet, len)) => {
                 self.pos = offset + len;
                 Some(Item::Packet { offset, packet })
             }
             Err((PacketError::Truncated, _)) if !eof => None,
             Err((error, skip)) => {
+                if error == PacketError::BadCrc && bytes.get(offset + 4) == Some(&VERSION_1) {
+                    let plen = bytes
+                        .get(offset + 28..offset + 32)
+                        .map_or(0, |b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as u64);
+                    self.v1_failed = self.v1_failed.saturating_add(plen);
+                }
                 match skip {
                     Some(len) => self.pos = offset + len,
                     None => {
@@ -919,6 +974,24 @@ mod tests {
         assert_eq!(Stream::new(&[]).count(), 0);
     }
 
+    /// Raw version 1 packets of width 16 for `rows`.
+    fn v1_stream(rows: &[i64]) -> Vec<Vec<u8>> {
+        let (mut header, heights, valid) = sample(16);
+        let mut buf = vec![0u8; max_packet_len(16)];
+        rows.iter()
+            .map(|&r| {
+                header.row = r;
+                let row = Row {
+                    header,
+                    heights: &heights,
+                    valid: &valid,
+                };
+                let n = encode_raw_v1(&row, &mut buf).unwrap();
+                buf[..n].to_vec()
+            })
+            .collect()
+    }
+
     /// A v2 stream through a `PacketSink`-like sequence: header, rows, a gap, end.
     fn v2_stream(rows: &[i64], gap_after: Option<usize>) -> Vec<Vec<u8>> {
         let (mut header, heights, valid) = sample(16);
@@ -1062,11 +1135,11 @@ mod tests {
         let flood: Vec<u8> = b"DPSA\x01\x8a\x00\x00".repeat(1 << 14);
         let items: Vec<_> = Stream::new(&flood).collect();
         assert_eq!(items.len(), 1 << 14);
-        // All but the last 4 (fewer than 32 bytes left: truncated).
+        // All but the last 4 (fewer than 32 bytes left: truncated): codec 0x8a never existed.
         assert!(items[..items.len() - 4].iter().all(|i| matches!(
             i,
             Item::Damage {
-                error: PacketError::BadLength,
+                error: PacketError::BadCodec(0x8a),
                 ..
             }
         )));
@@ -1088,6 +1161,56 @@ mod tests {
                 ..
             }
         )));
+    }
+
+    /// Version 1 headers with plausible fields every 32 bytes, each claiming the largest
+    /// payload: without a budget every one costs a ~16 KB CRC (quadratic in the flood). The
+    /// failed CRC bytes stay within the walk's linear budget, the rest is flagged unchecked,
+    /// and a genuine version 1 packet right after the flood still decodes while the budget
+    /// allows (here: the flood is short enough that it does).
+    #[test]
+    fn hostile_version_1_floods_stay_linear() {
+        let w = codec::MAX_WIDTH as u16;
+        let plen = codec::max_len(w as usize) as u32;
+        let mut head = Vec::new();
+        head.extend_from_slice(b"DPSA\x01\x01\x00\x04");
+        head.extend_from_slice(&[0; 18]);
+        head.extend_from_slice(&w.to_le_bytes());
+        head.extend_from_slice(&plen.to_le_bytes());
+        assert_eq!(head.len(), HEADER_LEN_V1);
+        let flood = head.repeat(1 << 15); // 1 MiB
+        let mut walk = Walk::new();
+        let (mut unchecked, mut bad_crc) = (0u64, 0u64);
+        while let Some(item) = walk.next(&flood, true) {
+            match item {
+                Item::Damage {
+                    error: PacketError::Unchecked,
+                    ..
+                } => unchecked += 1,
+                Item::Damage {
+                    error: PacketError::BadCrc,
+                    ..
+                } => bad_crc += 1,
+                _ => {}
+            }
+        }
+        let n = flood.len() as u64;
+        assert!(walk.v1_failed <= n * V1_CRC_BUDGET_PER_BYTE + V1_CRC_BUDGET_BASE + plen as u64);
+        assert!(bad_crc > 0 && unchecked > 0, "{bad_crc} {unchecked}");
+
+        // A real version 1 stream behind a short flood still decodes whole.
+        let mut bytes = head.repeat(8);
+        let good = v1_stream(&[5, 6, 7]);
+        for p in &good {
+            bytes.extend_from_slice(p);
+        }
+        let rows: Vec<i64> = Stream::new(&bytes)
+            .filter_map(|i| match i {
+                Item::Packet { packet, .. } => Some(packet.header.row),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(rows, [5, 6, 7]);
     }
 
     /// The chunked walk finds exactly the items of the whole-slice walk, whatever the chunking.

@@ -52,7 +52,7 @@
 //! integer bin. Every method's output is decoded again and compared with the input; a
 //! difference fails the benchmark.
 
-use crate::heightmap::HeightMap;
+use crate::heightmap::{HeightMap, HeightRow};
 use crate::simulation::recording::Recording;
 use crate::{progress::progress_bar, reconstruct, stream};
 use anyhow::{bail, ensure, Context, Result};
@@ -96,42 +96,70 @@ pub struct BenchRows {
     valid: Vec<u8>,
 }
 
+/// Pixels `codec-bench` takes at most (2^23 = 8.4 Mpx, half a paper-board camera's 7,900 x
+/// 2,048): the whole-map methods (zstd, PNG) hold the map several times over, about 26 bytes
+/// per pixel in all (measured: 217 MB peak for 8.4 Mpx). A larger input is refused as soon as
+/// it passes the limit, before it is held.
+pub const MAX_BENCH_PIXELS: usize = 1 << 23;
+
 impl BenchRows {
-    /// The rows of a decoded height map (all of them must have the map's width).
-    pub fn from_map(map: &HeightMap) -> Result<Self> {
-        let w = map.width;
-        ensure!(
-            !map.rows.is_empty() && w > 0,
-            "no decoded rows: nothing to compress"
-        );
+    /// No rows yet, `w` pixels wide.
+    fn empty(w: usize) -> Result<Self> {
+        ensure!(w > 0, "width 0: nothing to compress");
         ensure!(
             w <= codec::MAX_WIDTH,
             "width {w} exceeds the codec's {}",
             codec::MAX_WIDTH
         );
-        let nb = w.div_ceil(8);
-        let mut heights = Vec::with_capacity(map.rows.len() * w);
-        let mut valid = vec![0u8; map.rows.len() * nb];
-        for (r, row) in map.rows.iter().enumerate() {
-            ensure!(
-                row.heights.len() == w && row.valid.len() == w,
-                "board row {} has {} pixels, the map {w}",
-                row.row,
-                row.heights.len()
-            );
-            for (c, (&h, &v)) in row.heights.iter().zip(&row.valid).enumerate() {
-                heights.push(if v { h } else { 0 });
-                if v {
-                    valid[r * nb + c / 8] |= 1 << (c % 8);
-                }
-            }
-        }
         Ok(BenchRows {
             width: w,
-            rows: map.rows.len(),
-            heights,
-            valid,
+            rows: 0,
+            heights: Vec::new(),
+            valid: Vec::new(),
         })
+    }
+
+    /// Appends one row (invalid heights become 0); refuses a row of another width and more
+    /// than [`MAX_BENCH_PIXELS`] in all.
+    fn push(&mut self, row: &HeightRow) -> Result<()> {
+        let w = self.width;
+        ensure!(
+            row.heights.len() == w && row.valid.len() == w,
+            "board row {} has {} pixels, the map {w}",
+            row.row,
+            row.heights.len()
+        );
+        ensure!(
+            (self.rows + 1) * w <= MAX_BENCH_PIXELS,
+            "more than {} Mpx of heights: codec-bench takes at most {} Mpx (a shorter \
+             recording or stream)",
+            MAX_BENCH_PIXELS >> 20,
+            MAX_BENCH_PIXELS >> 20
+        );
+        let nb = w.div_ceil(8);
+        let base = self.valid.len();
+        self.valid.resize(base + nb, 0);
+        for (c, (&h, &v)) in row.heights.iter().zip(&row.valid).enumerate() {
+            self.heights.push(if v { h } else { 0 });
+            if v {
+                self.valid[base + c / 8] |= 1 << (c % 8);
+            }
+        }
+        self.rows += 1;
+        Ok(())
+    }
+
+    /// The rows of a decoded height map (all of them must have the map's width).
+    pub fn from_map(map: &HeightMap) -> Result<Self> {
+        ensure!(
+            !map.rows.is_empty() && map.width > 0,
+            "no decoded rows: nothing to compress"
+        );
+        let mut rows = BenchRows::empty(map.width)?;
+        for row in &map.rows {
+            rows.push(row)?;
+        }
+        Ok(rows)
     }
 
     fn nb(&self) -> usize {
@@ -199,20 +227,35 @@ pub enum Source {
 pub fn load(path: &Path, progress: bool) -> Result<(BenchRows, Source)> {
     if path.is_dir() {
         let rec = Recording::open(path).with_context(|| format!("recording {}", path.display()))?;
-        let (_, _, map) = reconstruct::reconstruct_map(&rec, progress)?;
-        Ok((BenchRows::from_map(&map)?, Source::Recording))
+        // Rows are taken as the core emits them; nothing else of the run is held.
+        let mut rows = BenchRows::empty(rec.width())?;
+        reconstruct::reconstruct_rows(&rec, progress, |row| rows.push(&row))?;
+        ensure!(rows.rows > 0, "no decoded rows: nothing to compress");
+        Ok((rows, Source::Recording))
     } else {
-        let bytes =
-            crate::files::read_capped(path, crate::files::MAX_STREAM_BYTES, "packet stream")?;
+        let file = crate::files::open_regular(path, "packet stream")?;
         // The LSB only labels the map; the codecs see LSB integers.
-        let (map, rep) = stream::decode_stream(&bytes, 0.25);
+        let keep = stream::Keep {
+            rows: true,
+            max_pixels: MAX_BENCH_PIXELS as u64,
+        };
+        let d = stream::decode_reader_with(std::io::BufReader::new(file), 0.25, keep)
+            .with_context(|| format!("reading {}", path.display()))?;
+        ensure!(
+            !d.over_limit,
+            "packet stream {}: more than {} Mpx of heights, codec-bench takes at most {} Mpx",
+            path.display(),
+            MAX_BENCH_PIXELS >> 20,
+            MAX_BENCH_PIXELS >> 20
+        );
+        let map = d.map.unwrap_or_default();
         let rows = BenchRows::from_map(&map)
             .with_context(|| format!("packet stream {}", path.display()))?;
         Ok((
             rows,
             Source::Stream {
-                ok: rep.ok,
-                corrupt: rep.corrupt,
+                ok: d.report.ok,
+                corrupt: d.report.corrupt,
             },
         ))
     }

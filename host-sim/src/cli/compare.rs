@@ -16,7 +16,7 @@ pub struct Args {
 
 pub fn run(a: Args, progress: bool) -> Result<()> {
     let rec = open(&a.dir)?;
-    let (cmp, _) = compare_recording(&rec, progress)?;
+    let cmp = compare_recording(&rec, progress)?;
     if a.json {
         out!("{}", serde_json::to_string_pretty(&cmp)?);
     } else {

@@ -13,7 +13,8 @@ use std::path::PathBuf;
     after_help = "Exit status: 0 clean (a version 2 stream ended with matching totals); 2 damage, missing, duplicated or reordered packets, or a truncated stream (no end packet, or totals that disagree); 3 nothing decodable; 1 the command failed."
 )]
 pub struct Args {
-    /// Packet stream file (read in 64 KiB chunks, any size).
+    /// Packet stream file (a regular file, read in 64 KiB chunks, any size; heights are held
+    /// only for --png).
     stream: PathBuf,
     /// Write a 16-bit height PNG (and a false-colour PNG beside it); rows sit at their board
     /// row, missing rows are invalid.
@@ -29,23 +30,43 @@ pub struct Args {
 
 /// Decodes; returns the exit status.
 pub fn run(a: Args) -> Result<i32> {
-    let file = std::fs::File::open(&a.stream)
-        .with_context(|| format!("cannot open {}", a.stream.display()))?;
-    let (map, rep) = stream::decode_reader(std::io::BufReader::new(file), a.lsb_um)
+    if let Some(png) = &a.png {
+        dpsa_sim::files::require_png("--png", png)?;
+        let inputs = [dpsa_sim::files::Input::File(&a.stream)];
+        dpsa_sim::files::refuse_overwrite("--png", png, &inputs)?;
+        dpsa_sim::files::refuse_overwrite("--png", &images::colour_path(png), &inputs)?;
+    }
+    let file = dpsa_sim::files::open_regular(&a.stream, "packet stream")?;
+    // Heights are kept only for the PNG; otherwise each row leaves only its counts behind.
+    let keep = stream::Keep {
+        rows: a.png.is_some(),
+        max_pixels: stream::MAX_MAP_PIXELS,
+    };
+    let decoded = stream::decode_reader_with(std::io::BufReader::new(file), a.lsb_um, keep)
         .with_context(|| format!("cannot read {}", a.stream.display()))?;
-    let verdict = rep.verdict(&map);
+    let (rows, rep) = (decoded.rows, decoded.report);
+    let verdict = rep.verdict_rows(rows.decoded);
     if let Some(png) = a.png {
-        if map.rows.is_empty() {
-            bail!("no decodable rows: nothing to draw");
+        if decoded.over_limit {
+            bail!(
+                "the stream holds more than {} Mpx of heights, the most a PNG is drawn from \
+                 (decode without --png for its report)",
+                stream::MAX_MAP_PIXELS >> 20
+            );
         }
-        images::write_pngs(&map, &png)?;
+        match decoded.map {
+            Some(map) if !map.rows.is_empty() => {
+                images::write_pngs(&map, &png)?;
+            }
+            _ => bail!("no decodable rows: nothing to draw"),
+        }
     }
     let s = &rep.stream;
     if a.json {
         let v = serde_json::json!({
             "packets": { "ok": rep.ok, "corrupt": rep.corrupt, "resynced": rep.resynced },
-            "rows": { "decoded": map.rows.len(), "valid": map.rows.iter().filter(|r| r.is_valid()).count() },
-            "pixels": { "valid": map.valid_pixels(), "total": map.total_pixels() },
+            "rows": { "decoded": rows.decoded, "valid": rows.valid },
+            "pixels": { "valid": rows.valid_pixels, "total": rows.total_pixels },
             "damage": rep.damage,
             "damage_listed_max": stream::MAX_DAMAGE_ENTRIES,
             "stream": s,
@@ -59,8 +80,8 @@ pub fn run(a: Args) -> Result<i32> {
             rep.ok,
             rep.corrupt,
             rep.resynced,
-            map.rows.len(),
-            map.valid_pixels()
+            rows.decoded,
+            rows.valid_pixels
         );
         if s.version >= 2 {
             out!(

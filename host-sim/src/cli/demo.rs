@@ -2,7 +2,9 @@
 
 use super::{load_scene, open, out};
 use anyhow::Result;
-use dpsa_sim::{files, images, reconstruct, reference::compare::compare_map, simulation::simulate};
+use dpsa_sim::{
+    files, images, reconstruct, reference::compare::compare_recording, simulation::simulate,
+};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -48,7 +50,7 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
         stats.state_bytes
     );
     out!("3/4 comparing with the f64 reference, the 4-step PSP baseline and the ground truth");
-    let cmp = compare_map(&rec, &map, progress)?;
+    let cmp = compare_recording(&rec, progress)?;
     let report = out.join("compare.json");
     files::write_bytes(&report, serde_json::to_string_pretty(&cmp)?.as_bytes())?;
     out!("4/4 writing images");

@@ -7,14 +7,14 @@ pub mod sink;
 pub use config::config;
 pub use sink::IoLink;
 
-use crate::heightmap::HeightMap;
+use crate::heightmap::{HeightMap, HeightRow};
 use crate::progress::progress_bar;
 use crate::simulation::recording::Recording;
-use anyhow::{anyhow, Context, Result};
+use anyhow::{anyhow, Result};
 use dpsa_core::{
     packets::{self, codec},
     pipeline::{Layout, Pipeline, State},
-    sink::PacketSink,
+    sink::{Link, PacketSink},
 };
 use std::io::Write;
 
@@ -43,6 +43,20 @@ pub fn run_with<W: Write>(
     intra_period: u32,
     progress: bool,
 ) -> Result<(RunStats, W)> {
+    let (stats, link) = run_link(rec, IoLink(out), intra_period, progress)?;
+    Ok((stats, link.0))
+}
+
+/// Runs the core on every frame of `rec` into a [`PacketSink`] over `link`.
+pub fn run_link<L: Link>(
+    rec: &Recording,
+    link: L,
+    intra_period: u32,
+    progress: bool,
+) -> Result<(RunStats, L)>
+where
+    L::Error: std::fmt::Display,
+{
     let (cfg, ref_phase) = config(&rec.manifest)?;
     let mut state = State::new(&cfg);
     let mut pipe = Pipeline::new(cfg, &ref_phase, state.memory())
@@ -53,7 +67,8 @@ pub fn run_with<W: Write>(
         .encoder(intra_period)
         .ok_or_else(|| anyhow!("width {w} is not supported by the codec"))?;
     let mut buf = vec![0u8; packets::max_packet_len(w)];
-    let mut sink = PacketSink::new(IoLink(out), enc, &mut buf);
+    let mut sink = PacketSink::new(link, enc, &mut buf);
+    sink.set_run_id(rec.run_id());
     let frames = &rec.manifest.frames;
     let bar = progress_bar(progress, frames.len() as u64, "reconstruct");
     let mut high = 0;
@@ -73,7 +88,8 @@ pub fn run_with<W: Write>(
     }
     pipe.finish(&mut sink).map_err(|e| anyhow!("finish: {e}"))?;
     bar.finish_and_clear();
-    sink.flush().context("flushing the packet stream")?;
+    sink.flush()
+        .map_err(|e| anyhow!("flushing the packet stream: {e}"))?;
     let stats = RunStats {
         frames: frames.len(),
         packets: sink.packets(),
@@ -81,7 +97,61 @@ pub fn run_with<W: Write>(
         state_bytes: Layout::of(&cfg).bytes(),
         pool_high_water: high,
     };
-    Ok((stats, sink.into_link().0))
+    Ok((stats, sink.into_link()))
+}
+
+/// Runs the fixed-point core on a recording and hands each row to `each` as it leaves the
+/// core, decoded from its own packet (so the rows are exactly what the stream carries), in
+/// increasing board-row order; nothing is kept. Gap records (rows no frame showed) are not
+/// rows and are not handed over. `each` failing stops the run with its error.
+pub fn reconstruct_rows(
+    rec: &Recording,
+    progress: bool,
+    each: impl FnMut(HeightRow) -> Result<()>,
+) -> Result<RunStats> {
+    let w = rec.manifest.camera.width as usize;
+    let link = RowLink {
+        reference: codec::ReferenceRow::new(w),
+        each,
+    };
+    Ok(run_link(rec, link, packets::STREAM_INTRA_PERIOD, progress)?.0)
+}
+
+/// A [`Link`] that decodes every row packet it is given and passes the row on.
+struct RowLink<F> {
+    reference: codec::ReferenceRow,
+    each: F,
+}
+
+impl<F: FnMut(HeightRow) -> Result<()>> Link for RowLink<F> {
+    type Error = String;
+    fn send(&mut self, bytes: &[u8]) -> std::result::Result<(), String> {
+        let (p, _) = packets::decode(bytes)
+            .map_err(|e| format!("internal error: the core's own packet does not decode: {e}"))?;
+        if p.kind != packets::Kind::Row {
+            return Ok(());
+        }
+        let w = p.header.width as usize;
+        let mut heights = vec![0i16; w];
+        let mut bits = vec![0u8; w.div_ceil(8)];
+        let mut dec = self
+            .reference
+            .decoder()
+            .ok_or_else(|| format!("width {w} is not supported by the codec"))?;
+        p.unpack(&mut dec, &mut heights, &mut bits)
+            .map_err(|e| format!("internal error: the core's own row does not decode: {e}"))?;
+        let row = HeightRow {
+            row: p.header.row,
+            latch: p.header.latch,
+            flags: p.header.flags,
+            heights,
+            valid: (0..w).map(|c| bits[c / 8] & (1 << (c % 8)) != 0).collect(),
+        };
+        (self.each)(row).map_err(|e| format!("{e:#}"))
+    }
+    fn flush(&mut self) -> std::result::Result<(), String> {
+        Ok(())
+    }
 }
 
 /// Runs the fixed-point core on a recording and returns the packet stream bytes.

@@ -7,7 +7,9 @@
 //! error, not a `T_z` error.
 
 use crate::heightmap::{flags, HeightMap, HeightRow};
-use crate::reference::{crb, flat_mask, truth::truth_row_index, RefOutput, RefRow};
+use crate::reference::crb::crb_row;
+use crate::reference::truth::{flat_mask, truth_row, TruthReader, TruthRow};
+use crate::reference::{LazyFrames, RefOutput, RefRow, RowEval};
 use crate::simulation::recording::{Manifest, Recording, Truth};
 use anyhow::{Context, Result};
 use serde::Serialize;
@@ -187,40 +189,95 @@ fn ref_valid(row: &RefRow, c: usize) -> bool {
         && c < row.height_um.len()
 }
 
-/// Compares a fixed-point height map with the f64 reference, and (optionally) the PSP
-/// baseline and all of them with the ground truth.
+/// The comparison folded one board row at a time: every statistic of [`Comparison`] is a sum,
+/// a count or a maximum, so nothing of a row is kept once it has been added. [`compare`] feeds
+/// it from results in memory, [`compare_recording`] straight from the three producers (core,
+/// reference, PSP) and the truth files, in memory bounded by one window of frames.
 ///
 /// - fixed vs ref: over pixels valid in both (a fixed pixel is valid when its valid bit is set
 ///   and its row has no invalidating flag), the difference `fixed - ref.height_lsb` in LSB of
 ///   the manifest's `height_lsb_um`, folded modulo `lsb_per_turn = height_per_turn_um / lsb`
 ///   into `[-lsb_per_turn/2, lsb_per_turn/2)`;
 /// - vs truth: see [`TruthStats`] for the pixel sets; errors in um, folded modulo `T_z`. The
-///   CRB comes from [`crb`] on `reference` (needs `manifest.noise`).
-pub fn compare(
-    manifest: &Manifest,
-    fixed: &HeightMap,
-    reference: &RefOutput,
-    psp: Option<&RefOutput>,
-    truth: Option<&Truth>,
-) -> Comparison {
-    let lsb = manifest.calibration.height_lsb_um;
-    let t_z = manifest.calibration.height_per_turn_um;
-    let lsb_per_turn = t_z / lsb;
+///   CRB comes from [`crb_row`] on the reference row (needs `manifest.noise`).
+pub struct Comparer<'m> {
+    manifest: &'m Manifest,
+    fixed_lsb_um: f64,
+    fvr: FixedVsRef,
+    diff: Acc,
+    fe: Acc,
+    re: Acc,
+    pe: Acc,
+    crb_sum: f64,
+    pixels: PixelStats,
+    rows: RowStats,
+    psp: bool,
+    truth: bool,
+}
 
-    // Union of rows: board row -> (fixed row, reference row index).
-    let mut union: BTreeMap<i64, (Option<&HeightRow>, Option<usize>)> = BTreeMap::new();
-    for r in &fixed.rows {
-        union.entry(r.row).or_default().0 = Some(r);
-    }
-    for (i, r) in reference.rows.iter().enumerate() {
-        union.entry(r.row).or_default().1 = Some(i);
+impl<'m> Comparer<'m> {
+    /// `fixed_lsb_um` labels the fixed heights; `psp` and `truth` say whether those results
+    /// take part (their figures are null otherwise).
+    pub fn new(manifest: &'m Manifest, fixed_lsb_um: f64, psp: bool, truth: bool) -> Self {
+        Comparer {
+            manifest,
+            fixed_lsb_um,
+            fvr: FixedVsRef::default(),
+            diff: Acc::default(),
+            fe: Acc::default(),
+            re: Acc::default(),
+            pe: Acc::default(),
+            crb_sum: 0.0,
+            pixels: PixelStats {
+                psp_valid: psp.then_some(0),
+                ..PixelStats::default()
+            },
+            rows: RowStats::default(),
+            psp,
+            truth,
+        }
     }
 
-    let mut fvr = FixedVsRef::default();
-    let mut diff = Acc::default();
-    for &(f, ri) in union.values() {
-        let r = ri.map(|i| &reference.rows[i]);
-        match (f, r) {
+    /// Adds one board row: whichever results have it, and its truth.
+    pub fn row(
+        &mut self,
+        fixed: Option<&HeightRow>,
+        reference: Option<&RefRow>,
+        psp: Option<&RefRow>,
+        truth: Option<&TruthRow<'_>>,
+    ) {
+        let m = self.manifest;
+        let lsb = m.calibration.height_lsb_um;
+        let t_z = m.calibration.height_per_turn_um;
+        let lsb_per_turn = t_z / lsb;
+        if let Some(f) = fixed {
+            let rs = &mut self.rows;
+            rs.total += 1;
+            rs.valid += u64::from(f.is_valid());
+            let has = |mask: u16| u64::from(f.flags & mask != 0);
+            rs.ill_conditioned += has(flags::ILL_CONDITIONED);
+            rs.incomplete += has(flags::INCOMPLETE);
+            rs.skipped += has(flags::SKIPPED);
+            rs.encoder_reversal += has(flags::ENCODER_REVERSAL);
+            rs.frame_gap += has(flags::FRAME_GAP);
+            rs.saturated += has(flags::SATURATED);
+            rs.low_modulation += has(flags::LOW_MODULATION);
+            rs.overflow += has(flags::OVERFLOW);
+            self.pixels.total += f.heights.len() as u64;
+            self.pixels.valid += f.valid_count() as u64;
+        }
+        if let Some(r) = reference {
+            self.rows.ref_total += 1;
+            self.rows.ref_valid += u64::from(r.is_valid());
+            self.pixels.ref_valid += r.valid.iter().filter(|&&v| v).count() as u64;
+        }
+        if let (Some(p), Some(n)) = (psp, self.pixels.psp_valid.as_mut()) {
+            *n += p.valid.iter().filter(|&&v| v).count() as u64;
+        }
+
+        // Fixed against the reference.
+        let fvr = &mut self.fvr;
+        match (fixed, reference) {
             (Some(_), None) => fvr.rows_only_fixed += 1,
             (None, Some(_)) => fvr.rows_only_ref += 1,
             (Some(f), Some(r)) => {
@@ -229,17 +286,17 @@ pub fn compare(
             }
             (None, None) => {}
         }
-        let width = f
+        let width = fixed
             .map_or(0, |f| f.valid.len().max(f.heights.len()))
-            .max(r.map_or(0, |r| r.valid.len()));
+            .max(reference.map_or(0, |r| r.valid.len()));
         for c in 0..width {
-            let fh = f.and_then(|f| fixed_um(f, c, fixed.lsb_um));
-            let rv = r.is_some_and(|r| ref_valid(r, c));
+            let fh = fixed.and_then(|f| fixed_um(f, c, self.fixed_lsb_um));
+            let rv = reference.is_some_and(|r| ref_valid(r, c));
             match (fh, rv) {
                 (Some(fh), true) => {
-                    let rh = f64::from(r.map_or(0, |r| r.height_lsb[c])) * lsb;
+                    let rh = f64::from(reference.map_or(0, |r| r.height_lsb[c])) * lsb;
                     let d = fold((fh - rh) / lsb, lsb_per_turn);
-                    diff.add(d);
+                    self.diff.add(d);
                     fvr.pixels_over_1_lsb += u64::from(d.abs() > 1.0);
                 }
                 (Some(_), false) => fvr.valid_only_fixed += 1,
@@ -247,126 +304,119 @@ pub fn compare(
                 (None, false) => {}
             }
         }
-    }
-    fvr.pixels_compared = diff.n;
-    fvr.max_abs_lsb = diff.max_abs();
-    fvr.rms_lsb = diff.rms();
-    fvr.mean_lsb = diff.mean();
-    fvr.valid_mismatch = fvr.valid_only_fixed + fvr.valid_only_ref;
 
-    let truth_stats = truth
-        .map(|t| truth_stats(manifest, fixed, reference, psp, t, &union))
-        .unwrap_or_default();
-
-    let count = |mask: u16| fixed.rows_with(mask) as u64;
-    Comparison {
-        fixed_vs_ref: fvr,
-        truth: truth_stats,
-        pixels: PixelStats {
-            total: fixed.total_pixels() as u64,
-            valid: fixed.valid_pixels() as u64,
-            ref_valid: reference.valid_pixels() as u64,
-            psp_valid: psp.map(|p| p.valid_pixels() as u64),
-        },
-        rows: RowStats {
-            total: fixed.rows.len() as u64,
-            valid: fixed.valid_rows() as u64,
-            ill_conditioned: count(flags::ILL_CONDITIONED),
-            incomplete: count(flags::INCOMPLETE),
-            skipped: count(flags::SKIPPED),
-            encoder_reversal: count(flags::ENCODER_REVERSAL),
-            frame_gap: count(flags::FRAME_GAP),
-            saturated: count(flags::SATURATED),
-            low_modulation: count(flags::LOW_MODULATION),
-            overflow: count(flags::OVERFLOW),
-            ref_total: reference.rows.len() as u64,
-            ref_valid: reference.rows.iter().filter(|r| r.is_valid()).count() as u64,
-        },
-    }
-}
-
-fn truth_stats(
-    manifest: &Manifest,
-    fixed: &HeightMap,
-    reference: &RefOutput,
-    psp: Option<&RefOutput>,
-    truth: &Truth,
-    union: &BTreeMap<i64, (Option<&HeightRow>, Option<usize>)>,
-) -> TruthStats {
-    let t_z = manifest.calibration.height_per_turn_um;
-    let lsb_um = manifest.calibration.height_lsb_um;
-    let flat = flat_mask(truth);
-    let is_flat = |ti: usize, c: usize| {
-        c < truth.width && flat.get(ti * truth.width + c).copied().unwrap_or(false)
-    };
-    let height = |ti: usize, c: usize| f64::from(truth.height_um[ti * truth.width + c]);
-    let crb_map = manifest
-        .noise
-        .as_ref()
-        .map(|_| crb(manifest, truth, reference));
-
-    let (mut fe, mut re, mut pe) = (Acc::default(), Acc::default(), Acc::default());
-    let mut crb_sum = 0.0;
-    for (&b, &(f, ri)) in union {
-        let (Some(f), Some(ri)) = (f, ri) else {
-            continue;
+        // Everything against the truth.
+        let Some(t) = truth.filter(|_| self.truth) else {
+            return;
         };
-        let Some(ti) = truth_row_index(truth, b) else {
-            continue;
-        };
-        let r = &reference.rows[ri];
-        for c in 0..truth.width {
-            if !is_flat(ti, c) || !ref_valid(r, c) {
-                continue;
+        if let (Some(f), Some(r)) = (fixed, reference) {
+            let crb = m.noise.as_ref().map(|_| crb_row(m, r, |c| t.at(c)));
+            for c in 0..t.flat.len() {
+                if !t.is_flat(c) || !ref_valid(r, c) {
+                    continue;
+                }
+                let Some(fh) = fixed_um(f, c, self.fixed_lsb_um) else {
+                    continue;
+                };
+                let var = match &crb {
+                    Some(v) => match v.get(c).copied().flatten() {
+                        Some(v) => v,
+                        None => continue,
+                    },
+                    None => 0.0,
+                };
+                let h = f64::from(t.height_um[c]);
+                self.fe.add(fold(fh - h, t_z));
+                self.re.add(fold(r.height_um[c] - h, t_z));
+                self.crb_sum += var;
             }
-            let Some(fh) = fixed_um(f, c, fixed.lsb_um) else {
-                continue;
-            };
-            let var = match &crb_map {
-                Some(m) => match m[ri].get(c).copied().flatten() {
-                    Some(v) => Some(v),
-                    None => continue,
-                },
-                None => None,
-            };
-            let h = height(ti, c);
-            fe.add(fold(fh - h, t_z));
-            re.add(fold(r.height_um[c] - h, t_z));
-            crb_sum += var.unwrap_or(0.0);
         }
-    }
-    if let Some(p) = psp {
-        for r in &p.rows {
-            let Some(ti) = truth_row_index(truth, r.row) else {
-                continue;
-            };
-            for c in 0..truth.width {
-                if is_flat(ti, c) && ref_valid(r, c) {
-                    pe.add(fold(r.height_um[c] - height(ti, c), t_z));
+        if let Some(p) = psp.filter(|_| self.psp) {
+            for c in 0..t.flat.len() {
+                if t.is_flat(c) && ref_valid(p, c) {
+                    self.pe
+                        .add(fold(p.height_um[c] - f64::from(t.height_um[c]), t_z));
                 }
             }
         }
     }
 
-    let crb_rms = (crb_map.is_some() && fe.n > 0).then(|| (crb_sum / fe.n as f64).sqrt());
-    TruthStats {
-        flat_pixels: Some(flat.iter().filter(|&&v| v).count() as u64),
-        pixels: Some(fe.n),
-        fixed_rms_um: fe.rms(),
-        fixed_bias_um: fe.mean(),
-        fixed_max_abs_um: fe.max_abs(),
-        ref_rms_um: re.rms(),
-        ref_bias_um: re.mean(),
-        crb_rms_um: crb_rms,
-        fixed_over_crb: ratio(fe.rms(), crb_rms),
-        ref_over_crb: ratio(re.rms(), crb_rms),
-        psp_pixels: psp.map(|_| pe.n),
-        psp_rms_um: pe.rms(),
-        psp_bias_um: pe.mean(),
-        psp_over_fixed: ratio(pe.rms(), fe.rms()),
-        quantization_rms_um: Some(lsb_um / 12f64.sqrt()),
-        quantization_over_noise: ratio(Some(lsb_um / 12f64.sqrt()), re.rms()),
+    /// The report; `flat_pixels` is the truth's flat-pixel count (null without truth).
+    pub fn finish(self, flat_pixels: Option<u64>) -> Comparison {
+        let mut fvr = self.fvr;
+        let diff = self.diff;
+        fvr.pixels_compared = diff.n;
+        fvr.max_abs_lsb = diff.max_abs();
+        fvr.rms_lsb = diff.rms();
+        fvr.mean_lsb = diff.mean();
+        fvr.valid_mismatch = fvr.valid_only_fixed + fvr.valid_only_ref;
+        let truth = if self.truth {
+            let (fe, re, pe) = (self.fe, self.re, self.pe);
+            let lsb_um = self.manifest.calibration.height_lsb_um;
+            let crb_rms = (self.manifest.noise.is_some() && fe.n > 0)
+                .then(|| (self.crb_sum / fe.n as f64).sqrt());
+            TruthStats {
+                flat_pixels,
+                pixels: Some(fe.n),
+                fixed_rms_um: fe.rms(),
+                fixed_bias_um: fe.mean(),
+                fixed_max_abs_um: fe.max_abs(),
+                ref_rms_um: re.rms(),
+                ref_bias_um: re.mean(),
+                crb_rms_um: crb_rms,
+                fixed_over_crb: ratio(fe.rms(), crb_rms),
+                ref_over_crb: ratio(re.rms(), crb_rms),
+                psp_pixels: self.psp.then_some(pe.n),
+                psp_rms_um: pe.rms(),
+                psp_bias_um: pe.mean(),
+                psp_over_fixed: ratio(pe.rms(), fe.rms()),
+                quantization_rms_um: Some(lsb_um / 12f64.sqrt()),
+                quantization_over_noise: ratio(Some(lsb_um / 12f64.sqrt()), re.rms()),
+            }
+        } else {
+            TruthStats::default()
+        };
+        Comparison {
+            fixed_vs_ref: fvr,
+            truth,
+            pixels: self.pixels,
+            rows: self.rows,
+        }
     }
+}
+
+/// Compares a fixed-point height map with the f64 reference, and (optionally) the PSP
+/// baseline and all of them with the ground truth, all held in memory (see [`Comparer`] for
+/// the definitions). Rows are matched by board row over the union of the three results.
+pub fn compare(
+    manifest: &Manifest,
+    fixed: &HeightMap,
+    reference: &RefOutput,
+    psp: Option<&RefOutput>,
+    truth: Option<&Truth>,
+) -> Comparison {
+    type Slot<'a> = (
+        Option<&'a HeightRow>,
+        Option<&'a RefRow>,
+        Option<&'a RefRow>,
+    );
+    let mut union: BTreeMap<i64, Slot<'_>> = BTreeMap::new();
+    for r in &fixed.rows {
+        union.entry(r.row).or_default().0 = Some(r);
+    }
+    for r in &reference.rows {
+        union.entry(r.row).or_default().1 = Some(r);
+    }
+    for r in psp.iter().flat_map(|p| &p.rows) {
+        union.entry(r.row).or_default().2 = Some(r);
+    }
+    let mut cmp = Comparer::new(manifest, fixed.lsb_um, psp.is_some(), truth.is_some());
+    for (&b, &(f, r, p)) in &union {
+        let t = truth.and_then(|t| truth_row(t, b));
+        cmp.row(f, r, p, t.as_ref());
+    }
+    let flat = truth.map(|t| flat_mask(t).iter().filter(|&&v| v).count() as u64);
+    cmp.finish(flat)
 }
 
 fn opt(x: Option<f64>, prec: usize) -> String {
@@ -454,24 +504,76 @@ impl Comparison {
     }
 }
 
-/// Fixed-point core vs f64 reference vs PSP baseline vs ground truth on one recording.
-pub fn compare_recording(rec: &Recording, progress: bool) -> Result<(Comparison, HeightMap)> {
-    let (_, _, fixed) = crate::reconstruct::reconstruct_map(rec, progress)?;
-    Ok((compare_map(rec, &fixed, progress)?, fixed))
+/// Fixed-point core vs f64 reference vs PSP baseline vs ground truth on one recording, in
+/// memory bounded by the pipeline window: the core runs in its own thread and hands over its
+/// rows as they leave it (decoded from its own packets, through a queue of
+/// [`ROW_QUEUE`] rows); the reference and the PSP baseline are evaluated row by row from one
+/// window of frames; the truth is read row by row ([`TruthReader`]). Each board row is folded
+/// into the [`Comparer`] and dropped.
+pub fn compare_recording(rec: &Recording, progress: bool) -> Result<Comparison> {
+    let m = &rec.manifest;
+    let mut truth = TruthReader::open(rec).context("reading the ground truth")?;
+    let mut cmp = Comparer::new(m, m.calibration.height_lsb_um, true, truth.is_some());
+    std::thread::scope(|s| -> Result<()> {
+        let (tx, rx) = std::sync::mpsc::sync_channel::<HeightRow>(ROW_QUEUE);
+        let core = s.spawn(move || {
+            crate::reconstruct::reconstruct_rows(rec, progress, |row| {
+                tx.send(row)
+                    .map_err(|_| anyhow::anyhow!("the comparison stopped"))
+            })
+        });
+        let consumed = (|| -> Result<()> {
+            let mut frames = LazyFrames::new(rec);
+            let mut dpsa = RowEval::dpsa(m);
+            let mut psp = RowEval::psp(m);
+            let mut pending: Option<HeightRow> = None;
+            while let Some(r) = dpsa.next_row(&mut frames) {
+                let r = r?;
+                let p = match psp.next_row(&mut frames) {
+                    Some(p) => Some(p?).filter(|p| p.row == r.row),
+                    None => None,
+                };
+                // Core rows before this board row have no reference row.
+                let f = loop {
+                    if pending.is_none() {
+                        pending = rx.recv().ok();
+                    }
+                    match pending.take() {
+                        Some(f) if f.row < r.row => cmp.row(Some(&f), None, None, None),
+                        Some(f) if f.row == r.row => break Some(f),
+                        other => {
+                            pending = other;
+                            break None;
+                        }
+                    }
+                };
+                let t = match truth.as_mut() {
+                    Some(t) => t.row(r.row).context("reading the ground truth")?,
+                    None => None,
+                };
+                cmp.row(f.as_ref(), Some(&r), p.as_ref(), t.as_ref());
+            }
+            for f in pending.into_iter().chain(rx.iter()) {
+                cmp.row(Some(&f), None, None, None);
+            }
+            Ok(())
+        })();
+        // The core's own error first: the comparison may have stopped because of it.
+        match core.join() {
+            Ok(Ok(_)) => consumed,
+            Ok(Err(e)) => consumed.and(Err(e)),
+            Err(_) => Err(anyhow::anyhow!("internal error: the core thread panicked")),
+        }
+    })?;
+    let flat = match truth {
+        Some(t) => Some(t.finish().context("reading the ground truth")?),
+        None => None,
+    };
+    Ok(cmp.finish(flat))
 }
 
-/// [`compare_recording`] for a fixed-point height map the caller already has (from the same
-/// recording).
-pub fn compare_map(rec: &Recording, fixed: &HeightMap, progress: bool) -> Result<Comparison> {
-    // Frames are decoded per window (at most `n` held at a time), once for the reference and
-    // once for the PSP baseline, instead of all at once.
-    let _ = progress;
-    let m = &rec.manifest;
-    let r = super::reconstruct_from(m, &mut super::LazyFrames::new(rec))?;
-    let psp = super::psp_from(m, &mut super::LazyFrames::new(rec))?;
-    let truth = rec.truth().context("reading the ground truth")?;
-    Ok(compare(m, fixed, &r, Some(&psp), truth.as_ref()))
-}
+/// Core rows queued between the core's thread and the comparison.
+pub const ROW_QUEUE: usize = 256;
 
 #[cfg(test)]
 mod tests {
@@ -682,6 +784,39 @@ mod tests {
         assert_eq!(json["fixed_vs_ref"]["pixels_compared"], 0);
         assert_eq!(json["pixels"]["total"], 0);
         assert!(cmp.summary().contains("truth: none"));
+    }
+
+    /// The streaming comparison (core in its thread, reference and PSP row by row, truth read
+    /// row by row) gives exactly the figures of the comparison of whole results in memory.
+    #[test]
+    fn streaming_equals_in_memory() {
+        use crate::simulation::{recording, scene::Scene, scene::Stall, simulate};
+        let dir = tempfile::tempdir().unwrap();
+        let scene = Scene {
+            width: 48,
+            board_length: 400,
+            deposits: 12,
+            jitter_pct: 30.0,
+            stalls: vec![Stall {
+                frame: 10,
+                frames: 2,
+            }],
+            ..Scene::default()
+        };
+        let out = dir.path().join("rec");
+        simulate::simulate(&scene, 7, &out, false).unwrap();
+        let rec = Recording::open(&out).unwrap();
+        let m = &rec.manifest;
+        let frames = recording::load_frames(&rec, false).unwrap();
+        let (_, _, fixed) = crate::reconstruct::reconstruct_map(&rec, false).unwrap();
+        let reference = crate::reference::reconstruct(m, &frames);
+        let psp = crate::reference::psp(m, &frames);
+        let truth = rec.truth().unwrap().unwrap();
+        let whole = compare(m, &fixed, &reference, Some(&psp), Some(&truth));
+        let streamed = compare_recording(&rec, false).unwrap();
+        assert_eq!(streamed, whole);
+        assert!(whole.truth.pixels.unwrap() > 10_000);
+        assert!(whole.rows.total >= 400 && whole.fixed_vs_ref.pixels_compared > 0);
     }
 
     #[test]

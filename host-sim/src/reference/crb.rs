@@ -1,7 +1,7 @@
 //! The Cramer-Rao bound of the height variance, per pixel, from the truth and the noise model.
 
 use super::truth::{truth_at, truth_row_index};
-use super::RefOutput;
+use super::{RefOutput, RefRow};
 use crate::simulation::recording::{Manifest, Truth};
 use nalgebra::{Matrix3, Vector3};
 use std::f64::consts::TAU;
@@ -23,47 +23,53 @@ use std::f64::consts::TAU;
 ///
 /// Every entry is `None` when the manifest has no noise model.
 pub fn crb(manifest: &Manifest, truth: &Truth, out: &RefOutput) -> Vec<Vec<Option<f64>>> {
-    let width = out.width;
+    out.rows
+        .iter()
+        .map(|row| match truth_row_index(truth, row.row) {
+            Some(ti) => crb_row(manifest, row, |c| truth_at(truth, ti, c)),
+            None => vec![None; out.width],
+        })
+        .collect()
+}
+
+/// [`crb`] of one reference row, with the truth of its board row given per column as
+/// `(height um, background DN, contrast DN)`.
+pub fn crb_row(
+    manifest: &Manifest,
+    row: &RefRow,
+    truth: impl Fn(usize) -> Option<(f64, f64, f64)>,
+) -> Vec<Option<f64>> {
+    let width = row.valid.len();
+    let mut v = vec![None; width];
     let Some(noise) = &manifest.noise else {
-        return out.rows.iter().map(|_| vec![None; width]).collect();
+        return v;
+    };
+    let Some(window) = row.window.as_ref().filter(|_| row.is_valid()) else {
+        return v;
     };
     let cal = &manifest.calibration;
     let f_x = 1.0 / cal.fringe_period_px;
     let scale = (cal.height_per_turn_um / TAU).powi(2);
     let read_var = noise.read_noise_dn * noise.read_noise_dn;
-
-    out.rows
-        .iter()
-        .map(|row| {
-            let mut v = vec![None; width];
-            let Some(window) = row.window.as_ref().filter(|_| row.is_valid()) else {
-                return v;
-            };
-            let Some(ti) = truth_row_index(truth, row.row) else {
-                return v;
-            };
-            let phi_r_row =
-                TAU * f_x * (row.row - window.offsets.first().copied().unwrap_or(0)) as f64;
-            for (c, slot) in v.iter_mut().enumerate() {
-                let Some((h_true, bg, ct)) = truth_at(truth, ti, c) else {
-                    continue;
-                };
-                let phi0 = cal.reference_phase_rad.get(c).copied().unwrap_or(f64::NAN);
-                let phi = phi_r_row + phi0 + TAU * h_true / cal.height_per_turn_um;
-                let mut fisher = Matrix3::<f64>::zeros();
-                for &t in &window.shifts_rad {
-                    let (s, co) = (phi + t).sin_cos();
-                    let i = (bg + ct * co).max(0.0);
-                    let var = read_var + i / noise.gain_e_per_dn + 1.0 / 12.0;
-                    let jac = Vector3::new(1.0, co, -ct * s);
-                    fisher += jac * jac.transpose() / var;
-                }
-                *slot = fisher
-                    .try_inverse()
-                    .map(|inv| inv[(2, 2)] * scale)
-                    .filter(|x| x.is_finite() && *x >= 0.0);
-            }
-            v
-        })
-        .collect()
+    let phi_r_row = TAU * f_x * (row.row - window.offsets.first().copied().unwrap_or(0)) as f64;
+    for (c, slot) in v.iter_mut().enumerate() {
+        let Some((h_true, bg, ct)) = truth(c) else {
+            continue;
+        };
+        let phi0 = cal.reference_phase_rad.get(c).copied().unwrap_or(f64::NAN);
+        let phi = phi_r_row + phi0 + TAU * h_true / cal.height_per_turn_um;
+        let mut fisher = Matrix3::<f64>::zeros();
+        for &t in &window.shifts_rad {
+            let (s, co) = (phi + t).sin_cos();
+            let i = (bg + ct * co).max(0.0);
+            let var = read_var + i / noise.gain_e_per_dn + 1.0 / 12.0;
+            let jac = Vector3::new(1.0, co, -ct * s);
+            fisher += jac * jac.transpose() / var;
+        }
+        *slot = fisher
+            .try_inverse()
+            .map(|inv| inv[(2, 2)] * scale)
+            .filter(|x| x.is_finite() && *x >= 0.0);
+    }
+    v
 }

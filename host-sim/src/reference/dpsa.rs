@@ -14,7 +14,6 @@
 use crate::heightmap::{flags, HeightMap, HeightRow};
 use crate::simulation::recording::{Frame, Manifest};
 use nalgebra::{Dyn, Matrix2, Matrix3, OMatrix, SymmetricEigen, U3};
-use std::collections::HashMap;
 use std::f64::consts::{PI, TAU};
 
 /// Largest number of board rows [`plan`] will enumerate. Offsets spanning more rows than this
@@ -479,62 +478,132 @@ pub(super) fn run(
     frames: &mut dyn FrameSource,
     shifts: Shifts,
 ) -> anyhow::Result<RefOutput> {
-    let width = manifest.camera.width as usize;
-    let cal = &manifest.calibration;
-    let proc_ = &manifest.processing;
-    let n = usize::from(proc_.n);
-    let f_x = 1.0 / cal.fringe_period_px;
-    let phi0: Vec<f64> = (0..width)
-        .map(|c| cal.reference_phase_rad.get(c).copied().unwrap_or(f64::NAN))
-        .collect();
+    let mut eval = RowEval::new(manifest, shifts);
+    let mut rows = Vec::with_capacity(eval.len());
+    while let Some(row) = eval.next_row(frames) {
+        rows.push(row?);
+    }
+    Ok(RefOutput {
+        width: eval.width,
+        rows,
+    })
+}
 
-    let plan = plan(manifest);
-    let o = offsets(manifest).unwrap_or_default();
+/// The reference evaluated one board row at a time, in the plan's increasing board-row order:
+/// [`run`] collects the rows; the comparison ([`super::compare`]) folds each row into its
+/// statistics and drops it, so its memory is one window of frames plus one row per result.
+///
+/// The entry frame `w` of the planned rows never decreases (rows enter at the frame whose top
+/// first passes them, and the admitted ranges follow the running maximum `E_k`), so one
+/// cached window serves every row that entered at the same frame.
+pub struct RowEval<'m> {
+    manifest: &'m Manifest,
+    shifts: Shifts,
+    plan: Vec<RowPlan>,
+    next: usize,
+    o: Vec<i64>,
+    phi0: Vec<f64>,
+    f_x: f64,
+    width: usize,
+    /// The window (and its projector) of entry frame `w`.
+    cache: Option<(usize, Window, Option<PhaseFit>)>,
+}
 
-    // One window + projector per entry frame w.
-    let mut windows: HashMap<usize, (Window, Option<PhaseFit>)> = HashMap::new();
-    let mut rows = Vec::with_capacity(plan.len());
+impl<'m> RowEval<'m> {
+    /// The f64 D-PSA reference ([`reconstruct`]).
+    pub fn dpsa(manifest: &'m Manifest) -> Self {
+        RowEval::new(manifest, Shifts::Actual)
+    }
 
-    for p in &plan {
+    /// The conventional baseline ([`super::psp`]).
+    pub fn psp(manifest: &'m Manifest) -> Self {
+        let f_x = 1.0 / manifest.calibration.fringe_period_px;
+        RowEval::new(
+            manifest,
+            Shifts::Nominal(TAU * f_x * super::psp::nominal_step_px(manifest)),
+        )
+    }
+
+    pub(super) fn new(manifest: &'m Manifest, shifts: Shifts) -> Self {
+        let width = manifest.camera.width as usize;
+        let cal = &manifest.calibration;
+        RowEval {
+            manifest,
+            shifts,
+            plan: plan(manifest),
+            next: 0,
+            o: offsets(manifest).unwrap_or_default(),
+            phi0: (0..width)
+                .map(|c| cal.reference_phase_rad.get(c).copied().unwrap_or(f64::NAN))
+                .collect(),
+            f_x: 1.0 / cal.fringe_period_px,
+            width,
+            cache: None,
+        }
+    }
+
+    /// Rows of the plan (the rows [`RowEval::next_row`] will give).
+    pub fn len(&self) -> usize {
+        self.plan.len()
+    }
+
+    /// True when the plan is empty.
+    pub fn is_empty(&self) -> bool {
+        self.plan.is_empty()
+    }
+
+    /// Columns per row.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// The next planned board row, `None` after the last; an error only when `frames` fails
+    /// to read a frame.
+    pub fn next_row(&mut self, frames: &mut dyn FrameSource) -> Option<anyhow::Result<RefRow>> {
+        let p = self.plan.get(self.next)?.clone();
+        self.next += 1;
+        Some(self.evaluate(&p, frames))
+    }
+
+    fn window(&mut self, w: usize) -> (Window, Option<PhaseFit>) {
+        if let Some((cw, window, fit)) = &self.cache {
+            if *cw == w {
+                return (window.clone(), fit.clone());
+            }
+        }
+        let n = usize::from(self.manifest.processing.n);
+        let offs: Vec<i64> = self.o[w..w + n].to_vec();
+        let th: Vec<f64> = match self.shifts {
+            Shifts::Actual => offs
+                .iter()
+                .map(|&ok| -TAU * self.f_x * (ok - offs[0]) as f64)
+                .collect(),
+            Shifts::Nominal(delta) => (0..n).map(|j| -(j as f64) * delta).collect(),
+        };
+        let fit = PhaseFit::new(&th);
+        let window = Window::new((w..w + n).collect(), offs, th);
+        self.cache = Some((w, window.clone(), fit.clone()));
+        (window, fit)
+    }
+
+    fn evaluate(&mut self, p: &RowPlan, frames: &mut dyn FrameSource) -> anyhow::Result<RefRow> {
+        let manifest = self.manifest;
+        let width = self.width;
+        let n = usize::from(manifest.processing.n);
         let mut row = RefRow::empty(p.row, p.flags, width);
         let Some(w) = p.first_frame else {
-            rows.push(row);
-            continue;
+            return Ok(row);
         };
-        if w + n > o.len() {
+        if w + n > self.o.len() {
             // Runs past the last frame: plan() already flagged INCOMPLETE.
-            rows.push(row);
-            continue;
+            return Ok(row);
         }
-        let (window, fit) = windows
-            .entry(w)
-            .or_insert_with(|| {
-                let offs: Vec<i64> = o[w..w + n].to_vec();
-                let th: Vec<f64> = match shifts {
-                    Shifts::Actual => offs
-                        .iter()
-                        .map(|&ok| -TAU * f_x * (ok - offs[0]) as f64)
-                        .collect(),
-                    Shifts::Nominal(delta) => (0..n).map(|j| -(j as f64) * delta).collect(),
-                };
-                let fit = PhaseFit::new(&th);
-                (Window::new((w..w + n).collect(), offs, th), fit)
-            })
-            .clone();
+        let (window, fit) = self.window(w);
 
-        let ill = match shifts {
-            Shifts::Actual => {
-                let g = window.noise_gain;
-                fit.is_none() || g.is_nan() || g > proc_.max_noise_gain
-            }
-            // The nominal set is the same for every window: this only fires when the
-            // conventional design itself is degenerate.
-            Shifts::Nominal(_) => {
-                let g = window.noise_gain;
-                fit.is_none() || g.is_nan() || g > proc_.max_noise_gain
-            }
-        };
-        if ill {
+        // The noise-gain test. For the nominal set (the same for every window) this only
+        // fires when the conventional design itself is degenerate.
+        let g = window.noise_gain;
+        if fit.is_none() || g.is_nan() || g > manifest.processing.max_noise_gain {
             row.flags |= flags::ILL_CONDITIONED;
         }
 
@@ -558,22 +627,21 @@ pub(super) fn run(
         }
 
         if let (Some(fit), true) = (&fit, lines.len() == n) {
-            let phi_r_row = TAU * f_x * (b - window.offsets[0]) as f64;
+            let phi_r_row = TAU * self.f_x * (b - window.offsets[0]) as f64;
             let row_ok = !flags::invalidates(row.flags);
-            let summary = fill_pixels(&mut row, fit, &lines, phi_r_row, &phi0, manifest, row_ok);
+            let summary = fill_pixels(
+                &mut row, fit, &lines, phi_r_row, &self.phi0, manifest, row_ok,
+            );
             row.flags |= summary;
         }
         row.window = Some(window);
-        rows.push(row);
-    }
-    // Pixel-level flags may have been added after the row flag decision; make the validity
-    // consistent with the final row flags.
-    for r in &mut rows {
-        if flags::invalidates(r.flags) {
-            r.valid.iter_mut().for_each(|v| *v = false);
+        // Pixel-level flags may have been added after the row flag decision; make the
+        // validity consistent with the final row flags.
+        if flags::invalidates(row.flags) {
+            row.valid.iter_mut().for_each(|v| *v = false);
         }
+        Ok(row)
     }
-    Ok(RefOutput { width, rows })
 }
 
 /// Computes all pixels of one row from its `n` lines; returns the summary flags

@@ -570,6 +570,16 @@ impl Recording {
         decode_frame(&self.manifest, k, &bytes, &path)
     }
 
+    /// The recording's identity, written as the run id of every packet stream made from it
+    /// (`reconstruct` on the host, the firmware through the feed): FNV-1a 64 of the manifest
+    /// in its canonical JSON form (camera, calibration, processing, every frame's file, seq
+    /// and latch). Two streams of one recording carry the same id, streams of two boards
+    /// (or two passes of one board) different ones, so a receiver can tell them apart.
+    pub fn run_id(&self) -> u64 {
+        let json = serde_json::to_vec(&self.manifest).unwrap_or_default();
+        dpsa_core::frames::fnv1a64(&json)
+    }
+
     /// Reads the simulator ground truth, `Ok(None)` if the manifest has no `truth` block.
     pub fn truth(&self) -> Result<Option<Truth>, RecordingError> {
         let Some(info) = &self.manifest.truth else {

@@ -122,8 +122,13 @@ pub enum Verdict2 {
 impl DecodeReport {
     /// The exit status class of a decode that gave `map`.
     pub fn verdict(&self, map: &HeightMap) -> Verdict2 {
+        self.verdict_rows(map.rows.len() as u64)
+    }
+
+    /// The exit status class of a decode that gave `rows` decoded rows.
+    pub fn verdict_rows(&self, rows: u64) -> Verdict2 {
         let s = &self.stream;
-        if map.rows.is_empty() && s.gap_records == 0 {
+        if rows == 0 && s.gap_records == 0 {
             Verdict2::Nothing
         } else if self.corrupt > 0
             || s.missing > 0
@@ -158,6 +163,73 @@ pub fn decode_stream(bytes: &[u8], lsb_um: f64) -> (HeightMap, DecodeReport) {
     decode_reader(bytes, lsb_um).expect("reading a slice cannot fail")
 }
 
+/// What [`decode_reader_with`] keeps of the decoded rows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Keep {
+    /// Keep the rows' heights (for a height map); otherwise only their counts.
+    pub rows: bool,
+    /// Largest number of pixels kept as heights; past it the decode gives no map
+    /// ([`Decoded::map`] is `None`, [`Decoded::over_limit`] true) and goes on counting.
+    pub max_pixels: u64,
+}
+
+/// Pixels of a height map `dpsa decode --png` and `dpsa codec-bench` keep at most (2^26 =
+/// 67 Mpx, ~200 MB of heights and validity): a stream of a larger map still decodes and is
+/// counted, but gives no map.
+pub const MAX_MAP_PIXELS: u64 = 1 << 26;
+
+/// Rows decoded from a stream, each board row counted once.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct RowCounts {
+    /// Rows decoded at the stream's width.
+    pub decoded: u64,
+    /// Of them, rows without an invalidating flag.
+    pub valid: u64,
+    /// Valid pixels (valid bit set in a valid row).
+    pub valid_pixels: u64,
+    /// `decoded x width`.
+    pub total_pixels: u64,
+}
+
+/// The result of [`decode_reader_with`].
+#[derive(Clone, Debug)]
+pub struct Decoded {
+    /// The height map, when rows were kept and stayed within the limit.
+    pub map: Option<HeightMap>,
+    /// The rows' counts (always complete).
+    pub rows: RowCounts,
+    /// The map would have exceeded [`Keep::max_pixels`].
+    pub over_limit: bool,
+    pub report: DecodeReport,
+}
+
+/// A decoded row: whole, or (when rows are not kept) what the counts need.
+#[derive(Clone, Debug)]
+enum Kept {
+    Row(Box<HeightRow>),
+    Counts {
+        row: i64,
+        width: usize,
+        valid_row: bool,
+        valid_pixels: u32,
+    },
+}
+
+impl Kept {
+    fn row(&self) -> i64 {
+        match self {
+            Kept::Row(r) => r.row,
+            Kept::Counts { row, .. } => *row,
+        }
+    }
+    fn width(&self) -> usize {
+        match self {
+            Kept::Row(r) => r.heights.len(),
+            Kept::Counts { width, .. } => *width,
+        }
+    }
+}
+
 /// The decoder's state between chunks.
 struct Decoder {
     map: HeightMap,
@@ -166,8 +238,13 @@ struct Decoder {
     /// Codec reference state per width (at most 4 widths; one serves a whole stream so that
     /// predicted rows find their reference).
     refs: Vec<(usize, codec::ReferenceRow)>,
-    /// Decoded rows with their offsets and widths (width chosen at the end).
-    rows: Vec<(u64, HeightRow)>,
+    /// Decoded rows with their offsets (width chosen at the end). Without kept heights an
+    /// entry is 32 bytes, less than the smallest packet (44 bytes, 36 for version 1): memory
+    /// stays below the input's size.
+    rows: Vec<(u64, Kept)>,
+    keep: Keep,
+    kept_pixels: u64,
+    over_limit: bool,
 }
 
 impl Decoder {
@@ -224,24 +301,37 @@ impl Decoder {
         };
         match res {
             Ok(()) => {
-                let valid = (0..w).map(|c| bits[c / 8] & (1 << (c % 8)) != 0).collect();
-                self.rows.push((
-                    offset,
-                    HeightRow {
-                        row: p.header.row,
-                        latch: p.header.latch,
-                        flags: p.header.flags,
-                        heights,
-                        valid,
-                    },
-                ));
+                let valid: Vec<bool> = (0..w).map(|c| bits[c / 8] & (1 << (c % 8)) != 0).collect();
+                let row = HeightRow {
+                    row: p.header.row,
+                    latch: p.header.latch,
+                    flags: p.header.flags,
+                    heights,
+                    valid,
+                };
+                let fits = self.kept_pixels.saturating_add(w as u64) <= self.keep.max_pixels;
+                if self.keep.rows && !fits {
+                    self.over_limit = true;
+                }
+                let kept = if self.keep.rows && fits {
+                    self.kept_pixels += w as u64;
+                    Kept::Row(Box::new(row))
+                } else {
+                    Kept::Counts {
+                        row: row.row,
+                        width: w,
+                        valid_row: row.is_valid(),
+                        valid_pixels: row.valid_count() as u32,
+                    }
+                };
+                self.rows.push((offset, kept));
                 self.rep.ok += 1;
             }
             Err(e) => self.rep.damage(offset, e),
         }
     }
 
-    fn finish(mut self) -> (HeightMap, DecodeReport) {
+    fn finish(mut self) -> Decoded {
         let s: Summary = self.tracker.summary();
         // The map's width: the stream header's, else the most common among decoded rows.
         let width = match s.info {
@@ -249,9 +339,9 @@ impl Decoder {
             None => {
                 let mut counts: Vec<(usize, usize)> = Vec::new();
                 for (_, r) in &self.rows {
-                    match counts.iter_mut().find(|(w, _)| *w == r.heights.len()) {
+                    match counts.iter_mut().find(|(w, _)| *w == r.width()) {
                         Some(c) => c.1 += 1,
-                        None => counts.push((r.heights.len(), 1)),
+                        None => counts.push((r.width(), 1)),
                     }
                 }
                 // Most rows; on a tie the width that came first.
@@ -267,10 +357,10 @@ impl Decoder {
         let mut other = Vec::new();
         let mut rows = Vec::with_capacity(self.rows.len());
         for (off, r) in self.rows.drain(..) {
-            if r.heights.len() == width {
+            if r.width() == width {
                 rows.push(r);
             } else {
-                other.push((off, r.heights.len()));
+                other.push((off, r.width()));
             }
         }
         for (off, w) in other {
@@ -282,12 +372,39 @@ impl Decoder {
         }
         self.rep.damage.sort_by_key(|d| d.offset);
         // Rows by board row; a board row that arrived twice counts once (the first copy).
-        rows.sort_by_key(|r| r.row);
+        rows.sort_by_key(Kept::row);
         let before = rows.len();
-        rows.dedup_by_key(|r| r.row);
+        rows.dedup_by_key(|r| r.row());
         let dup_rows = (before - rows.len()) as u64;
-        self.map.width = if rows.is_empty() { 0 } else { width };
-        self.map.rows = rows;
+        let mut counts = RowCounts::default();
+        for r in &rows {
+            let (valid_row, valid_pixels) = match r {
+                Kept::Row(r) => (r.is_valid(), r.valid_count() as u64),
+                Kept::Counts {
+                    valid_row,
+                    valid_pixels,
+                    ..
+                } => (*valid_row, u64::from(*valid_pixels)),
+            };
+            counts.decoded += 1;
+            counts.valid += u64::from(valid_row);
+            counts.valid_pixels += valid_pixels;
+            counts.total_pixels += width as u64;
+        }
+        let n_rows = rows.len() as u128;
+        let map = if self.keep.rows && !self.over_limit {
+            self.map.width = if rows.is_empty() { 0 } else { width };
+            self.map.rows = rows
+                .into_iter()
+                .filter_map(|r| match r {
+                    Kept::Row(r) => Some(*r),
+                    Kept::Counts { .. } => None,
+                })
+                .collect();
+            Some(self.map)
+        } else {
+            None
+        };
         let st = &mut self.rep.stream;
         st.version = s.version;
         if let Some(i) = s.info {
@@ -310,10 +427,15 @@ impl Decoder {
         st.gap_rows = s.gap_rows;
         if s.first_row <= s.last_row {
             let span = (s.last_row as i128 - s.first_row as i128 + 1) as u128;
-            let covered = self.map.rows.len() as u128 + s.gap_rows as u128;
+            let covered = n_rows + s.gap_rows as u128;
             st.rows_missing = span.saturating_sub(covered).min(u64::MAX as u128) as u64;
         }
-        (self.map, self.rep)
+        Decoded {
+            map,
+            rows: counts,
+            over_limit: self.over_limit,
+            report: self.rep,
+        }
     }
 }
 
@@ -322,16 +444,33 @@ impl Decoder {
 /// never stops the decoder: it reports the packet and resynchronises on the next sync word.
 /// Rows are placed by their board row (`map.rows` sorted, one per board row); `lsb_um` labels
 /// the heights (the stream carries LSBs).
-pub fn decode_reader<R: Read>(
+pub fn decode_reader<R: Read>(input: R, lsb_um: f64) -> std::io::Result<(HeightMap, DecodeReport)> {
+    let keep = Keep {
+        rows: true,
+        max_pixels: u64::MAX,
+    };
+    let d = decode_reader_with(input, lsb_um, keep)?;
+    let map = d.map.unwrap_or_else(|| HeightMap::new(0, lsb_um));
+    Ok((map, d.report))
+}
+
+/// [`decode_reader`] keeping the rows' heights only as `keep` says: without heights the memory
+/// is the chunk, a 32-byte entry per decoded row (less than the row's packet took in the
+/// input) and the capped report lists.
+pub fn decode_reader_with<R: Read>(
     mut input: R,
     lsb_um: f64,
-) -> std::io::Result<(HeightMap, DecodeReport)> {
+    keep: Keep,
+) -> std::io::Result<Decoded> {
     let mut d = Decoder {
         map: HeightMap::new(0, lsb_um),
         rep: DecodeReport::default(),
         tracker: Tracker::new(),
         refs: Vec::new(),
         rows: Vec::new(),
+        keep,
+        kept_pixels: 0,
+        over_limit: false,
     };
     let mut walk = Walk::new();
     let mut buf: Vec<u8> = Vec::with_capacity(CHUNK + MAX_PACKET_LEN);
@@ -375,4 +514,13 @@ pub fn decode_reader<R: Read>(
         d.rep.bytes += got as u64;
     }
     Ok(d.finish())
+}
+
+#[cfg(test)]
+mod size_tests {
+    /// The per-row entry kept without heights stays at 32 bytes (below any packet's size).
+    #[test]
+    fn counted_rows_take_32_bytes() {
+        assert_eq!(size_of::<(u64, super::Kept)>(), 32);
+    }
 }

@@ -40,6 +40,7 @@ pub fn write_feed_to<W: Write>(
         frames: u32::try_from(frames.len())
             .map_err(|_| anyhow!("{} frames do not fit a feed", frames.len()))?,
         intra_period,
+        run_id: rec.run_id(),
     };
     // Check that the header reads back as written (the firmware applies the same checks).
     let head = header.encode();
