@@ -10,6 +10,7 @@
 //! | [`reconstruct`] | runs `dpsa-core` on a recording through its streaming API, as the frame grabber does |
 //! | [`stream`] | packet streams back into height maps, with the damage report |
 //! | [`reference`] | the independent f64 D-PSA, the PSP baseline, the Cramer-Rao bound, truth statistics, and `compare` on top |
+//! | [`board`] | the board map: cameras' rows unwrapped, placed in millimetres and blended |
 //! | [`target`] | the firmware: feed export, build, ELF sizes, QEMU with its defmt log, its bench figures |
 //! | [`benches`] | `codec-bench`: our row codec against general-purpose compressors and the entropy bound |
 //! | [`stack`] | ordinary phase-shifting image stacks (real camera images) through the same kernel |
@@ -19,6 +20,7 @@
 //! subcommand.
 
 pub mod benches;
+pub mod board;
 pub mod files;
 pub mod heightmap;
 pub mod images;

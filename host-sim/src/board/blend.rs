@@ -1,0 +1,371 @@
+//! The cameras' layers into one board map.
+//!
+//! 1. **Turns between cameras.** Each camera was unwrapped on its own (`super::unwrap`), so
+//!    two neighbours may sit whole turns apart. Layers are taken in order across the board;
+//!    each is moved by the whole number of turns that brings the median of its difference to
+//!    the previous layer, over their shared valid pixels, nearest to zero.
+//! 2. **The board's turn.** The board is clamped at its edges on the conveyor rails, which the
+//!    calibration planes define as height 0: the whole map is moved by the whole number of
+//!    turns that brings the median height of the valid pixels within `edge_px` of the board
+//!    outline nearest to zero.
+//! 3. **Blend.** Each pixel is the weighted mean of the valid layers (weights fall to zero at a
+//!    camera's side edges, so overlaps are feathered); the camera with the largest weight is
+//!    recorded as the pixel's source.
+//! 4. **Seams.** For each pair of neighbouring layers, over their shared valid pixels on flat
+//!    board (the 3 x 3 range of the blended map below [`FLAT_RANGE_UM`]): the mean height
+//!    difference, and the lateral misregistration: the shift (along and across, sub-pixel by
+//!    a parabola through the sum of squared differences at -2..=2 px) that best aligns one
+//!    layer to the other over all shared pixels. The shift needs texture (paste edges) in the
+//!    overlap; without it (the sum changes by less than 10 % over +-2 px) it is not reported.
+
+use super::resample::{BoardGrid, Layer};
+use super::Grid;
+
+/// A pixel counts as flat board when the 3 x 3 range of the blended map is below this, um.
+pub const FLAT_RANGE_UM: f32 = 25.0;
+
+/// No camera (invalid pixel) in [`Blended::camera`].
+pub const NO_CAMERA: u8 = u8::MAX;
+
+/// Two neighbouring cameras over their shared pixels.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Seam {
+    /// Layer indices (the earlier, the later).
+    pub cameras: (usize, usize),
+    /// Shared valid pixels.
+    pub pixels: u64,
+    /// Of them, on flat board.
+    pub flat_pixels: u64,
+    /// Mean height of the later minus the earlier over the flat shared pixels, um.
+    pub height_step_um: Option<f64>,
+    /// Misregistration along the motion (later against earlier), um.
+    pub shift_x_um: Option<f64>,
+    /// Misregistration across the motion, um.
+    pub shift_y_um: Option<f64>,
+}
+
+impl Seam {
+    /// Length of the misregistration vector, um.
+    pub fn lateral_um(&self) -> Option<f64> {
+        Some(self.shift_x_um?.hypot(self.shift_y_um?))
+    }
+}
+
+/// The blended board map.
+#[derive(Clone, Debug)]
+pub struct Blended {
+    /// Absolute heights, um (NaN invalid).
+    pub heights: Grid,
+    /// Source camera of each pixel ([`NO_CAMERA`] where invalid).
+    pub camera: Vec<u8>,
+    /// Whole turns each layer was moved by (steps 1 and 2).
+    pub turns: Vec<i32>,
+    /// Median height of the board edge before step 2, um (None: no valid edge pixel).
+    pub edge_median_um: Option<f64>,
+    /// Neighbouring layers.
+    pub seams: Vec<Seam>,
+}
+
+fn median(mut v: Vec<f32>) -> Option<f32> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f32::total_cmp);
+    Some(v[v.len() / 2])
+}
+
+/// Blends `layers` (in order across the board) on `grid`; see the module docs.
+pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended {
+    let n = grid.rows * grid.width;
+    let mut turns = vec![0i32; layers.len()];
+
+    // 1. Turns between neighbours.
+    for k in 1..layers.len() {
+        let (done, rest) = layers.split_at_mut(k);
+        let (prev, cur) = (&done[k - 1], &mut rest[0]);
+        let mut d = Vec::new();
+        let mut t = Vec::new();
+        for i in 0..n {
+            let (a, b) = (prev.heights.data[i], cur.heights.data[i]);
+            if a.is_finite() && b.is_finite() {
+                d.push(b - a);
+                t.push(cur.period_um.data[i]);
+            }
+        }
+        if let (Some(d), Some(t)) = (median(d), median(t)) {
+            let k_turns = (-d / t).round() as i32;
+            shift(cur, k_turns);
+            turns[k] = k_turns;
+        }
+    }
+
+    // 3. Blend (the board's turn is applied after, to the layers and the map alike).
+    let mut heights = Grid::invalid(grid.width, grid.rows);
+    let mut period = vec![0f32; n];
+    let mut camera = vec![NO_CAMERA; n];
+    for i in 0..n {
+        let (mut s, mut ws, mut ts, mut best) = (0.0f64, 0.0f64, 0.0f64, (0.0f32, NO_CAMERA));
+        for (k, l) in layers.iter().enumerate() {
+            let h = l.heights.data[i];
+            let w = l.weight.data[i];
+            if h.is_finite() && w > 0.0 {
+                s += f64::from(w) * f64::from(h);
+                ts += f64::from(w) * f64::from(l.period_um.data[i]);
+                ws += f64::from(w);
+                if w > best.0 {
+                    best = (w, k.min(254) as u8);
+                }
+            }
+        }
+        if ws > 0.0 {
+            heights.data[i] = (s / ws) as f32;
+            period[i] = (ts / ws) as f32;
+            camera[i] = best.1;
+        }
+    }
+
+    // 2. The board's turn from its clamped edges.
+    let mut edge = Vec::new();
+    let mut edge_t = Vec::new();
+    for r in 0..grid.rows {
+        for c in 0..grid.width {
+            let on_edge =
+                r < edge_px || c < edge_px || r + edge_px >= grid.rows || c + edge_px >= grid.width;
+            let h = heights.at(r, c);
+            if on_edge && h.is_finite() {
+                edge.push(h);
+                edge_t.push(period[r * grid.width + c]);
+            }
+        }
+    }
+    let edge_median_um = median(edge).map(f64::from);
+    if let (Some(m), Some(t)) = (edge_median_um, median(edge_t)) {
+        let k = (-m / f64::from(t)).round() as i32;
+        if k != 0 {
+            for (l, tk) in layers.iter_mut().zip(turns.iter_mut()) {
+                shift(l, k);
+                *tk += k;
+            }
+            for (h, t) in heights.data.iter_mut().zip(&period) {
+                *h += k as f32 * t;
+            }
+        }
+    }
+
+    // 4. Seams.
+    let flat = flat_mask(&heights);
+    let seams = (1..layers.len())
+        .map(|k| seam(&layers[k - 1], &layers[k], &flat, grid, (k - 1, k)))
+        .collect();
+    Blended {
+        heights,
+        camera,
+        turns,
+        edge_median_um,
+        seams,
+    }
+}
+
+fn shift(l: &mut Layer, turns: i32) {
+    if turns == 0 {
+        return;
+    }
+    for (h, t) in l.heights.data.iter_mut().zip(&l.period_um.data) {
+        *h += turns as f32 * t;
+    }
+}
+
+/// Pixels whose 3 x 3 neighbourhood is valid with a range below [`FLAT_RANGE_UM`].
+fn flat_mask(g: &Grid) -> Vec<bool> {
+    let mut m = vec![false; g.data.len()];
+    for r in 1..g.rows.saturating_sub(1) {
+        for c in 1..g.width.saturating_sub(1) {
+            let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+            for rr in r - 1..=r + 1 {
+                for cc in c - 1..=c + 1 {
+                    let h = g.at(rr, cc);
+                    lo = lo.min(h);
+                    hi = hi.max(h);
+                }
+            }
+            m[r * g.width + c] = lo.is_finite() && hi.is_finite() && hi - lo < FLAT_RANGE_UM;
+        }
+    }
+    m
+}
+
+fn seam(a: &Layer, b: &Layer, flat: &[bool], grid: &BoardGrid, ids: (usize, usize)) -> Seam {
+    let (mut pixels, mut flat_n, mut sum) = (0u64, 0u64, 0.0f64);
+    for ((&ha, &hb), &is_flat) in a.heights.data.iter().zip(&b.heights.data).zip(flat) {
+        if ha.is_finite() && hb.is_finite() {
+            pixels += 1;
+            if is_flat {
+                flat_n += 1;
+                sum += f64::from(hb - ha);
+            }
+        }
+    }
+    let to_um = grid.pitch_mm * 1000.0;
+    let shift_x = best_shift(a, b, 1, 0).map(|s| s * to_um);
+    let shift_y = best_shift(a, b, 0, 1).map(|s| s * to_um);
+    Seam {
+        cameras: ids,
+        pixels,
+        flat_pixels: flat_n,
+        height_step_um: (flat_n > 0).then(|| sum / flat_n as f64),
+        shift_x_um: shift_x,
+        shift_y_um: shift_y,
+    }
+}
+
+/// The shift `s` (px, along `(dr, dc)`) minimising the mean squared difference
+/// `b(p) - a(p + s)` over pixels valid in both, each side's mean removed: `a` is interpolated
+/// linearly along the shift, `s` searched over -2..=2 px in 0.05 px steps and refined by a
+/// parabola through the best step and its neighbours. `None` without enough shared pixels or
+/// without texture (the difference changes by less than 10 % over the range).
+fn best_shift(a: &Layer, b: &Layer, dr: i64, dc: i64) -> Option<f64> {
+    const STEP: f64 = 0.05;
+    const STEPS: i64 = 40; // -2..=2 px
+    let (w, rows) = (a.heights.width as i64, a.heights.rows as i64);
+    let at = |r: i64, c: i64| -> f32 {
+        if r < 0 || c < 0 || r >= rows || c >= w {
+            f32::NAN
+        } else {
+            a.heights.at(r as usize, c as usize)
+        }
+    };
+    let msd = |s: f64| -> Option<f64> {
+        let (i0, f) = (s.floor() as i64, s - s.floor());
+        let (mut n, mut sa, mut sb, mut sab, mut saa, mut sbb) = (0u64, 0.0, 0.0, 0.0, 0.0, 0.0);
+        for r in 0..rows {
+            for c in 0..w {
+                let hb = b.heights.at(r as usize, c as usize);
+                if !hb.is_finite() {
+                    continue;
+                }
+                let h0 = at(r + i0 * dr, c + i0 * dc);
+                let h1 = at(r + (i0 + 1) * dr, c + (i0 + 1) * dc);
+                let ha = if f == 0.0 {
+                    h0
+                } else {
+                    h0 * (1.0 - f as f32) + h1 * f as f32
+                };
+                if ha.is_finite() {
+                    let (x, y) = (f64::from(ha), f64::from(hb));
+                    n += 1;
+                    sa += x;
+                    sb += y;
+                    sab += x * y;
+                    saa += x * x;
+                    sbb += y * y;
+                }
+            }
+        }
+        if n < 100 {
+            return None;
+        }
+        let nf = n as f64;
+        Some((sbb - sb * sb / nf + saa - sa * sa / nf - 2.0 * (sab - sa * sb / nf)) / nf)
+    };
+    let v: Vec<f64> = (-STEPS..=STEPS)
+        .map(|k| msd(k as f64 * STEP))
+        .collect::<Option<Vec<f64>>>()?;
+    let (i, &min) = v.iter().enumerate().min_by(|x, y| x.1.total_cmp(y.1))?;
+    let max = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let textured = max > 1.1 * min;
+    if !textured || i == 0 || i + 1 == v.len() {
+        return None;
+    }
+    let (l, c, r) = (v[i - 1], v[i], v[i + 1]);
+    let den = l - 2.0 * c + r;
+    let frac = if den > 0.0 { 0.5 * (l - r) / den } else { 0.0 };
+    Some((i as f64 - STEPS as f64 + frac) * STEP)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::resample::{resample, Placement};
+    use super::*;
+
+    /// Truth on the board: a bow (0 at the edges) and paste boxes whose walls slope over
+    /// 0.1 mm (as a camera's pixel integration and blur make them; a point-sampled step
+    /// would hide where its edge lies within a pixel).
+    fn truth(x: f64, y: f64, len: f64, wid: f64) -> f64 {
+        let (xi, eta) = (2.0 * x / len - 1.0, 2.0 * y / wid - 1.0);
+        let bow = 900.0 * (1.0 - xi * xi) * (1.0 - eta * eta);
+        // Distance inside the box [0.1, 0.5) x [0.1, 0.6) of each 1 mm cell, mm.
+        let (u, v) = (x.rem_euclid(1.0), y.rem_euclid(1.0));
+        let inside = (u - 0.1).min(0.5 - u).min(v - 0.1).min(0.6 - v);
+        bow + 120.0 * (inside / 0.1 + 0.5).clamp(0.0, 1.0)
+    }
+
+    #[test]
+    fn three_cameras_turn_aligned_anchored_and_seams_measured() {
+        let (len, wid) = (12.0, 9.0);
+        let grid = BoardGrid {
+            x0_mm: 0.0,
+            y0_mm: 0.0,
+            pitch_mm: 0.03,
+            rows: 400,
+            width: 300,
+        };
+        let t = 400.0f32;
+        let mut layers = Vec::new();
+        // Three cameras of 120 columns, 0.5 mm overlaps; the middle one misplaced by 6 um
+        // across (its placement says y0 + 0.006 mm, the pixels sit at y0).
+        for (k, y0) in [0.0, 3.1, 6.2].into_iter().enumerate() {
+            let place = Placement {
+                x0_mm: 0.0,
+                y0_mm: y0,
+                row_mm: 0.03,
+                pitch_mm: 0.03,
+                rotation_rad: 0.0,
+            };
+            let real = Placement {
+                y0_mm: y0 - if k == 1 { 0.006 } else { 0.0 },
+                ..place
+            };
+            let mut cam = Grid::invalid(120, 400);
+            for b in 0..400 {
+                for c in 0..120 {
+                    let (x, y) = real.to_board(b as f64, c as f64);
+                    // Each camera unwrapped to another turn: 0, +1, -2.
+                    let off = [0.0, 1.0, -2.0][k] * t;
+                    *cam.at_mut(b, c) = (truth(x, y, len, wid) + f64::from(off)) as f32;
+                }
+            }
+            layers.push(resample(&cam, &[t; 120], 0, &place, &grid, 15.0));
+        }
+        let out = blend(&mut layers, &grid, 3);
+        assert_eq!(out.turns, vec![0, -1, 2]);
+        // Absolute heights against the truth (bilinear on paste walls aside).
+        let mut errs = Vec::new();
+        for i in 0..grid.rows {
+            for j in 0..grid.width {
+                let (x, y) = grid.centre(i, j);
+                let h = out.heights.at(i, j);
+                if h.is_finite() {
+                    errs.push((f64::from(h) - truth(x, y, len, wid)).abs());
+                }
+            }
+        }
+        errs.sort_by(f64::total_cmp);
+        assert!(
+            errs[errs.len() / 2] < 1.0,
+            "median error {}",
+            errs[errs.len() / 2]
+        );
+        assert!(errs.len() > grid.rows * grid.width * 9 / 10);
+        // Seams: flat steps near 0; the 6 um misplacement of camera 1 seen across.
+        for s in &out.seams {
+            assert!(s.height_step_um.unwrap().abs() < 1.0, "{s:?}");
+        }
+        let y01 = out.seams[0].shift_y_um.unwrap();
+        let y12 = out.seams[1].shift_y_um.unwrap();
+        assert!((y01.abs() - 6.0).abs() < 2.0, "{y01}");
+        assert!((y12.abs() - 6.0).abs() < 2.0, "{y12}");
+        assert!(y01 * y12 < 0.0);
+        assert!(out.seams[0].shift_x_um.unwrap().abs() < 2.0);
+        assert!(out.camera.contains(&2));
+    }
+}

@@ -1,0 +1,311 @@
+//! The board map on disk (`dpsa board --out DIR`):
+//!
+//! | file | what |
+//! | --- | --- |
+//! | `heights.png` | 16-bit grey: `round(h / lsb_um) + 32768` (clamped to 1..=65535), 0 invalid |
+//! | `heights_um.tiff` | 32-bit float grey, heights in um, NaN invalid (ImageJ, GDAL, numpy + tifffile read it) |
+//! | `heights.colour.png` | false colour over the valid heights' 1st..99th percentile, invalid dark grey, a scale bar in um below |
+//! | `camera.png` | 8-bit grey: the camera index of each pixel, 255 invalid |
+//! | `board.json` | [`Metadata`] |
+//!
+//! Image row `i` is board `x = x0 + (i + 1/2) pitch` (along the motion), column `j` is
+//! `y = y0 + (j + 1/2) pitch`.
+
+use super::blend::{Blended, NO_CAMERA};
+use super::resample::BoardGrid;
+use super::Grid;
+use anyhow::Result;
+use image::{GrayImage, ImageBuffer, Luma, Rgb, RgbImage};
+use serde::Serialize;
+use std::path::Path;
+
+/// LSB of `heights.png`, um: 0.25 um over +-8.19 mm.
+pub const PNG_LSB_UM: f64 = 0.25;
+
+/// What `board.json` says about the map.
+#[derive(Clone, Debug, Serialize)]
+pub struct Metadata {
+    pub format: &'static str,
+    pub version: u32,
+    pub grid: BoardGrid,
+    /// Units of every height file.
+    pub units: Units,
+    pub pixels: Pixels,
+    /// Whole turns each camera's layer was moved by, in camera order.
+    pub turns: Vec<i32>,
+    /// The files written.
+    pub files: Files,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Units {
+    pub lengths: &'static str,
+    pub heights: &'static str,
+    /// `heights.png`: height = (value - 32768) * lsb_um; value 0 is invalid.
+    pub png_lsb_um: f64,
+    pub png_zero: u16,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Pixels {
+    pub total: u64,
+    pub valid: u64,
+    pub valid_fraction: f64,
+    /// Valid pixels per camera (the camera each came from).
+    pub per_camera: Vec<u64>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Files {
+    pub heights_png: &'static str,
+    pub heights_tiff: &'static str,
+    pub colour_png: &'static str,
+    pub camera_png: &'static str,
+}
+
+pub const FORMAT: &str = "dpsa-board-map";
+
+/// Writes every file of the map into `dir` (created if needed); returns the metadata.
+pub fn write(dir: &Path, grid: &BoardGrid, b: &Blended, cameras: usize) -> Result<Metadata> {
+    std::fs::create_dir_all(dir)
+        .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", dir.display()))?;
+    let files = Files {
+        heights_png: "heights.png",
+        heights_tiff: "heights_um.tiff",
+        colour_png: "heights.colour.png",
+        camera_png: "camera.png",
+    };
+    let h = &b.heights;
+    let (w, rows) = (h.width as u32, h.rows as u32);
+    let png: ImageBuffer<Luma<u16>, Vec<u16>> = ImageBuffer::from_fn(w, rows, |x, y| {
+        let v = h.at(y as usize, x as usize);
+        if v.is_finite() {
+            Luma([((f64::from(v) / PNG_LSB_UM).round() + 32768.0).clamp(1.0, 65535.0) as u16])
+        } else {
+            Luma([0])
+        }
+    });
+    crate::images::save_png(&png, &dir.join(files.heights_png))?;
+    write_tiff(&dir.join(files.heights_tiff), h)?;
+    write_colour(&dir.join(files.colour_png), h)?;
+    let cam: GrayImage =
+        ImageBuffer::from_fn(w, rows, |x, y| Luma([b.camera[(y * w + x) as usize]]));
+    crate::images::save_png(&cam, &dir.join(files.camera_png))?;
+
+    let mut per_camera = vec![0u64; cameras];
+    for &c in &b.camera {
+        if c != NO_CAMERA {
+            if let Some(n) = per_camera.get_mut(usize::from(c)) {
+                *n += 1;
+            }
+        }
+    }
+    let valid = h.valid() as u64;
+    let total = h.data.len() as u64;
+    let meta = Metadata {
+        format: FORMAT,
+        version: 1,
+        grid: *grid,
+        units: Units {
+            lengths: "mm",
+            heights: "um",
+            png_lsb_um: PNG_LSB_UM,
+            png_zero: 32768,
+        },
+        pixels: Pixels {
+            total,
+            valid,
+            valid_fraction: if total > 0 {
+                valid as f64 / total as f64
+            } else {
+                0.0
+            },
+            per_camera,
+        },
+        turns: b.turns.clone(),
+        files,
+    };
+    let json = serde_json::to_string_pretty(&meta)?;
+    crate::files::write_bytes(&dir.join("board.json"), json.as_bytes())?;
+    Ok(meta)
+}
+
+/// Heights as a 32-bit float TIFF, um (NaN invalid).
+pub fn write_tiff(path: &Path, h: &Grid) -> Result<()> {
+    crate::files::write_atomic(path, |f| {
+        let mut enc = tiff::encoder::TiffEncoder::new(f)?;
+        enc.write_image::<tiff::encoder::colortype::Gray32Float>(
+            h.width as u32,
+            h.rows as u32,
+            &h.data,
+        )?;
+        Ok(())
+    })
+}
+
+/// The 1st and 99th percentiles of the valid heights (None: no valid pixel).
+pub fn colour_range(h: &Grid) -> Option<(f32, f32)> {
+    let mut v: Vec<f32> = h.data.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(f32::total_cmp);
+    let lo = v[v.len() / 100];
+    let hi = v[(v.len() * 99 / 100).min(v.len() - 1)];
+    Some((lo, if hi > lo { hi } else { lo + 1.0 }))
+}
+
+/// Rows of the scale bar under the false-colour map.
+const BAR_ROWS: u32 = 24;
+
+/// False colour with a scale bar: a ramp over the map's width and five labelled ticks (um).
+fn write_colour(path: &Path, h: &Grid) -> Result<()> {
+    let (lo, hi) = colour_range(h).unwrap_or((0.0, 1.0));
+    let (w, rows) = (h.width as u32, h.rows as u32);
+    let mut img: RgbImage = ImageBuffer::from_pixel(w.max(1), rows + BAR_ROWS, Rgb([255; 3]));
+    for y in 0..rows {
+        for x in 0..w {
+            let v = h.at(y as usize, x as usize);
+            let px = if v.is_finite() {
+                Rgb(crate::images::colour(
+                    f64::from((v - lo) / (hi - lo)).clamp(0.0, 1.0),
+                ))
+            } else {
+                Rgb([40, 40, 40])
+            };
+            img.put_pixel(x, y, px);
+        }
+    }
+    // The ramp.
+    for x in 0..w {
+        let t = f64::from(x) / f64::from(w.saturating_sub(1).max(1));
+        for y in rows + 2..rows + 10 {
+            img.put_pixel(x, y, Rgb(crate::images::colour(t)));
+        }
+    }
+    // Ticks and labels.
+    for k in 0..5u32 {
+        let x = (k * w.saturating_sub(1)) / 4;
+        for y in rows + 10..rows + 13 {
+            img.put_pixel(x, y, Rgb([0; 3]));
+        }
+        let value = lo + (hi - lo) * k as f32 / 4.0;
+        let text = format!("{:.0}", value);
+        let text = if k == 4 { format!("{text}um") } else { text };
+        let tw = text.len() as u32 * 4;
+        let x0 = x.saturating_sub(tw / 2).min(w.saturating_sub(tw));
+        draw_text(&mut img, x0, rows + 15, &text);
+    }
+    crate::images::save_png(&img, path)
+}
+
+/// 3 x 5 pixel glyphs for digits, '-', '.', 'u' and 'm' (rows top to bottom, 3 bits each).
+fn glyph(ch: char) -> Option<[u8; 5]> {
+    Some(match ch {
+        '0' => [7, 5, 5, 5, 7],
+        '1' => [2, 6, 2, 2, 7],
+        '2' => [7, 1, 7, 4, 7],
+        '3' => [7, 1, 7, 1, 7],
+        '4' => [5, 5, 7, 1, 1],
+        '5' => [7, 4, 7, 1, 7],
+        '6' => [7, 4, 7, 5, 7],
+        '7' => [7, 1, 1, 1, 1],
+        '8' => [7, 5, 7, 5, 7],
+        '9' => [7, 5, 7, 1, 7],
+        '-' => [0, 0, 7, 0, 0],
+        '.' => [0, 0, 0, 0, 2],
+        'u' => [0, 5, 5, 5, 7],
+        'm' => [0, 7, 7, 5, 5],
+        _ => return None,
+    })
+}
+
+fn draw_text(img: &mut RgbImage, x0: u32, y0: u32, text: &str) {
+    for (i, ch) in text.chars().enumerate() {
+        let Some(g) = glyph(ch) else { continue };
+        for (dy, bits) in g.iter().enumerate() {
+            for dx in 0..3u32 {
+                if bits >> (2 - dx) & 1 != 0 {
+                    let (x, y) = (x0 + i as u32 * 4 + dx, y0 + dy as u32);
+                    if x < img.width() && y < img.height() {
+                        img.put_pixel(x, y, Rgb([0; 3]));
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn files_read_back_with_the_documented_encoding() {
+        let dir = tempfile::tempdir().unwrap();
+        let grid = BoardGrid {
+            x0_mm: 0.0,
+            y0_mm: 0.0,
+            pitch_mm: 0.03,
+            rows: 30,
+            width: 40,
+        };
+        let mut h = Grid::invalid(40, 30);
+        for (i, v) in h.data.iter_mut().enumerate() {
+            if i % 7 != 0 {
+                *v = (i as f32) * 0.75 - 300.0;
+            }
+        }
+        let b = Blended {
+            camera: h
+                .data
+                .iter()
+                .enumerate()
+                .map(|(i, v)| {
+                    if v.is_finite() {
+                        (i % 40 / 20) as u8
+                    } else {
+                        NO_CAMERA
+                    }
+                })
+                .collect(),
+            heights: h.clone(),
+            turns: vec![0, 1],
+            edge_median_um: Some(0.0),
+            seams: Vec::new(),
+        };
+        let meta = write(dir.path(), &grid, &b, 2).unwrap();
+        assert_eq!(meta.pixels.valid, h.valid() as u64);
+        assert_eq!(
+            meta.pixels.per_camera.iter().sum::<u64>(),
+            meta.pixels.valid
+        );
+
+        let png = image::open(dir.path().join("heights.png"))
+            .unwrap()
+            .into_luma16();
+        let f = std::fs::File::open(dir.path().join("heights_um.tiff")).unwrap();
+        let mut dec = tiff::decoder::Decoder::new(std::io::BufReader::new(f)).unwrap();
+        let tiff::decoder::DecodingResult::F32(t) = dec.read_image().unwrap() else {
+            panic!("not f32")
+        };
+        for (i, v) in h.data.iter().enumerate() {
+            let p = png.as_raw()[i];
+            if v.is_finite() {
+                let back = (f64::from(p) - 32768.0) * PNG_LSB_UM;
+                assert!((back - f64::from(*v)).abs() <= PNG_LSB_UM / 2.0 + 1e-9);
+                assert_eq!(t[i], *v);
+            } else {
+                assert_eq!(p, 0);
+                assert!(t[i].is_nan());
+            }
+        }
+        let colour = image::open(dir.path().join("heights.colour.png")).unwrap();
+        assert_eq!((colour.width(), colour.height()), (40, 30 + BAR_ROWS));
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.path().join("board.json")).unwrap())
+                .unwrap();
+        assert_eq!(v["format"], FORMAT);
+        assert_eq!(v["grid"]["pitch_mm"], 0.03);
+    }
+}

@@ -1,0 +1,419 @@
+//! Wrapped heights into absolute heights, referenced to the smooth local board surface.
+//!
+//! A camera measures height modulo one fringe turn: `h = u T(c)` with `u` in `[-1/2, 1/2)`
+//! turns and `T(c)` the height per turn of column `c` (non-telecentric optics: it varies
+//! across the columns). The board's bow spans several turns; a paste deposit stays within
+//! half a turn of the board surface around it. So the unwrapping never follows pixel to pixel
+//! across a deposit's wall: it estimates the board surface first and then puts every pixel on
+//! the turn nearest to it.
+//!
+//! 1. **Blocks.** The grid is cut into `block x block` pixel blocks. Each block's phase is the
+//!    trimmed circular mean of its valid pixels (pixels more than 1/8 turn from the first mean
+//!    are dropped, which removes most paste from a board block). Blocks with fewer than a
+//!    quarter valid pixels have none.
+//! 2. **Block unwrapping.** From the block with the most valid pixels, a quality-guided flood
+//!    (8 neighbours, the smallest wrapped step first) puts each block on the turn nearest its
+//!    already unwrapped neighbour: board blocks are reached along board paths before any step
+//!    onto a deposit is taken. The bow changes far less than half a turn from one block
+//!    to the next (1 mm over 110 mm is 0.25 um per 28 um pixel), so this is safe. Blocks it
+//!    does not reach (no valid block path) take the surface of the nearest reached block.
+//! 3. **Surface.** The block values, bilinear between block centres, are the first surface;
+//!    every pixel goes on its nearest turn; each block's surface is then re-estimated as the
+//!    30th percentile of its pixels (the board lies below the paste) and smoothed with the
+//!    median of its 3 x 3 blocks.
+//! 4. **Pixels.** Every valid pixel goes on the turn nearest the final surface.
+//!
+//! The result is relative: turn 0 is the seed block's. [`Unwrapped::shift`] moves it by
+//! whole turns; the board map chooses the turn from the cameras' overlaps and the board's
+//! clamped edges (`super::blend`).
+
+use super::Grid;
+use std::collections::{BinaryHeap, VecDeque};
+
+/// Default block size, px.
+pub const BLOCK: usize = 16;
+
+/// A camera's heights on one consistent turn, um (see the module docs).
+#[derive(Clone, Debug)]
+pub struct Unwrapped {
+    /// Heights, um; NaN where the input was invalid.
+    pub heights: Grid,
+    /// Height per turn of each column, um.
+    pub period_um: Vec<f32>,
+    /// Valid pixels whose block the flood did not reach (placed from an extrapolated surface).
+    pub unreached: usize,
+}
+
+impl Unwrapped {
+    /// Moves every height by `turns` whole turns (`turns x T(c)`).
+    pub fn shift(&mut self, turns: i32) {
+        let w = self.heights.width;
+        for (i, h) in self.heights.data.iter_mut().enumerate() {
+            *h += turns as f32 * self.period_um[i % w];
+        }
+    }
+}
+
+/// Circular mean of turns, in `[-1/2, 1/2)`; `None` without samples.
+fn circular_mean(us: impl Iterator<Item = f32>) -> Option<f32> {
+    let (mut s, mut c, mut n) = (0.0f64, 0.0f64, 0usize);
+    for u in us {
+        let a = std::f64::consts::TAU * f64::from(u);
+        s += a.sin();
+        c += a.cos();
+        n += 1;
+    }
+    (n > 0 && (s != 0.0 || c != 0.0)).then(|| (s.atan2(c) / std::f64::consts::TAU) as f32)
+}
+
+/// `u` moved by whole turns to lie within half a turn of `near`.
+fn nearest(u: f32, near: f32) -> f32 {
+    u + (near - u).round()
+}
+
+/// Unwraps `wrapped` (heights in `[-T(c)/2, T(c)/2)`, NaN invalid) with `period_um[c]` per
+/// column. `block` is the block size in pixels (at least 2).
+pub fn unwrap(wrapped: &Grid, period_um: &[f32], block: usize) -> Unwrapped {
+    let (w, rows) = (wrapped.width, wrapped.rows);
+    assert_eq!(period_um.len(), w, "one period per column");
+    let block = block.max(2);
+    // Turns per pixel.
+    let turns: Vec<f32> = wrapped
+        .data
+        .iter()
+        .enumerate()
+        .map(|(i, &h)| {
+            let t = period_um[i % w];
+            if h.is_finite() && t > 0.0 {
+                h / t
+            } else {
+                f32::NAN
+            }
+        })
+        .collect();
+    let (bw, bh) = (w.div_ceil(block).max(1), rows.div_ceil(block).max(1));
+    let pixels_of = |br: usize, bc: usize| {
+        let (r0, c0) = (br * block, bc * block);
+        (r0..(r0 + block).min(rows))
+            .flat_map(move |r| (c0..(c0 + block).min(w)).map(move |c| r * w + c))
+    };
+
+    // 1. Trimmed circular mean per block.
+    let mut phase = vec![f32::NAN; bw * bh];
+    let mut count = vec![0usize; bw * bh];
+    for br in 0..bh {
+        for bc in 0..bw {
+            let vals: Vec<f32> = pixels_of(br, bc)
+                .map(|i| turns[i])
+                .filter(|u| u.is_finite())
+                .collect();
+            let size = pixels_of(br, bc).count();
+            if vals.len() * 4 < size || vals.is_empty() {
+                continue;
+            }
+            let Some(m) = circular_mean(vals.iter().copied()) else {
+                continue;
+            };
+            let kept = vals
+                .iter()
+                .copied()
+                .filter(|&u| (nearest(u, m) - m).abs() < 0.125);
+            let m2 = circular_mean(kept).unwrap_or(m);
+            phase[br * bw + bc] = m2;
+            count[br * bw + bc] = vals.len();
+        }
+    }
+
+    // 2. Quality-guided flood over the blocks, smallest step first: board-to-board steps
+    //    (the bow's slope) are taken before steps onto or off a deposit, so the board's
+    //    blocks are placed along board paths and a deposit never passes a turn error on.
+    //    A region the flood cannot reach (cut off by invalid blocks) starts from its block
+    //    nearest the placed ones, on the turn of their extrapolated surface.
+    let mut surf = vec![f32::NAN; bw * bh];
+    let mut reached = vec![false; bw * bh];
+    if let Some(s) = (0..bw * bh)
+        .filter(|&i| phase[i].is_finite())
+        .max_by_key(|&i| count[i])
+    {
+        surf[s] = phase[s];
+        flood(&phase, &mut surf, s, bw, bh);
+        reached
+            .iter_mut()
+            .zip(&surf)
+            .for_each(|(r, v)| *r = v.is_finite());
+        loop {
+            let (fill, dist) = fill_nearest(&surf, bw, bh);
+            let next = (0..bw * bh)
+                .filter(|&i| phase[i].is_finite() && !surf[i].is_finite())
+                .min_by_key(|&i| dist[i]);
+            let Some(j) = next else { break };
+            surf[j] = nearest(phase[j], fill[j]);
+            flood(&phase, &mut surf, j, bw, bh);
+        }
+    }
+    let (filled, _) = fill_nearest(&surf, bw, bh);
+    surf = filled;
+
+    // 3. Surface refinement: the 30th percentile of each block's pixels on their nearest
+    //    turn, then a 3 x 3 median over the blocks.
+    let interp = |surf: &[f32], r: usize, c: usize| bilinear(surf, bw, bh, block, r, c);
+    let mut low = vec![f32::NAN; bw * bh];
+    for br in 0..bh {
+        for bc in 0..bw {
+            let mut v: Vec<f32> = pixels_of(br, bc)
+                .filter(|&i| turns[i].is_finite())
+                .map(|i| nearest(turns[i], interp(&surf, i / w, i % w)))
+                .collect();
+            if v.len() * 4 < pixels_of(br, bc).count() || v.is_empty() {
+                continue;
+            }
+            v.sort_by(f32::total_cmp);
+            low[br * bw + bc] = v[(v.len() * 3) / 10];
+        }
+    }
+    let (low, _) = fill_nearest(&low, bw, bh);
+    if low.iter().all(|v| v.is_finite()) {
+        surf = median3(&low, bw, bh);
+    }
+
+    // 4. Every pixel on the turn nearest the surface.
+    let mut heights = Grid::invalid(w, rows);
+    let mut unreached = 0;
+    for (i, &u) in turns.iter().enumerate() {
+        if !u.is_finite() {
+            continue;
+        }
+        let (r, c) = (i / w, i % w);
+        let s = interp(&surf, r, c);
+        if !s.is_finite() {
+            continue;
+        }
+        if !reached[(r / block) * bw + c / block] {
+            unreached += 1;
+        }
+        heights.data[i] = nearest(u, s) * period_um[c];
+    }
+    Unwrapped {
+        heights,
+        period_um: period_um.to_vec(),
+        unreached,
+    }
+}
+
+/// Places every block reachable from `seed` (already placed) through finite-phase blocks, the
+/// smallest wrapped step first (8 neighbours).
+fn flood(phase: &[f32], surf: &mut [f32], seed: usize, bw: usize, bh: usize) {
+    type Edge = (std::cmp::Reverse<u32>, usize, usize);
+    let mut heap: BinaryHeap<Edge> = BinaryHeap::new();
+    let push = |heap: &mut BinaryHeap<Edge>, surf: &[f32], i: usize| {
+        let (br, bc) = (i / bw, i % bw);
+        for dr in -1i64..=1 {
+            for dc in -1i64..=1 {
+                let (nr, nc) = (br as i64 + dr, bc as i64 + dc);
+                if (dr, dc) == (0, 0) || nr < 0 || nc < 0 || nr >= bh as i64 || nc >= bw as i64 {
+                    continue;
+                }
+                let j = nr as usize * bw + nc as usize;
+                if phase[j].is_finite() && !surf[j].is_finite() {
+                    let d = (nearest(phase[j], surf[i]) - surf[i]).abs();
+                    heap.push((std::cmp::Reverse((d * 1e6) as u32), i, j));
+                }
+            }
+        }
+    };
+    push(&mut heap, surf, seed);
+    while let Some((_, i, j)) = heap.pop() {
+        if surf[j].is_finite() {
+            continue;
+        }
+        surf[j] = nearest(phase[j], surf[i]);
+        push(&mut heap, surf, j);
+    }
+}
+
+/// Every NaN block takes the value of the nearest finite block (breadth first, 8
+/// neighbours); also returns each block's distance in blocks (`usize::MAX`: none finite).
+fn fill_nearest(v: &[f32], bw: usize, bh: usize) -> (Vec<f32>, Vec<usize>) {
+    let mut out = v.to_vec();
+    let mut dist = vec![usize::MAX; v.len()];
+    let mut queue: VecDeque<usize> = (0..bw * bh).filter(|&i| v[i].is_finite()).collect();
+    for &i in &queue {
+        dist[i] = 0;
+    }
+    while let Some(i) = queue.pop_front() {
+        let (br, bc) = (i / bw, i % bw);
+        for dr in -1i64..=1 {
+            for dc in -1i64..=1 {
+                let (nr, nc) = (br as i64 + dr, bc as i64 + dc);
+                if nr < 0 || nc < 0 || nr >= bh as i64 || nc >= bw as i64 {
+                    continue;
+                }
+                let j = nr as usize * bw + nc as usize;
+                if dist[j] == usize::MAX {
+                    out[j] = out[i];
+                    dist[j] = dist[i] + 1;
+                    queue.push_back(j);
+                }
+            }
+        }
+    }
+    (out, dist)
+}
+
+/// The median of each block's 3 x 3 neighbourhood (clipped at the borders).
+fn median3(v: &[f32], bw: usize, bh: usize) -> Vec<f32> {
+    let mut out = vec![f32::NAN; v.len()];
+    for br in 0..bh {
+        for bc in 0..bw {
+            let mut n: Vec<f32> = (br.saturating_sub(1)..(br + 2).min(bh))
+                .flat_map(|r| (bc.saturating_sub(1)..(bc + 2).min(bw)).map(move |c| (r, c)))
+                .map(|(r, c)| v[r * bw + c])
+                .collect();
+            n.sort_by(f32::total_cmp);
+            out[br * bw + bc] = n[n.len() / 2];
+        }
+    }
+    out
+}
+
+/// Bilinear interpolation of block values between block centres at pixel `(r, c)`.
+fn bilinear(v: &[f32], bw: usize, bh: usize, block: usize, r: usize, c: usize) -> f32 {
+    let pos = |p: usize, n: usize| {
+        let x = (p as f32 + 0.5) / block as f32 - 0.5;
+        let x = x.clamp(0.0, (n - 1) as f32);
+        let i = (x.floor() as usize).min(n.saturating_sub(2));
+        (i, (x - i as f32).clamp(0.0, 1.0))
+    };
+    if bw == 1 && bh == 1 {
+        return v[0];
+    }
+    let (i, fy) = if bh > 1 { pos(r, bh) } else { (0, 0.0) };
+    let (j, fx) = if bw > 1 { pos(c, bw) } else { (0, 0.0) };
+    let i1 = (i + 1).min(bh - 1);
+    let j1 = (j + 1).min(bw - 1);
+    let a = v[i * bw + j] * (1.0 - fx) + v[i * bw + j1] * fx;
+    let b = v[i1 * bw + j] * (1.0 - fx) + v[i1 * bw + j1] * fx;
+    a * (1.0 - fy) + b * fy
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A bowed board with paste boxes, noise and dead pixels, wrapped with a period that
+    /// varies across the columns.
+    fn board(w: usize, rows: usize, bow_um: f32, t0: f32) -> (Grid, Grid, Vec<f32>) {
+        let period: Vec<f32> = (0..w)
+            .map(|c| t0 * (1.0 + 0.02 * (c as f32 / w as f32 - 0.5)))
+            .collect();
+        let mut truth = Grid::invalid(w, rows);
+        let mut seed = 12345u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((seed >> 33) as f32 / (1u64 << 31) as f32) - 0.5
+        };
+        for r in 0..rows {
+            for c in 0..w {
+                let (x, y) = (
+                    2.0 * r as f32 / rows as f32 - 1.0,
+                    2.0 * c as f32 / w as f32 - 1.0,
+                );
+                let mut h = bow_um * (1.0 - x * x) * (1.0 - y * y);
+                // 150 um paste boxes of 12 x 20 px on a 40 px pitch.
+                if r % 40 < 12 && c % 40 < 20 {
+                    h += 150.0;
+                }
+                h += 2.0 * rnd();
+                *truth.at_mut(r, c) = h;
+            }
+        }
+        let mut wrapped = truth.clone();
+        for (i, h) in wrapped.data.iter_mut().enumerate() {
+            let t = period[i % w];
+            *h -= t * (*h / t + 0.5).floor();
+            if i % 97 == 0 {
+                *h = f32::NAN; // dead pixels
+            }
+        }
+        (truth, wrapped, period)
+    }
+
+    /// Pixels whose unwrapped height differs from the truth by another number of turns than
+    /// the most common one (the relative result may sit any whole number of turns off).
+    fn wrong_turns(u: &Unwrapped, truth: &Grid) -> usize {
+        let w = truth.width;
+        let k: Vec<i64> = u
+            .heights
+            .data
+            .iter()
+            .enumerate()
+            .filter(|(_, h)| h.is_finite())
+            .map(|(i, h)| ((truth.data[i] - h) / u.period_um[i % w]).round() as i64)
+            .collect();
+        let mut counts = std::collections::HashMap::new();
+        for &x in &k {
+            *counts.entry(x).or_insert(0usize) += 1;
+        }
+        let best = counts.values().copied().max().unwrap_or(0);
+        k.len() - best
+    }
+
+    #[test]
+    fn a_bow_of_several_turns_with_paste_unwraps_without_a_wrong_turn() {
+        // 1 mm bow, 400 um per turn: 2.5 turns; paste 150 um (0.375 turn) above the board.
+        // The grid is small, so the bow is 20 times steeper than on a real board (up to
+        // 10 um per pixel where a 220 mm board bowed by 1 mm has 0.5): blocks of 6 px keep
+        // the change between neighbouring blocks below a sixth of a turn.
+        let (truth, wrapped, period) = board(400, 600, 1000.0, 400.0);
+        let u = unwrap(&wrapped, &period, 6);
+        assert_eq!(u.heights.valid(), wrapped.valid());
+        assert_eq!(wrong_turns(&u, &truth), 0);
+        // Negative bow too.
+        let (truth, wrapped, period) = board(300, 500, -1000.0, 400.0);
+        let u = unwrap(&wrapped, &period, 6);
+        assert_eq!(wrong_turns(&u, &truth), 0);
+    }
+
+    #[test]
+    fn shifting_moves_by_whole_turns_of_each_column() {
+        let (_, wrapped, period) = board(64, 64, 500.0, 400.0);
+        let u0 = unwrap(&wrapped, &period, BLOCK);
+        let mut u1 = u0.clone();
+        u1.shift(2);
+        for (i, (a, b)) in u0.heights.data.iter().zip(&u1.heights.data).enumerate() {
+            if a.is_finite() {
+                assert!((b - a - 2.0 * period[i % 64]).abs() < 1e-3);
+            }
+        }
+    }
+
+    #[test]
+    fn empty_and_tiny_grids() {
+        let g = Grid::invalid(5, 3);
+        let u = unwrap(&g, &[400.0; 5], BLOCK);
+        assert_eq!(u.heights.valid(), 0);
+        let g = Grid {
+            width: 1,
+            rows: 1,
+            data: vec![100.0],
+        };
+        let u = unwrap(&g, &[400.0], BLOCK);
+        assert_eq!(u.heights.data, vec![100.0]);
+    }
+
+    #[test]
+    fn a_region_cut_off_by_invalid_pixels_still_lands_on_the_surface() {
+        // An invalid band splits the board; the far side follows the extrapolated surface.
+        let (truth, mut wrapped, period) = board(300, 600, 400.0, 400.0);
+        for r in 290..320 {
+            for c in 0..300 {
+                *wrapped.at_mut(r, c) = f32::NAN;
+            }
+        }
+        let u = unwrap(&wrapped, &period, 6);
+        assert!(u.unreached > 0);
+        assert_eq!(wrong_turns(&u, &truth), 0);
+    }
+}
