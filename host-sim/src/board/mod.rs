@@ -15,6 +15,7 @@
 //!
 //! Heights are `f32` micrometres; NaN marks an invalid pixel everywhere in this module.
 
+pub mod assemble;
 pub mod blend;
 pub mod output;
 pub mod resample;
