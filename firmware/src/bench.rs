@@ -92,13 +92,19 @@ pub fn stages<C: Clock>(
         phase_height: 0,
     };
     let Some(win) = meter.window else { return s };
+    let Some(coef) = accumulate::Coef::of(&win, cfg.saturation) else {
+        return s;
+    };
     // The output row as a run-time pointer: otherwise LTO folds the address of the static
     // state into `accumulate::row` (its only caller is this function), and the cost of that
     // constant (1 or 2 instructions per pixel, depending on where the buffer lands) would be
     // measured instead of the pipeline's code, which always has a pointer.
     let v = core::hint::black_box(v);
+    // The same for the reference-phase table (the pipeline reads it through a pointer too).
+    let ref_phase = core::hint::black_box(ref_phase);
     let (w, n) = (cfg.width as usize, cfg.n as usize);
     let scale = Scale::new(cfg);
+    let gate = scale.gate(coef.frac);
     let groups = (pool.len() / (w * n)).min(16);
     for g in 0..groups {
         let base = &pool[g * w * n..(g + 1) * w * n];
@@ -107,10 +113,11 @@ pub fn stages<C: Clock>(
             *l = &base[j * w..(j + 1) * w];
         }
         let t0 = clock.ticks();
-        accumulate::row(&win, &lines[..n], 0, cfg.saturation, &mut v[..w]);
+        accumulate::row(&coef, &lines[..n], 0, cfg.saturation, &mut v[..w]);
         let t1 = clock.ticks();
         let rho = cfg.row_phase(g as i64);
         let f = scale.row(
+            &gate,
             &v[..w],
             rho,
             &ref_phase[..w],
