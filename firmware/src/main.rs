@@ -60,7 +60,7 @@ fn run() -> Result<(), Failed> {
     .map_err(|e| fail("opening the feed", e))?;
     let header = feed.header();
     let cfg = header.cfg;
-    let layout = st
+    let (layout, pool_at) = st
         .size_for(&cfg)
         .map_err(|e| fail("state too small for this geometry", e))?;
     let state::State {
@@ -77,6 +77,13 @@ fn run() -> Result<(), Failed> {
         bench_acc,
     } = st;
     let w = layout.width;
+    let lines: &mut [u16] = match pool_at {
+        state::PoolAt::State => &mut lines[..],
+        state::PoolAt::External => {
+            state::ext_pool().ok_or_else(|| fail("external pool", "taken twice"))?
+        }
+    };
+    defmt::info!("line pool: {} ({=usize} samples)", pool_at, layout.pool_lines * w);
     defmt::info!(
         "W {=usize} H {=u16} n {=u8} max step {=u16} rows: {=u32} frames, state {=usize} B (pipeline {=usize} B)",
         w,

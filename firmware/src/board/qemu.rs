@@ -25,13 +25,18 @@ use dpsa_core::sink::Link;
 use semihosting::fs::File;
 use semihosting::io::{Read, Seek, SeekFrom, Write};
 
-/// Capacities of the state buffers on this board (see `crate::state`): the full-frame test
-/// feed (H = 2048 rows, four frames about 520 rows apart, W = 256) needs the largest pool.
+/// Capacities of the state buffers on this board (see `crate::state`).
 pub mod cap {
     /// Widest line `W`.
     pub const WIDTH: usize = 2048;
-    /// Samples in the raw-line pool.
-    pub const POOL_SAMPLES: usize = 1_700_000;
+    /// Samples in the raw-line pool in the state region (DTCM on a real board): the default
+    /// geometry's 60 lines of 2048 px (`max_step_rows = 10`, `n = 4`).
+    pub const POOL_SAMPLES: usize = 60 * 2048;
+    /// Samples in the external-RAM line pool (`memory.x`: EXTRAM, 16 MiB), used when a
+    /// geometry needs more than [`POOL_SAMPLES`]: the full-frame feed (H = 2048 rows, four
+    /// frames about 520 rows apart, max step 650 rows, W = 2048) needs 3900 lines of 2048 px,
+    /// 15.2 MiB.
+    pub const EXT_POOL_SAMPLES: usize = 8 * 1024 * 1024;
     /// Lines in the pool (free-list entries).
     pub const POOL_LINES: usize = 8192;
     /// Open-row slots.
@@ -127,6 +132,9 @@ pub struct Args {
 }
 
 impl Args {
+    /// Never inlined: the 2 KiB semihosting command-line buffer lives only in this frame,
+    /// not in the caller's for the whole run (it counts against the stack budget).
+    #[inline(never)]
     pub fn get() -> Result<Args, Error> {
         let args = semihosting::experimental::env::args::<2048>().map_err(io)?;
         let mut it = (&args).skip(1);
