@@ -3,7 +3,6 @@
 //! `.state` section (`memory.x`: DTCM on a real board).
 
 use crate::board::qemu::cap;
-use dpsa_core::accumulate::V;
 use dpsa_core::frames::registration::Slot;
 use dpsa_core::packets;
 use dpsa_core::pipeline::Layout;
@@ -33,8 +32,6 @@ pub struct State {
     pub codec_valid: Vec<u8, { cap::WIDTH / 8 }>,
     /// One packet.
     pub packet: Vec<u8, PACKET_CAP>,
-    /// Benchmark only: one row of reduced pixels, between the two timed stages.
-    pub bench_acc: Vec<V, { cap::WIDTH }>,
 }
 
 /// Why the state cannot hold a configuration.
@@ -84,8 +81,7 @@ impl State {
             zeroed(&mut self.line, w)?;
             zeroed(&mut self.codec_heights, w)?;
             zeroed(&mut self.codec_valid, nb)?;
-            zeroed(&mut self.packet, packets::max_packet_len(w))?;
-            zeroed(&mut self.bench_acc, w)
+            zeroed(&mut self.packet, packets::max_packet_len(w))
         })()
         .map_err(|()| too_small)?;
         Ok((l, at))

@@ -109,13 +109,19 @@ pub struct Path {
 }
 
 impl Path {
-    pub fn new(s: &str) -> Result<Path, Error> {
-        let mut buf = [0u8; 512];
-        if s.len() >= buf.len() || s.as_bytes().contains(&0) {
+    /// The empty path.
+    pub const fn empty() -> Path {
+        Path { buf: [0; 512] }
+    }
+
+    /// Sets the path in place (no 512-byte temporaries on the stack).
+    pub fn set(&mut self, s: &str) -> Result<(), Error> {
+        if s.len() >= self.buf.len() || s.as_bytes().contains(&0) {
             return Err(Error::PathTooLong);
         }
-        buf[..s.len()].copy_from_slice(s.as_bytes());
-        Ok(Path { buf })
+        self.buf.fill(0);
+        self.buf[..s.len()].copy_from_slice(s.as_bytes());
+        Ok(())
     }
 
     pub fn c_str(&self) -> &CStr {
@@ -132,26 +138,37 @@ pub struct Args {
 }
 
 impl Args {
-    /// Never inlined: the 2 KiB semihosting command-line buffer lives only in this frame,
-    /// not in the caller's for the whole run (it counts against the stack budget).
+    /// No paths yet (fill with [`Args::read`]).
+    pub const fn empty() -> Args {
+        Args {
+            feed: Path::empty(),
+            out: Path::empty(),
+            bench: None,
+        }
+    }
+
+    /// Reads the command line into `self`, in place (the paths are 1.5 KiB: a returned value
+    /// would be copied through the caller's frame). Never inlined: the 2 KiB semihosting
+    /// command-line buffer lives only in this frame, not in the caller's for the whole run
+    /// (both count against the stack budget).
     #[inline(never)]
-    pub fn get() -> Result<Args, Error> {
+    pub fn read(&mut self) -> Result<(), Error> {
         let args = semihosting::experimental::env::args::<2048>().map_err(io)?;
-        let mut it = (&args).skip(1);
-        let mut next = || -> Result<Option<Path>, Error> {
-            match it.next() {
-                None => Ok(None),
-                Some(Ok(s)) => Path::new(s).map(Some),
-                Some(Err(_)) => Err(Error::Usage),
+        let mut given = 0;
+        for a in (&args).skip(1) {
+            let s = a.map_err(|_| Error::Usage)?;
+            match given {
+                0 => self.feed.set(s)?,
+                1 => self.out.set(s)?,
+                2 => self.bench.insert(Path::empty()).set(s)?,
+                _ => return Err(Error::Usage),
             }
-        };
-        let feed = next()?.ok_or(Error::Usage)?;
-        let out = next()?.ok_or(Error::Usage)?;
-        let bench = next()?;
-        if next()?.is_some() {
+            given += 1;
+        }
+        if given < 2 {
             return Err(Error::Usage);
         }
-        Ok(Args { feed, out, bench })
+        Ok(())
     }
 }
 

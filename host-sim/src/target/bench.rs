@@ -85,9 +85,10 @@ pub struct Ram {
 /// Real-time model: what the measured instruction count means on a production frame grabber.
 ///
 /// The clock and the instructions per cycle are *assumptions*, not measurements: QEMU counts
-/// retired instructions, and a Cortex-M7 at 600 MHz (i.MX RT1060 class) retires about one
-/// per cycle on integer code in TCM (dual issue gains, branch mispredictions, load-use and
-/// divider stalls roughly cancel; see firmware/README.md). The board is the paper's
+/// retired instructions, and a Cortex-M7 at 600 MHz (i.MX RT1060 class) is assumed to retire
+/// one per cycle on integer code in TCM (firmware/README.md lists what real cycles add or
+/// save: dual issue, divider and load-use stalls, mispredicted branches, bus waits). The
+/// board is the paper's
 /// 220 x 168 mm at 28 um per pixel, its width shared by [`CAMERAS`] cameras of `W` pixels.
 #[derive(Clone, Debug, Serialize)]
 pub struct Realtime {
