@@ -36,7 +36,73 @@ pub struct Scale {
     min_c2: u64,
 }
 
+/// The modulation test of one window, in the units of its reduced pixels (`frac` fractional
+/// bits, see [`crate::accumulate::V`]), from [`Scale::gate`].
+///
+/// A pixel `[x, y]` is modulated when `C^2 = x^2 + y^2 >= thr2` and `C^2 > 0`, with
+/// `thr2 = ceil(m^2 2^(2 frac) / 2^24)` for the threshold's Q20.12 bits `m`: exactly
+/// `C >= min_modulation` (for `frac = 12`, the old `c2 >= m^2`). The per-pixel test is folded
+/// into the phase kernel: `atan2` computes `hi = max(|x|, |y|)` anyway, and `hi >= fast`
+/// (`fast = max(1, ceil(sqrt(thr2)))`) already proves `C^2 >= hi^2 >= thr2`; only pixels
+/// below it take the exact 64-bit test. Same result as the exact test for every input
+/// (tested), one compare for the common case.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Gate {
+    /// `hi >= fast` proves the pixel modulated.
+    fast: u32,
+    /// Threshold on `x^2 + y^2`.
+    thr2: u64,
+}
+
+impl Gate {
+    /// The exact test (see [`Gate`]).
+    #[inline(always)]
+    fn modulated_exact(&self, x: i32, y: i32) -> bool {
+        let c2 = (x as i64 * x as i64) as u64 + (y as i64 * y as i64) as u64;
+        c2 >= self.thr2 && c2 != 0
+    }
+
+    /// The folded test: `hi = max(|x|, |y|)`.
+    #[inline(always)]
+    fn modulated(&self, x: i32, y: i32, hi: u32) -> bool {
+        hi >= self.fast || self.slow(x, y)
+    }
+
+    #[inline(always)]
+    fn slow(&self, x: i32, y: i32) -> bool {
+        self.modulated_exact(x, y)
+    }
+}
+
+/// `ceil(sqrt(v))` (bitwise; once per window).
+fn isqrt_ceil(v: u64) -> u64 {
+    let (mut r, mut bit) = (0u64, 1u64 << 31);
+    while bit != 0 {
+        let t = r | bit;
+        if t * t <= v {
+            r = t;
+        }
+        bit >>= 1;
+    }
+    if r * r < v {
+        r + 1
+    } else {
+        r
+    }
+}
+
 impl Scale {
+    /// The modulation gate for reduced pixels with `frac` fractional bits (`<= 24`).
+    pub fn gate(&self, frac: u32) -> Gate {
+        let frac = frac.min(24);
+        let m2 = self.min_c2 as u128;
+        let thr2 = ((m2 << (2 * frac)) + (1u128 << 24) - 1) >> 24;
+        let thr2 = thr2.min(u64::MAX as u128) as u64;
+        // hi <= 2^31 < u32::MAX: a threshold above (2^32 - 1)^2 never takes the fast path.
+        let fast = isqrt_ceil(thr2).clamp(1, u32::MAX as u64) as u32;
+        Gate { fast, thr2 }
+    }
+
     pub fn new(cfg: &Config) -> Scale {
         Scale::from_parts(cfg.lsb_per_turn, cfg.min_modulation)
     }
@@ -54,21 +120,21 @@ impl Scale {
     /// The pixel's phase `Phi = atan2(v_3, v_2)` if it is valid (not saturated, modulated).
     #[inline(always)]
     pub fn phase(&self, acc: &Acc) -> Result<u32, Invalid> {
-        self.phase_v(acc.reduce())
+        self.phase_v(&self.gate(12), acc.reduce())
     }
 
-    /// [`Scale::phase`] of a reduced pixel `[v_2, v_3]` (DN in Q20.12).
+    /// [`Scale::phase`] of a reduced pixel `[v_2, v_3]` in the units of `gate`.
     ///
-    /// Modulation: `C^2 = v_2^2 + v_3^2` in u64 Q24 (each square `< 2^62`, the sum `< 2^63`)
-    /// against the threshold squared; zero modulation is always invalid.
+    /// Modulation: `C^2 = v_2^2 + v_3^2 >= thr2` (see [`Gate`], folded into the phase
+    /// kernel); zero modulation is always invalid.
     #[inline(always)]
-    pub fn phase_v(&self, v: V) -> Result<u32, Invalid> {
+    pub fn phase_v(&self, gate: &Gate, v: V) -> Result<u32, Invalid> {
         let [x, y] = v;
         if x == SATURATED {
             return Err(Invalid::Saturated);
         }
-        let c2 = (x as i64 * x as i64) as u64 + (y as i64 * y as i64) as u64;
-        if c2 < self.min_c2 || c2 == 0 {
+        let hi = x.unsigned_abs().max(y.unsigned_abs());
+        if !gate.modulated(x, y, hi) {
             return Err(Invalid::LowModulation);
         }
         Ok(atan2(y, x))
@@ -81,9 +147,12 @@ impl Scale {
     ///   `k < 2^31`, `|h| <= 2^14`: always inside i16 (and never `i16::MIN`), no clamp needed.
     #[inline(always)]
     pub fn height(&self, phi: u32, phi_r: u32) -> i16 {
+        // `(X + 2^47) >> 48 = ((X >> 32) + 2^15) >> 16` for any integer X (the low word
+        // cannot carry across a multiple of 2^16 once 2^15 is added to the high word), so only
+        // the high word of the product is needed (`SMULL`, one add, one shift).
         let d = phi.wrapping_sub(phi_r) as i32 as i64;
-        let h = (d * self.k as i64 + (1 << 47)) >> 48;
-        h as i16
+        let hi = ((d * self.k as i64) >> 32) as i32;
+        ((hi + (1 << 15)) >> 16) as i16
     }
 
     /// Height of one pixel from its accumulated `v`, relative to the reference phase `phi_r`:
@@ -101,48 +170,53 @@ impl Scale {
     #[inline(always)]
     pub fn block(
         &self,
+        gate: &Gate,
         v: &[V],
         rho: u32,
         ref_phase: &[u32],
         heights: &mut [i16],
         valid: &mut [u8],
     ) -> u16 {
-        let (mut sat, mut low) = (false, false);
-        let len = v.len().min(ref_phase.len()).min(heights.len());
+        let len = v
+            .len()
+            .min(ref_phase.len())
+            .min(heights.len())
+            .min(valid.len() * 8);
         let (v, ref_phase, heights) = (&v[..len], &ref_phase[..len], &mut heights[..len]);
-        for (((v8, r8), h8), bits) in v
-            .chunks(8)
-            .zip(ref_phase.chunks(8))
-            .zip(heights.chunks_mut(8))
-            .zip(valid.iter_mut())
-        {
-            let mut byte = 0u8;
-            for (b, ((&vk, &rk), hk)) in v8.iter().zip(r8).zip(h8.iter_mut()).enumerate() {
-                match self.phase_v(vk) {
-                    Ok(phi) => {
-                        *hk = self.height(phi, rho.wrapping_add(rk));
-                        byte |= 1 << b;
-                    }
-                    Err(Invalid::Saturated) => sat = true,
-                    Err(Invalid::LowModulation) => low = true,
+        let mut fl = 0u16;
+        let mut byte = 0u32;
+        for (k, ((&vk, &rk), hk)) in v.iter().zip(ref_phase).zip(heights.iter_mut()).enumerate() {
+            match self.phase_v(gate, vk) {
+                Ok(phi) => {
+                    *hk = self.height(phi, rho.wrapping_add(rk));
+                    byte |= 1 << (k & 7);
                 }
+                Err(Invalid::Saturated) => fl |= crate::flags::SATURATED,
+                Err(Invalid::LowModulation) => fl |= crate::flags::LOW_MODULATION,
             }
-            *bits = byte;
+            if k & 7 == 7 {
+                valid[k >> 3] = byte as u8;
+                byte = 0;
+            }
         }
-        (sat as u16 * crate::flags::SATURATED) | (low as u16 * crate::flags::LOW_MODULATION)
+        if len & 7 != 0 {
+            valid[len >> 3] = byte as u8;
+        }
+        fl
     }
 
     /// [`Scale::block`] as its own (never inlined) function, for timing the stage alone.
     #[inline(never)]
     pub fn row(
         &self,
+        gate: &Gate,
         v: &[V],
         rho: u32,
         ref_phase: &[u32],
         heights: &mut [i16],
         valid: &mut [u8],
     ) -> u16 {
-        self.block(v, rho, ref_phase, heights, valid)
+        self.block(gate, v, rho, ref_phase, heights, valid)
     }
 }
 
@@ -212,11 +286,74 @@ mod tests {
         ] {
             assert!((s_max.height(phi, r) as i32).abs() <= H_MAX);
         }
+        // The high-word form equals the rounded 64-bit product everywhere.
+        let mut seed = 0x1234_5678_9ABC_DEF1u64;
+        for i in 0..200_000u64 {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            let (phi, k) = (seed as u32, ((seed >> 32) as u32 >> (i % 17)) & 0x7FFF_FFFF);
+            let s = Scale {
+                k: k as i32,
+                min_c2: 0,
+            };
+            let d = phi as i32 as i64;
+            let want = ((d * k as i64 + (1 << 47)) >> 48) as i16;
+            assert_eq!(s.height(phi, 0), want, "{phi} {k}");
+        }
         // Reference subtraction wraps: Phi = -3.1, phi_r = 3.1 -> D = 2 pi - 6.2 = +0.083.
         let s = Scale::new(&cfg(2000.0, 0.0));
         let h = s.pixel(&acc(500.0, -3.1), from_rad(3.1)).unwrap();
         let want = ((2.0 * PI - 6.2) / (2.0 * PI) * 2000.0).round() as i16;
         assert!((h - want).abs() <= 1);
+    }
+
+    #[test]
+    fn folded_gate_is_the_exact_test() {
+        let mut seed = 0x9E37_79B9_7F4A_7C15u64;
+        let mut rnd = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        for min_mod in [0.0, 0.3, 1.0, 10.0, 40.0, 333.7, 4095.0, 65535.0, 1048575.0] {
+            let s = Scale::new(&cfg(2000.0, min_mod));
+            for frac in [0u32, 3, 11, 12, 13, 15, 19, 24] {
+                let g = s.gate(frac);
+                // The threshold in these units, from f64: C >= min_mod.
+                let t = (min_mod * 4096.0f64).round() / 4096.0 * (1u64 << frac) as f64;
+                let around = [g.fast as i64, t as i64];
+                for k in 0..20_000 {
+                    let (x, y) = match k % 3 {
+                        0 => (rnd() as i32, rnd() as i32),
+                        1 => {
+                            let c = around[k % 2] + (rnd() % 5) as i64 - 2;
+                            let a = (rnd() % 6283) as f64 / 1000.0;
+                            (
+                                (c as f64 * a.cos()).round().clamp(-2e9, 2e9) as i32,
+                                (c as f64 * a.sin()).round().clamp(-2e9, 2e9) as i32,
+                            )
+                        }
+                        _ => ((rnd() % 9) as i32 - 4, (rnd() % 9) as i32 - 4),
+                    };
+                    if x == SATURATED {
+                        continue;
+                    }
+                    let hi = x.unsigned_abs().max(y.unsigned_abs());
+                    assert_eq!(g.modulated(x, y, hi), g.modulated_exact(x, y), "{x} {y}");
+                    let c = ((x as f64).powi(2) + (y as f64).powi(2)).sqrt();
+                    if (c - t).abs() > 1e-6 * t.max(1.0) {
+                        assert_eq!(g.modulated_exact(x, y), c >= t && c > 0.0, "{x} {y} {t}");
+                    }
+                }
+            }
+        }
+        assert_eq!(isqrt_ceil(0), 0);
+        assert_eq!(isqrt_ceil(15), 4);
+        assert_eq!(isqrt_ceil(16), 4);
+        assert_eq!(isqrt_ceil(17), 5);
+        assert_eq!(isqrt_ceil(1 << 62), 1 << 31);
     }
 
     #[test]

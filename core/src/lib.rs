@@ -64,8 +64,10 @@
 //! | --- | --- | --- |
 //! | `cos`, `sin` of the shifts | Q1.30, then Q1.24 | `4 * 2^-30`, then `2^-25` |
 //! | `P` | Q7.24 (i32) | relative `3e-7 * g^2` vs f64 |
-//! | `v = P i` | i64, DN * 2^24 | exact given `P` |
-//! | `atan2` | u32 binary angle | `2e-6` rad |
+//! | kernel coefficients [`accumulate::Coef`] | i16, `Q?.frac` (largest `frac <= 24` that fits), row sums exactly 0 | `<= 1/2 + n/2` units of `2^-frac` per entry; largest entry `>= 2^14` (12-bit samples), `>= 2^12` (16-bit) |
+//! | `v = P i` per pixel | wrapping i32, DN * 2^frac | exact given the coefficients (no 64-bit arithmetic); the accumulate stage can be offloaded ([`offload`]) |
+//! | modulation test [`height::Gate`] | folded into `atan2`'s `max(abs x, abs y)` | identical to `C^2 >= min_modulation^2` |
+//! | `atan2` | u32 binary angle | `2e-5` rad |
 //! | height | i16 LSB | `<= 0.5` LSB rounding + phase error |
 //!
 //! ## Q-formats as types
@@ -92,6 +94,7 @@ mod defmt;
 mod error;
 pub mod frames;
 pub mod height;
+pub mod offload;
 pub mod packets;
 pub mod phase;
 pub mod pipeline;

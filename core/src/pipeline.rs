@@ -16,10 +16,11 @@
 //! bad input (lines out of order, wrong width, truncated frames, sequence gaps, encoder stalls or
 //! reversals, exhausted state) yields an error or flagged rows, never a panic.
 
+use crate::accumulate::Coef;
 use crate::accumulate::{self, Pool};
 use crate::frames::registration::{self, Kind, Registry, Step};
 use crate::frames::{Config, ConfigError, Trigger};
-use crate::height::Scale;
+use crate::height::{Gate, Scale};
 use crate::row::{flags, Gap, Row, RowHeader, StreamInfo};
 use crate::sink::Sink;
 use crate::solve::{SolveError, Window, MAX_N};
@@ -152,8 +153,9 @@ pub struct Pipeline<'a> {
     next_line: u16,
     prev_seq: u32,
     prev_latch: i64,
-    /// Window of the rows completing in the open frame.
-    win: Result<Window, SolveError>,
+    /// Window of the rows completing in the open frame, in the kernel's form, with its
+    /// modulation gate.
+    win: Result<(Coef, Gate), SolveError>,
     /// `Config::hash` of the configuration and reference phase.
     hash: u64,
     /// The sink was told the stream started / ended.
@@ -294,7 +296,10 @@ impl<'a> Pipeline<'a> {
             }
             let mut shifts = [0u32; MAX_N];
             self.cfg.shifts(&offsets[..n], &mut shifts);
-            self.win = Window::solve(&shifts[..n], self.cfg.max_noise_gain);
+            self.win = Window::solve(&shifts[..n], self.cfg.max_noise_gain).and_then(|w| {
+                let c = Coef::of(&w, self.cfg.saturation).ok_or(SolveError::IllConditioned)?;
+                Ok((c, self.scale.gate(c.frac)))
+            });
         }
         self.open = true;
         self.next_line = 0;
@@ -367,7 +372,7 @@ impl<'a> Pipeline<'a> {
         let w0 = f + 1 - n as u32;
         let (o0, latch0) = (self.reg.admission(w0).offset, self.reg.admission(w0).latch);
         let rho = self.cfg.row_phase(b - o0);
-        let row_flags = self.compute(s, &win, rho, line);
+        let row_flags = self.compute(s, &win.0, &win.1, rho, line);
         self.release(s);
         let header = self.header(b, latch0, row_flags);
         let res = sink.row(&Row {
@@ -509,8 +514,8 @@ impl<'a> Pipeline<'a> {
     }
 
     /// The hot loop: `v = P i`, phase, height and mask for every column of a completed row.
-    fn compute(&mut self, s: usize, win: &Window, rho: u32, last: &[u16]) -> u16 {
-        let n = win.n;
+    fn compute(&mut self, s: usize, coef: &Coef, gate: &Gate, rho: u32, last: &[u16]) -> u16 {
+        let n = coef.n;
         let slot = self.reg.slots[s];
         let mut lines: [&[u16]; MAX_N] = [&[]; MAX_N];
         for (j, l) in lines.iter_mut().enumerate().take(n - 1) {
@@ -530,12 +535,12 @@ impl<'a> Pipeline<'a> {
         };
         let (heights, valid) = (&mut *self.heights, &mut *self.valid);
         match n {
-            3 => rows.run::<3>(win, &self.scale, heights, valid),
-            4 => rows.run::<4>(win, &self.scale, heights, valid),
-            5 => rows.run::<5>(win, &self.scale, heights, valid),
-            6 => rows.run::<6>(win, &self.scale, heights, valid),
-            7 => rows.run::<7>(win, &self.scale, heights, valid),
-            _ => rows.run::<8>(win, &self.scale, heights, valid),
+            3 => rows.run::<3>(coef, gate, &self.scale, heights, valid),
+            4 => rows.run::<4>(coef, gate, &self.scale, heights, valid),
+            5 => rows.run::<5>(coef, gate, &self.scale, heights, valid),
+            6 => rows.run::<6>(coef, gate, &self.scale, heights, valid),
+            7 => rows.run::<7>(coef, gate, &self.scale, heights, valid),
+            _ => rows.run::<8>(coef, gate, &self.scale, heights, valid),
         }
     }
 }
@@ -558,7 +563,8 @@ impl Rows<'_> {
     #[inline(never)]
     fn run<const N: usize>(
         &self,
-        win: &Window,
+        coef: &Coef,
+        gate: &Gate,
         scale: &Scale,
         heights: &mut [i16],
         valid: &mut [u8],
@@ -569,8 +575,9 @@ impl Rows<'_> {
         let mut c0 = 0;
         while c0 < self.w {
             let len = BLOCK.min(self.w - c0);
-            accumulate::block::<N>(win, &lines, c0, self.sat, &mut v[..len]);
+            accumulate::block::<N>(coef, &lines, c0, self.sat, &mut v[..len]);
             row_flags |= scale.block(
+                gate,
                 &v[..len],
                 self.rho,
                 &self.ref_phase[c0..c0 + len],

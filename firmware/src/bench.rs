@@ -73,8 +73,10 @@ pub struct Stages {
 /// Runs the two stages of the core's per-pixel loop (`accumulate::row` and `Scale::row`: the
 /// `accumulate::block` and `Scale::block` that `Pipeline::compute` runs block by block, as
 /// never-inlined core functions, so they are the core's code) timed apart, over
-/// real samples (lines left in the pool by the run) with the last solved window. `v` holds a
-/// whole row of reduced pixels between the stages (the pipeline keeps 64 on the stack).
+/// real samples (lines left in the pool by the run) with the last solved window, block by
+/// block as the pipeline runs them: [`dpsa_core::pipeline::BLOCK`] reduced pixels on the stack
+/// between the stages (no row-sized buffer). Each stage's time includes one clock read per
+/// block (about 0.2 instructions per pixel).
 #[allow(clippy::too_many_arguments)]
 pub fn stages<C: Clock>(
     cfg: &Config,
@@ -83,22 +85,28 @@ pub fn stages<C: Clock>(
     pool: &[u16],
     heights: &mut [i16],
     valid: &mut [u8],
-    v: &mut [V],
     clock: &C,
 ) -> Stages {
+    use dpsa_core::pipeline::BLOCK;
     let mut s = Stages {
         pixels: 0,
         accumulate: 0,
         phase_height: 0,
     };
     let Some(win) = meter.window else { return s };
-    // The output row as a run-time pointer: otherwise LTO folds the address of the static
-    // state into `accumulate::row` (its only caller is this function), and the cost of that
-    // constant (1 or 2 instructions per pixel, depending on where the buffer lands) would be
-    // measured instead of the pipeline's code, which always has a pointer.
-    let v = core::hint::black_box(v);
+    let Some(coef) = accumulate::Coef::of(&win, cfg.saturation) else {
+        return s;
+    };
+    let mut v = [[0i32; 2]; BLOCK];
+    // The block buffer as a run-time pointer: otherwise the compiler may fold its address into
+    // `accumulate::row` (its only caller is this function), and the cost of that constant
+    // would be measured instead of the pipeline's code, which always has a pointer.
+    let v: &mut [V; BLOCK] = core::hint::black_box(&mut v);
+    // The same for the reference-phase table (the pipeline reads it through a pointer too).
+    let ref_phase = core::hint::black_box(ref_phase);
     let (w, n) = (cfg.width as usize, cfg.n as usize);
     let scale = Scale::new(cfg);
+    let gate = scale.gate(coef.frac);
     let groups = (pool.len() / (w * n)).min(16);
     for g in 0..groups {
         let base = &pool[g * w * n..(g + 1) * w * n];
@@ -106,22 +114,28 @@ pub fn stages<C: Clock>(
         for (j, l) in lines.iter_mut().enumerate().take(n) {
             *l = &base[j * w..(j + 1) * w];
         }
-        let t0 = clock.ticks();
-        accumulate::row(&win, &lines[..n], 0, cfg.saturation, &mut v[..w]);
-        let t1 = clock.ticks();
         let rho = cfg.row_phase(g as i64);
-        let f = scale.row(
-            &v[..w],
-            rho,
-            &ref_phase[..w],
-            &mut heights[..w],
-            &mut valid[..w.div_ceil(8)],
-        );
-        let t2 = clock.ticks();
-        core::hint::black_box((&heights, &valid, f));
+        let mut c0 = 0;
+        while c0 < w {
+            let len = BLOCK.min(w - c0);
+            let t0 = clock.ticks();
+            accumulate::row(&coef, &lines[..n], c0, cfg.saturation, &mut v[..len]);
+            let t1 = clock.ticks();
+            let f = scale.row(
+                &gate,
+                &v[..len],
+                rho,
+                &ref_phase[c0..c0 + len],
+                &mut heights[c0..c0 + len],
+                &mut valid[c0 / 8..w.div_ceil(8)],
+            );
+            let t2 = clock.ticks();
+            core::hint::black_box((&heights, &valid, f));
+            s.accumulate += t1 - t0;
+            s.phase_height += t2 - t1;
+            c0 += len;
+        }
         s.pixels += w as u64;
-        s.accumulate += t1 - t0;
-        s.phase_height += t2 - t1;
     }
     s
 }

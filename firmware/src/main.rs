@@ -47,7 +47,8 @@ fn fail<E: defmt::Format>(what: &str, e: E) -> Failed {
 fn run() -> Result<(), Failed> {
     let cp = cortex_m::Peripherals::take().ok_or_else(|| fail("peripherals", "taken twice"))?;
     let clock = SysTickClock::start(cp.SYST);
-    let args = qemu::Args::get().map_err(|e| fail("command line", e))?;
+    let mut args = qemu::Args::empty();
+    args.read().map_err(|e| fail("command line", e))?;
     let st = state::take().ok_or_else(|| fail("state", "taken twice"))?;
 
     // Calibration and geometry come with the feed (on a real board: from its flash).
@@ -60,7 +61,7 @@ fn run() -> Result<(), Failed> {
     .map_err(|e| fail("opening the feed", e))?;
     let header = feed.header();
     let cfg = header.cfg;
-    let layout = st
+    let (layout, pool_at) = st
         .size_for(&cfg)
         .map_err(|e| fail("state too small for this geometry", e))?;
     let state::State {
@@ -74,9 +75,19 @@ fn run() -> Result<(), Failed> {
         codec_heights,
         codec_valid,
         packet,
-        bench_acc,
     } = st;
     let w = layout.width;
+    let lines: &mut [u16] = match pool_at {
+        state::PoolAt::State => &mut lines[..],
+        state::PoolAt::External => {
+            state::ext_pool().ok_or_else(|| fail("external pool", "taken twice"))?
+        }
+    };
+    defmt::info!(
+        "line pool: {} ({=usize} samples)",
+        pool_at,
+        layout.pool_lines * w
+    );
     defmt::info!(
         "W {=usize} H {=u16} n {=u8} max step {=u16} rows: {=u32} frames, state {=usize} B (pipeline {=usize} B)",
         w,
@@ -157,13 +168,24 @@ fn run() -> Result<(), Failed> {
     }
 
     if let Some(path) = &args.bench {
-        let stages = bench::stages(
-            &cfg, &meter, ref_phase, lines, heights, valid, bench_acc, &clock,
-        );
-        let report = bench::report(&cfg, &meter, &ticks, &stages, &clock);
-        qemu::write_text(path, report.as_bytes()).map_err(|e| fail("bench file", e))?;
+        let stages = bench::stages(&cfg, &meter, ref_phase, lines, heights, valid, &clock);
+        write_bench(path, &cfg, &meter, &ticks, &stages, &clock)?;
     }
     Ok(())
+}
+
+/// Writes the bench report; never inlined, so its text buffer is not in `run`'s frame.
+#[inline(never)]
+fn write_bench(
+    path: &qemu::Path,
+    cfg: &dpsa_core::Config,
+    meter: &bench::Meter,
+    ticks: &sink::SinkTicks,
+    stages: &bench::Stages,
+    clock: &SysTickClock,
+) -> Result<(), Failed> {
+    let report = bench::report(cfg, meter, ticks, stages, clock);
+    qemu::write_text(path, report.as_bytes()).map_err(|e| fail("bench file", e))
 }
 
 /// Copies the ITCM image (dpsa-core's code, see `memory.x`) from flash to ITCM.

@@ -3,7 +3,6 @@
 //! `.state` section (`memory.x`: DTCM on a real board).
 
 use crate::board::qemu::cap;
-use dpsa_core::accumulate::V;
 use dpsa_core::frames::registration::Slot;
 use dpsa_core::packets;
 use dpsa_core::pipeline::Layout;
@@ -33,8 +32,6 @@ pub struct State {
     pub codec_valid: Vec<u8, { cap::WIDTH / 8 }>,
     /// One packet.
     pub packet: Vec<u8, PACKET_CAP>,
-    /// Benchmark only: one row of reduced pixels, between the two timed stages.
-    pub bench_acc: Vec<V, { cap::WIDTH }>,
 }
 
 /// Why the state cannot hold a configuration.
@@ -57,16 +54,22 @@ impl State {
     }
 
     /// Sizes every buffer for `cfg` (zeroed; `ref_phase` keeps its first `W` entries), or says
-    /// what is missing.
-    pub fn size_for(&mut self, cfg: &Config) -> Result<Layout, TooSmall> {
+    /// what is missing. The line pool is [`State::lines`] when it is large enough, else the
+    /// external-RAM pool ([`PoolAt::External`], see [`ext_pool`]).
+    pub fn size_for(&mut self, cfg: &Config) -> Result<(Layout, PoolAt), TooSmall> {
         let l = Layout::of(cfg);
         let (w, nb) = (l.width, l.width.div_ceil(8));
         let needed = l.pool_lines * w;
         let too_small = TooSmall {
             needed_samples: needed,
-            have_samples: cap::POOL_SAMPLES,
+            have_samples: cap::EXT_POOL_SAMPLES,
         };
-        if needed > cap::POOL_SAMPLES || w > self.ref_phase.len() {
+        let at = if needed <= cap::POOL_SAMPLES {
+            PoolAt::State
+        } else {
+            PoolAt::External
+        };
+        if needed > cap::EXT_POOL_SAMPLES || w > self.ref_phase.len() {
             return Err(too_small);
         }
         self.ref_phase.truncate(w);
@@ -78,11 +81,10 @@ impl State {
             zeroed(&mut self.line, w)?;
             zeroed(&mut self.codec_heights, w)?;
             zeroed(&mut self.codec_valid, nb)?;
-            zeroed(&mut self.packet, packets::max_packet_len(w))?;
-            zeroed(&mut self.bench_acc, w)
+            zeroed(&mut self.packet, packets::max_packet_len(w))
         })()
         .map_err(|()| too_small)?;
-        Ok(l)
+        Ok((l, at))
     }
 
     /// Bytes of every buffer the firmware uses for `cfg` (the pipeline's [`Layout::bytes`], the
@@ -92,6 +94,31 @@ impl State {
         let w = l.width;
         l.bytes() + w * 2 + w * 2 + w.div_ceil(8) + packets::max_packet_len(w)
     }
+}
+
+/// Where the line pool of a geometry lives.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
+pub enum PoolAt {
+    /// [`State::lines`], in the state region.
+    State,
+    /// The external-RAM pool ([`ext_pool`]).
+    External,
+}
+
+/// The external-RAM line pool, once: `memory.x` places it in the `.extram` NOLOAD section
+/// (under QEMU the 16 MiB RAM of mps2-an500 at 0x60000000, on a frame grabber its SDRAM).
+/// Not zeroed: the pipeline writes every sample before reading it.
+pub fn ext_pool() -> Option<&'static mut [u16]> {
+    use core::sync::atomic::{AtomicBool, Ordering};
+    #[link_section = ".extram"]
+    static mut POOL: [u16; cap::EXT_POOL_SAMPLES] = [0; cap::EXT_POOL_SAMPLES];
+    static TAKEN: AtomicBool = AtomicBool::new(false);
+    if TAKEN.swap(true, Ordering::AcqRel) {
+        return None;
+    }
+    // SAFETY: the flag makes this the only reference ever handed out. The section is NOLOAD
+    // (never initialised), and any bytes are valid `u16`s.
+    unsafe { Some(&mut *core::ptr::addr_of_mut!(POOL)) }
 }
 
 /// Takes the state, once, zeroed: every `Vec` empty.

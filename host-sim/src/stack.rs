@@ -161,6 +161,10 @@ pub fn run(stack: &Stack, min_modulation: f64) -> Result<(StackPhase, PhaseRepor
         U16F16::ONE,
         U20F12::from_bits((min_modulation * 4096.0).round() as u32),
     );
+    // The pipeline's kernel: 16-bit coefficients, 32-bit sums, the folded modulation gate.
+    let coef = accumulate::Coef::of(&win, saturation)
+        .ok_or_else(|| anyhow!("the phase steps give coefficients too large for the kernel"))?;
+    let gate = scale.gate(coef.frac);
     // f64 path: P = (M^T M)^-1 M^T with rows [1, cos s, -sin s].
     let m = DMatrix::from_fn(n, 3, |j, k| match k {
         0 => 1.0,
@@ -186,8 +190,8 @@ pub fn run(stack: &Stack, min_modulation: f64) -> Result<(StackPhase, PhaseRepor
             iv[j] = samples[j] as f64;
             sat |= samples[j] >= saturation;
         }
-        let acc = accumulate::pixel(&win, &samples[..n], saturation);
-        fixed.push(scale.phase(&acc).ok().map(phase::to_rad));
+        let v = accumulate::pixel_v(&coef, &samples[..n], saturation);
+        fixed.push(scale.phase_v(&gate, v).ok().map(phase::to_rad));
         let v = &p * &iv;
         let c = v[1].hypot(v[2]);
         reference.push((!sat && c >= min_modulation && c > 0.0).then(|| v[2].atan2(v[1])));

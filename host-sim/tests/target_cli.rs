@@ -98,6 +98,9 @@ fn bench_json_has_every_figure() {
         "ram_bytes.static",
         "ram_bytes.state",
         "ram_bytes.stack_high_water",
+        "ram_bytes.total",
+        "realtime.pixels_per_second_per_camera",
+        "realtime.board_seconds",
         "flash_bytes",
         "pixels_out",
         "elf_sections.text",
@@ -129,6 +132,25 @@ fn bench_json_has_every_figure() {
     assert!(p("total") > p("encode"), "{v}");
     assert!(
         num(&v, "ram_bytes.state") <= num(&v, "ram_bytes.state_total"),
+        "{v}"
+    );
+    assert_eq!(
+        num(&v, "ram_bytes.total"),
+        num(&v, "ram_bytes.state_total")
+            + num(&v, "ram_bytes.static")
+            + num(&v, "ram_bytes.stack_high_water"),
+        "{v}"
+    );
+    // The real-time model: 600 MHz and IPC 1 are assumptions; the rate follows the count.
+    assert_eq!(
+        (
+            num(&v, "realtime.clock_hz"),
+            num(&v, "realtime.ipc_assumed")
+        ),
+        (600e6, 1.0)
+    );
+    assert!(
+        (num(&v, "realtime.pixels_per_second_per_camera") * p("total") / 600e6 - 1.0).abs() < 1e-9,
         "{v}"
     );
     assert!(

@@ -25,13 +25,18 @@ use dpsa_core::sink::Link;
 use semihosting::fs::File;
 use semihosting::io::{Read, Seek, SeekFrom, Write};
 
-/// Capacities of the state buffers on this board (see `crate::state`): the full-frame test
-/// feed (H = 2048 rows, four frames about 520 rows apart, W = 256) needs the largest pool.
+/// Capacities of the state buffers on this board (see `crate::state`).
 pub mod cap {
     /// Widest line `W`.
     pub const WIDTH: usize = 2048;
-    /// Samples in the raw-line pool.
-    pub const POOL_SAMPLES: usize = 1_700_000;
+    /// Samples in the raw-line pool in the state region (DTCM on a real board): the default
+    /// geometry's 60 lines of 2048 px (`max_step_rows = 10`, `n = 4`).
+    pub const POOL_SAMPLES: usize = 60 * 2048;
+    /// Samples in the external-RAM line pool (`memory.x`: EXTRAM, 16 MiB), used when a
+    /// geometry needs more than [`POOL_SAMPLES`]: the full-frame feed (H = 2048 rows, four
+    /// frames about 520 rows apart, max step 650 rows, W = 2048) needs 3900 lines of 2048 px,
+    /// 15.2 MiB.
+    pub const EXT_POOL_SAMPLES: usize = 8 * 1024 * 1024;
     /// Lines in the pool (free-list entries).
     pub const POOL_LINES: usize = 8192;
     /// Open-row slots.
@@ -104,13 +109,19 @@ pub struct Path {
 }
 
 impl Path {
-    pub fn new(s: &str) -> Result<Path, Error> {
-        let mut buf = [0u8; 512];
-        if s.len() >= buf.len() || s.as_bytes().contains(&0) {
+    /// The empty path.
+    pub const fn empty() -> Path {
+        Path { buf: [0; 512] }
+    }
+
+    /// Sets the path in place (no 512-byte temporaries on the stack).
+    pub fn set(&mut self, s: &str) -> Result<(), Error> {
+        if s.len() >= self.buf.len() || s.as_bytes().contains(&0) {
             return Err(Error::PathTooLong);
         }
-        buf[..s.len()].copy_from_slice(s.as_bytes());
-        Ok(Path { buf })
+        self.buf.fill(0);
+        self.buf[..s.len()].copy_from_slice(s.as_bytes());
+        Ok(())
     }
 
     pub fn c_str(&self) -> &CStr {
@@ -127,23 +138,37 @@ pub struct Args {
 }
 
 impl Args {
-    pub fn get() -> Result<Args, Error> {
+    /// No paths yet (fill with [`Args::read`]).
+    pub const fn empty() -> Args {
+        Args {
+            feed: Path::empty(),
+            out: Path::empty(),
+            bench: None,
+        }
+    }
+
+    /// Reads the command line into `self`, in place (the paths are 1.5 KiB: a returned value
+    /// would be copied through the caller's frame). Never inlined: the 2 KiB semihosting
+    /// command-line buffer lives only in this frame, not in the caller's for the whole run
+    /// (both count against the stack budget).
+    #[inline(never)]
+    pub fn read(&mut self) -> Result<(), Error> {
         let args = semihosting::experimental::env::args::<2048>().map_err(io)?;
-        let mut it = (&args).skip(1);
-        let mut next = || -> Result<Option<Path>, Error> {
-            match it.next() {
-                None => Ok(None),
-                Some(Ok(s)) => Path::new(s).map(Some),
-                Some(Err(_)) => Err(Error::Usage),
+        let mut given = 0;
+        for a in (&args).skip(1) {
+            let s = a.map_err(|_| Error::Usage)?;
+            match given {
+                0 => self.feed.set(s)?,
+                1 => self.out.set(s)?,
+                2 => self.bench.insert(Path::empty()).set(s)?,
+                _ => return Err(Error::Usage),
             }
-        };
-        let feed = next()?.ok_or(Error::Usage)?;
-        let out = next()?.ok_or(Error::Usage)?;
-        let bench = next()?;
-        if next()?.is_some() {
+            given += 1;
+        }
+        if given < 2 {
             return Err(Error::Usage);
         }
-        Ok(Args { feed, out, bench })
+        Ok(())
     }
 }
 

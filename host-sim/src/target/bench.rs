@@ -77,6 +77,72 @@ pub struct Ram {
     pub state_total: u64,
     /// Deepest stack use measured by the firmware.
     pub stack_high_water: u64,
+    /// What the issue's RAM budget counts: every configuration-sized buffer
+    /// (`state_total`), the static RAM (`static`) and the stack high-water mark.
+    pub total: u64,
+}
+
+/// Real-time model: what the measured instruction count means on a production frame grabber.
+///
+/// The clock and the instructions per cycle are *assumptions*, not measurements: QEMU counts
+/// retired instructions, and a Cortex-M7 at 600 MHz (i.MX RT1060 class) is assumed to retire
+/// one per cycle on integer code in TCM (firmware/README.md lists what real cycles add or
+/// save: dual issue, divider and load-use stalls, mispredicted branches, bus waits). The
+/// board is the paper's
+/// 220 x 168 mm at 28 um per pixel, its width shared by [`CAMERAS`] cameras of `W` pixels.
+#[derive(Clone, Debug, Serialize)]
+pub struct Realtime {
+    /// Core clock assumed, Hz.
+    pub clock_hz: f64,
+    /// Instructions per cycle assumed (not measured).
+    pub ipc_assumed: f64,
+    /// Output pixels per second one camera's frame grabber keeps up with:
+    /// `clock_hz * ipc_assumed / instructions_per_pixel.total`.
+    pub pixels_per_second_per_camera: f64,
+    /// Board rows per second (`pixels_per_second_per_camera / W`).
+    pub board_rows_per_second: f64,
+    /// Board length (mm), width (mm) and pixel pitch (um) of the model.
+    pub board_length_mm: f64,
+    pub board_width_mm: f64,
+    pub pixel_um: f64,
+    /// Frame grabbers (cameras) side by side across the board width.
+    pub cameras: u32,
+    /// Board rows along the conveyor (`board_length_mm / pixel`).
+    pub board_rows: f64,
+    /// Output pixels each camera delivers per board (`board_rows * W`).
+    pub pixels_per_camera: f64,
+    /// Seconds of processing per board (the cameras work in parallel).
+    pub board_seconds: f64,
+    /// Whether the `W`-pixel cameras cover the board width.
+    pub width_covered: bool,
+}
+
+/// Cameras (frame grabbers) across the board in the real-time model.
+pub const CAMERAS: u32 = 3;
+
+impl Realtime {
+    /// The model for `ipp` instructions per output pixel and `width` pixels per camera row.
+    pub fn model(ipp: f64, width: f64) -> Realtime {
+        let (clock_hz, ipc_assumed) = (600e6, 1.0);
+        let (board_length_mm, board_width_mm, pixel_um) = (220.0f64, 168.0f64, 28.0f64);
+        let pps = clock_hz * ipc_assumed / ipp;
+        let board_rows = (board_length_mm * 1000.0 / pixel_um).ceil();
+        let pixels_per_camera = board_rows * width;
+        Realtime {
+            clock_hz,
+            ipc_assumed,
+            pixels_per_second_per_camera: pps,
+            board_rows_per_second: pps / width,
+            board_length_mm,
+            board_width_mm,
+            pixel_um,
+            cameras: CAMERAS,
+            board_rows,
+            pixels_per_camera,
+            board_seconds: pixels_per_camera / pps,
+            width_covered: CAMERAS as f64 * width * pixel_um / 1000.0 >= board_width_mm,
+        }
+    }
 }
 
 /// The firmware's measured figures (`dpsa target-run --bench --json`).
@@ -86,6 +152,8 @@ pub struct BenchReport {
     /// One-off cost of `P` for one window (the integer solve).
     pub instructions_per_window_solve: f64,
     pub ram_bytes: Ram,
+    /// The real-time model (assumed clock and IPC; see [`Realtime`]).
+    pub realtime: Realtime,
     /// Bytes the firmware occupies in flash.
     pub flash_bytes: u64,
     /// Retired instructions per SysTick tick, calibrated by the firmware (40 on mps2 at
@@ -132,9 +200,14 @@ pub fn bench_report(raw: &BTreeMap<String, i64>, elf: &ElfSizes) -> Result<Bench
     let pixels = positive("pixels_out")?;
     let stage = positive("stage_pixels")?;
     let solves = positive("solves")?;
+    let total = ticks("ticks_total")? / pixels;
+    let (state_total, stack) = (
+        unsigned("state_total_bytes")?,
+        unsigned("stack_high_water")?,
+    );
     Ok(BenchReport {
         instructions_per_pixel: PerPixel {
-            total: ticks("ticks_total")? / pixels,
+            total,
             accumulate: ticks("ticks_accumulate")? / stage,
             phase_height: ticks("ticks_phase_height")? / stage,
             encode: ticks("ticks_encode")? / pixels,
@@ -143,9 +216,11 @@ pub fn bench_report(raw: &BTreeMap<String, i64>, elf: &ElfSizes) -> Result<Bench
         ram_bytes: Ram {
             static_: elf.static_ram,
             state: unsigned("state_bytes")?,
-            state_total: unsigned("state_total_bytes")?,
-            stack_high_water: unsigned("stack_high_water")?,
+            state_total,
+            stack_high_water: stack,
+            total: state_total + stack + elf.static_ram,
         },
+        realtime: Realtime::model(total, positive("width")?),
         flash_bytes: elf.flash,
         instructions_per_tick: ipt,
         width: get("width"),
@@ -171,12 +246,16 @@ impl BenchReport {
              instructions per pixel: {:.1} total (accumulate {:.1}, phase + height {:.1}, encode {:.1})\n\
              instructions per window solve: {:.0} ({} solves)\n\
              flash {} bytes (text {}, rodata {}, data {}, itcm {}); static RAM {} bytes (data {}, bss {}, uninit {})\n\
-             core state {} bytes, all config-sized buffers {} bytes, stack high water {} bytes",
+             core state {} bytes, all config-sized buffers {} bytes, stack high water {} bytes; RAM total {} bytes\n\
+             real time (assumed {:.0} MHz, IPC {:.1}): {:.1} Mpx/s per camera, {:.2} s per {:.0} x {:.0} mm board with {} cameras",
             self.instructions_per_tick, self.width, self.n, self.pixels_out,
             p.total, p.accumulate, p.phase_height, p.encode,
             self.instructions_per_window_solve, self.solves,
             self.flash_bytes, s.text, s.rodata, s.data, s.itcm, r.static_, s.data, s.bss, s.uninit,
-            r.state, r.state_total, r.stack_high_water
+            r.state, r.state_total, r.stack_high_water, r.total,
+            self.realtime.clock_hz / 1e6, self.realtime.ipc_assumed,
+            self.realtime.pixels_per_second_per_camera / 1e6, self.realtime.board_seconds,
+            self.realtime.board_length_mm, self.realtime.board_width_mm, self.realtime.cameras
         )
     }
 }
@@ -198,6 +277,9 @@ mod tests {
             ("ticks_phase_height", 40),
             ("solves", 4),
             ("ticks_solve", 30),
+            ("width", 2048),
+            ("state_total_bytes", 1000),
+            ("stack_high_water", 24),
         ] {
             m.insert(k.into(), v);
         }
@@ -222,6 +304,13 @@ mod tests {
         assert_eq!(r.instructions_per_pixel.phase_height, 8.0);
         assert_eq!(r.instructions_per_window_solve, 300.0);
         assert_eq!((r.flash_bytes, r.ram_bytes.static_), (9, 7));
+        assert_eq!(r.ram_bytes.total, 1000 + 24 + 7);
+        // 20 instructions per pixel at 600 MHz, IPC 1: 30 Mpx/s; 7858 rows x 2048 px per
+        // camera: 0.536 s per board.
+        assert_eq!(r.realtime.pixels_per_second_per_camera, 30e6);
+        assert_eq!(r.realtime.board_rows, 7858.0);
+        assert!((r.realtime.board_seconds - 7858.0 * 2048.0 / 30e6).abs() < 1e-12);
+        assert!(r.realtime.width_covered);
         let v = serde_json::to_value(&r).unwrap();
         assert_eq!(v["ram_bytes"]["static"], 7);
         assert_eq!(v["instructions_per_pixel"]["total"], 20.0);
