@@ -18,7 +18,9 @@
 //! The `dpsa` binary (`src/main.rs`, `src/cli/`) only parses arguments and prints: one file per
 //! subcommand.
 
+pub mod array;
 pub mod benches;
+pub mod calibration;
 pub mod files;
 pub mod heightmap;
 pub mod images;

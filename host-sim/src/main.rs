@@ -13,6 +13,7 @@ fn main() {
     let progress = !args.quiet;
     let res = match args.cmd {
         Cmd::Simulate(a) => cli::simulate::run(a, progress),
+        Cmd::Calibrate(a) => cli::calibrate::run(a),
         Cmd::Reconstruct(a) => cli::reconstruct::run(a, progress),
         Cmd::Compare(a) => cli::compare::run(a, progress),
         Cmd::Phase(a) => cli::phase::run(a),

@@ -1,6 +1,7 @@
 //! The `dpsa` command line: one file per subcommand, each with its arguments (clap) and its
 //! printing. The work itself is in the `dpsa_sim` library; nothing here computes a figure.
 
+pub mod calibrate;
 pub mod codec_bench;
 pub mod compare;
 pub mod decode;
@@ -36,6 +37,8 @@ pub struct Cli {
 pub enum Cmd {
     /// Simulate a recording (frames, manifest, ground truth) of a scene.
     Simulate(simulate::Args),
+    /// Calibrate a camera array from its calibration recording; write the calibration file.
+    Calibrate(calibrate::Args),
     /// Run the fixed-point core on a recording through its streaming API; write the packet stream.
     Reconstruct(reconstruct::Args),
     /// Compare the fixed-point core with the f64 reference, the PSP baseline, the CRB and the truth.
@@ -120,7 +123,6 @@ pub fn non_negative(s: &str) -> Result<f64, String> {
 }
 
 /// clap value parser: a finite number > 0 (e.g. for `decode --lsb-um`).
-#[allow(dead_code)]
 pub fn positive(s: &str) -> Result<f64, String> {
     let v = finite(s)?;
     if v > 0.0 {
