@@ -335,20 +335,15 @@ fn write_camera(
         let mut bg = vec![0f32; n_rows * width];
         let mut ct = vec![0f32; n_rows * width];
         let r_w = f64::from(model.rows) - (f64::from(scene.max_step_rows()) + 1.0) / 2.0;
-        let paste = |x: f64, y: f64| match &renderer.surface {
-            Surface::Board { deposits } => deposits
-                .iter()
-                .any(|d| d.height(x, y, scene.deposit_corner_mm, scene.deposit_edge_mm) > 0.0),
-            _ => false,
-        };
         for i in 0..n_rows {
             let b = first + i as i64;
             let s = (b as f64 - r_w) * model.counts_per_pixel / scene.counts_per_mm;
             for c in 0..width {
                 let (x, y) = model.board_point(s, r_w, c as f64);
                 let j = i * width + c;
-                h[j] = renderer.surface.height(scene, x, y) as f32;
-                let (b0, c0) = if paste(x, y) {
+                let (height, paste) = renderer.height_at(x, y);
+                h[j] = height as f32;
+                let (b0, c0) = if paste {
                     (scene.paste_background, scene.paste_contrast)
                 } else {
                     (scene.background, scene.contrast)

@@ -225,6 +225,25 @@ impl<'a> CameraRenderer<'a> {
         v
     }
 
+    /// True height (um) at board point `(x, y)` and whether it is paste (deposits looked up
+    /// in their bins).
+    pub fn height_at(&self, x: f64, y: f64) -> (f64, bool) {
+        let Surface::Board { deposits } = &self.surface else {
+            return (self.surface.height(self.scene, x, y), false);
+        };
+        let sc = self.scene;
+        let mut h = sc.warp(x, y);
+        let mut paste = false;
+        for i in self.deposits_near(x - 0.1, x + 0.1) {
+            let dh = deposits[i].height(x, y, sc.deposit_corner_mm, sc.deposit_edge_mm);
+            if dh > 0.0 {
+                h += dh;
+                paste = true;
+            }
+        }
+        (h, paste)
+    }
+
     /// Mean intensity (before noise) of pixel `(r, c)` at conveyor travel `s`, DN.
     pub fn intensity(&self, s: f64, r: usize, c: usize, near_deposit: bool) -> f64 {
         let m = self.model;
@@ -241,7 +260,11 @@ impl<'a> CameraRenderer<'a> {
         let (rf, cf) = (r as f64, c as f64);
         if !near_deposit {
             let (x, y) = m.board_point(s, rf, cf);
-            let h = self.surface.height(sc, x, y);
+            // Not near a deposit: the bare (warped) board, or the plane / target.
+            let h = match self.surface {
+                Surface::Board { .. } => sc.warp(x, y),
+                _ => self.surface.height(sc, x, y),
+            };
             let a = self.reflectance(x, y);
             let phase = TAU * f * rf + phi0 + TAU * h / tz;
             return ill * a * (sc.background + sc.contrast * self.m0[c] * phase.cos());
@@ -252,13 +275,19 @@ impl<'a> CameraRenderer<'a> {
         // 3 x 3 sub-pixels, each integrating its own third of the pixel (sub-box sinc).
         let g_r = TAU * f;
         let sub = sinc(g_r / 6.0) * self.m_blur[c];
+        let (xc, _) = m.board_point(s, rf, cf);
+        let near: Vec<&MmDeposit> = self
+            .deposits_near(xc - 0.1, xc + 0.1)
+            .into_iter()
+            .map(|i| &deposits[i])
+            .collect();
         let mut sum = 0.0;
         for dr in [-1.0 / 3.0, 0.0, 1.0 / 3.0] {
             for dc in [-1.0 / 3.0, 0.0, 1.0 / 3.0] {
                 let (x, y) = m.board_point(s, rf + dr, cf + dc);
                 let mut h = sc.warp(x, y);
                 let mut paste = false;
-                for d in deposits.iter() {
+                for d in &near {
                     let dh = d.height(x, y, sc.deposit_corner_mm, sc.deposit_edge_mm);
                     if dh > 0.0 {
                         h += dh;
