@@ -25,6 +25,7 @@ fn main() {
                 std::process::exit(code);
             }
         }),
+        Cmd::FrameBench(a) => cli::frame_bench::run(a),
         Cmd::CodecBench(a) => cli::codec_bench::run(a, progress),
         Cmd::TargetRun(a) => cli::target_run::run(a, progress),
         Cmd::Demo(a) => cli::demo::run(a, progress),

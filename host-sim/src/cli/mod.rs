@@ -6,6 +6,7 @@ pub mod codec_bench;
 pub mod compare;
 pub mod decode;
 pub mod demo;
+pub mod frame_bench;
 pub mod phase;
 pub mod reconstruct;
 pub mod simulate;
@@ -51,6 +52,9 @@ pub enum Cmd {
     /// Benchmark the row codec against lz4, zstd, heatshrink and PNG on the same height rows,
     /// with the entropy of its predictor's residuals and the noise floor.
     CodecBench(codec_bench::Args),
+    /// Benchmark the recording frame formats (16-bit PNG, compressed .zfr) on a recording's
+    /// frames: size and encode/decode speed, as JSON.
+    FrameBench(frame_bench::Args),
     /// Run the firmware under QEMU (Cortex-M7, mps2-an500) on a recording: the same core on the
     /// target, writing the packet stream it emitted; `--bench` adds its measured figures.
     TargetRun(target_run::Args),
