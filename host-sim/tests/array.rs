@@ -17,24 +17,14 @@ fn small_scene() -> ArrayScene {
 
 /// One calibration recording of the small scene (seed 3), shared by the tests.
 fn calibration_recording() -> &'static Path {
-    static DIR: OnceLock<tempfile::TempDir> = OnceLock::new();
-    DIR.get_or_init(|| {
+    static DIR: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
+    &DIR.get_or_init(|| {
         let dir = tempfile::tempdir().unwrap();
-        record::simulate_calibration(&small_scene(), 3, &dir.path().join("cal")).unwrap();
-        dir
+        let cal = dir.path().join("cal");
+        record::simulate_calibration(&small_scene(), 3, &cal).unwrap();
+        (dir, cal)
     })
-    .path()
-    .join("cal")
-    .leak()
-}
-
-trait Leak {
-    fn leak(self) -> &'static Path;
-}
-impl Leak for PathBuf {
-    fn leak(self) -> &'static Path {
-        Box::leak(self.into_boxed_path())
-    }
+    .1
 }
 
 #[test]
@@ -73,7 +63,7 @@ fn calibration_meets_the_acceptance_targets() {
     assert_eq!(get("truth_error.dead_pixels_false"), 0.0, "{j}");
     assert!(get("holdout.bias_um_max") <= 0.5, "{j}");
     let ratio = get("holdout.rms_um") / get("holdout.crb_rms_um");
-    assert!(ratio <= 1.05 && ratio >= 0.95, "{j}");
+    assert!((0.95..=1.05).contains(&ratio), "{j}");
     assert!(get("holdout.rms_over_crb_max") <= 1.05, "{j}");
     assert!(get("holdout.pixels") > 100_000.0, "{j}");
 
