@@ -89,6 +89,30 @@ fn calibration_meets_the_acceptance_targets() {
         m.calibration.fringe_period_px,
         cal.camera[1].fringe_period_px
     );
+    // The fixed-point core with the calibrated configuration measures the held-out plane
+    // (the per-column height scale applied after it, as the board stage will).
+    let mut hold = Recording::open(arr.camera_dir(0, Some("holdout"))).unwrap();
+    let cam = &cal.camera[0];
+    cam.apply(&mut hold.manifest, cal.height_lsb_um).unwrap();
+    let (_, _, map) = dpsa_sim::reconstruct::reconstruct_map(&hold, false).unwrap();
+    let mut errs = Vec::new();
+    for row in map.rows.iter().filter(|r| r.is_valid()) {
+        for (c, (&h, &ok)) in row.heights.iter().zip(&row.valid).enumerate() {
+            if ok {
+                let t = cam.height_per_turn_um[c];
+                let mut v = f64::from(h) * map.lsb_um * cam.height_scale(c);
+                v += t * ((450.0 - v) / t).round();
+                errs.push(v - 450.0);
+            }
+        }
+    }
+    assert!(errs.len() > 50_000, "{}", errs.len());
+    errs.sort_by(f64::total_cmp);
+    let median = errs[errs.len() / 2];
+    let within = errs.iter().filter(|e| e.abs() < 10.0).count() as f64 / errs.len() as f64;
+    assert!(median.abs() < 0.5, "core median error {median} um");
+    assert!(within > 0.99, "{within}");
+
     let text = std::fs::read_to_string(&cal_path).unwrap();
     assert!(
         text.starts_with("format = \"dpsa-calibration\"\nversion = 1\n"),
