@@ -801,3 +801,62 @@ fn calibrate_camera(
     cal.fx_over_budget = cal.fx_height_error_um.is_nan() || cal.fx_height_error_um > fx_budget_um;
     Ok(cal)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calibration::file::Lateral;
+
+    fn cal(poly: [f64; 3]) -> CameraCal {
+        let w = 256;
+        CameraCal {
+            id: 0,
+            width: w,
+            rows: 40,
+            counts_per_pixel: 11.0,
+            counts_per_mm: 400.0,
+            fringe_period_px: 32.0,
+            fringe_frequency_poly: poly,
+            fx_height_error_um: 0.0,
+            fx_over_budget: false,
+            height_per_turn_um: vec![500.0; w as usize],
+            reference_phase_rad: vec![0.0; w as usize],
+            core_reference_phase_rad: vec![0.0; w as usize],
+            background_dn: vec![1800.0; w as usize],
+            modulation_dn: vec![700.0; w as usize],
+            dead_pixels: Vec::new(),
+            lateral: Lateral {
+                x0_mm: 0.0,
+                y0_mm: 0.0,
+                pitch_mm: 0.0277,
+                rotation_rad: 0.0,
+                row_pitch_mm: 0.0277,
+                fit_rms_um: 0.0,
+                marks: 0,
+            },
+        }
+    }
+
+    #[test]
+    fn field_variation_error_grows_with_the_variation() {
+        let f = 1.0 / 32.0;
+        let none = fx_height_error(&cal([f, 0.0, 0.0]), 4, 8.0, 10);
+        assert!(none < 1e-9, "{none}");
+        let small = fx_height_error(&cal([f, f * 0.0005, 0.0]), 4, 8.0, 10);
+        let large = fx_height_error(&cal([f, f * 0.002, 0.0]), 4, 8.0, 10);
+        assert!(small > 0.0 && large > 3.0 * small, "{small} {large}");
+        // 0.2 % at the field edge: a few tenths of a micrometre at 500 um per turn.
+        assert!((0.05..1.0).contains(&large), "{large}");
+    }
+
+    #[test]
+    fn a_sinusoid_is_fitted_exactly() {
+        let f = 1.0 / 31.7;
+        let y: Vec<f64> = (0..40)
+            .map(|r| 1000.0 + 600.0 * (TAU * f * r as f64 + 0.7).cos())
+            .collect();
+        let s = fit_sine(&y, &[true; 40], 1.0 / 32.0).unwrap();
+        assert!((s.f / f - 1.0).abs() < 1e-9, "{}", s.f);
+        assert!((s.phase() - 0.7).abs() < 1e-7 && (s.amplitude() - 600.0).abs() < 1e-6);
+    }
+}
