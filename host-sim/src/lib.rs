@@ -10,6 +10,8 @@
 //! | [`reconstruct`] | runs `dpsa-core` on a recording through its streaming API, as the frame grabber does |
 //! | [`stream`] | packet streams back into height maps, with the damage report |
 //! | [`reference`] | the independent f64 D-PSA, the PSP baseline, the Cramer-Rao bound, truth statistics, and `compare` on top |
+//! | [`array`] | the camera array: array scenes in board mm, the area-integrating renderer, array and calibration recordings, `.zfr` frames |
+//! | [`calibration`] | `dpsa calibrate`: per-camera fringe frequency, reference phase, height per turn, flat field, lateral mapping and encoder scale from flat planes and a target |
 //! | [`board`] | the board map: cameras' rows unwrapped, placed in millimetres and blended |
 //! | [`target`] | the firmware: feed export, build, ELF sizes, QEMU with its defmt log, its bench figures |
 //! | [`benches`] | `codec-bench`: our row codec against general-purpose compressors and the entropy bound |
@@ -19,8 +21,10 @@
 //! The `dpsa` binary (`src/main.rs`, `src/cli/`) only parses arguments and prints: one file per
 //! subcommand.
 
+pub mod array;
 pub mod benches;
 pub mod board;
+pub mod calibration;
 pub mod files;
 pub mod heightmap;
 pub mod images;

@@ -14,6 +14,7 @@ fn main() {
     let progress = !args.quiet;
     let res = match args.cmd {
         Cmd::Simulate(a) => cli::simulate::run(a, progress),
+        Cmd::Calibrate(a) => cli::calibrate::run(a),
         Cmd::Reconstruct(a) => cli::reconstruct::run(a, progress),
         Cmd::Compare(a) => cli::compare::run(a, progress),
         Cmd::Phase(a) => cli::phase::run(a),
@@ -25,6 +26,7 @@ fn main() {
                 std::process::exit(code);
             }
         }),
+        Cmd::FrameBench(a) => cli::frame_bench::run(a),
         Cmd::CodecBench(a) => cli::codec_bench::run(a, progress),
         Cmd::TargetRun(a) => cli::target_run::run(a, progress),
         Cmd::Demo(a) => cli::demo::run(a, progress),

@@ -3,5 +3,7 @@
 //!
 //! - [`codec`]: `dpsa codec-bench`, our lossless row codec against lz4, heatshrink, zstd and
 //!   PNG-16 on the same height rows, with the entropy bound and the noise floor.
+//! - [`frames`]: `dpsa frame-bench`, the recording frame formats (PNG, `.zfr`).
 
 pub mod codec;
+pub mod frames;

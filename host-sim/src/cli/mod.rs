@@ -1,10 +1,12 @@
 //! The `dpsa` command line: one file per subcommand, each with its arguments (clap) and its
 //! printing. The work itself is in the `dpsa_sim` library; nothing here computes a figure.
 
+pub mod calibrate;
 pub mod codec_bench;
 pub mod compare;
 pub mod decode;
 pub mod demo;
+pub mod frame_bench;
 pub mod phase;
 pub mod reconstruct;
 pub mod simulate;
@@ -36,6 +38,8 @@ pub struct Cli {
 pub enum Cmd {
     /// Simulate a recording (frames, manifest, ground truth) of a scene.
     Simulate(simulate::Args),
+    /// Calibrate a camera array from its calibration recording; write the calibration file.
+    Calibrate(calibrate::Args),
     /// Run the fixed-point core on a recording through its streaming API; write the packet stream.
     Reconstruct(reconstruct::Args),
     /// Compare the fixed-point core with the f64 reference, the PSP baseline, the CRB and the truth.
@@ -48,6 +52,9 @@ pub enum Cmd {
     /// Benchmark the row codec against lz4, zstd, heatshrink and PNG on the same height rows,
     /// with the entropy of its predictor's residuals and the noise floor.
     CodecBench(codec_bench::Args),
+    /// Benchmark the recording frame formats (16-bit PNG, compressed .zfr) on a recording's
+    /// frames: size and encode/decode speed, as JSON.
+    FrameBench(frame_bench::Args),
     /// Run the firmware under QEMU (Cortex-M7, mps2-an500) on a recording: the same core on the
     /// target, writing the packet stream it emitted; `--bench` adds its measured figures.
     TargetRun(target_run::Args),
@@ -120,7 +127,6 @@ pub fn non_negative(s: &str) -> Result<f64, String> {
 }
 
 /// clap value parser: a finite number > 0 (e.g. for `decode --lsb-um`).
-#[allow(dead_code)]
 pub fn positive(s: &str) -> Result<f64, String> {
     let v = finite(s)?;
     if v > 0.0 {

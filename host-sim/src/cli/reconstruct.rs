@@ -24,6 +24,13 @@ pub struct Args {
     /// (smaller, but a lost packet costs up to K - 1 more rows).
     #[arg(long, default_value_t = dpsa_core::packets::STREAM_INTRA_PERIOD)]
     intra_period: u32,
+    /// Array calibration file (`dpsa calibrate`): use camera `--camera`'s encoder scale,
+    /// fringe period, reference-phase table and height per turn instead of the manifest's.
+    #[arg(long)]
+    cal: Option<PathBuf>,
+    /// Camera of `--cal` (default: the manifest's camera id).
+    #[arg(long, requires = "cal")]
+    camera: Option<u8>,
 }
 
 pub fn run(a: Args, progress: bool) -> Result<()> {
@@ -38,7 +45,23 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
         files::refuse_same(("--out", &a.out), ("--png", png))?;
         files::refuse_same(("--out", &a.out), ("--png's false-colour file", &colour))?;
     }
-    let rec = open(&a.dir)?;
+    let mut rec = open(&a.dir)?;
+    if let Some(path) = &a.cal {
+        files::refuse_same(("--out", &a.out), ("--cal", path))?;
+        let cal = dpsa_sim::calibration::CalFile::load(path)?;
+        let id = a.camera.unwrap_or(rec.manifest.camera.id);
+        let cam = cal.camera.get(usize::from(id)).ok_or_else(|| {
+            anyhow!(
+                "{}: no camera {id} (the calibration has {} cameras)",
+                path.display(),
+                cal.camera.len()
+            )
+        })?;
+        cam.apply(&mut rec.manifest, cal.height_lsb_um)?;
+        rec.manifest
+            .validate()
+            .map_err(|e| anyhow!("the calibrated manifest is invalid: {e}"))?;
+    }
     let file = AtomicFile::create(&a.out)?;
     let mut tee = Tee::new(BufWriter::new(file), a.png.is_some());
     let res = reconstruct::run_with(&rec, &mut tee, a.intra_period, progress).map(|(s, _)| s);

@@ -2,7 +2,7 @@
 
 use super::{load_scene, out};
 use anyhow::Result;
-use dpsa_sim::{files, simulation::simulate};
+use dpsa_sim::{array, files, simulation::simulate};
 use std::path::{Path, PathBuf};
 
 #[derive(clap::Args)]
@@ -19,9 +19,23 @@ pub struct Args {
     /// Write even when the estimated size exceeds the 20 GB limit.
     #[arg(long)]
     force: bool,
+    /// Array scenes only: write the calibration recordings (planes at known heights, a
+    /// held-out plane, the lateral target) instead of the board.
+    #[arg(long)]
+    calibration: bool,
 }
 
 pub fn run(a: Args, progress: bool) -> Result<()> {
+    if a.scene != "default" {
+        let text = files::read_capped(Path::new(&a.scene), files::MAX_SCENE_BYTES, "scene")?;
+        if array::scene::is_array_scene(&String::from_utf8_lossy(&text)) {
+            return run_array(a);
+        }
+    }
+    anyhow::ensure!(
+        !a.calibration,
+        "--calibration needs an array scene (a scene file with [[cameras]], e.g. scenes/array-small.toml)"
+    );
     let sc = load_scene(&a.scene)?;
     let seed = a.seed.unwrap_or(sc.seed);
     if a.scene != "default" {
@@ -35,6 +49,38 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
         s.width,
         s.deposits_placed,
         a.out.display()
+    );
+    Ok(())
+}
+
+fn run_array(a: Args) -> Result<()> {
+    let sc = array::scene::ArrayScene::load(Path::new(&a.scene))?;
+    super::warn(&sc.warnings());
+    let seed = a.seed.unwrap_or(sc.seed);
+    files::refuse_overwrite("--out", &a.out, &[files::Input::File(Path::new(&a.scene))])?;
+    let s = if a.calibration {
+        array::record::simulate_calibration(&sc, seed, &a.out)?
+    } else {
+        array::record::simulate_board(&sc, seed, &a.out)?
+    };
+    out!(
+        "simulated {} {} of {} cameras ({} frames, {:.1} Mpx) into {}: {:.1} MB on disk in {:.1} s",
+        if a.calibration {
+            "calibration recordings"
+        } else {
+            "the board"
+        },
+        if a.calibration {
+            "(planes, held-out plane, lateral target)"
+        } else {
+            "recording"
+        },
+        s.cameras,
+        s.frames,
+        s.pixels as f64 / 1e6,
+        a.out.display(),
+        s.bytes as f64 / 1e6,
+        s.seconds
     );
     Ok(())
 }

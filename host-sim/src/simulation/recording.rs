@@ -710,6 +710,12 @@ pub fn decode_frame(
     );
     let cap = crate::files::max_frame_png_bytes(rows, width);
     let path = path.to_path_buf();
+    if path
+        .extension()
+        .is_some_and(|e| e == crate::array::frames::EXTENSION)
+    {
+        return decode_zfr(manifest, k, bytes, path, (entry.seq, entry.latch));
+    }
     let decode_err = |e: image::ImageError| RecordingError::Decode {
         index: k,
         path: path.clone(),
@@ -770,6 +776,58 @@ pub fn decode_frame(
     Ok(Frame {
         seq: entry.seq,
         latch: entry.latch,
+        rows,
+        width,
+        data,
+    })
+}
+
+/// [`decode_frame`] for a `.zfr` binary frame (`crate::array::frames`).
+fn decode_zfr(
+    manifest: &Manifest,
+    k: usize,
+    bytes: &[u8],
+    path: PathBuf,
+    (seq, latch): (u32, i64),
+) -> Result<Frame, RecordingError> {
+    use crate::array::frames;
+    let (rows, width) = (
+        manifest.camera.rows as usize,
+        manifest.camera.width as usize,
+    );
+    let decode_err = |message: String| RecordingError::Decode {
+        index: k,
+        path: path.clone(),
+        message,
+    };
+    let (h, w) = frames::header(bytes).map_err(decode_err)?;
+    if (h, w) != (rows, width) {
+        return Err(RecordingError::FrameSize {
+            index: k,
+            path,
+            expected_rows: rows,
+            expected_width: width,
+            actual_rows: h,
+            actual_width: w,
+        });
+    }
+    let data = frames::decode_body(bytes, rows, width).map_err(decode_err)?;
+    let bit_depth = manifest.camera.bit_depth;
+    let max = max_value(bit_depth);
+    if let Some(i) = data.iter().position(|&v| v > max) {
+        return Err(RecordingError::PixelRange {
+            index: k,
+            path,
+            row: i / width,
+            col: i % width,
+            value: data[i],
+            bit_depth,
+            max,
+        });
+    }
+    Ok(Frame {
+        seq,
+        latch,
         rows,
         width,
         data,

@@ -55,7 +55,7 @@ const MOTION_STREAM: u64 = 2;
 /// ChaCha stream of frame `k`'s noise is `NOISE_STREAM + k`.
 const NOISE_STREAM: u64 = 1 << 32;
 
-fn rng(seed: u64, stream: u64) -> ChaCha8Rng {
+pub(crate) fn rng(seed: u64, stream: u64) -> ChaCha8Rng {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     rng.set_stream(stream);
     rng
@@ -440,7 +440,7 @@ pub fn frame_file(k: usize) -> String {
 }
 
 /// One noisy sample of mean `intensity` (DN), before rounding (see the module docs).
-fn noisy(intensity: f64, gain: f64, read_noise: f64, rng: &mut ChaCha8Rng) -> f64 {
+pub(crate) fn noisy(intensity: f64, gain: f64, read_noise: f64, rng: &mut ChaCha8Rng) -> f64 {
     let i = intensity.max(0.0);
     let electrons = i * gain;
     if electrons > GAUSSIAN_ELECTRONS {

@@ -1,0 +1,662 @@
+//! Array recordings on disk: one directory, `array.json`, one single-camera recording per
+//! camera (and per calibration pass), and the array truth (`docs/calibration.md`).
+
+use crate::array::frames::{self, FrameFormat};
+use crate::array::render::{place_deposits, CameraRenderer, MmDeposit, Surface};
+use crate::array::scene::{ArrayScene, CameraModel};
+use crate::simulation::recording::{
+    self, FrameEntry, Manifest, TruthInfo, FORMAT, TRUTH_BACKGROUND_FILE, TRUTH_CONTRAST_FILE,
+    TRUTH_HEIGHT_FILE, VERSION,
+};
+use anyhow::{bail, Context, Result};
+use rand::RngExt;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::Mutex;
+use std::time::Instant;
+
+/// Name of the array manifest.
+pub const ARRAY_FILE: &str = "array.json";
+/// Format tag of `array.json`.
+pub const ARRAY_FORMAT: &str = "dpsa-array-recording";
+/// Version of `array.json` this build reads and writes.
+pub const ARRAY_VERSION: u32 = 1;
+/// The array truth (simulated recordings only).
+pub const ARRAY_TRUTH_FILE: &str = "truth/array.json";
+/// The board height raster (simulated board recordings only), f32 um, row-major along x.
+pub const BOARD_TRUTH_FILE: &str = "truth/board_height_um.f32";
+
+/// Board recording or calibration recording.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Kind {
+    Board,
+    Calibration,
+}
+
+/// What a calibration pass carried through the cameras.
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum PassKind {
+    /// A flat matte plane at a known height, used for fitting.
+    Plane,
+    /// A flat plane at a known height not used for fitting (checks the calibration).
+    Holdout,
+    /// The lateral target: a flat printed grid of marks.
+    Target,
+}
+
+/// One calibration pass; camera `i`'s recording of it is `cam{i}/{name}`.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Pass {
+    pub name: String,
+    pub kind: PassKind,
+    /// Known height of the plane (0 for the target), um: an input of calibration.
+    pub height_um: f64,
+}
+
+/// The design position of a camera (what calibration starts from).
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DesignCamera {
+    pub id: u8,
+    pub width: u32,
+    pub rows: u32,
+    /// Design position along the motion of image row 0, mm.
+    pub x_mm: f64,
+    /// Design position across the board of column 0, mm.
+    pub y_mm: f64,
+}
+
+/// The lateral target as printed: inputs of calibration.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TargetInfo {
+    /// Mark pitch, both directions, mm.
+    pub pitch_mm: f64,
+    /// Board coordinates of the first mark `[along, across]`, mm (the target's leading edge
+    /// resets the encoder, as a board's does).
+    pub origin_mm: [f64; 2],
+    /// Target length along the motion, mm.
+    pub length_mm: f64,
+}
+
+/// Contents of `array.json`.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ArrayManifest {
+    pub format: String,
+    pub version: u32,
+    pub kind: Kind,
+    pub cameras: Vec<DesignCamera>,
+    /// Nominal pixel pitch on the board, mm.
+    pub pixel_mm: f64,
+    /// Encoder scale typed before calibration, counts/mm.
+    pub nominal_counts_per_mm: f64,
+    pub board_length_mm: f64,
+    pub board_width_mm: f64,
+    /// Calibration passes (calibration recordings only).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub passes: Vec<Pass>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target: Option<TargetInfo>,
+}
+
+/// The board truth raster: `rows x cols` f32 heights at `((i + 1/2) pitch, (j + 1/2) pitch)`.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct BoardTruth {
+    pub file: String,
+    pub pitch_mm: f64,
+    /// Rows along the motion.
+    pub rows: u32,
+    /// Columns across the board.
+    pub cols: u32,
+}
+
+/// Contents of `truth/array.json`: everything the simulator knew.
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ArrayTruth {
+    pub counts_per_mm: f64,
+    pub cameras: Vec<CameraModel>,
+    pub warp_um: f64,
+    pub deposits: Vec<MmDeposit>,
+    /// Per camera: the true background `B` and contrast `C M` (with illumination) per column
+    /// of a bare plane, DN.
+    pub plane_background_dn: Vec<Vec<f64>>,
+    pub plane_modulation_dn: Vec<Vec<f64>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub board: Option<BoardTruth>,
+    /// The scene that was rendered.
+    pub scene: ArrayScene,
+    pub seed: u64,
+}
+
+/// An opened array recording.
+#[derive(Clone, Debug)]
+pub struct ArrayRecording {
+    pub dir: PathBuf,
+    pub manifest: ArrayManifest,
+}
+
+impl ArrayRecording {
+    /// Opens `dir/array.json`; errors say what is wrong.
+    pub fn open(dir: &Path) -> Result<ArrayRecording> {
+        let path = dir.join(ARRAY_FILE);
+        let bytes = crate::files::read_capped_io(&path, crate::files::MAX_MANIFEST_BYTES).map_err(
+            |e| {
+                if e.kind() == std::io::ErrorKind::NotFound {
+                    anyhow::anyhow!(
+                        "{}: no {ARRAY_FILE} (is this an array recording written by `dpsa simulate` with an array scene?)",
+                        dir.display()
+                    )
+                } else {
+                    anyhow::anyhow!("{} {}", path.display(), crate::files::io_cause(&e))
+                }
+            },
+        )?;
+        let manifest: ArrayManifest = serde_json::from_slice(&bytes)
+            .with_context(|| format!("{}: not a valid array manifest", path.display()))?;
+        if manifest.format != ARRAY_FORMAT || manifest.version != ARRAY_VERSION {
+            bail!(
+                "{}: format {:?} version {}, this build reads {ARRAY_FORMAT:?} version {ARRAY_VERSION}",
+                path.display(),
+                manifest.format,
+                manifest.version
+            );
+        }
+        if manifest.cameras.is_empty() || manifest.cameras.len() > crate::array::scene::MAX_CAMERAS
+        {
+            bail!(
+                "{}: {} cameras, expected 1..=8",
+                path.display(),
+                manifest.cameras.len()
+            );
+        }
+        for (i, c) in manifest.cameras.iter().enumerate() {
+            if usize::from(c.id) != i {
+                bail!(
+                    "{}: camera {i} has id {}, expected {i}",
+                    path.display(),
+                    c.id
+                );
+            }
+        }
+        Ok(ArrayRecording {
+            dir: dir.to_path_buf(),
+            manifest,
+        })
+    }
+
+    /// Directory of camera `cam`'s recording of `pass` (`None`: the board recording).
+    pub fn camera_dir(&self, cam: usize, pass: Option<&str>) -> PathBuf {
+        let d = self.dir.join(format!("cam{cam}"));
+        match pass {
+            Some(p) => d.join(p),
+            None => d,
+        }
+    }
+
+    /// The simulator truth, if present.
+    pub fn truth(&self) -> Result<Option<ArrayTruth>> {
+        let path = self.dir.join(ARRAY_TRUTH_FILE);
+        match crate::files::read_capped_io(&path, 1 << 30) {
+            Ok(b) => Ok(Some(serde_json::from_slice(&b).with_context(|| {
+                format!("{}: not a valid array truth", path.display())
+            })?)),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(e) => bail!("{} {}", path.display(), crate::files::io_cause(&e)),
+        }
+    }
+}
+
+/// What a write produced (sizes and times measured while writing).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct WriteSummary {
+    pub cameras: usize,
+    pub frames: usize,
+    pub pixels: u64,
+    pub bytes: u64,
+    pub seconds: f64,
+}
+
+/// Conveyor travel of every frame of a pass from `s_start` while `s <= s_end`, mm.
+pub fn conveyor(scene: &ArrayScene, seed: u64, stream: u64, s_start: f64, s_end: f64) -> Vec<f64> {
+    let mut rng = crate::simulation::simulate::rng(seed, stream);
+    let step = scene.step_mm();
+    let jitter = scene.jitter_pct / 100.0;
+    let stalled = |k: u64| {
+        scene
+            .stalls
+            .iter()
+            .any(|s| k >= u64::from(s.frame) && k < u64::from(s.frame) + u64::from(s.frames))
+    };
+    let mut s = s_start;
+    let mut out = Vec::new();
+    while s <= s_end && out.len() < 1_000_000 {
+        out.push(s);
+        if !stalled(out.len() as u64 - 1) {
+            let u: f64 = rng.random_range(-1.0..1.0);
+            s += step * (1.0 + jitter * u);
+        }
+    }
+    out
+}
+
+/// Creates `dir` (new or empty; an earlier array recording there is refused, to keep it
+/// simple and safe: choose a new directory).
+fn prepare(dir: &Path) -> Result<()> {
+    if let Ok(mut d) = std::fs::read_dir(dir) {
+        if d.next().is_some() {
+            bail!(
+                "refusing to write an array recording into {}: it is not empty; choose a new or empty directory",
+                dir.display()
+            );
+        }
+    }
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))
+}
+
+/// Renders and writes one camera's recording of one pass into `dir`.
+#[allow(clippy::too_many_arguments)]
+fn write_camera(
+    scene: &ArrayScene,
+    seed: u64,
+    cam: usize,
+    model: &CameraModel,
+    surface: Surface<'_>,
+    positions: &[f64],
+    stream: u64,
+    dir: &Path,
+    truth_rows: Option<(i64, i64)>,
+) -> Result<(usize, u64)> {
+    std::fs::create_dir_all(dir.join("frames"))
+        .with_context(|| format!("cannot create {}", dir.display()))?;
+    let renderer = CameraRenderer::new(scene, model, surface);
+    let ext = scene.frame_format.extension();
+    let (rows, width) = (model.rows as usize, model.width as usize);
+    let frames_list: Vec<FrameEntry> = positions
+        .iter()
+        .enumerate()
+        .map(|(k, &s)| FrameEntry {
+            seq: k as u32,
+            latch: (s * scene.counts_per_mm).round() as i64,
+            file: format!("frames/{k:06}.{ext}"),
+        })
+        .collect();
+    let next = AtomicUsize::new(0);
+    let bytes = AtomicU64::new(0);
+    let error: Mutex<Option<anyhow::Error>> = Mutex::new(None);
+    let threads = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .min(positions.len())
+        .max(1);
+    std::thread::scope(|sc| {
+        for _ in 0..threads {
+            sc.spawn(|| loop {
+                let k = next.fetch_add(1, Ordering::Relaxed);
+                if k >= positions.len() || error.lock().map(|e| e.is_some()).unwrap_or(true) {
+                    break;
+                }
+                let data = renderer.render(positions[k], seed, stream + k as u64);
+                let path = dir.join(&frames_list[k].file);
+                let res = match scene.frame_format {
+                    FrameFormat::Png => recording::write_frame_png(&path, rows, width, &data)
+                        .map_err(anyhow::Error::new),
+                    FrameFormat::Zfr => frames::encode(rows, width, &data)
+                        .map_err(anyhow::Error::new)
+                        .and_then(|b| crate::files::write_bytes(&path, &b)),
+                };
+                match res {
+                    Ok(()) => {
+                        let len = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
+                        bytes.fetch_add(len, Ordering::Relaxed);
+                    }
+                    Err(e) => {
+                        if let Ok(mut slot) = error.lock() {
+                            slot.get_or_insert(e.context(format!("writing frame {k}")));
+                        }
+                    }
+                }
+            });
+        }
+    });
+    if let Some(e) = error.into_inner().unwrap_or_else(|p| p.into_inner()) {
+        return Err(e);
+    }
+    let mut total = bytes.into_inner();
+    let mut truth = None;
+    if let Some((first, last)) = truth_rows {
+        let n_rows = (last - first).max(1) as usize;
+        let mut h = vec![0f32; n_rows * width];
+        let mut bg = vec![0f32; n_rows * width];
+        let mut ct = vec![0f32; n_rows * width];
+        let r_w = f64::from(model.rows) - (f64::from(scene.max_step_rows()) + 1.0) / 2.0;
+        for i in 0..n_rows {
+            let b = first + i as i64;
+            let s = (b as f64 - r_w) * model.counts_per_pixel / scene.counts_per_mm;
+            for c in 0..width {
+                let (x, y) = model.board_point(s, r_w, c as f64);
+                let j = i * width + c;
+                let (height, paste) = renderer.height_at(x, y);
+                h[j] = height as f32;
+                let (b0, c0) = if paste {
+                    (scene.paste_background, scene.paste_contrast)
+                } else {
+                    (scene.background, scene.contrast)
+                };
+                bg[j] = (model.illumination[c] * b0) as f32;
+                ct[j] = (model.illumination[c] * c0 * renderer.modulation_factor(c)) as f32;
+            }
+        }
+        std::fs::create_dir_all(dir.join("truth"))?;
+        for (name, data) in [
+            (TRUTH_HEIGHT_FILE, &h),
+            (TRUTH_BACKGROUND_FILE, &bg),
+            (TRUTH_CONTRAST_FILE, &ct),
+        ] {
+            recording::write_f32(&dir.join(name), data)?;
+            total += data.len() as u64 * 4;
+        }
+        truth = Some(TruthInfo {
+            first_row: first,
+            rows: n_rows as u32,
+        });
+    }
+    let manifest = Manifest {
+        format: FORMAT.into(),
+        version: VERSION,
+        camera: scene.camera_block(cam),
+        calibration: scene.nominal_calibration(cam),
+        processing: scene.processing(),
+        frames: frames_list,
+        noise: Some(scene.noise()),
+        truth,
+    };
+    manifest
+        .validate()
+        .context("internal error: sub-recording manifest")?;
+    manifest.save(dir)?;
+    Ok((positions.len(), total))
+}
+
+fn models(scene: &ArrayScene, seed: u64) -> Vec<CameraModel> {
+    (0..scene.cameras.len())
+        .map(|i| scene.camera_model(i, seed))
+        .collect()
+}
+
+fn design(scene: &ArrayScene) -> Vec<DesignCamera> {
+    scene
+        .cameras
+        .iter()
+        .enumerate()
+        .map(|(i, c)| DesignCamera {
+            id: i as u8,
+            width: c.width,
+            rows: scene.rows,
+            x_mm: c.x_mm,
+            y_mm: c.y_mm,
+        })
+        .collect()
+}
+
+fn plane_truth(scene: &ArrayScene, models: &[CameraModel]) -> (Vec<Vec<f64>>, Vec<Vec<f64>>) {
+    models
+        .iter()
+        .map(|m| {
+            let r = CameraRenderer::new(scene, m, Surface::Plane { height_um: 0.0 });
+            let w = m.width as usize;
+            (
+                (0..w)
+                    .map(|c| m.illumination[c] * scene.background)
+                    .collect(),
+                (0..w)
+                    .map(|c| m.illumination[c] * scene.contrast * r.modulation_factor(c))
+                    .collect(),
+            )
+        })
+        .unzip()
+}
+
+/// Largest `|rotation|` slack of a camera's ROI along the motion, mm.
+fn slack(models: &[CameraModel]) -> f64 {
+    models
+        .iter()
+        .map(|m| f64::from(m.width) * m.pitch_mm * m.rotation_rad.sin().abs() + 3.0 * m.pitch_mm)
+        .fold(0.0, f64::max)
+}
+
+fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<u64> {
+    let mut text = serde_json::to_string_pretty(v)?;
+    text.push('\n');
+    crate::files::write_bytes(path, text.as_bytes())?;
+    Ok(text.len() as u64)
+}
+
+/// Simulates the board of an array scene into `out`: `array.json`, `cam{i}/` (a recording
+/// each tool reads), `truth/`.
+pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<WriteSummary> {
+    scene.validate()?;
+    prepare(out)?;
+    let t0 = Instant::now();
+    let models = models(scene, seed);
+    let deposits = place_deposits(scene, seed);
+    let sl = slack(&models);
+    let s0 = models
+        .iter()
+        .map(|m| -m.x0_mm - m.pitch_mm * f64::from(m.rows))
+        .fold(f64::INFINITY, f64::min)
+        - sl;
+    let s1 = scene.board_length_mm - models.iter().map(|m| m.x0_mm).fold(f64::INFINITY, f64::min)
+        + (f64::from(scene.n) * f64::from(scene.max_step_rows()) + 2.0) * scene.pixel_mm
+        + sl;
+    let positions = conveyor(scene, seed, 2, s0, s1);
+    let mut sum = WriteSummary {
+        cameras: models.len(),
+        ..WriteSummary::default()
+    };
+    for (i, m) in models.iter().enumerate() {
+        let rows = scene.camera_truth.then(|| {
+            let first = (s0 * scene.counts_per_mm / m.counts_per_pixel).floor() as i64;
+            let last =
+                (s1 * scene.counts_per_mm / m.counts_per_pixel).ceil() as i64 + i64::from(m.rows);
+            (first, last)
+        });
+        let (frames, bytes) = write_camera(
+            scene,
+            seed,
+            i,
+            m,
+            Surface::Board {
+                deposits: &deposits,
+            },
+            &positions,
+            (1 << 32) + ((i as u64) << 24),
+            &out.join(format!("cam{i}")),
+            rows,
+        )?;
+        sum.frames += frames;
+        sum.bytes += bytes;
+        sum.pixels += frames as u64 * u64::from(m.rows) * u64::from(m.width);
+    }
+    std::fs::create_dir_all(out.join("truth"))?;
+    let tp = scene.truth_pitch_mm;
+    let (tr, tc) = (
+        (scene.board_length_mm / tp).ceil() as usize,
+        (scene.board_width_mm / tp).ceil() as usize,
+    );
+    let surface = Surface::Board {
+        deposits: &deposits,
+    };
+    let mut raster = vec![0f32; tr * tc];
+    for (i, row) in raster.chunks_exact_mut(tc).enumerate() {
+        let x = (i as f64 + 0.5) * tp;
+        let near: Vec<&MmDeposit> = deposits
+            .iter()
+            .filter(|d| (d.x_mm - x).abs() <= d.length_mm / 2.0 + tp)
+            .collect();
+        for (j, v) in row.iter_mut().enumerate() {
+            let y = (j as f64 + 0.5) * tp;
+            let mut h = scene.warp(x, y);
+            for d in &near {
+                h += d.height(x, y, scene.deposit_corner_mm, scene.deposit_edge_mm);
+            }
+            *v = h as f32;
+        }
+    }
+    let _ = surface;
+    recording::write_f32(&out.join(BOARD_TRUTH_FILE), &raster)?;
+    sum.bytes += raster.len() as u64 * 4;
+    let (pb, pm) = plane_truth(scene, &models);
+    let truth = ArrayTruth {
+        counts_per_mm: scene.counts_per_mm,
+        cameras: models,
+        warp_um: scene.warp_um,
+        deposits,
+        plane_background_dn: pb,
+        plane_modulation_dn: pm,
+        board: Some(BoardTruth {
+            file: BOARD_TRUTH_FILE.into(),
+            pitch_mm: tp,
+            rows: tr as u32,
+            cols: tc as u32,
+        }),
+        scene: scene.clone(),
+        seed,
+    };
+    sum.bytes += write_json(&out.join(ARRAY_TRUTH_FILE), &truth)?;
+    let manifest = ArrayManifest {
+        format: ARRAY_FORMAT.into(),
+        version: ARRAY_VERSION,
+        kind: Kind::Board,
+        cameras: design(scene),
+        pixel_mm: scene.pixel_mm,
+        nominal_counts_per_mm: scene.nominal_counts_per_mm,
+        board_length_mm: scene.board_length_mm,
+        board_width_mm: scene.board_width_mm,
+        passes: Vec::new(),
+        target: None,
+    };
+    sum.bytes += write_json(&out.join(ARRAY_FILE), &manifest)?;
+    sum.seconds = t0.elapsed().as_secs_f64();
+    Ok(sum)
+}
+
+/// Simulates the calibration recordings of an array scene into `out`: for every camera, each
+/// plane of `calibration.plane_heights_um`, the held-out plane and the lateral target.
+pub fn simulate_calibration(scene: &ArrayScene, seed: u64, out: &Path) -> Result<WriteSummary> {
+    scene.validate()?;
+    prepare(out)?;
+    let t0 = Instant::now();
+    let models = models(scene, seed);
+    let plan = &scene.calibration;
+    let mut passes: Vec<Pass> = plan
+        .plane_heights_um
+        .iter()
+        .enumerate()
+        .map(|(j, &h)| Pass {
+            name: format!("plane{j}"),
+            kind: PassKind::Plane,
+            height_um: h,
+        })
+        .collect();
+    passes.push(Pass {
+        name: "holdout".into(),
+        kind: PassKind::Holdout,
+        height_um: plan.holdout_height_um,
+    });
+    passes.push(Pass {
+        name: "target".into(),
+        kind: PassKind::Target,
+        height_um: 0.0,
+    });
+    let sl = slack(&models);
+    let lo = models
+        .iter()
+        .map(|m| -m.x0_mm)
+        .fold(f64::NEG_INFINITY, f64::max)
+        + sl;
+    let hi_off = models
+        .iter()
+        .map(|m| m.x0_mm + m.pitch_mm * f64::from(m.rows))
+        .fold(f64::NEG_INFINITY, f64::max)
+        + sl;
+    let mut sum = WriteSummary {
+        cameras: models.len(),
+        ..WriteSummary::default()
+    };
+    for (pi, pass) in passes.iter().enumerate() {
+        let length = if pass.kind == PassKind::Target {
+            plan.target_length_mm
+        } else {
+            plan.plane_length_mm
+        };
+        let positions = conveyor(scene, seed, 0x200 + pi as u64, lo, length - hi_off);
+        if positions.len() < usize::from(scene.n) + 2 {
+            bail!(
+                "calibration pass {}: {length} mm is too short for the cameras' fields (only {} frames); lengthen it",
+                pass.name,
+                positions.len()
+            );
+        }
+        for (i, m) in models.iter().enumerate() {
+            let surface = match pass.kind {
+                PassKind::Target => Surface::Target { plan },
+                _ => Surface::Plane {
+                    height_um: pass.height_um,
+                },
+            };
+            let (frames, bytes) = write_camera(
+                scene,
+                seed,
+                i,
+                m,
+                surface,
+                &positions,
+                (2 << 32) + ((pi as u64) << 28) + ((i as u64) << 24),
+                &out.join(format!("cam{i}")).join(&pass.name),
+                None,
+            )?;
+            sum.frames += frames;
+            sum.bytes += bytes;
+            sum.pixels += frames as u64 * u64::from(m.rows) * u64::from(m.width);
+        }
+    }
+    std::fs::create_dir_all(out.join("truth"))?;
+    let (pb, pm) = plane_truth(scene, &models);
+    let truth = ArrayTruth {
+        counts_per_mm: scene.counts_per_mm,
+        cameras: models,
+        warp_um: 0.0,
+        deposits: Vec::new(),
+        plane_background_dn: pb,
+        plane_modulation_dn: pm,
+        board: None,
+        scene: scene.clone(),
+        seed,
+    };
+    sum.bytes += write_json(&out.join(ARRAY_TRUTH_FILE), &truth)?;
+    let manifest = ArrayManifest {
+        format: ARRAY_FORMAT.into(),
+        version: ARRAY_VERSION,
+        kind: Kind::Calibration,
+        cameras: design(scene),
+        pixel_mm: scene.pixel_mm,
+        nominal_counts_per_mm: scene.nominal_counts_per_mm,
+        board_length_mm: scene.board_length_mm,
+        board_width_mm: scene.board_width_mm,
+        passes,
+        target: Some(TargetInfo {
+            pitch_mm: plan.target_pitch_mm,
+            origin_mm: plan.target_origin_mm,
+            length_mm: plan.target_length_mm,
+        }),
+    };
+    sum.bytes += write_json(&out.join(ARRAY_FILE), &manifest)?;
+    sum.seconds = t0.elapsed().as_secs_f64();
+    Ok(sum)
+}
