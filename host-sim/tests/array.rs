@@ -246,8 +246,7 @@ fn board_recording_is_read_by_the_single_camera_tools() {
     }
     // The fixed-point core and the f64 reference on one camera, against its truth.
     let rec = Recording::open(a.camera_dir(1, None)).unwrap();
-    let (_, _, map) = dpsa_sim::reconstruct::reconstruct_map(&rec, false).unwrap();
-    let cmp = dpsa_sim::reference::compare::compare_map(&rec, &map, false).unwrap();
+    let cmp = dpsa_sim::reference::compare::compare_recording(&rec, false).unwrap();
     assert!(
         cmp.fixed_vs_ref.pixels_compared > 10_000,
         "{:?}",
