@@ -15,6 +15,7 @@ fn main() {
     let res = match args.cmd {
         Cmd::Simulate(a) => cli::simulate::run(a, progress),
         Cmd::Calibrate(a) => cli::calibrate::run(a),
+        Cmd::Board(a) => cli::board::run(a),
         Cmd::Reconstruct(a) => cli::reconstruct::run(a, progress),
         Cmd::Compare(a) => cli::compare::run(a, progress),
         Cmd::Phase(a) => cli::phase::run(a),

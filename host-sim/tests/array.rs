@@ -262,3 +262,60 @@ fn board_recording_is_read_by_the_single_camera_tools() {
     assert!(a.manifest.passes.iter().all(|p| p.kind != PassKind::Target));
     assert!(record::simulate_board(&scene, 5, &tmp.path().join("png")).is_err());
 }
+
+/// `dpsa board` on the small scene: the core on every camera with its calibration, the
+/// cameras unwrapped, placed and blended into one map in mm, against the board truth.
+#[test]
+fn board_map_of_the_small_scene_against_its_truth() {
+    let cal_rec = ArrayRecording::open(calibration_recording()).unwrap();
+    let cal = calibration::calibrate(&cal_rec, 0.5).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let board = tmp.path().join("board");
+    record::simulate_board(&small_scene(), 3, &board).unwrap();
+    let cal_path = tmp.path().join("cal.toml");
+    std::fs::write(&cal_path, cal.to_toml().unwrap()).unwrap();
+    let out_dir = tmp.path().join("map");
+    let out = Command::new(env!("CARGO_BIN_EXE_dpsa"))
+        .args(["--quiet", "board", board.to_str().unwrap(), "--cal"])
+        .arg(&cal_path)
+        .arg("--out")
+        .arg(&out_dir)
+        .arg("--json")
+        .output()
+        .unwrap();
+    let se = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{se}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let num = |a: &str, b: &str| v[a][b].as_f64().unwrap_or_else(|| panic!("{a}.{b}: {v}"));
+    // A 300 um bow (0.6 turn at 500 um per turn) and 10 deposits: no pixel on a wrong turn.
+    assert_eq!(num("unwrap", "wrong_turn_pixels"), 0.0, "{v}");
+    assert!(num("pixels", "valid_fraction") >= 0.97, "{v}");
+    assert!(num("seams", "height_step_um_max") <= 0.3, "{v}");
+    // The single-camera noise is about 2 um rms; blending and resampling must not add much.
+    assert!(num("truth", "rms_um") < 3.0, "{v}");
+    assert!(num("truth", "bias_um").abs() < 0.5, "{v}");
+    for f in [
+        "heights.png",
+        "heights_um.tiff",
+        "heights.colour.png",
+        "camera.png",
+        "board.json",
+    ] {
+        assert!(out_dir.join(f).is_file(), "{f}");
+    }
+    // A calibration recording is not a board.
+    let out = Command::new(env!("CARGO_BIN_EXE_dpsa"))
+        .args([
+            "--quiet",
+            "board",
+            calibration_recording().to_str().unwrap(),
+            "--cal",
+        ])
+        .arg(&cal_path)
+        .arg("--out")
+        .arg(tmp.path().join("map2"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("calibration recording"));
+}

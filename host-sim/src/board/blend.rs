@@ -14,15 +14,21 @@
 //! 4. **Seams.** For each pair of neighbouring layers, over their shared valid pixels on flat
 //!    board (the 3 x 3 range of the blended map below [`FLAT_RANGE_UM`]): the mean height
 //!    difference, and the lateral misregistration: the shift (along and across, sub-pixel by
-//!    a parabola through the sum of squared differences at -2..=2 px) that best aligns one
-//!    layer to the other over all shared pixels. The shift needs texture (paste edges) in the
-//!    overlap; without it (the sum changes by less than 10 % over +-2 px) it is not reported.
+//!    a search over -2..=2 px in 0.05 px steps) that best aligns one layer to the other over
+//!    all shared pixels. The shift needs texture: at least [`MIN_WALL_PIXELS`] deposit-wall
+//!    pixels (a step above [`WALL_UM`] between neighbours along the shift) in the overlap, and
+//!    a difference that changes by 10 % over the range; otherwise it is not reported (null).
 
 use super::resample::{BoardGrid, Layer};
 use super::Grid;
 
 /// A pixel counts as flat board when the 3 x 3 range of the blended map is below this, um.
 pub const FLAT_RANGE_UM: f32 = 25.0;
+
+/// A height step between neighbouring pixels above this is a deposit wall, um.
+pub const WALL_UM: f32 = 20.0;
+/// Wall pixels a seam's shared area needs for its misregistration to be measured.
+pub const MIN_WALL_PIXELS: usize = 50;
 
 /// No camera (invalid pixel) in [`Blended::camera`].
 pub const NO_CAMERA: u8 = u8::MAX;
@@ -267,6 +273,25 @@ fn best_shift(a: &Layer, b: &Layer, dr: i64, dc: i64) -> Option<f64> {
         let nf = n as f64;
         Some((sbb - sb * sb / nf + saa - sa * sa / nf - 2.0 * (sab - sa * sb / nf)) / nf)
     };
+    // Texture: deposit walls across the shift direction in the shared area. The bow and the
+    // noise alone do not fix a shift (their difference surface is flat or linear in it).
+    let mut walls = 0usize;
+    for r in 0..rows {
+        for c in 0..w {
+            let (h0, h1) = (b.heights.at(r as usize, c as usize), at(r + dr, c + dc));
+            let hb1 = if r + dr < rows && c + dc < w {
+                b.heights.at((r + dr) as usize, (c + dc) as usize)
+            } else {
+                f32::NAN
+            };
+            if h0.is_finite() && h1.is_finite() && hb1.is_finite() && (hb1 - h0).abs() > WALL_UM {
+                walls += 1;
+            }
+        }
+    }
+    if walls < MIN_WALL_PIXELS {
+        return None;
+    }
     let v: Vec<f64> = (-STEPS..=STEPS)
         .map(|k| msd(k as f64 * STEP))
         .collect::<Option<Vec<f64>>>()?;

@@ -19,6 +19,7 @@ pub mod assemble;
 pub mod blend;
 pub mod output;
 pub mod resample;
+pub mod run;
 pub mod unwrap;
 
 /// A row-major grid of heights, um; NaN is invalid. Row `r` is along the motion (board `x`),

@@ -1,6 +1,7 @@
 //! The `dpsa` command line: one file per subcommand, each with its arguments (clap) and its
 //! printing. The work itself is in the `dpsa_sim` library; nothing here computes a figure.
 
+pub mod board;
 pub mod calibrate;
 pub mod codec_bench;
 pub mod compare;
@@ -40,6 +41,8 @@ pub enum Cmd {
     Simulate(simulate::Args),
     /// Calibrate a camera array from its calibration recording; write the calibration file.
     Calibrate(calibrate::Args),
+    /// One board height map in mm from an array recording and its calibration.
+    Board(board::Args),
     /// Run the fixed-point core on a recording through its streaming API; write the packet stream.
     Reconstruct(reconstruct::Args),
     /// Compare the fixed-point core with the f64 reference, the PSP baseline, the CRB and the truth.
