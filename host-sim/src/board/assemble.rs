@@ -114,6 +114,9 @@ impl TruthRaster {
             (y - self.y0_mm) / self.pitch_mm - 0.5,
         );
         let g = &self.heights;
+        if g.rows == 0 || g.width == 0 || g.data.len() < g.rows * g.width {
+            return f32::NAN;
+        }
         if !(fi >= 0.0 && fj >= 0.0) || fi > (g.rows - 1) as f64 || fj > (g.width - 1) as f64 {
             return f32::NAN;
         }
