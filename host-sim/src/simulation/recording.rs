@@ -761,6 +761,27 @@ pub fn decode_frame(
             })
         }
     };
+    in_range(
+        k,
+        path,
+        bit_depth,
+        (entry.seq, entry.latch),
+        rows,
+        width,
+        data,
+    )
+}
+
+/// The decoded samples as a [`Frame`], refused when a sample exceeds `2^bit_depth - 1`.
+fn in_range(
+    k: usize,
+    path: PathBuf,
+    bit_depth: u8,
+    (seq, latch): (u32, i64),
+    rows: usize,
+    width: usize,
+    data: Vec<u16>,
+) -> Result<Frame, RecordingError> {
     let max = max_value(bit_depth);
     if let Some(i) = data.iter().position(|&v| v > max) {
         return Err(RecordingError::PixelRange {
@@ -774,8 +795,8 @@ pub fn decode_frame(
         });
     }
     Ok(Frame {
-        seq: entry.seq,
-        latch: entry.latch,
+        seq,
+        latch,
         rows,
         width,
         data,
@@ -813,25 +834,7 @@ fn decode_zfr(
     }
     let data = frames::decode_body(bytes, rows, width).map_err(decode_err)?;
     let bit_depth = manifest.camera.bit_depth;
-    let max = max_value(bit_depth);
-    if let Some(i) = data.iter().position(|&v| v > max) {
-        return Err(RecordingError::PixelRange {
-            index: k,
-            path,
-            row: i / width,
-            col: i % width,
-            value: data[i],
-            bit_depth,
-            max,
-        });
-    }
-    Ok(Frame {
-        seq,
-        latch,
-        rows,
-        width,
-        data,
-    })
+    in_range(k, path, bit_depth, (seq, latch), rows, width, data)
 }
 
 /// Loads every frame of a recording (the f64 reference needs them all at once).
