@@ -14,6 +14,11 @@ pub struct CameraRows {
     /// Wrapped heights, um, in `[-T(c)/2, T(c)/2)` (NaN invalid); row `i` is board row
     /// `first_row + i`.
     pub heights: Grid,
+    /// Cramer-Rao bound of each height's variance, um^2 (same layout; None without a truth
+    /// and noise model).
+    pub variance: Option<Grid>,
+    /// Pixels masked for the calibration's dead image pixels (see `super::provenance`).
+    pub dead_masked: u64,
     pub first_row: i64,
     /// Height per turn of each column, um.
     pub period_um: Vec<f32>,
@@ -68,6 +73,7 @@ pub fn assemble(cameras: &[CameraRows], grid: &BoardGrid) -> Assembled {
                 s.spawn(move || {
                     resample(
                         &u.heights,
+                        c.variance.as_ref(),
                         &u.period_um,
                         c.first_row,
                         &c.placement,
@@ -143,6 +149,12 @@ pub struct TruthStats {
     pub rms_um: Option<f64>,
     /// Mean of `h - truth` over the flat pixels, um.
     pub bias_um: Option<f64>,
+    /// The Cramer-Rao bound over the same pixels: RMS of each pixel's bound, propagated from
+    /// its cameras' pixels through the resampling and blending weights, um (None without a
+    /// noise model; pixels without a bound are then left out of `rms_um` too).
+    pub crb_rms_um: Option<f64>,
+    /// `rms_um / crb_rms_um`.
+    pub over_crb: Option<f64>,
     /// Valid pixels whose absolute height is off by half a turn or more.
     pub wrong_turn_pixels: u64,
 }
@@ -153,12 +165,13 @@ pub const FLAT_UM: f32 = 1.0;
 /// Compares `map` on `grid` with `truth`; `period` gives each pixel's height per turn (um).
 pub fn against_truth(
     map: &Grid,
+    variance: Option<&Grid>,
     period: impl Fn(usize, usize) -> f32,
     grid: &BoardGrid,
     truth: &TruthRaster,
 ) -> TruthStats {
     let mut st = TruthStats::default();
-    let (mut sum, mut sq) = (0.0f64, 0.0f64);
+    let (mut sum, mut sq, mut vsum) = (0.0f64, 0.0f64, 0.0f64);
     for i in 0..grid.rows {
         for j in 0..grid.width {
             let h = map.at(i, j);
@@ -185,7 +198,9 @@ pub fn against_truth(
                     0.0f32,
                     |m, v| if v.is_nan() { f32::INFINITY } else { m.max(v) },
                 );
-            if curvature < FLAT_UM {
+            let var = variance.map(|v| f64::from(v.at(i, j)));
+            if curvature < FLAT_UM && var.is_none_or(f64::is_finite) {
+                vsum += var.unwrap_or(0.0);
                 st.flat_pixels += 1;
                 sum += d;
                 sq += d * d;
@@ -196,6 +211,10 @@ pub fn against_truth(
         let n = st.flat_pixels as f64;
         st.rms_um = Some((sq / n).sqrt());
         st.bias_um = Some(sum / n);
+        if variance.is_some() {
+            st.crb_rms_um = Some((vsum / n).sqrt());
+            st.over_crb = st.rms_um.zip(st.crb_rms_um).map(|(r, c)| r / c);
+        }
     }
     st
 }
@@ -262,6 +281,13 @@ mod tests {
             }
             cams.push(CameraRows {
                 heights: g,
+                // The uniform noise's variance, (3 um)^2 / 12.
+                variance: Some(Grid {
+                    width: w,
+                    rows,
+                    data: vec![0.75; w * rows],
+                }),
+                dead_masked: 0,
                 first_row: 0,
                 period_um: period,
                 placement: place,
@@ -275,12 +301,23 @@ mod tests {
             width: 300,
         };
         let a = assemble(&cams, &grid);
-        let st = against_truth(&a.blended.heights, |_, _| t_um, &grid, &truth);
+        let st = against_truth(
+            &a.blended.heights,
+            Some(&a.blended.variance),
+            |_, _| t_um,
+            &grid,
+            &truth,
+        );
         assert_eq!(st.wrong_turn_pixels, 0, "{st:?}");
         assert!(st.flat_pixels > 50_000, "{st:?}");
         // Uniform noise of +-1.5 um: rms 0.87 um, halved where cameras blend.
         assert!(st.rms_um.unwrap() < 1.0, "{st:?}");
         assert!(st.bias_um.unwrap().abs() < 0.1, "{st:?}");
         assert!(a.blended.seams[0].height_step_um.unwrap().abs() < 0.3);
+        // The propagated variance predicts the measured error: white noise through bilinear
+        // resampling and feathered blending (each pixel its own weights).
+        let ratio = st.over_crb.unwrap();
+        assert!((0.95..1.05).contains(&ratio), "{st:?}");
+        assert!(st.crb_rms_um.unwrap() < 0.87, "{st:?}");
     }
 }

@@ -62,6 +62,8 @@ impl Seam {
 pub struct Blended {
     /// Absolute heights, um (NaN invalid).
     pub heights: Grid,
+    /// Variance of each height, um^2, through the blending weights (NaN: unknown).
+    pub variance: Grid,
     /// Source camera of each pixel ([`NO_CAMERA`] where invalid).
     pub camera: Vec<u8>,
     /// Whole turns each layer was moved by (steps 1 and 2).
@@ -107,10 +109,12 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
 
     // 3. Blend (the board's turn is applied after, to the layers and the map alike).
     let mut heights = Grid::invalid(grid.width, grid.rows);
+    let mut variance = Grid::invalid(grid.width, grid.rows);
     let mut period = vec![0f32; n];
     let mut camera = vec![NO_CAMERA; n];
     for i in 0..n {
         let (mut s, mut ws, mut ts, mut best) = (0.0f64, 0.0f64, 0.0f64, (0.0f32, NO_CAMERA));
+        let mut vs = 0.0f64;
         for (k, l) in layers.iter().enumerate() {
             let h = l.heights.data[i];
             let w = l.weight.data[i];
@@ -118,6 +122,7 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
                 s += f64::from(w) * f64::from(h);
                 ts += f64::from(w) * f64::from(l.period_um.data[i]);
                 ws += f64::from(w);
+                vs += f64::from(w) * f64::from(w) * f64::from(l.variance.data[i]);
                 if w > best.0 {
                     best = (w, k.min(254) as u8);
                 }
@@ -125,6 +130,7 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
         }
         if ws > 0.0 {
             heights.data[i] = (s / ws) as f32;
+            variance.data[i] = (vs / (ws * ws)) as f32;
             period[i] = (ts / ws) as f32;
             camera[i] = best.1;
         }
@@ -165,6 +171,7 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
         .collect();
     Blended {
         heights,
+        variance,
         camera,
         turns,
         edge_median_um,
@@ -233,29 +240,34 @@ fn best_shift(a: &Layer, b: &Layer, dr: i64, dc: i64) -> Option<f64> {
     const STEP: f64 = 0.05;
     const STEPS: i64 = 40; // -2..=2 px
     let (w, rows) = (a.heights.width as i64, a.heights.rows as i64);
-    let at = |r: i64, c: i64| -> f32 {
+    let at = |l: &Layer, r: i64, c: i64| -> f32 {
         if r < 0 || c < 0 || r >= rows || c >= w {
             f32::NAN
         } else {
-            a.heights.at(r as usize, c as usize)
+            l.heights.at(r as usize, c as usize)
         }
     };
+    // A layer at `(r, c) + t (dr, dc)`, linearly interpolated along the shift.
+    let lerp = |l: &Layer, r: i64, c: i64, t: f64| -> f32 {
+        let (i0, f) = (t.floor() as i64, (t - t.floor()) as f32);
+        let h0 = at(l, r + i0 * dr, c + i0 * dc);
+        if f == 0.0 {
+            h0
+        } else {
+            h0 * (1.0 - f) + at(l, r + (i0 + 1) * dr, c + (i0 + 1) * dc) * f
+        }
+    };
+    // Both layers are interpolated, by `+s/2` and `-s/2`: with only one interpolated, its
+    // extra smoothing at the walls would pull the minimum towards whole pixels.
     let msd = |s: f64| -> Option<f64> {
-        let (i0, f) = (s.floor() as i64, s - s.floor());
         let (mut n, mut sa, mut sb, mut sab, mut saa, mut sbb) = (0u64, 0.0, 0.0, 0.0, 0.0, 0.0);
         for r in 0..rows {
             for c in 0..w {
-                let hb = b.heights.at(r as usize, c as usize);
+                let hb = lerp(b, r, c, -0.5 * s);
                 if !hb.is_finite() {
                     continue;
                 }
-                let h0 = at(r + i0 * dr, c + i0 * dc);
-                let h1 = at(r + (i0 + 1) * dr, c + (i0 + 1) * dc);
-                let ha = if f == 0.0 {
-                    h0
-                } else {
-                    h0 * (1.0 - f as f32) + h1 * f as f32
-                };
+                let ha = lerp(a, r, c, 0.5 * s);
                 if ha.is_finite() {
                     let (x, y) = (f64::from(ha), f64::from(hb));
                     n += 1;
@@ -278,7 +290,7 @@ fn best_shift(a: &Layer, b: &Layer, dr: i64, dc: i64) -> Option<f64> {
     let mut walls = 0usize;
     for r in 0..rows {
         for c in 0..w {
-            let (h0, h1) = (b.heights.at(r as usize, c as usize), at(r + dr, c + dc));
+            let (h0, h1) = (b.heights.at(r as usize, c as usize), at(a, r + dr, c + dc));
             let hb1 = if r + dr < rows && c + dc < w {
                 b.heights.at((r + dr) as usize, (c + dc) as usize)
             } else {
@@ -359,7 +371,7 @@ mod tests {
                     *cam.at_mut(b, c) = (truth(x, y, len, wid) + f64::from(off)) as f32;
                 }
             }
-            layers.push(resample(&cam, &[t; 120], 0, &place, &grid, 15.0));
+            layers.push(resample(&cam, None, &[t; 120], 0, &place, &grid, 15.0));
         }
         let out = blend(&mut layers, &grid, 3);
         assert_eq!(out.turns, vec![0, -1, 2]);

@@ -18,6 +18,7 @@
 pub mod assemble;
 pub mod blend;
 pub mod output;
+pub mod provenance;
 pub mod resample;
 pub mod run;
 pub mod unwrap;

@@ -257,6 +257,7 @@ mod tests {
             }
         }
         let b = Blended {
+            variance: Grid::invalid(h.width, h.rows),
             camera: h
                 .data
                 .iter()

@@ -81,12 +81,16 @@ pub struct Layer {
     /// Blending weight: 1 inside the camera, falling linearly to 0 over `feather_px` camera
     /// columns at its two side edges.
     pub weight: Grid,
+    /// Variance of each height, um^2, through the resampling weights (NaN: unknown; all NaN
+    /// when the camera came without one).
+    pub variance: Grid,
 }
 
 /// Resamples a camera's heights (`heights.rows` rows from board row `first_row`,
 /// `heights.width` columns) with its per-column height per turn onto `grid`.
 pub fn resample(
     heights: &Grid,
+    variance: Option<&Grid>,
     period_um: &[f32],
     first_row: i64,
     place: &Placement,
@@ -102,6 +106,7 @@ pub fn resample(
             rows: grid.rows,
             data: vec![0.0; grid.width * grid.rows],
         },
+        variance: Grid::invalid(grid.width, grid.rows),
     };
     if w == 0 || rows == 0 {
         return out;
@@ -119,6 +124,7 @@ pub fn resample(
             let (fb, fc) = (b - b0 as f64, c - c0 as f64);
             let mut sum = 0.0f64;
             let mut wsum = 0.0f64;
+            let mut vsum = 0.0f64;
             for (r, cc, wt) in [
                 (b0, c0, (1.0 - fb) * (1.0 - fc)),
                 (b0, c1, (1.0 - fb) * fc),
@@ -129,6 +135,7 @@ pub fn resample(
                 if h.is_finite() && wt > 0.0 {
                     sum += wt * f64::from(h);
                     wsum += wt;
+                    vsum += wt * wt * variance.map_or(f64::NAN, |v| f64::from(v.at(r, cc)));
                 }
             }
             if wsum < 0.5 {
@@ -136,6 +143,7 @@ pub fn resample(
             }
             let idx = i * grid.width + j;
             out.heights.data[idx] = (sum / wsum) as f32;
+            out.variance.data[idx] = (vsum / (wsum * wsum)) as f32;
             let t = f64::from(period_um[c0]) * (1.0 - fc) + f64::from(period_um[c1]) * fc;
             out.period_um.data[idx] = t as f32;
             let edge = c.min((w - 1) as f64 - c) + 0.5;
@@ -190,7 +198,7 @@ mod tests {
             rows: 340,
             width: 140,
         };
-        let l = resample(&cam, &vec![400.0; w], first, &p, &grid, 20.0);
+        let l = resample(&cam, None, &vec![400.0; w], first, &p, &grid, 20.0);
         let mut seen = 0;
         for i in 0..grid.rows {
             for j in 0..grid.width {

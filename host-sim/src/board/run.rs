@@ -50,6 +50,9 @@ pub struct PixelCounts {
     pub total: u64,
     pub valid: u64,
     pub valid_fraction: f64,
+    /// Camera pixels masked because a dead or weak image pixel of the calibration fed them,
+    /// per camera (before resampling).
+    pub dead_masked: Vec<u64>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -128,8 +131,13 @@ fn camera_rows(rec: &Recording, cal: &CameraCal, lsb_um: f64) -> Result<CameraRo
         let i = (b - first) as usize;
         g.data[i * w..(i + 1) * w].copy_from_slice(&h);
     }
+    let dead_masked = super::provenance::mask_dead_pixels(&rec, &cal.dead_pixels, first, &mut g);
+    let variance = super::provenance::crb_variance(&rec, &cal.height_per_turn_um, first, &g)
+        .with_context(|| format!("camera {}", cal.id))?;
     Ok(CameraRows {
         heights: g,
+        variance,
+        dead_masked,
         first_row: first,
         period_um: cal.height_per_turn_um.iter().map(|&t| t as f32).collect(),
         placement: placement(cal, max_step),
@@ -222,8 +230,10 @@ pub fn run(dir: &Path, cal: &CalFile, out: &Path) -> Result<Report> {
                     .map(|c| c.core_height_per_turn_um())
                     .sum::<f64>()
                     / cal.camera.len().max(1) as f64;
+                let with_crb = cams.iter().all(|c| c.variance.is_some());
                 Some(against_truth(
                     &a.blended.heights,
+                    with_crb.then_some(&a.blended.variance),
                     |_, _| t_mean as f32,
                     &grid,
                     &raster,
@@ -260,6 +270,7 @@ pub fn run(dir: &Path, cal: &CalFile, out: &Path) -> Result<Report> {
             } else {
                 0.0
             },
+            dead_masked: cams.iter().map(|c| c.dead_masked).collect(),
         },
         unwrap: UnwrapStats {
             wrong_turn_pixels: truth.as_ref().map(|t| t.wrong_turn_pixels),

@@ -2,7 +2,7 @@
 
 use super::truth::{truth_at, truth_row_index};
 use super::{RefOutput, RefRow};
-use crate::simulation::recording::{Manifest, Truth};
+use crate::simulation::recording::{Manifest, Noise, Truth};
 use nalgebra::{Matrix3, Vector3};
 use std::f64::consts::TAU;
 
@@ -50,7 +50,6 @@ pub fn crb_row(
     let cal = &manifest.calibration;
     let f_x = 1.0 / cal.fringe_period_px;
     let scale = (cal.height_per_turn_um / TAU).powi(2);
-    let read_var = noise.read_noise_dn * noise.read_noise_dn;
     let phi_r_row = TAU * f_x * (row.row - window.offsets.first().copied().unwrap_or(0)) as f64;
     for (c, slot) in v.iter_mut().enumerate() {
         let Some((h_true, bg, ct)) = truth(c) else {
@@ -58,18 +57,26 @@ pub fn crb_row(
         };
         let phi0 = cal.reference_phase_rad.get(c).copied().unwrap_or(f64::NAN);
         let phi = phi_r_row + phi0 + TAU * h_true / cal.height_per_turn_um;
-        let mut fisher = Matrix3::<f64>::zeros();
-        for &t in &window.shifts_rad {
-            let (s, co) = (phi + t).sin_cos();
-            let i = (bg + ct * co).max(0.0);
-            let var = read_var + i / noise.gain_e_per_dn + 1.0 / 12.0;
-            let jac = Vector3::new(1.0, co, -ct * s);
-            fisher += jac * jac.transpose() / var;
-        }
-        *slot = fisher
-            .try_inverse()
-            .map(|inv| inv[(2, 2)] * scale)
-            .filter(|x| x.is_finite() && *x >= 0.0);
+        *slot = phase_variance(noise, phi, &window.shifts_rad, bg, ct).map(|v| v * scale);
     }
     v
+}
+
+/// The Cramer-Rao bound of the phase variance, rad^2, of one pixel with true phase `phi`,
+/// background `bg` and contrast `ct` (DN) seen at the shifts `theta` (rad), under the noise
+/// model of [`crb`]; `None` when the Fisher matrix is singular.
+pub fn phase_variance(noise: &Noise, phi: f64, theta: &[f64], bg: f64, ct: f64) -> Option<f64> {
+    let read_var = noise.read_noise_dn * noise.read_noise_dn;
+    let mut fisher = Matrix3::<f64>::zeros();
+    for &t in theta {
+        let (s, co) = (phi + t).sin_cos();
+        let i = (bg + ct * co).max(0.0);
+        let var = read_var + i / noise.gain_e_per_dn + 1.0 / 12.0;
+        let jac = Vector3::new(1.0, co, -ct * s);
+        fisher += jac * jac.transpose() / var;
+    }
+    fisher
+        .try_inverse()
+        .map(|inv| inv[(2, 2)])
+        .filter(|x| x.is_finite() && *x >= 0.0)
 }
