@@ -3,7 +3,7 @@
 //! of every stage.
 
 use super::blend::{blend, Blended};
-use super::resample::{resample, BoardGrid, Layer, Placement};
+use super::resample::{resample, BoardGrid, Layer, Placement, Source};
 use super::unwrap::{unwrap, BLOCK};
 use super::Grid;
 use std::time::Instant;
@@ -19,6 +19,9 @@ pub struct CameraRows {
     pub variance: Option<Grid>,
     /// Pixels masked for the calibration's dead image pixels (see `super::provenance`).
     pub dead_masked: u64,
+    /// Where each row was seen along the motion, in rows (`super::provenance::row_positions`;
+    /// `None`: row `i` at `i`).
+    pub row_pos: Option<Vec<f64>>,
     pub first_row: i64,
     /// Height per turn of each column, um.
     pub period_um: Vec<f32>,
@@ -71,15 +74,14 @@ pub fn assemble(cameras: &[CameraRows], grid: &BoardGrid) -> Assembled {
             .zip(&unwrapped)
             .map(|(c, u)| {
                 s.spawn(move || {
-                    resample(
-                        &u.heights,
-                        c.variance.as_ref(),
-                        &u.period_um,
-                        c.first_row,
-                        &c.placement,
-                        grid,
-                        FEATHER_PX,
-                    )
+                    let src = Source {
+                        heights: &u.heights,
+                        variance: c.variance.as_ref(),
+                        period_um: &u.period_um,
+                        first_row: c.first_row,
+                        row_pos: c.row_pos.as_deref(),
+                    };
+                    resample(&src, &c.placement, grid, FEATHER_PX)
                 })
             })
             .collect();
@@ -288,6 +290,7 @@ mod tests {
                     data: vec![0.75; w * rows],
                 }),
                 dead_masked: 0,
+                row_pos: None,
                 first_row: 0,
                 period_um: period,
                 placement: place,

@@ -321,7 +321,7 @@ fn best_shift(a: &Layer, b: &Layer, dr: i64, dc: i64) -> Option<f64> {
 
 #[cfg(test)]
 mod tests {
-    use super::super::resample::{resample, Placement};
+    use super::super::resample::{resample, Placement, Source};
     use super::*;
 
     /// Truth on the board: a bow (0 at the edges) and paste boxes whose walls slope over
@@ -371,7 +371,14 @@ mod tests {
                     *cam.at_mut(b, c) = (truth(x, y, len, wid) + f64::from(off)) as f32;
                 }
             }
-            layers.push(resample(&cam, None, &[t; 120], 0, &place, &grid, 15.0));
+            let src = Source {
+                heights: &cam,
+                variance: None,
+                period_um: &[t; 120],
+                first_row: 0,
+                row_pos: None,
+            };
+            layers.push(resample(&src, &place, &grid, 15.0));
         }
         let out = blend(&mut layers, &grid, 3);
         assert_eq!(out.turns, vec![0, -1, 2]);

@@ -24,11 +24,13 @@ use anyhow::{Context, Result};
 use std::collections::HashMap;
 use std::f64::consts::TAU;
 
-/// The window of board row `b`: the row offsets `o_k` of its `n` frames (in order), or `None`
-/// for a row without a complete window (the core emits no valid pixel for it).
-fn windows(rec: &Recording) -> HashMap<i64, Vec<i64>> {
+/// The window of every board row with a complete one: `b -> (o_w, ..., o_{w+n-1})` and the
+/// sub-row travel of each of those frames, `latch_k / cpp - o_k` in `[-1/2, 1/2)` rows (the core
+/// registers whole rows, `o_k = round(latch_k / cpp)`).
+fn windows(rec: &Recording) -> HashMap<i64, (Vec<i64>, Vec<f64>)> {
     let m = &rec.manifest;
     let n = usize::from(m.processing.n);
+    let cpp = m.calibration.counts_per_pixel;
     let Some(o) = offsets(m) else {
         return HashMap::new();
     };
@@ -36,7 +38,31 @@ fn windows(rec: &Recording) -> HashMap<i64, Vec<i64>> {
         .into_iter()
         .filter_map(|p| {
             let w = p.first_frame?;
-            (p.flags == 0 && w + n <= o.len()).then(|| (p.row, o[w..w + n].to_vec()))
+            (p.flags == 0 && w + n <= o.len()).then(|| {
+                let frac = (w..w + n)
+                    .map(|k| m.frames[k].latch as f64 / cpp - o[k] as f64)
+                    .collect();
+                (p.row, (o[w..w + n].to_vec(), frac))
+            })
+        })
+        .collect()
+}
+
+/// Where each row of a camera's grid (row `i` is board row `first_row + i`) was seen along
+/// the motion, in rows: `i + mean_k(latch_k / cpp - o_k)` over its window frames. The core
+/// registers whole rows, so the board points behind one board row lie up to half a row off its
+/// nominal place, by the sub-row travel of each window frame; the row's height is their
+/// least-squares blend, centred on the mean. Rows without a window keep `i`. Increasing:
+/// neighbours differ by `1 +- (less than 1)`.
+pub fn row_positions(rec: &Recording, first_row: i64, rows: usize) -> Vec<f64> {
+    let win = windows(rec);
+    (0..rows)
+        .map(|i| {
+            let b = first_row + i as i64;
+            let shift = win
+                .get(&b)
+                .map_or(0.0, |(_, f)| f.iter().sum::<f64>() / f.len().max(1) as f64);
+            i as f64 + shift
         })
         .collect()
 }
@@ -52,7 +78,7 @@ pub fn mask_dead_pixels(rec: &Recording, dead: &[[u32; 2]], first_row: i64, g: &
         by_row.entry(i64::from(r)).or_default().push(c as usize);
     }
     let mut masked = 0;
-    for (b, offs) in windows(rec) {
+    for (b, (offs, _)) in windows(rec) {
         let Some(i) = b
             .checked_sub(first_row)
             .filter(|&i| i >= 0 && (i as usize) < g.rows)
@@ -100,7 +126,9 @@ pub fn crb_variance(
     let mut var = Grid::invalid(g.width, g.rows);
     for i in 0..g.rows {
         let b = first_row + i as i64;
-        let Some(offs) = win.get(&b) else { continue };
+        let Some((offs, _)) = win.get(&b) else {
+            continue;
+        };
         let Some(t) = truth.row(b).context("reading the camera truth")? else {
             continue;
         };

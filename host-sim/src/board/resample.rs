@@ -86,17 +86,44 @@ pub struct Layer {
     pub variance: Grid,
 }
 
-/// Resamples a camera's heights (`heights.rows` rows from board row `first_row`,
-/// `heights.width` columns) with its per-column height per turn onto `grid`.
-pub fn resample(
-    heights: &Grid,
-    variance: Option<&Grid>,
-    period_um: &[f32],
-    first_row: i64,
-    place: &Placement,
-    grid: &BoardGrid,
-    feather_px: f64,
-) -> Layer {
+/// A camera's measurement as the resampling takes it.
+#[derive(Clone, Copy, Debug)]
+pub struct Source<'a> {
+    /// Heights, um: row `i` is board row `first_row + i`, `heights.width` columns.
+    pub heights: &'a Grid,
+    /// Their variance, um^2 (same layout), if known.
+    pub variance: Option<&'a Grid>,
+    /// Height per turn of each column, um.
+    pub period_um: &'a [f32],
+    pub first_row: i64,
+    /// Where each row was seen along the motion, in rows (increasing; `None`: row `i` at
+    /// `i`), see `super::provenance::row_positions`.
+    pub row_pos: Option<&'a [f64]>,
+}
+
+/// The fractional grid row at nominal row `t` (rows from the first) through the increasing
+/// positions `pos`, searched from `floor(t)`; `None` outside `pos`.
+fn row_at(pos: &[f64], t: f64) -> Option<f64> {
+    let (first, last) = (*pos.first()?, *pos.last()?);
+    if !(t >= first && t <= last) {
+        return None;
+    }
+    let mut i = (t.floor().max(0.0) as usize).min(pos.len() - 1);
+    while i > 0 && pos[i] > t {
+        i -= 1;
+    }
+    while i + 1 < pos.len() && pos[i + 1] <= t {
+        i += 1;
+    }
+    if i + 1 == pos.len() {
+        return Some(i as f64);
+    }
+    Some(i as f64 + (t - pos[i]) / (pos[i + 1] - pos[i]))
+}
+
+/// Resamples a camera's heights onto `grid` through its placement.
+pub fn resample(src: &Source, place: &Placement, grid: &BoardGrid, feather_px: f64) -> Layer {
+    let (heights, variance, period_um) = (src.heights, src.variance, src.period_um);
     let (w, rows) = (heights.width, heights.rows);
     let mut out = Layer {
         heights: Grid::invalid(grid.width, grid.rows),
@@ -115,7 +142,14 @@ pub fn resample(
         for j in 0..grid.width {
             let (x, y) = grid.centre(i, j);
             let (b, c) = place.to_camera(x, y);
-            let b = b - first_row as f64;
+            let b = b - src.first_row as f64;
+            let b = match src.row_pos {
+                Some(pos) => match row_at(pos, b) {
+                    Some(b) => b,
+                    None => continue,
+                },
+                None => b,
+            };
             if !(b >= 0.0 && c >= 0.0 && b <= (rows - 1) as f64 && c <= (w - 1) as f64) {
                 continue;
             }
@@ -156,6 +190,29 @@ pub fn resample(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Rows seen off their nominal place: the inverse through `row_at` finds, for any nominal
+    /// position, the fractional row whose interpolated position is that position.
+    #[test]
+    fn row_at_inverts_the_row_positions() {
+        let pos: Vec<f64> = (0..50)
+            .map(|i| i as f64 + [0.4, -0.45, 0.1, 0.0, -0.2][i / 8 % 5])
+            .collect();
+        for k in 0..400 {
+            let t = pos[0] + k as f64 * (pos[49] - pos[0]) / 399.0;
+            let r = row_at(&pos, t).unwrap();
+            let (i, f) = (r.floor() as usize, r - r.floor());
+            let back = if i + 1 < pos.len() {
+                pos[i] * (1.0 - f) + pos[i + 1] * f
+            } else {
+                pos[i]
+            };
+            assert!((back - t).abs() < 1e-9, "{t} -> {r} -> {back}");
+        }
+        assert_eq!(row_at(&pos, pos[0] - 0.01), None);
+        assert_eq!(row_at(&pos, pos[49] + 0.01), None);
+        assert_eq!(row_at(&[], 0.0), None);
+    }
 
     #[test]
     fn placement_round_trips() {
@@ -198,7 +255,14 @@ mod tests {
             rows: 340,
             width: 140,
         };
-        let l = resample(&cam, None, &vec![400.0; w], first, &p, &grid, 20.0);
+        let src = Source {
+            heights: &cam,
+            variance: None,
+            period_um: &vec![400.0; w],
+            first_row: first,
+            row_pos: None,
+        };
+        let l = resample(&src, &p, &grid, 20.0);
         let mut seen = 0;
         for i in 0..grid.rows {
             for j in 0..grid.width {

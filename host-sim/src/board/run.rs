@@ -75,6 +75,48 @@ pub struct RunTiming {
     pub write_s: f64,
 }
 
+impl Report {
+    /// A few lines for the terminal.
+    pub fn summary(&self) -> String {
+        let opt = |x: Option<f64>| x.map_or_else(|| "n/a".to_string(), |v| format!("{v:.3}"));
+        let mut s = format!(
+            "board map {} x {} px at {} mm, {} cameras: {:.2} % valid ({} camera px masked for dead image pixels)\n",
+            self.grid.rows,
+            self.grid.width,
+            self.grid.pitch_mm,
+            self.cameras,
+            100.0 * self.pixels.valid_fraction,
+            self.pixels.dead_masked.iter().sum::<u64>()
+        );
+        s += &format!(
+            "seams: height step max {} um, misregistration max {} um; turns per camera {:?}\n",
+            opt(self.seams.height_step_um_max),
+            opt(self.seams.lateral_um_max),
+            self.unwrap.turns
+        );
+        if let Some(t) = &self.truth {
+            s += &format!(
+                "truth: rms {} um (bias {}), Cramer-Rao bound {} um (ratio {}) over {} flat px, {} wrong-turn px\n",
+                opt(t.rms_um),
+                opt(t.bias_um),
+                opt(t.crb_rms_um),
+                opt(t.over_crb),
+                t.flat_pixels,
+                t.wrong_turn_pixels
+            );
+        }
+        s += &format!(
+            "time: core {:.2} s, unwrap {:.2} s, resample {:.2} s, blend {:.2} s, write {:.2} s",
+            self.timing.core_s,
+            self.timing.assemble.unwrap_s,
+            self.timing.assemble.resample_s,
+            self.timing.assemble.blend_s,
+            self.timing.write_s
+        );
+        s
+    }
+}
+
 /// The board row's image row in its window's first frame (see the module docs).
 fn entry_row(cal: &CameraCal, max_step_rows: u32) -> f64 {
     f64::from(cal.rows) - f64::from(max_step_rows + 1) / 2.0
@@ -134,10 +176,12 @@ fn camera_rows(rec: &Recording, cal: &CameraCal, lsb_um: f64) -> Result<CameraRo
     let dead_masked = super::provenance::mask_dead_pixels(&rec, &cal.dead_pixels, first, &mut g);
     let variance = super::provenance::crb_variance(&rec, &cal.height_per_turn_um, first, &g)
         .with_context(|| format!("camera {}", cal.id))?;
+    let row_pos = super::provenance::row_positions(&rec, first, g.rows);
     Ok(CameraRows {
         heights: g,
         variance,
         dead_masked,
+        row_pos: Some(row_pos),
         first_row: first,
         period_um: cal.height_per_turn_um.iter().map(|&t| t as f32).collect(),
         placement: placement(cal, max_step),

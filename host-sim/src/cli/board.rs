@@ -31,37 +31,6 @@ pub fn run(a: Args) -> Result<()> {
         out!("{}", serde_json::to_string_pretty(&r)?);
         return Ok(());
     }
-    let opt = |x: Option<f64>| x.map_or_else(|| "n/a".to_string(), |v| format!("{v:.3}"));
-    out!(
-        "board map {} x {} px at {} mm -> {}: {:.2} % valid",
-        r.grid.rows,
-        r.grid.width,
-        r.grid.pitch_mm,
-        a.out.display(),
-        100.0 * r.pixels.valid_fraction
-    );
-    out!(
-        "seams: height step max {} um, misregistration max {} um; turns per camera {:?}",
-        opt(r.seams.height_step_um_max),
-        opt(r.seams.lateral_um_max),
-        r.unwrap.turns
-    );
-    if let Some(t) = &r.truth {
-        out!(
-            "truth: rms {} um (bias {}) over {} flat px, {} wrong-turn px",
-            opt(t.rms_um),
-            opt(t.bias_um),
-            t.flat_pixels,
-            t.wrong_turn_pixels
-        );
-    }
-    out!(
-        "time: core {:.2} s, unwrap {:.2} s, resample {:.2} s, blend {:.2} s, write {:.2} s",
-        r.timing.core_s,
-        r.timing.assemble.unwrap_s,
-        r.timing.assemble.resample_s,
-        r.timing.assemble.blend_s,
-        r.timing.write_s
-    );
+    out!("{} -> {}", r.summary(), a.out.display());
     Ok(())
 }
