@@ -257,12 +257,27 @@ fn best_shift(a: &Layer, b: &Layer, dr: i64, dc: i64) -> Option<f64> {
             h0 * (1.0 - f) + at(l, r + (i0 + 1) * dr, c + (i0 + 1) * dc) * f
         }
     };
+    // The shared area's bounding box, 3 px wider than the search: nothing outside it pairs.
+    let (mut r_lo, mut r_hi, mut c_lo, mut c_hi) = (rows, -1i64, w, -1i64);
+    for r in 0..rows {
+        for c in 0..w {
+            let i = (r * w + c) as usize;
+            if a.heights.data[i].is_finite() && b.heights.data[i].is_finite() {
+                (r_lo, r_hi, c_lo, c_hi) = (r_lo.min(r), r_hi.max(r), c_lo.min(c), c_hi.max(c));
+            }
+        }
+    }
+    if r_hi < 0 {
+        return None;
+    }
+    let rs = (r_lo - 3).max(0)..(r_hi + 4).min(rows);
+    let cs = (c_lo - 3).max(0)..(c_hi + 4).min(w);
     // Both layers are interpolated, by `+s/2` and `-s/2`: with only one interpolated, its
     // extra smoothing at the walls would pull the minimum towards whole pixels.
     let msd = |s: f64| -> Option<f64> {
         let (mut n, mut sa, mut sb, mut sab, mut saa, mut sbb) = (0u64, 0.0, 0.0, 0.0, 0.0, 0.0);
-        for r in 0..rows {
-            for c in 0..w {
+        for r in rs.clone() {
+            for c in cs.clone() {
                 let hb = lerp(b, r, c, -0.5 * s);
                 if !hb.is_finite() {
                     continue;
@@ -288,8 +303,8 @@ fn best_shift(a: &Layer, b: &Layer, dr: i64, dc: i64) -> Option<f64> {
     // Texture: deposit walls across the shift direction in the shared area. The bow and the
     // noise alone do not fix a shift (their difference surface is flat or linear in it).
     let mut walls = 0usize;
-    for r in 0..rows {
-        for c in 0..w {
+    for r in rs.clone() {
+        for c in cs.clone() {
             let (h0, h1) = (b.heights.at(r as usize, c as usize), at(a, r + dr, c + dc));
             let hb1 = if r + dr < rows && c + dc < w {
                 b.heights.at((r + dr) as usize, (c + dc) as usize)
