@@ -19,9 +19,8 @@ pub struct CameraRows {
     pub variance: Option<Grid>,
     /// Pixels masked for the calibration's dead image pixels (see `super::provenance`).
     pub dead_masked: u64,
-    /// Where each row was seen along the motion, in rows (`super::provenance::row_positions`;
-    /// `None`: row `i` at `i`).
-    pub row_pos: Option<Vec<f64>>,
+    /// Where each row was seen (`super::provenance::row_places`; `None`: nominal).
+    pub places: Option<super::provenance::RowPlaces>,
     pub first_row: i64,
     /// Height per turn of each column, um.
     pub period_um: Vec<f32>,
@@ -79,7 +78,7 @@ pub fn assemble(cameras: &[CameraRows], grid: &BoardGrid) -> Assembled {
                         variance: c.variance.as_ref(),
                         period_um: &u.period_um,
                         first_row: c.first_row,
-                        row_pos: c.row_pos.as_deref(),
+                        places: c.places.as_ref(),
                     };
                     resample(&src, &c.placement, grid, FEATHER_PX)
                 })
@@ -142,9 +141,10 @@ impl TruthRaster {
 pub struct TruthStats {
     /// Valid pixels inside the truth.
     pub pixels: u64,
-    /// Of them, on flat board: the truth's second differences over one pixel (along, across
-    /// and both diagonals) below [`FLAT_UM`] (no deposit wall nearby; the bow's curvature is
-    /// far below it), where the errors are measured.
+    /// Of them, on flat board: the truth's second differences (along, across and both
+    /// diagonals, over one step of the coarser of the map and truth grids, at the pixel and
+    /// at the corners of the truth cell around it) below [`FLAT_UM`] (no deposit wall nearby;
+    /// the bow's curvature is far below it), where the errors are measured.
     pub flat_pixels: u64,
     /// RMS of `h - truth` over the flat pixels, um (the truth carries the warp, so the warp
     /// is removed by it).
@@ -190,11 +190,20 @@ pub fn against_truth(
             if d.abs() >= 0.5 * f64::from(period(i, j)) {
                 st.wrong_turn_pixels += 1;
             }
-            let p = grid.pitch_mm;
-            let curvature = [(p, 0.0), (0.0, p), (p, p), (p, -p)]
+            // The truth's curvature at the pixel and at the four corners of the truth cell
+            // around it, over one step of the coarser of the two grids: a truth raster coarser
+            // than the map cannot show a deposit wall between its nodes to a finer test, and
+            // the bilinear truth there is not the board.
+            let p = grid.pitch_mm.max(truth.pitch_mm);
+            let h = 0.5 * truth.pitch_mm;
+            let curvature = [(0.0, 0.0), (h, h), (h, -h), (-h, h), (-h, -h)]
                 .iter()
-                .map(|&(dx, dy)| {
-                    (truth.at(x + dx, y + dy) + truth.at(x - dx, y - dy) - 2.0 * t).abs()
+                .flat_map(|&(ox, oy)| {
+                    let (cx, cy) = (x + ox, y + oy);
+                    let tc = truth.at(cx, cy);
+                    [(p, 0.0), (0.0, p), (p, p), (p, -p)].map(|(dx, dy)| {
+                        (truth.at(cx + dx, cy + dy) + truth.at(cx - dx, cy - dy) - 2.0 * tc).abs()
+                    })
                 })
                 .fold(
                     0.0f32,
@@ -290,7 +299,7 @@ mod tests {
                     data: vec![0.75; w * rows],
                 }),
                 dead_masked: 0,
-                row_pos: None,
+                places: None,
                 first_row: 0,
                 period_um: period,
                 placement: place,

@@ -391,7 +391,7 @@ mod tests {
                 variance: None,
                 period_um: &[t; 120],
                 first_row: 0,
-                row_pos: None,
+                places: None,
             };
             layers.push(resample(&src, &place, &grid, 15.0));
         }

@@ -48,23 +48,55 @@ fn windows(rec: &Recording) -> HashMap<i64, (Vec<i64>, Vec<f64>)> {
         .collect()
 }
 
-/// Where each row of a camera's grid (row `i` is board row `first_row + i`) was seen along
-/// the motion, in rows: `i + mean_k(latch_k / cpp - o_k)` over its window frames. The core
-/// registers whole rows, so the board points behind one board row lie up to half a row off its
-/// nominal place, by the sub-row travel of each window frame; the row's height is their
-/// least-squares blend, centred on the mean. Rows without a window keep `i`. Increasing:
-/// neighbours differ by `1 +- (less than 1)`.
-pub fn row_positions(rec: &Recording, first_row: i64, rows: usize) -> Vec<f64> {
+/// Where each row of a camera's grid (row `i` is board row `first_row + i`) was seen, as
+/// [`RowPlaces`]: along the motion `i + mean_k(latch_k / cpp - o_k)` over its window frames,
+/// across it the mean image row `mean_k(b - o_k)` against the placement's `r_w`.
+///
+/// The core registers whole rows, so the board points behind one board row lie up to half a row
+/// off its nominal place in each window frame, by that frame's sub-row travel; and the row is
+/// seen at a different image row in each window frame, which with a rotation `a` of the image
+/// rows moves it across by `p sin a` per image row. The row's height is the least-squares blend
+/// of those points, centred on their mean. Rows without a window keep the nominal place.
+pub fn row_places(
+    rec: &Recording,
+    first_row: i64,
+    rows: usize,
+    r_w: f64,
+    rotation_rad: f64,
+) -> RowPlaces {
     let win = windows(rec);
-    (0..rows)
-        .map(|i| {
-            let b = first_row + i as i64;
-            let shift = win
-                .get(&b)
-                .map_or(0.0, |(_, f)| f.iter().sum::<f64>() / f.len().max(1) as f64);
-            i as f64 + shift
-        })
-        .collect()
+    let mean = |v: &mut dyn Iterator<Item = f64>| {
+        let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
+        s / n.max(1) as f64
+    };
+    let mut along = Vec::with_capacity(rows);
+    let mut across = Vec::with_capacity(rows);
+    for i in 0..rows {
+        let b = first_row + i as i64;
+        match win.get(&b) {
+            Some((o, f)) => {
+                along.push(i as f64 + mean(&mut f.iter().copied()));
+                let r_mean = mean(&mut o.iter().map(|&ok| (b - ok) as f64));
+                across.push((r_mean - r_w) * rotation_rad.tan());
+            }
+            None => {
+                along.push(i as f64);
+                across.push(0.0);
+            }
+        }
+    }
+    RowPlaces { along, across }
+}
+
+/// Where a camera's rows were seen (see [`row_places`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RowPlaces {
+    /// Position of row `i` along the motion, in rows (increasing: neighbours differ by
+    /// `1 +- (less than 1)`).
+    pub along: Vec<f64>,
+    /// How far the board point of column `c` of row `i` lies from the nominal column, px:
+    /// the point the placement puts at column `c` is at column `c - across[i]`.
+    pub across: Vec<f64>,
 }
 
 /// Masks (sets to NaN) every pixel of `g` (row `i` is board row `first_row + i`) that a dead

@@ -96,9 +96,9 @@ pub struct Source<'a> {
     /// Height per turn of each column, um.
     pub period_um: &'a [f32],
     pub first_row: i64,
-    /// Where each row was seen along the motion, in rows (increasing; `None`: row `i` at
-    /// `i`), see `super::provenance::row_positions`.
-    pub row_pos: Option<&'a [f64]>,
+    /// Where each row was seen (`None`: row `i` at its nominal place), see
+    /// `super::provenance::row_places`.
+    pub places: Option<&'a super::provenance::RowPlaces>,
 }
 
 /// The fractional grid row at nominal row `t` (rows from the first) through the increasing
@@ -143,12 +143,17 @@ pub fn resample(src: &Source, place: &Placement, grid: &BoardGrid, feather_px: f
             let (x, y) = grid.centre(i, j);
             let (b, c) = place.to_camera(x, y);
             let b = b - src.first_row as f64;
-            let b = match src.row_pos {
-                Some(pos) => match row_at(pos, b) {
-                    Some(b) => b,
+            let (b, c) = match src.places {
+                Some(pl) => match row_at(&pl.along, b) {
+                    Some(b) => {
+                        let (i, f) = (b.floor() as usize, b - b.floor());
+                        let a0 = pl.across.get(i).copied().unwrap_or(0.0);
+                        let a1 = pl.across.get(i + 1).copied().unwrap_or(a0);
+                        (b, c - (a0 * (1.0 - f) + a1 * f))
+                    }
                     None => continue,
                 },
-                None => b,
+                None => (b, c),
             };
             if !(b >= 0.0 && c >= 0.0 && b <= (rows - 1) as f64 && c <= (w - 1) as f64) {
                 continue;
@@ -260,7 +265,7 @@ mod tests {
             variance: None,
             period_um: &vec![400.0; w],
             first_row: first,
-            row_pos: None,
+            places: None,
         };
         let l = resample(&src, &p, &grid, 20.0);
         let mut seen = 0;

@@ -176,12 +176,18 @@ fn camera_rows(rec: &Recording, cal: &CameraCal, lsb_um: f64) -> Result<CameraRo
     let dead_masked = super::provenance::mask_dead_pixels(&rec, &cal.dead_pixels, first, &mut g);
     let variance = super::provenance::crb_variance(&rec, &cal.height_per_turn_um, first, &g)
         .with_context(|| format!("camera {}", cal.id))?;
-    let row_pos = super::provenance::row_positions(&rec, first, g.rows);
+    let places = super::provenance::row_places(
+        &rec,
+        first,
+        g.rows,
+        entry_row(cal, max_step),
+        cal.lateral.rotation_rad,
+    );
     Ok(CameraRows {
         heights: g,
         variance,
         dead_masked,
-        row_pos: Some(row_pos),
+        places: Some(places),
         first_row: first,
         period_um: cal.height_per_turn_um.iter().map(|&t| t as f32).collect(),
         placement: placement(cal, max_step),
