@@ -120,6 +120,9 @@ pub struct TruthInfo {
 pub struct Recording {
     pub dir: PathBuf,
     pub manifest: Manifest,
+    /// Every frame decoded in memory ([`Recording::preload`], for benchmarks that time the
+    /// processing without the file reading); `None`: frames are read on demand.
+    preloaded: Option<std::sync::Arc<Vec<Frame>>>,
 }
 
 /// One decoded frame, row-major `rows x width`.
@@ -510,7 +513,11 @@ impl Recording {
             Err(cause) => return Err(RecordingError::Io { path, cause }),
         };
         let manifest = Manifest::parse(&bytes, &path)?;
-        Ok(Recording { dir, manifest })
+        Ok(Recording {
+            dir,
+            manifest,
+            preloaded: None,
+        })
     }
 
     /// Number of frames listed in the manifest.
@@ -533,6 +540,17 @@ impl Recording {
         self.manifest.camera.rows as usize
     }
 
+    /// Decodes every frame into memory; [`Recording::frame`] then hands out copies of them
+    /// (clones of the recording share them). Returns the bytes of samples held.
+    pub fn preload(&mut self) -> Result<u64, RecordingError> {
+        let frames = (0..self.len())
+            .map(|k| self.frame(k))
+            .collect::<Result<Vec<_>, _>>()?;
+        let bytes = frames.iter().map(|f| f.data.len() as u64 * 2).sum();
+        self.preloaded = Some(std::sync::Arc::new(frames));
+        Ok(bytes)
+    }
+
     /// Absolute path of frame `k`'s file.
     pub fn frame_path(&self, k: usize) -> Option<PathBuf> {
         self.manifest.frames.get(k).map(|f| self.dir.join(&f.file))
@@ -542,6 +560,9 @@ impl Recording {
     ///
     /// Accepts 16-bit greyscale PNG, and 8-bit greyscale PNG only when `bit_depth` is 8.
     pub fn frame(&self, k: usize) -> Result<Frame, RecordingError> {
+        if let Some(f) = self.preloaded.as_ref().and_then(|p| p.get(k)) {
+            return Ok(f.clone());
+        }
         let entry = self
             .manifest
             .frames
