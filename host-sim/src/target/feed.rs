@@ -41,6 +41,7 @@ pub fn write_feed_to<W: Write>(
             .map_err(|_| anyhow!("{} frames do not fit a feed", frames.len()))?,
         intra_period,
         run_id: rec.run_id(),
+        column_scale: None,
     };
     // Check that the header reads back as written (the firmware applies the same checks).
     let head = header.encode();
