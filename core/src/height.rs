@@ -89,7 +89,12 @@ impl<'a> ColumnScale<'a> {
 
     /// Checks the table against `cfg` (see [`ColumnScale`]).
     pub fn check(&self, cfg: &Config) -> Result<(), ColumnScaleError> {
-        let w = cfg.width;
+        self.check_parts(cfg.width, cfg.lsb_per_turn)
+    }
+
+    /// [`ColumnScale::check`] with the two values of the configuration it reads: the width
+    /// `W` and the uniform LSB per turn.
+    pub fn check_parts(&self, w: u16, lsb_per_turn: U16F16) -> Result<(), ColumnScaleError> {
         if self.mantissa.len() != w as usize {
             return Err(ColumnScaleError::Length {
                 expected: w,
@@ -99,7 +104,7 @@ impl<'a> ColumnScale<'a> {
         if self.shift > MAX_COLUMN_SHIFT {
             return Err(ColumnScaleError::Shift(self.shift));
         }
-        let k = cfg.lsb_per_turn.to_bits() as u64;
+        let k = lsb_per_turn.to_bits() as u64;
         for (c, &m) in self.mantissa.iter().enumerate() {
             // Q16.16 bits, < 2^31 (shift <= 15); compared in u64, no overflow.
             let kc = (m as u64) << self.shift;

@@ -49,7 +49,6 @@ pub fn crb_row(
     };
     let cal = &manifest.calibration;
     let f_x = 1.0 / cal.fringe_period_px;
-    let scale = (cal.height_per_turn_um / TAU).powi(2);
     let read_var = noise.read_noise_dn * noise.read_noise_dn;
     let phi_r_row = TAU * f_x * (row.row - window.offsets.first().copied().unwrap_or(0)) as f64;
     for (c, slot) in v.iter_mut().enumerate() {
@@ -57,7 +56,9 @@ pub fn crb_row(
             continue;
         };
         let phi0 = cal.reference_phase_rad.get(c).copied().unwrap_or(f64::NAN);
-        let phi = phi_r_row + phi0 + TAU * h_true / cal.height_per_turn_um;
+        let t_z = cal.height_per_turn_at(c);
+        let scale = (t_z / TAU).powi(2);
+        let phi = phi_r_row + phi0 + TAU * h_true / t_z;
         let mut fisher = Matrix3::<f64>::zeros();
         for &t in &window.shifts_rad {
             let (s, co) = (phi + t).sin_cos();

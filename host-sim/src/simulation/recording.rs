@@ -53,10 +53,28 @@ pub struct Calibration {
     pub fringe_period_px: f64,
     /// `phi_0(c)`, one value per column, rad.
     pub reference_phase_rad: Vec<f64>,
-    /// Height for one full fringe turn `1/f_z`, um.
+    /// Height for one full fringe turn `1/f_z`, um: every column's, or the nominal value when
+    /// `height_per_turn_um_per_column` is given (then the core's `lsb_per_turn`, and each
+    /// column's value must lie within a factor of 2 of it).
     pub height_per_turn_um: f64,
     /// Height LSB of the i16 output, um.
     pub height_lsb_um: f64,
+    /// Height per fringe turn per column `T_z(c)`, um (non-telecentric optics; from the
+    /// calibration): the core scales column `c` with it, so every column's heights are in
+    /// calibrated LSB. Absent: `height_per_turn_um` everywhere (manifests written before it
+    /// existed read unchanged, with the same run identity).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub height_per_turn_um_per_column: Option<Vec<f64>>,
+}
+
+impl Calibration {
+    /// `T_z` of column `c`, um: the per-column value if there is a table, else the uniform one.
+    pub fn height_per_turn_at(&self, c: usize) -> f64 {
+        match &self.height_per_turn_um_per_column {
+            Some(t) => t.get(c).copied().unwrap_or(f64::NAN),
+            None => self.height_per_turn_um,
+        }
+    }
 }
 
 /// Processing parameters of the reconstruction.
@@ -874,6 +892,7 @@ mod tests {
                 reference_phase_rad: vec![0.1; WIDTH],
                 height_per_turn_um: 500.0,
                 height_lsb_um: 0.25,
+                height_per_turn_um_per_column: None,
             },
             processing: Processing {
                 n: 4,
