@@ -3,9 +3,10 @@
 //! - Bit-exactness: on four recordings (the default scene and `scenes/jitter.toml`,
 //!   `scenes/defects.toml`, `scenes/fullframe.toml`) the packet stream the firmware emits is
 //!   byte for byte the one `dpsa reconstruct` writes on the host, and it decodes into rows that
-//!   show what the scene was made to contain.
-//! - Bad input: a truncated feed, a corrupt header and a corrupt reference table
-//!   make the firmware exit with a failure status and a logged error naming the fault, never a
+//!   show what the scene was made to contain; the same with a per-column height scale (the
+//!   feed's height-scale table), whose heights are the uniform run's scaled by `T_z(c) / T_z`.
+//! - Bad input: a truncated feed, a corrupt header, a corrupt reference table and a corrupt,
+//!   out-of-range or truncated height-scale table make the firmware exit with a failure status and a logged error naming the fault, never a
 //!   panic or a hang.
 //!
 //! These tests need the cross toolchain and `qemu-system-arm` (`bash firmware/build.sh
@@ -303,6 +304,47 @@ fn fullframe_scene_is_bit_exact() {
     );
 }
 
+/// `T_z(c)` of a per-column table for width `w`: +-2 % around the recording's 500 um.
+fn per_column_tz(w: usize) -> Vec<f64> {
+    (0..w)
+        .map(|c| 500.0 * (1.0 + 0.02 * (c as f64 * 0.07 + 0.5).sin()))
+        .collect()
+}
+
+/// A calibration with a per-column height per turn: the feed carries the core's table, the
+/// firmware's stream is the host's byte for byte, and its heights are the uniform run's
+/// scaled per column by `T_z(c) / T_z` (within the two roundings).
+#[test]
+fn per_column_height_scale_is_bit_exact() {
+    let Some(elf) = elf() else { return };
+    let mut sim = simulate(&small_scene(), 6);
+    let plain = host_and_target("uniform height scale", &sim, &elf);
+    let tz = per_column_tz(sim.rec.width());
+    sim.rec.manifest.calibration.height_per_turn_um_per_column = Some(tz.clone());
+    sim.rec.manifest.validate().unwrap();
+    let scaled = host_and_target("per-column height scale", &sim, &elf);
+    let turn_lsb = 500.0 / 0.25;
+    let (mut pixels, mut worst) = (0usize, 0f64);
+    for (a, b) in plain.rows.iter().zip(&scaled.rows) {
+        assert_eq!((a.row, a.flags), (b.row, b.flags));
+        for (c, &t) in tz.iter().enumerate() {
+            assert_eq!(a.pixel_valid(c), b.pixel_valid(c), "row {} col {c}", a.row);
+            let h = f64::from(a.heights[c]);
+            // Away from the wrap at half a turn, where the two scales wrap differently.
+            if !a.pixel_valid(c) || h.abs() > 0.45 * turn_lsb {
+                continue;
+            }
+            let want = h * t / 500.0;
+            worst = worst.max((f64::from(b.heights[c]) - want).abs());
+            pixels += 1;
+        }
+    }
+    assert!(pixels > 50_000, "{pixels}");
+    // Each run rounds once (0.5 LSB, the uniform one's scaled by up to 1.02) and the table
+    // quantises k_c (< 0.01 LSB).
+    assert!(worst <= 1.03, "per-column heights off by {worst} LSB");
+}
+
 /// `--intra-period` reaches the firmware through the recording header: predicted rows are
 /// bit-exact too, and make a different (smaller) stream.
 /// Encoder faults: a latch jump of +1e12 counts at frame 20 and a reversal at frame 45. The
@@ -382,7 +424,25 @@ fn exported(dir: &Path) -> (PathBuf, feed::Header, Vec<u8>) {
         bytes.len(),
         feed::HEADER_LEN + header.table_len() + header.frames as usize * header.frame_len()
     );
+    assert_eq!(header.frames_at(), feed::HEADER_LEN + header.table_len());
     (path, header, bytes)
+}
+
+/// A feed with a per-column height-scale table, and its header.
+fn exported_with_table(dir: &Path) -> (feed::Header, Vec<u8>) {
+    let mut sim = simulate(&small_scene(), 22);
+    sim.rec.manifest.calibration.height_per_turn_um_per_column =
+        Some(per_column_tz(sim.rec.width()));
+    let path = dir.join("recording-table.dpsr");
+    target::write_feed(&sim.rec, 1, &path).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let header = feed::Header::decode(&bytes).expect("the export's header decodes");
+    assert!(header.column_scale.is_some());
+    assert_eq!(
+        bytes.len(),
+        header.frames_at() + header.frames as usize * header.frame_len()
+    );
+    (header, bytes)
 }
 
 /// Runs the firmware on `bytes` as a recording: it must fail, log an error that contains
@@ -485,6 +545,50 @@ fn corrupt_header_and_table_are_refused() {
             "reference-phase table CRC does not match",
         ],
     );
+    // The per-column height-scale table: one flipped bit (its CRC), and a table whose CRC is
+    // right but whose entry is four times the configuration's scale.
+    let (ht, tbytes) = exported_with_table(dir.path());
+    let at = feed::HEADER_LEN + ht.table_len();
+    let mut b = tbytes.clone();
+    b[at + 2 * 5] ^= 0x01;
+    assert_refused(
+        &elf,
+        dir.path(),
+        "scale-table",
+        &b,
+        &[
+            "opening the feed",
+            "per-column height-scale table CRC does not match",
+        ],
+    );
+    let w = ht.cfg.width as usize;
+    let mut mantissa: Vec<u16> = b[at..at + 2 * w]
+        .chunks_exact(2)
+        .map(|c| u16::from_le_bytes([c[0], c[1]]))
+        .collect();
+    mantissa[9] /= 4;
+    let mut b = tbytes.clone();
+    feed::encode_scale_table(&mantissa, &mut b[at..at + 2 * w + 4]).unwrap();
+    assert_refused(
+        &elf,
+        dir.path(),
+        "scale-range",
+        &b,
+        &[
+            "opening the feed",
+            "per-column height scale: column 9",
+            "factor of 2",
+        ],
+    );
+    // A truncated table.
+    assert_refused(
+        &elf,
+        dir.path(),
+        "scale-short",
+        &tbytes[..at + 100],
+        &["opening the feed", "length does not match the feed layout"],
+    );
+
     // A valid header (CRC and all) whose configuration the core refuses.
     let mut bad = h;
     bad.cfg.max_step_rows = bad.cfg.rows + 1;

@@ -5,7 +5,7 @@
 
 use crate::frames::feed::{self, FeedError};
 use crate::frames::{Config, ConfigError, Trigger};
-use crate::height::Invalid;
+use crate::height::{ColumnScaleError, Invalid, MAX_COLUMN_SHIFT};
 use crate::packets::codec::CodecError;
 use crate::packets::PacketError;
 use crate::pipeline::{Error, Layout, NewError};
@@ -52,6 +52,10 @@ impl Format for FeedError {
             FeedError::Config(e) => write!(f, "configuration: {}", e),
             FeedError::IntraPeriod => write!(f, "intra period 0 is out of range (at least 1)"),
             FeedError::TableCrc => write!(f, "the reference-phase table CRC does not match"),
+            FeedError::ScaleCrc => {
+                write!(f, "the per-column height-scale table CRC does not match")
+            }
+            FeedError::ColumnScale(e) => write!(f, "per-column height scale: {}", e),
             FeedError::Length => write!(
                 f,
                 "length does not match the feed layout (short or oversized input)"
@@ -67,6 +71,31 @@ impl Format for NewError {
             NewError::Memory => write!(
                 f,
                 "memory or reference-phase table smaller than the layout needs"
+            ),
+            NewError::ColumnScale(e) => write!(f, "per-column height scale: {}", e),
+        }
+    }
+}
+
+impl Format for ColumnScaleError {
+    fn format(&self, f: Formatter<'_>) {
+        match self {
+            ColumnScaleError::Length { expected, got } => write!(
+                f,
+                "the table has {=usize} entries, expected one per column ({=u16})",
+                got,
+                expected
+            ),
+            ColumnScaleError::Shift(s) => write!(
+                f,
+                "exponent {=u8} is out of range (0..={=u8})",
+                s,
+                MAX_COLUMN_SHIFT
+            ),
+            ColumnScaleError::Range { column } => write!(
+                f,
+                "column {=u16}: LSB per turn is zero or more than a factor of 2 from lsb_per_turn (or not below 32768)",
+                column
             ),
         }
     }
@@ -206,8 +235,8 @@ impl Format for Layout {
     fn format(&self, f: Formatter<'_>) {
         write!(
             f,
-            "Layout {{ width: {=usize}, pool_lines: {=usize}, slots: {=usize} }}",
-            self.width, self.pool_lines, self.slots
+            "Layout {{ width: {=usize}, pool_lines: {=usize}, slots: {=usize}, scale_columns: {=usize} }}",
+            self.width, self.pool_lines, self.slots, self.scale_columns
         )
     }
 }

@@ -6,7 +6,7 @@
 
 use crate::frames::feed::{FeedError, VERSION as FEED_VERSION};
 use crate::frames::ConfigError;
-use crate::height::Invalid;
+use crate::height::{ColumnScaleError, Invalid, MAX_COLUMN_SHIFT};
 use crate::packets::codec::CodecError;
 use crate::packets::{PacketError, VERSION as PACKET_VERSION};
 use crate::pipeline::{Error, NewError};
@@ -49,6 +49,10 @@ impl Display for FeedError {
             FeedError::Config(e) => write!(f, "configuration: {e}"),
             FeedError::IntraPeriod => f.write_str("intra period 0 is out of range (at least 1)"),
             FeedError::TableCrc => f.write_str("the reference-phase table CRC does not match"),
+            FeedError::ScaleCrc => {
+                f.write_str("the per-column height-scale table CRC does not match")
+            }
+            FeedError::ColumnScale(e) => write!(f, "per-column height scale: {e}"),
             FeedError::Length => {
                 f.write_str("length does not match the feed layout (short or oversized input)")
             }
@@ -60,6 +64,7 @@ impl StdError for FeedError {
     fn source(&self) -> Option<&(dyn StdError + 'static)> {
         match self {
             FeedError::Config(e) => Some(e),
+            FeedError::ColumnScale(e) => Some(e),
             _ => None,
         }
     }
@@ -72,14 +77,37 @@ impl Display for NewError {
             NewError::Memory => {
                 f.write_str("memory or reference-phase table smaller than the layout needs")
             }
+            NewError::ColumnScale(e) => write!(f, "per-column height scale: {e}"),
         }
     }
 }
+
+impl Display for ColumnScaleError {
+    fn fmt(&self, f: &mut Formatter<'_>) -> fmt::Result {
+        match self {
+            ColumnScaleError::Length { expected, got } => write!(
+                f,
+                "the table has {got} entries, expected one per column ({expected})"
+            ),
+            ColumnScaleError::Shift(s) => write!(
+                f,
+                "exponent {s} is out of range (0..={MAX_COLUMN_SHIFT})"
+            ),
+            ColumnScaleError::Range { column } => write!(
+                f,
+                "column {column}: LSB per turn is zero or more than a factor of 2 from lsb_per_turn (or not below 32768)"
+            ),
+        }
+    }
+}
+
+impl StdError for ColumnScaleError {}
 
 impl StdError for NewError {
     fn source(&self) -> Option<&(dyn StdError + 'static)> {
         match self {
             NewError::Config(e) => Some(e),
+            NewError::ColumnScale(e) => Some(e),
             NewError::Memory => None,
         }
     }

@@ -18,6 +18,166 @@ pub enum Invalid {
     LowModulation,
 }
 
+/// Largest exponent of a [`ColumnScale`]: `mantissa << 15 < 2^31`, the range of
+/// [`Config::lsb_per_turn`]'s bits that keeps every height inside [`H_MAX`].
+pub const MAX_COLUMN_SHIFT: u8 = 15;
+
+/// A per-column height scale: column `c` has its own LSB per turn `k_c` (the non-telecentric
+/// optics make the height per fringe turn `T_z(c)` vary over the field), so the heights the
+/// core emits are in the same calibrated LSB in every column.
+///
+/// Format: a block floating point with one exponent for the table. Entry `c` is a `u16`
+/// mantissa `m_c`; `k_c`'s Q16.16 bits (the format of [`Config::lsb_per_turn`]) are
+/// `m_c << shift`, i.e. `m_c` is `k_c` in LSB per turn with `16 - shift` fractional bits
+/// (`shift` is a table-wide run-time value, `0..=`[`MAX_COLUMN_SHIFT`], so no single `fixed`
+/// type states it; [`ColumnScale::encode`] takes and [`ColumnScale::lsb_per_turn`] gives the
+/// `U16F16` values). Two bytes per column.
+///
+/// [`ColumnScale::encode`] picks the smallest `shift` whose mantissas fit 16 bits, so the
+/// largest mantissa is at least `2^15` (for `shift > 0`) and each `k_c` is rounded to
+/// `2^(shift-16)` LSB per turn: at most `2^(shift-17)` LSB per turn off. A height is at most
+/// half a turn, so the table's quantisation moves a height by at most `2^(shift-18)` LSB
+/// (plus `2^-18` LSB from rounding `k_c` to Q16.16 first): 0.0078 LSB at the default
+/// 2000 LSB per turn (`shift = 11`), 0.125 LSB at the largest scale the core accepts
+/// (`shift = 15`, `< 32768` LSB per turn; 0.25 LSB for an entry within `2^-16` of 32768,
+/// whose mantissa is clamped to 65535). Tested in `column_scale_heights_match_f64`.
+///
+/// Validity ([`ColumnScale::check`]): one entry per column, `shift <= 15`, and every `k_c`
+/// within a factor of two of [`Config::lsb_per_turn`] (`k/2 <= k_c <= 2k`; so never zero): a
+/// table further off than that is a wrong or corrupt calibration, not optics.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ColumnScale<'a> {
+    shift: u8,
+    mantissa: &'a [u16],
+}
+
+/// Why a per-column height-scale table was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ColumnScaleError {
+    /// The table has `got` entries, the configuration `expected` columns.
+    Length { expected: u16, got: usize },
+    /// The exponent is above [`MAX_COLUMN_SHIFT`].
+    Shift(u8),
+    /// Column `column`'s LSB per turn is zero or more than a factor of two away from
+    /// [`Config::lsb_per_turn`].
+    Range { column: u16 },
+}
+
+impl<'a> ColumnScale<'a> {
+    /// The table `mantissa` with exponent `shift` (unchecked: see [`ColumnScale::check`]).
+    pub const fn new(shift: u8, mantissa: &'a [u16]) -> ColumnScale<'a> {
+        ColumnScale { shift, mantissa }
+    }
+
+    pub const fn shift(&self) -> u8 {
+        self.shift
+    }
+
+    pub const fn mantissa(&self) -> &'a [u16] {
+        self.mantissa
+    }
+
+    /// Column `c`'s LSB per turn (`None` past the table).
+    pub fn lsb_per_turn(&self, c: usize) -> Option<U16F16> {
+        let m = *self.mantissa.get(c)?;
+        Some(U16F16::from_bits(
+            (m as u32)
+                .checked_shl(self.shift as u32)
+                .unwrap_or(u32::MAX),
+        ))
+    }
+
+    /// Checks the table against `cfg` (see [`ColumnScale`]).
+    pub fn check(&self, cfg: &Config) -> Result<(), ColumnScaleError> {
+        self.check_parts(cfg.width, cfg.lsb_per_turn)
+    }
+
+    /// [`ColumnScale::check`] with the two values of the configuration it reads: the width
+    /// `W` and the uniform LSB per turn.
+    pub fn check_parts(&self, w: u16, lsb_per_turn: U16F16) -> Result<(), ColumnScaleError> {
+        if self.mantissa.len() != w as usize {
+            return Err(ColumnScaleError::Length {
+                expected: w,
+                got: self.mantissa.len(),
+            });
+        }
+        if self.shift > MAX_COLUMN_SHIFT {
+            return Err(ColumnScaleError::Shift(self.shift));
+        }
+        let k = lsb_per_turn.to_bits() as u64;
+        for (c, &m) in self.mantissa.iter().enumerate() {
+            // Q16.16 bits, < 2^31 (shift <= 15); compared in u64, no overflow.
+            let kc = (m as u64) << self.shift;
+            if kc == 0 || 2 * kc < k || kc > 2 * k {
+                return Err(ColumnScaleError::Range { column: c as u16 });
+            }
+        }
+        Ok(())
+    }
+
+    /// Encodes per-column LSB per turn (Q16.16) into mantissas (`mantissa.len()` must equal
+    /// `lsb_per_turn.len()`) and returns the exponent: the smallest `shift` for which every
+    /// `round(k_c / 2^shift)` (half up) fits 16 bits. Refuses zero entries and entries at or
+    /// above `2^15` LSB per turn (the range of [`Config::lsb_per_turn`]); the band around
+    /// the configuration's value is [`ColumnScale::check`]'s.
+    pub fn encode(lsb_per_turn: &[U16F16], mantissa: &mut [u16]) -> Result<u8, ColumnScaleError> {
+        if mantissa.len() != lsb_per_turn.len() {
+            return Err(ColumnScaleError::Length {
+                expected: lsb_per_turn.len().min(u16::MAX as usize) as u16,
+                got: mantissa.len(),
+            });
+        }
+        let mut max = 0u32;
+        for (c, k) in lsb_per_turn.iter().enumerate() {
+            let b = k.to_bits();
+            if b == 0 || b >= 1 << 31 {
+                return Err(ColumnScaleError::Range { column: c as u16 });
+            }
+            max = max.max(b);
+        }
+        // Rounding `max` up may carry into bit 16: take the next exponent then. At the
+        // largest exponent the mantissa is clamped to 65535 instead (only entries within
+        // 2^-16 of 32768 LSB per turn reach it: their error is then below one unit,
+        // `2^(shift-16)` LSB per turn, instead of half).
+        let round = |b: u32, s: u32| -> u64 {
+            if s == 0 {
+                b as u64
+            } else {
+                ((b as u64) + (1 << (s - 1))) >> s
+            }
+        };
+        let mut shift = 0u32;
+        while shift < MAX_COLUMN_SHIFT as u32 && round(max, shift) > u16::MAX as u64 {
+            shift += 1;
+        }
+        for (m, k) in mantissa.iter_mut().zip(lsb_per_turn) {
+            *m = round(k.to_bits(), shift).min(u16::MAX as u64) as u16;
+        }
+        Ok(shift as u8)
+    }
+
+    /// Height of phase `phi` against `phi_r` with mantissa `m` (see [`Scale::height`]):
+    /// `h = round(D m 2^shift / 2^48) = round(D m / 2^(48 - shift))`, `D` the wrapped
+    /// difference (i32, units of `2 pi / 2^32`). `|D m| < 2^47`: one 32 x 32 -> 64 product whose
+    /// high word carries the result, `((D m >> 32) + 2^(15 - shift)) >> (16 - shift)` (the same
+    /// identity as [`Scale::height`], valid for `shift <= 16`). Equal to [`Scale::height`] with
+    /// `k = m << shift`.
+    #[inline(always)]
+    pub fn height(phi: u32, phi_r: u32, m: u16, half: i32, sh: u32) -> i16 {
+        let d = phi.wrapping_sub(phi_r) as i32 as i64;
+        let hi = ((d * m as i64) >> 32) as i32;
+        ((hi + half) >> sh) as i16
+    }
+
+    /// The rounding constant and right shift of [`ColumnScale::height`]:
+    /// `(2^(15 - shift), 16 - shift)` (`shift` clamped to [`MAX_COLUMN_SHIFT`]).
+    #[inline(always)]
+    pub fn rounding(&self) -> (i32, u32) {
+        let s = self.shift.min(MAX_COLUMN_SHIFT) as u32;
+        (1 << (15 - s), 16 - s)
+    }
+}
+
 /// Constants of the phase-to-height step, derived once from [`Config`].
 ///
 /// Both fields are read for every pixel ([`Scale::height`], [`Scale::phase_v`]), so they are
@@ -167,6 +327,7 @@ impl Scale {
     /// pixel `k` has reduced `v[k]` and reference phase `rho + ref_phase[k]`. Writes
     /// `heights[k]` of valid pixels (others are left alone) and the validity bytes
     /// `valid[k / 8]` (whole bytes, bit `k % 8`); returns the per-pixel row flags seen.
+    /// Heights at the uniform scale `k` ([`Scale::height`]).
     #[inline(always)]
     pub fn block(
         &self,
@@ -174,6 +335,50 @@ impl Scale {
         v: &[V],
         rho: u32,
         ref_phase: &[u32],
+        heights: &mut [i16],
+        valid: &mut [u8],
+    ) -> u16 {
+        let cols = core::iter::repeat(());
+        let h = |phi: u32, phi_r: u32, _: ()| self.height(phi, phi_r);
+        self.block_by(gate, v, rho, ref_phase, cols, h, heights, valid)
+    }
+
+    /// [`Scale::block`] with a per-column scale: `mantissa[k]` (the [`ColumnScale`] entries
+    /// of these columns, exponent from `columns`) replaces the uniform `k`
+    /// ([`ColumnScale::height`]): one table load per pixel instead of a constant.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    pub fn block_columns(
+        &self,
+        gate: &Gate,
+        v: &[V],
+        rho: u32,
+        ref_phase: &[u32],
+        columns: &ColumnScale<'_>,
+        mantissa: &[u16],
+        heights: &mut [i16],
+        valid: &mut [u8],
+    ) -> u16 {
+        let (half, sh) = columns.rounding();
+        let h = |phi: u32, phi_r: u32, m: u16| ColumnScale::height(phi, phi_r, m, half, sh);
+        let len = v.len().min(mantissa.len());
+        let cols = mantissa[..len].iter().copied();
+        self.block_by(gate, &v[..len], rho, ref_phase, cols, h, heights, valid)
+    }
+
+    /// The loop of [`Scale::block`] and [`Scale::block_columns`]: `cols` yields each
+    /// column's scale (nothing for the uniform one), `height` turns a phase, a reference
+    /// phase and that scale into the height.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn block_by<K, I: Iterator<Item = K>>(
+        &self,
+        gate: &Gate,
+        v: &[V],
+        rho: u32,
+        ref_phase: &[u32],
+        cols: I,
+        height: impl Fn(u32, u32, K) -> i16,
         heights: &mut [i16],
         valid: &mut [u8],
     ) -> u16 {
@@ -185,10 +390,12 @@ impl Scale {
         let (v, ref_phase, heights) = (&v[..len], &ref_phase[..len], &mut heights[..len]);
         let mut fl = 0u16;
         let mut byte = 0u32;
-        for (k, ((&vk, &rk), hk)) in v.iter().zip(ref_phase).zip(heights.iter_mut()).enumerate() {
+        // `cols` is never shorter than `len` (endless, or cut to `v` by the caller).
+        let pixels = v.iter().zip(ref_phase).zip(heights.iter_mut()).zip(cols);
+        for (k, (((&vk, &rk), hk), ck)) in pixels.enumerate() {
             match self.phase_v(gate, vk) {
                 Ok(phi) => {
-                    *hk = self.height(phi, rho.wrapping_add(rk));
+                    *hk = height(phi, rho.wrapping_add(rk), ck);
                     byte |= 1 << (k & 7);
                 }
                 Err(Invalid::Saturated) => fl |= crate::flags::SATURATED,
@@ -217,6 +424,23 @@ impl Scale {
         valid: &mut [u8],
     ) -> u16 {
         self.block(gate, v, rho, ref_phase, heights, valid)
+    }
+
+    /// [`Scale::block_columns`] as its own (never inlined) function, for timing the stage.
+    #[inline(never)]
+    #[allow(clippy::too_many_arguments)]
+    pub fn row_columns(
+        &self,
+        gate: &Gate,
+        v: &[V],
+        rho: u32,
+        ref_phase: &[u32],
+        columns: &ColumnScale<'_>,
+        mantissa: &[u16],
+        heights: &mut [i16],
+        valid: &mut [u8],
+    ) -> u16 {
+        self.block_columns(gate, v, rho, ref_phase, columns, mantissa, heights, valid)
     }
 }
 
@@ -354,6 +578,168 @@ mod tests {
         assert_eq!(isqrt_ceil(16), 4);
         assert_eq!(isqrt_ceil(17), 5);
         assert_eq!(isqrt_ceil(1 << 62), 1 << 31);
+    }
+
+    /// Q16.16 bits of `x` LSB per turn, rounded.
+    fn q16(x: f64) -> U16F16 {
+        U16F16::from_bits((x * 65536.0).round() as u32)
+    }
+
+    #[test]
+    fn column_scale_heights_match_f64() {
+        // Per-column LSB per turn varying +-2 % (as the optics make T_z vary), at the default
+        // scale and at the largest the core accepts. Heights against f64 `D / 2 pi * k_c`
+        // with the exact (unquantised) k_c: max error within rounding + atan2 + the table's
+        // bound 2^(shift-18) + 2^-18; rms near the 1/sqrt(12) of rounding alone.
+        for nominal in [2000.0f64, 400.0, 32000.0] {
+            let w = 257usize;
+            let exact: std::vec::Vec<f64> = (0..w)
+                .map(|c| nominal * (1.0 + 0.02 * (c as f64 * 0.37).sin()))
+                .collect();
+            let k: std::vec::Vec<U16F16> = exact.iter().map(|&x| q16(x)).collect();
+            let mut m = std::vec![0u16; w];
+            let shift = ColumnScale::encode(&k, &mut m).unwrap();
+            let t = ColumnScale::new(shift, &m);
+            let mut c0 = cfg(nominal, 10.0);
+            c0.width = w as u16;
+            t.check(&c0).unwrap();
+            let s = Scale::new(&c0);
+            let (half, sh) = t.rounding();
+            let quant = (1u64 << shift) as f64 / (1u64 << 18) as f64 + 1.0 / (1u64 << 18) as f64;
+            let phase = crate::phase::ATAN2_MAX_ERR_RAD / (2.0 * PI) * nominal * 1.02;
+            let bound = 0.5 + phase + quant;
+            let (mut worst, mut sq, mut n, mut worst_q) = (0f64, 0f64, 0usize, 0f64);
+            for (c, &kc) in exact.iter().enumerate() {
+                for j in 0..400 {
+                    let phi = -PI + 2.0 * PI * (j as f64 + 0.31) / 400.0;
+                    let r = 0.77 + 0.01 * c as f64;
+                    let p = s.phase(&acc(700.0, phi + r)).unwrap();
+                    let h = ColumnScale::height(p, from_rad(r), m[c], half, sh);
+                    let want = phi / (2.0 * PI) * kc;
+                    let e = h as f64 - want;
+                    worst = worst.max(e.abs());
+                    sq += e * e;
+                    n += 1;
+                    // The table alone: the exact product with the table's k_c against the
+                    // exact one, same phase.
+                    let d = p.wrapping_sub(from_rad(r)) as i32 as f64 / 4_294_967_296.0;
+                    let kt = t.lsb_per_turn(c).unwrap().to_num::<f64>();
+                    worst_q = worst_q.max((d * (kt - kc)).abs());
+                }
+            }
+            let rms = (sq / n as f64).sqrt();
+            assert!(worst <= bound, "{nominal}: worst {worst} > {bound}");
+            assert!(
+                worst_q <= quant,
+                "{nominal}: table error {worst_q} > {quant}"
+            );
+            assert!(rms < 0.3, "{nominal}: rms {rms}");
+            if nominal == 2000.0 {
+                // Far below one LSB at the default scale.
+                assert_eq!(shift, 11);
+                assert!(quant < 0.008 && worst_q < 0.008, "{quant} {worst_q}");
+            }
+        }
+    }
+
+    #[test]
+    fn column_scale_equal_to_the_uniform_one_changes_nothing() {
+        // A table whose every k_c is the configuration's k (low bits zero so the mantissa is
+        // exact) gives the very heights of the uniform scale, for any phase pair.
+        let k = U16F16::from_bits(2000 << 16);
+        let mut m = [0u16; 8];
+        let shift = ColumnScale::encode(&[k; 8], &mut m).unwrap();
+        assert_eq!((m[0] as u32) << shift, k.to_bits());
+        let t = ColumnScale::new(shift, &m);
+        let s = Scale::from_parts(k, U20F12::ZERO);
+        let (half, sh) = t.rounding();
+        let mut seed = 0x0DDC_0FFE_E123_4567u64;
+        for _ in 0..200_000 {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            let (phi, r) = (seed as u32, (seed >> 32) as u32);
+            assert_eq!(
+                ColumnScale::height(phi, r, m[0], half, sh),
+                s.height(phi, r)
+            );
+        }
+        // And the same for every mantissa and exponent against the rounded 64-bit product.
+        for _ in 0..200_000 {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            let (phi, mm, shift) = (seed as u32, (seed >> 32) as u16, (seed >> 48) as u8 % 16);
+            let t = ColumnScale::new(shift, &[]);
+            let (half, sh) = t.rounding();
+            let kk = (mm as i64) << shift;
+            let want = ((phi as i32 as i64 * kk + (1 << 47)) >> 48) as i16;
+            assert_eq!(ColumnScale::height(phi, 0, mm, half, sh), want);
+            assert!((want as i32).abs() <= H_MAX);
+        }
+    }
+
+    #[test]
+    fn column_scale_encode_and_check() {
+        // Exponent: the smallest that fits 16 bits, so the largest mantissa is >= 2^15.
+        for top in [1.0f64, 1.5, 255.99, 2000.0, 2047.99, 2048.0, 32767.99] {
+            let k = [q16(top), q16(top * 0.97), q16(top * 0.5)];
+            let mut m = [0u16; 3];
+            let shift = ColumnScale::encode(&k, &mut m).unwrap();
+            assert!(shift <= MAX_COLUMN_SHIFT);
+            assert!(shift == 0 || m[0] >= 1 << 15, "{top}: {shift} {m:?}");
+            for (kk, &mm) in k.iter().zip(&m) {
+                let back = (mm as u64) << shift;
+                let err = (back as i64 - kk.to_bits() as i64).unsigned_abs();
+                // Half a unit, or just under one unit for a mantissa clamped at 65535.
+                let unit = 1u64 << shift;
+                assert!(err <= unit / 2 || (mm == u16::MAX && err < unit), "{top}");
+            }
+        }
+        let mut m = [0u16; 2];
+        assert_eq!(
+            ColumnScale::encode(&[q16(5.0), U16F16::ZERO], &mut m),
+            Err(ColumnScaleError::Range { column: 1 })
+        );
+        assert_eq!(
+            ColumnScale::encode(&[U16F16::from_bits(1 << 31)], &mut m[..1]),
+            Err(ColumnScaleError::Range { column: 0 })
+        );
+        assert!(matches!(
+            ColumnScale::encode(&[q16(5.0)], &mut m),
+            Err(ColumnScaleError::Length { .. })
+        ));
+        // check: length, exponent, zero, outside k/2 ..= 2k.
+        let c = cfg(2000.0, 0.0); // width 8
+        let k = c.lsb_per_turn.to_bits();
+        let good = [(k >> 11) as u16; 8];
+        assert_eq!(ColumnScale::new(11, &good).check(&c), Ok(()));
+        assert_eq!(
+            ColumnScale::new(11, &good[..7]).check(&c),
+            Err(ColumnScaleError::Length {
+                expected: 8,
+                got: 7
+            })
+        );
+        assert_eq!(
+            ColumnScale::new(16, &good).check(&c),
+            Err(ColumnScaleError::Shift(16))
+        );
+        let mut bad = good;
+        bad[3] = 0;
+        assert_eq!(
+            ColumnScale::new(11, &bad).check(&c),
+            Err(ColumnScaleError::Range { column: 3 })
+        );
+        // Exactly k/2 and 2k pass; one step beyond fails.
+        let (lo, hi) = ((k / 2) >> 12, (2 * k) >> 12);
+        assert_eq!((lo << 12, hi << 12), (k / 2, 2 * k));
+        for (v, ok) in [(lo, true), (lo - 1, false), (hi, true), (hi + 1, false)] {
+            let mut t = [(k >> 12) as u16; 8];
+            t[5] = v as u16;
+            let r = ColumnScale::new(12, &t).check(&c);
+            assert_eq!(r.is_ok(), ok, "{v}: {r:?}");
+        }
     }
 
     #[test]

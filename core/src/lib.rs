@@ -27,7 +27,11 @@
 //! `v = (M^T M)^-1 M^T i` with rows `[1, cos theta_j, -sin theta_j]`, then
 //! `Phi = atan2(v_3, v_2)`, and the height is
 //! `h = wrap(Phi - phi_r) / (2 pi) * T_z` with `phi_r = 2 pi f_x (b - o_w) + phi_0(c)`,
-//! written as i16 in units of a configurable LSB (default 0.25 um). The full rule, including
+//! written as i16 in units of a configurable LSB (default 0.25 um). `T_z` is one value
+//! ([`Config::lsb_per_turn`]) or, with non-telecentric optics, one per column
+//! ([`height::ColumnScale`], given to [`Pipeline::with_column_scale`] beside the
+//! reference-phase table), so the heights leave the core in the same calibrated LSB in every
+//! column. The full rule, including
 //! which frames a row uses and every validity flag, is in `docs/model.md`.
 //!
 //! ## Data flow (one module per stage)
@@ -53,10 +57,12 @@
 //!
 //! The caller supplies all state, sized by [`pipeline::Layout`]: a pool of
 //! `max_step_rows * n (n-1) / 2` raw lines (`W` x u16), `max_step_rows * n` row slots, one output
-//! row and the `W`-entry reference-phase table. No frame is buffered whole (with `alloc`,
+//! row, the `W`-entry reference-phase table and, when used, the `W`-entry per-column
+//! height-scale table (2 bytes per column, [`pipeline::Layout::with_column_scale`]). No frame is buffered whole (with `alloc`,
 //! [`pipeline::State`] allocates it). For the default geometry
 //! (`W = 2048`, `n = 4`, `max_step_rows = 10`): 60 lines = 245 760 B, plus 120 B free list,
-//! 40 slots x 24 B, 4096 + 256 B output row and 8192 B phase table: 259 384 B in all.
+//! 40 slots x 24 B, 4096 + 256 B output row and 8192 B phase table: 259 384 B in all
+//! (263 480 B with a per-column height-scale table).
 //!
 //! ## Fixed-point error budget (each bound is tested beside its code)
 //!
@@ -69,6 +75,7 @@
 //! | modulation test [`height::Gate`] | folded into `atan2`'s `max(abs x, abs y)` | identical to `C^2 >= min_modulation^2` |
 //! | `atan2` | u32 binary angle | `2e-5` rad |
 //! | height | i16 LSB | `<= 0.5` LSB rounding + phase error |
+//! | per-column LSB per turn [`height::ColumnScale`] | u16 mantissa `<< shift` = Q16.16 bits (block floating point, one exponent per table) | height `<= 2^(shift-18) + 2^-18` LSB: 0.008 LSB at 2000 LSB per turn |
 //!
 //! ## Q-formats as types
 //!

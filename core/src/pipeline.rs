@@ -20,7 +20,7 @@ use crate::accumulate::Coef;
 use crate::accumulate::{self, Pool};
 use crate::frames::registration::{self, Kind, Registry, Step};
 use crate::frames::{Config, ConfigError, Trigger};
-use crate::height::{Gate, Scale};
+use crate::height::{ColumnScale, ColumnScaleError, Gate, Scale};
 use crate::row::{flags, Gap, Row, RowHeader, StreamInfo};
 use crate::sink::Sink;
 use crate::solve::{SolveError, Window, MAX_N};
@@ -36,6 +36,9 @@ pub struct Layout {
     pub pool_lines: usize,
     /// Open-row slots: `max_step_rows * n`.
     pub slots: usize,
+    /// Entries of the per-column height-scale table ([`ColumnScale`], 2 bytes each): `W` when
+    /// the pipeline is given one ([`Layout::with_column_scale`]), else 0.
+    pub scale_columns: usize,
 }
 
 impl Layout {
@@ -46,11 +49,19 @@ impl Layout {
             width: cfg.width as usize,
             pool_lines: m * n * (n - 1) / 2,
             slots: m * n,
+            scale_columns: 0,
         }
     }
 
+    /// The layout with (`true`) or without a per-column height-scale table.
+    pub const fn with_column_scale(mut self, table: bool) -> Layout {
+        self.scale_columns = if table { self.width } else { 0 };
+        self
+    }
+
     /// Bytes of pipeline state: the line pool, its free list, the row slots, the output row
-    /// (heights and validity bits) and the reference-phase table (`W` binary angles).
+    /// (heights and validity bits), the reference-phase table (`W` binary angles) and, if
+    /// present, the per-column height-scale table (`W` u16 mantissas).
     pub const fn bytes(&self) -> usize {
         self.pool_lines * self.width * 2
             + self.pool_lines * 2
@@ -58,6 +69,7 @@ impl Layout {
             + self.width * 2
             + self.width.div_ceil(8)
             + self.width * 4
+            + self.scale_columns * 2
     }
 }
 
@@ -119,6 +131,8 @@ pub enum NewError {
     Config(ConfigError),
     /// A memory slice or the reference-phase table is smaller than [`Layout`] says.
     Memory,
+    /// The per-column height-scale table does not fit the configuration.
+    ColumnScale(ColumnScaleError),
 }
 
 /// A streaming error. The pipeline stays usable: the rows affected are flagged.
@@ -143,6 +157,8 @@ pub struct Pipeline<'a> {
     cfg: Config,
     scale: Scale,
     ref_phase: &'a [u32],
+    /// Per-column height scale (`None`: the uniform [`Config::lsb_per_turn`]).
+    columns: Option<ColumnScale<'a>>,
     pool: Pool<'a>,
     reg: Registry<'a>,
     heights: &'a mut [i16],
@@ -165,9 +181,26 @@ pub struct Pipeline<'a> {
 
 impl<'a> Pipeline<'a> {
     /// Builds a pipeline. `ref_phase[c]` is `phi_0(c)` as a binary angle (a wrapping `u32`,
-    /// see [`crate::phase`]).
+    /// see [`crate::phase`]). Every column has the height scale [`Config::lsb_per_turn`].
     pub fn new(cfg: Config, ref_phase: &'a [u32], mem: Memory<'a>) -> Result<Self, NewError> {
+        Self::with_column_scale(cfg, ref_phase, None, mem)
+    }
+
+    /// [`Pipeline::new`] with an optional per-column height scale: with `Some(table)`
+    /// column `c`'s heights are in LSB at `table`'s `k_c` LSB per turn (checked by
+    /// [`ColumnScale::check`]), so every column's heights are in the same calibrated unit;
+    /// with `None` exactly [`Pipeline::new`]. The table joins the stream's `config_hash`
+    /// ([`Config::hash_with`]).
+    pub fn with_column_scale(
+        cfg: Config,
+        ref_phase: &'a [u32],
+        columns: Option<ColumnScale<'a>>,
+        mem: Memory<'a>,
+    ) -> Result<Self, NewError> {
         cfg.validate().map_err(NewError::Config)?;
+        if let Some(t) = &columns {
+            t.check(&cfg).map_err(NewError::ColumnScale)?;
+        }
         let lay = Layout::of(&cfg);
         let w = lay.width;
         if ref_phase.len() < w
@@ -188,6 +221,7 @@ impl<'a> Pipeline<'a> {
             cfg,
             scale: Scale::new(&cfg),
             ref_phase: &ref_phase[..w],
+            columns,
             pool,
             reg: Registry::new(&mut mem.slots[..lay.slots]),
             heights,
@@ -198,7 +232,7 @@ impl<'a> Pipeline<'a> {
             prev_seq: 0,
             prev_latch: 0,
             win: Err(SolveError::BadCount),
-            hash: cfg.hash(&ref_phase[..w]),
+            hash: cfg.hash_with(&ref_phase[..w], columns.as_ref()),
             started: false,
             ended: false,
         })
@@ -532,6 +566,7 @@ impl<'a> Pipeline<'a> {
             sat: self.cfg.saturation,
             rho,
             ref_phase: self.ref_phase,
+            columns: self.columns,
         };
         let (heights, valid) = (&mut *self.heights, &mut *self.valid);
         match n {
@@ -556,6 +591,7 @@ struct Rows<'l> {
     sat: u16,
     rho: u32,
     ref_phase: &'l [u32],
+    columns: Option<ColumnScale<'l>>,
 }
 
 impl Rows<'_> {
@@ -576,14 +612,15 @@ impl Rows<'_> {
         while c0 < self.w {
             let len = BLOCK.min(self.w - c0);
             accumulate::block::<N>(coef, &lines, c0, self.sat, &mut v[..len]);
-            row_flags |= scale.block(
-                gate,
-                &v[..len],
-                self.rho,
-                &self.ref_phase[c0..c0 + len],
-                &mut heights[c0..c0 + len],
-                &mut valid[c0 / 8..],
-            );
+            let (v, r) = (&v[..len], &self.ref_phase[c0..c0 + len]);
+            let (h, m) = (&mut heights[c0..c0 + len], &mut valid[c0 / 8..]);
+            row_flags |= match &self.columns {
+                None => scale.block(gate, v, self.rho, r, h, m),
+                Some(t) => {
+                    let k = &t.mantissa()[c0..c0 + len];
+                    scale.block_columns(gate, v, self.rho, r, t, k, h, m)
+                }
+            };
             c0 += len;
         }
         row_flags
@@ -620,8 +657,11 @@ mod tests {
         }
     }
 
+    /// A row as collected: header, heights, validity bytes.
+    type Collected = (RowHeader, Vec<i16>, Vec<u8>);
+
     #[derive(Default)]
-    struct Collect(Vec<(RowHeader, Vec<i16>, Vec<u8>)>);
+    struct Collect(Vec<Collected>);
     impl Sink for Collect {
         type Error = ();
         fn row(&mut self, r: &Row<'_>) -> Result<(), ()> {
@@ -646,13 +686,18 @@ mod tests {
 
     /// Noiseless frame at offset `pos` (px).
     fn frame(pos: i64) -> Vec<Vec<u16>> {
+        frame_tz(pos, |_| 500.0)
+    }
+
+    /// Noiseless frame at offset `pos` (px) with height per turn `tz(c)` um in column `c`.
+    fn frame_tz(pos: i64, tz: impl Fn(usize) -> f64) -> Vec<Vec<u16>> {
         (0..H as i64)
             .map(|r| {
                 (0..W)
                     .map(|c| {
                         let ph = 2.0 * PI * r as f64 / 32.0
                             + phi0(c)
-                            + 2.0 * PI * truth(r + pos, c) / 500.0;
+                            + 2.0 * PI * truth(r + pos, c) / tz(c);
                         (1800.0 + 700.0 * ph.cos()).round() as u16
                     })
                     .collect()
@@ -733,6 +778,136 @@ mod tests {
             out.0.last().unwrap().0.flags & flags::INCOMPLETE,
             flags::INCOMPLETE
         );
+    }
+
+    /// Runs uniform motion over frames with per-column `T_z`; returns the rows and the
+    /// stream's config hash.
+    fn run_columns(
+        tz: impl Fn(usize) -> f64 + Copy,
+        columns: Option<ColumnScale<'_>>,
+    ) -> (Vec<Collected>, u64) {
+        let c = cfg();
+        let refp: Vec<u32> = (0..W).map(|c| from_rad(phi0(c))).collect();
+        let mut m = State::new(&c);
+        let mut p = Pipeline::with_column_scale(c, &refp, columns, m.memory()).unwrap();
+        let mut sink = Collect::default();
+        for k in 0..40u32 {
+            let e = k as i64 * 80 - 200;
+            p.begin_frame(Trigger { seq: k, latch: e }, &mut sink)
+                .unwrap();
+            for (r, line) in frame_tz(c.offset(e), tz).iter().enumerate() {
+                p.push_line(r as u16, line, &mut sink).unwrap();
+            }
+            p.end_frame(&mut sink).unwrap();
+        }
+        p.finish(&mut sink).unwrap();
+        (sink.0, p.stream_info().config_hash)
+    }
+
+    #[test]
+    fn column_scale_gives_calibrated_heights_in_every_column() {
+        // T_z varies +-2 % over the columns; the configuration's uniform scale is the mean.
+        let tz = |c: usize| 500.0 * (1.0 + 0.02 * (c as f64 * 0.9).sin());
+        let k: Vec<U16F16> = (0..W)
+            .map(|c| U16F16::from_bits((tz(c) / 0.25 * 65536.0).round() as u32))
+            .collect();
+        let mut m = vec![0u16; W];
+        let shift = ColumnScale::encode(&k, &mut m).unwrap();
+        let table = ColumnScale::new(shift, &m);
+        let (with, hash_with) = run_columns(tz, Some(table));
+        let (without, hash_without) = run_columns(tz, None);
+        // Without the table the step is 100 um / T_z(c) turns at 2000 LSB per turn: off by up
+        // to 2 % of 400 LSB; with it, 400 LSB within rounding in every column.
+        let (mut worst_with, mut worst_without, mut pixels) = (0f64, 0f64, 0);
+        for ((h, a, va), (_, b, _)) in with.iter().zip(&without) {
+            if h.flags & flags::ROW_INVALID != 0 || !(64..76).contains(&h.row) {
+                continue;
+            }
+            for c in 0..W {
+                assert!(va[c / 8] & (1 << (c % 8)) != 0);
+                worst_with = worst_with.max((a[c] as f64 - 400.0).abs());
+                let uniform = 100.0 / tz(c) * 2000.0;
+                worst_without = worst_without.max((b[c] as f64 - uniform).abs());
+                pixels += 1;
+            }
+        }
+        assert!(pixels > 100, "{pixels}");
+        assert!(worst_with <= 1.0, "with the table: {worst_with} LSB");
+        assert!(worst_without <= 1.0, "uniform: {worst_without} LSB");
+        // The table is part of the configuration: its hash differs, the rest is the same.
+        assert_ne!(hash_with, hash_without);
+        assert_eq!(with.len(), without.len());
+        let c = cfg();
+        let refp: Vec<u32> = (0..W).map(|c| from_rad(phi0(c))).collect();
+        assert_eq!(hash_without, c.hash(&refp));
+        assert_eq!(hash_with, c.hash_with(&refp, Some(&table)));
+        // `with_column_scale(.., None, ..)` is `new`: the same rows as the plain run.
+        let (plain, _) = run(
+            &(0..40).map(|k| k * 80 - 200).collect::<Vec<_>>(),
+            &(0..40).collect::<Vec<_>>(),
+            &[H; 40],
+        );
+        let (none, _) = run_columns(|_| 500.0, None);
+        assert_eq!(plain.0, none);
+    }
+
+    #[test]
+    fn bad_column_scale_is_refused() {
+        let c = cfg();
+        let refp = vec![0u32; W];
+        let k = c.lsb_per_turn.to_bits();
+        let good = vec![(k >> 11) as u16; W];
+        let mut st = State::new(&c);
+        let ok =
+            Pipeline::with_column_scale(c, &refp, Some(ColumnScale::new(11, &good)), st.memory());
+        assert!(ok.is_ok());
+        let cases: [(u8, Vec<u16>, ColumnScaleError); 4] = [
+            (
+                11,
+                good[..W - 1].to_vec(),
+                ColumnScaleError::Length {
+                    expected: W as u16,
+                    got: W - 1,
+                },
+            ),
+            (16, good.clone(), ColumnScaleError::Shift(16)),
+            (
+                11,
+                good.iter()
+                    .enumerate()
+                    .map(|(i, &g)| if i == 2 { 0 } else { g })
+                    .collect(),
+                ColumnScaleError::Range { column: 2 },
+            ),
+            (
+                15,
+                good.clone(), // 16x the configuration's scale
+                ColumnScaleError::Range { column: 0 },
+            ),
+        ];
+        for (shift, table, want) in cases {
+            let mut st = State::new(&c);
+            let r = Pipeline::with_column_scale(
+                c,
+                &refp,
+                Some(ColumnScale::new(shift, &table)),
+                st.memory(),
+            );
+            assert!(
+                matches!(r, Err(NewError::ColumnScale(e)) if e == want),
+                "{shift}: {want:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn layout_counts_the_column_table() {
+        let c = cfg();
+        let l = Layout::of(&c);
+        assert_eq!(l.scale_columns, 0);
+        let t = l.with_column_scale(true);
+        assert_eq!(t.bytes(), l.bytes() + 2 * W);
+        assert_eq!(t.with_column_scale(false), l);
     }
 
     #[test]

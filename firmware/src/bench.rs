@@ -10,7 +10,7 @@ use crate::board::Clock;
 use crate::sink::SinkTicks;
 use core::fmt::Write;
 use dpsa_core::accumulate::{self, V};
-use dpsa_core::height::Scale;
+use dpsa_core::height::{ColumnScale, Scale};
 use dpsa_core::solve::{Window, MAX_N};
 use dpsa_core::Config;
 
@@ -82,6 +82,7 @@ pub fn stages<C: Clock>(
     cfg: &Config,
     meter: &Meter,
     ref_phase: &[u32],
+    columns: Option<ColumnScale<'_>>,
     pool: &[u16],
     heights: &mut [i16],
     valid: &mut [u8],
@@ -121,14 +122,15 @@ pub fn stages<C: Clock>(
             let t0 = clock.ticks();
             accumulate::row(&coef, &lines[..n], c0, cfg.saturation, &mut v[..len]);
             let t1 = clock.ticks();
-            let f = scale.row(
-                &gate,
-                &v[..len],
-                rho,
-                &ref_phase[c0..c0 + len],
-                &mut heights[c0..c0 + len],
-                &mut valid[c0 / 8..w.div_ceil(8)],
-            );
+            let (r, h) = (&ref_phase[c0..c0 + len], &mut heights[c0..c0 + len]);
+            let m = &mut valid[c0 / 8..w.div_ceil(8)];
+            let f = match &columns {
+                None => scale.row(&gate, &v[..len], rho, r, h, m),
+                Some(t) => {
+                    let k = &t.mantissa()[c0..c0 + len];
+                    scale.row_columns(&gate, &v[..len], rho, r, t, k, h, m)
+                }
+            };
             let t2 = clock.ticks();
             core::hint::black_box((&heights, &valid, f));
             s.accumulate += t1 - t0;
@@ -199,11 +201,18 @@ pub fn stack_high_water() -> usize {
 pub type Text = heapless::String<1024>;
 
 /// The `key value` lines of a benchmark run.
-pub fn report<C: Clock>(cfg: &Config, m: &Meter, sink: &SinkTicks, st: &Stages, clock: &C) -> Text {
+pub fn report<C: Clock>(
+    cfg: &Config,
+    table: bool,
+    m: &Meter,
+    sink: &SinkTicks,
+    st: &Stages,
+    clock: &C,
+) -> Text {
     let (calib_instr, calib_ticks) = calibrate(clock);
     let w = cfg.width as u64;
     let mut t = Text::new();
-    let lines: [(&str, u64); 18] = [
+    let lines: [(&str, u64); 19] = [
         ("calib_loop_instructions", calib_instr),
         ("calib_ticks", calib_ticks),
         ("rows_out", sink.rows),
@@ -217,11 +226,15 @@ pub fn report<C: Clock>(cfg: &Config, m: &Meter, sink: &SinkTicks, st: &Stages, 
         ("solves", m.solves),
         ("ticks_solve", m.solve_ticks),
         ("stack_high_water", stack_high_water() as u64),
-        ("state_bytes", dpsa_core::Layout::of(cfg).bytes() as u64),
+        (
+            "state_bytes",
+            dpsa_core::Layout::of(cfg).with_column_scale(table).bytes() as u64,
+        ),
         (
             "state_total_bytes",
-            crate::state::State::bytes_for(cfg) as u64,
+            crate::state::State::bytes_for(cfg, table) as u64,
         ),
+        ("column_scale", table as u64),
         ("width", w),
         ("n", cfg.n as u64),
         ("rows", cfg.rows as u64),

@@ -20,6 +20,7 @@ mod state;
 use board::qemu::{self, Feed, HostFile, SysTickClock};
 use board::{Clock, LineSource, Triggered};
 use defmt_semihosting as _;
+use dpsa_core::height::ColumnScale;
 use dpsa_core::packets::codec;
 use dpsa_core::pipeline::{Memory, Pipeline};
 use sink::TimedSink;
@@ -56,13 +57,15 @@ fn run() -> Result<(), Failed> {
     let feed = Feed::open(
         &args.feed,
         &mut st.ref_phase,
+        &mut st.column_scale,
         qemu::as_bytes_mut(&mut st.lines),
     )
     .map_err(|e| fail("opening the feed", e))?;
     let header = feed.header();
     let cfg = header.cfg;
+    let table = header.column_scale.is_some();
     let (layout, pool_at) = st
-        .size_for(&cfg)
+        .size_for(&cfg, table)
         .map_err(|e| fail("state too small for this geometry", e))?;
     let state::State {
         lines,
@@ -71,6 +74,7 @@ fn run() -> Result<(), Failed> {
         heights,
         valid,
         ref_phase,
+        column_scale,
         line,
         codec_heights,
         codec_valid,
@@ -89,14 +93,15 @@ fn run() -> Result<(), Failed> {
         layout.pool_lines * w
     );
     defmt::info!(
-        "W {=usize} H {=u16} n {=u8} max step {=u16} rows: {=u32} frames, state {=usize} B (pipeline {=usize} B)",
+        "W {=usize} H {=u16} n {=u8} max step {=u16} rows: {=u32} frames, state {=usize} B (pipeline {=usize} B), per-column height scale {=bool}",
         w,
         cfg.rows,
         cfg.n,
         cfg.max_step_rows,
         header.frames,
-        state::State::bytes_for(&cfg),
-        layout.bytes()
+        state::State::bytes_for(&cfg, table),
+        layout.bytes(),
+        table
     );
 
     let (strobe, capture, port) = feed.parts();
@@ -123,7 +128,12 @@ fn run() -> Result<(), Failed> {
         heights: &mut heights[..w],
         valid: &mut valid[..w.div_ceil(8)],
     };
-    let mut pipe = Pipeline::new(cfg, &ref_phase[..w], mem).map_err(|e| fail("pipeline", e))?;
+    // The calibration's per-column height scale, when the feed has one (sized by `size_for`).
+    let columns = header
+        .column_scale
+        .map(|shift| ColumnScale::new(shift, &column_scale[..]));
+    let mut pipe = Pipeline::with_column_scale(cfg, &ref_phase[..w], columns, mem)
+        .map_err(|e| fail("pipeline", e))?;
     let mut meter = bench::Meter::new();
     let line = &mut line[..w];
 
@@ -168,8 +178,10 @@ fn run() -> Result<(), Failed> {
     }
 
     if let Some(path) = &args.bench {
-        let stages = bench::stages(&cfg, &meter, ref_phase, lines, heights, valid, &clock);
-        write_bench(path, &cfg, &meter, &ticks, &stages, &clock)?;
+        let stages = bench::stages(
+            &cfg, &meter, ref_phase, columns, lines, heights, valid, &clock,
+        );
+        write_bench(path, &cfg, table, &meter, &ticks, &stages, &clock)?;
     }
     Ok(())
 }
@@ -179,12 +191,13 @@ fn run() -> Result<(), Failed> {
 fn write_bench(
     path: &qemu::Path,
     cfg: &dpsa_core::Config,
+    table: bool,
     meter: &bench::Meter,
     ticks: &sink::SinkTicks,
     stages: &bench::Stages,
     clock: &SysTickClock,
 ) -> Result<(), Failed> {
-    let report = bench::report(cfg, meter, ticks, stages, clock);
+    let report = bench::report(cfg, table, meter, ticks, stages, clock);
     qemu::write_text(path, report.as_bytes()).map_err(|e| fail("bench file", e))
 }
 

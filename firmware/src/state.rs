@@ -25,6 +25,9 @@ pub struct State {
     pub valid: Vec<u8, { cap::WIDTH / 8 }>,
     /// Reference phase `phi_0(c)` (calibration).
     pub ref_phase: Vec<u32, { cap::WIDTH }>,
+    /// Per-column height-scale mantissas (calibration, `dpsa_core::height::ColumnScale`):
+    /// `W` entries when the feed has the table, else empty.
+    pub column_scale: Vec<u16, { cap::WIDTH }>,
     /// The line being received.
     pub line: Vec<u16, { cap::WIDTH }>,
     /// Codec reference row (the previous row, for predicted rows).
@@ -48,16 +51,18 @@ fn zeroed<T: Clone + Default, const N: usize>(v: &mut Vec<T, N>, len: usize) -> 
 }
 
 impl State {
-    /// Gives `ref_phase` its full capacity, for reading a feed's table of any supported width.
+    /// Gives `ref_phase` and `column_scale` their full capacity, for reading a feed's tables of
+    /// any supported width.
     pub fn open_ref_phase(&mut self) {
         let _ = zeroed(&mut self.ref_phase, cap::WIDTH);
+        let _ = zeroed(&mut self.column_scale, cap::WIDTH);
     }
 
-    /// Sizes every buffer for `cfg` (zeroed; `ref_phase` keeps its first `W` entries), or says
-    /// what is missing. The line pool is [`State::lines`] when it is large enough, else the
+    /// Sizes every buffer for `cfg` (zeroed; `ref_phase` keeps its first `W` entries, and
+    /// `column_scale` too with a height-scale `table`, else none), or says what is missing. The line pool is [`State::lines`] when it is large enough, else the
     /// external-RAM pool ([`PoolAt::External`], see [`ext_pool`]).
-    pub fn size_for(&mut self, cfg: &Config) -> Result<(Layout, PoolAt), TooSmall> {
-        let l = Layout::of(cfg);
+    pub fn size_for(&mut self, cfg: &Config, table: bool) -> Result<(Layout, PoolAt), TooSmall> {
+        let l = Layout::of(cfg).with_column_scale(table);
         let (w, nb) = (l.width, l.width.div_ceil(8));
         let needed = l.pool_lines * w;
         let too_small = TooSmall {
@@ -73,6 +78,7 @@ impl State {
             return Err(too_small);
         }
         self.ref_phase.truncate(w);
+        self.column_scale.truncate(if table { w } else { 0 });
         (|| {
             zeroed(&mut self.free, l.pool_lines)?;
             zeroed(&mut self.slots, l.slots)?;
@@ -87,10 +93,11 @@ impl State {
         Ok((l, at))
     }
 
-    /// Bytes of every buffer the firmware uses for `cfg` (the pipeline's [`Layout::bytes`], the
-    /// line being received, the codec reference row and one packet).
-    pub fn bytes_for(cfg: &Config) -> usize {
-        let l = Layout::of(cfg);
+    /// Bytes of every buffer the firmware uses for `cfg` with or without a height-scale
+    /// `table` (the pipeline's [`Layout::bytes`], the line being received, the codec reference
+    /// row and one packet).
+    pub fn bytes_for(cfg: &Config, table: bool) -> usize {
+        let l = Layout::of(cfg).with_column_scale(table);
         let w = l.width;
         l.bytes() + w * 2 + w * 2 + w.div_ceil(8) + packets::max_packet_len(w)
     }

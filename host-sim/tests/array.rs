@@ -89,8 +89,8 @@ fn calibration_meets_the_acceptance_targets() {
         m.calibration.fringe_period_px,
         cal.camera[1].fringe_period_px
     );
-    // The fixed-point core with the calibrated configuration measures the held-out plane
-    // (the per-column height scale applied after it, as the board stage will).
+    // The fixed-point core with the calibrated configuration (its per-column height scale
+    // included) measures the held-out plane: its heights are calibrated um in every column.
     let mut hold = Recording::open(arr.camera_dir(0, Some("holdout"))).unwrap();
     let cam = &cal.camera[0];
     cam.apply(&mut hold.manifest, cal.height_lsb_um).unwrap();
@@ -100,7 +100,7 @@ fn calibration_meets_the_acceptance_targets() {
         for (c, (&h, &ok)) in row.heights.iter().zip(&row.valid).enumerate() {
             if ok {
                 let t = cam.height_per_turn_um[c];
-                let mut v = f64::from(h) * map.lsb_um * cam.height_scale(c);
+                let mut v = f64::from(h) * map.lsb_um;
                 v += t * ((450.0 - v) / t).round();
                 errs.push(v - 450.0);
             }

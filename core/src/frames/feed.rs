@@ -2,9 +2,9 @@
 //! grabber.
 //!
 //! This is what a frame grabber receives, in the order it receives it: the integer
-//! [`Config`] and the reference-phase table (its calibration), then every frame as a
-//! trigger record (sequence number, latched encoder count) followed by `H` lines of `W`
-//! u16 samples. `dpsa` writes it from a recording directory; the QEMU board of the firmware
+//! [`Config`], the reference-phase table and, optionally, the per-column height-scale table
+//! (its calibration), then every frame as a trigger record (sequence number, latched encoder
+//! count) followed by `H` lines of `W` u16 samples. `dpsa` writes it from a recording directory; the QEMU board of the firmware
 //! streams it line by line. Both ends use this module, so they agree by construction.
 //!
 //! ```text
@@ -12,17 +12,27 @@
 //!                 8 W u16  10 H u16  12 n u8  13 camera u8  14 saturation u16
 //!                16 counts_per_pixel U16F16  20 fx u32  24 lsb_per_turn U16F16
 //!                28 min_modulation U20F12  32 max_noise_gain U8F8  34 max_step_rows u16
-//!                36 frames u32  40 intra period u32  44 run id u64  52..60 zero
+//!                36 frames u32  40 intra period u32  44 run id u64
+//!                52 table flags u8 (bit 0: a height-scale table follows; others zero)
+//!                53 height-scale exponent u8 (0..=15; zero without the table)  54..60 zero
 //!                60 CRC-32 (ISO-HDLC) of bytes 0..60
 //! ref phase      W x u32 binary angles, then CRC-32 of those 4W bytes
+//! height scale   only with flag bit 0: W x u16 mantissas (column c: LSB per turn, Q16.16
+//!                bits = mantissa << exponent; see `height::ColumnScale`), then CRC-32 of
+//!                those 2W bytes
 //! frame k        16 B trigger record: 0 seq u32, 4 zero u32, 8 latch i64
 //!                then H x W x u16 samples, row-major
 //! ```
+//!
+//! Feeds written before the height-scale table existed hold zeros in bytes 52..60 (then
+//! reserved): they read as feeds without the table, whose heights use the uniform
+//! `lsb_per_turn`. The version stays 1.
 //!
 //! The sample data carries no checksum (a camera link checks its own lines); a short file is
 //! caught by the reader as a truncation at a named frame and line.
 
 use super::{Config, Trigger};
+use crate::height::{ColumnScale, ColumnScaleError, MAX_COLUMN_SHIFT};
 use crc::{Crc, CRC_32_ISO_HDLC};
 use fixed::types::{U16F16, U20F12, U8F8};
 
@@ -49,7 +59,14 @@ pub struct Header {
     /// so a camera's firmware and the host tag the same board alike). Feeds written before it
     /// existed hold 0 here, their reserved bytes.
     pub run_id: u64,
+    /// `Some(exponent)` when a per-column height-scale table follows the reference-phase
+    /// table ([`crate::height::ColumnScale`]); `None`: every column uses
+    /// `cfg.lsb_per_turn`.
+    pub column_scale: Option<u8>,
 }
+
+/// Header byte 52: flag bit of the height-scale table.
+const FLAG_SCALE_TABLE: u8 = 1;
 
 /// A malformed header or table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -64,6 +81,10 @@ pub enum FeedError {
     /// Intra period 0.
     IntraPeriod,
     TableCrc,
+    /// The per-column height-scale table's CRC does not match.
+    ScaleCrc,
+    /// The per-column height-scale table (or its exponent) is out of range.
+    ColumnScale(ColumnScaleError),
     /// A buffer of the wrong size.
     Length,
 }
@@ -98,6 +119,10 @@ impl Header {
         b[36..40].copy_from_slice(&self.frames.to_le_bytes());
         b[40..44].copy_from_slice(&self.intra_period.to_le_bytes());
         b[44..52].copy_from_slice(&self.run_id.to_le_bytes());
+        if let Some(shift) = self.column_scale {
+            b[52] = FLAG_SCALE_TABLE;
+            b[53] = shift;
+        }
         let crc = CRC.checksum(&b[..60]);
         b[60..64].copy_from_slice(&crc.to_le_bytes());
         b
@@ -121,7 +146,15 @@ impl Header {
         if CRC.checksum(&b[..60]) != u32_at(b, 60) {
             return Err(FeedError::HeaderCrc);
         }
-        if b[52..60].iter().any(|&x| x != 0) {
+        let column_scale = match b[52] {
+            0 if b[53] == 0 => None,
+            FLAG_SCALE_TABLE if b[53] <= MAX_COLUMN_SHIFT => Some(b[53]),
+            FLAG_SCALE_TABLE => {
+                return Err(FeedError::ColumnScale(ColumnScaleError::Shift(b[53])));
+            }
+            _ => return Err(FeedError::Reserved),
+        };
+        if b[54..60].iter().any(|&x| x != 0) {
             return Err(FeedError::Reserved);
         }
         let cfg = Config {
@@ -147,12 +180,26 @@ impl Header {
             frames: u32_at(b, 36),
             intra_period,
             run_id: u64::from_le_bytes([b[44], b[45], b[46], b[47], b[48], b[49], b[50], b[51]]),
+            column_scale,
         })
     }
 
     /// Bytes of the reference-phase table and its CRC.
     pub fn table_len(&self) -> usize {
         self.cfg.width as usize * 4 + 4
+    }
+
+    /// Bytes of the per-column height-scale table and its CRC (0 without the table).
+    pub fn scale_table_len(&self) -> usize {
+        match self.column_scale {
+            Some(_) => self.cfg.width as usize * 2 + 4,
+            None => 0,
+        }
+    }
+
+    /// Byte offset of the first frame: header and tables.
+    pub fn frames_at(&self) -> usize {
+        HEADER_LEN + self.table_len() + self.scale_table_len()
     }
 
     /// Bytes of one frame: trigger record and samples.
@@ -188,6 +235,46 @@ pub fn decode_table(b: &[u8], ref_phase: &mut [u32]) -> Result<(), FeedError> {
         *p = u32::from_le_bytes([c[0], c[1], c[2], c[3]]);
     }
     Ok(())
+}
+
+/// Writes the per-column height-scale mantissas and their CRC into `out` (`2 W + 4` bytes).
+pub fn encode_scale_table(mantissa: &[u16], out: &mut [u8]) -> Result<(), FeedError> {
+    let n = mantissa.len() * 2;
+    if out.len() != n + 4 {
+        return Err(FeedError::Length);
+    }
+    for (o, m) in out.chunks_exact_mut(2).zip(mantissa) {
+        o.copy_from_slice(&m.to_le_bytes());
+    }
+    let crc = CRC.checksum(&out[..n]);
+    out[n..].copy_from_slice(&crc.to_le_bytes());
+    Ok(())
+}
+
+/// Checks the height-scale table `b` (`2 W + 4` bytes) of a feed with `header` (which must
+/// announce the table): CRC, then the values against the configuration
+/// ([`ColumnScale::check`]); fills `mantissa` (`W` entries).
+pub fn decode_scale_table(
+    b: &[u8],
+    header: &Header,
+    mantissa: &mut [u16],
+) -> Result<(), FeedError> {
+    let Some(shift) = header.column_scale else {
+        return Err(FeedError::Length);
+    };
+    let n = mantissa.len() * 2;
+    if b.len() != n + 4 || mantissa.len() != header.cfg.width as usize {
+        return Err(FeedError::Length);
+    }
+    if CRC.checksum(&b[..n]) != u32_at(b, n) {
+        return Err(FeedError::ScaleCrc);
+    }
+    for (m, c) in mantissa.iter_mut().zip(b.chunks_exact(2)) {
+        *m = u16::from_le_bytes([c[0], c[1]]);
+    }
+    ColumnScale::new(shift, mantissa)
+        .check(&header.cfg)
+        .map_err(FeedError::ColumnScale)
 }
 
 /// A frame's trigger record in the feed (16 bytes: `seq` u32, 4 zero bytes, `latch` i64).
@@ -245,20 +332,126 @@ mod tests {
             frames: 277,
             intra_period: 1,
             run_id: 0x0123_4567_89ab_cdef,
+            column_scale: None,
         }
     }
 
     #[test]
     fn header_round_trip_and_every_flipped_bit_is_caught() {
+        for column_scale in [None, Some(0), Some(11), Some(15)] {
+            let h = Header {
+                column_scale,
+                ..header()
+            };
+            let b = h.encode();
+            assert_eq!(Header::decode(&b), Ok(h));
+            for bit in 0..HEADER_LEN * 8 {
+                let mut c = b;
+                c[bit / 8] ^= 1 << (bit % 8);
+                assert!(Header::decode(&c).is_err(), "bit {bit}");
+            }
+            assert_eq!(Header::decode(&b[..63]), Err(FeedError::Length));
+        }
+    }
+
+    /// Re-seals a header whose bytes were edited (a new CRC), to test the checks behind it.
+    fn reseal(mut b: [u8; HEADER_LEN]) -> [u8; HEADER_LEN] {
+        let crc = CRC.checksum(&b[..60]);
+        b[60..64].copy_from_slice(&crc.to_le_bytes());
+        b
+    }
+
+    #[test]
+    fn old_feeds_read_and_table_bytes_are_checked() {
+        // A feed of before the table: bytes 52..60 zero, the layout of version 1 unchanged.
         let h = header();
         let b = h.encode();
-        assert_eq!(Header::decode(&b), Ok(h));
-        for bit in 0..HEADER_LEN * 8 {
+        assert!(b[52..60].iter().all(|&x| x == 0));
+        let d = Header::decode(&b).unwrap();
+        assert_eq!((d.column_scale, d.scale_table_len()), (None, 0));
+        assert_eq!(d.frames_at(), HEADER_LEN + 2048 * 4 + 4);
+        let t = Header {
+            column_scale: Some(11),
+            ..h
+        };
+        assert_eq!(t.frames_at(), HEADER_LEN + 2048 * 4 + 4 + 2048 * 2 + 4);
+        // An exponent without the flag, an unknown flag, a too large exponent, later bytes.
+        let mut e = b;
+        e[53] = 3;
+        assert_eq!(Header::decode(&reseal(e)), Err(FeedError::Reserved));
+        let mut e = b;
+        e[52] = 2;
+        assert_eq!(Header::decode(&reseal(e)), Err(FeedError::Reserved));
+        let mut e = b;
+        e[52] = 1;
+        e[53] = 16;
+        assert_eq!(
+            Header::decode(&reseal(e)),
+            Err(FeedError::ColumnScale(ColumnScaleError::Shift(16)))
+        );
+        let mut e = b;
+        e[57] = 1;
+        assert_eq!(Header::decode(&reseal(e)), Err(FeedError::Reserved));
+    }
+
+    #[test]
+    fn scale_table_round_trip_and_refusals() {
+        let mut h = header();
+        h.cfg.width = 6;
+        // 2000 LSB per turn, columns +-2 %: exponent 11, mantissas near 64000.
+        let k: [U16F16; 6] =
+            core::array::from_fn(|c| U16F16::from_num(2000.0 * (0.98 + 0.008 * c as f64)));
+        let mut m = [0u16; 6];
+        let shift = ColumnScale::encode(&k, &mut m).unwrap();
+        h.column_scale = Some(shift);
+        let h = Header::decode(&h.encode()).unwrap();
+        let mut b = [0u8; 16];
+        assert_eq!(h.scale_table_len(), b.len());
+        encode_scale_table(&m, &mut b).unwrap();
+        let mut back = [0u16; 6];
+        decode_scale_table(&b, &h, &mut back).unwrap();
+        assert_eq!(back, m);
+        // Every flipped bit is a CRC error.
+        for bit in 0..b.len() * 8 {
             let mut c = b;
             c[bit / 8] ^= 1 << (bit % 8);
-            assert!(Header::decode(&c).is_err(), "bit {bit}");
+            assert_eq!(
+                decode_scale_table(&c, &h, &mut back),
+                Err(FeedError::ScaleCrc),
+                "bit {bit}"
+            );
         }
-        assert_eq!(Header::decode(&b[..63]), Err(FeedError::Length));
+        // Wrong lengths; a header without the table.
+        assert_eq!(
+            decode_scale_table(&b[..15], &h, &mut back),
+            Err(FeedError::Length)
+        );
+        assert_eq!(
+            decode_scale_table(&b, &h, &mut [0u16; 5]),
+            Err(FeedError::Length)
+        );
+        let plain = Header {
+            column_scale: None,
+            ..h
+        };
+        assert_eq!(
+            decode_scale_table(&b, &plain, &mut back),
+            Err(FeedError::Length)
+        );
+        // A zero entry and an absurd one (3x the configuration's scale), with a good CRC.
+        for (col, bad) in [(2usize, 0u16), (4, 0xFFFF)] {
+            let mut mm = m;
+            mm[col] = bad;
+            let mut h3 = h;
+            h3.cfg.lsb_per_turn = U16F16::from_num(if bad == 0 { 2000 } else { 700 });
+            encode_scale_table(&mm, &mut b).unwrap();
+            assert_eq!(
+                decode_scale_table(&b, &h3, &mut back),
+                Err(FeedError::ColumnScale(ColumnScaleError::Range {
+                    column: if bad == 0 { col as u16 } else { 0 }
+                }))
+            );
+        }
     }
 
     #[test]

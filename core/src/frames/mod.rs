@@ -11,6 +11,7 @@
 //! - [`feed`]: the byte format a frame grabber is fed (configuration, reference phase, frames).
 //! - [`registration`]: which board rows a frame admits or skips, and where open rows live.
 
+use crate::height::ColumnScale;
 use crate::solve::{MAX_N, MIN_N};
 use fixed::types::{U16F16, U20F12, U8F8};
 
@@ -135,6 +136,13 @@ impl Config {
     /// u32; `max_noise_gain`, `max_step_rows` u16; the fixed-point fields by their bits), then
     /// the `W` reference phases as u32, all little-endian.
     pub fn hash(&self, ref_phase: &[u32]) -> u64 {
+        self.hash_with(ref_phase, None)
+    }
+
+    /// [`Config::hash`] with the per-column height scale: `None` gives exactly
+    /// [`Config::hash`]; `Some(table)` continues it with the table's exponent (one byte) and
+    /// its `W` mantissas as u16, little-endian.
+    pub fn hash_with(&self, ref_phase: &[u32], columns: Option<&ColumnScale<'_>>) -> u64 {
         let mut h = Fnv64::new();
         h.bytes(&self.width.to_le_bytes());
         h.bytes(&self.rows.to_le_bytes());
@@ -148,6 +156,12 @@ impl Config {
         h.bytes(&self.max_step_rows.to_le_bytes());
         for p in ref_phase {
             h.bytes(&p.to_le_bytes());
+        }
+        if let Some(t) = columns {
+            h.bytes(&[t.shift()]);
+            for m in t.mantissa() {
+                h.bytes(&m.to_le_bytes());
+            }
         }
         h.0
     }

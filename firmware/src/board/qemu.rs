@@ -238,8 +238,14 @@ pub struct Feed {
 
 impl Feed {
     /// Opens a feed and reads its header and reference-phase table into `ref_phase`
-    /// (at least `W` entries).
-    pub fn open(path: &Path, ref_phase: &mut [u32], scratch: &mut [u8]) -> Result<Feed, Error> {
+    /// (at least `W` entries), and its per-column height-scale table, if it has one, into
+    /// `column_scale` (at least `W` entries; checked against the configuration).
+    pub fn open(
+        path: &Path,
+        ref_phase: &mut [u32],
+        column_scale: &mut [u16],
+        scratch: &mut [u8],
+    ) -> Result<Feed, Error> {
         let mut file = File::open(path.c_str()).map_err(io)?;
         let mut h = [0u8; feed::HEADER_LEN];
         let mut reader_pos = 0u64;
@@ -252,6 +258,15 @@ impl Feed {
         let t = &mut scratch[..header.table_len()];
         read_exact(&mut file, t, &mut reader_pos)?;
         feed::decode_table(t, &mut ref_phase[..w]).map_err(Error::Feed)?;
+        if header.column_scale.is_some() {
+            let n = header.scale_table_len();
+            if w > column_scale.len() || n > scratch.len() {
+                return Err(Error::Feed(FeedError::Length));
+            }
+            let t = &mut scratch[..n];
+            read_exact(&mut file, t, &mut reader_pos)?;
+            feed::decode_scale_table(t, &header, &mut column_scale[..w]).map_err(Error::Feed)?;
+        }
         let reader = Reader {
             file,
             header,

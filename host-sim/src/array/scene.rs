@@ -557,6 +557,7 @@ impl ArrayScene {
             reference_phase_rad: vec![0.0; c.width as usize],
             height_per_turn_um: c.height_per_turn_um,
             height_lsb_um: self.height_lsb_um,
+            height_per_turn_um_per_column: None,
         }
     }
 

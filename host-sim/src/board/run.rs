@@ -2,9 +2,9 @@
 //!
 //! Per camera (one thread each): the calibration goes into the camera recording's manifest
 //! (`CameraCal::apply`), the fixed-point core runs on it (the rows exactly as its packets carry
-//! them), each row's heights are scaled per column to the calibrated height per turn
-//! (`CameraCal::height_scale`: the core keeps one), and its board rows are placed with the
-//! lateral calibration. Then [`super::assemble`] unwraps, resamples and blends, and
+//! them; the calibration's per-column height per turn `T_z(c)` is part of the core's
+//! configuration, so its heights are already in calibrated LSB in every column, as a frame
+//! grabber's packets carry them), and its board rows are placed with the lateral calibration. Then [`super::assemble`] unwraps, resamples and blends, and
 //! [`super::output`] writes the files.
 //!
 //! Placement of a core board row `b` (`docs/calibration.md`): its window's first frame saw it
@@ -142,13 +142,12 @@ fn camera_rows(rec: &Recording, cal: &CameraCal, lsb_um: f64) -> Result<CameraRo
     cal.apply(&mut rec.manifest, lsb_um)?;
     let w = rec.manifest.camera.width as usize;
     let max_step = rec.manifest.processing.max_step_rows;
-    let scale: Vec<f32> = (0..w).map(|c| cal.height_scale(c) as f32).collect();
     let mut rows: Vec<(i64, Vec<f32>)> = Vec::new();
     crate::reconstruct::reconstruct_rows(&rec, false, |r| {
         let h = (0..w)
             .map(|c| {
                 if r.pixel_valid(c) {
-                    f32::from(r.heights[c]) * lsb_um as f32 * scale[c]
+                    f32::from(r.heights[c]) * lsb_um as f32
                 } else {
                     f32::NAN
                 }

@@ -512,6 +512,8 @@ pub fn plane_phases(rec: &Recording, cal: &CameraCal) -> Result<PlanePixels> {
     m.calibration.fringe_period_px = cal.fringe_period_px;
     m.calibration.reference_phase_rad = vec![0.0; rec.width()];
     m.calibration.height_per_turn_um = TAU * 1000.0;
+    // Phase in mrad in every column: no per-column height scale.
+    m.calibration.height_per_turn_um_per_column = None;
     let mut src = LazyFrames::new(rec);
     let out = reference::reconstruct_from(&m, &mut src)?;
     let width = rec.width();

@@ -96,16 +96,10 @@ impl CameraCal {
         a + b * u + d * u * u
     }
 
-    /// The single height per turn the core uses (field mean), um; the host scales column `c`
-    /// by [`CameraCal::height_scale`].
+    /// The core's nominal (uniform) height per turn, the field mean, um: its
+    /// `lsb_per_turn`, around which the per-column table ([`CameraCal::apply`]) lies.
     pub fn core_height_per_turn_um(&self) -> f64 {
         self.height_per_turn_um.iter().sum::<f64>() / self.height_per_turn_um.len().max(1) as f64
-    }
-
-    /// Factor from the core's height (at [`CameraCal::core_height_per_turn_um`]) to the
-    /// calibrated height of column `c`.
-    pub fn height_scale(&self, c: usize) -> f64 {
-        self.height_per_turn_um[c] / self.core_height_per_turn_um()
     }
 
     /// Board point `(X, Y)` (mm) of image pixel `(r, c)` at conveyor travel `s` mm.
@@ -120,7 +114,9 @@ impl CameraCal {
 
     /// Puts this calibration into a single-camera manifest (what `reconstruct` and the
     /// firmware take): encoder scale, the core's fringe period and reference-phase table, the
-    /// core's height per turn. Refuses a manifest of another camera geometry.
+    /// core's nominal height per turn and the per-column `T_z(c)`
+    /// (`height_per_turn_um_per_column`: the core emits every column in calibrated LSB).
+    /// Refuses a manifest of another camera geometry.
     pub fn apply(&self, manifest: &mut Manifest, height_lsb_um: f64) -> Result<()> {
         if (manifest.camera.width, manifest.camera.rows) != (self.width, self.rows) {
             bail!(
@@ -141,6 +137,7 @@ impl CameraCal {
             .map(|&p| crate::array::scene::wrap(p))
             .collect();
         c.height_per_turn_um = self.core_height_per_turn_um();
+        c.height_per_turn_um_per_column = Some(self.height_per_turn_um.clone());
         c.height_lsb_um = height_lsb_um;
         Ok(())
     }

@@ -3,16 +3,47 @@
 use crate::simulation::recording::Manifest;
 use anyhow::{anyhow, Result};
 use dpsa_core::fixed::types::{U16F16, U20F12, U8F8};
+use dpsa_core::height::ColumnScale;
 use dpsa_core::{phase, Config};
 
-/// Integer core configuration and reference-phase table from a manifest.
+/// What the core runs on, from a manifest: the integer configuration, the reference-phase
+/// table and the optional per-column height-scale table.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct CoreConfig {
+    pub cfg: Config,
+    /// `phi_0(c)` as binary angles.
+    pub ref_phase: Vec<u32>,
+    /// Per-column height scale: exponent and `W` mantissas ([`ColumnScale`]); `None` when the
+    /// manifest has no `height_per_turn_um_per_column` (every column at `cfg.lsb_per_turn`).
+    pub column_scale: Option<(u8, Vec<u16>)>,
+}
+
+impl CoreConfig {
+    /// The per-column table as the core takes it.
+    pub fn columns(&self) -> Option<ColumnScale<'_>> {
+        self.column_scale
+            .as_ref()
+            .map(|(s, m)| ColumnScale::new(*s, m))
+    }
+
+    /// The pipeline's state layout, the table counted.
+    pub fn layout(&self) -> dpsa_core::Layout {
+        dpsa_core::Layout::of(&self.cfg).with_column_scale(self.column_scale.is_some())
+    }
+}
+
+/// Integer core configuration, reference-phase table and per-column height scale from a
+/// manifest.
 ///
 /// This is the one place where calibration floats become the integers both the host and the
 /// firmware run on: `cpp` as `U16F16`, `2 pi f_x` and `phi_0(c)` as binary angles (`u32`), LSB
 /// per turn as `U16F16`, the modulation threshold as `U20F12`, the noise-gain limit as `U8F8`.
 /// Each fixed-point value is `from_bits(round(x * 2^frac))` (round half away from zero, range
-/// checked): `fixed`'s `from_num` truncates, so it is not used here.
-pub fn config(m: &Manifest) -> Result<(Config, Vec<u32>)> {
+/// checked): `fixed`'s `from_num` truncates, so it is not used here. Column `c`'s LSB per
+/// turn `T_z(c) / lsb` (with `height_per_turn_um_per_column`) is rounded the same way, then
+/// to the table's 16-bit mantissas
+/// ([`column_scale_table`](crate::simulation::checks::column_scale_table)).
+pub fn config(m: &Manifest) -> Result<CoreConfig> {
     let cal = &m.calibration;
     let p = &m.processing;
     let to_u32 = |x: f64, what: &str| -> Result<u32> {
@@ -57,5 +88,16 @@ pub fn config(m: &Manifest) -> Result<(Config, Vec<u32>)> {
         .iter()
         .map(|&r| phase::from_rad(r))
         .collect();
-    Ok((cfg, ref_phase))
+    let column_scale = crate::simulation::checks::column_scale_table(cal, m.camera.width)
+        .map_err(|e| anyhow!("{}: {}", e.field, e.message))?;
+    if let Some((shift, mantissa)) = &column_scale {
+        ColumnScale::new(*shift, mantissa)
+            .check(&cfg)
+            .map_err(|e| anyhow!("per-column height scale out of range for the core: {e}"))?;
+    }
+    Ok(CoreConfig {
+        cfg,
+        ref_phase,
+        column_scale,
+    })
 }

@@ -13,7 +13,7 @@ use crate::simulation::recording::Recording;
 use anyhow::{anyhow, Result};
 use dpsa_core::{
     packets::{self, codec},
-    pipeline::{Layout, Pipeline, State},
+    pipeline::{Pipeline, State},
     sink::{Link, PacketSink},
 };
 use std::io::Write;
@@ -57,10 +57,12 @@ pub fn run_link<L: Link>(
 where
     L::Error: std::fmt::Display,
 {
-    let (cfg, ref_phase) = config(&rec.manifest)?;
+    let core = config(&rec.manifest)?;
+    let cfg = core.cfg;
     let mut state = State::new(&cfg);
-    let mut pipe = Pipeline::new(cfg, &ref_phase, state.memory())
-        .map_err(|e| anyhow!("cannot build the pipeline: {e}"))?;
+    let mut pipe =
+        Pipeline::with_column_scale(cfg, &core.ref_phase, core.columns(), state.memory())
+            .map_err(|e| anyhow!("cannot build the pipeline: {e}"))?;
     let w = cfg.width as usize;
     let mut reference = codec::ReferenceRow::new(w);
     let enc = reference
@@ -94,7 +96,7 @@ where
         frames: frames.len(),
         packets: sink.packets(),
         bytes: sink.bytes(),
-        state_bytes: Layout::of(&cfg).bytes(),
+        state_bytes: core.layout().bytes(),
         pool_high_water: high,
     };
     Ok((stats, sink.into_link()))

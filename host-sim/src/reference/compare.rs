@@ -196,9 +196,10 @@ fn ref_valid(row: &RefRow, c: usize) -> bool {
 ///
 /// - fixed vs ref: over pixels valid in both (a fixed pixel is valid when its valid bit is set
 ///   and its row has no invalidating flag), the difference `fixed - ref.height_lsb` in LSB of
-///   the manifest's `height_lsb_um`, folded modulo `lsb_per_turn = height_per_turn_um / lsb`
-///   into `[-lsb_per_turn/2, lsb_per_turn/2)`;
-/// - vs truth: see [`TruthStats`] for the pixel sets; errors in um, folded modulo `T_z`. The
+///   the manifest's `height_lsb_um`, folded modulo the column's turn in LSB,
+///   `T_z(c) / lsb` (`height_per_turn_um`, or `height_per_turn_um_per_column[c]`), into
+///   `[-T_z(c)/lsb/2, T_z(c)/lsb/2)`;
+/// - vs truth: see [`TruthStats`] for the pixel sets; errors in um, folded modulo `T_z(c)`. The
 ///   CRB comes from [`crb_row`] on the reference row (needs `manifest.noise`).
 pub struct Comparer<'m> {
     manifest: &'m Manifest,
@@ -248,8 +249,8 @@ impl<'m> Comparer<'m> {
     ) {
         let m = self.manifest;
         let lsb = m.calibration.height_lsb_um;
-        let t_z = m.calibration.height_per_turn_um;
-        let lsb_per_turn = t_z / lsb;
+        // Heights fold modulo their column's turn (per-column with a calibrated T_z(c)).
+        let t_z = |c: usize| m.calibration.height_per_turn_at(c);
         if let Some(f) = fixed {
             let rs = &mut self.rows;
             rs.total += 1;
@@ -295,7 +296,7 @@ impl<'m> Comparer<'m> {
             match (fh, rv) {
                 (Some(fh), true) => {
                     let rh = f64::from(reference.map_or(0, |r| r.height_lsb[c])) * lsb;
-                    let d = fold((fh - rh) / lsb, lsb_per_turn);
+                    let d = fold((fh - rh) / lsb, t_z(c) / lsb);
                     self.diff.add(d);
                     fvr.pixels_over_1_lsb += u64::from(d.abs() > 1.0);
                 }
@@ -326,8 +327,8 @@ impl<'m> Comparer<'m> {
                     None => 0.0,
                 };
                 let h = f64::from(t.height_um[c]);
-                self.fe.add(fold(fh - h, t_z));
-                self.re.add(fold(r.height_um[c] - h, t_z));
+                self.fe.add(fold(fh - h, t_z(c)));
+                self.re.add(fold(r.height_um[c] - h, t_z(c)));
                 self.crb_sum += var;
             }
         }
@@ -335,7 +336,7 @@ impl<'m> Comparer<'m> {
             for c in 0..t.flat.len() {
                 if t.is_flat(c) && ref_valid(p, c) {
                     self.pe
-                        .add(fold(p.height_um[c] - f64::from(t.height_um[c]), t_z));
+                        .add(fold(p.height_um[c] - f64::from(t.height_um[c]), t_z(c)));
                 }
             }
         }
@@ -599,6 +600,7 @@ mod tests {
                 reference_phase_rad: vec![0.0; 3],
                 height_per_turn_um: 500.0,
                 height_lsb_um: 0.25,
+                height_per_turn_um_per_column: None,
             },
             processing: Processing {
                 n: 4,

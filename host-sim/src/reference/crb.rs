@@ -49,15 +49,16 @@ pub fn crb_row(
     };
     let cal = &manifest.calibration;
     let f_x = 1.0 / cal.fringe_period_px;
-    let scale = (cal.height_per_turn_um / TAU).powi(2);
     let phi_r_row = TAU * f_x * (row.row - window.offsets.first().copied().unwrap_or(0)) as f64;
     for (c, slot) in v.iter_mut().enumerate() {
         let Some((h_true, bg, ct)) = truth(c) else {
             continue;
         };
         let phi0 = cal.reference_phase_rad.get(c).copied().unwrap_or(f64::NAN);
-        let phi = phi_r_row + phi0 + TAU * h_true / cal.height_per_turn_um;
-        *slot = phase_variance(noise, phi, &window.shifts_rad, bg, ct).map(|v| v * scale);
+        let t_z = cal.height_per_turn_at(c);
+        let phi = phi_r_row + phi0 + TAU * h_true / t_z;
+        *slot = phase_variance(noise, phi, &window.shifts_rad, bg, ct)
+            .map(|v| v * (t_z / TAU).powi(2));
     }
     v
 }

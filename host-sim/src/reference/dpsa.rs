@@ -658,8 +658,8 @@ fn fill_pixels(
     let width = phi0.len();
     let saturation = manifest.camera.saturation;
     let min_mod = manifest.processing.min_modulation;
-    let t_z = manifest.calibration.height_per_turn_um;
-    let lsb = manifest.calibration.height_lsb_um;
+    let cal = &manifest.calibration;
+    let lsb = cal.height_lsb_um;
 
     let mut v2 = vec![0.0f64; width];
     let mut v3 = vec![0.0f64; width];
@@ -680,7 +680,8 @@ fn fill_pixels(
         let phi = v3[c].atan2(v2[c]);
         let modulation = v2[c].hypot(v3[c]);
         let d = wrap_phase(phi - (phi_r_row + phi0[c]));
-        let h = d / TAU * t_z;
+        // T_z of this column (the per-column calibration when the manifest has one).
+        let h = d / TAU * cal.height_per_turn_at(c);
         let saturated = max_sample[c] >= saturation;
         let low = modulation.is_nan() || modulation < min_mod;
         if saturated {

@@ -35,6 +35,7 @@ fn manifest(
             reference_phase_rad: (0..width).map(|c| 0.1 * c as f64).collect(),
             height_per_turn_um: 500.0,
             height_lsb_um: 0.25,
+            height_per_turn_um_per_column: None,
         },
         processing: Processing {
             n,

@@ -125,6 +125,7 @@ pub fn check_blocks(cam: &Camera, cal: &Calibration, p: &Processing) -> Result<(
             )
         },
     )?;
+    column_scale_table(cal, cam.width)?;
 
     check((3..=8).contains(&p.n), "processing.n", || {
         format!("{}, expected 3..=8", p.n)
@@ -170,6 +171,68 @@ pub fn check_blocks(cam: &Camera, cal: &Calibration, p: &Processing) -> Result<(
         || format!("{}, expected 1..=8", p.max_noise_gain),
     )?;
     Ok(())
+}
+
+/// The core's per-column height-scale table of a calibration block: `None` without
+/// `height_per_turn_um_per_column`, else the exponent and `W` mantissas
+/// ([`dpsa_core::height::ColumnScale`]): column `c`'s LSB per turn
+/// `T_z(c) / height_lsb_um` rounded to Q16.16, then to the table's 16-bit mantissas, checked by
+/// the core's own [`ColumnScale::check`](dpsa_core::height::ColumnScale::check) against the
+/// uniform `lsb_per_turn` (`height_per_turn_um / height_lsb_um`; this block's other checks
+/// come first). One function for the manifest check and `reconstruct::config`, so a table that
+/// loads is one the core takes.
+pub fn column_scale_table(
+    cal: &Calibration,
+    width: u32,
+) -> Result<Option<(u8, Vec<u16>)>, Invalid> {
+    use dpsa_core::fixed::types::U16F16;
+    use dpsa_core::height::{ColumnScale, ColumnScaleError};
+    const FIELD: &str = "calibration.height_per_turn_um_per_column";
+    let Some(t) = &cal.height_per_turn_um_per_column else {
+        return Ok(None);
+    };
+    check(t.len() == width as usize, FIELD, || {
+        format!("{} values, expected one per column ({width})", t.len())
+    })?;
+    let lsb = cal.height_lsb_um;
+    let mut k = Vec::with_capacity(t.len());
+    for (c, &tz) in t.iter().enumerate() {
+        let q16 = (tz / lsb * 65536.0).round();
+        check(
+            tz.is_finite() && tz > 0.0 && (1.0..2_147_483_648.0).contains(&q16),
+            &format!("{FIELD}[{c}]"),
+            || {
+                format!(
+                    "{tz} um, expected a finite value > 0 whose turn is 2^-16 ..< 32768 LSB of height_lsb_um {lsb}"
+                )
+            },
+        )?;
+        k.push(U16F16::from_bits(q16 as u32));
+    }
+    let mut m = vec![0u16; t.len()];
+    let shift = ColumnScale::encode(&k, &mut m).map_err(|e| Invalid {
+        field: FIELD.into(),
+        message: format!("not representable in the core's table: {e}"),
+    })?;
+    let uniform = U16F16::from_bits((cal.height_per_turn_um / lsb * 65536.0).round() as u32);
+    let w = u16::try_from(width).unwrap_or(u16::MAX);
+    match ColumnScale::new(shift, &m).check_parts(w, uniform) {
+        Ok(()) => Ok(Some((shift, m))),
+        Err(ColumnScaleError::Range { column }) => {
+            let c = usize::from(column);
+            Err(Invalid {
+                field: format!("{FIELD}[{c}]"),
+                message: format!(
+                    "{} um is more than a factor of 2 from height_per_turn_um {} um (the core's uniform scale, which a per-column value must stay within)",
+                    t[c], cal.height_per_turn_um
+                ),
+            })
+        }
+        Err(e) => Err(Invalid {
+            field: FIELD.into(),
+            message: format!("not representable in the core's table: {e}"),
+        }),
+    }
 }
 
 /// Legal settings that make the result useless, one sentence each (printed as `warning: ...`).

@@ -53,10 +53,28 @@ pub struct Calibration {
     pub fringe_period_px: f64,
     /// `phi_0(c)`, one value per column, rad.
     pub reference_phase_rad: Vec<f64>,
-    /// Height for one full fringe turn `1/f_z`, um.
+    /// Height for one full fringe turn `1/f_z`, um: every column's, or the nominal value when
+    /// `height_per_turn_um_per_column` is given (then the core's `lsb_per_turn`, and each
+    /// column's value must lie within a factor of 2 of it).
     pub height_per_turn_um: f64,
     /// Height LSB of the i16 output, um.
     pub height_lsb_um: f64,
+    /// Height per fringe turn per column `T_z(c)`, um (non-telecentric optics; from the
+    /// calibration): the core scales column `c` with it, so every column's heights are in
+    /// calibrated LSB. Absent: `height_per_turn_um` everywhere (manifests written before it
+    /// existed read unchanged, with the same run identity).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub height_per_turn_um_per_column: Option<Vec<f64>>,
+}
+
+impl Calibration {
+    /// `T_z` of column `c`, um: the per-column value if there is a table, else the uniform one.
+    pub fn height_per_turn_at(&self, c: usize) -> f64 {
+        match &self.height_per_turn_um_per_column {
+            Some(t) => t.get(c).copied().unwrap_or(f64::NAN),
+            None => self.height_per_turn_um,
+        }
+    }
 }
 
 /// Processing parameters of the reconstruction.
@@ -895,6 +913,7 @@ mod tests {
                 reference_phase_rad: vec![0.1; WIDTH],
                 height_per_turn_um: 500.0,
                 height_lsb_um: 0.25,
+                height_per_turn_um_per_column: None,
             },
             processing: Processing {
                 n: 4,
@@ -1113,6 +1132,117 @@ mod tests {
             let err = m.validate().unwrap_err();
             assert!(err.to_string().contains(needle), "{needle}: {err}");
         }
+    }
+
+    /// `T_z(c)` of a per-column table: +-2 % around 500 um.
+    fn per_column(w: usize) -> Vec<f64> {
+        (0..w)
+            .map(|c| 500.0 * (1.0 + 0.02 * (c as f64 * 1.7).sin()))
+            .collect()
+    }
+
+    #[test]
+    fn per_column_height_per_turn_is_optional_and_keeps_old_manifests() {
+        // Without the table nothing is written for it: an old manifest's JSON, hence its run
+        // identity, is unchanged; reading it back gives None.
+        let m = manifest(1);
+        let json = serde_json::to_string(&m).unwrap();
+        assert!(!json.contains("per_column"), "{json}");
+        let dir = write_recording(&m);
+        let rec = Recording::open(dir.path()).unwrap();
+        assert_eq!(rec.manifest.calibration.height_per_turn_um_per_column, None);
+        assert_eq!(
+            rec.run_id(),
+            dpsa_core::frames::fnv1a64(&serde_json::to_vec(&m).unwrap())
+        );
+        assert_eq!(rec.manifest.calibration.height_per_turn_at(3), 500.0);
+        // With it: read back, per column, a different run identity.
+        let mut t = manifest(1);
+        t.calibration.height_per_turn_um_per_column = Some(per_column(WIDTH));
+        let dir = write_recording(&t);
+        let back = Recording::open(dir.path()).unwrap();
+        assert_eq!(back.manifest, t);
+        assert_eq!(
+            back.manifest.calibration.height_per_turn_at(2),
+            per_column(WIDTH)[2]
+        );
+        assert_ne!(back.run_id(), rec.run_id());
+    }
+
+    #[test]
+    fn per_column_height_per_turn_is_checked() {
+        type Edit = fn(&mut Vec<f64>);
+        let f = "calibration.height_per_turn_um_per_column";
+        let cases: Vec<(Edit, String, &str)> = vec![
+            (
+                |t| t.truncate(4),
+                f.into(),
+                "4 values, expected one per column (5)",
+            ),
+            (|t| t.push(500.0), f.into(), "6 values"),
+            (
+                |t| t[1] = 0.0,
+                format!("{f}[1]"),
+                "expected a finite value > 0",
+            ),
+            (
+                |t| t[2] = -500.0,
+                format!("{f}[2]"),
+                "expected a finite value > 0",
+            ),
+            (|t| t[3] = f64::NAN, format!("{f}[3]"), "finite"),
+            (|t| t[4] = f64::INFINITY, format!("{f}[4]"), "finite"),
+            // 32768 LSB of 0.25 um: beyond the core's i16 turn.
+            (|t| t[0] = 8192.0, format!("{f}[0]"), "32768"),
+            // More than a factor of 2 from the uniform 500 um.
+            (|t| t[2] = 1000.5, format!("{f}[2]"), "factor of 2"),
+            (|t| t[4] = 249.0, format!("{f}[4]"), "factor of 2"),
+        ];
+        for (edit, field, needle) in cases {
+            let mut m = manifest(1);
+            let mut t = per_column(WIDTH);
+            edit(&mut t);
+            m.calibration.height_per_turn_um_per_column = Some(t);
+            let err = m.validate().unwrap_err();
+            assert!(
+                matches!(&err, RecordingError::Invalid { field: g, .. } if *g == field),
+                "{field}: {err}"
+            );
+            assert!(err.to_string().contains(needle), "{needle}: {err}");
+            // The core's configuration is refused the same way (no panic).
+            let e = crate::reconstruct::config(&m).unwrap_err().to_string();
+            assert!(e.contains(&field), "{field}: {e}");
+        }
+        // Exactly a factor of 2 either way is accepted, and the table reaches the core.
+        let mut m = manifest(1);
+        m.calibration.height_per_turn_um_per_column =
+            Some(vec![250.0, 1000.0, 500.0, 499.9, 501.0]);
+        m.validate().unwrap();
+        let core = crate::reconstruct::config(&m).unwrap();
+        let (shift, mant) = core.column_scale.clone().unwrap();
+        assert_eq!(mant.len(), WIDTH);
+        for (c, &tz) in [250.0, 1000.0, 500.0, 499.9, 501.0].iter().enumerate() {
+            let k = core
+                .columns()
+                .unwrap()
+                .lsb_per_turn(c)
+                .unwrap()
+                .to_num::<f64>();
+            let want = tz / 0.25;
+            // Q16.16 rounding, then the mantissa's 2^(shift-16) LSB per turn.
+            let step = f64::from(1u32 << shift) / 65536.0;
+            assert!(
+                (k - want).abs() <= step / 2.0 + 1.0 / 131072.0,
+                "{c}: {k} {want}"
+            );
+        }
+        assert_eq!(
+            core.layout().bytes(),
+            dpsa_core::Layout::of(&core.cfg).bytes() + 2 * WIDTH
+        );
+        // No table: none for the core either.
+        let core = crate::reconstruct::config(&manifest(1)).unwrap();
+        assert_eq!((&core.column_scale, core.columns()), (&None, None));
     }
 
     #[test]

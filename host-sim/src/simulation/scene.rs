@@ -533,6 +533,7 @@ impl Scene {
             reference_phase_rad: self.reference_phase(),
             height_per_turn_um: self.height_per_turn_um,
             height_lsb_um: self.height_lsb_um,
+            height_per_turn_um_per_column: None,
         }
     }
 

@@ -33,7 +33,8 @@ pub fn write_feed_to<W: Write>(
         intra_period >= 1,
         "the codec intra period must be at least 1"
     );
-    let (cfg, ref_phase) = config(&rec.manifest)?;
+    let core = config(&rec.manifest)?;
+    let (cfg, ref_phase) = (core.cfg, &core.ref_phase);
     let frames = &rec.manifest.frames;
     let header = feed::Header {
         cfg,
@@ -41,6 +42,7 @@ pub fn write_feed_to<W: Write>(
             .map_err(|_| anyhow!("{} frames do not fit a feed", frames.len()))?,
         intra_period,
         run_id: rec.run_id(),
+        column_scale: core.column_scale.as_ref().map(|(shift, _)| *shift),
     };
     // Check that the header reads back as written (the firmware applies the same checks).
     let head = header.encode();
@@ -48,10 +50,20 @@ pub fn write_feed_to<W: Write>(
         .map_err(|e| anyhow!("the recording's configuration is not valid for the target: {e}"))?;
     out.write_all(&head)?;
     let mut table = vec![0u8; header.table_len()];
-    feed::encode_table(&ref_phase, &mut table)
-        .map_err(|e| anyhow!("reference-phase table: {e}"))?;
+    feed::encode_table(ref_phase, &mut table).map_err(|e| anyhow!("reference-phase table: {e}"))?;
     out.write_all(&table)?;
     let mut written = (head.len() + table.len()) as u64;
+    if let Some((_, mantissa)) = &core.column_scale {
+        let mut t = vec![0u8; header.scale_table_len()];
+        feed::encode_scale_table(mantissa, &mut t)
+            .map_err(|e| anyhow!("height-scale table: {e}"))?;
+        // Read back as the firmware will (CRC and range).
+        let mut back = vec![0u16; mantissa.len()];
+        feed::decode_scale_table(&t, &header, &mut back)
+            .map_err(|e| anyhow!("the per-column height scale is not valid for the target: {e}"))?;
+        out.write_all(&t)?;
+        written += t.len() as u64;
+    }
 
     let bar = progress_bar(progress, frames.len() as u64, "export");
     let mut bytes = Vec::with_capacity(header.frame_len());
