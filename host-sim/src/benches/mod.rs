@@ -7,3 +7,4 @@
 
 pub mod codec;
 pub mod frames;
+pub mod numpy;
