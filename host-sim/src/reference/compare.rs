@@ -609,6 +609,7 @@ mod tests {
             frames: Vec::new(),
             noise: None,
             truth: None,
+            board_id: None,
         }
     }
 

@@ -52,6 +52,7 @@ fn manifest(
             .collect(),
         noise: None,
         truth: None,
+        board_id: None,
     }
 }
 
