@@ -18,6 +18,9 @@ pub struct CameraRows {
     /// Height per turn of each column, um.
     pub period_um: Vec<f32>,
     pub placement: Placement,
+    /// Rows of `heights` that never arrived (a stream's missing or damaged packets, its
+    /// truncated end): their board pixels stay invalid. Empty when none was lost.
+    pub lost: Vec<bool>,
 }
 
 /// Seconds per stage (`timing.*` of `dpsa board --json`).
@@ -37,6 +40,9 @@ pub struct Assembled {
     pub blended: Blended,
     /// Valid pixels that the unwrapping placed from an extrapolated surface, per camera.
     pub unreached: Vec<usize>,
+    /// Board pixels left invalid because a camera lost the rows that would have covered them
+    /// (no other camera did).
+    pub lost_pixels: u64,
     pub timing: Timing,
 }
 
@@ -69,6 +75,7 @@ pub fn assemble(cameras: &[CameraRows], grid: &BoardGrid) -> Assembled {
                     resample(
                         &u.heights,
                         &u.period_um,
+                        &c.lost,
                         c.first_row,
                         &c.placement,
                         grid,
@@ -84,9 +91,18 @@ pub fn assemble(cameras: &[CameraRows], grid: &BoardGrid) -> Assembled {
     });
     let t2 = Instant::now();
     let blended = blend(&mut layers, grid, EDGE_PX);
+    let lost_pixels = (0..blended.heights.data.len())
+        .filter(|&i| {
+            !blended.heights.data[i].is_finite()
+                && layers
+                    .iter()
+                    .any(|l| l.lost.get(i).copied().unwrap_or(false))
+        })
+        .count() as u64;
     let t3 = Instant::now();
     Assembled {
         blended,
+        lost_pixels,
         unreached: unwrapped.iter().map(|u| u.unreached).collect(),
         timing: Timing {
             unwrap_s: (t1 - t0).as_secs_f64(),
@@ -263,6 +279,7 @@ mod tests {
             cams.push(CameraRows {
                 heights: g,
                 first_row: 0,
+                lost: Vec::new(),
                 period_um: period,
                 placement: place,
             });

@@ -359,7 +359,7 @@ mod tests {
                     *cam.at_mut(b, c) = (truth(x, y, len, wid) + f64::from(off)) as f32;
                 }
             }
-            layers.push(resample(&cam, &[t; 120], 0, &place, &grid, 15.0));
+            layers.push(resample(&cam, &[t; 120], &[], 0, &place, &grid, 15.0));
         }
         let out = blend(&mut layers, &grid, 3);
         assert_eq!(out.turns, vec![0, -1, 2]);

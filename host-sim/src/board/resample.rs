@@ -12,7 +12,10 @@
 //! (encoder scale), `pitch` the column pitch on the board (magnification), `rot` the rotation
 //! of the image rows against the board's `y` axis, `(x0, y0)` where row 0, column 0 lies.
 //! Resampling inverts that map at every board pixel and interpolates bilinearly over the valid
-//! neighbours (at least half the weight valid, else invalid).
+//! neighbours (at least half the weight valid, else invalid). A camera row that was *lost*
+//! (its packet never arrived or was damaged, `dpsa board --streams`) is not an invalid pixel
+//! to interpolate around: every board pixel whose footprint touches it stays invalid and is
+//! marked in [`Layer::lost`].
 
 use super::Grid;
 
@@ -81,13 +84,18 @@ pub struct Layer {
     /// Blending weight: 1 inside the camera, falling linearly to 0 over `feather_px` camera
     /// columns at its two side edges.
     pub weight: Grid,
+    /// Board pixels (row-major, as `heights`) that fall on a lost camera row; empty when the
+    /// camera lost no row.
+    pub lost: Vec<bool>,
 }
 
 /// Resamples a camera's heights (`heights.rows` rows from board row `first_row`,
-/// `heights.width` columns) with its per-column height per turn onto `grid`.
+/// `heights.width` columns) with its per-column height per turn onto `grid`. `lost_rows`
+/// (empty, or one per row of `heights`) marks rows that never arrived.
 pub fn resample(
     heights: &Grid,
     period_um: &[f32],
+    lost_rows: &[bool],
     first_row: i64,
     place: &Placement,
     grid: &BoardGrid,
@@ -102,7 +110,12 @@ pub fn resample(
             rows: grid.rows,
             data: vec![0.0; grid.width * grid.rows],
         },
+        lost: Vec::new(),
     };
+    let any_lost = lost_rows.iter().any(|&l| l);
+    if any_lost {
+        out.lost = vec![false; grid.width * grid.rows];
+    }
     if w == 0 || rows == 0 {
         return out;
     }
@@ -117,6 +130,13 @@ pub fn resample(
             let (b0, c0) = (b.floor() as usize, c.floor() as usize);
             let (b1, c1) = ((b0 + 1).min(rows - 1), (c0 + 1).min(w - 1));
             let (fb, fc) = (b - b0 as f64, c - c0 as f64);
+            if any_lost {
+                let lost = |r: usize| lost_rows.get(r).copied().unwrap_or(false);
+                if (lost(b0) && fb < 1.0) || (lost(b1) && fb > 0.0) {
+                    out.lost[i * grid.width + j] = true;
+                    continue;
+                }
+            }
             let mut sum = 0.0f64;
             let mut wsum = 0.0f64;
             for (r, cc, wt) in [
@@ -190,7 +210,7 @@ mod tests {
             rows: 340,
             width: 140,
         };
-        let l = resample(&cam, &vec![400.0; w], first, &p, &grid, 20.0);
+        let l = resample(&cam, &vec![400.0; w], &[], first, &p, &grid, 20.0);
         let mut seen = 0;
         for i in 0..grid.rows {
             for j in 0..grid.width {
