@@ -15,16 +15,35 @@ fn small_scene() -> ArrayScene {
         .unwrap()
 }
 
+/// The directory of this test process's shared fixtures (statics, never dropped), under the
+/// target directory rather than /tmp: `array-fixtures/PID`. The fixtures of earlier runs (a
+/// process no longer alive) are removed first, so they do not pile up run after run.
+fn fixture_root() -> &'static Path {
+    static ROOT: OnceLock<PathBuf> = OnceLock::new();
+    ROOT.get_or_init(|| {
+        let base = Path::new(env!("CARGO_TARGET_TMPDIR")).join("array-fixtures");
+        let me = std::process::id();
+        for e in std::fs::read_dir(&base).into_iter().flatten().flatten() {
+            let pid = e.file_name().to_str().and_then(|n| n.parse::<u32>().ok());
+            let alive = pid.is_some_and(|p| p != me && Path::new(&format!("/proc/{p}")).exists());
+            if !alive {
+                let _ = std::fs::remove_dir_all(e.path());
+            }
+        }
+        let dir = base.join(me.to_string());
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    })
+}
+
 /// One calibration recording of the small scene (seed 3), shared by the tests.
 fn calibration_recording() -> &'static Path {
-    static DIR: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
-    &DIR.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        let cal = dir.path().join("cal");
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let cal = fixture_root().join("cal");
         record::simulate_calibration(&small_scene(), 3, &cal).unwrap();
-        (dir, cal)
+        cal
     })
-    .1
 }
 
 #[test]
@@ -265,16 +284,14 @@ fn board_recording_is_read_by_the_single_camera_tools() {
 
 /// The calibration of the shared calibration recording, in a file (made once).
 fn calibration_file() -> &'static Path {
-    static CAL: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
-    &CAL.get_or_init(|| {
+    static CAL: OnceLock<PathBuf> = OnceLock::new();
+    CAL.get_or_init(|| {
         let rec = ArrayRecording::open(calibration_recording()).unwrap();
         let cal = calibration::calibrate(&rec, 0.5).unwrap();
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("cal.toml");
+        let path = fixture_root().join("cal.toml");
         std::fs::write(&path, cal.to_toml().unwrap()).unwrap();
-        (dir, path)
+        path
     })
-    .1
 }
 
 /// `dpsa board` on the small scene: the core on every camera with its calibration, the
@@ -350,7 +367,6 @@ where
 /// Two short boards of the small scene (6 mm, seeds 3 and 4) and each camera's host stream
 /// (`dpsa reconstruct --cal CAL --camera I`).
 struct ShortBoards {
-    _dir: tempfile::TempDir,
     dir: PathBuf,
     boards: [PathBuf; 2],
     /// `streams[board][camera]`.
@@ -360,8 +376,8 @@ struct ShortBoards {
 fn short_boards() -> &'static ShortBoards {
     static B: OnceLock<ShortBoards> = OnceLock::new();
     B.get_or_init(|| {
-        let tmp = tempfile::tempdir().unwrap();
-        let dir = tmp.path().to_path_buf();
+        let dir = fixture_root().join("short");
+        std::fs::create_dir_all(&dir).unwrap();
         let mut scene = small_scene();
         scene.board_length_mm = 6.0;
         scene.deposits = 4;
@@ -390,7 +406,6 @@ fn short_boards() -> &'static ShortBoards {
             }
         }
         ShortBoards {
-            _dir: tmp,
             dir,
             boards,
             streams,
