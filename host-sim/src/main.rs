@@ -8,6 +8,15 @@ mod cli;
 use clap::Parser;
 use cli::{Cli, Cmd};
 
+/// Ends the program with `code` (after flushing stdout) unless it is 0.
+fn exit_unless_zero(code: i32) {
+    if code != 0 {
+        use std::io::Write as _;
+        let _ = std::io::stdout().flush();
+        std::process::exit(code);
+    }
+}
+
 fn main() {
     let args = Cli::parse();
     dpsa_sim::files::remove_unfinished_on_interrupt();
@@ -15,18 +24,13 @@ fn main() {
     let res = match args.cmd {
         Cmd::Simulate(a) => cli::simulate::run(a, progress),
         Cmd::Calibrate(a) => cli::calibrate::run(a),
-        Cmd::Board(a) => cli::board::run(a),
+        // 0, or 2 when a --streams stream was damaged or incomplete (cli/board.rs).
+        Cmd::Board(a) => cli::board::run(a).map(exit_unless_zero),
         Cmd::Reconstruct(a) => cli::reconstruct::run(a, progress),
         Cmd::Compare(a) => cli::compare::run(a, progress),
         Cmd::Phase(a) => cli::phase::run(a),
         // 0 clean, 2 damaged or incomplete, 3 nothing decodable (cli/decode.rs).
-        Cmd::Decode(a) => cli::decode::run(a).map(|code| {
-            if code != 0 {
-                use std::io::Write as _;
-                let _ = std::io::stdout().flush();
-                std::process::exit(code);
-            }
-        }),
+        Cmd::Decode(a) => cli::decode::run(a).map(exit_unless_zero),
         Cmd::FrameBench(a) => cli::frame_bench::run(a),
         Cmd::CodecBench(a) => cli::codec_bench::run(a, progress),
         Cmd::TargetRun(a) => cli::target_run::run(a, progress),

@@ -15,16 +15,35 @@ fn small_scene() -> ArrayScene {
         .unwrap()
 }
 
+/// The directory of this test process's shared fixtures (statics, never dropped), under the
+/// target directory rather than /tmp: `array-fixtures/PID`. The fixtures of earlier runs (a
+/// process no longer alive) are removed first, so they do not pile up run after run.
+fn fixture_root() -> &'static Path {
+    static ROOT: OnceLock<PathBuf> = OnceLock::new();
+    ROOT.get_or_init(|| {
+        let base = Path::new(env!("CARGO_TARGET_TMPDIR")).join("array-fixtures");
+        let me = std::process::id();
+        for e in std::fs::read_dir(&base).into_iter().flatten().flatten() {
+            let pid = e.file_name().to_str().and_then(|n| n.parse::<u32>().ok());
+            let alive = pid.is_some_and(|p| p != me && Path::new(&format!("/proc/{p}")).exists());
+            if !alive {
+                let _ = std::fs::remove_dir_all(e.path());
+            }
+        }
+        let dir = base.join(me.to_string());
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    })
+}
+
 /// One calibration recording of the small scene (seed 3), shared by the tests.
 fn calibration_recording() -> &'static Path {
-    static DIR: OnceLock<(tempfile::TempDir, PathBuf)> = OnceLock::new();
-    &DIR.get_or_init(|| {
-        let dir = tempfile::tempdir().unwrap();
-        let cal = dir.path().join("cal");
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let cal = fixture_root().join("cal");
         record::simulate_calibration(&small_scene(), 3, &cal).unwrap();
-        (dir, cal)
+        cal
     })
-    .1
 }
 
 #[test]
@@ -263,17 +282,26 @@ fn board_recording_is_read_by_the_single_camera_tools() {
     assert!(record::simulate_board(&scene, 5, &tmp.path().join("png")).is_err());
 }
 
+/// The calibration of the shared calibration recording, in a file (made once).
+fn calibration_file() -> &'static Path {
+    static CAL: OnceLock<PathBuf> = OnceLock::new();
+    CAL.get_or_init(|| {
+        let rec = ArrayRecording::open(calibration_recording()).unwrap();
+        let cal = calibration::calibrate(&rec, 0.5).unwrap();
+        let path = fixture_root().join("cal.toml");
+        std::fs::write(&path, cal.to_toml().unwrap()).unwrap();
+        path
+    })
+}
+
 /// `dpsa board` on the small scene: the core on every camera with its calibration, the
 /// cameras unwrapped, placed and blended into one map in mm, against the board truth.
 #[test]
 fn board_map_of_the_small_scene_against_its_truth() {
-    let cal_rec = ArrayRecording::open(calibration_recording()).unwrap();
-    let cal = calibration::calibrate(&cal_rec, 0.5).unwrap();
     let tmp = tempfile::tempdir().unwrap();
     let board = tmp.path().join("board");
     record::simulate_board(&small_scene(), 3, &board).unwrap();
-    let cal_path = tmp.path().join("cal.toml");
-    std::fs::write(&cal_path, cal.to_toml().unwrap()).unwrap();
+    let cal_path = calibration_file().to_path_buf();
     let out_dir = tmp.path().join("map");
     let out = Command::new(env!("CARGO_BIN_EXE_dpsa"))
         .args(["--quiet", "board", board.to_str().unwrap(), "--cal"])
@@ -326,4 +354,415 @@ fn board_map_of_the_small_scene_against_its_truth() {
         .unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("calibration recording"));
+}
+
+// ---------------------------------------------------------------------------------------------
+// `dpsa board --streams`: the cameras' packet streams instead of the core.
+
+/// Runs `dpsa --quiet ARGS`.
+fn dpsa<I, S>(args: I) -> std::process::Output
+where
+    I: IntoIterator<Item = S>,
+    S: AsRef<std::ffi::OsStr>,
+{
+    Command::new(env!("CARGO_BIN_EXE_dpsa"))
+        .arg("--quiet")
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+/// Two short boards of the small scene (6 mm, seeds 3 and 4) and each camera's host stream
+/// (`dpsa reconstruct --cal CAL --camera I`).
+struct ShortBoards {
+    dir: PathBuf,
+    boards: [PathBuf; 2],
+    /// `streams[board][camera]`.
+    streams: [[PathBuf; 3]; 2],
+}
+
+fn short_boards() -> &'static ShortBoards {
+    static B: OnceLock<ShortBoards> = OnceLock::new();
+    B.get_or_init(|| {
+        let dir = fixture_root().join("short");
+        std::fs::create_dir_all(&dir).unwrap();
+        let mut scene = small_scene();
+        scene.board_length_mm = 6.0;
+        scene.deposits = 4;
+        let boards = [dir.join("board3"), dir.join("board4")];
+        let mut streams: [[PathBuf; 3]; 2] = Default::default();
+        for (k, seed) in [3u64, 4].into_iter().enumerate() {
+            record::simulate_board(&scene, seed, &boards[k]).unwrap();
+            for (cam, slot) in streams[k].iter_mut().enumerate() {
+                let s = dir.join(format!("b{seed}_cam{cam}.dpsa"));
+                let out = dpsa([
+                    "reconstruct".as_ref(),
+                    boards[k].join(format!("cam{cam}")).as_os_str(),
+                    "--cal".as_ref(),
+                    calibration_file().as_os_str(),
+                    "--camera".as_ref(),
+                    cam.to_string().as_ref(),
+                    "--out".as_ref(),
+                    s.as_os_str(),
+                ]);
+                assert!(
+                    out.status.success(),
+                    "{}",
+                    String::from_utf8_lossy(&out.stderr)
+                );
+                *slot = s;
+            }
+        }
+        ShortBoards {
+            dir,
+            boards,
+            streams,
+        }
+    })
+}
+
+/// `dpsa board BOARD --cal CAL --out OUT --json [--streams S...]`.
+fn board_cmd(board: &Path, out: &Path, streams: &[&Path]) -> std::process::Output {
+    let mut args: Vec<&std::ffi::OsStr> = vec![
+        "board".as_ref(),
+        board.as_os_str(),
+        "--cal".as_ref(),
+        calibration_file().as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+        "--json".as_ref(),
+    ];
+    if !streams.is_empty() {
+        args.push("--streams".as_ref());
+        args.extend(streams.iter().map(|s| s.as_os_str()));
+    }
+    dpsa(args)
+}
+
+/// The core's map of short board `k` (made once per board).
+fn core_map(k: usize) -> PathBuf {
+    let b = short_boards();
+    let out = b.dir.join(format!("core_map{k}"));
+    static DONE: OnceLock<()> = OnceLock::new();
+    static DONE1: OnceLock<()> = OnceLock::new();
+    [&DONE, &DONE1][k].get_or_init(|| {
+        let o = board_cmd(&b.boards[k], &out, &[]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    });
+    out
+}
+
+fn json_of(out: &std::process::Output) -> serde_json::Value {
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+        panic!(
+            "{e}: stdout {} stderr {}",
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr)
+        )
+    })
+}
+
+fn array_board_id(board: &Path) -> String {
+    let j: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(board.join(ARRAY_FILE)).unwrap()).unwrap();
+    j["board_id"].as_str().unwrap().to_string()
+}
+
+#[test]
+fn board_from_the_host_streams_is_the_core_map_byte_for_byte() {
+    let b = short_boards();
+    // One board identity: in array.json and every camera's manifest, the run id of every
+    // camera's stream, unchanged by the calibration; two boards differ.
+    let id = array_board_id(&b.boards[0]);
+    assert_eq!(id.len(), 16);
+    assert_ne!(id, array_board_id(&b.boards[1]));
+    let cal = CalFile::load(calibration_file()).unwrap();
+    for cam in 0..3 {
+        let mut rec = Recording::open(b.boards[0].join(format!("cam{cam}"))).unwrap();
+        assert_eq!(format!("{:016x}", rec.run_id()), id);
+        cal.camera[cam]
+            .apply(&mut rec.manifest, cal.height_lsb_um)
+            .unwrap();
+        assert_eq!(
+            format!("{:016x}", rec.run_id()),
+            id,
+            "calibration changed the run id"
+        );
+        let (_, rep) =
+            dpsa_sim::stream::decode_stream(&std::fs::read(&b.streams[0][cam]).unwrap(), 0.25);
+        assert_eq!(
+            rep.stream.run_id,
+            Some(u64::from_str_radix(&id, 16).unwrap())
+        );
+        assert_eq!(rep.stream.camera, Some(cam as u8));
+    }
+
+    // The streams in another order than the cameras.
+    let core = core_map(0);
+    let out = b.dir.join("streams_map");
+    let s = &b.streams[0];
+    let o = board_cmd(&b.boards[0], &out, &[&s[2], &s[0], &s[1]]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!String::from_utf8_lossy(&o.stderr).contains("warning"));
+    let v = json_of(&o);
+    assert_eq!(v["streams"]["status"], 0, "{v}");
+    assert_eq!(v["streams"]["damaged"], false, "{v}");
+    assert_eq!(
+        v["streams"]["missing_rows"],
+        serde_json::json!([0, 0, 0]),
+        "{v}"
+    );
+    assert_eq!(v["streams"]["gap_board_pixels"], 0, "{v}");
+    assert_eq!(v["streams"]["run_id"], id.as_str(), "{v}");
+    assert_eq!(
+        v["streams"]["cameras"][0]["file"],
+        s[0].display().to_string()
+    );
+    assert!(v["pixels"]["valid_fraction"].as_f64().unwrap() > 0.9, "{v}");
+    for f in [
+        "heights.png",
+        "heights_um.tiff",
+        "heights.colour.png",
+        "camera.png",
+        "board.json",
+    ] {
+        let (a, c) = (
+            std::fs::read(core.join(f)).unwrap(),
+            std::fs::read(out.join(f)).unwrap(),
+        );
+        assert!(a == c, "{f} differs between the core and the streams");
+    }
+}
+
+#[test]
+fn board_streams_that_do_not_belong_are_refused() {
+    let b = short_boards();
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("map");
+    let [a, o] = &b.streams;
+    let err = |streams: &[&Path]| {
+        let r = board_cmd(&b.boards[0], &out, streams);
+        assert_eq!(r.status.code(), Some(1), "{streams:?}");
+        assert!(!out.exists(), "a refused run wrote {}", out.display());
+        String::from_utf8_lossy(&r.stderr).into_owned()
+    };
+    // Camera 1 of another board among this board's streams.
+    let e = err(&[&a[0], &o[1], &a[2]]);
+    assert!(e.contains("streams from different boards"), "{e}");
+    // All three of another board.
+    let e = err(&[&o[0], &o[1], &o[2]]);
+    assert!(e.contains("another board than"), "{e}");
+    // Camera count: too few, one twice.
+    let e = err(&[&a[0], &a[1]]);
+    assert!(e.contains("2 streams for 3 calibrated cameras"), "{e}");
+    let e = err(&[&a[0], &a[0], &a[2]]);
+    assert!(e.contains("both camera 0"), "{e}");
+    // A stream made without the calibration (the manifest's nominal one).
+    let nominal = tmp.path().join("nominal.dpsa");
+    let r = dpsa([
+        "reconstruct".as_ref(),
+        b.boards[0].join("cam1").as_os_str(),
+        "--out".as_ref(),
+        nominal.as_os_str(),
+    ]);
+    assert!(r.status.success());
+    let e = err(&[&a[0], &nominal, &a[2]]);
+    assert!(
+        e.contains("camera 1") && e.contains("another configuration"),
+        "{e}"
+    );
+    // A stream of another width (a single-camera recording, 96 px wide, camera 0).
+    let scene = dpsa_sim::simulation::scene::Scene {
+        width: 96,
+        board_length: 60,
+        deposits: 2,
+        ..Default::default()
+    };
+    let single = tmp.path().join("single");
+    dpsa_sim::simulation::simulate::simulate(&scene, 1, &single, false).unwrap();
+    let narrow = tmp.path().join("narrow.dpsa");
+    let r = dpsa([
+        "reconstruct".as_ref(),
+        single.as_os_str(),
+        "--out".as_ref(),
+        narrow.as_os_str(),
+    ]);
+    assert!(r.status.success());
+    let e = err(&[&narrow, &a[1], &a[2]]);
+    assert!(e.contains("96 px wide") && e.contains("192"), "{e}");
+    // A stream whose header packet is gone cannot be matched to a camera or a board.
+    let bytes = std::fs::read(&a[1]).unwrap();
+    let (_, head) = dpsa_core::packets::decode(&bytes).unwrap();
+    let headless = tmp.path().join("headless.dpsa");
+    std::fs::write(&headless, &bytes[head..]).unwrap();
+    let e = err(&[&a[0], &headless, &a[2]]);
+    assert!(e.contains("no stream header"), "{e}");
+    // A directory or a FIFO is not a stream; the output may not be a stream.
+    let e = err(&[&a[0], tmp.path(), &a[2]]);
+    assert!(e.contains("packet stream"), "{e}");
+    let r = board_cmd(&b.boards[0], &a[1], &[&a[0], &a[1], &a[2]]);
+    assert!(!r.status.success());
+    assert!(String::from_utf8_lossy(&r.stderr).contains("refusing to write"));
+}
+
+/// Every packet of a stream: (start, length, kind, board row).
+fn packets_of(bytes: &[u8]) -> Vec<(usize, usize, dpsa_core::packets::Kind, i64)> {
+    let mut pos = 0;
+    let mut out = Vec::new();
+    while pos < bytes.len() {
+        let (p, len) = dpsa_core::packets::decode(&bytes[pos..]).unwrap();
+        out.push((pos, len, p.kind, p.header.row));
+        pos += len;
+    }
+    out
+}
+
+/// 16-bit grey image as a row-major vector.
+fn png16(path: &Path) -> (usize, Vec<u16>) {
+    let img = image::open(path).unwrap().into_luma16();
+    (img.width() as usize, img.into_raw())
+}
+
+fn png8(path: &Path) -> Vec<u8> {
+    image::open(path).unwrap().into_luma8().into_raw()
+}
+
+/// A camera's board row and column of every board pixel of a map.
+fn camera_coords(cam: usize, width: usize, n: usize) -> Vec<(f64, f64)> {
+    let cal = CalFile::load(calibration_file()).unwrap();
+    let b = short_boards();
+    let rec = Recording::open(b.boards[0].join(format!("cam{cam}"))).unwrap();
+    let p =
+        dpsa_sim::board::run::placement(&cal.camera[cam], rec.manifest.processing.max_step_rows);
+    let pitch = small_scene().pixel_mm;
+    (0..n)
+        .map(|k| {
+            let (i, j) = (k / width, k % width);
+            p.to_camera((i as f64 + 0.5) * pitch, (j as f64 + 0.5) * pitch)
+        })
+        .collect()
+}
+
+#[test]
+fn lost_packets_and_a_truncated_stream_leave_their_rows_invalid_and_reported() {
+    let b = short_boards();
+    let tmp = tempfile::tempdir().unwrap();
+    let core = core_map(0);
+    let (width, clean) = png16(&core.join("heights.png"));
+    let n = clean.len();
+
+    // Camera 1 (the middle one) loses 40 row packets from the middle of the board.
+    let bytes = std::fs::read(&b.streams[0][1]).unwrap();
+    let pk = packets_of(&bytes);
+    let coords1 = camera_coords(1, width, n);
+    let mid = coords1[n / 2 + width / 2].0.round() as i64;
+    let (lo, hi) = (mid - 20, mid + 19);
+    let mut cut = Vec::new();
+    let mut removed = 0;
+    for &(start, len, kind, row) in &pk {
+        if kind == dpsa_core::packets::Kind::Row && (lo..=hi).contains(&row) {
+            removed += 1;
+        } else {
+            cut.extend_from_slice(&bytes[start..start + len]);
+        }
+    }
+    assert_eq!(removed, 40);
+    let holed = tmp.path().join("holed.dpsa");
+    std::fs::write(&holed, &cut).unwrap();
+    let out = tmp.path().join("holed_map");
+    let s = &b.streams[0];
+    let o = board_cmd(&b.boards[0], &out, &[&s[0], &holed, &s[2]]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("warning: camera 1") && stderr.contains("40 board rows lost"),
+        "{stderr}"
+    );
+    let v = json_of(&o);
+    let st = &v["streams"];
+    assert_eq!(st["damaged"], true);
+    assert_eq!(st["status"], 2);
+    assert_eq!(st["missing_rows"], serde_json::json!([0, 40, 0]), "{st}");
+    assert_eq!(
+        st["cameras"][1]["lost_ranges"],
+        serde_json::json!([[lo, hi]]),
+        "{st}"
+    );
+    assert_eq!(st["cameras"][1]["missing_packets"], 40, "{st}");
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("board.json")).unwrap()).unwrap();
+    assert_eq!(meta["missing_rows"], serde_json::json!([0, 40, 0]));
+    let (_, holed_map) = png16(&out.join("heights.png"));
+    let cam = png8(&out.join("camera.png"));
+    // Where camera 1 lost its rows it contributes nothing, and where only camera 1 sees the
+    // board the map is invalid: not filled from the rows around the gap.
+    let (mut inside, mut filled_before, mut flagged) = (0, 0, 0);
+    for k in 0..n {
+        let (r, c) = coords1[k];
+        if r > (lo - 1) as f64 && r < (hi + 1) as f64 && (0.0..=191.0).contains(&c) {
+            assert_ne!(cam[k], 1, "pixel {k}: camera 1 inside its lost rows");
+            if (60.0..=130.0).contains(&c) {
+                inside += 1;
+                filled_before += usize::from(clean[k] != 0);
+                assert_eq!(holed_map[k], 0, "pixel {k} inside the gap is not invalid");
+                flagged += 1;
+            }
+        }
+    }
+    assert!(inside > 1000, "{inside}");
+    assert!(
+        filled_before > inside * 9 / 10,
+        "{filled_before} of {inside}"
+    );
+    let gap_px = st["gap_board_pixels"].as_u64().unwrap();
+    assert!(gap_px >= flagged, "{gap_px} < {flagged}");
+    // Far from the gap the map is the complete one.
+    let far: Vec<usize> = (0..n)
+        .filter(|&k| (coords1[k].0 - mid as f64).abs() > 60.0)
+        .collect();
+    let same = far.iter().filter(|&&k| holed_map[k] == clean[k]).count();
+    assert!(far.len() > n / 4);
+    assert_eq!(same, far.len(), "the map changed far from the gap");
+
+    // Camera 2's stream cut off at 60 % of its bytes, inside a packet.
+    let bytes = std::fs::read(&s[2]).unwrap();
+    let short = &bytes[..bytes.len() * 6 / 10 + 7];
+    let (m, _) = dpsa_sim::stream::decode_stream(short, 0.25);
+    let last = m.last_row().unwrap();
+    let trunc = tmp.path().join("truncated.dpsa");
+    std::fs::write(&trunc, short).unwrap();
+    let out = tmp.path().join("truncated_map");
+    let o = board_cmd(&b.boards[0], &out, &[&s[0], &s[1], &trunc]);
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v = json_of(&o);
+    let c2 = &v["streams"]["cameras"][2];
+    assert_eq!(c2["truncated"], true, "{c2}");
+    assert_eq!(c2["lost_ranges"][0][0], last + 1, "{c2}");
+    let lost = c2["missing_rows"].as_u64().unwrap();
+    let (_, cut_map) = png16(&out.join("heights.png"));
+    let cam = png8(&out.join("camera.png"));
+    let coords2 = camera_coords(2, width, n);
+    let mut beyond = 0;
+    for k in 0..n {
+        let (r, c) = coords2[k];
+        if r > (last + 1) as f64 && (0.0..=191.0).contains(&c) {
+            assert_ne!(cam[k], 2, "pixel {k}: camera 2 past its last row");
+            if c >= 60.0 {
+                beyond += 1;
+                assert_eq!(cut_map[k], 0, "pixel {k} past the cut is not invalid");
+            }
+        }
+    }
+    assert!(beyond > 1000, "{beyond}");
+    // Every board row the camera would still have covered is counted lost.
+    let max_r = coords2.iter().map(|p| p.0).fold(f64::MIN, f64::max);
+    assert!(
+        lost as f64 >= max_r - last as f64,
+        "{lost} rows lost, {max_r} {last}"
+    );
 }

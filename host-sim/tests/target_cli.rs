@@ -182,7 +182,15 @@ fn bench_json_has_every_figure() {
 #[test]
 fn target_run_refuses_bad_invocations() {
     let help = text(&dpsa(&["target-run", "--help"]).stdout);
-    for opt in ["--out", "--intra-period", "--elf", "--bench", "--json"] {
+    for opt in [
+        "--out",
+        "--intra-period",
+        "--elf",
+        "--bench",
+        "--json",
+        "--cal",
+        "--camera",
+    ] {
         assert!(help.contains(opt), "target-run --help lacks {opt}: {help}");
     }
     let dir = tempfile::tempdir().unwrap();
@@ -206,6 +214,22 @@ fn target_run_refuses_bad_invocations() {
         !out.status.success() && se.contains("error:") && se.contains("missing.elf"),
         "{se}"
     );
+    // A calibration file that does not exist; --camera without --cal.
+    let out = dpsa(&[
+        "target-run",
+        &rec,
+        "--out",
+        "/dev/null",
+        "--cal",
+        "/nonexistent.toml",
+    ]);
+    let se = text(&out.stderr);
+    assert!(
+        out.status.code() == Some(1) && se.contains("calibration file /nonexistent.toml"),
+        "{se}"
+    );
+    let out = dpsa(&["target-run", &rec, "--out", "/dev/null", "--camera", "1"]);
+    assert!(!out.status.success() && text(&out.stderr).contains("--cal"));
     let not_elf = dir.path().join("rec/manifest.json");
     let out = dpsa(&[
         "target-run",
@@ -220,4 +244,163 @@ fn target_run_refuses_bad_invocations() {
         !out.status.success() && se.contains("error:") && !se.contains("panicked"),
         "{se}"
     );
+}
+
+/// A calibration file of an array board recording made from its simulator truth (the true
+/// encoder scale, fringe, reference phase, height per turn and placement): what
+/// `dpsa calibrate` estimates, without the calibration recording.
+fn truth_calibration(board: &Path) -> dpsa_sim::calibration::CalFile {
+    use dpsa_sim::calibration::file::{CalFile, CameraCal, Lateral, CAL_FORMAT, CAL_VERSION};
+    let arr = dpsa_sim::array::record::ArrayRecording::open(board).unwrap();
+    let t = arr.truth().unwrap().unwrap();
+    let camera = t
+        .cameras
+        .iter()
+        .enumerate()
+        .map(|(i, m)| {
+            let f = m.fringe_frequency.iter().sum::<f64>() / m.fringe_frequency.len() as f64;
+            CameraCal {
+                id: m.id,
+                width: m.width,
+                rows: m.rows,
+                counts_per_pixel: m.counts_per_pixel,
+                counts_per_mm: t.counts_per_mm,
+                fringe_period_px: 1.0 / f,
+                fringe_frequency_poly: [f, 0.0, 0.0],
+                fx_height_error_um: 0.0,
+                fx_over_budget: false,
+                height_per_turn_um: m.height_per_turn_um.clone(),
+                reference_phase_rad: m.reference_phase_rad.clone(),
+                core_reference_phase_rad: m.reference_phase_rad.clone(),
+                background_dn: t.plane_background_dn[i].clone(),
+                modulation_dn: t.plane_modulation_dn[i].clone(),
+                dead_pixels: m.dead_pixels.clone(),
+                lateral: Lateral {
+                    x0_mm: m.x0_mm,
+                    y0_mm: m.y0_mm,
+                    pitch_mm: m.pitch_mm,
+                    rotation_rad: m.rotation_rad,
+                    row_pitch_mm: m.counts_per_pixel / t.counts_per_mm,
+                    fit_rms_um: 0.0,
+                    marks: 0,
+                },
+            }
+        })
+        .collect();
+    CalFile {
+        format: CAL_FORMAT.into(),
+        version: CAL_VERSION,
+        counts_per_mm: t.counts_per_mm,
+        height_lsb_um: 0.25,
+        fx_budget_um: 0.5,
+        camera,
+    }
+}
+
+/// Issue 10: each camera of the array is one frame grabber running the same firmware with
+/// its own calibration (`target-run --cal CAL --camera I`); the three firmware streams of a
+/// short board of the small array scene are the host's byte for byte and stitch into the
+/// same board map, file for file, as the host streams.
+#[test]
+fn firmware_streams_of_an_array_stitch_into_the_host_map() {
+    if skip_firmware() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let mut scene = dpsa_sim::array::scene::ArrayScene::load(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/array-small.toml"),
+    )
+    .unwrap();
+    scene.board_length_mm = 6.0;
+    scene.deposits = 4;
+    let board = dir.path().join("board");
+    dpsa_sim::array::record::simulate_board(&scene, 7, &board).unwrap();
+    let cal = dir.path().join("cal.toml");
+    std::fs::write(&cal, truth_calibration(&board).to_toml().unwrap()).unwrap();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let (mut host, mut target) = (Vec::new(), Vec::new());
+    for cam in 0..3 {
+        let rec = s(&board.join(format!("cam{cam}")));
+        let id = cam.to_string();
+        let h = dir.path().join(format!("host{cam}.dpsa"));
+        let out = dpsa(&[
+            "--quiet",
+            "reconstruct",
+            &rec,
+            "--cal",
+            &s(&cal),
+            "--camera",
+            &id,
+            "--out",
+            &s(&h),
+        ]);
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        let t = dir.path().join(format!("target{cam}.dpsa"));
+        let out = dpsa(&[
+            "--quiet",
+            "target-run",
+            &rec,
+            "--cal",
+            &s(&cal),
+            "--camera",
+            &id,
+            "--out",
+            &s(&t),
+        ]);
+        assert!(
+            out.status.success(),
+            "dpsa target-run failed; it needs QEMU and the Cortex-M7 build (`bash firmware/build.sh \
+             --install`, or DPSA_SKIP_FIRMWARE=1): {}",
+            text(&out.stderr)
+        );
+        let (hb, tb) = (std::fs::read(&h).unwrap(), std::fs::read(&t).unwrap());
+        assert!(hb.len() > 10_000, "camera {cam}: {} bytes", hb.len());
+        assert!(
+            hb == tb,
+            "camera {cam}: the firmware's stream differs from the host's"
+        );
+        host.push(s(&h));
+        target.push(s(&t));
+    }
+    // Three calibrations, one board: one run id (the board identity) in all six streams.
+    let maps: Vec<Value> = [&host, &target]
+        .iter()
+        .enumerate()
+        .map(|(k, streams)| {
+            let out_dir = dir.path().join(format!("map{k}"));
+            let mut args = vec![
+                "--quiet".to_string(),
+                "board".into(),
+                s(&board),
+                "--cal".into(),
+                s(&cal),
+                "--out".into(),
+                s(&out_dir),
+                "--json".into(),
+                "--streams".into(),
+            ];
+            // The firmware streams in reverse camera order: matched by their camera ids.
+            if k == 1 {
+                args.extend(streams.iter().rev().cloned());
+            } else {
+                args.extend(streams.iter().cloned());
+            }
+            let args: Vec<&str> = args.iter().map(String::as_str).collect();
+            let out = dpsa(&args);
+            assert!(out.status.success(), "{}", text(&out.stderr));
+            serde_json::from_slice(&out.stdout).unwrap()
+        })
+        .collect();
+    assert_eq!(maps[0]["streams"]["status"], 0);
+    assert_eq!(maps[1]["streams"]["status"], 0);
+    assert_eq!(maps[0]["streams"]["run_id"], maps[1]["streams"]["run_id"]);
+    assert!(num(&maps[1], "pixels.valid_fraction") > 0.9, "{}", maps[1]);
+    for f in ["heights.png", "heights_um.tiff", "camera.png", "board.json"] {
+        let a = std::fs::read(dir.path().join("map0").join(f)).unwrap();
+        let b = std::fs::read(dir.path().join("map1").join(f)).unwrap();
+        assert!(
+            a == b,
+            "{f}: the firmware streams' map differs from the host streams'"
+        );
+    }
 }

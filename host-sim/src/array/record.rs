@@ -5,8 +5,8 @@ use crate::array::frames::{self, FrameFormat};
 use crate::array::render::{place_deposits, CameraRenderer, MmDeposit, Surface};
 use crate::array::scene::{ArrayScene, CameraModel};
 use crate::simulation::recording::{
-    self, FrameEntry, Manifest, TruthInfo, FORMAT, TRUTH_BACKGROUND_FILE, TRUTH_CONTRAST_FILE,
-    TRUTH_HEIGHT_FILE, VERSION,
+    self, BoardId, FrameEntry, Manifest, Recording, TruthInfo, FORMAT, TRUTH_BACKGROUND_FILE,
+    TRUTH_CONTRAST_FILE, TRUTH_HEIGHT_FILE, VERSION,
 };
 use anyhow::{bail, Context, Result};
 use rand::RngExt;
@@ -102,6 +102,10 @@ pub struct ArrayManifest {
     pub passes: Vec<Pass>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub target: Option<TargetInfo>,
+    /// Board recordings: the board's identity, also in every camera's manifest (`board_id`)
+    /// and so the run id of every camera's packet stream ([`board_identity`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub board_id: Option<BoardId>,
 }
 
 /// The board truth raster: `rows x cols` f32 heights at `((i + 1/2) pitch, (j + 1/2) pitch)`.
@@ -200,6 +204,29 @@ impl ArrayRecording {
         }
     }
 
+    /// The board identity of a board recording with its cameras' recordings `cams` (camera
+    /// `i` at index `i`): `array.json`'s `board_id`, which every camera manifest must carry
+    /// too (a camera directory of another board is refused). `None` for a recording written
+    /// before board identities (neither `array.json` nor any camera has one).
+    pub fn board_id(&self, cams: &[Recording]) -> Result<Option<BoardId>> {
+        let want = self.manifest.board_id;
+        for (i, r) in cams.iter().enumerate() {
+            let have = r.manifest.board_id;
+            if have != want {
+                let show =
+                    |b: Option<BoardId>| b.map_or_else(|| "none".to_string(), |b| b.to_string());
+                bail!(
+                    "camera {i}'s recording {} is not of this board: its board id is {}, {} says {}",
+                    r.dir.display(),
+                    show(have),
+                    self.dir.join(ARRAY_FILE).display(),
+                    show(want)
+                );
+            }
+        }
+        Ok(want)
+    }
+
     /// The simulator truth, if present.
     pub fn truth(&self) -> Result<Option<ArrayTruth>> {
         let path = self.dir.join(ARRAY_TRUTH_FILE);
@@ -260,7 +287,9 @@ fn prepare(dir: &Path) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))
 }
 
-/// Renders and writes one camera's recording of one pass into `dir`.
+/// Renders and writes one camera's recording of one pass into `dir`: frames and truth; the
+/// manifest is returned, validated, for the caller to save (a board's cameras get their board
+/// identity first).
 #[allow(clippy::too_many_arguments)]
 fn write_camera(
     scene: &ArrayScene,
@@ -272,7 +301,7 @@ fn write_camera(
     stream: u64,
     dir: &Path,
     truth_rows: Option<(i64, i64)>,
-) -> Result<(usize, u64)> {
+) -> Result<(usize, u64, Manifest)> {
     std::fs::create_dir_all(dir.join("frames"))
         .with_context(|| format!("cannot create {}", dir.display()))?;
     let renderer = CameraRenderer::new(scene, model, surface);
@@ -375,12 +404,30 @@ fn write_camera(
         frames: frames_list,
         noise: Some(scene.noise()),
         truth,
+        board_id: None,
     };
     manifest
         .validate()
         .context("internal error: sub-recording manifest")?;
-    manifest.save(dir)?;
-    Ok((positions.len(), total))
+    Ok((positions.len(), total, manifest))
+}
+
+/// The identity of a board recording (how `dpsa simulate` chooses it; a line would take the
+/// board's serial number): FNV-1a 64 of the array manifest and then every camera's manifest,
+/// each in its canonical JSON form without a board id. The camera manifests are part of it
+/// because two boards of one scene have the same `array.json`; their frames' latches differ.
+/// Never 0 (0 is "no run id" in a stream header).
+pub fn board_identity(array: &ArrayManifest, cameras: &[Manifest]) -> Result<BoardId> {
+    let mut a = array.clone();
+    a.board_id = None;
+    let mut bytes = serde_json::to_vec(&a)?;
+    for m in cameras {
+        let mut m = m.clone();
+        m.board_id = None;
+        bytes.push(b'\n');
+        bytes.extend(serde_json::to_vec(&m)?);
+    }
+    Ok(BoardId(dpsa_core::frames::fnv1a64(&bytes).max(1)))
 }
 
 fn models(scene: &ArrayScene, seed: u64) -> Vec<CameraModel> {
@@ -459,6 +506,7 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
         cameras: models.len(),
         ..WriteSummary::default()
     };
+    let mut manifests = Vec::with_capacity(models.len());
     for (i, m) in models.iter().enumerate() {
         let rows = scene.camera_truth.then(|| {
             let first = (s0 * scene.counts_per_mm / m.counts_per_pixel).floor() as i64;
@@ -466,7 +514,7 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
                 (s1 * scene.counts_per_mm / m.counts_per_pixel).ceil() as i64 + i64::from(m.rows);
             (first, last)
         });
-        let (frames, bytes) = write_camera(
+        let (frames, bytes, manifest) = write_camera(
             scene,
             seed,
             i,
@@ -479,6 +527,7 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
             &out.join(format!("cam{i}")),
             rows,
         )?;
+        manifests.push(manifest);
         sum.frames += frames;
         sum.bytes += bytes;
         sum.pixels += frames as u64 * u64::from(m.rows) * u64::from(m.width);
@@ -529,7 +578,7 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
         seed,
     };
     sum.bytes += write_json(&out.join(ARRAY_TRUTH_FILE), &truth)?;
-    let manifest = ArrayManifest {
+    let mut manifest = ArrayManifest {
         format: ARRAY_FORMAT.into(),
         version: ARRAY_VERSION,
         kind: Kind::Board,
@@ -540,7 +589,16 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
         board_width_mm: scene.board_width_mm,
         passes: Vec::new(),
         target: None,
+        board_id: None,
     };
+    // One identity for the board, in every camera's manifest and in array.json (written
+    // last, as before: a recording without it is incomplete).
+    let id = board_identity(&manifest, &manifests)?;
+    manifest.board_id = Some(id);
+    for (i, mut m) in manifests.into_iter().enumerate() {
+        m.board_id = Some(id);
+        m.save(&out.join(format!("cam{i}")))?;
+    }
     sum.bytes += write_json(&out.join(ARRAY_FILE), &manifest)?;
     sum.seconds = t0.elapsed().as_secs_f64();
     Ok(sum)
@@ -610,7 +668,8 @@ pub fn simulate_calibration(scene: &ArrayScene, seed: u64, out: &Path) -> Result
                     height_um: pass.height_um,
                 },
             };
-            let (frames, bytes) = write_camera(
+            let dir = out.join(format!("cam{i}")).join(&pass.name);
+            let (frames, bytes, manifest) = write_camera(
                 scene,
                 seed,
                 i,
@@ -618,9 +677,10 @@ pub fn simulate_calibration(scene: &ArrayScene, seed: u64, out: &Path) -> Result
                 surface,
                 &positions,
                 (2 << 32) + ((pi as u64) << 28) + ((i as u64) << 24),
-                &out.join(format!("cam{i}")).join(&pass.name),
+                &dir,
                 None,
             )?;
+            manifest.save(&dir)?;
             sum.frames += frames;
             sum.bytes += bytes;
             sum.pixels += frames as u64 * u64::from(m.rows) * u64::from(m.width);
@@ -655,6 +715,7 @@ pub fn simulate_calibration(scene: &ArrayScene, seed: u64, out: &Path) -> Result
             origin_mm: plan.target_origin_mm,
             length_mm: plan.target_length_mm,
         }),
+        board_id: None,
     };
     sum.bytes += write_json(&out.join(ARRAY_FILE), &manifest)?;
     sum.seconds = t0.elapsed().as_secs_f64();

@@ -25,6 +25,9 @@ pub struct CameraRows {
     /// Height per turn of each column, um.
     pub period_um: Vec<f32>,
     pub placement: Placement,
+    /// Rows of `heights` that never arrived (a stream's missing or damaged packets, its
+    /// truncated end): their board pixels stay invalid. Empty when none was lost.
+    pub lost: Vec<bool>,
 }
 
 /// Seconds per stage (`timing.*` of `dpsa board --json`).
@@ -44,6 +47,9 @@ pub struct Assembled {
     pub blended: Blended,
     /// Valid pixels that the unwrapping placed from an extrapolated surface, per camera.
     pub unreached: Vec<usize>,
+    /// Board pixels left invalid because a camera lost the rows that would have covered them
+    /// (no other camera did).
+    pub lost_pixels: u64,
     pub timing: Timing,
 }
 
@@ -79,6 +85,7 @@ pub fn assemble(cameras: &[CameraRows], grid: &BoardGrid) -> Assembled {
                         period_um: &u.period_um,
                         first_row: c.first_row,
                         places: c.places.as_ref(),
+                        lost_rows: &c.lost,
                     };
                     resample(&src, &c.placement, grid, FEATHER_PX)
                 })
@@ -91,9 +98,18 @@ pub fn assemble(cameras: &[CameraRows], grid: &BoardGrid) -> Assembled {
     });
     let t2 = Instant::now();
     let blended = blend(&mut layers, grid, EDGE_PX);
+    let lost_pixels = (0..blended.heights.data.len())
+        .filter(|&i| {
+            !blended.heights.data[i].is_finite()
+                && layers
+                    .iter()
+                    .any(|l| l.lost.get(i).copied().unwrap_or(false))
+        })
+        .count() as u64;
     let t3 = Instant::now();
     Assembled {
         blended,
+        lost_pixels,
         unreached: unwrapped.iter().map(|u| u.unreached).collect(),
         timing: Timing {
             unwrap_s: (t1 - t0).as_secs_f64(),
@@ -301,6 +317,7 @@ mod tests {
                 dead_masked: 0,
                 places: None,
                 first_row: 0,
+                lost: Vec::new(),
                 period_um: period,
                 placement: place,
             });

@@ -392,6 +392,7 @@ mod tests {
                 period_um: &[t; 120],
                 first_row: 0,
                 places: None,
+                lost_rows: &[],
             };
             layers.push(resample(&src, &place, &grid, 15.0));
         }

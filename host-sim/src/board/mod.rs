@@ -10,6 +10,8 @@
 //!   board grid in millimetres through its lateral mapping (offset, pitch, rotation).
 //! - [`blend`]: the cameras' board grids into one, feathered across the overlaps, with the
 //!   camera each pixel came from and the seam statistics.
+//! - [`streams`]: the rows from the cameras' packet streams instead of the core
+//!   (`dpsa board --streams`), matched to the cameras and checked, with what they lost.
 //! - [`output`]: the 16-bit PNG, the float TIFF in micrometres, the false-colour PNG with its
 //!   scale bar, and the JSON metadata.
 //!
@@ -21,6 +23,7 @@ pub mod output;
 pub mod provenance;
 pub mod resample;
 pub mod run;
+pub mod streams;
 pub mod unwrap;
 
 /// A row-major grid of heights, um; NaN is invalid. Row `r` is along the motion (board `x`),

@@ -33,6 +33,11 @@ pub struct Metadata {
     pub pixels: Pixels,
     /// Whole turns each camera's layer was moved by, in camera order.
     pub turns: Vec<i32>,
+    /// Board rows each camera's input lacked (`dpsa board --streams`: missing or damaged
+    /// packets, a truncated stream), in camera order; their board pixels are invalid (0 in
+    /// `heights.png`, NaN in the TIFF) unless another camera saw them. All 0 for a complete
+    /// map.
+    pub missing_rows: Vec<u64>,
     /// The files written.
     pub files: Files,
 }
@@ -65,8 +70,23 @@ pub struct Files {
 
 pub const FORMAT: &str = "dpsa-board-map";
 
+/// The files [`write`] writes into its directory.
+pub const FILE_NAMES: [&str; 5] = [
+    "heights.png",
+    "heights_um.tiff",
+    "heights.colour.png",
+    "camera.png",
+    "board.json",
+];
+
 /// Writes every file of the map into `dir` (created if needed); returns the metadata.
-pub fn write(dir: &Path, grid: &BoardGrid, b: &Blended, cameras: usize) -> Result<Metadata> {
+pub fn write(
+    dir: &Path,
+    grid: &BoardGrid,
+    b: &Blended,
+    cameras: usize,
+    missing_rows: &[u64],
+) -> Result<Metadata> {
     std::fs::create_dir_all(dir)
         .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", dir.display()))?;
     let files = Files {
@@ -123,6 +143,7 @@ pub fn write(dir: &Path, grid: &BoardGrid, b: &Blended, cameras: usize) -> Resul
             per_camera,
         },
         turns: b.turns.clone(),
+        missing_rows: missing_rows.to_vec(),
         files,
     };
     let json = serde_json::to_string_pretty(&meta)?;
@@ -275,7 +296,7 @@ mod tests {
             edge_median_um: Some(0.0),
             seams: Vec::new(),
         };
-        let meta = write(dir.path(), &grid, &b, 2).unwrap();
+        let meta = write(dir.path(), &grid, &b, 2, &[0, 0]).unwrap();
         assert_eq!(meta.pixels.valid, h.valid() as u64);
         assert_eq!(
             meta.pixels.per_camera.iter().sum::<u64>(),

@@ -12,7 +12,10 @@
 //! (encoder scale), `pitch` the column pitch on the board (magnification), `rot` the rotation
 //! of the image rows against the board's `y` axis, `(x0, y0)` where row 0, column 0 lies.
 //! Resampling inverts that map at every board pixel and interpolates bilinearly over the valid
-//! neighbours (at least half the weight valid, else invalid).
+//! neighbours (at least half the weight valid, else invalid). A camera row that was *lost*
+//! (its packet never arrived or was damaged, `dpsa board --streams`) is not an invalid pixel
+//! to interpolate around: every board pixel whose footprint touches it stays invalid and is
+//! marked in [`Layer::lost`].
 
 use super::Grid;
 
@@ -84,6 +87,9 @@ pub struct Layer {
     /// Variance of each height, um^2, through the resampling weights (NaN: unknown; all NaN
     /// when the camera came without one).
     pub variance: Grid,
+    /// Board pixels (row-major, as `heights`) that fall on a lost camera row; empty when the
+    /// camera lost no row.
+    pub lost: Vec<bool>,
 }
 
 /// A camera's measurement as the resampling takes it.
@@ -99,6 +105,8 @@ pub struct Source<'a> {
     /// Where each row was seen (`None`: row `i` at its nominal place), see
     /// `super::provenance::row_places`.
     pub places: Option<&'a super::provenance::RowPlaces>,
+    /// Rows that never arrived (empty, or one per row of `heights`; `dpsa board --streams`).
+    pub lost_rows: &'a [bool],
 }
 
 /// The fractional grid row at nominal row `t` (rows from the first) through the increasing
@@ -124,6 +132,7 @@ fn row_at(pos: &[f64], t: f64) -> Option<f64> {
 /// Resamples a camera's heights onto `grid` through its placement.
 pub fn resample(src: &Source, place: &Placement, grid: &BoardGrid, feather_px: f64) -> Layer {
     let (heights, variance, period_um) = (src.heights, src.variance, src.period_um);
+    let lost_rows = src.lost_rows;
     let (w, rows) = (heights.width, heights.rows);
     let mut out = Layer {
         heights: Grid::invalid(grid.width, grid.rows),
@@ -134,7 +143,12 @@ pub fn resample(src: &Source, place: &Placement, grid: &BoardGrid, feather_px: f
             data: vec![0.0; grid.width * grid.rows],
         },
         variance: Grid::invalid(grid.width, grid.rows),
+        lost: Vec::new(),
     };
+    let any_lost = lost_rows.iter().any(|&l| l);
+    if any_lost {
+        out.lost = vec![false; grid.width * grid.rows];
+    }
     if w == 0 || rows == 0 {
         return out;
     }
@@ -161,6 +175,13 @@ pub fn resample(src: &Source, place: &Placement, grid: &BoardGrid, feather_px: f
             let (b0, c0) = (b.floor() as usize, c.floor() as usize);
             let (b1, c1) = ((b0 + 1).min(rows - 1), (c0 + 1).min(w - 1));
             let (fb, fc) = (b - b0 as f64, c - c0 as f64);
+            if any_lost {
+                let lost = |r: usize| lost_rows.get(r).copied().unwrap_or(false);
+                if (lost(b0) && fb < 1.0) || (lost(b1) && fb > 0.0) {
+                    out.lost[i * grid.width + j] = true;
+                    continue;
+                }
+            }
             let mut sum = 0.0f64;
             let mut wsum = 0.0f64;
             let mut vsum = 0.0f64;
@@ -266,6 +287,7 @@ mod tests {
             period_um: &vec![400.0; w],
             first_row: first,
             places: None,
+            lost_rows: &[],
         };
         let l = resample(&src, &p, &grid, 20.0);
         let mut seen = 0;

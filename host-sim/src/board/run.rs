@@ -4,8 +4,11 @@
 //! (`CameraCal::apply`), the fixed-point core runs on it (the rows exactly as its packets carry
 //! them; the calibration's per-column height per turn `T_z(c)` is part of the core's
 //! configuration, so its heights are already in calibrated LSB in every column, as a frame
-//! grabber's packets carry them), and its board rows are placed with the lateral calibration. Then [`super::assemble`] unwraps, resamples and blends, and
-//! [`super::output`] writes the files.
+//! grabber's packets carry them), and its board rows are placed with the lateral calibration.
+//! Or (`--streams`, [`Source::Streams`]) the rows come from the cameras' packet streams
+//! ([`super::streams`]) and go through the same steps. [`super::provenance`] masks the pixels
+//! fed by dead image pixels, gives each row's Cramer-Rao bound and where it was seen. Then
+//! [`super::assemble`] unwraps, resamples and blends, and [`super::output`] writes the files.
 //!
 //! Placement of a core board row `b` (`docs/calibration.md`): its window's first frame saw it
 //! at image row `r_w = H - (max_step_rows + 1) / 2`, so column `c` lies at
@@ -13,14 +16,26 @@
 
 use super::assemble::{against_truth, assemble, CameraRows, Timing, TruthRaster, TruthStats};
 use super::resample::{BoardGrid, Placement};
+use super::streams::{self, StreamsReport};
 use super::Grid;
 use crate::array::record::{ArrayRecording, Kind};
 use crate::calibration::file::{CalFile, CameraCal};
+use crate::heightmap::HeightRow;
 use crate::simulation::recording::Recording;
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
+
+/// Where the cameras' rows come from.
+#[derive(Clone, Copy, Debug)]
+pub enum Source<'a> {
+    /// The fixed-point core on every camera's recording with its calibration (threads): the
+    /// same rows as each camera's firmware emits.
+    Core,
+    /// The cameras' packet streams, one per camera, in any order ([`super::streams`]).
+    Streams(&'a [PathBuf]),
+}
 
 /// `dpsa board --json`.
 #[derive(Clone, Debug, Serialize)]
@@ -33,6 +48,9 @@ pub struct Report {
     pub truth: Option<TruthStats>,
     pub unwrap: UnwrapStats,
     pub timing: RunTiming,
+    /// `--streams`: what each camera's stream held and lost.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub streams: Option<StreamsReport>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -67,7 +85,8 @@ pub struct UnwrapStats {
 
 #[derive(Clone, Debug, Serialize)]
 pub struct RunTiming {
-    /// The fixed-point core on every camera (threads), s.
+    /// The rows: the fixed-point core on every camera (threads), or decoding and checking the
+    /// streams, s.
     pub core_s: f64,
     #[serde(flatten)]
     pub assemble: Timing,
@@ -136,65 +155,135 @@ pub fn placement(cal: &CameraCal, max_step_rows: u32) -> Placement {
     }
 }
 
-/// Runs the core on one camera with its calibration; returns the wrapped heights in um.
-fn camera_rows(rec: &Recording, cal: &CameraCal, lsb_um: f64) -> Result<CameraRows> {
-    let mut rec = rec.clone();
-    cal.apply(&mut rec.manifest, lsb_um)?;
-    let w = rec.manifest.camera.width as usize;
-    let max_step = rec.manifest.processing.max_step_rows;
-    let mut rows: Vec<(i64, Vec<f32>)> = Vec::new();
-    crate::reconstruct::reconstruct_rows(&rec, false, |r| {
-        let h = (0..w)
-            .map(|c| {
-                if r.pixel_valid(c) {
-                    f32::from(r.heights[c]) * lsb_um as f32
-                } else {
-                    f32::NAN
-                }
-            })
-            .collect();
-        rows.push((r.row, h));
-        Ok(())
-    })?;
-    let (Some(first), Some(last)) = (rows.first().map(|r| r.0), rows.last().map(|r| r.0)) else {
-        bail!("camera {}: the core produced no rows", cal.id);
-    };
-    let span = usize::try_from(last - first + 1).unwrap_or(usize::MAX);
-    if span > rows.len() + (1 << 16) {
-        bail!(
-            "camera {}: its rows span {span} board rows but only {} are present (an encoder fault?)",
-            cal.id,
-            rows.len()
-        );
-    }
-    let mut g = Grid::invalid(w, span);
-    for (b, h) in rows {
-        let i = (b - first) as usize;
-        g.data[i * w..(i + 1) * w].copy_from_slice(&h);
-    }
-    let dead_masked = super::provenance::mask_dead_pixels(&rec, &cal.dead_pixels, first, &mut g);
-    let variance = super::provenance::crb_variance(&rec, &cal.height_per_turn_um, first, &g)
-        .with_context(|| format!("camera {}", cal.id))?;
-    let places = super::provenance::row_places(
-        &rec,
-        first,
-        g.rows,
-        entry_row(cal, max_step),
-        cal.lateral.rotation_rad,
-    );
-    Ok(CameraRows {
-        heights: g,
-        variance,
-        dead_masked,
-        places: Some(places),
-        first_row: first,
-        period_um: cal.height_per_turn_um.iter().map(|&t| t as f32).collect(),
-        placement: placement(cal, max_step),
-    })
+/// A camera's rows on their way to the board, whatever their source: wrapped heights in um
+/// by board row.
+struct Collector {
+    id: u8,
+    width: usize,
+    lsb_um: f32,
+    rows: Vec<(i64, Vec<f32>)>,
 }
 
-/// Builds the board map of the array recording `dir` with `cal` into `out`.
+impl Collector {
+    fn new(cal: &CameraCal, lsb_um: f64) -> Collector {
+        let width = cal.width as usize;
+        Collector {
+            id: cal.id,
+            width,
+            lsb_um: lsb_um as f32,
+            rows: Vec::new(),
+        }
+    }
+
+    /// One row as the core emitted it (the same bytes as its packet, from the core or from a
+    /// stream): LSB to um (the core applied the per-column height per turn).
+    fn push(&mut self, r: &HeightRow) {
+        let h = (0..self.width)
+            .map(|c| match r.heights.get(c) {
+                Some(&v) if r.pixel_valid(c) => f32::from(v) * self.lsb_um,
+                _ => f32::NAN,
+            })
+            .collect();
+        self.rows.push((r.row, h));
+    }
+
+    /// The rows (sorted by board row) as a grid from the first to the last row, with the
+    /// `lost` board rows (inclusive ranges) inside it marked.
+    /// `rec` is the camera's recording with its calibration applied (its registration says
+    /// which frames fed each row, see [`super::provenance`]).
+    fn finish(
+        self,
+        rec: &Recording,
+        cal: &CameraCal,
+        max_step: u32,
+        lost: &[(i64, i64)],
+    ) -> Result<CameraRows> {
+        let w = self.width;
+        let ends = self
+            .rows
+            .first()
+            .map(|r| (r.0, self.rows.last().map_or(r.0, |l| l.0)));
+        let (first, last) = lost
+            .iter()
+            .fold(ends, |e, &(a, b)| {
+                Some(e.map_or((a, b), |(f, l)| (f.min(a), l.max(b))))
+            })
+            .filter(|_| !self.rows.is_empty())
+            .ok_or_else(|| anyhow::anyhow!("camera {}: no rows arrived", self.id))?;
+        let lost_rows: i128 = lost
+            .iter()
+            .map(|&(a, b)| i128::from(b) - i128::from(a) + 1)
+            .sum();
+        let span = i128::from(last) - i128::from(first) + 1;
+        if span > self.rows.len() as i128 + lost_rows + (1 << 16) {
+            bail!(
+                "camera {}: its rows span {span} board rows but only {} are present (an encoder fault?)",
+                self.id,
+                self.rows.len()
+            );
+        }
+        let span = span as usize;
+        let mut g = Grid::invalid(w, span);
+        for (b, h) in self.rows {
+            let i = (b - first) as usize;
+            g.data[i * w..(i + 1) * w].copy_from_slice(&h);
+        }
+        let mut mask = Vec::new();
+        if !lost.is_empty() {
+            mask = vec![false; span];
+            for &(a, b) in lost {
+                mask[(a - first) as usize..=(b - first) as usize].fill(true);
+            }
+        }
+        let dead_masked = super::provenance::mask_dead_pixels(rec, &cal.dead_pixels, first, &mut g);
+        let variance = super::provenance::crb_variance(rec, &cal.height_per_turn_um, first, &g)
+            .with_context(|| format!("camera {}", cal.id))?;
+        let places = super::provenance::row_places(
+            rec,
+            first,
+            g.rows,
+            entry_row(cal, max_step),
+            cal.lateral.rotation_rad,
+        );
+        Ok(CameraRows {
+            heights: g,
+            variance,
+            dead_masked,
+            places: Some(places),
+            first_row: first,
+            period_um: cal.height_per_turn_um.iter().map(|&t| t as f32).collect(),
+            placement: placement(cal, max_step),
+            lost: mask,
+        })
+    }
+}
+
+/// A camera's recording with its calibration applied (what its frame grabber runs with).
+fn calibrated(rec: &Recording, cal: &CameraCal, lsb_um: f64) -> Result<Recording> {
+    let mut rec = rec.clone();
+    cal.apply(&mut rec.manifest, lsb_um)?;
+    Ok(rec)
+}
+
+/// Row source 1: the core on one camera's calibrated recording.
+fn core_rows(rec: &Recording, cal: &CameraCal, lsb_um: f64) -> Result<Collector> {
+    let mut rows = Collector::new(cal, lsb_um);
+    crate::reconstruct::reconstruct_rows(rec, false, |r| {
+        rows.push(&r);
+        Ok(())
+    })?;
+    Ok(rows)
+}
+
+/// Builds the board map of the array recording `dir` with `cal` into `out`, the core on
+/// every camera.
 pub fn run(dir: &Path, cal: &CalFile, out: &Path) -> Result<Report> {
+    run_from(dir, cal, out, Source::Core)
+}
+
+/// Builds the board map of the array recording `dir` with `cal` into `out`, the rows from
+/// `source`. Every check (recording, calibration, streams) comes before any file is written.
+pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Result<Report> {
     let arr = ArrayRecording::open(dir)?;
     if arr.manifest.kind != Kind::Board {
         bail!(
@@ -215,24 +304,7 @@ pub fn run(dir: &Path, cal: &CalFile, out: &Path) -> Result<Report> {
             Recording::open(&d).with_context(|| format!("camera {i}: {}", d.display()))
         })
         .collect::<Result<_>>()?;
-
-    let t0 = Instant::now();
-    let cams: Vec<CameraRows> = std::thread::scope(|s| {
-        let handles: Vec<_> = recs
-            .iter()
-            .zip(&cal.camera)
-            .map(|(r, c)| s.spawn(move || camera_rows(r, c, cal.height_lsb_um)))
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| {
-                h.join().unwrap_or_else(|_| {
-                    Err(anyhow::anyhow!("internal error: a core thread panicked"))
-                })
-            })
-            .collect::<Result<Vec<_>>>()
-    })?;
-    let core_s = t0.elapsed().as_secs_f64();
+    let board = arr.board_id(&recs)?;
 
     let m = &arr.manifest;
     let pitch = m.pixel_mm;
@@ -250,9 +322,70 @@ pub fn run(dir: &Path, cal: &CalFile, out: &Path) -> Result<Report> {
             grid.width
         );
     }
+
+    let t0 = Instant::now();
+    let (cams, mut streams_report) = match source {
+        Source::Core => {
+            let cams: Vec<CameraRows> = std::thread::scope(|s| {
+                let handles: Vec<_> = recs
+                    .iter()
+                    .zip(&cal.camera)
+                    .map(|(r, c)| {
+                        s.spawn(move || {
+                            let max_step = r.manifest.processing.max_step_rows;
+                            let r = calibrated(r, c, cal.height_lsb_um)?;
+                            core_rows(&r, c, cal.height_lsb_um)?.finish(&r, c, max_step, &[])
+                        })
+                    })
+                    .collect();
+                handles
+                    .into_iter()
+                    .map(|h| {
+                        h.join().unwrap_or_else(|_| {
+                            Err(anyhow::anyhow!("internal error: a core thread panicked"))
+                        })
+                    })
+                    .collect::<Result<Vec<_>>>()
+            })?;
+            (cams, None)
+        }
+        Source::Streams(paths) => {
+            let extents: Vec<(i64, i64)> = recs
+                .iter()
+                .zip(&cal.camera)
+                .map(|(r, c)| {
+                    let p = placement(c, r.manifest.processing.max_step_rows);
+                    streams::board_extent(&p, &grid, c.width)
+                })
+                .collect();
+            let (arrived, report) = streams::read_streams(paths, cal, &recs, board, dir, &extents)?;
+            let cams = arrived
+                .into_iter()
+                .zip(recs.iter().zip(&cal.camera))
+                .map(|(a, (r, c))| {
+                    let mut rows = Collector::new(c, cal.height_lsb_um);
+                    for row in &a.map.rows {
+                        rows.push(row);
+                    }
+                    let r = calibrated(r, c, cal.height_lsb_um)?;
+                    rows.finish(&r, c, r.manifest.processing.max_step_rows, &a.lost)
+                })
+                .collect::<Result<Vec<_>>>()?;
+            (cams, Some(report))
+        }
+    };
+    let core_s = t0.elapsed().as_secs_f64();
+
     let a = assemble(&cams, &grid);
+    if let Some(r) = &mut streams_report {
+        r.gap_board_pixels = a.lost_pixels;
+    }
+    let missing: Vec<u64> = match &streams_report {
+        Some(r) => r.missing_rows.clone(),
+        None => vec![0; cams.len()],
+    };
     let t1 = Instant::now();
-    super::output::write(out, &grid, &a.blended, cams.len())?;
+    super::output::write(out, &grid, &a.blended, cams.len(), &missing)?;
     let write_s = t1.elapsed().as_secs_f64();
 
     let truth = match arr.truth()? {
@@ -332,5 +465,6 @@ pub fn run(dir: &Path, cal: &CalFile, out: &Path) -> Result<Report> {
             assemble: a.timing,
             write_s,
         },
+        streams: streams_report,
     })
 }

@@ -2,6 +2,7 @@
 
 use super::out;
 use anyhow::Result;
+use dpsa_sim::board::run::Source;
 use dpsa_sim::calibration::file::CalFile;
 use dpsa_sim::files;
 use std::path::PathBuf;
@@ -20,17 +21,55 @@ pub struct Args {
     /// Print the figures as JSON.
     #[arg(long)]
     json: bool,
+    /// Take the rows from the cameras' packet streams (one per camera, any order; matched by
+    /// the camera id in their headers), e.g. `dpsa reconstruct` or `dpsa target-run` with
+    /// `--cal CAL --camera I`, instead of running the core. Rows a stream lost stay invalid
+    /// in the map and are reported (exit status 2).
+    #[arg(long, num_args = 1.., value_name = "STREAM")]
+    streams: Vec<PathBuf>,
 }
 
-pub fn run(a: Args) -> Result<()> {
-    let inputs = [files::Input::Dir(&a.dir), files::Input::File(&a.cal)];
+/// Builds the map; returns the exit status: 0, or 2 when a stream was damaged or incomplete
+/// (the map is written with the rows it lost invalid), as `dpsa decode`.
+pub fn run(a: Args) -> Result<i32> {
+    let mut inputs = vec![files::Input::Dir(&a.dir), files::Input::File(&a.cal)];
+    inputs.extend(a.streams.iter().map(|p| files::Input::File(p)));
     files::refuse_overwrite("--out", &a.out, &inputs)?;
+    for name in dpsa_sim::board::output::FILE_NAMES {
+        files::refuse_overwrite("--out", &a.out.join(name), &inputs)?;
+    }
     let cal = CalFile::load(&a.cal)?;
-    let r = dpsa_sim::board::run::run(&a.dir, &cal, &a.out)?;
+    let source = if a.streams.is_empty() {
+        Source::Core
+    } else {
+        Source::Streams(&a.streams)
+    };
+    let r = dpsa_sim::board::run::run_from(&a.dir, &cal, &a.out, source)?;
+    let status = r.streams.as_ref().map_or(0, |s| s.status);
+    if let Some(s) = &r.streams {
+        for c in s.cameras.iter().filter(|c| c.status != 0) {
+            eprintln!(
+                "warning: camera {} stream {}: {} board rows lost ({} damaged, {} missing packets{}); \
+                 they stay invalid in the map",
+                c.camera,
+                c.file,
+                c.missing_rows,
+                c.damaged_packets,
+                c.missing_packets,
+                if c.truncated { ", truncated" } else { "" }
+            );
+        }
+        if s.damaged {
+            eprintln!(
+                "warning: {} board pixels are invalid for lack of stream rows (exit status 2)",
+                s.gap_board_pixels
+            );
+        }
+    }
     if a.json {
         out!("{}", serde_json::to_string_pretty(&r)?);
-        return Ok(());
+        return Ok(status);
     }
     out!("{} -> {}", r.summary(), a.out.display());
-    Ok(())
+    Ok(status)
 }

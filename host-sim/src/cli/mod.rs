@@ -99,6 +99,26 @@ pub fn open(dir: &Path) -> Result<Recording> {
     Ok(rec)
 }
 
+/// Puts camera `camera`'s calibration from the array calibration file `path` into `rec`'s
+/// manifest (`reconstruct --cal`, `target-run --cal`: what one frame grabber of the array runs
+/// with); `camera` defaults to the manifest's camera id. A missing camera or a calibration of
+/// another frame size is refused.
+pub fn apply_cal(rec: &mut Recording, path: &Path, camera: Option<u8>) -> Result<()> {
+    let cal = dpsa_sim::calibration::CalFile::load(path)?;
+    let id = camera.unwrap_or(rec.manifest.camera.id);
+    let cam = cal.camera.get(usize::from(id)).ok_or_else(|| {
+        anyhow::anyhow!(
+            "{}: no camera {id} (the calibration has {} cameras)",
+            path.display(),
+            cal.camera.len()
+        )
+    })?;
+    cam.apply(&mut rec.manifest, cal.height_lsb_um)?;
+    rec.manifest
+        .validate()
+        .map_err(|e| anyhow::anyhow!("the calibrated manifest is invalid: {e}"))
+}
+
 /// Prints each warning on stderr as `warning: ...`.
 pub fn warn(warnings: &[String]) {
     for w in warnings {

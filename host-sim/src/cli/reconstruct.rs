@@ -48,19 +48,7 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
     let mut rec = open(&a.dir)?;
     if let Some(path) = &a.cal {
         files::refuse_same(("--out", &a.out), ("--cal", path))?;
-        let cal = dpsa_sim::calibration::CalFile::load(path)?;
-        let id = a.camera.unwrap_or(rec.manifest.camera.id);
-        let cam = cal.camera.get(usize::from(id)).ok_or_else(|| {
-            anyhow!(
-                "{}: no camera {id} (the calibration has {} cameras)",
-                path.display(),
-                cal.camera.len()
-            )
-        })?;
-        cam.apply(&mut rec.manifest, cal.height_lsb_um)?;
-        rec.manifest
-            .validate()
-            .map_err(|e| anyhow!("the calibrated manifest is invalid: {e}"))?;
+        super::apply_cal(&mut rec, path, a.camera)?;
     }
     let file = AtomicFile::create(&a.out)?;
     let mut tee = Tee::new(BufWriter::new(file), a.png.is_some());

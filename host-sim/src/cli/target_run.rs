@@ -25,6 +25,14 @@ pub struct Args {
     /// Print one JSON object.
     #[arg(long)]
     json: bool,
+    /// Array calibration file (`dpsa calibrate`): the frame grabber runs with camera
+    /// `--camera`'s encoder scale, fringe period, reference-phase table and height per turn
+    /// instead of the manifest's (as `dpsa reconstruct --cal`).
+    #[arg(long)]
+    cal: Option<PathBuf>,
+    /// Camera of `--cal` (default: the manifest's camera id).
+    #[arg(long, requires = "cal")]
+    camera: Option<u8>,
 }
 
 /// Runs the firmware on the recording, writes the stream to `--out` and prints a summary (or
@@ -35,9 +43,15 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
         if let Some(elf) = &a.elf {
             inputs.push(files::Input::File(elf));
         }
+        if let Some(cal) = &a.cal {
+            inputs.push(files::Input::File(cal));
+        }
         files::refuse_overwrite("--out", out, &inputs)?;
     }
-    let rec = open(&a.recording)?;
+    let mut rec = open(&a.recording)?;
+    if let Some(path) = &a.cal {
+        super::apply_cal(&mut rec, path, a.camera)?;
+    }
     let elf = match a.elf {
         Some(e) => e,
         None => target::firmware_elf(true)?,

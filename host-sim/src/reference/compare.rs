@@ -611,6 +611,7 @@ mod tests {
             frames: Vec::new(),
             noise: None,
             truth: None,
+            board_id: None,
         }
     }
 

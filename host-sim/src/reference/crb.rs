@@ -57,8 +57,8 @@ pub fn crb_row(
         let phi0 = cal.reference_phase_rad.get(c).copied().unwrap_or(f64::NAN);
         let t_z = cal.height_per_turn_at(c);
         let phi = phi_r_row + phi0 + TAU * h_true / t_z;
-        *slot = phase_variance(noise, phi, &window.shifts_rad, bg, ct)
-            .map(|v| v * (t_z / TAU).powi(2));
+        *slot =
+            phase_variance(noise, phi, &window.shifts_rad, bg, ct).map(|v| v * (t_z / TAU).powi(2));
     }
     v
 }

@@ -53,6 +53,7 @@ fn manifest(
             .collect(),
         noise: None,
         truth: None,
+        board_id: None,
     }
 }
 

@@ -26,6 +26,47 @@ pub struct Manifest {
     pub noise: Option<Noise>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub truth: Option<TruthInfo>,
+    /// The identity of the board this camera recorded, shared by every camera of one array
+    /// board recording (absent in single-camera recordings): [`Recording::run_id`] returns it,
+    /// so all cameras' streams of one board carry one run id.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub board_id: Option<BoardId>,
+}
+
+/// A board identity: a non-zero u64, written in JSON as 16 lowercase hex digits (a JSON
+/// number would lose bits in readers that hold numbers as f64).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct BoardId(pub u64);
+
+impl std::fmt::Display for BoardId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{:016x}", self.0)
+    }
+}
+
+impl std::str::FromStr for BoardId {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let ok = s.len() == 16 && s.bytes().all(|b| b.is_ascii_hexdigit());
+        match u64::from_str_radix(s, 16) {
+            Ok(0) if ok => Err("a board id of 0 means none; expected a non-zero id".into()),
+            Ok(v) if ok => Ok(BoardId(v)),
+            _ => Err(format!("board id {s:?} is not 16 hex digits")),
+        }
+    }
+}
+
+impl Serialize for BoardId {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(self)
+    }
+}
+
+impl<'de> Deserialize<'de> for BoardId {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let s = String::deserialize(d)?;
+        s.parse().map_err(serde::de::Error::custom)
+    }
 }
 
 /// Camera geometry and sample range.
@@ -610,11 +651,17 @@ impl Recording {
     }
 
     /// The recording's identity, written as the run id of every packet stream made from it
-    /// (`reconstruct` on the host, the firmware through the feed): FNV-1a 64 of the manifest
-    /// in its canonical JSON form (camera, calibration, processing, every frame's file, seq
-    /// and latch). Two streams of one recording carry the same id, streams of two boards
-    /// (or two passes of one board) different ones, so a receiver can tell them apart.
+    /// (`reconstruct` on the host, the firmware through the feed). A camera of an array board
+    /// recording: the board identity in its manifest (`board_id`), the same for every camera
+    /// of the board and unchanged by a calibration put into the manifest. Otherwise FNV-1a 64
+    /// of the manifest in its canonical JSON form (camera, calibration, processing, every
+    /// frame's file, seq and latch). Two streams of one recording carry the same id, streams
+    /// of two boards (or two passes of one board) different ones, so a receiver can tell them
+    /// apart.
     pub fn run_id(&self) -> u64 {
+        if let Some(b) = self.manifest.board_id {
+            return b.0;
+        }
         let json = serde_json::to_vec(&self.manifest).unwrap_or_default();
         dpsa_core::frames::fnv1a64(&json)
     }
@@ -936,6 +983,7 @@ mod tests {
                 first_row: 0,
                 rows: 2,
             }),
+            board_id: None,
         }
     }
 
@@ -984,6 +1032,45 @@ mod tests {
         assert_eq!(t.contrast[3], 700.0);
         assert_eq!(t.index(1, 4), Some(9));
         assert_eq!(t.index(2, 0), None);
+    }
+
+    #[test]
+    fn board_id_is_the_run_id_when_present_and_absent_otherwise() {
+        let mut m = manifest(2);
+        // A single-camera manifest has no board id: its JSON and run id are as before.
+        let json = serde_json::to_string(&m).unwrap();
+        assert!(!json.contains("board_id"));
+        let rec = Recording {
+            dir: PathBuf::new(),
+            manifest: m.clone(),
+            preloaded: None,
+        };
+        assert_eq!(rec.run_id(), dpsa_core::frames::fnv1a64(json.as_bytes()));
+        // With one, the run id is it, whatever the calibration says.
+        m.board_id = Some(BoardId(0x0123_4567_89ab_cdef));
+        let json = serde_json::to_string(&m).unwrap();
+        assert!(json.contains(r#""board_id":"0123456789abcdef""#), "{json}");
+        let back: Manifest = serde_json::from_str(&json).unwrap();
+        assert_eq!(back, m);
+        let mut rec = Recording {
+            dir: PathBuf::new(),
+            manifest: m,
+            preloaded: None,
+        };
+        assert_eq!(rec.run_id(), 0x0123_4567_89ab_cdef);
+        rec.manifest.calibration.fringe_period_px = 31.0;
+        assert_eq!(rec.run_id(), 0x0123_4567_89ab_cdef);
+        // Anything but 16 hex digits, or 0, is refused with the key named.
+        for bad in [
+            "\"123\"",
+            "\"0000000000000000\"",
+            "\"0123456789abcdeg\"",
+            "12",
+        ] {
+            let text = json.replace("\"0123456789abcdef\"", bad);
+            let e = Manifest::parse(text.as_bytes(), Path::new("m.json")).unwrap_err();
+            assert!(e.to_string().contains("board_id"), "{bad}: {e}");
+        }
     }
 
     #[test]

@@ -430,6 +430,7 @@ impl<'a> Simulator<'a> {
                 first_row: 0,
                 rows: s.board_length,
             }),
+            board_id: None,
         }
     }
 }
