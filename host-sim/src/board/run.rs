@@ -157,7 +157,7 @@ pub fn placement(cal: &CameraCal, max_step_rows: u32) -> Placement {
 
 /// A camera's rows on their way to the board, whatever their source: wrapped heights in um
 /// by board row.
-struct Collector {
+pub(crate) struct Collector {
     id: u8,
     width: usize,
     lsb_um: f32,
@@ -191,7 +191,7 @@ impl Collector {
     /// `lost` board rows (inclusive ranges) inside it marked.
     /// `rec` is the camera's recording with its calibration applied (its registration says
     /// which frames fed each row, see [`super::provenance`]).
-    fn finish(
+    pub(crate) fn finish(
         self,
         rec: &Recording,
         cal: &CameraCal,
@@ -259,14 +259,14 @@ impl Collector {
 }
 
 /// A camera's recording with its calibration applied (what its frame grabber runs with).
-fn calibrated(rec: &Recording, cal: &CameraCal, lsb_um: f64) -> Result<Recording> {
+pub(crate) fn calibrated(rec: &Recording, cal: &CameraCal, lsb_um: f64) -> Result<Recording> {
     let mut rec = rec.clone();
     cal.apply(&mut rec.manifest, lsb_um)?;
     Ok(rec)
 }
 
 /// Row source 1: the core on one camera's calibrated recording.
-fn core_rows(rec: &Recording, cal: &CameraCal, lsb_um: f64) -> Result<Collector> {
+pub(crate) fn core_rows(rec: &Recording, cal: &CameraCal, lsb_um: f64) -> Result<Collector> {
     let mut rows = Collector::new(cal, lsb_um);
     crate::reconstruct::reconstruct_rows(rec, false, |r| {
         rows.push(&r);
@@ -275,15 +275,18 @@ fn core_rows(rec: &Recording, cal: &CameraCal, lsb_um: f64) -> Result<Collector>
     Ok(rows)
 }
 
-/// Builds the board map of the array recording `dir` with `cal` into `out`, the core on
-/// every camera.
-pub fn run(dir: &Path, cal: &CalFile, out: &Path) -> Result<Report> {
-    run_from(dir, cal, out, Source::Core)
+/// An array board recording opened and checked against its calibration.
+pub(crate) struct Opened {
+    pub arr: ArrayRecording,
+    /// Every camera's recording (without the calibration applied).
+    pub recs: Vec<Recording>,
+    /// The board identity every camera's stream carries.
+    pub board: Option<crate::simulation::recording::BoardId>,
+    pub grid: BoardGrid,
 }
 
-/// Builds the board map of the array recording `dir` with `cal` into `out`, the rows from
-/// `source`. Every check (recording, calibration, streams) comes before any file is written.
-pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Result<Report> {
+/// Opens the array board recording `dir`, checks it against `cal` and lays out its board grid.
+pub(crate) fn open(dir: &Path, cal: &CalFile) -> Result<Opened> {
     let arr = ArrayRecording::open(dir)?;
     if arr.manifest.kind != Kind::Board {
         bail!(
@@ -322,6 +325,29 @@ pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Re
             grid.width
         );
     }
+    Ok(Opened {
+        arr,
+        recs,
+        board,
+        grid,
+    })
+}
+
+/// Builds the board map of the array recording `dir` with `cal` into `out`, the core on
+/// every camera.
+pub fn run(dir: &Path, cal: &CalFile, out: &Path) -> Result<Report> {
+    run_from(dir, cal, out, Source::Core)
+}
+
+/// Builds the board map of the array recording `dir` with `cal` into `out`, the rows from
+/// `source`. Every check (recording, calibration, streams) comes before any file is written.
+pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Result<Report> {
+    let Opened {
+        arr,
+        recs,
+        board,
+        grid,
+    } = open(dir, cal)?;
 
     let t0 = Instant::now();
     let (cams, mut streams_report) = match source {
