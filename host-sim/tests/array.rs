@@ -681,6 +681,7 @@ fn lost_packets_and_a_truncated_stream_leave_their_rows_invalid_and_reported() {
         "{st}"
     );
     assert_eq!(st["cameras"][1]["missing_packets"], 40, "{st}");
+    assert_eq!(st["cameras"][1]["end_packet"], true, "{st}");
     let meta: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("board.json")).unwrap()).unwrap();
     assert_eq!(meta["missing_rows"], serde_json::json!([0, 40, 0]));
@@ -734,6 +735,8 @@ fn lost_packets_and_a_truncated_stream_leave_their_rows_invalid_and_reported() {
     let v = json_of(&o);
     let c2 = &v["streams"]["cameras"][2];
     assert_eq!(c2["truncated"], true, "{c2}");
+    assert_eq!(c2["end_packet"], false, "{c2}");
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no end packet"));
     assert_eq!(c2["lost_ranges"][0][0], last + 1, "{c2}");
     let lost = c2["missing_rows"].as_u64().unwrap();
     let (_, cut_map) = png16(&out.join("heights.png"));
