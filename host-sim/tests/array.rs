@@ -689,6 +689,7 @@ fn lost_packets_and_a_truncated_stream_leave_their_rows_invalid_and_reported() {
         "{st}"
     );
     assert_eq!(st["cameras"][1]["missing_packets"], 40, "{st}");
+    assert_eq!(st["cameras"][1]["end_packet"], true, "{st}");
     let meta: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("board.json")).unwrap()).unwrap();
     assert_eq!(meta["missing_rows"], serde_json::json!([0, 40, 0]));
@@ -742,6 +743,8 @@ fn lost_packets_and_a_truncated_stream_leave_their_rows_invalid_and_reported() {
     let v = json_of(&o);
     let c2 = &v["streams"]["cameras"][2];
     assert_eq!(c2["truncated"], true, "{c2}");
+    assert_eq!(c2["end_packet"], false, "{c2}");
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no end packet"));
     assert_eq!(c2["lost_ranges"][0][0], last + 1, "{c2}");
     let lost = c2["missing_rows"].as_u64().unwrap();
     let (_, cut_map) = png16(&out.join("heights.png"));
@@ -765,4 +768,34 @@ fn lost_packets_and_a_truncated_stream_leave_their_rows_invalid_and_reported() {
         lost as f64 >= max_r - last as f64,
         "{lost} rows lost, {max_r} {last}"
     );
+
+    // Camera 1's packets spliced into camera 0's stream with continuing sequence numbers (the
+    // first half of one, the second half of the other): they are not camera 0's rows.
+    let (b0, b1) = (std::fs::read(&s[0]).unwrap(), std::fs::read(&s[1]).unwrap());
+    let (p0, p1) = (packets_of(&b0), packets_of(&b1));
+    let k = p0.len() / 2;
+    let mut spliced = b0[..p0[k].0].to_vec();
+    spliced.extend_from_slice(&b1[p1[k].0..]);
+    let foreign = (p1.len() - k) as u64;
+    let (_, rep) = dpsa_sim::stream::decode_stream(&spliced, 0.25);
+    assert_eq!(rep.stream.other_camera, foreign);
+    let path = tmp.path().join("spliced.dpsa");
+    std::fs::write(&path, &spliced).unwrap();
+    let o = board_cmd(
+        &b.boards[0],
+        &tmp.path().join("spliced_map"),
+        &[&path, &s[1], &s[2]],
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let v = json_of(&o);
+    let c0 = &v["streams"]["cameras"][0];
+    assert!(c0["damaged_packets"].as_u64().unwrap() >= foreign, "{c0}");
+    assert_eq!(c0["lost_ranges"][0][0], p0[k].3, "{c0}");
+    assert_eq!(c0["truncated"], true, "{c0}"); // its end packet was camera 1's
+    assert!(c0["missing_rows"].as_u64().unwrap() > 0, "{c0}");
 }

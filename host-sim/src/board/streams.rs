@@ -68,6 +68,8 @@ pub struct CameraStream {
     pub reordered_packets: u64,
     /// No end packet, or its totals disagree with what arrived.
     pub truncated: bool,
+    /// The stream's end packet arrived (without it the stream was cut off).
+    pub end_packet: bool,
     /// Board rows inside gap records (never imaged: the encoder jumped; not lost).
     pub gap_rows: u64,
     /// The first damage entries, as `dpsa decode` lists them.
@@ -375,6 +377,7 @@ pub fn read_streams(
             duplicated_packets: st.duplicated,
             reordered_packets: st.reordered,
             truncated: st.truncated,
+            end_packet: st.end_totals.is_some(),
             gap_rows: st.gap_rows,
             damage: rep.damage.clone(),
             status,

@@ -56,7 +56,11 @@ pub fn run(a: Args) -> Result<i32> {
                 c.missing_rows,
                 c.damaged_packets,
                 c.missing_packets,
-                if c.truncated { ", truncated" } else { "" }
+                if c.end_packet {
+                    ""
+                } else {
+                    ", no end packet: cut off"
+                }
             );
         }
         if s.damaged {

@@ -85,11 +85,12 @@ pub fn run(a: Args) -> Result<i32> {
         );
         if s.version >= 2 {
             out!(
-                "stream v{}: {} missing, {} duplicated, {} reordered packets, {} rows missing, {} gap records ({} rows){}",
+                "stream v{}: {} missing, {} duplicated, {} reordered packets, {} of another camera, {} rows missing, {} gap records ({} rows){}",
                 s.version,
                 s.missing,
                 s.duplicated,
                 s.reordered,
+                s.other_camera,
                 s.rows_missing,
                 s.gap_records,
                 s.gap_rows,

@@ -55,6 +55,9 @@ pub struct StreamReport {
     pub row_order: u64,
     /// Packets of another width than the stream's (not used).
     pub wrong_width: u64,
+    /// Packets of another camera than the stream header's (not used: a stream carries one
+    /// camera, so these are another camera's packets spliced in).
+    pub other_camera: u64,
     /// Packets after the end packet.
     pub after_end: u64,
     /// Packets before the stream header (a stray packet, the tail of another stream).
@@ -136,6 +139,7 @@ impl DecodeReport {
             || s.reordered > 0
             || s.row_order > 0
             || s.wrong_width > 0
+            || s.other_camera > 0
             || s.after_end > 0
             || s.before_header > 0
             || s.truncated
@@ -249,6 +253,21 @@ struct Decoder {
 
 impl Decoder {
     fn packet(&mut self, offset: u64, p: &Packet<'_>) {
+        // A stream carries one camera: a packet of another (spliced in from another camera's
+        // stream) is not followed at all, as if it were garbage.
+        if let Some(info) = self.tracker.summary().info {
+            if p.header.camera != info.camera {
+                self.rep.stream.other_camera += 1;
+                self.rep.damage(
+                    offset,
+                    format!(
+                        "camera {} differs from the stream's camera {}",
+                        p.header.camera, info.camera
+                    ),
+                );
+                return;
+            }
+        }
         match self.tracker.packet(p) {
             Verdict::Accept => {}
             Verdict::Duplicate => return,
