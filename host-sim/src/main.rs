@@ -32,6 +32,7 @@ fn main() {
         // 0 clean, 2 damaged or incomplete, 3 nothing decodable (cli/decode.rs).
         Cmd::Decode(a) => cli::decode::run(a).map(exit_unless_zero),
         Cmd::FrameBench(a) => cli::frame_bench::run(a),
+        Cmd::BoardBench(a) => cli::board_bench::run(a),
         Cmd::CodecBench(a) => cli::codec_bench::run(a, progress),
         Cmd::TargetRun(a) => cli::target_run::run(a, progress),
         Cmd::Demo(a) => cli::demo::run(a, progress),

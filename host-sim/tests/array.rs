@@ -799,3 +799,51 @@ fn lost_packets_and_a_truncated_stream_leave_their_rows_invalid_and_reported() {
     assert_eq!(c0["truncated"], true, "{c0}"); // its end packet was camera 1's
     assert!(c0["missing_rows"].as_u64().unwrap() > 0, "{c0}");
 }
+
+/// `dpsa board-bench` on a short board: every stage timed and summed, the pixel counts those
+/// of the board map and of the core's rows (numpy skipped: CI machines need not have it).
+#[test]
+fn board_bench_reports_every_stage_of_the_board() {
+    let b = short_boards();
+    let out = dpsa([
+        "board-bench".as_ref(),
+        b.boards[0].as_os_str(),
+        "--cal".as_ref(),
+        calibration_file().as_os_str(),
+        "--no-numpy".as_ref(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v = json_of(&out);
+    let s = &v["seconds"];
+    let stage = |k: &str| s[k].as_f64().unwrap_or_else(|| panic!("{k}: {v}"));
+    let sum: f64 = ["core", "provenance", "unwrap", "resample", "blend"]
+        .iter()
+        .map(|k| stage(k))
+        .sum();
+    assert!((stage("total") - sum).abs() < 1e-9, "{v}");
+    assert!(stage("load") > 0.0 && stage("core_camera0") > 0.0, "{v}");
+    assert_eq!(v["cameras"], 3);
+    // Every camera's rows are 192 px wide; a 6 mm board at 27.7 um is about 217 rows each.
+    let core_px = v["core_pixels"].as_u64().unwrap();
+    assert_eq!(core_px % 192, 0, "{v}");
+    assert!((3 * 150 * 192..3 * 400 * 192).contains(&core_px), "{v}");
+    // The map the bench stitched has the grid `dpsa board` writes.
+    let map = json_of(&board_cmd(&b.boards[0], &b.dir.join("bench-map"), &[]));
+    let g = &map["grid"];
+    assert_eq!(
+        v["board_pixels"].as_u64().unwrap(),
+        g["rows"].as_u64().unwrap() * g["width"].as_u64().unwrap()
+    );
+    assert!(
+        v["numpy"].is_null() && v["core_over_numpy"].is_null(),
+        "{v}"
+    );
+    assert!(
+        v["numpy_error"].as_str().unwrap().contains("skipped"),
+        "{v}"
+    );
+}

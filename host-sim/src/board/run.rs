@@ -159,9 +159,9 @@ pub fn placement(cal: &CameraCal, max_step_rows: u32) -> Placement {
 /// by board row.
 pub(crate) struct Collector {
     id: u8,
-    width: usize,
+    pub(crate) width: usize,
     lsb_um: f32,
-    rows: Vec<(i64, Vec<f32>)>,
+    pub(crate) rows: Vec<(i64, Vec<f32>)>,
 }
 
 impl Collector {

@@ -2,6 +2,7 @@
 //! printing. The work itself is in the `dpsa_sim` library; nothing here computes a figure.
 
 pub mod board;
+pub mod board_bench;
 pub mod calibrate;
 pub mod codec_bench;
 pub mod compare;
@@ -58,6 +59,10 @@ pub enum Cmd {
     /// Benchmark the recording frame formats (16-bit PNG, compressed .zfr) on a recording's
     /// frames: size and encode/decode speed, as JSON.
     FrameBench(frame_bench::Args),
+    /// Benchmark the whole board: every camera's frames in memory, the core on every camera,
+    /// provenance, unwrap, resampling and blending timed per stage, beside a numpy float64
+    /// least-squares phase of the same frames; as JSON.
+    BoardBench(board_bench::Args),
     /// Run the firmware under QEMU (Cortex-M7, mps2-an500) on a recording: the same core on the
     /// target, writing the packet stream it emitted; `--bench` adds its measured figures.
     TargetRun(target_run::Args),

@@ -1,0 +1,184 @@
+//! `dpsa board-bench`: the speed of the whole board, as the paper counts it ("a 220 x 168 mm
+//! board in under 1 s"): every camera's frames decoded into memory first (not timed with the
+//! rest), then the fixed-point core on every camera (one thread each, as `dpsa board`), the
+//! provenance (dead-pixel mask, row places; the Cramer-Rao bound only with a truth), unwrap,
+//! resampling and blending, each stage timed, no files written. Beside it, in the same run, the
+//! numpy float64 least-squares phase of camera 0's frames ([`super::numpy`]).
+
+use crate::board::assemble::{assemble, CameraRows};
+use crate::board::run::{calibrated, core_rows, open, Opened};
+use crate::calibration::file::CalFile;
+use anyhow::{Context, Result};
+use serde::Serialize;
+use std::path::Path;
+use std::time::Instant;
+
+/// `dpsa board-bench --json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct BoardBench {
+    pub cameras: usize,
+    /// Hardware threads available to this process.
+    pub threads: usize,
+    /// Samples of every camera's frames, held in memory, MB.
+    pub frames_mb: f64,
+    /// Height pixels the core emitted, all cameras (rows x W).
+    pub core_pixels: u64,
+    /// Pixels of the board map.
+    pub board_pixels: u64,
+    /// Seconds per stage (wall time).
+    pub seconds: Stages,
+    /// `core_pixels / seconds.core` / 1e6: the core's output rate over all cameras.
+    pub core_mpx_s: f64,
+    /// The paper's budget for the whole board, s.
+    pub budget_s: f64,
+    /// `seconds.total <= budget_s`.
+    pub within_budget: bool,
+    /// The numpy float64 least-squares phase of camera 0 (null when it could not run: then
+    /// `numpy_error` says why).
+    pub numpy: Option<super::numpy::NumpyRun>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub numpy_error: Option<String>,
+    /// Camera 0's core rate (its own run, one thread, frames in memory) over numpy's on the
+    /// same frames.
+    pub core_over_numpy: Option<f64>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Stages {
+    /// Decoding every frame into memory (threads per camera; not part of `total`).
+    pub load: f64,
+    /// The fixed-point core on every camera, one thread each.
+    pub core: f64,
+    /// Dead-pixel masks, row places (and the CRB with a truth), all cameras.
+    pub provenance: f64,
+    pub unwrap: f64,
+    pub resample: f64,
+    pub blend: f64,
+    /// `core + provenance + unwrap + resample + blend`.
+    pub total: f64,
+    /// Camera 0 alone through the core (one thread), for the numpy comparison.
+    pub core_camera0: f64,
+}
+
+/// The paper's board time, s.
+pub const BUDGET_S: f64 = 1.0;
+
+/// Runs the bench on the array board recording `dir` with `cal`; `python` runs the numpy
+/// baseline (`None`: skipped).
+pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench> {
+    let Opened { recs, grid, .. } = open(dir, cal)?;
+    let lsb = cal.height_lsb_um;
+    let t0 = Instant::now();
+    let loaded: Vec<(crate::simulation::recording::Recording, u64)> = std::thread::scope(|s| {
+        let handles: Vec<_> = recs
+            .iter()
+            .zip(&cal.camera)
+            .map(|(r, c)| {
+                s.spawn(move || -> Result<_> {
+                    let mut r = calibrated(r, c, lsb)?;
+                    let bytes = r.preload()?;
+                    Ok((r, bytes))
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| {
+                h.join()
+                    .unwrap_or_else(|_| Err(anyhow::anyhow!("a load thread panicked")))
+            })
+            .collect::<Result<Vec<_>>>()
+    })?;
+    let load = t0.elapsed().as_secs_f64();
+
+    let t1 = Instant::now();
+    let collected = std::thread::scope(|s| {
+        let handles: Vec<_> = loaded
+            .iter()
+            .zip(&cal.camera)
+            .map(|((r, _), c)| s.spawn(move || core_rows(r, c, lsb)))
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| {
+                h.join()
+                    .unwrap_or_else(|_| Err(anyhow::anyhow!("a core thread panicked")))
+            })
+            .collect::<Result<Vec<_>>>()
+    })?;
+    let core = t1.elapsed().as_secs_f64();
+    let core_pixels: u64 = collected
+        .iter()
+        .map(|c| c.rows.len() as u64 * c.width as u64)
+        .sum();
+
+    let t2 = Instant::now();
+    let cams: Vec<CameraRows> = std::thread::scope(|s| {
+        let handles: Vec<_> = collected
+            .into_iter()
+            .zip(loaded.iter().zip(&cal.camera))
+            .map(|(col, ((r, _), c))| {
+                s.spawn(move || col.finish(r, c, r.manifest.processing.max_step_rows, &[]))
+            })
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| {
+                h.join()
+                    .unwrap_or_else(|_| Err(anyhow::anyhow!("a thread panicked")))
+            })
+            .collect::<Result<Vec<_>>>()
+    })?;
+    let provenance = t2.elapsed().as_secs_f64();
+    let a = assemble(&cams, &grid);
+    drop(cams);
+
+    // Camera 0 alone, then numpy on the same frames.
+    let (r0, _) = loaded.first().context("no camera")?;
+    let t3 = Instant::now();
+    let one = core_rows(r0, &cal.camera[0], lsb)?;
+    let core_camera0 = t3.elapsed().as_secs_f64();
+    let one_px = one.rows.len() as f64 * one.width as f64;
+    drop(one);
+    let (numpy, numpy_error) = match python {
+        None => (None, Some("skipped (--no-numpy)".to_string())),
+        Some(py) => match super::numpy::run(r0, py) {
+            Ok(n) => (Some(n), None),
+            Err(e) => (
+                None,
+                Some(format!(
+                    "{e:#} (the baseline needs python3 with numpy: pip install numpy)"
+                )),
+            ),
+        },
+    };
+    let core_over_numpy = numpy
+        .as_ref()
+        .map(|n| (one_px / core_camera0 / 1e6) / n.mpx_s);
+
+    let t = &a.timing;
+    let total = core + provenance + t.unwrap_s + t.resample_s + t.blend_s;
+    Ok(BoardBench {
+        cameras: loaded.len(),
+        threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        frames_mb: loaded.iter().map(|(_, b)| *b as f64).sum::<f64>() / 1e6,
+        core_pixels,
+        board_pixels: (grid.rows * grid.width) as u64,
+        seconds: Stages {
+            load,
+            core,
+            provenance,
+            unwrap: t.unwrap_s,
+            resample: t.resample_s,
+            blend: t.blend_s,
+            total,
+            core_camera0,
+        },
+        core_mpx_s: core_pixels as f64 / core / 1e6,
+        budget_s: BUDGET_S,
+        within_budget: total <= BUDGET_S,
+        numpy,
+        numpy_error,
+        core_over_numpy,
+    })
+}
