@@ -152,8 +152,32 @@ pub fn resample(src: &Source, place: &Placement, grid: &BoardGrid, feather_px: f
     if w == 0 || rows == 0 {
         return out;
     }
-    for i in 0..grid.rows {
-        for j in 0..grid.width {
+    // The camera's footprint on the grid: the bounding box of its four corners (its rows
+    // shifted by up to one row either way by their places), two pixels wider.
+    let (b_lo, b_hi) = (
+        src.first_row as f64 - 1.0,
+        (src.first_row + rows as i64) as f64,
+    );
+    let corners = [
+        (b_lo, -1.0),
+        (b_lo, w as f64),
+        (b_hi, -1.0),
+        (b_hi, w as f64),
+    ]
+    .map(|(b, c)| place.to_board(b, c));
+    let span = |v: [f64; 4], origin: f64, n: usize| {
+        let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let lo = ((lo - origin) / grid.pitch_mm - 2.0).floor().max(0.0) as usize;
+        let hi = ((hi - origin) / grid.pitch_mm + 2.0).ceil().max(0.0) as usize;
+        lo.min(n)..hi.min(n)
+    };
+    let (is, js) = (
+        span(corners.map(|p| p.0), grid.x0_mm, grid.rows),
+        span(corners.map(|p| p.1), grid.y0_mm, grid.width),
+    );
+    for i in is {
+        for j in js.clone() {
             let (x, y) = grid.centre(i, j);
             let (b, c) = place.to_camera(x, y);
             let b = b - src.first_row as f64;
