@@ -315,10 +315,18 @@ fn board_map_of_the_small_scene_against_its_truth() {
     assert!(out.status.success(), "{se}");
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let num = |a: &str, b: &str| v[a][b].as_f64().unwrap_or_else(|| panic!("{a}.{b}: {v}"));
-    // A 300 um bow (0.6 turn at 500 um per turn) and 10 deposits: no pixel on a wrong turn.
+    // A 300 um bow (0.6 turn at 500 um per turn) and 40 deposits: no pixel on a wrong turn.
     assert_eq!(num("unwrap", "wrong_turn_pixels"), 0.0, "{v}");
     assert!(num("pixels", "valid_fraction") >= 0.97, "{v}");
     assert!(num("seams", "height_step_um_max") <= 0.3, "{v}");
+    // Every seam axis has walls to measure (40 deposits), and the cameras meet within 5 um.
+    for seam in v["seams"]["per_seam"].as_array().unwrap() {
+        assert!(
+            seam["shift_x_um"].is_f64() && seam["shift_y_um"].is_f64(),
+            "{v}"
+        );
+    }
+    assert!(num("seams", "lateral_um_max") <= 5.0, "{v}");
     // Against the Cramer-Rao bound of the map's own pixels (each camera pixel's bound carried
     // through the resampling and blending weights): the acceptance bound of 1.05.
     let (rms, crb) = (num("truth", "rms_um"), num("truth", "crb_rms_um"));

@@ -101,6 +101,9 @@ fn help_texts() {
         "compare",
         "phase",
         "decode",
+        "calibrate",
+        "board",
+        "board-bench",
         "demo",
     ] {
         assert!(top.contains(sub), "dpsa --help does not list {sub}: {top}");
@@ -114,7 +117,8 @@ fn help_texts() {
             &["--image", "--step", "--min-modulation", "--json", "--png"][..],
         ),
         ("decode", &["--png", "--lsb-um", "--json"][..]),
-        ("demo", &["--out", "--seed", "--scene"][..]),
+        ("demo", &["--out", "--seed", "--scene", "--array"][..]),
+        ("board", &["--cal", "--out", "--streams", "--json"][..]),
     ] {
         let h = ok(&[sub, "--help"]);
         for o in options {
@@ -414,4 +418,39 @@ fn bad_invocations_fail_cleanly() {
     // Usage errors (clap) also say `error:` and do not panic.
     fails(&["simulate"]);
     fails(&["no-such-command"]);
+}
+
+/// The README's main command: `dpsa demo` runs the single camera and then the camera array
+/// end to end, and writes what it says it writes.
+#[test]
+fn demo_runs_the_camera_and_the_array() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("demo");
+    let text = ok(&["demo", "--out", out.to_str().unwrap()]);
+    for step in [
+        "1/7",
+        "4/7",
+        "5/7",
+        "7/7",
+        "fixed/CRB",
+        "board map",
+        "Cramer-Rao bound",
+    ] {
+        assert!(text.contains(step), "{step}: {text}");
+    }
+    assert!(text.contains("scenes/paper-board.toml"), "{text}");
+    for f in [
+        "heights.dpsa",
+        "compare.json",
+        "array.cal.toml",
+        "board-map/heights.png",
+        "board-map/heights_um.tiff",
+        "board-map/report.json",
+    ] {
+        assert!(out.join(f).is_file(), "{f}");
+    }
+    let r: Value =
+        serde_json::from_slice(&std::fs::read(out.join("board-map/report.json")).unwrap()).unwrap();
+    assert_eq!(r["unwrap"]["wrong_turn_pixels"], 0, "{r}");
+    assert!(r["truth"]["over_crb"].as_f64().unwrap() <= 1.05, "{r}");
 }

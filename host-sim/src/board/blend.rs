@@ -13,11 +13,11 @@
 //!    recorded as the pixel's source.
 //! 4. **Seams.** For each pair of neighbouring layers, over their shared valid pixels on flat
 //!    board (the 3 x 3 range of the blended map below [`FLAT_RANGE_UM`]): the mean height
-//!    difference, and the lateral misregistration: the shift (along and across, sub-pixel by
-//!    a search over -2..=2 px in 0.05 px steps) that best aligns one layer to the other over
-//!    all shared pixels. The shift needs texture: at least [`MIN_WALL_PIXELS`] deposit-wall
-//!    pixels (a step above [`WALL_UM`] between neighbours along the shift) in the overlap, and
-//!    a difference that changes by 10 % over the range; otherwise it is not reported (null).
+//!    difference, and the lateral misregistration: the shift (along and across, sub-pixel, a
+//!    gradient estimate without interpolation, see `best_shift`) that best aligns one layer to
+//!    the other over all shared pixels. The shift needs texture: at least [`MIN_WALL_PIXELS`]
+//!    deposit-wall pixels (a step above [`WALL_UM`] between neighbours along the shift) in the
+//!    overlap; otherwise it is not reported (null).
 
 use super::resample::{BoardGrid, Layer};
 use super::Grid;
@@ -231,33 +231,24 @@ fn seam(a: &Layer, b: &Layer, flat: &[bool], grid: &BoardGrid, ids: (usize, usiz
     }
 }
 
-/// The shift `s` (px, along `(dr, dc)`) minimising the mean squared difference
-/// `b(p) - a(p + s)` over pixels valid in both, each side's mean removed: `a` is interpolated
-/// linearly along the shift, `s` searched over -2..=2 px in 0.05 px steps and refined by a
-/// parabola through the best step and its neighbours. `None` without enough shared pixels or
-/// without texture (the difference changes by less than 10 % over the range).
+/// The shift `s` (px, along `(dr, dc)`) that best aligns `b` to `a`, `b(p) = a(p + s) + k`
+/// over the pixels valid in both: a gradient (Lucas-Kanade) estimate, `d = b - a = k + s g`
+/// solved by least squares for `(k, s)`, with `g` the central difference along the shift of
+/// the two layers' mean. No layer is interpolated: a search over interpolated shifts lowers
+/// the noise of the interpolated samples away from whole pixels (`(1-f)^2 + f^2` of it) and
+/// so finds a false minimum a fraction of a pixel off either way. `None` without texture (fewer
+/// than [`MIN_WALL_PIXELS`] deposit-wall pixels in the shared area) or with a shift beyond
+/// the first-order range (2 px).
 fn best_shift(a: &Layer, b: &Layer, dr: i64, dc: i64) -> Option<f64> {
-    const STEP: f64 = 0.05;
-    const STEPS: i64 = 40; // -2..=2 px
     let (w, rows) = (a.heights.width as i64, a.heights.rows as i64);
-    let at = |l: &Layer, r: i64, c: i64| -> f32 {
+    let at = |l: &Layer, r: i64, c: i64| -> f64 {
         if r < 0 || c < 0 || r >= rows || c >= w {
-            f32::NAN
+            f64::NAN
         } else {
-            l.heights.at(r as usize, c as usize)
+            f64::from(l.heights.at(r as usize, c as usize))
         }
     };
-    // A layer at `(r, c) + t (dr, dc)`, linearly interpolated along the shift.
-    let lerp = |l: &Layer, r: i64, c: i64, t: f64| -> f32 {
-        let (i0, f) = (t.floor() as i64, (t - t.floor()) as f32);
-        let h0 = at(l, r + i0 * dr, c + i0 * dc);
-        if f == 0.0 {
-            h0
-        } else {
-            h0 * (1.0 - f) + at(l, r + (i0 + 1) * dr, c + (i0 + 1) * dc) * f
-        }
-    };
-    // The shared area's bounding box, 3 px wider than the search: nothing outside it pairs.
+    // The shared area's bounding box: nothing outside it pairs.
     let (mut r_lo, mut r_hi, mut c_lo, mut c_hi) = (rows, -1i64, w, -1i64);
     for r in 0..rows {
         for c in 0..w {
@@ -270,68 +261,38 @@ fn best_shift(a: &Layer, b: &Layer, dr: i64, dc: i64) -> Option<f64> {
     if r_hi < 0 {
         return None;
     }
-    let rs = (r_lo - 3).max(0)..(r_hi + 4).min(rows);
-    let cs = (c_lo - 3).max(0)..(c_hi + 4).min(w);
-    // Both layers are interpolated, by `+s/2` and `-s/2`: with only one interpolated, its
-    // extra smoothing at the walls would pull the minimum towards whole pixels.
-    let msd = |s: f64| -> Option<f64> {
-        let (mut n, mut sa, mut sb, mut sab, mut saa, mut sbb) = (0u64, 0.0, 0.0, 0.0, 0.0, 0.0);
-        for r in rs.clone() {
-            for c in cs.clone() {
-                let hb = lerp(b, r, c, -0.5 * s);
-                if !hb.is_finite() {
-                    continue;
-                }
-                let ha = lerp(a, r, c, 0.5 * s);
-                if ha.is_finite() {
-                    let (x, y) = (f64::from(ha), f64::from(hb));
-                    n += 1;
-                    sa += x;
-                    sb += y;
-                    sab += x * y;
-                    saa += x * x;
-                    sbb += y * y;
-                }
-            }
-        }
-        if n < 100 {
-            return None;
-        }
-        let nf = n as f64;
-        Some((sbb - sb * sb / nf + saa - sa * sa / nf - 2.0 * (sab - sa * sb / nf)) / nf)
-    };
-    // Texture: deposit walls across the shift direction in the shared area. The bow and the
-    // noise alone do not fix a shift (their difference surface is flat or linear in it).
+    let (mut n, mut sg, mut sgg, mut sd, mut sdg) = (0u64, 0.0, 0.0, 0.0, 0.0);
     let mut walls = 0usize;
-    for r in rs.clone() {
-        for c in cs.clone() {
-            let (h0, h1) = (b.heights.at(r as usize, c as usize), at(a, r + dr, c + dc));
-            let hb1 = if r + dr < rows && c + dc < w {
-                b.heights.at((r + dr) as usize, (c + dc) as usize)
-            } else {
-                f32::NAN
-            };
-            if h0.is_finite() && h1.is_finite() && hb1.is_finite() && (hb1 - h0).abs() > WALL_UM {
+    for r in r_lo..=r_hi {
+        for c in c_lo..=c_hi {
+            let (a0, b0) = (at(a, r, c), at(b, r, c));
+            let (ap, bp) = (at(a, r + dr, c + dc), at(b, r + dr, c + dc));
+            let (am, bm) = (at(a, r - dr, c - dc), at(b, r - dr, c - dc));
+            if ![a0, b0, ap, bp, am, bm].iter().all(|v| v.is_finite()) {
+                continue;
+            }
+            if (bp - b0).abs() > f64::from(WALL_UM) {
                 walls += 1;
             }
+            let g = 0.25 * ((ap + bp) - (am + bm));
+            let d = b0 - a0;
+            n += 1;
+            sg += g;
+            sgg += g * g;
+            sd += d;
+            sdg += d * g;
         }
     }
-    if walls < MIN_WALL_PIXELS {
+    if walls < MIN_WALL_PIXELS || n < 100 {
         return None;
     }
-    let v: Vec<f64> = (-STEPS..=STEPS)
-        .map(|k| msd(k as f64 * STEP))
-        .collect::<Option<Vec<f64>>>()?;
-    let (i, &min) = v.iter().enumerate().min_by(|x, y| x.1.total_cmp(y.1))?;
-    let max = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    let textured = max > 1.1 * min;
-    if !textured || i == 0 || i + 1 == v.len() {
+    let nf = n as f64;
+    let det = nf * sgg - sg * sg;
+    if !(det > 0.0) {
         return None;
     }
-    let (l, c, r) = (v[i - 1], v[i], v[i + 1]);
-    let den = l - 2.0 * c + r;
-    let frac = if den > 0.0 { 0.5 * (l - r) / den } else { 0.0 };
-    Some((i as f64 - STEPS as f64 + frac) * STEP)
+    let s = (nf * sdg - sg * sd) / det;
+    (s.is_finite() && s.abs() <= 2.0).then_some(s)
 }
 
 #[cfg(test)]

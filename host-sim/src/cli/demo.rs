@@ -40,7 +40,7 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
     let sc = load_scene(scene)?;
     let rec_dir = out.join("recording");
     out!(
-        "1/4 simulating the {scene} scene (seed {seed}) into {}",
+        "1/7 simulating the {scene} scene (seed {seed}) into {}",
         rec_dir.display()
     );
     let s = simulate::simulate(&sc, seed, &rec_dir, progress)?;
