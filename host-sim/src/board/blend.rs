@@ -288,7 +288,7 @@ fn best_shift(a: &Layer, b: &Layer, dr: i64, dc: i64) -> Option<f64> {
     }
     let nf = n as f64;
     let det = nf * sgg - sg * sg;
-    if !(det > 0.0) {
+    if det.is_nan() || det <= 0.0 {
         return None;
     }
     let s = (nf * sdg - sg * sd) / det;
