@@ -19,10 +19,14 @@ use libfuzzer_sys::fuzz_target;
 use std::path::Path;
 
 fuzz_target!(|data: &[u8]| {
-    let Some((len, rest)) = data.split_first_chunk::<2>() else { return };
+    let Some((len, rest)) = data.split_first_chunk::<2>() else {
+        return;
+    };
     let m = usize::from(u16::from_le_bytes(*len)).min(rest.len());
     let (json, png) = rest.split_at(m);
-    let Ok(manifest) = Manifest::parse(json, Path::new("manifest.json")) else { return };
+    let Ok(manifest) = Manifest::parse(json, Path::new("manifest.json")) else {
+        return;
+    };
     if let Err(e) = reconstruct::config(&manifest) {
         panic!("a manifest that validates must build the core's configuration: {e:#}");
     }
@@ -30,10 +34,19 @@ fuzz_target!(|data: &[u8]| {
         return;
     }
     if let Ok(frame) = decode_frame(&manifest, 0, png, Path::new("frames/000000.png")) {
-        let (rows, width) = (manifest.camera.rows as usize, manifest.camera.width as usize);
-        assert_eq!((frame.rows, frame.width, frame.data.len()), (rows, width, rows * width));
+        let (rows, width) = (
+            manifest.camera.rows as usize,
+            manifest.camera.width as usize,
+        );
+        assert_eq!(
+            (frame.rows, frame.width, frame.data.len()),
+            (rows, width, rows * width)
+        );
         let max = max_value(manifest.camera.bit_depth);
         assert!(frame.data.iter().all(|&v| v <= max));
-        assert_eq!((frame.seq, frame.latch), (manifest.frames[0].seq, manifest.frames[0].latch));
+        assert_eq!(
+            (frame.seq, frame.latch),
+            (manifest.frames[0].seq, manifest.frames[0].latch)
+        );
     }
 });
