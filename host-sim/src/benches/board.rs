@@ -1,8 +1,9 @@
 //! `dpsa board-bench`: the speed of the whole board, as the paper counts it ("a 220 x 168 mm
 //! board in under 1 s"): every camera's frames decoded into memory first (not timed with the
 //! rest), then the fixed-point core on every camera (one thread each, as `dpsa board`), the
-//! provenance (dead-pixel mask, row places; the Cramer-Rao bound only with a truth), unwrap,
-//! resampling and blending, each stage timed, no files written. Beside it, in the same run, the
+//! provenance (dead-pixel mask, row places; not the Cramer-Rao bound, which only a simulated
+//! board with its truth has), unwrap, resampling and blending, each stage timed, no files
+//! written: what a line runs per board. Beside it, in the same run, the
 //! numpy float64 least-squares phase of camera 0's frames ([`super::numpy`]).
 
 use crate::board::assemble::{assemble, CameraRows};
@@ -49,7 +50,7 @@ pub struct Stages {
     pub load: f64,
     /// The fixed-point core on every camera, one thread each.
     pub core: f64,
-    /// Dead-pixel masks, row places (and the CRB with a truth), all cameras.
+    /// Dead-pixel masks and row places, all cameras.
     pub provenance: f64,
     pub unwrap: f64,
     pub resample: f64,
@@ -118,7 +119,7 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
             .into_iter()
             .zip(loaded.iter().zip(&cal.camera))
             .map(|(col, ((r, _), c))| {
-                s.spawn(move || col.finish(r, c, r.manifest.processing.max_step_rows, &[]))
+                s.spawn(move || col.finish(r, c, r.manifest.processing.max_step_rows, &[], false))
             })
             .collect();
         handles

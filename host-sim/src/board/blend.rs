@@ -112,29 +112,48 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
     let mut variance = Grid::invalid(grid.width, grid.rows);
     let mut period = vec![0f32; n];
     let mut camera = vec![NO_CAMERA; n];
-    for i in 0..n {
-        let (mut s, mut ws, mut ts, mut best) = (0.0f64, 0.0f64, 0.0f64, (0.0f32, NO_CAMERA));
-        let mut vs = 0.0f64;
-        for (k, l) in layers.iter().enumerate() {
-            let h = l.heights.data[i];
-            let w = l.weight.data[i];
-            if h.is_finite() && w > 0.0 {
-                s += f64::from(w) * f64::from(h);
-                ts += f64::from(w) * f64::from(l.period_um.data[i]);
-                ws += f64::from(w);
-                vs += f64::from(w) * f64::from(w) * f64::from(l.variance.data[i]);
-                if w > best.0 {
-                    best = (w, k.min(254) as u8);
+    // In parallel over row bands: every pixel is its own weighted mean.
+    let threads = std::thread::available_parallelism().map_or(1, |t| t.get());
+    let band = n.div_ceil(threads.max(1)).max(1);
+    let layers_ref: &[Layer] = layers;
+    std::thread::scope(|sc| {
+        let parts = heights
+            .data
+            .chunks_mut(band)
+            .zip(variance.data.chunks_mut(band))
+            .zip(period.chunks_mut(band))
+            .zip(camera.chunks_mut(band))
+            .enumerate();
+        for (part, (((hs, vs_out), ps), cs)) in parts {
+            sc.spawn(move || {
+                for j in 0..hs.len() {
+                    let i = part * band + j;
+                    let (mut s, mut ws, mut ts, mut vs) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+                    let mut best = (0.0f32, NO_CAMERA);
+                    for (k, l) in layers_ref.iter().enumerate() {
+                        let h = l.heights.data[i];
+                        let w = l.weight.data[i];
+                        if h.is_finite() && w > 0.0 {
+                            let wf = f64::from(w);
+                            s += wf * f64::from(h);
+                            ts += wf * f64::from(l.period_um.data[i]);
+                            ws += wf;
+                            vs += wf * wf * f64::from(l.variance.data[i]);
+                            if w > best.0 {
+                                best = (w, k.min(254) as u8);
+                            }
+                        }
+                    }
+                    if ws > 0.0 {
+                        hs[j] = (s / ws) as f32;
+                        vs_out[j] = (vs / (ws * ws)) as f32;
+                        ps[j] = (ts / ws) as f32;
+                        cs[j] = best.1;
+                    }
                 }
-            }
+            });
         }
-        if ws > 0.0 {
-            heights.data[i] = (s / ws) as f32;
-            variance.data[i] = (vs / (ws * ws)) as f32;
-            period[i] = (ts / ws) as f32;
-            camera[i] = best.1;
-        }
-    }
+    });
 
     // 2. The board's turn from its clamped edges.
     let mut edge = Vec::new();
@@ -165,9 +184,8 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
     }
 
     // 4. Seams.
-    let flat = flat_mask(&heights);
     let seams = (1..layers.len())
-        .map(|k| seam(&layers[k - 1], &layers[k], &flat, grid, (k - 1, k)))
+        .map(|k| seam(&layers[k - 1], &layers[k], &heights, grid, (k - 1, k)))
         .collect();
     Blended {
         heights,
@@ -189,30 +207,29 @@ fn shift(l: &mut Layer, turns: i32) {
 }
 
 /// Pixels whose 3 x 3 neighbourhood is valid with a range below [`FLAT_RANGE_UM`].
-fn flat_mask(g: &Grid) -> Vec<bool> {
-    let mut m = vec![false; g.data.len()];
-    for r in 1..g.rows.saturating_sub(1) {
-        for c in 1..g.width.saturating_sub(1) {
-            let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
-            for rr in r - 1..=r + 1 {
-                for cc in c - 1..=c + 1 {
-                    let h = g.at(rr, cc);
-                    lo = lo.min(h);
-                    hi = hi.max(h);
-                }
-            }
-            m[r * g.width + c] = lo.is_finite() && hi.is_finite() && hi - lo < FLAT_RANGE_UM;
+/// True when pixel `(r, c)` of `g` is flat board: its 3 x 3 neighbourhood valid with a range
+/// below [`FLAT_RANGE_UM`] (the outermost rows and columns never are).
+fn is_flat(g: &Grid, r: usize, c: usize) -> bool {
+    if r == 0 || c == 0 || r + 1 >= g.rows || c + 1 >= g.width {
+        return false;
+    }
+    let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+    for rr in r - 1..=r + 1 {
+        for cc in c - 1..=c + 1 {
+            let h = g.at(rr, cc);
+            lo = lo.min(h);
+            hi = hi.max(h);
         }
     }
-    m
+    lo.is_finite() && hi.is_finite() && hi - lo < FLAT_RANGE_UM
 }
 
-fn seam(a: &Layer, b: &Layer, flat: &[bool], grid: &BoardGrid, ids: (usize, usize)) -> Seam {
+fn seam(a: &Layer, b: &Layer, map: &Grid, grid: &BoardGrid, ids: (usize, usize)) -> Seam {
     let (mut pixels, mut flat_n, mut sum) = (0u64, 0u64, 0.0f64);
-    for ((&ha, &hb), &is_flat) in a.heights.data.iter().zip(&b.heights.data).zip(flat) {
+    for (i, (&ha, &hb)) in a.heights.data.iter().zip(&b.heights.data).enumerate() {
         if ha.is_finite() && hb.is_finite() {
             pixels += 1;
-            if is_flat {
+            if is_flat(map, i / grid.width, i % grid.width) {
                 flat_n += 1;
                 sum += f64::from(hb - ha);
             }

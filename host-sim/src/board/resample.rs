@@ -176,10 +176,16 @@ pub fn resample(src: &Source, place: &Placement, grid: &BoardGrid, feather_px: f
         span(corners.map(|p| p.0), grid.x0_mm, grid.rows),
         span(corners.map(|p| p.1), grid.y0_mm, grid.width),
     );
+    // `Placement::to_camera` with its trigonometry once: `c` depends on the grid column only.
+    let (sin, cos) = place.rotation_rad.sin_cos();
+    let cols: Vec<f64> = js
+        .clone()
+        .map(|j| (grid.centre(0, j).1 - place.y0_mm) / (place.pitch_mm * cos))
+        .collect();
     for i in is {
-        for j in js.clone() {
-            let (x, y) = grid.centre(i, j);
-            let (b, c) = place.to_camera(x, y);
+        let x = grid.centre(i, 0).0;
+        for (j, &c) in js.clone().zip(&cols) {
+            let b = (x - place.x0_mm - c * place.pitch_mm * sin) / place.row_mm;
             let b = b - src.first_row as f64;
             let (b, c) = match src.places {
                 Some(pl) => match row_at(&pl.along, b) {

@@ -190,13 +190,15 @@ impl Collector {
     /// The rows (sorted by board row) as a grid from the first to the last row, with the
     /// `lost` board rows (inclusive ranges) inside it marked.
     /// `rec` is the camera's recording with its calibration applied (its registration says
-    /// which frames fed each row, see [`super::provenance`]).
+    /// which frames fed each row, see [`super::provenance`]); `crb`: compute each pixel's
+    /// Cramer-Rao bound when the recording has a truth and a noise model.
     pub(crate) fn finish(
         self,
         rec: &Recording,
         cal: &CameraCal,
         max_step: u32,
         lost: &[(i64, i64)],
+        crb: bool,
     ) -> Result<CameraRows> {
         let w = self.width;
         let ends = self
@@ -236,8 +238,12 @@ impl Collector {
             }
         }
         let dead_masked = super::provenance::mask_dead_pixels(rec, &cal.dead_pixels, first, &mut g);
-        let variance = super::provenance::crb_variance(rec, &cal.height_per_turn_um, first, &g)
-            .with_context(|| format!("camera {}", cal.id))?;
+        let variance = if crb {
+            super::provenance::crb_variance(rec, &cal.height_per_turn_um, first, &g)
+                .with_context(|| format!("camera {}", cal.id))?
+        } else {
+            None
+        };
         let places = super::provenance::row_places(
             rec,
             first,
@@ -360,7 +366,7 @@ pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Re
                         s.spawn(move || {
                             let max_step = r.manifest.processing.max_step_rows;
                             let r = calibrated(r, c, cal.height_lsb_um)?;
-                            core_rows(&r, c, cal.height_lsb_um)?.finish(&r, c, max_step, &[])
+                            core_rows(&r, c, cal.height_lsb_um)?.finish(&r, c, max_step, &[], true)
                         })
                     })
                     .collect();
@@ -394,7 +400,7 @@ pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Re
                         rows.push(row);
                     }
                     let r = calibrated(r, c, cal.height_lsb_um)?;
-                    rows.finish(&r, c, r.manifest.processing.max_step_rows, &a.lost)
+                    rows.finish(&r, c, r.manifest.processing.max_step_rows, &a.lost, true)
                 })
                 .collect::<Result<Vec<_>>>()?;
             (cams, Some(report))

@@ -59,8 +59,9 @@ fn circular_mean(us: impl Iterator<Item = f32>) -> Option<f32> {
     let (mut s, mut c, mut n) = (0.0f64, 0.0f64, 0usize);
     for u in us {
         let a = std::f64::consts::TAU * f64::from(u);
-        s += a.sin();
-        c += a.cos();
+        let (sa, ca) = a.sin_cos();
+        s += sa;
+        c += ca;
         n += 1;
     }
     (n > 0 && (s != 0.0 || c != 0.0)).then(|| (s.atan2(c) / std::f64::consts::TAU) as f32)
