@@ -98,6 +98,42 @@ fn calibration_meets_the_acceptance_targets() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("camera 1"), "{e}");
+    // The per-pixel flat field: the simulated illumination varies across the columns only, so
+    // every live pixel sits at its column's level (10000) within the noise, and every dead
+    // pixel the file lists is far below it.
+    for c in &cal.camera {
+        for map in [&c.background_map, &c.modulation_map] {
+            assert_eq!(map.len(), c.rows as usize);
+            assert!(map.iter().all(|row| row.len() == c.width as usize));
+        }
+        for (r, row) in c.modulation_map.iter().enumerate() {
+            for (col, &v) in row.iter().enumerate() {
+                let dead = c.dead_pixels.contains(&[r as u32, col as u32]);
+                if dead {
+                    assert!(v < 5000, "camera {} ({r}, {col}): {v}", c.id);
+                } else {
+                    assert!(
+                        (9500..10500).contains(&v),
+                        "camera {} ({r}, {col}): {v}",
+                        c.id
+                    );
+                    let b = c.background_map[r][col];
+                    assert!(
+                        (9800..10200).contains(&b),
+                        "camera {} ({r}, {col}): {b}",
+                        c.id
+                    );
+                }
+            }
+        }
+    }
+    let mut bad = cal.clone();
+    bad.camera[2].modulation_map.pop();
+    let e = format!(
+        "{:#}",
+        CalFile::from_toml(&bad.to_toml().unwrap()).unwrap_err()
+    );
+    assert!(e.contains("modulation_map"), "{e}");
     let arr = ArrayRecording::open(rec).unwrap();
     let mut m = Recording::open(arr.camera_dir(1, Some("plane0")))
         .unwrap()

@@ -275,6 +275,8 @@ fn truth_calibration(board: &Path) -> dpsa_sim::calibration::CalFile {
                 background_dn: t.plane_background_dn[i].clone(),
                 modulation_dn: t.plane_modulation_dn[i].clone(),
                 dead_pixels: m.dead_pixels.clone(),
+                background_map: Vec::new(),
+                modulation_map: Vec::new(),
                 lateral: Lateral {
                     x0_mm: m.x0_mm,
                     y0_mm: m.y0_mm,

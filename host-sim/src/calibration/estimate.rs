@@ -768,6 +768,8 @@ fn calibrate_camera(
         background_dn: pf.background.clone(),
         modulation_dn: pf.modulation.clone(),
         dead_pixels: pf.dead.clone(),
+        background_map: super::file::relative_map(&pf.pix_a, &pf.background, rows),
+        modulation_map: super::file::relative_map(&pf.pix_amp, &pf.modulation, rows),
         lateral,
     };
     // The core's table: the f64 reference D-PSA on the planes, circular mean per column.
@@ -827,6 +829,8 @@ mod tests {
             background_dn: vec![1800.0; w as usize],
             modulation_dn: vec![700.0; w as usize],
             dead_pixels: Vec::new(),
+            background_map: Vec::new(),
+            modulation_map: Vec::new(),
             lateral: Lateral {
                 x0_mm: 0.0,
                 y0_mm: 0.0,

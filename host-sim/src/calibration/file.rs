@@ -69,7 +69,39 @@ pub struct CameraCal {
     /// Image pixels `[row, column]` that are dead or whose modulation is below half their
     /// column's: the board stage masks every board pixel they feed.
     pub dead_pixels: Vec<[u32; 2]>,
+    /// Per-pixel flat field: every image pixel's fringe background against its column's
+    /// (`background_dn`), in units of 1/10000 (`10000` = the column's level), `rows` rows of
+    /// `width` values. Absent in files written before it (version 1 files stay readable).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub background_map: Vec<Vec<u16>>,
+    /// Per-pixel modulation against the column's (`modulation_dn`), the same units and shape.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub modulation_map: Vec<Vec<u16>>,
     pub lateral: Lateral,
+}
+
+/// Units of the flat-field maps: `MAP_ONE` is the column's own level.
+pub const MAP_ONE: f64 = 10000.0;
+
+/// A per-pixel map relative to its column's level (see [`CameraCal::background_map`]):
+/// `value / column * MAP_ONE`, rounded and clamped to `u16`.
+pub fn relative_map(values: &[f64], column: &[f64], rows: usize) -> Vec<Vec<u16>> {
+    let w = column.len();
+    (0..rows)
+        .map(|r| {
+            (0..w)
+                .map(|c| {
+                    let v = values.get(r * w + c).copied().unwrap_or(f64::NAN);
+                    let rel = v / column[c] * MAP_ONE;
+                    if rel.is_finite() {
+                        rel.round().clamp(0.0, f64::from(u16::MAX)) as u16
+                    } else {
+                        0
+                    }
+                })
+                .collect()
+        })
+        .collect()
 }
 
 /// A calibration file.
@@ -182,6 +214,16 @@ impl CalFile {
                 || c.counts_per_pixel <= 0.0
             {
                 bail!("camera {i}: height_per_turn_um and counts_per_pixel must be > 0");
+            }
+            for (name, m) in [
+                ("background_map", &c.background_map),
+                ("modulation_map", &c.modulation_map),
+            ] {
+                if !m.is_empty()
+                    && (m.len() != c.rows as usize || m.iter().any(|row| row.len() != w))
+                {
+                    bail!("camera {i}: {name} must be {} rows of {w} values", c.rows);
+                }
             }
             if c.dead_pixels
                 .iter()
