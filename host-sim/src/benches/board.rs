@@ -70,42 +70,16 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
     let Opened { recs, grid, .. } = open(dir, cal)?;
     let lsb = cal.height_lsb_um;
     let t0 = Instant::now();
-    let loaded: Vec<(crate::simulation::recording::Recording, u64)> = std::thread::scope(|s| {
-        let handles: Vec<_> = recs
-            .iter()
-            .zip(&cal.camera)
-            .map(|(r, c)| {
-                s.spawn(move || -> Result<_> {
-                    let mut r = calibrated(r, c, lsb)?;
-                    let bytes = r.preload()?;
-                    Ok((r, bytes))
-                })
-            })
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| {
-                h.join()
-                    .unwrap_or_else(|_| Err(anyhow::anyhow!("a load thread panicked")))
-            })
-            .collect::<Result<Vec<_>>>()
+    let loaded = per_camera(recs.iter().zip(&cal.camera), |(r, c)| {
+        let mut r = calibrated(r, c, lsb)?;
+        let bytes = r.preload()?;
+        Ok((r, bytes))
     })?;
     let load = t0.elapsed().as_secs_f64();
 
     let t1 = Instant::now();
-    let collected = std::thread::scope(|s| {
-        let handles: Vec<_> = loaded
-            .iter()
-            .zip(&cal.camera)
-            .map(|((r, _), c)| s.spawn(move || core_rows(r, c, lsb)))
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| {
-                h.join()
-                    .unwrap_or_else(|_| Err(anyhow::anyhow!("a core thread panicked")))
-            })
-            .collect::<Result<Vec<_>>>()
+    let collected = per_camera(loaded.iter().zip(&cal.camera), |((r, _), c)| {
+        core_rows(r, c, lsb)
     })?;
     let core = t1.elapsed().as_secs_f64();
     let core_pixels: u64 = collected
@@ -114,22 +88,10 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
         .sum();
 
     let t2 = Instant::now();
-    let cams: Vec<CameraRows> = std::thread::scope(|s| {
-        let handles: Vec<_> = collected
-            .into_iter()
-            .zip(loaded.iter().zip(&cal.camera))
-            .map(|(col, ((r, _), c))| {
-                s.spawn(move || col.finish(r, c, r.manifest.processing.max_step_rows, &[], false))
-            })
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| {
-                h.join()
-                    .unwrap_or_else(|_| Err(anyhow::anyhow!("a thread panicked")))
-            })
-            .collect::<Result<Vec<_>>>()
-    })?;
+    let cams: Vec<CameraRows> = per_camera(
+        collected.into_iter().zip(loaded.iter().zip(&cal.camera)),
+        |(col, ((r, _), c))| col.finish(r, c, r.manifest.processing.max_step_rows, &[], false),
+    )?;
     let provenance = t2.elapsed().as_secs_f64();
     let a = assemble(&cams, &grid);
     drop(cams);
@@ -181,5 +143,24 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
         numpy,
         numpy_error,
         core_over_numpy,
+    })
+}
+
+/// `f` on every item in its own thread (one per camera), the results in order; a panicking
+/// thread is an error.
+fn per_camera<T: Send, R: Send>(
+    items: impl IntoIterator<Item = T>,
+    f: impl Fn(T) -> Result<R> + Sync,
+) -> Result<Vec<R>> {
+    let f = &f;
+    std::thread::scope(|s| {
+        let handles: Vec<_> = items.into_iter().map(|t| s.spawn(move || f(t))).collect();
+        handles
+            .into_iter()
+            .map(|h| {
+                h.join()
+                    .unwrap_or_else(|_| Err(anyhow::anyhow!("internal error: a thread panicked")))
+            })
+            .collect()
     })
 }
