@@ -9,7 +9,6 @@ use crate::simulation::recording::{
     TRUTH_CONTRAST_FILE, TRUTH_HEIGHT_FILE, VERSION,
 };
 use anyhow::{bail, Context, Result};
-use rand::RngExt;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
@@ -252,25 +251,15 @@ pub struct WriteSummary {
 
 /// Conveyor travel of every frame of a pass from `s_start` while `s <= s_end`, mm.
 pub fn conveyor(scene: &ArrayScene, seed: u64, stream: u64, s_start: f64, s_end: f64) -> Vec<f64> {
-    let mut rng = crate::simulation::simulate::rng(seed, stream);
-    let step = scene.step_mm();
-    let jitter = scene.jitter_pct / 100.0;
-    let stalled = |k: u64| {
-        scene
-            .stalls
-            .iter()
-            .any(|s| k >= u64::from(s.frame) && k < u64::from(s.frame) + u64::from(s.frames))
-    };
-    let mut s = s_start;
-    let mut out = Vec::new();
-    while s <= s_end && out.len() < 1_000_000 {
-        out.push(s);
-        if !stalled(out.len() as u64 - 1) {
-            let u: f64 = rng.random_range(-1.0..1.0);
-            s += step * (1.0 + jitter * u);
-        }
-    }
-    out
+    crate::simulation::simulate::travel(
+        &mut crate::simulation::simulate::rng(seed, stream),
+        s_start,
+        s_end,
+        scene.step_mm(),
+        scene.jitter_pct,
+        &scene.stalls,
+        1_000_000,
+    )
 }
 
 /// Creates `dir` (new or empty; an earlier array recording there is refused, to keep it

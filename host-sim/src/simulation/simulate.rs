@@ -199,23 +199,44 @@ pub fn place_deposits(scene: &Scene, seed: u64) -> Vec<Deposit> {
 
 /// Conveyor positions `s_k` of every frame, px (see the module docs).
 pub fn conveyor_positions(scene: &Scene, seed: u64) -> Vec<f64> {
-    let mut rng = rng(seed, MOTION_STREAM);
     let limit = f64::from(scene.board_length) + scene.travel_beyond_board();
-    let jitter = scene.jitter_pct / 100.0;
+    travel(
+        &mut rng(seed, MOTION_STREAM),
+        -f64::from(scene.rows),
+        limit,
+        scene.mean_step_px,
+        scene.jitter_pct,
+        &scene.stalls,
+        crate::simulation::scene::MAX_FRAMES as usize + 1,
+    )
+}
+
+/// The conveyor position of every frame from `start` while it is `<= end` (at most
+/// `max_frames` frames): steps of `step (1 + jitter u)` with `u` uniform in `[-1, 1)` and
+/// `jitter = jitter_pct / 100`, none during a stall. Any length unit; shared by the
+/// single-camera and the array simulators.
+pub fn travel(
+    rng: &mut ChaCha8Rng,
+    start: f64,
+    end: f64,
+    step: f64,
+    jitter_pct: f64,
+    stalls: &[crate::simulation::scene::Stall],
+    max_frames: usize,
+) -> Vec<f64> {
+    let jitter = jitter_pct / 100.0;
     let stalled = |k: u64| {
-        scene
-            .stalls
+        stalls
             .iter()
             .any(|s| k >= u64::from(s.frame) && k < u64::from(s.frame) + u64::from(s.frames))
     };
-    let mut s = -f64::from(scene.rows);
+    let mut s = start;
     let mut positions = Vec::new();
-    while s <= limit && positions.len() as u64 <= crate::simulation::scene::MAX_FRAMES {
+    while s <= end && positions.len() < max_frames {
         positions.push(s);
-        let k = positions.len() as u64 - 1;
-        if !stalled(k) {
+        if !stalled(positions.len() as u64 - 1) {
             let u: f64 = rng.random_range(-1.0..1.0);
-            s += scene.mean_step_px * (1.0 + jitter * u);
+            s += step * (1.0 + jitter * u);
         }
     }
     positions
