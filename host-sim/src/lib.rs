@@ -13,6 +13,7 @@
 //! | [`array`] | the camera array: array scenes in board mm, the area-integrating renderer, array and calibration recordings, `.zfr` frames |
 //! | [`calibration`] | `dpsa calibrate`: per-camera fringe frequency, reference phase, height per turn, flat field, lateral mapping and encoder scale from flat planes and a target |
 //! | [`board`] | the board map: cameras' rows unwrapped, placed in millimetres and blended |
+//! | [`inspection`] | the paste layer as pads (Gerber), the inspection program, per-pad measurement and verdicts |
 //! | [`target`] | the firmware: feed export, build, ELF sizes, QEMU with its defmt log, its bench figures |
 //! | [`benches`] | `codec-bench`: our row codec against general-purpose compressors and the entropy bound |
 //! | [`stack`] | ordinary phase-shifting image stacks (real camera images) through the same kernel |
@@ -28,6 +29,7 @@ pub mod calibration;
 pub mod files;
 pub mod heightmap;
 pub mod images;
+pub mod inspection;
 pub mod progress;
 pub mod reconstruct;
 pub mod reference;
