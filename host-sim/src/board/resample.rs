@@ -55,7 +55,7 @@ impl Placement {
 
 /// The board grid: `rows` along the motion from `x0_mm`, `width` across from `y0_mm`, square
 /// pixels of `pitch_mm`. Pixel `(i, j)` is centred at `(x0 + (i + 1/2) p, y0 + (j + 1/2) p)`.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct BoardGrid {
     pub x0_mm: f64,
     pub y0_mm: f64,

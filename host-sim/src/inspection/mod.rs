@@ -5,4 +5,12 @@
 //! | --- | --- |
 //! | [`pads`] | one pad = one connected paste opening: its outline in mm, names from X2 attributes; rigid transforms |
 
+pub mod map;
+pub mod measure;
 pub mod pads;
+pub mod program;
+pub mod register;
+pub mod verdict;
+
+#[cfg(test)]
+mod tests;

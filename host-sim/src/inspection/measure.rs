@@ -1,0 +1,674 @@
+//! Per-pad measurement on the board map, from the local board surface.
+//!
+//! For every pad, with the openings placed on the board by the registration:
+//!
+//! - **Cell**: the points nearer to this opening's edge than to any other opening's, and at
+//!   most `margin` beyond it (`margin` = `cell_margin_share` of the opening's smaller size,
+//!   clamped to `cell_margin_mm`). Cells never overlap, so no paste is counted twice, and a
+//!   deposit printed a third of a pad off is still measured whole.
+//! - **Local surface**: a plane fitted to the bare board around the pad: pixels at least
+//!   `surface_guard_mm` from every opening and fiducial and within `surface_reach_mm` of this
+//!   one (twice and four times that when too few qualify). The fit is robust (iteratively
+//!   trimmed at 3 robust sigma, at least 3 um), so smears and neighbours' stray paste on the
+//!   board do not lift it. The plane follows the board's warp; heights are taken above it.
+//! - **Volume**: the sum of heights above the surface over the cell's pixels (an invalid pixel
+//!   takes the mean of its valid 3 x 3 neighbours in the cell), in um^3 and in % of opening
+//!   area x stencil thickness. No threshold: the walls' paste counts.
+//! - **Area**: cell pixels above `area_threshold_pct` of the stencil, mm^2 and % of the opening.
+//! - **Height**: the mean over the opening's interior (the opening shrunk by the wall width,
+//!   `wall_mm`, at most a quarter of its size), um and % of stencil; the maximum of the 3 x 3
+//!   means there.
+//! - **Offset**: the height-weighted centre of the cell's paste (above the area threshold)
+//!   against the opening's centroid, in the design frame's axes, um; judged as % of the
+//!   opening's size along each axis.
+//! - **Shape**: paste above `shape_threshold_um` in the cell but outside the opening grown by
+//!   `wall_mm`, % of the opening area (smears).
+//! - **Coverage**: valid pixels of the opening / all its pixels.
+//! - **Bridges** ([`bridges`]): for neighbouring openings less than `bridge_reach_mm` apart,
+//!   whether paste above `bridge_height_pct` of the stencil (over the mean of the two planes)
+//!   joins them (4-connected), searched in the two openings' joint box.
+
+use super::map::BoardMap;
+use super::pads::{Outline, Pad, Point, Rigid};
+use super::program::Program;
+use serde::Serialize;
+
+/// Fewest bare-board pixels for the local surface.
+pub const MIN_SURFACE_PIXELS: usize = 24;
+
+/// The openings on the board (board frame) with a bin index for neighbour queries.
+pub struct Placed {
+    pub outlines: Vec<Outline>,
+    pub bboxes: Vec<[f64; 4]>,
+    /// Smaller size of each opening, mm (design frame).
+    pub min_size: Vec<f64>,
+    /// Size along the design frame's x and y, mm (for offset shares).
+    pub size_xy: Vec<[f64; 2]>,
+    /// Fiducials on the board: centre and radius, mm.
+    pub fiducials: Vec<(Point, f64)>,
+    bins: Vec<Vec<u32>>,
+    bin_origin: Point,
+    bin_mm: f64,
+    nx: usize,
+    ny: usize,
+}
+
+impl Placed {
+    pub fn new(pads: &[Pad], t: &Rigid, fiducials: &[Point], fid_diameter: f64) -> Placed {
+        let outlines: Vec<Outline> = pads.iter().map(|p| p.outline.transformed(t)).collect();
+        let bboxes: Vec<[f64; 4]> = outlines.iter().map(|o| o.bbox()).collect();
+        let mut size_xy = Vec::with_capacity(pads.len());
+        let mut min_size = Vec::with_capacity(pads.len());
+        for p in pads {
+            let s = match &p.outline {
+                Outline::Circle { diameter, .. } => [*diameter, *diameter],
+                Outline::RoundRect {
+                    size, rotation_deg, ..
+                } => {
+                    // The opening's extent along the design axes.
+                    let b = p.outline.bbox();
+                    let q =
+                        (rotation_deg.rem_euclid(90.0)).min(90.0 - rotation_deg.rem_euclid(90.0));
+                    if q < 1e-6 {
+                        [b[2] - b[0], b[3] - b[1]]
+                    } else {
+                        let m = size[0].min(size[1]);
+                        [m, m]
+                    }
+                }
+                Outline::Polygon { .. } => {
+                    let b = p.outline.bbox();
+                    [b[2] - b[0], b[3] - b[1]]
+                }
+            };
+            let m = match &p.outline {
+                Outline::RoundRect { size, .. } => size[0].min(size[1]),
+                _ => s[0].min(s[1]),
+            };
+            size_xy.push(s);
+            min_size.push(m);
+        }
+        let fids: Vec<(Point, f64)> = fiducials
+            .iter()
+            .map(|&f| (t.apply(f), fid_diameter / 2.0))
+            .collect();
+        let mut lo = [f64::INFINITY; 2];
+        let mut hi = [f64::NEG_INFINITY; 2];
+        for b in &bboxes {
+            lo = [lo[0].min(b[0]), lo[1].min(b[1])];
+            hi = [hi[0].max(b[2]), hi[1].max(b[3])];
+        }
+        if bboxes.is_empty() {
+            lo = [0.0, 0.0];
+            hi = [1.0, 1.0];
+        }
+        let bin_mm = 1.0;
+        let nx = (((hi[0] - lo[0]) / bin_mm).ceil() as usize + 1).min(100_000);
+        let ny = (((hi[1] - lo[1]) / bin_mm).ceil() as usize + 1).min(100_000);
+        let mut placed = Placed {
+            outlines,
+            bboxes,
+            min_size,
+            size_xy,
+            fiducials: fids,
+            bins: Vec::new(),
+            bin_origin: lo,
+            bin_mm,
+            nx,
+            ny,
+        };
+        let mut bins = vec![Vec::new(); nx.saturating_mul(ny).min(50_000_000)];
+        if bins.len() == nx * ny {
+            for (k, b) in placed.bboxes.iter().enumerate() {
+                let (x0, x1, y0, y1) = placed.bin_range(*b);
+                for bx in x0..=x1 {
+                    for by in y0..=y1 {
+                        bins[bx * ny + by].push(k as u32);
+                    }
+                }
+            }
+        }
+        placed.bins = bins;
+        placed
+    }
+
+    fn bin_range(&self, b: [f64; 4]) -> (usize, usize, usize, usize) {
+        let f = |v: f64, o: f64, n: usize| {
+            (((v - o) / self.bin_mm).floor().max(0.0) as usize).min(n.saturating_sub(1))
+        };
+        (
+            f(b[0], self.bin_origin[0], self.nx),
+            f(b[2], self.bin_origin[0], self.nx),
+            f(b[1], self.bin_origin[1], self.ny),
+            f(b[3], self.bin_origin[1], self.ny),
+        )
+    }
+
+    /// Openings whose box comes within `reach` of box `b`, except `skip`.
+    pub fn near(&self, b: [f64; 4], reach: f64, skip: usize) -> Vec<usize> {
+        let g = [b[0] - reach, b[1] - reach, b[2] + reach, b[3] + reach];
+        let mut out: Vec<usize> = Vec::new();
+        if self.bins.len() == self.nx * self.ny && !self.bins.is_empty() {
+            let (x0, x1, y0, y1) = self.bin_range(g);
+            for bx in x0..=x1 {
+                for by in y0..=y1 {
+                    out.extend(self.bins[bx * self.ny + by].iter().map(|&k| k as usize));
+                }
+            }
+            out.sort_unstable();
+            out.dedup();
+        } else {
+            out = (0..self.outlines.len()).collect();
+        }
+        out.retain(|&k| {
+            let o = &self.bboxes[k];
+            k != skip && o[0] <= g[2] && o[2] >= g[0] && o[1] <= g[3] && o[3] >= g[1]
+        });
+        out
+    }
+}
+
+/// Why a pad could not be judged.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Unmeasurable {
+    /// The opening is not (wholly) on the map.
+    OutsideMap,
+    /// Too few valid pixels in the opening.
+    LowCoverage,
+    /// Too little bare board around the pad for its surface.
+    NoSurface,
+}
+
+/// What was measured on one pad.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct PadMeasurement {
+    pub pad: usize,
+    /// `None` when judged; else why not.
+    pub unmeasurable: Option<Unmeasurable>,
+    /// Valid pixels of the opening / its pixels.
+    pub coverage: f64,
+    /// Opening area, mm^2 (design).
+    pub opening_mm2: f64,
+    pub volume_um3: f64,
+    pub volume_pct: f64,
+    pub area_mm2: f64,
+    pub area_pct: f64,
+    pub height_um: f64,
+    pub height_pct: f64,
+    pub height_max_um: f64,
+    /// Deposit centre minus opening centre, design-frame axes, um (NaN: no paste).
+    pub offset_um: [f64; 2],
+    /// The larger of `|offset| / size` over the two axes, %.
+    pub offset_pct: f64,
+    pub shape_pct: f64,
+    /// Board pixels of the local surface, and their rms about the plane, um.
+    pub surface_pixels: usize,
+    pub surface_rms_um: f64,
+    /// Local surface `z = a + b (x - cx) + c (y - cy)` about the opening's centroid (board mm).
+    #[serde(skip)]
+    pub surface: [f64; 3],
+    /// Openings this pad's paste is joined to (filled by [`bridges`]).
+    pub bridged_to: Vec<usize>,
+}
+
+/// Robust plane `z = a + b dx + c dy` through `(dx, dy, z)` samples: least squares,
+/// iteratively trimmed at `max(3 robust sigma, 3 um)`. Returns the plane and the rms of the
+/// kept samples' residuals.
+pub fn robust_plane(s: &[[f64; 3]]) -> Option<([f64; 3], f64, usize)> {
+    let mut keep: Vec<bool> = vec![true; s.len()];
+    let mut plane = [0.0; 3];
+    let mut rms = 0.0;
+    let mut kept = 0;
+    for round in 0..4 {
+        let mut m = nalgebra::Matrix3::<f64>::zeros();
+        let mut v = nalgebra::Vector3::<f64>::zeros();
+        let mut n = 0usize;
+        for (p, k) in s.iter().zip(&keep) {
+            if !*k {
+                continue;
+            }
+            let r = nalgebra::Vector3::new(1.0, p[0], p[1]);
+            m += r * r.transpose();
+            v += r * p[2];
+            n += 1;
+        }
+        if n < 3 {
+            return None;
+        }
+        // A plane needs spread in both directions; otherwise fit the level alone.
+        let sol = match m.try_inverse() {
+            Some(inv) if m.determinant().abs() > 1e-12 * m[(0, 0)].powi(3) => inv * v,
+            _ => nalgebra::Vector3::new(v[0] / m[(0, 0)], 0.0, 0.0),
+        };
+        plane = [sol[0], sol[1], sol[2]];
+        let res: Vec<f64> = s
+            .iter()
+            .map(|p| p[2] - (plane[0] + plane[1] * p[0] + plane[2] * p[1]))
+            .collect();
+        let mut kept_res: Vec<f64> = res
+            .iter()
+            .zip(&keep)
+            .filter(|(_, k)| **k)
+            .map(|(r, _)| r.abs())
+            .collect();
+        kept = kept_res.len();
+        rms = (kept_res.iter().map(|r| r * r).sum::<f64>() / kept as f64).sqrt();
+        if round == 3 {
+            break;
+        }
+        let mid = kept_res.len() / 2;
+        let (_, med, _) = kept_res.select_nth_unstable_by(mid, f64::total_cmp);
+        let limit = (3.0 * 1.4826 * *med).max(3.0);
+        for (k, r) in keep.iter_mut().zip(&res) {
+            *k = r.abs() <= limit;
+        }
+    }
+    Some((plane, rms, kept))
+}
+
+/// Measures every pad (two threads).
+pub fn measure_all(
+    map: &BoardMap,
+    pads: &[Pad],
+    placed: &Placed,
+    t: &Rigid,
+    program: &Program,
+) -> Vec<PadMeasurement> {
+    let n = pads.len();
+    let threads = std::thread::available_parallelism()
+        .map(|v| v.get())
+        .unwrap_or(1)
+        .clamp(1, 8);
+    let chunk = n.div_ceil(threads).max(1);
+    let mut out: Vec<PadMeasurement> = Vec::with_capacity(n);
+    std::thread::scope(|sc| {
+        let handles: Vec<_> = (0..n)
+            .step_by(chunk)
+            .map(|start| {
+                let end = (start + chunk).min(n);
+                sc.spawn(move || {
+                    (start..end)
+                        .map(|k| measure_pad(map, pads, placed, t, program, k))
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        for h in handles {
+            match h.join() {
+                Ok(v) => out.extend(v),
+                Err(e) => std::panic::resume_unwind(e),
+            }
+        }
+    });
+    bridges(map, placed, program, &mut out);
+    out
+}
+
+/// The cell's reach beyond the opening, mm.
+pub fn cell_margin(program: &Program, min_size: f64) -> f64 {
+    let m = &program.measure;
+    (m.cell_margin_share * min_size).clamp(m.cell_margin_mm[0], m.cell_margin_mm[1])
+}
+
+/// Wall width inset for the height, mm.
+pub fn height_inset(program: &Program, min_size: f64) -> f64 {
+    program.measure.wall_mm.min(0.25 * min_size)
+}
+
+/// Whether a board point is in pad `k`'s cell, given its own and its neighbours' outlines:
+/// `(in_cell, signed distance to k)`.
+pub fn cell_member(
+    placed: &Placed,
+    k: usize,
+    near: &[usize],
+    margin: f64,
+    q: Point,
+) -> (bool, f64) {
+    let d = placed.outlines[k].signed_distance(q);
+    if d > margin {
+        return (false, d);
+    }
+    for &j in near {
+        let b = &placed.bboxes[j];
+        // Box distance is a lower bound of the outline's distance.
+        let bx = (b[0] - q[0]).max(q[0] - b[2]).max(0.0);
+        let by = (b[1] - q[1]).max(q[1] - b[3]).max(0.0);
+        if bx.hypot(by) > d {
+            continue;
+        }
+        let dj = placed.outlines[j].signed_distance(q);
+        if dj < d || (dj == d && j < k) {
+            return (false, d);
+        }
+    }
+    (true, d)
+}
+
+/// Measures pad `k`.
+pub fn measure_pad(
+    map: &BoardMap,
+    pads: &[Pad],
+    placed: &Placed,
+    t: &Rigid,
+    program: &Program,
+    k: usize,
+) -> PadMeasurement {
+    let o = &placed.outlines[k];
+    let bb = placed.bboxes[k];
+    let ms = placed.min_size[k];
+    let stencil = program.stencil_um;
+    let m = &program.measure;
+    let opening_mm2 = pads[k].outline.area();
+    let mut pm = PadMeasurement {
+        pad: k,
+        opening_mm2,
+        offset_um: [f64::NAN; 2],
+        ..Default::default()
+    };
+    if !map.covers(bb) {
+        pm.unmeasurable = Some(Unmeasurable::OutsideMap);
+        return pm;
+    }
+    let c = o.centroid();
+    let p = map.grid.pitch_mm;
+    let px_area = p * p;
+    let margin = cell_margin(program, ms);
+    let inset = height_inset(program, ms);
+
+    // Local surface, growing the reach until enough bare board qualifies.
+    let mut surface = None;
+    for grow in [1.0, 2.0, 4.0] {
+        let reach = m.surface_reach_mm * grow;
+        let near = placed.near(bb, reach + m.surface_guard_mm, k);
+        let win = [bb[0] - reach, bb[1] - reach, bb[2] + reach, bb[3] + reach];
+        let (ri, rj) = map.window(win);
+        let mut samples: Vec<[f64; 3]> = Vec::new();
+        for i in ri.clone() {
+            for j in rj.clone() {
+                let h = map.heights.data[i * map.grid.width + j];
+                if !h.is_finite() {
+                    continue;
+                }
+                let (x, y) = map.grid.centre(i, j);
+                let q = [x, y];
+                let d = o.signed_distance(q);
+                if d < m.surface_guard_mm || d > reach {
+                    continue;
+                }
+                let clear = near.iter().all(|&n| {
+                    let b = &placed.bboxes[n];
+                    let bx = (b[0] - x).max(x - b[2]).max(0.0);
+                    let by = (b[1] - y).max(y - b[3]).max(0.0);
+                    bx.hypot(by) >= m.surface_guard_mm
+                        || placed.outlines[n].signed_distance(q) >= m.surface_guard_mm
+                }) && placed
+                    .fiducials
+                    .iter()
+                    .all(|(f, r)| (x - f[0]).hypot(y - f[1]) >= r + m.surface_guard_mm);
+                if clear {
+                    samples.push([x - c[0], y - c[1], f64::from(h)]);
+                }
+            }
+        }
+        if samples.len() >= MIN_SURFACE_PIXELS {
+            surface = robust_plane(&samples);
+            if surface.is_some() {
+                break;
+            }
+        }
+    }
+    let Some((plane, rms, kept)) = surface else {
+        pm.unmeasurable = Some(Unmeasurable::NoSurface);
+        return pm;
+    };
+    pm.surface = plane;
+    pm.surface_rms_um = rms;
+    pm.surface_pixels = kept;
+    let base = |x: f64, y: f64| plane[0] + plane[1] * (x - c[0]) + plane[2] * (y - c[1]);
+
+    // The cell.
+    let near = placed.near(bb, 2.0 * margin, k);
+    let win = [
+        bb[0] - margin,
+        bb[1] - margin,
+        bb[2] + margin,
+        bb[3] + margin,
+    ];
+    let (ri, rj) = map.window(win);
+    let (h_w, w_w) = (ri.len(), rj.len());
+    // Residual heights over the window, NaN outside the cell or invalid.
+    let mut r = vec![f64::NAN; h_w * w_w];
+    let mut in_cell = vec![false; h_w * w_w];
+    let mut dist = vec![f64::INFINITY; h_w * w_w];
+    for (a, i) in ri.clone().enumerate() {
+        for (b, j) in rj.clone().enumerate() {
+            let (x, y) = map.grid.centre(i, j);
+            let (inside, d) = cell_member(placed, k, &near, margin, [x, y]);
+            if !inside {
+                continue;
+            }
+            in_cell[a * w_w + b] = true;
+            dist[a * w_w + b] = d;
+            let h = map.heights.data[i * map.grid.width + j];
+            if h.is_finite() {
+                r[a * w_w + b] = f64::from(h) - base(x, y);
+            }
+        }
+    }
+    let (mut open_n, mut open_valid) = (0usize, 0usize);
+    let thr_area = stencil * m.area_threshold_pct / 100.0;
+    let (mut vol, mut area_n, mut shape_n) = (0.0, 0usize, 0usize);
+    let (mut sw, mut sx, mut sy) = (0.0, 0.0, 0.0);
+    let (mut hsum, mut hn) = (0.0, 0usize);
+    let mut hmax = f64::NEG_INFINITY;
+    for a in 0..h_w {
+        for b in 0..w_w {
+            let idx = a * w_w + b;
+            if !in_cell[idx] {
+                continue;
+            }
+            let d = dist[idx];
+            if d <= 0.0 {
+                open_n += 1;
+                if r[idx].is_finite() {
+                    open_valid += 1;
+                }
+            }
+            let v = if r[idx].is_finite() {
+                r[idx]
+            } else {
+                // Mean of the valid 3 x 3 neighbours in the cell; none: 0 outside the
+                // opening (board), the opening's mean is put in below.
+                let mut s = 0.0;
+                let mut n = 0;
+                for da in -1i64..=1 {
+                    for db in -1i64..=1 {
+                        let (aa, bb2) = (a as i64 + da, b as i64 + db);
+                        if aa < 0 || bb2 < 0 || aa >= h_w as i64 || bb2 >= w_w as i64 {
+                            continue;
+                        }
+                        let v = r[aa as usize * w_w + bb2 as usize];
+                        if v.is_finite() {
+                            s += v;
+                            n += 1;
+                        }
+                    }
+                }
+                if n > 0 {
+                    s / f64::from(n)
+                } else {
+                    0.0
+                }
+            };
+            vol += v;
+            let (x, y) = map.grid.centre(ri.start + a, rj.start + b);
+            if v > thr_area {
+                area_n += 1;
+                sw += v;
+                sx += v * x;
+                sy += v * y;
+            }
+            if v > m.shape_threshold_um && d > m.wall_mm {
+                shape_n += 1;
+            }
+            if d <= -inset && r[idx].is_finite() {
+                hsum += r[idx];
+                hn += 1;
+                // 3 x 3 mean for the maximum.
+                let mut s = 0.0;
+                let mut n = 0;
+                for da in -1i64..=1 {
+                    for db in -1i64..=1 {
+                        let (aa, bb2) = (a as i64 + da, b as i64 + db);
+                        if aa < 0 || bb2 < 0 || aa >= h_w as i64 || bb2 >= w_w as i64 {
+                            continue;
+                        }
+                        let v = r[aa as usize * w_w + bb2 as usize];
+                        if v.is_finite() {
+                            s += v;
+                            n += 1;
+                        }
+                    }
+                }
+                if n >= 5 {
+                    hmax = hmax.max(s / f64::from(n));
+                }
+            }
+        }
+    }
+    pm.coverage = if open_n > 0 {
+        open_valid as f64 / open_n as f64
+    } else {
+        0.0
+    };
+    let opening_volume = opening_mm2 * stencil; // um * mm^2
+    pm.volume_um3 = vol * px_area * 1e6;
+    pm.volume_pct = 100.0 * vol * px_area / opening_volume;
+    pm.area_mm2 = area_n as f64 * px_area;
+    pm.area_pct = 100.0 * pm.area_mm2 / opening_mm2;
+    pm.height_um = if hn > 0 { hsum / hn as f64 } else { f64::NAN };
+    pm.height_pct = 100.0 * pm.height_um / stencil;
+    pm.height_max_um = if hmax.is_finite() { hmax } else { pm.height_um };
+    pm.shape_pct = 100.0 * shape_n as f64 * px_area / opening_mm2;
+    if sw > 0.0 {
+        let (dx, dy) = (sx / sw - c[0], sy / sw - c[1]);
+        // Into the design frame's axes.
+        let (s, co) = t.rotation_rad.sin_cos();
+        let (ux, uy) = (co * dx + s * dy, -s * dx + co * dy);
+        pm.offset_um = [ux * 1000.0, uy * 1000.0];
+        let sz = placed.size_xy[k];
+        pm.offset_pct = 100.0 * (ux.abs() / sz[0]).max(uy.abs() / sz[1]);
+    }
+    if open_n == 0 || pm.coverage < m.min_coverage {
+        pm.unmeasurable = Some(Unmeasurable::LowCoverage);
+    }
+    pm
+}
+
+/// Finds paste joining neighbouring openings; fills `bridged_to` of both pads.
+pub fn bridges(map: &BoardMap, placed: &Placed, program: &Program, pm: &mut [PadMeasurement]) {
+    let reach = program.measure.bridge_reach_mm;
+    let mut pairs: Vec<(usize, usize)> = Vec::new();
+    for k in 0..placed.outlines.len() {
+        if pm[k].unmeasurable.is_some() {
+            continue;
+        }
+        for j in placed.near(placed.bboxes[k], reach, k) {
+            if j > k && pm[j].unmeasurable.is_none() {
+                pairs.push((k, j));
+            }
+        }
+    }
+    // The default window's level (a bridge concerns two pads; overrides judge one).
+    let thr = program.stencil_um * program.windows.bridge_height_pct / 100.0;
+    let mut found: Vec<(usize, usize)> = Vec::new();
+    for (k, j) in pairs {
+        if joined(map, placed, &pm[k], &pm[j], k, j, thr) {
+            found.push((k, j));
+        }
+    }
+    for (k, j) in found {
+        pm[k].bridged_to.push(j);
+        pm[j].bridged_to.push(k);
+    }
+}
+
+fn joined(
+    map: &BoardMap,
+    placed: &Placed,
+    a: &PadMeasurement,
+    b: &PadMeasurement,
+    k: usize,
+    j: usize,
+    thr: f64,
+) -> bool {
+    let (bk, bj) = (placed.bboxes[k], placed.bboxes[j]);
+    let win = [
+        bk[0].min(bj[0]),
+        bk[1].min(bj[1]),
+        bk[2].max(bj[2]),
+        bk[3].max(bj[3]),
+    ];
+    let (ri, rj) = map.window(win);
+    let (h_w, w_w) = (ri.len(), rj.len());
+    if h_w == 0 || w_w == 0 {
+        return false;
+    }
+    let ca = placed.outlines[k].centroid();
+    let cb = placed.outlines[j].centroid();
+    let za =
+        |x: f64, y: f64| a.surface[0] + a.surface[1] * (x - ca[0]) + a.surface[2] * (y - ca[1]);
+    let zb =
+        |x: f64, y: f64| b.surface[0] + b.surface[1] * (x - cb[0]) + b.surface[2] * (y - cb[1]);
+    // 0: not paste, 1: paste, 2: reached.
+    let mut state = vec![0u8; h_w * w_w];
+    let mut stack: Vec<usize> = Vec::new();
+    let mut target = vec![false; h_w * w_w];
+    for (u, i) in ri.clone().enumerate() {
+        for (v, jj) in rj.clone().enumerate() {
+            let h = map.heights.data[i * map.grid.width + jj];
+            if !h.is_finite() {
+                continue;
+            }
+            let (x, y) = map.grid.centre(i, jj);
+            let base = (za(x, y) + zb(x, y)) / 2.0;
+            if f64::from(h) - base <= thr {
+                continue;
+            }
+            let idx = u * w_w + v;
+            state[idx] = 1;
+            if placed.outlines[k].signed_distance([x, y]) <= 0.0 {
+                state[idx] = 2;
+                stack.push(idx);
+            } else if placed.outlines[j].signed_distance([x, y]) <= 0.0 {
+                target[idx] = true;
+            }
+        }
+    }
+    while let Some(idx) = stack.pop() {
+        if target[idx] {
+            return true;
+        }
+        let (u, v) = (idx / w_w, idx % w_w);
+        let mut push = |n: usize| {
+            if state[n] == 1 {
+                state[n] = 2;
+                stack.push(n);
+            }
+        };
+        if u > 0 {
+            push(idx - w_w);
+        }
+        if u + 1 < h_w {
+            push(idx + w_w);
+        }
+        if v > 0 {
+            push(idx - 1);
+        }
+        if v + 1 < w_w {
+            push(idx + 1);
+        }
+    }
+    false
+}

@@ -1,0 +1,360 @@
+//! Registration: where the design lies on the board map.
+//!
+//! Each fiducial (a raised copper disc of the program's diameter) is searched within
+//! `fiducials.search_mm` of its nominal place (the program's placement). In that window the
+//! board is levelled by a robust plane ([`super::measure::robust_plane`]), pixels above
+//! 6 um form candidates (4-connected), and of the candidates shaped like the disc (0.6 to
+//! 1.5 times its area, as wide as tall within 25 %, filling 0.6 to 0.9 of their box as a
+//! disc fills pi/4 and a rectangular deposit all of it) the one nearest the nominal place is
+//! kept. Its centre is refined with partial-pixel
+//! weights `clamp(h / plateau, 0, 1)` (the plateau is the median height of its core), which
+//! makes the centre sub-pixel. A rigid transform (rotation and shift; the map is in mm, so
+//! no scale) is fitted to the found centres by least squares; the residual is the rms of
+//! the fit's misses.
+
+use super::map::BoardMap;
+use super::measure::robust_plane;
+use super::pads::{Point, Rigid};
+use super::program::Program;
+use serde::Serialize;
+
+#[derive(Debug, thiserror::Error)]
+pub enum RegisterError {
+    #[error("the program lists no fiducials: the design cannot be registered to the board")]
+    NoFiducials,
+    #[error("found {found} of {listed} fiducials (need at least 2): {missing}")]
+    TooFew {
+        found: usize,
+        listed: usize,
+        missing: String,
+    },
+}
+
+/// One fiducial's search.
+#[derive(Clone, Debug, Serialize)]
+pub struct FiducialHit {
+    pub design_mm: Point,
+    /// Where the nominal placement put it, board mm.
+    pub nominal_mm: Point,
+    /// Where it was found, board mm (None: not found).
+    pub found_mm: Option<Point>,
+    /// Disc height above the board, um.
+    pub height_um: f64,
+    /// Distance from the fitted transform's prediction, um.
+    pub residual_um: f64,
+    /// Why it was not found.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub why: Option<String>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Registration {
+    pub method: &'static str,
+    /// Design to board transform.
+    pub transform: Rigid,
+    /// Its departure from the nominal placement: shift (mm) and rotation (deg).
+    pub shift_mm: Point,
+    pub rotation_deg: f64,
+    pub fiducials: Vec<FiducialHit>,
+    /// Rms of the fit's misses over the found fiducials, um (0 for two: exact).
+    pub residual_um: f64,
+}
+
+/// Lowest fiducial disc height found, um (copper is about 35 um; the candidates are cut at
+/// half of this, about 5 noise sigma).
+pub const MIN_DISC_UM: f64 = 12.0;
+
+/// Finds one disc near `q0`.
+pub fn find_disc(
+    map: &BoardMap,
+    q0: Point,
+    diameter: f64,
+    search: f64,
+) -> Result<(Point, f64), String> {
+    let reach = search + diameter;
+    let (ri, rj) = map.window([q0[0] - reach, q0[1] - reach, q0[0] + reach, q0[1] + reach]);
+    let (hw, ww) = (ri.len(), rj.len());
+    if hw < 3 || ww < 3 {
+        return Err("its search window is off the map".into());
+    }
+    let mut samples = Vec::with_capacity(hw * ww);
+    for i in ri.clone() {
+        for j in rj.clone() {
+            let h = map.heights.data[i * map.grid.width + j];
+            if h.is_finite() {
+                let (x, y) = map.grid.centre(i, j);
+                samples.push([x - q0[0], y - q0[1], f64::from(h)]);
+            }
+        }
+    }
+    if samples.len() < hw * ww / 2 {
+        return Err(format!(
+            "its search window is mostly invalid ({} of {} pixels valid)",
+            samples.len(),
+            hw * ww
+        ));
+    }
+    let Some((plane, _, _)) = robust_plane(&samples) else {
+        return Err("no board surface in its window".into());
+    };
+    let mut r = vec![f64::NAN; hw * ww];
+    for (a, i) in ri.clone().enumerate() {
+        for (b, j) in rj.clone().enumerate() {
+            let h = map.heights.data[i * map.grid.width + j];
+            if h.is_finite() {
+                let (x, y) = map.grid.centre(i, j);
+                r[a * ww + b] =
+                    f64::from(h) - (plane[0] + plane[1] * (x - q0[0]) + plane[2] * (y - q0[1]));
+            }
+        }
+    }
+    let thr = MIN_DISC_UM / 2.0;
+    // Components above the threshold.
+    let p = map.grid.pitch_mm;
+    let disc_px = std::f64::consts::PI * diameter * diameter / 4.0 / (p * p);
+    let mut label = vec![0u32; hw * ww];
+    let mut best: Option<(f64, Point)> = None;
+    let mut next = 0u32;
+    for start in 0..hw * ww {
+        if label[start] != 0 || r[start].is_nan() || r[start] <= thr {
+            continue;
+        }
+        next += 1;
+        let mut stack = vec![start];
+        label[start] = next;
+        let (mut n, mut sx, mut sy) = (0usize, 0.0, 0.0);
+        let (mut amin, mut amax, mut bmin, mut bmax) = (usize::MAX, 0, usize::MAX, 0);
+        while let Some(idx) = stack.pop() {
+            let (a, b) = (idx / ww, idx % ww);
+            n += 1;
+            let (x, y) = map.grid.centre(ri.start + a, rj.start + b);
+            sx += x;
+            sy += y;
+            amin = amin.min(a);
+            amax = amax.max(a);
+            bmin = bmin.min(b);
+            bmax = bmax.max(b);
+            let mut visit = |m: usize| {
+                if label[m] == 0 && r[m] > thr {
+                    label[m] = next;
+                    stack.push(m);
+                }
+            };
+            if a > 0 {
+                visit(idx - ww);
+            }
+            if a + 1 < hw {
+                visit(idx + ww);
+            }
+            if b > 0 {
+                visit(idx - 1);
+            }
+            if b + 1 < ww {
+                visit(idx + 1);
+            }
+        }
+        let (ext_a, ext_b) = ((amax - amin + 1) as f64, (bmax - bmin + 1) as f64);
+        let ratio = n as f64 / disc_px;
+        // A disc fills pi/4 of its box; a rectangle fills all of it.
+        let fill = n as f64 / (ext_a * ext_b);
+        if !(0.6..=1.5).contains(&ratio)
+            || ext_a / ext_b > 1.25
+            || ext_b / ext_a > 1.25
+            || !(0.6..=0.9).contains(&fill)
+        {
+            continue;
+        }
+        let c = [sx / n as f64, sy / n as f64];
+        let d = (c[0] - q0[0]).hypot(c[1] - q0[1]);
+        if best.is_none_or(|(bd, _)| d < bd) {
+            best = Some((d, c));
+        }
+    }
+    let Some((_, mut c)) = best else {
+        return Err(format!(
+            "no disc of {diameter} mm within {search} mm of the nominal place (threshold {thr:.1} um)"
+        ));
+    };
+    // The board right around the disc, levelled again on a ring (the window's plane does
+    // not follow the warp's curvature over the whole window).
+    let ring: Vec<[f64; 3]> =
+        ri.clone()
+            .flat_map(|i| rj.clone().map(move |j| (i, j)))
+            .filter_map(|(i, j)| {
+                let h = map.heights.data[i * map.grid.width + j];
+                let (x, y) = map.grid.centre(i, j);
+                let d = (x - c[0]).hypot(y - c[1]);
+                (h.is_finite() && d > 0.5 * diameter + 0.15 && d < 0.5 * diameter + 0.6)
+                    .then_some([x - c[0], y - c[1], f64::from(h)])
+            })
+            .collect();
+    if let Some((pl, _, _)) = robust_plane(&ring) {
+        for (a, i) in ri.clone().enumerate() {
+            for (b, j) in rj.clone().enumerate() {
+                let h = map.heights.data[i * map.grid.width + j];
+                if h.is_finite() {
+                    let (x, y) = map.grid.centre(i, j);
+                    r[a * ww + b] =
+                        f64::from(h) - (pl[0] + pl[1] * (x - c[0]) + pl[2] * (y - c[1]));
+                }
+            }
+        }
+    }
+    // Sub-pixel: partial-pixel weights against the plateau.
+    let mut plateau = 0.0;
+    for _ in 0..3 {
+        let mut core: Vec<f64> = Vec::new();
+        for (a, i) in ri.clone().enumerate() {
+            for (b, j) in rj.clone().enumerate() {
+                let (x, y) = map.grid.centre(i, j);
+                if (x - c[0]).hypot(y - c[1]) < 0.3 * diameter && r[a * ww + b].is_finite() {
+                    core.push(r[a * ww + b]);
+                }
+            }
+        }
+        if core.is_empty() {
+            break;
+        }
+        let mid = core.len() / 2;
+        let (_, med, _) = core.select_nth_unstable_by(mid, f64::total_cmp);
+        plateau = *med;
+        if plateau <= 0.0 {
+            break;
+        }
+        let (mut sw, mut sx, mut sy) = (0.0, 0.0, 0.0);
+        for (a, i) in ri.clone().enumerate() {
+            for (b, j) in rj.clone().enumerate() {
+                let (x, y) = map.grid.centre(i, j);
+                let v = r[a * ww + b];
+                if (x - c[0]).hypot(y - c[1]) < 0.75 * diameter && v.is_finite() {
+                    let w = (v / plateau).clamp(0.0, 1.0);
+                    sw += w;
+                    sx += w * x;
+                    sy += w * y;
+                }
+            }
+        }
+        if sw > 0.0 {
+            c = [sx / sw, sy / sw];
+        }
+    }
+    Ok((c, plateau))
+}
+
+/// Least-squares rotation and shift taking `design` onto `board` (at least two points).
+pub fn fit_rigid(design: &[Point], board: &[Point]) -> Rigid {
+    let n = design.len() as f64;
+    let md = design
+        .iter()
+        .fold([0.0, 0.0], |a, p| [a[0] + p[0] / n, a[1] + p[1] / n]);
+    let mb = board
+        .iter()
+        .fold([0.0, 0.0], |a, p| [a[0] + p[0] / n, a[1] + p[1] / n]);
+    let (mut sxx, mut sxy) = (0.0, 0.0);
+    for (p, q) in design.iter().zip(board) {
+        let (px, py) = (p[0] - md[0], p[1] - md[1]);
+        let (qx, qy) = (q[0] - mb[0], q[1] - mb[1]);
+        sxx += px * qx + py * qy;
+        sxy += px * qy - py * qx;
+    }
+    let a = sxy.atan2(sxx);
+    let rot = Rigid {
+        rotation_rad: a,
+        tx: 0.0,
+        ty: 0.0,
+    };
+    let r = rot.apply(md);
+    Rigid {
+        rotation_rad: a,
+        tx: mb[0] - r[0],
+        ty: mb[1] - r[1],
+    }
+}
+
+/// Registers the program's design on the map by its fiducials.
+pub fn register(map: &BoardMap, program: &Program) -> Result<Registration, RegisterError> {
+    let f = &program.fiducials;
+    if f.points_mm.is_empty() {
+        return Err(RegisterError::NoFiducials);
+    }
+    let nominal = program.placement.nominal();
+    let mut hits: Vec<FiducialHit> = Vec::new();
+    for &d in &f.points_mm {
+        let q0 = nominal.apply(d);
+        let (found, height, why) = match find_disc(map, q0, f.diameter_mm, f.search_mm) {
+            Ok((c, h)) => (Some(c), h, None),
+            Err(e) => (None, 0.0, Some(e)),
+        };
+        hits.push(FiducialHit {
+            design_mm: d,
+            nominal_mm: q0,
+            found_mm: found,
+            height_um: height,
+            residual_um: f64::NAN,
+            why,
+        });
+    }
+    let pairs: Vec<(Point, Point)> = hits
+        .iter()
+        .filter_map(|h| h.found_mm.map(|b| (h.design_mm, b)))
+        .collect();
+    if pairs.len() < 2 {
+        let missing = hits
+            .iter()
+            .filter(|h| h.found_mm.is_none())
+            .map(|h| {
+                format!(
+                    "({:.3}, {:.3}): {}",
+                    h.design_mm[0],
+                    h.design_mm[1],
+                    h.why.as_deref().unwrap_or("")
+                )
+            })
+            .collect::<Vec<_>>()
+            .join("; ");
+        return Err(RegisterError::TooFew {
+            found: pairs.len(),
+            listed: hits.len(),
+            missing,
+        });
+    }
+    let (ds, bs): (Vec<Point>, Vec<Point>) = pairs.into_iter().unzip();
+    let t = fit_rigid(&ds, &bs);
+    let mut ss = 0.0;
+    for h in &mut hits {
+        if let Some(b) = h.found_mm {
+            let p = t.apply(h.design_mm);
+            h.residual_um = (p[0] - b[0]).hypot(p[1] - b[1]) * 1000.0;
+            ss += h.residual_um * h.residual_um;
+        }
+    }
+    let residual = (ss / ds.len() as f64).sqrt();
+    let delta = t.after(&nominal.inverse());
+    Ok(Registration {
+        method: "fiducials",
+        transform: t,
+        shift_mm: [delta.tx, delta.ty],
+        rotation_deg: delta.rotation_rad.to_degrees(),
+        fiducials: hits,
+        residual_um: residual,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rigid_fit_recovers_a_transform() {
+        let t = Rigid {
+            rotation_rad: 0.004,
+            tx: 0.31,
+            ty: -0.17,
+        };
+        let d = [[3.0, 3.0], [217.0, 3.0], [3.0, 165.0], [100.0, 80.0]];
+        let b: Vec<Point> = d.iter().map(|&p| t.apply(p)).collect();
+        let f = fit_rigid(&d, &b);
+        assert!((f.rotation_rad - t.rotation_rad).abs() < 1e-12);
+        assert!((f.tx - t.tx).abs() < 1e-9 && (f.ty - t.ty).abs() < 1e-9);
+    }
+}

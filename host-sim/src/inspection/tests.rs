@@ -1,0 +1,324 @@
+//! The measurement and registration against a synthetic map with known deposits: openings,
+//! printed deposits (shifted, scaled, missing, bridged), fiducials, a warped board, pixel
+//! integration and noise, all written here independently of the simulator.
+
+use super::map::BoardMap;
+use super::measure::{measure_all, Placed};
+use super::pads::{Outline, Pad, Point, Rigid};
+use super::program::Program;
+use super::register::register;
+use super::verdict::{judge, Class, Level};
+use crate::board::resample::BoardGrid;
+use crate::board::Grid;
+use rand::SeedableRng;
+use rand_distr::{Distribution, Normal};
+
+struct Dep {
+    outline: Outline,
+    height: f64,
+    wall: f64,
+}
+
+fn smooth(t: f64) -> f64 {
+    let t = t.clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+impl Dep {
+    fn at(&self, q: Point) -> f64 {
+        let d = self.outline.signed_distance(q);
+        if d >= 0.0 {
+            0.0
+        } else {
+            self.height * smooth(-d / self.wall)
+        }
+    }
+}
+
+/// Volume by integration on a 2 um grid, um mm^2.
+fn volume(d: &Dep) -> f64 {
+    let b = d.outline.bbox();
+    let s = 0.002;
+    let mut v = 0.0;
+    let mut x = b[0] + s / 2.0;
+    while x < b[2] {
+        let mut y = b[1] + s / 2.0;
+        while y < b[3] {
+            v += d.at([x, y]);
+            y += s;
+        }
+        x += s;
+    }
+    v * s * s
+}
+
+fn warp(q: Point) -> f64 {
+    20.0 + 3.0 * q[0] - 2.0 * q[1] + 0.4 * (q[0] - 6.0).powi(2)
+}
+
+struct Scene {
+    map: BoardMap,
+    pads: Vec<Pad>,
+    program: Program,
+    truth_t: Rigid,
+    deps: Vec<(usize, Dep)>,
+}
+
+fn pad(i: usize, outline: Outline) -> Pad {
+    Pad {
+        index: i,
+        outline,
+        component: Some(format!("U{}", i / 4)),
+        pin: Some(format!("{}", i % 4 + 1)),
+        aperture: None,
+    }
+}
+
+fn rr(c: Point, w: f64, h: f64) -> Outline {
+    Outline::RoundRect {
+        centre: c,
+        size: [w, h],
+        radius: 0.0,
+        rotation_deg: 0.0,
+    }
+}
+
+fn scene(seed: u64) -> Scene {
+    let pads = vec![
+        pad(0, rr([3.0, 3.0], 1.0, 0.6)),
+        pad(1, rr([3.0, 4.5], 1.0, 0.6)), // nominal
+        pad(2, rr([5.0, 3.0], 0.6, 0.6)), // missing
+        pad(3, rr([5.0, 4.0], 0.6, 0.6)), // bridged to 4 (gap 0.3)
+        pad(4, rr([5.0, 4.9], 0.6, 0.6)),
+        pad(5, rr([7.0, 3.0], 0.8, 0.8)), // offset by 0.3 along x
+        pad(
+            6,
+            Outline::Circle {
+                centre: [7.0, 5.0],
+                diameter: 0.6,
+            },
+        ), // excess
+        pad(7, rr([9.0, 3.0], 0.9, 0.9)), // insufficient
+        pad(
+            8,
+            Outline::RoundRect {
+                centre: [9.0, 5.0],
+                size: [1.2, 0.5],
+                radius: 0.1,
+                rotation_deg: 30.0,
+            },
+        ),
+    ];
+    let fids: Vec<Point> = vec![[1.0, 1.0], [11.0, 1.0], [1.0, 8.0]];
+    let t = Rigid {
+        rotation_rad: 0.2f64.to_radians(),
+        tx: 0.2,
+        ty: -0.15,
+    };
+    let stencil = 100.0;
+    let mut deps: Vec<(usize, Dep)> = Vec::new();
+    for p in &pads {
+        let o = p.outline.transformed(&t);
+        let (h, o) = match p.index {
+            2 => continue,
+            5 => (
+                95.0,
+                o.transformed(&Rigid {
+                    rotation_rad: 0.0,
+                    tx: 0.3 * t.rotation_rad.cos(),
+                    ty: 0.3 * t.rotation_rad.sin(),
+                }),
+            ),
+            6 => (170.0, o),
+            7 => (35.0, o),
+            _ => (95.0, o),
+        };
+        deps.push((
+            p.index,
+            Dep {
+                outline: o,
+                height: h,
+                wall: 0.03,
+            },
+        ));
+    }
+    // The bridge: a strip joining 3 and 4, 70 um.
+    deps.push((
+        3,
+        Dep {
+            outline: rr([5.0, 4.45], 0.2, 0.5).transformed(&t),
+            height: 70.0,
+            wall: 0.02,
+        },
+    ));
+    for f in &fids {
+        deps.push((
+            usize::MAX,
+            Dep {
+                outline: Outline::Circle {
+                    centre: t.apply(*f),
+                    diameter: 1.0,
+                },
+                height: 35.0,
+                wall: 0.01,
+            },
+        ));
+    }
+    let grid = BoardGrid {
+        x0_mm: 0.0,
+        y0_mm: 0.0,
+        pitch_mm: 0.0278,
+        rows: 432,
+        width: 324,
+    };
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let noise = Normal::new(0.0, 1.3).unwrap();
+    let mut data = vec![0f32; grid.rows * grid.width];
+    for i in 0..grid.rows {
+        for j in 0..grid.width {
+            let (x, y) = grid.centre(i, j);
+            let mut s = 0.0;
+            // Pixel integration, 4 x 4 sub-samples.
+            for a in 0..4 {
+                for b in 0..4 {
+                    let q = [
+                        x + (f64::from(a) - 1.5) / 4.0 * grid.pitch_mm,
+                        y + (f64::from(b) - 1.5) / 4.0 * grid.pitch_mm,
+                    ];
+                    let mut h = warp(q);
+                    for (_, d) in &deps {
+                        let bb = d.outline.bbox();
+                        if q[0] > bb[0] - 0.01
+                            && q[0] < bb[2] + 0.01
+                            && q[1] > bb[1] - 0.01
+                            && q[1] < bb[3] + 0.01
+                        {
+                            h += d.at(q);
+                        }
+                    }
+                    s += h;
+                }
+            }
+            data[i * grid.width + j] = (s / 16.0 + noise.sample(&mut rng)) as f32;
+        }
+    }
+    // A few invalid pixels.
+    for k in 0..200 {
+        let n = data.len();
+        data[(k * 7919) % n] = f32::NAN;
+    }
+    let mut program = Program::new("x.gbr");
+    program.stencil_um = stencil;
+    program.fiducials.points_mm = fids;
+    Scene {
+        map: BoardMap {
+            grid,
+            heights: Grid {
+                width: grid.width,
+                rows: grid.rows,
+                data,
+            },
+        },
+        pads,
+        program,
+        truth_t: t,
+        deps,
+    }
+}
+
+#[test]
+fn registration_measurement_and_verdicts_on_a_known_board() {
+    let s = scene(5);
+    let reg = register(&s.map, &s.program).unwrap();
+    // Registration against the true transform, at the pads.
+    for p in &s.pads {
+        let c = p.outline.centroid();
+        let (a, b) = (reg.transform.apply(c), s.truth_t.apply(c));
+        let e = (a[0] - b[0]).hypot(a[1] - b[1]) * 1000.0;
+        assert!(e < 3.0, "pad {} placed {e:.2} um off", p.index);
+    }
+    assert!(reg.residual_um < 3.0, "{reg:?}");
+    let placed = Placed::new(&s.pads, &reg.transform, &s.program.fiducials.points_mm, 1.0);
+    let m = measure_all(&s.map, &s.pads, &placed, &reg.transform, &s.program);
+    for p in &s.pads {
+        let k = p.index;
+        let truth: f64 = s
+            .deps
+            .iter()
+            .filter(|(i, _)| *i == k)
+            .map(|(_, d)| volume(d))
+            .sum();
+        let truth_pct = 100.0 * truth / (p.outline.area() * s.program.stencil_um);
+        let call = judge(&m[k], &s.program.windows_for(p));
+        eprintln!(
+            "pad {k}: volume {:.2} % (truth {truth_pct:.2}), height {:.2} um, offset {:?} um, area {:.1} %, shape {:.1} %, {:?}",
+            m[k].volume_pct, m[k].height_um, m[k].offset_um, m[k].area_pct, m[k].shape_pct, call
+        );
+        assert!(m[k].unmeasurable.is_none());
+        if k != 3 && k != 4 {
+            assert!(
+                (m[k].volume_pct - truth_pct).abs() < 1.5,
+                "pad {k}: {:.2} vs {truth_pct:.2}",
+                m[k].volume_pct
+            );
+        }
+        let expect = match k {
+            2 => Some(Class::Missing),
+            3 | 4 => Some(Class::Bridge),
+            5 => Some(Class::Offset),
+            6 => Some(Class::Excess),
+            7 => Some(Class::Insufficient),
+            _ => None,
+        };
+        match expect {
+            Some(c) => assert_eq!((call.level, call.class), (Level::Fail, Some(c)), "pad {k}"),
+            None => assert_ne!(call.level, Level::Fail, "pad {k}: {call:?}"),
+        }
+    }
+    // The offset pad: 300 um along the design x.
+    assert!((m[5].offset_um[0] - 300.0).abs() < 10.0 && m[5].offset_um[1].abs() < 10.0);
+    // Nominal pads: height over the opening's interior is the printed 95 um.
+    for k in [0, 1, 8] {
+        assert!(
+            (m[k].height_um - 95.0).abs() < 1.0,
+            "pad {k}: {}",
+            m[k].height_um
+        );
+        assert!(m[k].offset_um[0].abs() < 5.0 && m[k].offset_um[1].abs() < 5.0);
+    }
+}
+
+#[test]
+fn pads_off_the_map_or_on_invalid_pixels_are_not_measurable() {
+    let mut s = scene(6);
+    let reg = register(&s.map, &s.program).unwrap();
+    // Invalidate pad 1's opening.
+    let o = s.pads[1].outline.transformed(&reg.transform);
+    let (ri, rj) = s.map.window(o.bbox());
+    for i in ri {
+        for j in rj.clone() {
+            s.map.heights.data[i * s.map.grid.width + j] = f32::NAN;
+        }
+    }
+    s.pads.push(pad(9, rr([30.0, 3.0], 0.5, 0.5)));
+    let placed = Placed::new(&s.pads, &reg.transform, &s.program.fiducials.points_mm, 1.0);
+    let m = measure_all(&s.map, &s.pads, &placed, &reg.transform, &s.program);
+    for k in [1, 9] {
+        let call = judge(&m[k], &s.program.windows);
+        assert_eq!(
+            (call.level, call.class),
+            (Level::Fail, Some(Class::NotMeasurable)),
+            "pad {k}"
+        );
+    }
+}
+
+#[test]
+fn missing_fiducials_are_an_error() {
+    let mut s = scene(7);
+    s.program.fiducials.points_mm = vec![[1.0, 1.0], [6.0, 8.5], [11.5, 8.5]];
+    let e = register(&s.map, &s.program).unwrap_err().to_string();
+    assert!(e.contains("found 1 of 3"), "{e}");
+    s.program.fiducials.points_mm.clear();
+    assert!(register(&s.map, &s.program).is_err());
+}
