@@ -10,6 +10,9 @@ pub mod measure;
 pub mod pads;
 pub mod program;
 pub mod register;
+pub mod report;
+pub mod run;
+pub mod truth;
 pub mod verdict;
 
 #[cfg(test)]

@@ -322,3 +322,130 @@ fn missing_fiducials_are_an_error() {
     s.program.fiducials.points_mm.clear();
     assert!(register(&s.map, &s.program).is_err());
 }
+
+#[test]
+fn truth_comparison_and_report_files() {
+    let s = scene(8);
+    let mut i = super::run::inspect(&s.map, &s.pads, &s.program).unwrap();
+    let deps = &s.deps;
+    let height = |q: Point| -> f64 {
+        deps.iter()
+            .filter(|(k, _)| *k != usize::MAX)
+            .map(|(_, d)| d.at(q))
+            .sum()
+    };
+    let defects: Vec<Option<String>> = (0..s.pads.len())
+        .map(|k| match k {
+            2 => Some("missing".to_string()),
+            3 | 4 => Some("bridge".into()),
+            5 => Some("offset".into()),
+            6 => Some("excess".into()),
+            7 => Some("insufficient".into()),
+            _ => None,
+        })
+        .collect();
+    let truth = super::run::Truth {
+        transform: s.truth_t,
+        defects,
+        height: &height,
+    };
+    super::run::attach_truth(&mut i, &s.pads, &s.program, &truth);
+    let tp = i.truth_pads.as_ref().unwrap();
+    // The truth's volume by the cell equals the deposit's own (the cells hold them whole).
+    for k in [0usize, 1, 6, 7, 8] {
+        let v: f64 = s
+            .deps
+            .iter()
+            .filter(|(j, _)| *j == k)
+            .map(|(_, d)| volume(d))
+            .sum();
+        let pct = 100.0 * v / (s.pads[k].outline.area() * s.program.stencil_um);
+        assert!(
+            (tp[k].volume_pct - pct).abs() < 0.3,
+            "pad {k}: {} vs {pct}",
+            tp[k].volume_pct
+        );
+        assert!(
+            (tp[k].height_um
+                - if k == 6 {
+                    170.0
+                } else if k == 7 {
+                    35.0
+                } else {
+                    95.0
+                })
+            .abs()
+                < 0.5
+        );
+    }
+    assert!((tp[5].offset_um[0] - 300.0).abs() < 2.0);
+    let r = super::run::Report::build("b", "p", &i, &s.pads, Some(&truth), 0.0, 0.0);
+    let d = r.detection.as_ref().unwrap();
+    assert_eq!(
+        (
+            d.injected,
+            d.detected,
+            d.missed,
+            d.wrong_class,
+            d.false_fail
+        ),
+        (6, 6, 0, 0, 0),
+        "{d:?}"
+    );
+    let t = r.truth.as_ref().unwrap();
+    let v = t.volume_err_pct.as_ref().unwrap();
+    assert!(v.n == 3 && v.rms < 1.0, "{v:?}");
+    assert!(t.registration_error_um < 3.0);
+
+    let dir = tempfile::tempdir().unwrap();
+    let value = serde_json::to_value(&r).unwrap();
+    let n = super::report::write(
+        dir.path(),
+        &s.map,
+        &s.pads,
+        &i,
+        &s.program,
+        &value,
+        "b",
+        "p",
+    )
+    .unwrap();
+    assert_eq!(n, 6);
+    let csv = std::fs::read_to_string(dir.path().join("pads.csv")).unwrap();
+    assert_eq!(csv.lines().count(), s.pads.len() + 1);
+    assert!(csv.lines().nth(3).unwrap().contains("Failed"));
+    let cfx: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(dir.path().join("cfx_units_inspected.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(
+        cfx["MessageName"],
+        "CFX.Production.TestAndInspection.UnitsInspected"
+    );
+    let unit = &cfx["MessageBody"]["InspectedUnits"][0];
+    assert_eq!(unit["OverallResult"], "Failed");
+    assert_eq!(
+        unit["Inspections"][0]["Measurements"]
+            .as_array()
+            .unwrap()
+            .len(),
+        s.pads.len()
+    );
+    assert_eq!(
+        unit["Inspections"][0]["DefectsFound"]
+            .as_array()
+            .unwrap()
+            .len(),
+        6
+    );
+    if let Ok(keep) = std::env::var("DPSA_KEEP_INSPECTION") {
+        let _ = std::fs::remove_dir_all(&keep);
+        let _ = std::process::Command::new("cp")
+            .arg("-r")
+            .arg(dir.path())
+            .arg(&keep)
+            .status();
+    }
+    let ov = image::open(dir.path().join("overview.png")).unwrap();
+    assert_eq!(ov.height() as usize, s.map.grid.rows);
+}

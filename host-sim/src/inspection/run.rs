@@ -1,0 +1,344 @@
+//! `dpsa inspect`: register, measure, judge, and (for a simulated board) compare with the
+//! truth. Files are written by [`super::report`].
+
+use super::map::BoardMap;
+use super::measure::{measure_all, PadMeasurement, Placed};
+use super::pads::{Pad, Point, Rigid};
+use super::program::Program;
+use super::register::{register, RegisterError, Registration};
+use super::truth::{accuracy, detection, measure_truth, Accuracy, Detection, PadTruth};
+use super::verdict::{judge, Call, Class, Level};
+use serde::Serialize;
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+/// What the simulator knows about a board it printed.
+pub struct Truth<'a> {
+    /// The true design-to-board transform.
+    pub transform: Rigid,
+    /// The injected defect of each pad (`missing`, `insufficient`, `excess`, `offset`,
+    /// `bridge`, `smear`), None for a good print.
+    pub defects: Vec<Option<String>>,
+    /// The true paste height above the board at a board point, um.
+    pub height: &'a (dyn Fn(Point) -> f64 + Sync),
+}
+
+/// Everything one inspection found.
+pub struct Inspection {
+    pub registration: Registration,
+    pub measurements: Vec<PadMeasurement>,
+    pub calls: Vec<Call>,
+    pub truth: Option<TruthReport>,
+    pub truth_pads: Option<Vec<PadTruth>>,
+    /// Register + measure + judge, s (not reading or writing).
+    pub inspect_s: f64,
+}
+
+/// Pads of at least this size (both ways) are the accuracy goal's group, mm.
+pub const LARGE_MM: f64 = 0.5;
+
+#[derive(Clone, Debug, Serialize)]
+pub struct TruthReport {
+    /// Pads with openings of at least 0.5 x 0.5 mm, defect-free.
+    pub large: Accuracy,
+    /// Smaller defect-free pads.
+    pub small: Accuracy,
+    /// The registration against the true placement: largest miss at a pad, um.
+    pub registration_error_um: f64,
+}
+
+pub fn inspect(
+    map: &BoardMap,
+    pads: &[Pad],
+    program: &Program,
+) -> Result<Inspection, RegisterError> {
+    let t0 = Instant::now();
+    let registration = register(map, program)?;
+    let t = registration.transform;
+    let placed = Placed::new(
+        pads,
+        &t,
+        &program.fiducials.points_mm,
+        program.fiducials.diameter_mm,
+    );
+    let measurements = measure_all(map, pads, &placed, &t, program);
+    let calls: Vec<Call> = measurements
+        .iter()
+        .zip(pads)
+        .map(|(m, p)| judge(m, &program.windows_for(p)))
+        .collect();
+    let inspect_s = t0.elapsed().as_secs_f64();
+    Ok(Inspection {
+        registration,
+        measurements,
+        calls,
+        truth: None,
+        truth_pads: None,
+        inspect_s,
+    })
+}
+
+/// Measures the truth of every pad and the inspection's accuracy against it.
+pub fn attach_truth(i: &mut Inspection, pads: &[Pad], program: &Program, tr: &Truth) {
+    let t = i.registration.transform;
+    let placed = Placed::new(pads, &t, &[], 1.0);
+    let tp = measure_truth(pads, &tr.transform, program, tr.height);
+    let good: Vec<usize> = (0..pads.len())
+        .filter(|&k| tr.defects.get(k).cloned().flatten().is_none())
+        .collect();
+    let (large, small): (Vec<usize>, Vec<usize>) = good
+        .into_iter()
+        .partition(|&k| placed.min_size[k] >= LARGE_MM - 1e-9);
+    let mut reg_err: f64 = 0.0;
+    for p in pads {
+        let c = p.outline.centroid();
+        let (a, b) = (t.apply(c), tr.transform.apply(c));
+        reg_err = reg_err.max((a[0] - b[0]).hypot(a[1] - b[1]) * 1000.0);
+    }
+    i.truth = Some(TruthReport {
+        large: accuracy(&large, &i.measurements, &tp),
+        small: accuracy(&small, &i.measurements, &tp),
+        registration_error_um: reg_err,
+    });
+    i.truth_pads = Some(tp);
+}
+
+/// Pad counts and calls.
+#[derive(Clone, Debug, Serialize)]
+pub struct Counts {
+    pub total: usize,
+    /// Judged (not "not measurable").
+    pub measured: usize,
+    pub not_measurable: usize,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Calls {
+    pub pass: usize,
+    pub warn: usize,
+    pub fail: usize,
+    /// Failures per class.
+    pub fail_by_class: BTreeMap<String, usize>,
+    pub warn_by_class: BTreeMap<String, usize>,
+    /// The board's verdict: `fail` if any pad failed (not measurable included).
+    pub board: &'static str,
+}
+
+pub fn counts(i: &Inspection) -> (Counts, Calls) {
+    let nm = i
+        .measurements
+        .iter()
+        .filter(|m| m.unmeasurable.is_some())
+        .count();
+    let mut fb = BTreeMap::new();
+    let mut wb = BTreeMap::new();
+    let (mut p, mut w, mut f) = (0, 0, 0);
+    for c in &i.calls {
+        match c.level {
+            Level::Pass => p += 1,
+            Level::Warn => {
+                w += 1;
+                *wb.entry(c.class.map(Class::name).unwrap_or("?").to_string())
+                    .or_insert(0) += 1;
+            }
+            Level::Fail => {
+                f += 1;
+                *fb.entry(c.class.map(Class::name).unwrap_or("?").to_string())
+                    .or_insert(0) += 1;
+            }
+        }
+    }
+    (
+        Counts {
+            total: i.measurements.len(),
+            measured: i.measurements.len() - nm,
+            not_measurable: nm,
+        },
+        Calls {
+            pass: p,
+            warn: w,
+            fail: f,
+            fail_by_class: fb,
+            warn_by_class: wb,
+            board: if f > 0 {
+                "fail"
+            } else if w > 0 {
+                "warn"
+            } else {
+                "pass"
+            },
+        },
+    )
+}
+
+/// The detection figures of a simulated board.
+pub fn detection_of(i: &Inspection, pads: &[Pad], truth: &Truth) -> Detection {
+    detection(pads, &truth.defects, &i.calls)
+}
+
+/// The JSON report of `dpsa inspect` (`--json`, `report.json`).
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub board: String,
+    pub program: String,
+    pub pads: Counts,
+    pub calls: Calls,
+    pub registration: RegistrationReport,
+    /// Simulated boards only.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub truth: Option<TruthKeys>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub detection: Option<Detection>,
+    pub timing: Timing,
+    /// The failed pads, `name: class` (at most 200).
+    pub failures: Vec<String>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct RegistrationReport {
+    pub method: &'static str,
+    pub residual_um: f64,
+    pub shift_mm: Point,
+    pub rotation_deg: f64,
+    pub fiducials: Vec<super::register::FiducialHit>,
+}
+
+/// `truth.*`: the accuracy goal's group (openings of at least 0.5 x 0.5 mm, defect-free) at
+/// the top level, the smaller pads apart.
+#[derive(Clone, Debug, Serialize)]
+pub struct TruthKeys {
+    pub volume_err_pct: Option<super::truth::ErrStats>,
+    pub height_err_um: Option<super::truth::ErrStats>,
+    pub offset_err_um: Option<super::truth::ErrStats>,
+    pub area_err_pct: Option<super::truth::ErrStats>,
+    pub small: Accuracy,
+    pub registration_error_um: f64,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Timing {
+    /// Register, measure and judge (the map in memory), s.
+    pub inspect_s: f64,
+    pub load_s: f64,
+    /// The truth's integration (simulated boards), s.
+    pub truth_s: f64,
+    pub write_s: f64,
+}
+
+impl Report {
+    pub fn build(
+        board: &str,
+        program: &str,
+        i: &Inspection,
+        pads: &[Pad],
+        truth: Option<&Truth>,
+        load_s: f64,
+        truth_s: f64,
+    ) -> Report {
+        let (c, calls) = counts(i);
+        let failures = i
+            .calls
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| c.level == Level::Fail)
+            .take(200)
+            .map(|(k, c)| {
+                format!(
+                    "{}: {}",
+                    pads[k].name(),
+                    c.class.map(Class::name).unwrap_or("?")
+                )
+            })
+            .collect();
+        Report {
+            board: board.into(),
+            program: program.into(),
+            pads: c,
+            calls,
+            registration: RegistrationReport {
+                method: i.registration.method,
+                residual_um: i.registration.residual_um,
+                shift_mm: i.registration.shift_mm,
+                rotation_deg: i.registration.rotation_deg,
+                fiducials: i.registration.fiducials.clone(),
+            },
+            truth: i.truth.as_ref().map(|t| TruthKeys {
+                volume_err_pct: t.large.volume_err_pct.clone(),
+                height_err_um: t.large.height_err_um.clone(),
+                offset_err_um: t.large.offset_err_um.clone(),
+                area_err_pct: t.large.area_err_pct.clone(),
+                small: t.small.clone(),
+                registration_error_um: t.registration_error_um,
+            }),
+            detection: truth.map(|t| detection_of(i, pads, t)),
+            timing: Timing {
+                inspect_s: i.inspect_s,
+                load_s,
+                truth_s,
+                write_s: 0.0,
+            },
+            failures,
+        }
+    }
+
+    /// The terminal summary.
+    pub fn summary(&self) -> String {
+        let mut s = format!(
+            "{} pads, {} measured: {} pass, {} warn, {} fail -> board {}\n",
+            self.pads.total,
+            self.pads.measured,
+            self.calls.pass,
+            self.calls.warn,
+            self.calls.fail,
+            self.calls.board.to_uppercase()
+        );
+        if !self.calls.fail_by_class.is_empty() {
+            let v: Vec<String> = self
+                .calls
+                .fail_by_class
+                .iter()
+                .map(|(k, n)| format!("{k} {n}"))
+                .collect();
+            s += &format!("  failures: {}\n", v.join(", "));
+        }
+        s += &format!(
+            "  registration: {} fiducials, residual {:.2} um, board shifted ({:.3}, {:.3}) mm, turned {:.3} deg\n",
+            self.registration
+                .fiducials
+                .iter()
+                .filter(|f| f.found_mm.is_some())
+                .count(),
+            self.registration.residual_um,
+            self.registration.shift_mm[0],
+            self.registration.shift_mm[1],
+            self.registration.rotation_deg
+        );
+        if let Some(t) = &self.truth {
+            if let (Some(v), Some(h), Some(o)) =
+                (&t.volume_err_pct, &t.height_err_um, &t.offset_err_um)
+            {
+                s += &format!(
+                    "  against the truth (openings >= 0.5 mm, {} pads): volume bias {:+.2} rms {:.2} %, height rms {:.2} um, offset rms {:.1} um\n",
+                    v.n, v.bias, v.rms, h.rms, o.rms
+                );
+            }
+            if let Some(v) = &t.small.volume_err_pct {
+                s += &format!(
+                    "  smaller openings ({} pads): volume bias {:+.2} rms {:.2} %\n",
+                    v.n, v.bias, v.rms
+                );
+            }
+        }
+        if let Some(d) = &self.detection {
+            s += &format!(
+                "  defects: {} injected, {} detected, {} missed, {} wrong class; {} false failures on {} good pads; smears {} of {}\n",
+                d.injected, d.detected, d.missed, d.wrong_class, d.false_fail, d.defect_free, d.smear_detected, d.smear_injected
+            );
+        }
+        s += &format!(
+            "  inspect {:.3} s (map load {:.2} s)",
+            self.timing.inspect_s, self.timing.load_s
+        );
+        s
+    }
+}

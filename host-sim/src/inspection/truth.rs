@@ -1,0 +1,286 @@
+//! The inspection's figures against the simulator's truth.
+//!
+//! The truth of a pad is measured with the inspection's own definitions ([`super::measure`]) on
+//! the true paste surface instead of the map: the same cell (built from the true placement),
+//! integrated on a 5 um grid of the true paste height above the board (no optics, no noise,
+//! no warp, no registration error). The differences are therefore the gauge's error alone:
+//! optics and pixels, noise, the local surface, the registration.
+
+use super::measure::{cell_margin, cell_member, height_inset, PadMeasurement, Placed};
+use super::pads::{Pad, Point, Rigid};
+use super::program::Program;
+use super::verdict::{Call, Class, Level};
+use serde::Serialize;
+
+/// Truth integration step, mm.
+pub const STEP_MM: f64 = 0.005;
+
+/// One pad's true figures (the inspection's definitions).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct PadTruth {
+    pub volume_pct: f64,
+    pub area_pct: f64,
+    pub height_um: f64,
+    pub offset_um: [f64; 2],
+}
+
+/// True figures of every pad: `height(p)` is the true paste height above the board at board
+/// point `p` (um), `t` the true design-to-board transform.
+pub fn measure_truth(
+    pads: &[Pad],
+    t: &Rigid,
+    program: &Program,
+    height: &(dyn Fn(Point) -> f64 + Sync),
+) -> Vec<PadTruth> {
+    let placed = Placed::new(pads, t, &[], 1.0);
+    let n = pads.len();
+    let threads = std::thread::available_parallelism()
+        .map(|v| v.get())
+        .unwrap_or(1)
+        .clamp(1, 8);
+    let chunk = n.div_ceil(threads).max(1);
+    let mut out = Vec::with_capacity(n);
+    std::thread::scope(|sc| {
+        let hs: Vec<_> = (0..n)
+            .step_by(chunk)
+            .map(|s| {
+                let placed = &placed;
+                sc.spawn(move || {
+                    (s..(s + chunk).min(n))
+                        .map(|k| one(pads, placed, t, program, height, k))
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        for h in hs {
+            match h.join() {
+                Ok(v) => out.extend(v),
+                Err(e) => std::panic::resume_unwind(e),
+            }
+        }
+    });
+    out
+}
+
+fn one(
+    pads: &[Pad],
+    placed: &Placed,
+    t: &Rigid,
+    program: &Program,
+    height: &(dyn Fn(Point) -> f64 + Sync),
+    k: usize,
+) -> PadTruth {
+    let ms = placed.min_size[k];
+    let margin = cell_margin(program, ms);
+    let inset = height_inset(program, ms);
+    let bb = placed.bboxes[k];
+    let near = placed.near(bb, 2.0 * margin, k);
+    let o = &placed.outlines[k];
+    let c = o.centroid();
+    let thr = program.stencil_um * program.measure.area_threshold_pct / 100.0;
+    let s = STEP_MM;
+    let (mut vol, mut area, mut hs, mut hn, mut sw, mut sx, mut sy) =
+        (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    let mut x = bb[0] - margin + s / 2.0;
+    while x < bb[2] + margin {
+        let mut y = bb[1] - margin + s / 2.0;
+        while y < bb[3] + margin {
+            let (inside, d) = cell_member(placed, k, &near, margin, [x, y]);
+            if inside {
+                let h = height([x, y]);
+                vol += h;
+                if h > thr {
+                    area += 1.0;
+                    sw += h;
+                    sx += h * x;
+                    sy += h * y;
+                }
+                if d <= -inset {
+                    hs += h;
+                    hn += 1.0;
+                }
+            }
+            y += s;
+        }
+        x += s;
+    }
+    let a = pads[k].outline.area();
+    let mut offset = [f64::NAN; 2];
+    if sw > 0.0 {
+        let (dx, dy) = (sx / sw - c[0], sy / sw - c[1]);
+        let (sn, cs) = t.rotation_rad.sin_cos();
+        offset = [(cs * dx + sn * dy) * 1000.0, (-sn * dx + cs * dy) * 1000.0];
+    }
+    PadTruth {
+        volume_pct: 100.0 * vol * s * s / (a * program.stencil_um),
+        area_pct: 100.0 * area * s * s / a,
+        height_um: if hn > 0.0 { hs / hn } else { f64::NAN },
+        offset_um: offset,
+    }
+}
+
+/// Mean and rms of a set of errors (None when empty).
+#[derive(Clone, Debug, Serialize)]
+pub struct ErrStats {
+    pub n: usize,
+    pub bias: f64,
+    pub rms: f64,
+    pub max_abs: f64,
+}
+
+pub fn stats(v: &[f64]) -> Option<ErrStats> {
+    let v: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return None;
+    }
+    let n = v.len() as f64;
+    Some(ErrStats {
+        n: v.len(),
+        bias: v.iter().sum::<f64>() / n,
+        rms: (v.iter().map(|x| x * x).sum::<f64>() / n).sqrt(),
+        max_abs: v.iter().fold(0.0, |a, x| a.max(x.abs())),
+    })
+}
+
+/// Accuracy of one size group of defect-free pads.
+#[derive(Clone, Debug, Serialize)]
+pub struct Accuracy {
+    /// Measured minus true volume, percentage points of the opening volume.
+    pub volume_err_pct: Option<ErrStats>,
+    pub height_err_um: Option<ErrStats>,
+    /// Length of the offset error vector, um (bias: its mean).
+    pub offset_err_um: Option<ErrStats>,
+    pub area_err_pct: Option<ErrStats>,
+}
+
+pub fn accuracy(sel: &[usize], m: &[PadMeasurement], t: &[PadTruth]) -> Accuracy {
+    let mut v = Vec::new();
+    let mut h = Vec::new();
+    let mut o = Vec::new();
+    let mut a = Vec::new();
+    for &k in sel {
+        if m[k].unmeasurable.is_some() {
+            continue;
+        }
+        v.push(m[k].volume_pct - t[k].volume_pct);
+        h.push(m[k].height_um - t[k].height_um);
+        a.push(m[k].area_pct - t[k].area_pct);
+        let e =
+            (m[k].offset_um[0] - t[k].offset_um[0]).hypot(m[k].offset_um[1] - t[k].offset_um[1]);
+        o.push(e);
+    }
+    Accuracy {
+        volume_err_pct: stats(&v),
+        height_err_um: stats(&h),
+        offset_err_um: stats(&o),
+        area_err_pct: stats(&a),
+    }
+}
+
+/// The injected defect classes the inspection must find, as its own classes. Smears are
+/// judged as shape; they are reported apart (thin smears on small openings are below what
+/// the map resolves).
+pub fn expected_class(defect: &str) -> Option<Class> {
+    match defect {
+        "missing" => Some(Class::Missing),
+        "insufficient" => Some(Class::Insufficient),
+        "excess" => Some(Class::Excess),
+        "offset" => Some(Class::Offset),
+        "bridge" => Some(Class::Bridge),
+        "smear" => Some(Class::Shape),
+        _ => None,
+    }
+}
+
+/// Detection figures.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Detection {
+    /// Pads with an injected missing, insufficient, excess, offset or bridge defect.
+    pub injected: usize,
+    /// ... called fail.
+    pub detected: usize,
+    /// ... not called fail.
+    pub missed: usize,
+    /// ... called fail with another class.
+    pub wrong_class: usize,
+    /// Defect-free pads called fail.
+    pub false_fail: usize,
+    /// Defect-free pads called warning.
+    pub false_warn: usize,
+    pub defect_free: usize,
+    /// Smears (judged as shape): injected, failed with class shape, failed otherwise.
+    pub smear_injected: usize,
+    pub smear_detected: usize,
+    pub smear_other_class: usize,
+    /// Per injected class: `[injected, detected with the right class]`.
+    pub per_class: std::collections::BTreeMap<String, [usize; 2]>,
+    /// The misses and wrong classes, `pad name: injected -> called`.
+    pub errors: Vec<String>,
+}
+
+pub fn detection(pads: &[Pad], defects: &[Option<String>], calls: &[Call]) -> Detection {
+    let mut d = Detection::default();
+    for (k, call) in calls.iter().enumerate() {
+        let defect = defects.get(k).cloned().flatten();
+        let called = match call.class {
+            Some(c) if call.level == Level::Fail => Some(c),
+            _ => None,
+        };
+        match defect.as_deref().and_then(expected_class) {
+            None => {
+                d.defect_free += 1;
+                match call.level {
+                    Level::Fail => {
+                        d.false_fail += 1;
+                        d.errors.push(format!(
+                            "{}: none -> {}",
+                            pads[k].name(),
+                            call.class.map(Class::name).unwrap_or("?")
+                        ));
+                    }
+                    Level::Warn => d.false_warn += 1,
+                    Level::Pass => {}
+                }
+            }
+            Some(Class::Shape) => {
+                d.smear_injected += 1;
+                match called {
+                    Some(Class::Shape) => d.smear_detected += 1,
+                    Some(_) => d.smear_other_class += 1,
+                    None => {}
+                }
+            }
+            Some(want) => {
+                d.injected += 1;
+                let e = d.per_class.entry(want.name().to_string()).or_insert([0, 0]);
+                e[0] += 1;
+                match called {
+                    Some(c) if c == want => {
+                        d.detected += 1;
+                        e[1] += 1;
+                    }
+                    Some(c) => {
+                        d.detected += 1;
+                        d.wrong_class += 1;
+                        d.errors.push(format!(
+                            "{}: {} -> {}",
+                            pads[k].name(),
+                            want.name(),
+                            c.name()
+                        ));
+                    }
+                    None => {
+                        d.missed += 1;
+                        d.errors.push(format!(
+                            "{}: {} -> {}",
+                            pads[k].name(),
+                            want.name(),
+                            call.level.name()
+                        ));
+                    }
+                }
+            }
+        }
+    }
+    d
+}
