@@ -406,8 +406,10 @@ fn truth_comparison_and_report_files() {
         &i,
         &s.program,
         &value,
-        "b",
-        "p",
+        super::report::Names {
+            unit: "b",
+            recipe: "p",
+        },
     )
     .unwrap();
     assert_eq!(n, 6);
