@@ -4,5 +4,7 @@
 //! | file | what |
 //! | --- | --- |
 //! | [`pads`] | one pad = one connected paste opening: its outline in mm, names from X2 attributes; rigid transforms |
+//! | [`gerber`] | the top paste layer (Gerber RS-274X / X2) -> pads: apertures, macros, regions, strokes, step and repeat, polarity, X2 names |
 
+pub mod gerber;
 pub mod pads;
