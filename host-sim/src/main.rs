@@ -29,6 +29,7 @@ fn main() {
         Cmd::Reconstruct(a) => cli::reconstruct::run(a, progress),
         Cmd::Compare(a) => cli::compare::run(a, progress),
         Cmd::Phase(a) => cli::phase::run(a),
+        Cmd::Pads(a) => cli::pads::run(a),
         // 0 clean, 2 damaged or incomplete, 3 nothing decodable (cli/decode.rs).
         Cmd::Decode(a) => cli::decode::run(a).map(exit_unless_zero),
         Cmd::FrameBench(a) => cli::frame_bench::run(a),

@@ -9,6 +9,7 @@ pub mod compare;
 pub mod decode;
 pub mod demo;
 pub mod frame_bench;
+pub mod pads;
 pub mod phase;
 pub mod reconstruct;
 pub mod simulate;
@@ -48,6 +49,9 @@ pub enum Cmd {
     Reconstruct(reconstruct::Args),
     /// Compare the fixed-point core with the f64 reference, the PSP baseline, the CRB and the truth.
     Compare(compare::Args),
+    /// A board's top paste layer (Gerber RS-274X / X2) as pads: count, bounding box, area
+    /// histogram, aperture classes, X2 names.
+    Pads(pads::Args),
     /// Phase of an ordinary phase-shifting image stack (PNG, JPEG, TIFF; 8 or 16 bit), fixed-point
     /// core and f64 reference side by side.
     Phase(phase::Args),

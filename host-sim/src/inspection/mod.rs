@@ -4,7 +4,17 @@
 //! | file | what |
 //! | --- | --- |
 //! | [`pads`] | one pad = one connected paste opening: its outline in mm, names from X2 attributes; rigid transforms |
+//! | [`gerber`] | the top paste layer (Gerber RS-274X / X2) read into pads |
+//! | [`program`] | the inspection program (TOML): stencil, placement, fiducials, measurement settings, tolerance windows |
+//! | [`map`] | the board map (`dpsa board`) as the inspection reads it |
+//! | [`register`] | fiducials found on the map, the design-to-board transform |
+//! | [`measure`] | per pad: local surface, volume, area, height, offset, shape, coverage, bridges |
+//! | [`verdict`] | pass / warning / fail with the defect class |
+//! | [`truth`] | a simulated board's truth by the same definitions; accuracy and detection figures |
+//! | [`run`] | `dpsa inspect` end to end, its JSON report |
+//! | [`report`] | the files: pads.csv, IPC-CFX UnitsInspected, overview, defect gallery |
 
+pub mod gerber;
 pub mod map;
 pub mod measure;
 pub mod pads;

@@ -1,0 +1,1134 @@
+//! The graphics state machine: the parser's commands in file order -> the layer's objects
+//! (flashes, strokes, regions), each a dark or clear shape in mm with its X2 attributes.
+
+use super::lex::{Lexed, MARKER};
+use super::shapes::{
+    arc_points, capsule, circle_points, dedup, eval_expr, map_multi, polygon, recognise,
+    rect_points, round_rect_points, swept_rect, union_all, Affine, Exact, Prim,
+};
+use super::{GerberError, MAX_COORD_MM, MAX_OBJECTS, MAX_VERTICES};
+use crate::inspection::pads::{Outline, Point};
+use geo::{BooleanOps, MultiPolygon, Polygon};
+use gerber_parser::gerber_types::{
+    Aperture, ApertureBlock, ApertureMacro, AttributeDeletionCriterion, AxisSelect, Command,
+    CommentContent, CoordinateMode, CoordinateNumber, DCode, ExtendedCode, FileAttribute,
+    FunctionCode, GCode, ImageMirroring, ImagePolarity, ImageRotation, InterpolationMode,
+    MacroBoolean, MacroContent, MacroDecimal, MacroInteger, Mirroring, ObjectAttribute, Operation,
+    Polarity, QuadrantMode, StandardComment, StepAndRepeat, Unit, ZeroOmission,
+};
+use std::collections::HashMap;
+
+/// One graphical object of the layer.
+#[derive(Clone, Debug)]
+pub(super) struct Object {
+    /// Dark (adds paste) or clear (removes what was drawn before it).
+    pub dark: bool,
+    /// The shape, mm, rings oriented counter-clockwise outside.
+    pub shape: MultiPolygon<f64>,
+    /// The exact outline of a plain flash (circle or rounded rectangle), when it is one.
+    pub exact: Option<Outline>,
+    /// The aperture class (`R 0.60x0.30`, `C 0.25`, `region`, `stroke C 0.10`, macro name).
+    pub class: String,
+    pub component: Option<String>,
+    pub pin: Option<String>,
+    /// Bounding box `[xmin, ymin, xmax, ymax]`, mm.
+    pub bbox: [f64; 4],
+}
+
+/// An aperture ready to flash or draw: its shape about its origin, mm.
+#[derive(Clone, Debug)]
+struct ApertureShape {
+    shape: MultiPolygon<f64>,
+    exact: Option<Exact>,
+    class: String,
+    /// What it sweeps when drawn: a circle's diameter or a rectangle's sides.
+    stroke: Stroke,
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Stroke {
+    Circle(f64),
+    Rect(f64, f64),
+    /// Not allowed for D01 by the specification (obround, polygon, macro).
+    None,
+}
+
+/// What the interpreter made of the file.
+pub(super) struct Interpreted {
+    pub objects: Vec<Object>,
+    pub units: &'static str,
+    pub generator: Option<String>,
+    pub warnings: Vec<String>,
+}
+
+/// The open `%SR` block.
+struct StepRepeat {
+    nx: u32,
+    ny: u32,
+    dx: f64,
+    dy: f64,
+    first: usize,
+    line: usize,
+}
+
+/// The open region (`G36`): its contours so far.
+struct Region {
+    contours: Vec<Vec<Point>>,
+    current: Vec<Point>,
+    line: usize,
+}
+
+struct State {
+    line: usize,
+    /// mm per file unit.
+    scale: Option<f64>,
+    units: Option<&'static str>,
+    format: Option<(ZeroOmission, CoordinateMode)>,
+    incremental_words: bool,
+    point: Point,
+    mode: InterpolationMode,
+    multi_quadrant: bool,
+    dark: bool,
+    mirroring: Mirroring,
+    rotation_deg: f64,
+    scaling: f64,
+    macros: HashMap<String, ApertureMacro>,
+    apertures: HashMap<i32, ApertureShape>,
+    current: Option<i32>,
+    component: Option<String>,
+    pin: Option<String>,
+    region: Option<Region>,
+    step: Option<StepRepeat>,
+    objects: Vec<Object>,
+    vertices: usize,
+    generator: Option<String>,
+    warnings: Vec<String>,
+    unclosed_contours: usize,
+    zero_strokes: usize,
+    ended: bool,
+}
+
+fn err(line: usize, message: impl Into<String>) -> GerberError {
+    GerberError::Syntax {
+        line,
+        message: message.into(),
+    }
+}
+
+fn unsupported(line: usize, what: impl Into<String>) -> GerberError {
+    GerberError::Unsupported {
+        line,
+        what: what.into(),
+    }
+}
+
+/// `R 0.60x0.30`-style number: at least 2 and at most 3 decimals.
+fn num(v: f64) -> String {
+    let s = format!("{v:.3}");
+    match s.strip_suffix('0') {
+        Some(t) => t.to_string(),
+        None => s,
+    }
+}
+
+fn bbox_of(mp: &MultiPolygon<f64>) -> [f64; 4] {
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for p in mp.iter() {
+        for c in p.exterior().coords() {
+            b = [b[0].min(c.x), b[1].min(c.y), b[2].max(c.x), b[3].max(c.y)];
+        }
+    }
+    b
+}
+
+fn vertex_count(mp: &MultiPolygon<f64>) -> usize {
+    mp.iter()
+        .map(|p| p.exterior().0.len() + p.interiors().iter().map(|r| r.0.len()).sum::<usize>())
+        .sum()
+}
+
+impl State {
+    fn new() -> State {
+        State {
+            line: 0,
+            scale: None,
+            units: None,
+            format: None,
+            incremental_words: false,
+            point: [0.0, 0.0],
+            mode: InterpolationMode::Linear,
+            multi_quadrant: true,
+            dark: true,
+            mirroring: Mirroring::None,
+            rotation_deg: 0.0,
+            scaling: 1.0,
+            macros: HashMap::new(),
+            apertures: HashMap::new(),
+            current: None,
+            component: None,
+            pin: None,
+            region: None,
+            step: None,
+            objects: Vec::new(),
+            vertices: 0,
+            generator: None,
+            warnings: Vec::new(),
+            unclosed_contours: 0,
+            zero_strokes: 0,
+            ended: false,
+        }
+    }
+
+    fn scale(&self) -> Result<f64, GerberError> {
+        self.scale.ok_or(GerberError::NoUnits { line: self.line })
+    }
+
+    /// A length of the file (aperture size, macro parameter) in mm, checked.
+    fn length(&self, v: f64, what: &str) -> Result<f64, GerberError> {
+        let mm = v * self.scale()?;
+        if !mm.is_finite() || mm.abs() > MAX_COORD_MM {
+            return Err(GerberError::OutOfRange {
+                line: self.line,
+                what: format!("{what} {v}"),
+            });
+        }
+        Ok(mm)
+    }
+
+    fn coordinate(&self, c: Option<CoordinateNumber>, axis: usize) -> Result<f64, GerberError> {
+        let Some(c) = c else {
+            return Ok(self.point[axis]);
+        };
+        let (_, mode) = self
+            .format
+            .ok_or(GerberError::NoFormat { line: self.line })?;
+        let v = f64::from(c) * self.scale()?;
+        let v = if mode == CoordinateMode::Incremental || self.incremental_words {
+            self.point[axis] + v
+        } else {
+            v
+        };
+        if !v.is_finite() || v.abs() > MAX_COORD_MM {
+            return Err(GerberError::OutOfRange {
+                line: self.line,
+                what: format!("coordinate {:.3} mm", v),
+            });
+        }
+        Ok(v)
+    }
+
+    fn offset(&self, c: Option<CoordinateNumber>) -> Result<f64, GerberError> {
+        let v = c.map(f64::from).unwrap_or(0.0) * self.scale()?;
+        if !v.is_finite() || v.abs() > MAX_COORD_MM {
+            return Err(GerberError::OutOfRange {
+                line: self.line,
+                what: format!("arc offset {:.3} mm", v),
+            });
+        }
+        Ok(v)
+    }
+
+    /// The flash transform of the current `%LM`, `%LR`, `%LS` (mirror, then rotate, then
+    /// scale, about the flash point), placed at `at`.
+    fn flash_transform(&self, at: Point) -> Affine {
+        let (mx, my) = match self.mirroring {
+            Mirroring::None => (1.0, 1.0),
+            Mirroring::X => (-1.0, 1.0),
+            Mirroring::Y => (1.0, -1.0),
+            Mirroring::XY => (-1.0, -1.0),
+        };
+        let (s, c) = self.rotation_deg.to_radians().sin_cos();
+        let k = self.scaling;
+        Affine {
+            m: [k * c * mx, -k * s * my, k * s * mx, k * c * my],
+            t: at,
+        }
+    }
+
+    fn aperture(&self) -> Result<&ApertureShape, GerberError> {
+        let code = self
+            .current
+            .ok_or_else(|| err(self.line, "no aperture selected"))?;
+        self.apertures
+            .get(&code)
+            .ok_or(GerberError::UndefinedAperture {
+                line: self.line,
+                code,
+            })
+    }
+
+    fn push(
+        &mut self,
+        shape: MultiPolygon<f64>,
+        exact: Option<Outline>,
+        class: String,
+    ) -> Result<(), GerberError> {
+        if shape.0.is_empty() {
+            return Ok(());
+        }
+        self.vertices += vertex_count(&shape);
+        if self.vertices > MAX_VERTICES {
+            return Err(GerberError::TooComplex {
+                line: self.line,
+                limit: MAX_VERTICES,
+            });
+        }
+        if self.objects.len() >= MAX_OBJECTS {
+            return Err(GerberError::TooManyObjects {
+                line: self.line,
+                limit: MAX_OBJECTS,
+            });
+        }
+        let bbox = bbox_of(&shape);
+        self.objects.push(Object {
+            dark: self.dark,
+            shape,
+            exact,
+            class,
+            component: self.component.clone(),
+            pin: self.pin.clone(),
+            bbox,
+        });
+        Ok(())
+    }
+
+    fn command(&mut self, cmd: &Command) -> Result<(), GerberError> {
+        if self.ended {
+            return Ok(());
+        }
+        match cmd {
+            Command::FunctionCode(FunctionCode::GCode(g)) => self.gcode(g),
+            Command::FunctionCode(FunctionCode::DCode(DCode::SelectAperture(code))) => {
+                if self.region.is_some() {
+                    return Err(err(self.line, "aperture selected inside a region (G36)"));
+                }
+                self.current = Some(*code);
+                Ok(())
+            }
+            Command::FunctionCode(FunctionCode::DCode(DCode::Operation(op))) => self.operation(op),
+            Command::FunctionCode(FunctionCode::MCode(_)) => {
+                self.ended = true;
+                Ok(())
+            }
+            Command::ExtendedCode(x) => self.extended(x),
+        }
+    }
+
+    fn gcode(&mut self, g: &GCode) -> Result<(), GerberError> {
+        match g {
+            GCode::InterpolationMode(m) => self.mode = *m,
+            GCode::QuadrantMode(q) => self.multi_quadrant = *q == QuadrantMode::Multi,
+            GCode::RegionMode(true) => {
+                if self.region.is_some() {
+                    return Err(err(self.line, "G36 inside a region"));
+                }
+                self.region = Some(Region {
+                    contours: Vec::new(),
+                    current: Vec::new(),
+                    line: self.line,
+                });
+            }
+            GCode::RegionMode(false) => {
+                let Some(mut region) = self.region.take() else {
+                    return Err(err(self.line, "G37 without G36"));
+                };
+                let last = std::mem::take(&mut region.current);
+                region.contours.push(last);
+                self.region_objects(region)?;
+            }
+            GCode::Comment(CommentContent::String(s)) => {
+                let s = s.trim();
+                if let Some(m) = s.strip_prefix(MARKER) {
+                    if let Some(n) = m.strip_prefix("line:") {
+                        self.line = n.parse().unwrap_or(self.line);
+                    } else if m == "notation:incremental" {
+                        self.incremental_words = true;
+                    } else if m == "notation:absolute" {
+                        self.incremental_words = false;
+                    }
+                }
+            }
+            GCode::Comment(CommentContent::Standard(sc)) => match sc {
+                StandardComment::FileAttribute(fa) => self.file_attribute(fa),
+                StandardComment::ObjectAttribute(oa) => self.object_attribute(oa),
+                StandardComment::DeleteAttribute(d) => self.delete_attribute(d),
+                StandardComment::ApertureAttribute(_) => {}
+            },
+            GCode::Unit(u) => self.set_units(*u)?,
+            GCode::CoordinateMode(m) => {
+                self.incremental_words = *m == CoordinateMode::Incremental;
+            }
+            GCode::SelectAperture => {}
+        }
+        Ok(())
+    }
+
+    fn set_units(&mut self, u: Unit) -> Result<(), GerberError> {
+        let (scale, name) = match u {
+            Unit::Millimeters => (1.0, "mm"),
+            Unit::Inches => (25.4, "inch"),
+        };
+        if self.units.is_some_and(|n| n != name) {
+            return Err(err(self.line, "units changed in the middle of the file"));
+        }
+        self.scale = Some(scale);
+        self.units = Some(name);
+        Ok(())
+    }
+
+    fn file_attribute(&mut self, fa: &FileAttribute) {
+        if let FileAttribute::GenerationSoftware(g) = fa {
+            let mut s = format!("{},{}", g.vendor, g.application);
+            if let Some(v) = &g.version {
+                s.push(',');
+                s.push_str(v);
+            }
+            self.generator = Some(s);
+        }
+    }
+
+    fn object_attribute(&mut self, oa: &ObjectAttribute) {
+        match oa {
+            ObjectAttribute::Component(c) => self.component = Some(c.clone()),
+            ObjectAttribute::Pin(p) => {
+                self.component = Some(p.refdes.clone());
+                self.pin = Some(p.name.clone());
+            }
+            _ => {}
+        }
+    }
+
+    fn delete_attribute(&mut self, d: &AttributeDeletionCriterion) {
+        match d {
+            AttributeDeletionCriterion::AllApertureAndObjectAttributes => {
+                self.component = None;
+                self.pin = None;
+            }
+            AttributeDeletionCriterion::SingleObjectAttribute(name) => match name.as_str() {
+                ".C" | "C" => self.component = None,
+                ".P" | "P" => self.pin = None,
+                _ => {}
+            },
+            AttributeDeletionCriterion::SingleApertureAttribute(_) => {}
+        }
+    }
+
+    fn extended(&mut self, x: &ExtendedCode) -> Result<(), GerberError> {
+        match x {
+            ExtendedCode::CoordinateFormat(f) => {
+                self.format = Some((f.zero_omission, f.coordinate_mode));
+            }
+            ExtendedCode::Unit(u) => self.set_units(*u)?,
+            ExtendedCode::ApertureMacro(m) => {
+                self.macros.insert(m.name.clone(), m.clone());
+            }
+            ExtendedCode::ApertureDefinition(d) => {
+                let shape = self.define(&d.aperture)?;
+                self.apertures.insert(d.code, shape);
+            }
+            ExtendedCode::LoadPolarity(p) => self.dark = *p == Polarity::Dark,
+            ExtendedCode::LoadMirroring(m) => self.mirroring = *m,
+            ExtendedCode::LoadRotation(r) => {
+                if !r.rotation.is_finite() {
+                    return Err(err(self.line, "rotation is not a number"));
+                }
+                self.rotation_deg = r.rotation;
+            }
+            ExtendedCode::LoadScaling(s) => {
+                if !(s.scale.is_finite() && s.scale > 0.0 && s.scale < 1e6) {
+                    return Err(GerberError::OutOfRange {
+                        line: self.line,
+                        what: format!("scaling {}", s.scale),
+                    });
+                }
+                self.scaling = s.scale;
+            }
+            ExtendedCode::StepAndRepeat(sr) => self.step_repeat(sr)?,
+            ExtendedCode::ApertureBlock(ApertureBlock::Open { .. }) => {
+                return Err(unsupported(self.line, "block apertures (%AB)"));
+            }
+            ExtendedCode::ApertureBlock(ApertureBlock::Close) => {
+                return Err(unsupported(self.line, "block apertures (%AB)"));
+            }
+            ExtendedCode::FileAttribute(fa) => self.file_attribute(fa),
+            ExtendedCode::ObjectAttribute(oa) => self.object_attribute(oa),
+            ExtendedCode::DeleteAttribute(d) => self.delete_attribute(d),
+            ExtendedCode::ApertureAttribute(_) | ExtendedCode::ImageName(_) => {}
+            ExtendedCode::ImagePolarity(p) => {
+                if *p == ImagePolarity::Negative {
+                    return Err(unsupported(self.line, "negative image polarity (%IPNEG)"));
+                }
+            }
+            ExtendedCode::MirrorImage(m) => {
+                if *m != ImageMirroring::None {
+                    return Err(unsupported(self.line, "image mirroring (%MI)"));
+                }
+            }
+            ExtendedCode::RotateImage(r) => {
+                if *r != ImageRotation::None {
+                    return Err(unsupported(self.line, "image rotation (%IR)"));
+                }
+            }
+            ExtendedCode::OffsetImage(o) => {
+                if o.a != 0.0 || o.b != 0.0 {
+                    return Err(unsupported(self.line, "image offset (%OF)"));
+                }
+            }
+            ExtendedCode::ScaleImage(s) => {
+                if s.a != 1.0 || s.b != 1.0 {
+                    return Err(unsupported(self.line, "image scaling (%SF)"));
+                }
+            }
+            ExtendedCode::AxisSelect(a) => {
+                if *a != AxisSelect::AXBY {
+                    return Err(unsupported(self.line, "axis swap (%ASAYBX)"));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn step_repeat(&mut self, sr: &StepAndRepeat) -> Result<(), GerberError> {
+        // Close any open block first (an open %SR also closes the previous one).
+        if let Some(open) = self.step.take() {
+            self.expand(open)?;
+        }
+        if let StepAndRepeat::Open {
+            repeat_x,
+            repeat_y,
+            distance_x,
+            distance_y,
+        } = *sr
+        {
+            if repeat_x == 0 || repeat_y == 0 {
+                return Err(err(self.line, "step and repeat with 0 repeats"));
+            }
+            let copies = u64::from(repeat_x) * u64::from(repeat_y);
+            if copies > MAX_OBJECTS as u64 {
+                return Err(GerberError::TooManyObjects {
+                    line: self.line,
+                    limit: MAX_OBJECTS,
+                });
+            }
+            let (dx, dy) = (
+                self.length(distance_x, "step distance")?,
+                self.length(distance_y, "step distance")?,
+            );
+            self.step = Some(StepRepeat {
+                nx: repeat_x,
+                ny: repeat_y,
+                dx,
+                dy,
+                first: self.objects.len(),
+                line: self.line,
+            });
+        }
+        Ok(())
+    }
+
+    /// Replicates the objects of a closed `%SR` block.
+    fn expand(&mut self, sr: StepRepeat) -> Result<(), GerberError> {
+        let block: Vec<Object> = self.objects[sr.first..].to_vec();
+        let copies = (sr.nx as usize) * (sr.ny as usize);
+        let total = sr.first + block.len() * copies;
+        if total > MAX_OBJECTS {
+            return Err(GerberError::TooManyObjects {
+                line: sr.line,
+                limit: MAX_OBJECTS,
+            });
+        }
+        let verts: usize = block.iter().map(|o| vertex_count(&o.shape)).sum();
+        self.vertices += verts * copies.saturating_sub(1);
+        if self.vertices > MAX_VERTICES {
+            return Err(GerberError::TooComplex {
+                line: sr.line,
+                limit: MAX_VERTICES,
+            });
+        }
+        self.objects.truncate(sr.first);
+        for j in 0..sr.ny {
+            for i in 0..sr.nx {
+                let t = [f64::from(i) * sr.dx, f64::from(j) * sr.dy];
+                for o in &block {
+                    let f = Affine {
+                        m: [1.0, 0.0, 0.0, 1.0],
+                        t,
+                    };
+                    let mut c = o.clone();
+                    if i != 0 || j != 0 {
+                        c.shape = map_multi(&o.shape, &f);
+                        c.bbox = [
+                            o.bbox[0] + t[0],
+                            o.bbox[1] + t[1],
+                            o.bbox[2] + t[0],
+                            o.bbox[3] + t[1],
+                        ];
+                        c.exact = o.exact.as_ref().map(|e| {
+                            e.transformed(&crate::inspection::pads::Rigid {
+                                rotation_rad: 0.0,
+                                tx: t[0],
+                                ty: t[1],
+                            })
+                        });
+                        if c.bbox.iter().any(|v| v.abs() > MAX_COORD_MM) {
+                            return Err(GerberError::OutOfRange {
+                                line: sr.line,
+                                what: "step and repeat beyond 10 m".into(),
+                            });
+                        }
+                    }
+                    self.objects.push(c);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The shape of an aperture definition, about its origin, mm.
+    fn define(&self, ap: &Aperture) -> Result<ApertureShape, GerberError> {
+        let hole = |h: Option<f64>| -> Result<Vec<Vec<Point>>, GerberError> {
+            match h {
+                Some(d) if d > 0.0 => Ok(vec![circle_points([0.0, 0.0], self.length(d, "hole")?)]),
+                _ => Ok(vec![]),
+            }
+        };
+        let positive = |v: f64, what: &str| -> Result<f64, GerberError> {
+            let mm = self.length(v, what)?;
+            if mm < 0.0 {
+                return Err(GerberError::OutOfRange {
+                    line: self.line,
+                    what: format!("negative {what} {v}"),
+                });
+            }
+            Ok(mm)
+        };
+        Ok(match ap {
+            Aperture::Circle(c) => {
+                let d = positive(c.diameter, "diameter")?;
+                let holes = hole(c.hole_diameter)?;
+                let exact = holes.is_empty().then_some(Exact::Circle { d });
+                let shape = if d > 0.0 {
+                    MultiPolygon::new(vec![polygon(&circle_points([0.0, 0.0], d), &holes)])
+                } else {
+                    MultiPolygon::new(vec![])
+                };
+                ApertureShape {
+                    shape,
+                    exact: if d > 0.0 { exact } else { None },
+                    class: format!("C {}", num(d)),
+                    stroke: Stroke::Circle(d),
+                }
+            }
+            Aperture::Rectangle(r) | Aperture::Obround(r) => {
+                let (w, h) = (positive(r.x, "width")?, positive(r.y, "height")?);
+                let obround = matches!(ap, Aperture::Obround(_));
+                let radius = if obround { w.min(h) / 2.0 } else { 0.0 };
+                let holes = hole(r.hole_diameter)?;
+                let exact = (holes.is_empty() && w > 0.0 && h > 0.0).then_some(Exact::RoundRect {
+                    w,
+                    h,
+                    r: radius,
+                    rot: 0.0,
+                });
+                let shape = if w > 0.0 && h > 0.0 {
+                    MultiPolygon::new(vec![polygon(
+                        &round_rect_points([0.0, 0.0], w, h, radius, 0.0),
+                        &holes,
+                    )])
+                } else {
+                    MultiPolygon::new(vec![])
+                };
+                ApertureShape {
+                    shape,
+                    exact,
+                    class: format!("{} {}x{}", if obround { "O" } else { "R" }, num(w), num(h)),
+                    stroke: if obround {
+                        Stroke::None
+                    } else {
+                        Stroke::Rect(w, h)
+                    },
+                }
+            }
+            Aperture::Polygon(p) => {
+                let d = positive(p.diameter, "diameter")?;
+                let n = p.vertices;
+                if !(3..=12).contains(&n) {
+                    return Err(err(
+                        self.line,
+                        format!("polygon aperture with {n} vertices"),
+                    ));
+                }
+                let rot = p.rotation.unwrap_or(0.0);
+                let pts: Vec<Point> = (0..n)
+                    .map(|i| {
+                        let a = (rot + 360.0 * f64::from(i) / f64::from(n)).to_radians();
+                        [d / 2.0 * a.cos(), d / 2.0 * a.sin()]
+                    })
+                    .collect();
+                ApertureShape {
+                    shape: MultiPolygon::new(vec![polygon(&pts, &hole(p.hole_diameter)?)]),
+                    exact: None,
+                    class: format!("P {} n{n}", num(d)),
+                    stroke: Stroke::None,
+                }
+            }
+            Aperture::Macro(name, params) => self.define_macro(name, params.as_deref())?,
+        })
+    }
+
+    fn define_macro(
+        &self,
+        name: &str,
+        params: Option<&[MacroDecimal]>,
+    ) -> Result<ApertureShape, GerberError> {
+        let m = self
+            .macros
+            .get(name)
+            .ok_or_else(|| err(self.line, format!("aperture macro {name:?} is not defined")))?;
+        let mut vars: HashMap<u32, f64> = HashMap::new();
+        for (i, p) in params.unwrap_or(&[]).iter().enumerate() {
+            let v = match p {
+                MacroDecimal::Value(v) => *v,
+                MacroDecimal::Variable(_) | MacroDecimal::Expression(_) => {
+                    return Err(err(self.line, "aperture parameters must be numbers"));
+                }
+            };
+            vars.insert(i as u32 + 1, v);
+        }
+        let scale = self.scale()?;
+        let line = self.line;
+        let dec = |d: &MacroDecimal, vars: &HashMap<u32, f64>| -> Result<f64, GerberError> {
+            let v = match d {
+                MacroDecimal::Value(v) => *v,
+                MacroDecimal::Variable(n) => vars.get(n).copied().unwrap_or(0.0),
+                MacroDecimal::Expression(e) => eval_expr(e, vars)
+                    .map_err(|m| err(line, format!("macro {name}: {m} in {e:?}")))?,
+            };
+            if !v.is_finite() || v.abs() * scale > MAX_COORD_MM {
+                return Err(GerberError::OutOfRange {
+                    line,
+                    what: format!("macro {name} value {v}"),
+                });
+            }
+            Ok(v)
+        };
+        let boolean = |b: &MacroBoolean, vars: &HashMap<u32, f64>| -> Result<bool, GerberError> {
+            Ok(match b {
+                MacroBoolean::Value(v) => *v,
+                MacroBoolean::Variable(n) => vars.get(n).copied().unwrap_or(0.0) != 0.0,
+                MacroBoolean::Expression(e) => {
+                    eval_expr(e, vars).map_err(|m| err(line, format!("macro {name}: {m}")))? != 0.0
+                }
+            })
+        };
+        let integer = |i: &MacroInteger, vars: &HashMap<u32, f64>| -> Result<u32, GerberError> {
+            let v = match i {
+                MacroInteger::Value(v) => f64::from(*v),
+                MacroInteger::Variable(n) => vars.get(n).copied().unwrap_or(0.0),
+                MacroInteger::Expression(e) => {
+                    eval_expr(e, vars).map_err(|m| err(line, format!("macro {name}: {m}")))?
+                }
+            };
+            if !(0.0..=1e6).contains(&v) {
+                return Err(err(line, format!("macro {name}: bad count {v}")));
+            }
+            Ok(v.round() as u32)
+        };
+        let rotate = |p: Point, deg: f64| -> Point {
+            let (s, c) = deg.to_radians().sin_cos();
+            [c * p[0] - s * p[1], s * p[0] + c * p[1]]
+        };
+        // (exposure, primitive), mm, macro rotation applied.
+        let mut prims: Vec<(bool, Prim)> = Vec::new();
+        for content in &m.content {
+            let prim = match content {
+                MacroContent::Comment(_) => continue,
+                MacroContent::VariableDefinition(v) => {
+                    let value = eval_expr(&v.expression, &vars)
+                        .map_err(|e| err(line, format!("macro {name}: {e}")))?;
+                    vars.insert(v.number, value);
+                    continue;
+                }
+                MacroContent::Circle(c) => {
+                    let rot = c
+                        .angle
+                        .as_ref()
+                        .map(|a| dec(a, &vars))
+                        .transpose()?
+                        .unwrap_or(0.0);
+                    let centre = rotate([dec(&c.center.0, &vars)?, dec(&c.center.1, &vars)?], rot);
+                    (
+                        boolean(&c.exposure, &vars)?,
+                        Prim::Circle {
+                            c: [centre[0] * scale, centre[1] * scale],
+                            d: dec(&c.diameter, &vars)?.abs() * scale,
+                        },
+                    )
+                }
+                MacroContent::VectorLine(v) => {
+                    let rot = dec(&v.angle, &vars)?;
+                    let (a, b) = (
+                        [dec(&v.start.0, &vars)?, dec(&v.start.1, &vars)?],
+                        [dec(&v.end.0, &vars)?, dec(&v.end.1, &vars)?],
+                    );
+                    let w = dec(&v.width, &vars)?.abs();
+                    let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+                    let dir = (b[1] - a[1]).atan2(b[0] - a[0]).to_degrees();
+                    let mid = rotate([(a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0], rot);
+                    (
+                        boolean(&v.exposure, &vars)?,
+                        Prim::Rect {
+                            c: [mid[0] * scale, mid[1] * scale],
+                            w: len * scale,
+                            h: w * scale,
+                            rot: dir + rot,
+                        },
+                    )
+                }
+                MacroContent::CenterLine(c) => {
+                    let rot = dec(&c.angle, &vars)?;
+                    let centre = rotate([dec(&c.center.0, &vars)?, dec(&c.center.1, &vars)?], rot);
+                    (
+                        boolean(&c.exposure, &vars)?,
+                        Prim::Rect {
+                            c: [centre[0] * scale, centre[1] * scale],
+                            w: dec(&c.dimensions.0, &vars)?.abs() * scale,
+                            h: dec(&c.dimensions.1, &vars)?.abs() * scale,
+                            rot,
+                        },
+                    )
+                }
+                MacroContent::Outline(o) => {
+                    let rot = dec(&o.angle, &vars)?;
+                    let mut pts = Vec::with_capacity(o.points.len());
+                    for (x, y) in &o.points {
+                        let p = rotate([dec(x, &vars)?, dec(y, &vars)?], rot);
+                        pts.push([p[0] * scale, p[1] * scale]);
+                    }
+                    let pts = dedup(pts);
+                    if pts.len() < 3 {
+                        return Err(err(line, format!("macro {name}: outline with < 3 points")));
+                    }
+                    (boolean(&o.exposure, &vars)?, Prim::Poly(pts))
+                }
+                MacroContent::Polygon(p) => {
+                    let rot = dec(&p.angle, &vars)?;
+                    let n = integer(&p.vertices, &vars)?;
+                    if !(3..=12).contains(&n) {
+                        return Err(err(
+                            line,
+                            format!("macro {name}: polygon with {n} vertices"),
+                        ));
+                    }
+                    let c = [dec(&p.center.0, &vars)?, dec(&p.center.1, &vars)?];
+                    let d = dec(&p.diameter, &vars)?.abs();
+                    let pts = (0..n)
+                        .map(|i| {
+                            let a = TAU_DEG * f64::from(i) / f64::from(n);
+                            let q = [
+                                c[0] + d / 2.0 * a.to_radians().cos(),
+                                c[1] + d / 2.0 * a.to_radians().sin(),
+                            ];
+                            let q = rotate(q, rot);
+                            [q[0] * scale, q[1] * scale]
+                        })
+                        .collect();
+                    (boolean(&p.exposure, &vars)?, Prim::Poly(pts))
+                }
+                MacroContent::Thermal(t) => {
+                    // A ring cut by a cross of `gap` width; its pieces as polygons.
+                    let rot = dec(&t.angle, &vars)?;
+                    let c = [dec(&t.center.0, &vars)?, dec(&t.center.1, &vars)?];
+                    let (od, id, gap) = (
+                        dec(&t.outer_diameter, &vars)?.abs(),
+                        dec(&t.inner_diameter, &vars)?.abs(),
+                        dec(&t.gap, &vars)?.abs(),
+                    );
+                    let ring = polygon(&circle_points(c, od), &[circle_points(c, id)]);
+                    let cross = MultiPolygon::new(vec![
+                        polygon(&rect_points(c, od * 2.0, gap, 0.0), &[]),
+                        polygon(&rect_points(c, gap, od * 2.0, 0.0), &[]),
+                    ]);
+                    let pieces = ring.difference(&cross);
+                    for piece in pieces.iter() {
+                        let pts: Vec<Point> = piece
+                            .exterior()
+                            .coords()
+                            .map(|q| {
+                                let r = rotate([q.x, q.y], rot);
+                                [r[0] * scale, r[1] * scale]
+                            })
+                            .collect();
+                        prims.push((true, Prim::Poly(dedup(pts))));
+                    }
+                    continue;
+                }
+                MacroContent::Moire(_) => {
+                    return Err(unsupported(
+                        line,
+                        format!("moire primitive in macro {name}"),
+                    ));
+                }
+            };
+            prims.push(prim);
+        }
+        // Sequential exposure: dark runs are unioned at once, clear ones cut.
+        let mut shape = MultiPolygon::<f64>::new(vec![]);
+        let mut run: Vec<Polygon<f64>> = Vec::new();
+        for (on, p) in &prims {
+            let poly = polygon(&p.points(), &[]);
+            if *on {
+                run.push(poly);
+            } else {
+                if !run.is_empty() {
+                    run.extend(shape.0.drain(..));
+                    shape = union_all(&run);
+                    run.clear();
+                }
+                shape = shape.difference(&poly);
+            }
+        }
+        if !run.is_empty() {
+            run.extend(shape.0.drain(..));
+            shape = union_all(&run);
+        }
+        let all_on = prims.iter().all(|(on, _)| *on);
+        let only: Vec<Prim> = prims.into_iter().map(|(_, p)| p).collect();
+        let exact = if all_on {
+            recognise(&only, super::shapes::area(&shape))
+        } else {
+            None
+        };
+        let class = match exact {
+            Some(Exact::RoundRect { w, h, r, .. }) if r > 0.0 => {
+                format!("{name} {}x{} r{}", num(w), num(h), num(r))
+            }
+            Some(Exact::RoundRect { w, h, .. }) => format!("{name} {}x{}", num(w), num(h)),
+            Some(Exact::Circle { d }) => format!("{name} {}", num(d)),
+            None => name.to_string(),
+        };
+        Ok(ApertureShape {
+            shape,
+            exact,
+            class,
+            stroke: Stroke::None,
+        })
+    }
+
+    fn operation(&mut self, op: &Operation) -> Result<(), GerberError> {
+        match op {
+            Operation::Move(c) => {
+                let p = self.target(c.as_ref().map(|c| (c.x, c.y)))?;
+                if let Some(region) = &mut self.region {
+                    let cur = std::mem::take(&mut region.current);
+                    if !cur.is_empty() {
+                        region.contours.push(cur);
+                    }
+                    region.current.push(p);
+                }
+                self.point = p;
+            }
+            Operation::Flash(c) => {
+                if self.region.is_some() {
+                    return Err(err(self.line, "flash (D03) inside a region (G36)"));
+                }
+                let p = self.target(c.as_ref().map(|c| (c.x, c.y)))?;
+                self.point = p;
+                self.flash(p)?;
+            }
+            Operation::Interpolate(c, off) => {
+                let p = self.target(c.as_ref().map(|c| (c.x, c.y)))?;
+                let start = self.point;
+                let path: Vec<Point> = match self.mode {
+                    InterpolationMode::Linear => vec![p],
+                    m => {
+                        let (i, j) = match off {
+                            Some(o) => (self.offset(o.x)?, self.offset(o.y)?),
+                            None => (0.0, 0.0),
+                        };
+                        let cw = m == InterpolationMode::ClockwiseCircular;
+                        let centre = if self.multi_quadrant {
+                            [start[0] + i, start[1] + j]
+                        } else {
+                            single_quadrant_centre(start, p, i.abs(), j.abs(), cw)
+                        };
+                        arc_points(start, p, centre, cw)
+                    }
+                };
+                if let Some(region) = &mut self.region {
+                    if region.current.is_empty() {
+                        region.current.push(start);
+                    }
+                    region.current.extend(path);
+                } else {
+                    self.stroke(start, &path)?;
+                }
+                self.point = p;
+            }
+        }
+        Ok(())
+    }
+
+    fn target(
+        &self,
+        c: Option<(Option<CoordinateNumber>, Option<CoordinateNumber>)>,
+    ) -> Result<Point, GerberError> {
+        match c {
+            None => Ok(self.point),
+            Some((x, y)) => Ok([self.coordinate(x, 0)?, self.coordinate(y, 1)?]),
+        }
+    }
+
+    fn flash(&mut self, at: Point) -> Result<(), GerberError> {
+        let f = self.flash_transform(at);
+        let ap = self.aperture()?;
+        let shape = map_multi(&ap.shape, &f);
+        let exact = ap.exact.map(|e| e.placed(at, &f));
+        let class = ap.class.clone();
+        self.push(shape, exact, class)
+    }
+
+    fn stroke(&mut self, start: Point, path: &[Point]) -> Result<(), GerberError> {
+        let ap = self.aperture()?;
+        let (class, stroke) = (format!("stroke {}", ap.class), ap.stroke);
+        let mut pieces = Vec::with_capacity(path.len());
+        let mut a = start;
+        for &b in path {
+            let pts = match stroke {
+                Stroke::Circle(d) if d > 0.0 => capsule(a, b, d),
+                Stroke::Circle(_) => {
+                    self.zero_strokes += 1;
+                    return Ok(());
+                }
+                Stroke::Rect(w, h) => swept_rect(a, b, w, h),
+                Stroke::None => {
+                    return Err(unsupported(
+                        self.line,
+                        format!("drawing (D01) with aperture {class:?}: only C and R may draw"),
+                    ))
+                }
+            };
+            pieces.push(polygon(&pts, &[]));
+            a = b;
+        }
+        let shape = if pieces.len() == 1 {
+            MultiPolygon::new(pieces)
+        } else {
+            union_all(&pieces)
+        };
+        self.push(shape, None, class)
+    }
+
+    fn region_objects(&mut self, region: Region) -> Result<(), GerberError> {
+        let line = self.line;
+        self.line = region.line;
+        for contour in region.contours {
+            if contour.is_empty() {
+                continue;
+            }
+            let (first, last) = (contour[0], contour[contour.len() - 1]);
+            if (first[0] - last[0]).abs() > 1e-6 || (first[1] - last[1]).abs() > 1e-6 {
+                self.unclosed_contours += 1;
+            }
+            let pts = dedup(contour);
+            if pts.len() < 3 {
+                return Err(GerberError::BadRegion {
+                    line: region.line,
+                    message: "a contour with fewer than 3 points".into(),
+                });
+            }
+            let shape = union_all(&[polygon(&pts, &[])]);
+            if shape.0.is_empty() {
+                return Err(GerberError::BadRegion {
+                    line: region.line,
+                    message: "a contour with no area".into(),
+                });
+            }
+            self.push(shape, None, "region".into())?;
+        }
+        self.line = line;
+        Ok(())
+    }
+}
+
+const TAU_DEG: f64 = 360.0;
+
+/// The centre of a single-quadrant (`G74`) arc: the signs of `i`, `j` are not given; the
+/// one whose arc is at most 90 degrees and whose radii agree best wins.
+fn single_quadrant_centre(start: Point, end: Point, i: f64, j: f64, cw: bool) -> Point {
+    let mut best = ([start[0] + i, start[1] + j], f64::INFINITY);
+    for (si, sj) in [(1.0, 1.0), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)] {
+        let c = [start[0] + si * i, start[1] + sj * j];
+        let a0 = (start[1] - c[1]).atan2(start[0] - c[0]);
+        let a1 = (end[1] - c[1]).atan2(end[0] - c[0]);
+        let sweep = if cw { a0 - a1 } else { a1 - a0 }.rem_euclid(std::f64::consts::TAU);
+        if sweep > std::f64::consts::FRAC_PI_2 + 1e-6 {
+            continue;
+        }
+        let dr =
+            ((start[0] - c[0]).hypot(start[1] - c[1]) - (end[0] - c[0]).hypot(end[1] - c[1])).abs();
+        if dr < best.1 {
+            best = (c, dr);
+        }
+    }
+    best.0
+}
+
+/// Runs the parser's commands through the graphics state.
+pub(super) fn interpret(lexed: &Lexed, commands: &[Command]) -> Result<Interpreted, GerberError> {
+    let mut st = State::new();
+    st.warnings.extend(lexed.warnings.iter().cloned());
+    for cmd in commands {
+        st.command(cmd)?;
+        if st.ended {
+            break;
+        }
+    }
+    if let Some(region) = &st.region {
+        return Err(GerberError::UnclosedRegion { line: region.line });
+    }
+    if let Some(open) = st.step.take() {
+        if st.ended {
+            st.warnings.push(format!(
+                "line {}: step and repeat not closed before M02",
+                open.line
+            ));
+            st.expand(open)?;
+        } else {
+            return Err(GerberError::Truncated {
+                line: open.line,
+                what: "step and repeat (%SR) never closed".into(),
+            });
+        }
+    }
+    if !st.ended {
+        st.warnings
+            .push("no M02 at the end: the file may be truncated (its geometry is complete)".into());
+    }
+    if st.units.is_none() {
+        return Err(GerberError::NoUnits { line: st.line });
+    }
+    if st.unclosed_contours > 0 {
+        st.warnings.push(format!(
+            "{} region contour(s) not closed by the file; closed with a straight edge",
+            st.unclosed_contours
+        ));
+    }
+    if st.zero_strokes > 0 {
+        st.warnings.push(format!(
+            "{} stroke(s) with a zero-size aperture ignored (they have no area)",
+            st.zero_strokes
+        ));
+    }
+    Ok(Interpreted {
+        objects: st.objects,
+        units: st.units.unwrap_or("mm"),
+        generator: st.generator,
+        warnings: st.warnings,
+    })
+}

@@ -1,0 +1,385 @@
+//! Pre-processing: the file's text into one Gerber statement per line, each preceded by a
+//! marker comment that carries its line number in the original file.
+//!
+//! `gerber_parser` reads one command per line and panics or fails on some shapes that real
+//! files have: several commands on one line (or a whole file on one line), several commands
+//! in one `%...%` block (`%FSLAX24Y24*MOIN*%`), a bare `G0`, non-ASCII bytes where it slices
+//! the line. This pass splits the text at the `*` and `%` delimiters, checks the characters,
+//! translates the deprecated words the parser does not know (`G70`/`G71` units, `G90`/`G91`
+//! absolute/incremental, `G55`, `%LN`) and drops plain comments, so that every `G04` comment
+//! the parser returns is one of our markers (standard `G04 #@! ...` X2 attribute comments of
+//! KiCad 5 are kept: the parser turns them into attributes).
+
+use super::GerberError;
+
+/// Prefix of the marker comments; plain comments are dropped, so no real comment starts so.
+pub(super) const MARKER: &str = "dpsa:";
+
+/// One statement: a word `...*` or an extended block `%...*%` (an aperture macro keeps its
+/// primitives on lines of their own, as the parser expects).
+#[derive(Debug)]
+struct Statement {
+    /// 1-based line in the original text where the statement starts.
+    line: usize,
+    text: String,
+}
+
+/// The pre-processed text and what the parser cannot be told.
+#[derive(Debug)]
+pub(super) struct Lexed {
+    /// Statements, one per line, each after a `G04 dpsa:line:N*` marker.
+    pub text: String,
+    /// Original line of every line of `text` (index 0 = line 1 of `text`).
+    pub line_map: Vec<usize>,
+    /// Whether the text ended inside an unterminated statement (no closing `*` or `%`).
+    pub warnings: Vec<String>,
+}
+
+impl Lexed {
+    /// The original line of a line of the pre-processed text (1-based in, 1-based out).
+    pub fn original_line(&self, pre_line: usize) -> usize {
+        pre_line
+            .checked_sub(1)
+            .and_then(|i| self.line_map.get(i))
+            .copied()
+            .unwrap_or(0)
+    }
+}
+
+fn syntax(line: usize, message: impl Into<String>) -> GerberError {
+    GerberError::Syntax {
+        line,
+        message: message.into(),
+    }
+}
+
+/// Whether a character may appear in a Gerber file at all: printable text, the line breaks,
+/// tabs. Anything else (NUL, other control characters) means the file is not Gerber text.
+fn is_text(c: char) -> bool {
+    !c.is_control() || matches!(c, '\n' | '\r' | '\t')
+}
+
+/// Splits `text` into statements. Errors on binary data and on a `%` block left open.
+fn statements(text: &str) -> Result<(Vec<Statement>, Vec<String>), GerberError> {
+    let mut out = Vec::new();
+    let mut warnings = Vec::new();
+    let mut line = 1usize;
+    let mut word = String::new();
+    let mut word_line = 1usize;
+    // Inside `%...%`: the block's words so far and the line it opened on.
+    let mut block: Option<(Vec<(usize, String)>, usize)> = None;
+    for c in text.chars() {
+        if !is_text(c) {
+            return Err(GerberError::Binary { line });
+        }
+        match c {
+            '\n' => {
+                line += 1;
+                continue;
+            }
+            '\r' | '\t' => continue,
+            _ => {}
+        }
+        if word.is_empty() && c != '%' && c.is_whitespace() {
+            // Blanks between statements.
+            continue;
+        }
+        match c {
+            '%' => {
+                let w = std::mem::take(&mut word);
+                match block.take() {
+                    None => {
+                        if !w.trim().is_empty() {
+                            return Err(syntax(
+                                word_line,
+                                format!("{:?} is not terminated by '*'", w.trim()),
+                            ));
+                        }
+                        block = Some((Vec::new(), line));
+                    }
+                    Some((words, start)) => {
+                        if !w.trim().is_empty() {
+                            return Err(syntax(
+                                word_line,
+                                format!("{:?} is not terminated by '*' before '%'", w.trim()),
+                            ));
+                        }
+                        push_block(&mut out, words, start)?;
+                    }
+                }
+            }
+            '*' => {
+                let w = std::mem::take(&mut word);
+                let w = w.trim().to_string();
+                match &mut block {
+                    Some((words, _)) => words.push((word_line, w)),
+                    None => {
+                        if !w.is_empty() {
+                            out.push(Statement {
+                                line: word_line,
+                                text: w,
+                            })
+                        }
+                    }
+                }
+            }
+            _ => {
+                if word.is_empty() {
+                    word_line = line;
+                }
+                word.push(c);
+            }
+        }
+    }
+    if let Some((words, start)) = block {
+        let what = words
+            .first()
+            .map(|(_, w)| w.chars().take(2).collect::<String>())
+            .unwrap_or_default();
+        return Err(if what == "AM" {
+            GerberError::UnterminatedMacro { line: start }
+        } else {
+            syntax(start, "extended command '%' is never closed")
+        });
+    }
+    if !word.trim().is_empty() {
+        warnings.push(format!(
+            "line {word_line}: text after the last statement ignored: {:?}",
+            word.trim().chars().take(40).collect::<String>()
+        ));
+    }
+    Ok((out, warnings))
+}
+
+/// One `%...%` block: an aperture macro stays one multi-line block; any other block with
+/// several words becomes one block per word (`%FSLAX24Y24*MOIN*%`).
+fn push_block(
+    out: &mut Vec<Statement>,
+    words: Vec<(usize, String)>,
+    start: usize,
+) -> Result<(), GerberError> {
+    let Some((_, first)) = words.first() else {
+        return Ok(()); // `%%`: nothing
+    };
+    if first.starts_with("AM") {
+        let n = words.len();
+        let mut text = String::new();
+        for (i, (_, w)) in words.iter().enumerate() {
+            if i == 0 {
+                text.push('%');
+            }
+            text.push_str(w);
+            text.push('*');
+            if i + 1 == n {
+                text.push('%');
+            } else {
+                text.push('\n');
+            }
+        }
+        out.push(Statement { line: start, text });
+        return Ok(());
+    }
+    for (line, w) in words {
+        if w.is_empty() {
+            continue;
+        }
+        // Deprecated: layer name (no meaning for the image).
+        if w.starts_with("LN") {
+            continue;
+        }
+        out.push(Statement {
+            line,
+            text: format!("%{w}*%"),
+        });
+    }
+    Ok(())
+}
+
+/// Whether a statement is one whose text may hold any UTF-8 (comments, attributes).
+fn free_text(s: &str) -> bool {
+    s.starts_with("G04")
+        || s.starts_with("%TF")
+        || s.starts_with("%TA")
+        || s.starts_with("%TO")
+        || s.starts_with("%TD")
+        || s.starts_with("%IN")
+        || s.starts_with("%AM")
+}
+
+/// Rewrites one word statement for the parser: `None` drops it, an error refuses it.
+fn rewrite(st: &Statement) -> Result<Option<String>, GerberError> {
+    let s = st.text.as_str();
+    if !free_text(s) && !s.is_ascii() {
+        return Err(syntax(
+            st.line,
+            format!(
+                "unexpected character in {:?}",
+                s.chars().take(40).collect::<String>()
+            ),
+        ));
+    }
+    if let Some(comment) = s.strip_prefix("G04") {
+        // Standard comments (`#@!`) carry X2 attributes (KiCad 5); others are dropped.
+        return Ok(if comment.trim_start().starts_with("#@!") {
+            Some(s.to_string())
+        } else {
+            None
+        });
+    }
+    if s.starts_with('G') {
+        // The parser slices the 3 characters after 'G'; a shorter word would panic it.
+        let digits: String = s[1..].chars().take_while(|c| c.is_ascii_digit()).collect();
+        let rest = &s[1 + digits.len()..];
+        let code: u32 = digits
+            .parse()
+            .map_err(|_| syntax(st.line, format!("unknown command {s:?}")))?;
+        let with_rest = |word: &str| -> String {
+            if rest.is_empty() {
+                word.to_string()
+            } else {
+                format!("{word}\n{rest}")
+            }
+        };
+        return Ok(Some(match code {
+            1 => with_rest("G01"),
+            2 => with_rest("G02"),
+            3 => with_rest("G03"),
+            36 => with_rest("G36"),
+            37 => with_rest("G37"),
+            54 => with_rest("G54"),
+            // G55: "prepare for flash", deprecated, no effect.
+            55 => {
+                return Ok(if rest.is_empty() {
+                    None
+                } else {
+                    Some(rest.to_string())
+                })
+            }
+            // Units (deprecated words).
+            70 => with_rest("%MOIN*%"),
+            71 => with_rest("%MOMM*%"),
+            74 => with_rest("G74"),
+            75 => with_rest("G75"),
+            // Absolute / incremental notation (deprecated): told by marker.
+            90 => with_rest(&format!("G04 {MARKER}notation:absolute")),
+            91 => with_rest(&format!("G04 {MARKER}notation:incremental")),
+            _ => return Err(syntax(st.line, format!("unknown command {s:?}"))),
+        }));
+    }
+    Ok(Some(s.to_string()))
+}
+
+/// Pre-processes a whole file. Errors on binary data, an unterminated `%` block (an aperture
+/// macro or another extended command) and statements the parser cannot be given safely.
+pub(super) fn lex(text: &str) -> Result<Lexed, GerberError> {
+    let (stmts, warnings) = statements(text)?;
+    let mut out = String::with_capacity(text.len() + stmts.len() * 20);
+    let mut line_map = Vec::with_capacity(stmts.len() * 2);
+    for st in &stmts {
+        let Some(body) = rewrite(st)? else { continue };
+        let body = if body.starts_with('%') || body.ends_with('*') {
+            body
+        } else {
+            // Words lost their '*' in splitting; the parser wants it back.
+            body.split('\n')
+                .map(|w| {
+                    if w.ends_with('*') {
+                        w.to_string()
+                    } else {
+                        format!("{w}*")
+                    }
+                })
+                .collect::<Vec<_>>()
+                .join("\n")
+        };
+        out.push_str(&format!("G04 {MARKER}line:{}*\n", st.line));
+        line_map.push(st.line);
+        for l in body.split('\n') {
+            out.push_str(l);
+            out.push('\n');
+            line_map.push(st.line);
+        }
+    }
+    Ok(Lexed {
+        text: out,
+        line_map,
+        warnings,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lines(text: &str) -> Vec<String> {
+        lex(text)
+            .expect("lexes")
+            .text
+            .lines()
+            .filter(|l| !l.starts_with("G04 dpsa:line"))
+            .map(str::to_string)
+            .collect()
+    }
+
+    #[test]
+    fn splits_one_line_files_and_multi_word_blocks() {
+        assert_eq!(
+            lines("%FSLAX24Y24*MOIN*%%ADD10C,0.01*%D10*X1Y1D03*X2Y2D03*M02*"),
+            [
+                "%FSLAX24Y24*%",
+                "%MOIN*%",
+                "%ADD10C,0.01*%",
+                "D10*",
+                "X1Y1D03*",
+                "X2Y2D03*",
+                "M02*"
+            ]
+        );
+    }
+
+    #[test]
+    fn keeps_macros_whole_and_maps_lines() {
+        let l = lex("%FSLAX26Y26*%\n%MOMM*%\n%AMBOX*\n21,1,$1,$2,0,0,0*%\nG04 hello*\nM02*\n")
+            .expect("lexes");
+        let text: Vec<&str> = l.text.lines().collect();
+        let am = text
+            .iter()
+            .position(|t| t.starts_with("%AMBOX"))
+            .expect("macro");
+        assert_eq!(text[am + 1], "21,1,$1,$2,0,0,0*%");
+        assert_eq!(l.original_line(am + 1), 3);
+        // Plain comments are dropped.
+        assert!(!l.text.contains("hello"));
+    }
+
+    #[test]
+    fn refuses_binary_and_open_blocks() {
+        assert!(matches!(
+            lex("%FSLAX26Y26*%\n\u{0}\u{1}"),
+            Err(GerberError::Binary { line: 2 })
+        ));
+        assert!(matches!(
+            lex("%FSLAX26Y26*%\n%AMFOO*\n1,1,1,0,0*\n"),
+            Err(GerberError::UnterminatedMacro { line: 2 })
+        ));
+        assert!(matches!(lex("G0*"), Err(GerberError::Syntax { .. })));
+        assert!(matches!(lex("G9*"), Err(GerberError::Syntax { .. })));
+        assert!(matches!(lex("G*"), Err(GerberError::Syntax { .. })));
+        assert!(matches!(lex("X1é*"), Err(GerberError::Syntax { .. })));
+    }
+
+    #[test]
+    fn translates_deprecated_words() {
+        assert_eq!(
+            lines("G70*G91*G54D10*G01X1Y2D01*G55*"),
+            [
+                "%MOIN*%",
+                "G04 dpsa:notation:incremental*",
+                "G54*",
+                "D10*",
+                "G01*",
+                "X1Y2D01*"
+            ]
+        );
+    }
+}

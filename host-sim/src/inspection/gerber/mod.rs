@@ -1,0 +1,322 @@
+//! A board's top paste layer (Gerber RS-274X / X2) as pads (`dpsa pads`, `docs/inspection.md`).
+//!
+//! The file is read in four steps:
+//!
+//! | file | step |
+//! | --- | --- |
+//! | [`lex`] | size and character checks; one statement per line with its original line number; deprecated words translated |
+//! | `gerber_parser` (crate) | statements -> `gerber-types` commands |
+//! | [`interp`] | the graphics state: apertures, macros, flashes, strokes, regions, step and repeat, polarity, X2 object attributes -> objects in mm |
+//! | [`merge`] | objects -> pads: connected openings (union; clear objects cut), exact outlines for plain flashes |
+//!
+//! [`shapes`] holds the geometry (polygons within 1 um of the curves, macro expressions, the
+//! recognition of rounded rectangles built from macro primitives).
+//!
+//! Coordinates stay in the file's own frame, converted to mm. Bad input is a [`GerberError`]
+//! with the line it was found on, never a panic; memory and time are bounded by
+//! [`MAX_FILE_BYTES`], [`MAX_OBJECTS`] and [`MAX_VERTICES`].
+
+mod interp;
+mod lex;
+mod merge;
+mod shapes;
+
+use super::pads::Pad;
+use serde::Serialize;
+use std::io::Read;
+use std::path::Path;
+
+/// Largest file read, bytes (64 MiB).
+pub const MAX_FILE_BYTES: u64 = 64 << 20;
+/// Most objects (flashes, strokes, region contours, after step and repeat) in one layer.
+pub const MAX_OBJECTS: usize = 1_000_000;
+/// Most polygon vertices of all objects together (about 0.5 GB of geometry).
+pub const MAX_VERTICES: usize = 30_000_000;
+/// Largest coordinate or size, mm (10 m): beyond it a file is corrupt, not a board.
+pub const MAX_COORD_MM: f64 = 10_000.0;
+
+/// Why a paste layer could not be read. `line` is the 1-based line of the file (0 when the
+/// problem has no single line, e.g. an empty file).
+#[derive(Debug, thiserror::Error)]
+pub enum GerberError {
+    #[error("{path}: {source}")]
+    Io {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("the file is {bytes} bytes, more than the {limit} bytes a paste layer may have")]
+    TooLarge { bytes: u64, limit: u64 },
+    #[error("line {line}: binary data, not Gerber text")]
+    Binary { line: usize },
+    #[error("line {line}: {message}")]
+    Syntax { line: usize, message: String },
+    #[error("line {line}: no units: the file has no %MOMM*% or %MOIN*% before its first use of a length")]
+    NoUnits { line: usize },
+    #[error("line {line}: no coordinate format (%FS...*%) before the first coordinate")]
+    NoFormat { line: usize },
+    #[error("line {line}: aperture D{code} is used but never defined")]
+    UndefinedAperture { line: usize, code: i32 },
+    #[error("line {line}: aperture macro (%AM) is never closed by '%'")]
+    UnterminatedMacro { line: usize },
+    #[error("line {line}: region (G36) is never closed by G37")]
+    UnclosedRegion { line: usize },
+    #[error("line {line}: region: {message}")]
+    BadRegion { line: usize, message: String },
+    #[error("line {line}: {what} is out of range (|value| <= 10 m, finite)")]
+    OutOfRange { line: usize, what: String },
+    #[error("line {line}: more than {limit} objects (step and repeat included)")]
+    TooManyObjects { line: usize, limit: usize },
+    #[error("line {line}: more than {limit} polygon vertices in the layer")]
+    TooComplex { line: usize, limit: usize },
+    #[error("line {line}: not supported: {what}")]
+    Unsupported { line: usize, what: String },
+    #[error("line {line}: the file ends early: {what}")]
+    Truncated { line: usize, what: String },
+}
+
+impl GerberError {
+    /// The 1-based line of the file the error was found on (0: none).
+    pub fn line(&self) -> usize {
+        match self {
+            GerberError::Io { .. } | GerberError::TooLarge { .. } => 0,
+            GerberError::Binary { line }
+            | GerberError::Syntax { line, .. }
+            | GerberError::NoUnits { line }
+            | GerberError::NoFormat { line }
+            | GerberError::UndefinedAperture { line, .. }
+            | GerberError::UnterminatedMacro { line }
+            | GerberError::UnclosedRegion { line }
+            | GerberError::BadRegion { line, .. }
+            | GerberError::OutOfRange { line, .. }
+            | GerberError::TooManyObjects { line, .. }
+            | GerberError::TooComplex { line, .. }
+            | GerberError::Unsupported { line, .. }
+            | GerberError::Truncated { line, .. } => *line,
+        }
+    }
+}
+
+/// The pads of one paste layer.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct PasteLayer {
+    /// One per connected paste opening, in the order of the file.
+    pub pads: Vec<Pad>,
+    /// The file's units as it said: `"mm"` or `"inch"` (the pads are in mm either way).
+    pub units: &'static str,
+    /// `[xmin, ymin, xmax, ymax]` of all pads, mm, in the file's frame (zeros when no pads).
+    pub bbox_mm: [f64; 4],
+    /// `%TF.GenerationSoftware` (vendor,application,version) when the file has it.
+    pub generator: Option<String>,
+    /// What was odd but did not stop the reading (no M02, unclosed contours, ...).
+    pub warnings: Vec<String>,
+}
+
+/// Reads a paste layer file (at most [`MAX_FILE_BYTES`]).
+pub fn read_file(path: &Path) -> Result<PasteLayer, GerberError> {
+    let io = |source| GerberError::Io {
+        path: path.display().to_string(),
+        source,
+    };
+    let file = std::fs::File::open(path).map_err(io)?;
+    let len = file.metadata().map_err(io)?.len();
+    if len > MAX_FILE_BYTES {
+        return Err(GerberError::TooLarge {
+            bytes: len,
+            limit: MAX_FILE_BYTES,
+        });
+    }
+    let mut bytes = Vec::with_capacity(len as usize);
+    // `take` bounds what a growing file (or a device) can hand us.
+    file.take(MAX_FILE_BYTES + 1)
+        .read_to_end(&mut bytes)
+        .map_err(io)?;
+    if bytes.len() as u64 > MAX_FILE_BYTES {
+        return Err(GerberError::TooLarge {
+            bytes: bytes.len() as u64,
+            limit: MAX_FILE_BYTES,
+        });
+    }
+    match String::from_utf8(bytes) {
+        Ok(text) => read_str(&text),
+        Err(e) => {
+            let at = e.utf8_error().valid_up_to();
+            let line = 1 + e.as_bytes()[..at].iter().filter(|&&b| b == b'\n').count();
+            Err(GerberError::Binary { line })
+        }
+    }
+}
+
+/// Reads a paste layer from its text.
+pub fn read_str(text: &str) -> Result<PasteLayer, GerberError> {
+    if text.len() as u64 > MAX_FILE_BYTES {
+        return Err(GerberError::TooLarge {
+            bytes: text.len() as u64,
+            limit: MAX_FILE_BYTES,
+        });
+    }
+    let lexed = lex::lex(text)?;
+    let mut warnings = Vec::new();
+    let commands = parse(&lexed, &mut warnings)?;
+    let interp::Interpreted {
+        objects,
+        units,
+        generator,
+        warnings: w,
+    } = interp::interpret(&lexed, &commands)?;
+    warnings.extend(w);
+    let pads = merge::pads(&objects, &mut warnings);
+    let bbox_mm = if pads.is_empty() {
+        warnings.push("the layer has no pads".into());
+        [0.0; 4]
+    } else {
+        pads.iter().fold(
+            [
+                f64::INFINITY,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::NEG_INFINITY,
+            ],
+            |b, p| {
+                let q = p.outline.bbox();
+                [
+                    b[0].min(q[0]),
+                    b[1].min(q[1]),
+                    b[2].max(q[2]),
+                    b[3].max(q[3]),
+                ]
+            },
+        )
+    };
+    Ok(PasteLayer {
+        pads,
+        units,
+        bbox_mm,
+        generator,
+        warnings,
+    })
+}
+
+/// The parser on the pre-processed text. Its errors are fatal except on attribute lines
+/// (whose values it sometimes cannot type, e.g. a date in another format): those are warnings.
+fn parse(
+    lexed: &lex::Lexed,
+    warnings: &mut Vec<String>,
+) -> Result<Vec<gerber_parser::gerber_types::Command>, GerberError> {
+    use gerber_parser::ContentError;
+    let reader = std::io::BufReader::new(lexed.text.as_bytes());
+    // The pre-processing keeps the parser away from the inputs known to panic it; a panic
+    // that is left is still a refusal of the file, not of the program.
+    let doc = std::panic::catch_unwind(move || gerber_parser::parse(reader)).map_err(|_| {
+        GerberError::Syntax {
+            line: 0,
+            message: "the Gerber parser failed on this file".into(),
+        }
+    })?;
+    let doc = match doc {
+        Ok(doc) => doc,
+        Err((_, e)) => {
+            return Err(GerberError::Syntax {
+                line: 0,
+                message: e.to_string(),
+            })
+        }
+    };
+    let mut out = Vec::with_capacity(doc.commands.len());
+    for c in doc.commands {
+        match c {
+            Ok(cmd) => out.push(cmd),
+            Err(e) => {
+                if matches!(e.error, ContentError::NoEndOfFile) {
+                    continue; // M02 is checked by the interpreter
+                }
+                let (line, text) = match &e.line {
+                    Some((n, t)) => (lexed.original_line(*n), t.as_str()),
+                    None => (0, ""),
+                };
+                let attribute = text.starts_with("%T") || text.starts_with("G04");
+                if attribute {
+                    warnings.push(format!("line {line}: attribute ignored: {}", e.error));
+                } else {
+                    let what: String = text.chars().take(60).collect();
+                    return Err(GerberError::Syntax {
+                        line,
+                        message: format!("{} ({what:?})", e.error),
+                    });
+                }
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Edges of the area histogram, mm^2: half decades from 0.001 to 1000 (below and above go to
+/// the first and last bin).
+pub const AREA_EDGES_MM2: [f64; 13] = [
+    0.001, 0.00316, 0.01, 0.0316, 0.1, 0.316, 1.0, 3.16, 10.0, 31.6, 100.0, 316.0, 1000.0,
+];
+
+/// One bin of the area histogram: pads with `from_mm2 <= area < to_mm2` (the first bin also
+/// takes smaller pads, the last larger ones).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct AreaBin {
+    pub from_mm2: f64,
+    pub to_mm2: f64,
+    pub count: usize,
+}
+
+/// The figures `dpsa pads` prints about a layer.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct PadSummary {
+    pub count: usize,
+    /// `[xmin, ymin, xmax, ymax]`, mm, in the file's frame.
+    pub bbox_mm: [f64; 4],
+    pub total_area_mm2: f64,
+    pub area_histogram: Vec<AreaBin>,
+    /// Pads per aperture class, most common first (then by name).
+    pub classes: Vec<(String, usize)>,
+    /// Pads that carry a component or pin name (X2 `%TO.C` / `%TO.P`).
+    pub named: usize,
+}
+
+impl PasteLayer {
+    /// Count, box, area histogram, classes, named pads.
+    pub fn summary(&self) -> PadSummary {
+        let n = AREA_EDGES_MM2.len() - 1;
+        let mut bins: Vec<AreaBin> = (0..n)
+            .map(|i| AreaBin {
+                from_mm2: AREA_EDGES_MM2[i],
+                to_mm2: AREA_EDGES_MM2[i + 1],
+                count: 0,
+            })
+            .collect();
+        let mut total = 0.0;
+        let mut classes: std::collections::BTreeMap<String, usize> = Default::default();
+        for p in &self.pads {
+            let a = p.outline.area();
+            total += a;
+            let i = AREA_EDGES_MM2[1..n]
+                .iter()
+                .position(|&e| a < e)
+                .unwrap_or(n - 1);
+            bins[i].count += 1;
+            *classes
+                .entry(p.aperture.clone().unwrap_or_else(|| "?".into()))
+                .or_default() += 1;
+        }
+        let mut classes: Vec<(String, usize)> = classes.into_iter().collect();
+        classes.sort_by(|a, b| b.1.cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
+        PadSummary {
+            count: self.pads.len(),
+            bbox_mm: self.bbox_mm,
+            total_area_mm2: total,
+            area_histogram: bins,
+            classes,
+            named: self
+                .pads
+                .iter()
+                .filter(|p| p.component.is_some() || p.pin.is_some())
+                .count(),
+        }
+    }
+}
