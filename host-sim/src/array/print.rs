@@ -1340,6 +1340,12 @@ mod tests {
                 Defect::Bridge => {
                     let q = &pr.pads[p.partner.unwrap()];
                     assert_eq!(q.partner, Some(p.pad));
+                    let other = &l.pads[q.pad];
+                    assert!(
+                        pad.component != other.component || pad.pin != other.pin,
+                        "{}: a bridge within one pin",
+                        p.name
+                    );
                     assert_eq!(q.bridge, p.bridge);
                     assert!(gap(&pad.outline, &l.pads[q.pad].outline) <= MAX_BRIDGE_GAP_MM);
                     let strip = &pr.deposits[p.bridge.unwrap()];

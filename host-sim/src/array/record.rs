@@ -791,3 +791,38 @@ pub fn simulate_calibration(scene: &ArrayScene, seed: u64, out: &Path) -> Result
     sum.seconds = t0.elapsed().as_secs_f64();
     Ok(sum)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::array::print::Defect;
+
+    #[test]
+    fn the_paper_board_prints_its_generated_layer() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/paper-board.toml");
+        let scene = ArrayScene::load(&path).unwrap();
+        let t0 = Instant::now();
+        let (boxes, deposits, printed) = board_deposits(&scene, scene.seed).unwrap();
+        let secs = t0.elapsed().as_secs_f64();
+        assert!(boxes.is_empty());
+        let (print, layer) = printed.unwrap();
+        assert_eq!(
+            layer,
+            std::fs::read(path.with_file_name("paper-board.paste.gbr")).unwrap()
+        );
+        assert_eq!(print.pads.len(), 5788);
+        assert_eq!(deposits, print.deposits);
+        for d in [
+            Defect::Missing,
+            Defect::Insufficient,
+            Defect::Excess,
+            Defect::Offset,
+            Defect::Smear,
+        ] {
+            assert_eq!(print.count(d), 5, "{d:?}");
+        }
+        assert_eq!(print.count(Defect::Bridge), 10);
+        assert_eq!(print.fiducials.len(), 3);
+        assert!(secs < 20.0, "{secs}");
+    }
+}
