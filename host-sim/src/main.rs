@@ -26,6 +26,7 @@ fn main() {
         Cmd::Calibrate(a) => cli::calibrate::run(a),
         // 0, or 2 when a --streams stream was damaged or incomplete (cli/board.rs).
         Cmd::Board(a) => cli::board::run(a).map(exit_unless_zero),
+        Cmd::Layout(a) => cli::layout::run(a),
         Cmd::Reconstruct(a) => cli::reconstruct::run(a, progress),
         Cmd::Compare(a) => cli::compare::run(a, progress),
         Cmd::Phase(a) => cli::phase::run(a),

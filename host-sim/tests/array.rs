@@ -891,3 +891,111 @@ fn board_bench_reports_every_stage_of_the_board() {
         "{v}"
     );
 }
+
+/// A board printed from the small generated paste layer (`scenes/array-paste.toml`): simulated
+/// through the command line, quickly, with the layer and the print in the recording, and the
+/// board truth showing the print.
+#[test]
+fn paste_board_recording_carries_its_layer_and_print() {
+    use dpsa_sim::array::print::{paste_height, Defect, DepositIndex, Print};
+    let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+    let scene_path = scenes.join("array-paste.toml");
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("board");
+    let t0 = std::time::Instant::now();
+    let o = dpsa([
+        std::ffi::OsStr::new("simulate"),
+        "--scene".as_ref(),
+        scene_path.as_os_str(),
+        "--seed".as_ref(),
+        "4".as_ref(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]);
+    let secs = t0.elapsed().as_secs_f64();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(secs < 30.0, "simulating array-paste took {secs:.1} s");
+    eprintln!("array-paste simulated in {secs:.2} s");
+    let rec = ArrayRecording::open(&out).unwrap();
+    assert_eq!(
+        rec.manifest.paste_layer.as_deref(),
+        Some(record::PASTE_LAYER_FILE)
+    );
+    assert_eq!(rec.manifest.print.as_deref(), Some(record::PRINT_FILE));
+    assert_eq!(
+        std::fs::read(out.join(record::PASTE_LAYER_FILE)).unwrap(),
+        std::fs::read(scenes.join("array-small.paste.gbr")).unwrap()
+    );
+    let print: Print =
+        serde_json::from_slice(&std::fs::read(out.join(record::PRINT_FILE)).unwrap()).unwrap();
+    let layer = dpsa_sim::array::layout::generate(dpsa_sim::array::layout::LayoutBoard::Small);
+    assert_eq!(print.pads.len(), layer.pads.len());
+    for (d, n) in [
+        (Defect::Missing, 2),
+        (Defect::Insufficient, 2),
+        (Defect::Excess, 2),
+        (Defect::Offset, 2),
+        (Defect::Bridge, 4),
+        (Defect::Smear, 2),
+    ] {
+        assert_eq!(print.count(d), n, "{d:?}");
+    }
+    assert_eq!(print.fiducials.len(), 3);
+    // The board truth raster is the warp plus the printed deposits.
+    let truth = rec.truth().unwrap().unwrap();
+    assert!(truth.deposits.is_empty());
+    let board = truth.board.as_ref().unwrap();
+    let raster = dpsa_sim::simulation::recording::read_f32(
+        &out.join(&board.file),
+        board.rows as usize * board.cols as usize,
+    )
+    .unwrap();
+    let scene = ArrayScene::load(&scene_path).unwrap();
+    let index = DepositIndex::new(&print.deposits);
+    let cols = board.cols as usize;
+    let mut paste_pixels = 0;
+    for i in (0..board.rows as usize).step_by(3) {
+        for j in (0..cols).step_by(3) {
+            let (x, y) = (
+                (i as f64 + 0.5) * board.pitch_mm,
+                (j as f64 + 0.5) * board.pitch_mm,
+            );
+            let (h, paste) = paste_height(&print.deposits, &index, [x, y]);
+            let want = scene.warp(x, y) + h;
+            assert!(
+                (f64::from(raster[i * cols + j]) - want).abs() < 0.01,
+                "{x} {y}"
+            );
+            paste_pixels += usize::from(paste);
+        }
+    }
+    assert!(paste_pixels > 500, "{paste_pixels}");
+    // A missing pad's opening is bare board.
+    let missing = print
+        .pads
+        .iter()
+        .find(|p| p.defect == Defect::Missing)
+        .unwrap();
+    let c = print
+        .design_to_board
+        .apply(layer.pads[missing.pad].outline.centroid());
+    assert_eq!(paste_height(&print.deposits, &index, c), (0.0, false));
+}
+
+/// A paste layer that misses the board under the scene's placement is refused before any
+/// work, naming the problem.
+#[test]
+fn a_layer_that_misses_the_board_is_refused() {
+    let mut scene =
+        ArrayScene::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/array-paste.toml"))
+            .unwrap();
+    scene.placement.design_origin_mm = [6.0, 0.0];
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("board");
+    let e = format!("{:#}", record::simulate_board(&scene, 1, &out).unwrap_err());
+    assert!(
+        e.contains("fall outside") && e.contains("design_origin_mm"),
+        "{e}"
+    );
+    assert!(!out.exists());
+}

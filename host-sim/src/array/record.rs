@@ -2,8 +2,9 @@
 //! camera (and per calibration pass), and the array truth (`docs/calibration.md`).
 
 use crate::array::frames::{self, FrameFormat};
+use crate::array::print::{paste_height, Deposit, DepositIndex, Print};
 use crate::array::render::{place_deposits, CameraRenderer, MmDeposit, Surface};
-use crate::array::scene::{ArrayScene, CameraModel};
+use crate::array::scene::{load_paste_layer, ArrayScene, CameraModel};
 use crate::simulation::recording::{
     self, BoardId, FrameEntry, Manifest, Recording, TruthInfo, FORMAT, TRUTH_BACKGROUND_FILE,
     TRUTH_CONTRAST_FILE, TRUTH_HEIGHT_FILE, VERSION,
@@ -25,6 +26,10 @@ pub const ARRAY_VERSION: u32 = 1;
 pub const ARRAY_TRUTH_FILE: &str = "truth/array.json";
 /// The board height raster (simulated board recordings only), f32 um, row-major along x.
 pub const BOARD_TRUTH_FILE: &str = "truth/board_height_um.f32";
+/// The paste layer a board was printed with (a copy of the scene's `paste_layer`).
+pub const PASTE_LAYER_FILE: &str = "paste.gbr";
+/// The print of a board with a paste layer ([`Print`], JSON): deposits and truth per pad.
+pub const PRINT_FILE: &str = "print.json";
 
 /// Board recording or calibration recording.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
@@ -105,6 +110,12 @@ pub struct ArrayManifest {
     /// and so the run id of every camera's packet stream ([`board_identity`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub board_id: Option<BoardId>,
+    /// Board recordings of a scene with a paste layer: the layer printed ([`PASTE_LAYER_FILE`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub paste_layer: Option<String>,
+    /// Simulated board recordings with a paste layer: the print ([`PRINT_FILE`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub print: Option<String>,
 }
 
 /// The board truth raster: `rows x cols` f32 heights at `((i + 1/2) pitch, (j + 1/2) pitch)`.
@@ -126,6 +137,8 @@ pub struct ArrayTruth {
     pub counts_per_mm: f64,
     pub cameras: Vec<CameraModel>,
     pub warp_um: f64,
+    /// Random-box deposits (scenes without a paste layer; a printed board's deposits are in
+    /// [`ArrayManifest::print`]).
     pub deposits: Vec<MmDeposit>,
     /// Per camera: the true background `B` and contrast `C M` (with illumination) per column
     /// of a bare plane, DN.
@@ -473,14 +486,84 @@ fn write_json<T: Serialize>(path: &Path, v: &T) -> Result<u64> {
     Ok(text.len() as u64)
 }
 
+/// The deposits of a board scene: the random boxes (scenes without a paste layer; also
+/// returned for the truth), or the print of the scene's paste layer with its bytes.
+#[allow(clippy::type_complexity)]
+pub fn board_deposits(
+    scene: &ArrayScene,
+    seed: u64,
+) -> Result<(Vec<MmDeposit>, Vec<Deposit>, Option<(Print, Vec<u8>)>)> {
+    let Some(path) = scene.paste_layer_path() else {
+        let boxes = place_deposits(scene, seed);
+        let deposits = boxes
+            .iter()
+            .map(|b| b.to_deposit(scene.deposit_corner_mm, scene.deposit_edge_mm))
+            .collect();
+        return Ok((boxes, deposits, None));
+    };
+    let layer = crate::files::read_capped_io(&path, 256 << 20).map_err(|e| {
+        anyhow::anyhow!(
+            "paste layer {} {}",
+            path.display(),
+            crate::files::io_cause(&e)
+        )
+    })?;
+    let pads = load_paste_layer(&path)?;
+    anyhow::ensure!(!pads.is_empty(), "paste layer {}: no pads", path.display());
+    let (length, width) = (scene.board_length_mm, scene.board_width_mm);
+    let inside = |b: [f64; 4]| b[0] >= 0.0 && b[1] >= 0.0 && b[2] <= length && b[3] <= width;
+    // The nominal placement must put the whole layer on the board.
+    let nominal = scene.placement.nominal();
+    let off: Vec<&crate::inspection::pads::Pad> = pads
+        .iter()
+        .filter(|p| !inside(p.outline.transformed(&nominal).bbox()))
+        .collect();
+    if let Some(first) = off.first() {
+        let c = nominal.apply(first.outline.centroid());
+        bail!(
+            "paste layer {}: {} of {} pads fall outside the {length} x {width} mm board under the nominal [placement] (first: {} at [{:.3}, {:.3}] mm on the board); check placement.design_origin_mm and orientation_deg",
+            path.display(),
+            off.len(),
+            pads.len(),
+            first.name(),
+            c[0],
+            c[1]
+        );
+    }
+    for f in &scene.fiducials {
+        let c = nominal.apply(*f);
+        let r = scene.fiducial_diameter_mm / 2.0;
+        if !inside([c[0] - r, c[1] - r, c[0] + r, c[1] + r]) {
+            bail!(
+                "fiducial at [{}, {}] (design) falls outside the board under the nominal [placement]",
+                f[0],
+                f[1]
+            );
+        }
+    }
+    let t = scene.placement.design_to_board(length, width, seed);
+    let print =
+        crate::array::print::print(&pads, &scene.fiducials, &scene.print_params(), &t, seed)
+            .with_context(|| format!("printing {}", path.display()))?;
+    if let Some(d) = print.deposits.iter().find(|d| !inside(d.reach_bbox())) {
+        bail!(
+            "the board's placement error (placement.offset_sigma_mm, rotation_sigma_deg) moves {} off the board; lower them or keep the layer further from the board edges",
+            d.pad.map_or_else(|| "a fiducial or bridge".to_string(), |i| pads[i].name())
+        );
+    }
+    let deposits = print.deposits.clone();
+    Ok((Vec::new(), deposits, Some((print, layer))))
+}
+
 /// Simulates the board of an array scene into `out`: `array.json`, `cam{i}/` (a recording
 /// each tool reads), `truth/`.
 pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<WriteSummary> {
     scene.validate()?;
-    prepare(out)?;
     let t0 = Instant::now();
+    // The print first: a layer that cannot be printed leaves no directory behind.
+    let (boxes, deposits, printed) = board_deposits(scene, seed)?;
+    prepare(out)?;
     let models = models(scene, seed);
-    let deposits = place_deposits(scene, seed);
     let sl = slack(&models);
     let s0 = models
         .iter()
@@ -527,26 +610,15 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
         (scene.board_length_mm / tp).ceil() as usize,
         (scene.board_width_mm / tp).ceil() as usize,
     );
-    let surface = Surface::Board {
-        deposits: &deposits,
-    };
+    let index = DepositIndex::new(&deposits);
     let mut raster = vec![0f32; tr * tc];
     for (i, row) in raster.chunks_exact_mut(tc).enumerate() {
         let x = (i as f64 + 0.5) * tp;
-        let near: Vec<&MmDeposit> = deposits
-            .iter()
-            .filter(|d| (d.x_mm - x).abs() <= d.length_mm / 2.0 + tp)
-            .collect();
         for (j, v) in row.iter_mut().enumerate() {
             let y = (j as f64 + 0.5) * tp;
-            let mut h = scene.warp(x, y);
-            for d in &near {
-                h += d.height(x, y, scene.deposit_corner_mm, scene.deposit_edge_mm);
-            }
-            *v = h as f32;
+            *v = (scene.warp(x, y) + paste_height(&deposits, &index, [x, y]).0) as f32;
         }
     }
-    let _ = surface;
     recording::write_f32(&out.join(BOARD_TRUTH_FILE), &raster)?;
     sum.bytes += raster.len() as u64 * 4;
     let (pb, pm) = plane_truth(scene, &models);
@@ -554,7 +626,7 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
         counts_per_mm: scene.counts_per_mm,
         cameras: models,
         warp_um: scene.warp_um,
-        deposits,
+        deposits: boxes,
         plane_background_dn: pb,
         plane_modulation_dn: pm,
         board: Some(BoardTruth {
@@ -567,6 +639,11 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
         seed,
     };
     sum.bytes += write_json(&out.join(ARRAY_TRUTH_FILE), &truth)?;
+    if let Some((print, layer)) = &printed {
+        crate::files::write_bytes(&out.join(PASTE_LAYER_FILE), layer)?;
+        sum.bytes += layer.len() as u64;
+        sum.bytes += write_json(&out.join(PRINT_FILE), print)?;
+    }
     let mut manifest = ArrayManifest {
         format: ARRAY_FORMAT.into(),
         version: ARRAY_VERSION,
@@ -579,6 +656,8 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
         passes: Vec::new(),
         target: None,
         board_id: None,
+        paste_layer: printed.as_ref().map(|_| PASTE_LAYER_FILE.to_string()),
+        print: printed.as_ref().map(|_| PRINT_FILE.to_string()),
     };
     // One identity for the board, in every camera's manifest and in array.json (written
     // last, as before: a recording without it is incomplete).
@@ -705,8 +784,45 @@ pub fn simulate_calibration(scene: &ArrayScene, seed: u64, out: &Path) -> Result
             length_mm: plan.target_length_mm,
         }),
         board_id: None,
+        paste_layer: None,
+        print: None,
     };
     sum.bytes += write_json(&out.join(ARRAY_FILE), &manifest)?;
     sum.seconds = t0.elapsed().as_secs_f64();
     Ok(sum)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::array::print::Defect;
+
+    #[test]
+    fn the_paper_board_prints_its_generated_layer() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/paper-board.toml");
+        let scene = ArrayScene::load(&path).unwrap();
+        let t0 = Instant::now();
+        let (boxes, deposits, printed) = board_deposits(&scene, scene.seed).unwrap();
+        let secs = t0.elapsed().as_secs_f64();
+        assert!(boxes.is_empty());
+        let (print, layer) = printed.unwrap();
+        assert_eq!(
+            layer,
+            std::fs::read(path.with_file_name("paper-board.paste.gbr")).unwrap()
+        );
+        assert_eq!(print.pads.len(), 5788);
+        assert_eq!(deposits, print.deposits);
+        for d in [
+            Defect::Missing,
+            Defect::Insufficient,
+            Defect::Excess,
+            Defect::Offset,
+            Defect::Smear,
+        ] {
+            assert_eq!(print.count(d), 5, "{d:?}");
+        }
+        assert_eq!(print.count(Defect::Bridge), 10);
+        assert_eq!(print.fiducials.len(), 3);
+        assert!(secs < 20.0, "{secs}");
+    }
 }

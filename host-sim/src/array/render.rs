@@ -12,12 +12,16 @@
 //! closed form (variances add). Dead pixels see nothing. Noise as in the single-camera
 //! simulator (`simulation::simulate`).
 
+use crate::array::print::{paste_height, Deposit, DepositIndex, Material};
 use crate::array::scene::{ArrayScene, CalibrationPlan, CameraModel};
+use crate::inspection::pads::Outline;
 use crate::simulation::simulate::{noisy, rng};
 use rand::RngExt;
 use std::f64::consts::TAU;
 
-/// A solder-paste deposit in board millimetres: a rounded box.
+/// A random-box deposit of the scenes without a paste layer, in board millimetres: a rounded
+/// box, recorded as such in the array truth. It is printed as a [`Deposit`]
+/// ([`MmDeposit::to_deposit`]).
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct MmDeposit {
     /// Centre along the motion, mm.
@@ -32,25 +36,28 @@ pub struct MmDeposit {
     pub height_um: f64,
 }
 
-fn smoothstep(t: f64) -> f64 {
-    t * t * (3.0 - 2.0 * t)
-}
-
 impl MmDeposit {
+    /// The general deposit of this box: a rounded rectangle with corner radius `corner` and a
+    /// wall of `edge` mm (the same heights, bit for bit, as the box always had).
+    pub fn to_deposit(&self, corner: f64, edge: f64) -> Deposit {
+        Deposit {
+            outline: Outline::RoundRect {
+                centre: [self.x_mm, self.y_mm],
+                size: [self.length_mm, self.width_mm],
+                radius: corner,
+                rotation_deg: 0.0,
+            },
+            height_um: self.height_um,
+            edge_mm: edge,
+            bumps: Vec::new(),
+            material: Material::Paste,
+            pad: None,
+        }
+    }
+
     /// Height at board point `(x, y)`, um.
     pub fn height(&self, x: f64, y: f64, corner: f64, edge: f64) -> f64 {
-        let (hx, hy) = (self.length_mm / 2.0, self.width_mm / 2.0);
-        let radius = corner.min(hx).min(hy);
-        let qx = (x - self.x_mm).abs() - (hx - radius);
-        let qy = (y - self.y_mm).abs() - (hy - radius);
-        let d = qx.max(0.0).hypot(qy.max(0.0)) + qx.max(qy).min(0.0) - radius;
-        if d >= 0.0 {
-            0.0
-        } else if edge > 0.0 {
-            self.height_um * smoothstep((-d / edge).min(1.0))
-        } else {
-            self.height_um
-        }
+        self.to_deposit(corner, edge).height([x, y])
     }
 }
 
@@ -95,8 +102,8 @@ pub fn place_deposits(scene: &ArrayScene, seed: u64) -> Vec<MmDeposit> {
 /// What the conveyor carries.
 #[derive(Clone, Debug)]
 pub enum Surface<'a> {
-    /// The board: warp plus deposits.
-    Board { deposits: &'a [MmDeposit] },
+    /// The board: warp plus deposits (paste, copper), board frame.
+    Board { deposits: &'a [Deposit] },
     /// A flat matte plane at a height, um.
     Plane { height_um: f64 },
     /// The flat lateral target (height 0) with its printed mark grid.
@@ -104,15 +111,12 @@ pub enum Surface<'a> {
 }
 
 impl Surface<'_> {
-    /// True height at `(x, y)`, um.
+    /// True height at `(x, y)`, um (every deposit visited: the renderer and the truth raster
+    /// use a [`DepositIndex`]).
     pub fn height(&self, scene: &ArrayScene, x: f64, y: f64) -> f64 {
         match self {
             Surface::Board { deposits } => {
-                let mut h = scene.warp(x, y);
-                for d in deposits.iter() {
-                    h += d.height(x, y, scene.deposit_corner_mm, scene.deposit_edge_mm);
-                }
-                h
+                scene.warp(x, y) + deposits.iter().map(|d| d.height([x, y])).sum::<f64>()
             }
             Surface::Plane { height_um } => *height_um,
             Surface::Target { .. } => 0.0,
@@ -138,8 +142,8 @@ pub struct CameraRenderer<'a> {
     /// Blur factor alone per column (the 3 x 3 sub-pixel path applies its own sub-box sinc).
     m_blur: Vec<f64>,
     dead: Vec<bool>,
-    /// Deposits binned by 1 mm of board length.
-    bins: Vec<Vec<usize>>,
+    /// The board's deposits, binned.
+    index: DepositIndex,
 }
 
 impl<'a> CameraRenderer<'a> {
@@ -164,18 +168,10 @@ impl<'a> CameraRenderer<'a> {
         for &[r, c] in &model.dead_pixels {
             dead[r as usize * w + c as usize] = true;
         }
-        let mut bins = Vec::new();
-        if let Surface::Board { deposits } = &surface {
-            bins = vec![Vec::new(); scene.board_length_mm.ceil() as usize + 2];
-            for (i, d) in deposits.iter().enumerate() {
-                let reach = d.length_mm / 2.0 + 0.1;
-                let lo = ((d.x_mm - reach).floor().max(0.0)) as usize;
-                let hi = ((d.x_mm + reach).floor().max(0.0) as usize).min(bins.len() - 1);
-                for bin in &mut bins[lo..=hi] {
-                    bin.push(i);
-                }
-            }
-        }
+        let index = match &surface {
+            Surface::Board { deposits } => DepositIndex::new(deposits),
+            _ => DepositIndex::default(),
+        };
         CameraRenderer {
             scene,
             model,
@@ -183,7 +179,7 @@ impl<'a> CameraRenderer<'a> {
             m0,
             m_blur,
             dead,
-            bins,
+            index,
         }
     }
 
@@ -212,36 +208,14 @@ impl<'a> CameraRenderer<'a> {
         1.0 - plan.target_mark_depth * s2m / s2 * (-(dx * dx + dy * dy) / (2.0 * s2)).exp()
     }
 
-    /// Deposit indices that may touch board length `x_lo..x_hi` (mm).
-    fn deposits_near(&self, x_lo: f64, x_hi: f64) -> Vec<usize> {
-        if self.bins.is_empty() {
-            return Vec::new();
-        }
-        let lo = (x_lo.floor().max(0.0) as usize).min(self.bins.len() - 1);
-        let hi = (x_hi.floor().max(0.0) as usize).min(self.bins.len() - 1);
-        let mut v: Vec<usize> = self.bins[lo..=hi].iter().flatten().copied().collect();
-        v.sort_unstable();
-        v.dedup();
-        v
-    }
-
     /// True height (um) at board point `(x, y)` and whether it is paste (deposits looked up
     /// in their bins).
     pub fn height_at(&self, x: f64, y: f64) -> (f64, bool) {
         let Surface::Board { deposits } = &self.surface else {
             return (self.surface.height(self.scene, x, y), false);
         };
-        let sc = self.scene;
-        let mut h = sc.warp(x, y);
-        let mut paste = false;
-        for i in self.deposits_near(x - 0.1, x + 0.1) {
-            let dh = deposits[i].height(x, y, sc.deposit_corner_mm, sc.deposit_edge_mm);
-            if dh > 0.0 {
-                h += dh;
-                paste = true;
-            }
-        }
-        (h, paste)
+        let (dh, paste) = paste_height(deposits, &self.index, [x, y]);
+        (self.scene.warp(x, y) + dh, paste)
     }
 
     /// Mean intensity (before noise) of pixel `(r, c)` at conveyor travel `s`, DN.
@@ -275,25 +249,12 @@ impl<'a> CameraRenderer<'a> {
         // 3 x 3 sub-pixels, each integrating its own third of the pixel (sub-box sinc).
         let g_r = TAU * f;
         let sub = sinc(g_r / 6.0) * self.m_blur[c];
-        let (xc, _) = m.board_point(s, rf, cf);
-        let near: Vec<&MmDeposit> = self
-            .deposits_near(xc - 0.1, xc + 0.1)
-            .into_iter()
-            .map(|i| &deposits[i])
-            .collect();
         let mut sum = 0.0;
         for dr in [-1.0 / 3.0, 0.0, 1.0 / 3.0] {
             for dc in [-1.0 / 3.0, 0.0, 1.0 / 3.0] {
                 let (x, y) = m.board_point(s, rf + dr, cf + dc);
-                let mut h = sc.warp(x, y);
-                let mut paste = false;
-                for d in &near {
-                    let dh = d.height(x, y, sc.deposit_corner_mm, sc.deposit_edge_mm);
-                    if dh > 0.0 {
-                        h += dh;
-                        paste = true;
-                    }
-                }
+                let (dh, paste) = paste_height(deposits, &self.index, [x, y]);
+                let h = sc.warp(x, y) + dh;
                 let (bg, ct) = if paste {
                     (sc.paste_background, sc.paste_contrast)
                 } else {
@@ -315,25 +276,35 @@ impl<'a> CameraRenderer<'a> {
         let max = f64::from(crate::simulation::recording::max_value(sc.bit_depth));
         let mut out = vec![0u16; rows * w];
         let mut near = vec![false; w];
+        let mut cand: Vec<usize> = Vec::new();
         for r in 0..rows {
             near.fill(false);
             if let Surface::Board { deposits } = &self.surface {
-                let (xa, _) = m.board_point(s, r as f64, 0.0);
-                let (xb, _) = m.board_point(s, r as f64, w as f64);
-                let cand = self.deposits_near(xa.min(xb) - 0.1, xa.max(xb) + 0.1);
-                let (_, y_c0) = m.board_point(s, r as f64, 0.0);
+                let (xa, ya) = m.board_point(s, r as f64, 0.0);
+                let (xb, yb) = m.board_point(s, r as f64, w as f64);
+                self.index.in_box(
+                    [
+                        xa.min(xb) - 0.1,
+                        ya.min(yb) - 0.1,
+                        xa.max(xb) + 0.1,
+                        ya.max(yb) + 0.1,
+                    ],
+                    &mut cand,
+                );
                 let (sn, cs) = m.rotation_rad.sin_cos();
                 let slack = 2.0 * m.pitch_mm;
-                for i in cand {
-                    let d = &deposits[i];
-                    let reach = d.width_mm / 2.0 + slack + w as f64 * m.pitch_mm * sn.abs();
-                    let col = |y: f64| (y - y_c0) / (m.pitch_mm * cs);
-                    let c_lo = col(d.y_mm - reach).floor().clamp(0.0, w as f64) as usize;
-                    let c_hi = col(d.y_mm + reach).ceil().clamp(0.0, w as f64) as usize;
+                let tilt = w as f64 * m.pitch_mm * sn.abs();
+                let col = |y: f64| (y - ya) / (m.pitch_mm * cs);
+                for &i in &cand {
+                    let b = deposits[i].reach_bbox();
+                    let c_lo = col(b[1] - slack - tilt).floor().clamp(0.0, w as f64) as usize;
+                    let c_hi = col(b[3] + slack + tilt).ceil().clamp(0.0, w as f64) as usize;
                     for (c, flag) in near.iter_mut().enumerate().take(c_hi).skip(c_lo) {
                         let (x, y) = m.board_point(s, r as f64, c as f64);
-                        if (x - d.x_mm).abs() <= d.length_mm / 2.0 + slack
-                            && (y - d.y_mm).abs() <= d.width_mm / 2.0 + slack
+                        if x >= b[0] - slack
+                            && x <= b[2] + slack
+                            && y >= b[1] - slack
+                            && y <= b[3] + slack
                         {
                             *flag = true;
                         }

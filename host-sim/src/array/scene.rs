@@ -5,11 +5,13 @@
 //! and the geometry are documented in `docs/calibration.md`.
 
 use crate::array::frames::FrameFormat;
+use crate::array::print::PrintParams;
+use crate::inspection::pads::{Pad, Rigid};
 use crate::simulation::recording::{Calibration, Camera, Noise, Processing};
 use crate::simulation::scene::{round_counts_per_pixel, Stall};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::{PI, TAU};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 /// Largest number of cameras in an array.
 pub const MAX_CAMERAS: usize = 8;
@@ -116,6 +118,105 @@ impl Default for CalibrationPlan {
     }
 }
 
+/// Where the paste layer's design frame lands on the board (scene table `[placement]`).
+///
+/// The nominal placement turns the design by `orientation_deg` and puts `design_origin_mm` at
+/// the board corner (0, 0); the board then arrives with a small unknown error, drawn from the
+/// seed: a rotation about the board centre and an offset (Gaussians truncated at 3 sigma).
+#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct Placement {
+    /// The design point that lands at the board corner (0, 0), mm.
+    pub design_origin_mm: [f64; 2],
+    /// The board turned on the conveyor, counter-clockwise: 0, 90, 180 or 270 degrees.
+    pub orientation_deg: f64,
+    /// Placement offset, sigma per axis, mm (0..=1).
+    pub offset_sigma_mm: f64,
+    /// Placement rotation, sigma, degrees (0..=1).
+    pub rotation_sigma_deg: f64,
+}
+
+impl Default for Placement {
+    fn default() -> Self {
+        Placement {
+            design_origin_mm: [0.0, 0.0],
+            orientation_deg: 0.0,
+            offset_sigma_mm: 0.1,
+            rotation_sigma_deg: 0.1,
+        }
+    }
+}
+
+impl Placement {
+    /// The nominal design-to-board transform (no placement error).
+    pub fn nominal(&self) -> Rigid {
+        let turn = Rigid {
+            rotation_rad: self.orientation_deg.to_radians(),
+            tx: 0.0,
+            ty: 0.0,
+        };
+        let o = turn.apply(self.design_origin_mm);
+        Rigid {
+            tx: -o[0],
+            ty: -o[1],
+            ..turn
+        }
+    }
+
+    /// The design-to-board transform of a board of `length x width` mm: the nominal one
+    /// followed by the placement error drawn from `seed`.
+    pub fn design_to_board(&self, length_mm: f64, width_mm: f64, seed: u64) -> Rigid {
+        let mut rng = crate::simulation::simulate::rng(seed, 0x706c_6163);
+        let n3 = crate::array::print::normal3;
+        let (dx, dy) = (
+            self.offset_sigma_mm * n3(&mut rng),
+            self.offset_sigma_mm * n3(&mut rng),
+        );
+        let rot = (self.rotation_sigma_deg * n3(&mut rng)).to_radians();
+        let c = [length_mm / 2.0, width_mm / 2.0];
+        let turn = Rigid {
+            rotation_rad: rot,
+            tx: 0.0,
+            ty: 0.0,
+        };
+        let rc = turn.apply(c);
+        let error = Rigid {
+            rotation_rad: rot,
+            tx: c[0] - rc[0] + dx,
+            ty: c[1] - rc[1] + dy,
+        };
+        error.after(&self.nominal())
+    }
+}
+
+/// Reads the pads of a paste layer (design frame, mm).
+///
+/// The one place scenes get their pads from.
+// TODO(parser): read any Gerber X2 paste layer with `inspection::gerber::read_file` once the
+// parser lands. Until then the two generated layers (`array::layout`, shipped as
+// `scenes/paper-board.paste.gbr` and `scenes/array-small.paste.gbr`) are recognised by
+// regenerating them and comparing the bytes; any other file is refused.
+pub fn load_paste_layer(path: &Path) -> anyhow::Result<Vec<Pad>> {
+    use crate::array::layout::{generate, LayoutBoard};
+    let bytes = crate::files::read_capped_io(path, 256 << 20).map_err(|e| {
+        anyhow::anyhow!(
+            "paste layer {} {}",
+            path.display(),
+            crate::files::io_cause(&e)
+        )
+    })?;
+    for board in [LayoutBoard::Small, LayoutBoard::Paper] {
+        let layout = generate(board);
+        if layout.gerber()? == bytes {
+            return Ok(layout.pads);
+        }
+    }
+    anyhow::bail!(
+        "paste layer {}: not one of the generated layers (`dpsa layout --board paper|small`); reading other Gerber files needs the Gerber parser, which this build does not have yet",
+        path.display()
+    )
+}
+
 /// An array scene (see the module docs).
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 #[serde(default, deny_unknown_fields)]
@@ -175,6 +276,22 @@ pub struct ArrayScene {
     pub cameras: Vec<ArrayCamera>,
     pub calibration: CalibrationPlan,
     pub seed: u64,
+    /// Paste layer (Gerber) printed on the board, relative to the scene file; with it,
+    /// `deposits` must be 0.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub paste_layer: Option<String>,
+    /// Fiducial centres `[x, y]`, design frame, mm: copper discs (with a paste layer only).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub fiducials: Vec<[f64; 2]>,
+    /// Fiducial diameter, mm (0.2..=5).
+    pub fiducial_diameter_mm: f64,
+    /// The print (stencil, slump, wall, dog-ears, offsets, scatter, defects).
+    pub print: PrintParams,
+    /// Where the design lands on the board, and its random placement error.
+    pub placement: Placement,
+    /// Directory of the scene file (`paste_layer` is relative to it); set by [`Self::load`].
+    #[serde(skip)]
+    pub scene_dir: Option<PathBuf>,
 }
 
 impl Default for ArrayScene {
@@ -233,6 +350,12 @@ impl Default for ArrayScene {
                 .collect(),
             calibration: CalibrationPlan::default(),
             seed: 10,
+            paste_layer: None,
+            fiducials: Vec::new(),
+            fiducial_diameter_mm: 1.0,
+            print: PrintParams::default(),
+            placement: Placement::default(),
+            scene_dir: None,
         }
     }
 }
@@ -344,7 +467,7 @@ impl ArrayScene {
                 }
             })?;
         let text = String::from_utf8_lossy(&bytes);
-        ArrayScene::from_toml_str(&text).map_err(|e| match e {
+        let mut scene = ArrayScene::from_toml_str(&text).map_err(|e| match e {
             ArraySceneError::Parse { message, .. } => ArraySceneError::Parse {
                 path: name,
                 message,
@@ -354,7 +477,30 @@ impl ArrayScene {
                 knob,
                 message,
             },
+        })?;
+        scene.scene_dir = Some(
+            path.parent()
+                .map_or_else(|| PathBuf::from("."), Path::to_path_buf),
+        );
+        Ok(scene)
+    }
+
+    /// The paste layer's path (relative to the scene file's directory, or to the current
+    /// directory for a scene not read from a file).
+    pub fn paste_layer_path(&self) -> Option<PathBuf> {
+        let name = self.paste_layer.as_ref()?;
+        Some(match &self.scene_dir {
+            Some(dir) => dir.join(name),
+            None => PathBuf::from(name),
         })
+    }
+
+    /// The print parameters of this scene (the fiducial diameter is the scene's).
+    pub fn print_params(&self) -> PrintParams {
+        PrintParams {
+            fiducial_diameter_mm: self.fiducial_diameter_mm,
+            ..self.print.clone()
+        }
     }
 
     /// Checks every knob's range.
@@ -490,6 +636,7 @@ impl ArrayScene {
                 message: e.message,
             })?;
         }
+        self.validate_print()?;
         let plan = &self.calibration;
         for &h in plan
             .plane_heights_um
@@ -527,6 +674,78 @@ impl ArrayScene {
             0.05,
             1.0,
             "calibration.target_mark_depth",
+        )?;
+        Ok(())
+    }
+
+    /// The paste layer, fiducials, `[print]` and `[placement]`.
+    fn validate_print(&self) -> Result<(), ArraySceneError> {
+        if let Some(layer) = &self.paste_layer {
+            check(!layer.trim().is_empty(), "paste_layer", || "empty".into())?;
+            check(self.deposits == 0, "deposits", || {
+                format!(
+                    "{}, but a paste_layer is set: its pads are printed instead, set deposits = 0",
+                    self.deposits
+                )
+            })?;
+        } else {
+            check(self.fiducials.is_empty(), "fiducials", || {
+                "fiducials need a paste_layer (they are placed with it)".into()
+            })?;
+            check(self.print.defects.pads() == 0, "print.defects", || {
+                "defects need a paste_layer to print".into()
+            })?;
+        }
+        check(self.fiducials.len() <= 16, "fiducials", || {
+            format!("{} fiducials, at most 16", self.fiducials.len())
+        })?;
+        for f in &self.fiducials {
+            finite_in(f[0], -1e4, 1e4, "fiducials")?;
+            finite_in(f[1], -1e4, 1e4, "fiducials")?;
+        }
+        finite_in(self.fiducial_diameter_mm, 0.2, 5.0, "fiducial_diameter_mm")?;
+        check(
+            self.print.fiducial_diameter_mm == PrintParams::default().fiducial_diameter_mm
+                || self.print.fiducial_diameter_mm == self.fiducial_diameter_mm,
+            "print.fiducial_diameter_mm",
+            || "set the top-level fiducial_diameter_mm instead".into(),
+        )?;
+        self.print.validate().map_err(|e| match e {
+            crate::array::print::PrintError::Param { knob, message } => ArraySceneError::Invalid {
+                path: String::new(),
+                knob: format!("print.{knob}"),
+                message,
+            },
+            other => ArraySceneError::Invalid {
+                path: String::new(),
+                knob: "print".into(),
+                message: other.to_string(),
+            },
+        })?;
+        let p = &self.placement;
+        finite_in(
+            p.design_origin_mm[0],
+            -1e4,
+            1e4,
+            "placement.design_origin_mm",
+        )?;
+        finite_in(
+            p.design_origin_mm[1],
+            -1e4,
+            1e4,
+            "placement.design_origin_mm",
+        )?;
+        check(
+            [0.0, 90.0, 180.0, 270.0].contains(&p.orientation_deg),
+            "placement.orientation_deg",
+            || format!("{}, expected 0, 90, 180 or 270", p.orientation_deg),
+        )?;
+        finite_in(p.offset_sigma_mm, 0.0, 1.0, "placement.offset_sigma_mm")?;
+        finite_in(
+            p.rotation_sigma_deg,
+            0.0,
+            1.0,
+            "placement.rotation_sigma_deg",
         )?;
         Ok(())
     }
@@ -688,7 +907,7 @@ mod tests {
     fn default_and_shipped_scenes_parse() {
         let d = ArrayScene::from_toml_str("[[cameras]]\n").unwrap();
         assert_eq!(d.cameras.len(), 1);
-        for f in ["paper-board.toml", "array-small.toml"] {
+        for f in ["paper-board.toml", "array-small.toml", "array-paste.toml"] {
             let path = Path::new(env!("CARGO_MANIFEST_DIR"))
                 .join("../scenes")
                 .join(f);
@@ -734,6 +953,21 @@ mod tests {
                 "cameras[0].fringe_period_variation_pct",
             ),
             ("warp_um = 1500.0\n[[cameras]]\n", "warp_um"),
+            (
+                "paste_layer = \"x.gbr\"\ndeposits = 0\n[print]\nstencil_um = 1000.0\n[[cameras]]\n",
+                "print.stencil_um",
+            ),
+            (
+                "paste_layer = \"x.gbr\"\ndeposits = 0\n[placement]\norientation_deg = 45.0\n[[cameras]]\n",
+                "placement.orientation_deg",
+            ),
+            ("paste_layer = \"x.gbr\"\ndeposits = 5\n[[cameras]]\n", "deposits"),
+            ("fiducials = [[1.0, 1.0]]\n[[cameras]]\n", "fiducials"),
+            ("[print.defects]\nmissing = 1\n[[cameras]]\n", "print.defects"),
+            (
+                "paste_layer = \"x.gbr\"\ndeposits = 0\nfiducial_diameter_mm = 0.0\n[[cameras]]\n",
+                "fiducial_diameter_mm",
+            ),
         ] {
             match ArrayScene::from_toml_str(text) {
                 Err(ArraySceneError::Invalid { knob: k, .. }) => assert_eq!(k, knob, "{text}"),
@@ -748,6 +982,55 @@ mod tests {
             Err(ArraySceneError::Parse { .. })
         ));
         assert!(is_array_scene("[[cameras]]\n") && !is_array_scene("width = 64\n"));
+    }
+
+    #[test]
+    fn placement_puts_the_design_origin_at_the_board_corner() {
+        for (deg, origin, corner) in [
+            (0.0, [0.0, 0.0], [0.0, 0.0]),
+            (90.0, [0.0, 20.0], [0.0, 20.0]),
+            (180.0, [20.0, 13.9], [20.0, 13.9]),
+            (270.0, [13.9, 0.0], [13.9, 0.0]),
+        ] {
+            let p = Placement {
+                design_origin_mm: origin,
+                orientation_deg: deg,
+                offset_sigma_mm: 0.0,
+                rotation_sigma_deg: 0.0,
+            };
+            let t = p.nominal();
+            let o = t.apply(corner);
+            assert!(o[0].abs() < 1e-12 && o[1].abs() < 1e-12, "{deg}: {o:?}");
+            assert_eq!(t, p.design_to_board(20.0, 13.9, 3));
+        }
+        // The placement error: small, from the seed, within 3 sigma.
+        let p = Placement::default();
+        let (a, b) = (
+            p.design_to_board(220.0, 168.0, 1),
+            p.design_to_board(220.0, 168.0, 2),
+        );
+        assert_ne!(a, b);
+        assert_eq!(a, p.design_to_board(220.0, 168.0, 1));
+        let c = a.apply([110.0, 84.0]);
+        assert!((c[0] - 110.0).abs() <= 0.3 + 1e-9 && (c[1] - 84.0).abs() <= 0.3 + 1e-9);
+        assert!(a.rotation_rad.abs() <= 0.3f64.to_radians() + 1e-12);
+    }
+
+    #[test]
+    fn only_the_generated_layers_are_read_for_now() {
+        let dir = tempfile::tempdir().unwrap();
+        let f = dir.path().join("other.gbr");
+        std::fs::write(&f, "%FSLAX46Y46*%\n%MOMM*%\nM02*\n").unwrap();
+        let e = load_paste_layer(&f).unwrap_err().to_string();
+        assert!(e.contains("parser"), "{e}");
+        let small = load_paste_layer(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/array-small.paste.gbr"),
+        )
+        .unwrap();
+        assert_eq!(
+            small,
+            crate::array::layout::generate(crate::array::layout::LayoutBoard::Small).pads
+        );
     }
 
     #[test]

@@ -9,6 +9,7 @@ pub mod compare;
 pub mod decode;
 pub mod demo;
 pub mod frame_bench;
+pub mod layout;
 pub mod pads;
 pub mod phase;
 pub mod reconstruct;
@@ -45,6 +46,8 @@ pub enum Cmd {
     Calibrate(calibrate::Args),
     /// One board height map in mm from an array recording and its calibration.
     Board(board::Args),
+    /// Write a generated paste layer (Gerber X2): the paper's board or the small test board.
+    Layout(layout::Args),
     /// Run the fixed-point core on a recording through its streaming API; write the packet stream.
     Reconstruct(reconstruct::Args),
     /// Compare the fixed-point core with the f64 reference, the PSP baseline, the CRB and the truth.

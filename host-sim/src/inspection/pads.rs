@@ -14,8 +14,13 @@ use std::f64::consts::PI;
 pub type Point = [f64; 2];
 
 /// The shape of one paste opening, mm.
+///
+/// JSON: an object with `kind` (`circle`, `round_rect`, `polygon`) beside the variant's fields.
+/// It is read through [`OutlineRepr`] rather than serde's internally tagged enum: that one
+/// buffers numbers, and with serde_json's `arbitrary_precision` (which `defmt-decoder` turns on
+/// in this workspace) a buffered number no longer reads as an `f64`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case")]
+#[serde(tag = "kind", rename_all = "snake_case", try_from = "OutlineRepr")]
 pub enum Outline {
     /// A disc.
     Circle { centre: Point, diameter: f64 },
@@ -34,6 +39,70 @@ pub enum Outline {
         exterior: Vec<Point>,
         holes: Vec<Vec<Point>>,
     },
+}
+
+/// The JSON form of an [`Outline`] as read: `kind` and every variant's fields, optional.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct OutlineRepr {
+    kind: String,
+    centre: Option<Point>,
+    diameter: Option<f64>,
+    size: Option<[f64; 2]>,
+    radius: Option<f64>,
+    rotation_deg: Option<f64>,
+    exterior: Option<Vec<Point>>,
+    holes: Option<Vec<Vec<Point>>>,
+}
+
+impl TryFrom<OutlineRepr> for Outline {
+    type Error = String;
+
+    fn try_from(r: OutlineRepr) -> Result<Outline, String> {
+        let need =
+            |v: Option<f64>, name: &str| v.ok_or_else(|| format!("{} without `{name}`", r.kind));
+        let extra = |present: bool, name: &str| {
+            if present {
+                Err(format!("`{name}` does not belong to a {}", r.kind))
+            } else {
+                Ok(())
+            }
+        };
+        match r.kind.as_str() {
+            "circle" => {
+                extra(r.size.is_some(), "size")?;
+                extra(r.radius.is_some(), "radius")?;
+                extra(r.rotation_deg.is_some(), "rotation_deg")?;
+                extra(r.exterior.is_some() || r.holes.is_some(), "exterior")?;
+                Ok(Outline::Circle {
+                    centre: r.centre.ok_or("circle without `centre`")?,
+                    diameter: need(r.diameter, "diameter")?,
+                })
+            }
+            "round_rect" => {
+                extra(r.diameter.is_some(), "diameter")?;
+                extra(r.exterior.is_some() || r.holes.is_some(), "exterior")?;
+                Ok(Outline::RoundRect {
+                    centre: r.centre.ok_or("round_rect without `centre`")?,
+                    size: r.size.ok_or("round_rect without `size`")?,
+                    radius: need(r.radius, "radius")?,
+                    rotation_deg: need(r.rotation_deg, "rotation_deg")?,
+                })
+            }
+            "polygon" => {
+                extra(r.centre.is_some(), "centre")?;
+                extra(r.diameter.is_some() || r.size.is_some(), "size")?;
+                extra(r.radius.is_some() || r.rotation_deg.is_some(), "radius")?;
+                Ok(Outline::Polygon {
+                    exterior: r.exterior.ok_or("polygon without `exterior`")?,
+                    holes: r.holes.ok_or("polygon without `holes`")?,
+                })
+            }
+            k => Err(format!(
+                "unknown outline kind {k:?}, expected circle, round_rect or polygon"
+            )),
+        }
+    }
 }
 
 /// Signed area of a ring (positive counter-clockwise).
@@ -276,6 +345,42 @@ impl Outline {
         }
     }
 
+    /// The outline grown outwards by `d` mm (shrunk for `d < 0`), exactly: a disc's diameter
+    /// grows by `2 d`, a rounded rectangle's size by `2 d` and its corner radius by `d`
+    /// (clamped at 0 when shrinking). `None` for a polygon (its offset is not a polygon).
+    pub fn offset(&self, d: f64) -> Option<Outline> {
+        match self {
+            Outline::Circle { centre, diameter } => Some(Outline::Circle {
+                centre: *centre,
+                diameter: (diameter + 2.0 * d).max(0.0),
+            }),
+            Outline::RoundRect {
+                centre,
+                size,
+                radius,
+                rotation_deg,
+            } => {
+                let r = radius.clamp(0.0, size[0].min(size[1]) / 2.0);
+                Some(Outline::RoundRect {
+                    centre: *centre,
+                    size: [(size[0] + 2.0 * d).max(0.0), (size[1] + 2.0 * d).max(0.0)],
+                    radius: (r + d).max(0.0),
+                    rotation_deg: *rotation_deg,
+                })
+            }
+            Outline::Polygon { .. } => None,
+        }
+    }
+
+    /// The outline moved by `[dx, dy]` mm.
+    pub fn shifted(&self, d: Point) -> Outline {
+        self.transformed(&Rigid {
+            rotation_rad: 0.0,
+            tx: d[0],
+            ty: d[1],
+        })
+    }
+
     /// Whether every number of the outline is finite and its size positive.
     pub fn is_sane(&self) -> bool {
         let fin = |p: &Point| p[0].is_finite() && p[1].is_finite();
@@ -474,6 +579,32 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    #[test]
+    fn outlines_and_pads_round_trip_through_json() {
+        for o in shapes() {
+            let json = serde_json::to_string(&o).unwrap();
+            assert!(json.contains("\"kind\""), "{json}");
+            let back: Outline = serde_json::from_str(&json).unwrap();
+            assert_eq!(back, o);
+            let pad = Pad {
+                index: 3,
+                outline: o,
+                component: Some("U1".into()),
+                pin: Some("7".into()),
+                aperture: None,
+            };
+            let back: Pad = serde_json::from_str(&serde_json::to_string(&pad).unwrap()).unwrap();
+            assert_eq!(back, pad);
+        }
+        for bad in [
+            r#"{"kind":"circle","centre":[0,0]}"#,
+            r#"{"kind":"circle","centre":[0,0],"diameter":1,"size":[1,1]}"#,
+            r#"{"kind":"hexagon","centre":[0,0]}"#,
+        ] {
+            assert!(serde_json::from_str::<Outline>(bad).is_err(), "{bad}");
         }
     }
 
