@@ -413,6 +413,10 @@ pub struct PrintParams {
     pub fiducial_diameter_mm: f64,
     /// Defects to inject.
     pub defects: DefectCounts,
+    /// The print's own seed: the same deposits on every run of the scene (a repeatability
+    /// study); absent, the run's seed prints a new board each time.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
 }
 
 impl Default for PrintParams {
@@ -431,6 +435,7 @@ impl Default for PrintParams {
             fiducial_edge_mm: 0.01,
             fiducial_diameter_mm: crate::array::layout::FIDUCIAL_DIAMETER_MM,
             defects: DefectCounts::default(),
+            seed: None,
         }
     }
 }

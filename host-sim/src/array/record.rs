@@ -30,6 +30,26 @@ pub const BOARD_TRUTH_FILE: &str = "truth/board_height_um.f32";
 pub const PASTE_LAYER_FILE: &str = "paste.gbr";
 /// The print of a board with a paste layer ([`Print`], JSON): deposits and truth per pad.
 pub const PRINT_FILE: &str = "print.json";
+/// The inspection program of a board recording with a paste layer (`dpsa inspect --program`).
+pub const PROGRAM_FILE: &str = "program.toml";
+
+/// The inspection program matching a board scene: its layer (as copied into the recording),
+/// stencil, nominal placement and fiducials, the default windows, and the print truth.
+pub fn inspection_program(scene: &ArrayScene) -> crate::inspection::program::Program {
+    let mut p = crate::inspection::program::Program::new(PASTE_LAYER_FILE);
+    p.stencil_um = scene.print.stencil_um;
+    p.placement.design_origin_mm = scene.placement.design_origin_mm;
+    p.placement.orientation_deg = scene.placement.orientation_deg;
+    p.fiducials.points_mm = scene.fiducials.clone();
+    p.fiducials.diameter_mm = scene.fiducial_diameter_mm;
+    // The search covers the placement error (3 sigma of offset plus the rotation's reach
+    // over the board) with room.
+    let reach = 3.0 * scene.placement.offset_sigma_mm
+        + 3.0 * scene.placement.rotation_sigma_deg.to_radians() * scene.board_length_mm.hypot(scene.board_width_mm) / 2.0;
+    p.fiducials.search_mm = (reach + 0.5).clamp(0.5, 20.0);
+    p.truth = Some(PRINT_FILE.to_string());
+    p
+}
 
 /// Board recording or calibration recording.
 #[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
@@ -542,8 +562,11 @@ pub fn board_deposits(
         }
     }
     let t = scene.placement.design_to_board(length, width, seed);
+    // The print is the board's own (its `[print] seed` when given: the same board every
+    // run, as a repeatability study needs); the placement and the noise are the run's.
+    let print_seed = scene.print.seed.unwrap_or(seed);
     let print =
-        crate::array::print::print(&pads, &scene.fiducials, &scene.print_params(), &t, seed)
+        crate::array::print::print(&pads, &scene.fiducials, &scene.print_params(), &t, print_seed)
             .with_context(|| format!("printing {}", path.display()))?;
     if let Some(d) = print.deposits.iter().find(|d| !inside(d.reach_bbox())) {
         bail!(
@@ -643,6 +666,10 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
         crate::files::write_bytes(&out.join(PASTE_LAYER_FILE), layer)?;
         sum.bytes += layer.len() as u64;
         sum.bytes += write_json(&out.join(PRINT_FILE), print)?;
+        let program = inspection_program(scene);
+        let text = program.to_toml_string();
+        crate::files::write_bytes(&out.join(PROGRAM_FILE), text.as_bytes())?;
+        sum.bytes += text.len() as u64;
     }
     let mut manifest = ArrayManifest {
         format: ARRAY_FORMAT.into(),
