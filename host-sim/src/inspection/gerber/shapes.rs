@@ -108,22 +108,39 @@ pub(super) fn convex_hull(mut pts: Vec<Point>) -> Vec<Point> {
     let cross = |o: Point, a: Point, b: Point| {
         (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
     };
-    let mut hull: Vec<Point> = Vec::with_capacity(pts.len() * 2);
-    for &p in pts.iter().chain(pts.iter().rev().skip(1)) {
-        while hull.len() >= 2 && cross(hull[hull.len() - 2], hull[hull.len() - 1], p) <= 0.0 {
-            hull.pop();
+    let half = |seq: &mut dyn Iterator<Item = &Point>| -> Vec<Point> {
+        let mut h: Vec<Point> = Vec::new();
+        for &p in seq {
+            while h.len() >= 2 && cross(h[h.len() - 2], h[h.len() - 1], p) <= 0.0 {
+                h.pop();
+            }
+            h.push(p);
         }
-        hull.push(p);
-    }
-    hull.pop();
+        h.pop(); // it starts the other half
+        h
+    };
+    let mut hull = half(&mut pts.iter());
+    hull.extend(half(&mut pts.iter().rev()));
     hull
 }
 
-/// A stroke of a circular aperture of diameter `d` from `a` to `b`: a capsule.
+/// A stroke of a circular aperture of diameter `d` from `a` to `b`: a capsule, its two caps
+/// half circles about the ends (symmetric, so its centroid is the segment's middle).
 pub(super) fn capsule(a: Point, b: Point, d: f64) -> Vec<Point> {
-    let mut pts = circle_points(a, d);
-    pts.extend(circle_points(b, d));
-    convex_hull(pts)
+    let r = d / 2.0;
+    if (b[0] - a[0]).hypot(b[1] - a[1]) < 1e-12 {
+        return circle_points(a, d);
+    }
+    let theta = (b[1] - a[1]).atan2(b[0] - a[0]);
+    let n = arc_segments(r, PI).max(4);
+    let mut pts = Vec::with_capacity(2 * (n + 1));
+    for (c, start) in [(b, theta - PI / 2.0), (a, theta + PI / 2.0)] {
+        for i in 0..=n {
+            let t = start + PI * i as f64 / n as f64;
+            pts.push([c[0] + r * t.cos(), c[1] + r * t.sin()]);
+        }
+    }
+    pts
 }
 
 /// A stroke of a `w` x `h` rectangular aperture from `a` to `b`: the hull of both rectangles.
@@ -564,6 +581,17 @@ mod tests {
         assert!(eval_expr("1$", &vars).is_err());
         let deep = "(".repeat(200) + "1" + &")".repeat(200);
         assert!(eval_expr(&deep, &vars).is_err());
+    }
+
+    #[test]
+    fn convex_hull_keeps_the_corners() {
+        let mut pts = rect_points([0.0, 0.0], 0.2, 0.4, 0.0);
+        pts.extend(rect_points([1.0, 0.0], 0.2, 0.4, 0.0));
+        pts.push([0.5, 0.0]); // inside
+        let h = convex_hull(pts);
+        assert_eq!(h.len(), 4, "{h:?}");
+        let a = area(&MultiPolygon::new(vec![polygon(&h, &[])]));
+        assert!((a - 1.2 * 0.4).abs() < 1e-12, "{a}");
     }
 
     #[test]
