@@ -491,6 +491,44 @@ fn kicad_roundrect_and_four_circle_rounded_rectangles_are_exact() {
         },
         1e-12,
     );
+    // A KiCad RoundRect turned by 30 degrees (its corners turned): the same shape as the
+    // reference outline everywhere.
+    let (s30, c30) = 30f64.to_radians().sin_cos();
+    let corners: Vec<String> = [[-0.5, -0.3], [0.5, -0.3], [0.5, 0.3], [-0.5, 0.3]]
+        .iter()
+        .map(|p: &[f64; 2]| {
+            format!(
+                "{:.6}X{:.6}",
+                c30 * p[0] - s30 * p[1],
+                s30 * p[0] + c30 * p[1]
+            )
+        })
+        .collect();
+    let l = layer(&format!(
+        "{MM}{kicad}%ADD10RoundRect,0.1X{}X0*%\nD10*\nX0Y0D03*\nM02*\n",
+        corners.join("X")
+    ));
+    let reference = Outline::RoundRect {
+        centre: [0.0, 0.0],
+        size: [1.2, 0.8],
+        radius: 0.1,
+        rotation_deg: 30.0,
+    };
+    assert!(
+        matches!(l.pads[0].outline, Outline::RoundRect { .. }),
+        "{:?}",
+        l.pads[0]
+    );
+    for i in 0..=20 {
+        for j in 0..=20 {
+            let p = [-0.8 + 0.08 * f64::from(i), -0.8 + 0.08 * f64::from(j)];
+            close(
+                l.pads[0].outline.signed_distance(p),
+                reference.signed_distance(p),
+                2e-6,
+            );
+        }
+    }
     // Altium-style: two centre lines and four corner circles.
     let l = layer(&format!(
         "{MM}%AMRR*\n21,1,1.0,0.4,0,0,0*\n21,1,0.8,0.6,0,0,0*\n1,1,0.2,0.4,0.2*\n1,1,0.2,-0.4,0.2*\n1,1,0.2,-0.4,-0.2*\n1,1,0.2,0.4,-0.2*%\n%ADD10RR*%\nD10*\nX0Y0D03*\nM02*\n"

@@ -17,7 +17,7 @@ pub(super) const CHORD_MM: f64 = 0.001;
 /// farther than [`CHORD_MM`] from the arc (at least 1; at most 4096 for a full turn).
 pub(super) fn arc_segments(radius: f64, sweep: f64) -> usize {
     let sweep = sweep.abs();
-    if !(radius > CHORD_MM) || !sweep.is_finite() {
+    if radius.is_nan() || radius <= CHORD_MM || !sweep.is_finite() {
         return 1.max((sweep / (PI / 2.0)).ceil() as usize);
     }
     let step = 2.0 * (1.0 - CHORD_MM / radius).clamp(-1.0, 1.0).acos();
@@ -604,7 +604,8 @@ mod tests {
         assert!(p.iter().any(|q| q[0] < -0.5));
         // Same start and end: a full circle.
         let p = arc_points([1.0, 0.0], [1.0, 0.0], [0.0, 0.0], true);
-        assert!(p.len() > 100);
+        assert_eq!(p.len(), arc_segments(1.0, TAU));
+        assert!(p.iter().all(|q| (q[0].hypot(q[1]) - 1.0).abs() < 1e-12));
     }
 
     #[test]
@@ -618,6 +619,10 @@ mod tests {
             rotation_deg: 30.0,
         };
         let a = area(&MultiPolygon::new(vec![poly]));
-        assert!((a - exact.area()).abs() < 1e-4 * exact.area());
+        // Chords within 1 um inside the corners: at most arc length x 1 um less.
+        assert!(
+            a < exact.area() && exact.area() - a < 2.0 * PI * 0.1 * CHORD_MM,
+            "{a}"
+        );
     }
 }
