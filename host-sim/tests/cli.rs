@@ -104,6 +104,7 @@ fn help_texts() {
         "calibrate",
         "board",
         "board-bench",
+        "pads",
         "demo",
     ] {
         assert!(top.contains(sub), "dpsa --help does not list {sub}: {top}");
@@ -119,6 +120,7 @@ fn help_texts() {
         ("decode", &["--png", "--lsb-um", "--json"][..]),
         ("demo", &["--out", "--seed", "--scene", "--array"][..]),
         ("board", &["--cal", "--out", "--streams", "--json"][..]),
+        ("pads", &["--json"][..]),
     ] {
         let h = ok(&[sub, "--help"]);
         for o in options {

@@ -886,7 +886,7 @@ impl State {
                 run.push(poly);
             } else {
                 if !run.is_empty() {
-                    run.extend(shape.0.drain(..));
+                    run.append(&mut shape.0);
                     shape = union_all(&run);
                     run.clear();
                 }
@@ -894,7 +894,7 @@ impl State {
             }
         }
         if !run.is_empty() {
-            run.extend(shape.0.drain(..));
+            run.append(&mut shape.0);
             shape = union_all(&run);
         }
         let all_on = prims.iter().all(|(on, _)| *on);

@@ -226,10 +226,10 @@ fn rewrite(st: &Statement) -> Result<Option<String>, GerberError> {
             None
         });
     }
-    if s.starts_with('G') {
+    if let Some(after_g) = s.strip_prefix('G') {
         // The parser slices the 3 characters after 'G'; a shorter word would panic it.
-        let digits: String = s[1..].chars().take_while(|c| c.is_ascii_digit()).collect();
-        let rest = &s[1 + digits.len()..];
+        let digits: String = after_g.chars().take_while(|c| c.is_ascii_digit()).collect();
+        let rest = &after_g[digits.len()..];
         let code: u32 = digits
             .parse()
             .map_err(|_| syntax(st.line, format!("unknown command {s:?}")))?;

@@ -94,7 +94,7 @@ pub(super) fn pads(objects: &[Object], warnings: &mut Vec<String>) -> Vec<Pad> {
         if let ([only], false) = (darks.as_slice(), any_clear) {
             let o = &objects[*only];
             if let Some(exact) = &o.exact {
-                pads.push(pad(o, exact.clone(), &[*only], objects));
+                pads.push(pad(exact.clone(), &[*only], objects));
                 continue;
             }
         }
@@ -122,7 +122,7 @@ pub(super) fn pads(objects: &[Object], warnings: &mut Vec<String>) -> Vec<Pad> {
                 (Some(e), 1, false) => e.clone(),
                 _ => outline_of(poly),
             };
-            pads.push(pad(first, outline, &contributors, objects));
+            pads.push(pad(outline, &contributors, objects));
         }
     }
     if slivers > 0 {
@@ -150,7 +150,6 @@ fn bbox(p: &Polygon<f64>) -> [f64; 4] {
 }
 
 fn pad(
-    first: &Object,
     outline: crate::inspection::pads::Outline,
     contributors: &[usize],
     objects: &[Object],
@@ -162,7 +161,7 @@ fn pad(
         outline,
         component: consensus(of().map(|o| o.component.as_ref())),
         pin: consensus(of().map(|o| o.pin.as_ref())),
-        aperture: Some(class).or_else(|| Some(first.class.clone())),
+        aperture: Some(class),
     }
 }
 

@@ -207,19 +207,20 @@ fn parse(
     let reader = std::io::BufReader::new(lexed.text.as_bytes());
     // The pre-processing keeps the parser away from the inputs known to panic it; a panic
     // that is left is still a refusal of the file, not of the program.
-    let doc = std::panic::catch_unwind(move || gerber_parser::parse(reader)).map_err(|_| {
-        GerberError::Syntax {
+    // (The parser's error carries the partial document; boxed, it does not bloat the Result.)
+    let doc = std::panic::catch_unwind(move || gerber_parser::parse(reader).map_err(Box::new))
+        .map_err(|_| GerberError::Syntax {
             line: 0,
             message: "the Gerber parser failed on this file".into(),
-        }
-    })?;
+        })?;
     let doc = match doc {
         Ok(doc) => doc,
-        Err((_, e)) => {
+        Err(boxed) => {
+            let (_, e) = *boxed;
             return Err(GerberError::Syntax {
                 line: 0,
                 message: e.to_string(),
-            })
+            });
         }
     };
     let mut out = Vec::with_capacity(doc.commands.len());
