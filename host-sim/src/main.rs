@@ -31,6 +31,8 @@ fn main() {
         Cmd::Compare(a) => cli::compare::run(a, progress),
         Cmd::Phase(a) => cli::phase::run(a),
         Cmd::Pads(a) => cli::pads::run(a),
+        Cmd::Inspect(a) => cli::inspect::run(a),
+        Cmd::Grr(a) => cli::grr::run(a),
         // 0 clean, 2 damaged or incomplete, 3 nothing decodable (cli/decode.rs).
         Cmd::Decode(a) => cli::decode::run(a).map(exit_unless_zero),
         Cmd::FrameBench(a) => cli::frame_bench::run(a),

@@ -45,7 +45,10 @@ pub fn inspection_program(scene: &ArrayScene) -> crate::inspection::program::Pro
     // The search covers the placement error (3 sigma of offset plus the rotation's reach
     // over the board) with room.
     let reach = 3.0 * scene.placement.offset_sigma_mm
-        + 3.0 * scene.placement.rotation_sigma_deg.to_radians() * scene.board_length_mm.hypot(scene.board_width_mm) / 2.0;
+        + 3.0
+            * scene.placement.rotation_sigma_deg.to_radians()
+            * scene.board_length_mm.hypot(scene.board_width_mm)
+            / 2.0;
     p.fiducials.search_mm = (reach + 0.5).clamp(0.5, 20.0);
     p.truth = Some(PRINT_FILE.to_string());
     p
@@ -565,9 +568,14 @@ pub fn board_deposits(
     // The print is the board's own (its `[print] seed` when given: the same board every
     // run, as a repeatability study needs); the placement and the noise are the run's.
     let print_seed = scene.print.seed.unwrap_or(seed);
-    let print =
-        crate::array::print::print(&pads, &scene.fiducials, &scene.print_params(), &t, print_seed)
-            .with_context(|| format!("printing {}", path.display()))?;
+    let print = crate::array::print::print(
+        &pads,
+        &scene.fiducials,
+        &scene.print_params(),
+        &t,
+        print_seed,
+    )
+    .with_context(|| format!("printing {}", path.display()))?;
     if let Some(d) = print.deposits.iter().find(|d| !inside(d.reach_bbox())) {
         bail!(
             "the board's placement error (placement.offset_sigma_mm, rotation_sigma_deg) moves {} off the board; lower them or keep the layer further from the board edges",

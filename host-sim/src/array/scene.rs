@@ -1007,12 +1007,21 @@ mod tests {
         let e = load_paste_layer(&f).unwrap_err().to_string();
         assert!(e.contains("no pads"), "{e}");
         for (board, file) in [
-            (crate::array::layout::LayoutBoard::Small, "array-small.paste.gbr"),
-            (crate::array::layout::LayoutBoard::Paper, "paper-board.paste.gbr"),
+            (
+                crate::array::layout::LayoutBoard::Small,
+                "array-small.paste.gbr",
+            ),
+            (
+                crate::array::layout::LayoutBoard::Paper,
+                "paper-board.paste.gbr",
+            ),
         ] {
-            let read =
-                load_paste_layer(&Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes").join(file))
-                    .unwrap();
+            let read = load_paste_layer(
+                &Path::new(env!("CARGO_MANIFEST_DIR"))
+                    .join("../scenes")
+                    .join(file),
+            )
+            .unwrap();
             let made = crate::array::layout::generate(board).pads;
             assert_eq!(read.len(), made.len(), "{file}");
             for (r, m) in read.iter().zip(&made) {
@@ -1021,7 +1030,10 @@ mod tests {
                 let rel = (r.outline.area() - m.outline.area()).abs() / m.outline.area();
                 assert!(rel < 5e-3, "{file}: {r:?} vs {m:?}");
                 let (a, b) = (r.outline.centroid(), m.outline.centroid());
-                assert!((a[0] - b[0]).abs() < 1e-5 && (a[1] - b[1]).abs() < 1e-5, "{file}");
+                assert!(
+                    (a[0] - b[0]).abs() < 1e-5 && (a[1] - b[1]).abs() < 1e-5,
+                    "{file}"
+                );
             }
         }
     }

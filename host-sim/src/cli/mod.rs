@@ -9,6 +9,8 @@ pub mod compare;
 pub mod decode;
 pub mod demo;
 pub mod frame_bench;
+pub mod grr;
+pub mod inspect;
 pub mod layout;
 pub mod pads;
 pub mod phase;
@@ -55,6 +57,14 @@ pub enum Cmd {
     /// A board's top paste layer (Gerber RS-274X / X2) as pads: count, bounding box, area
     /// histogram, aperture classes, X2 names.
     Pads(pads::Args),
+    /// Inspect a board map pad by pad against an inspection program (the paste layer, windows,
+    /// fiducials): volume, area, height, offset, bridges, shape; pass / warn / fail per pad;
+    /// pads.csv, report.json, an IPC-CFX UnitsInspected message, an overview and a defect
+    /// gallery.
+    Inspect(inspect::Args),
+    /// Gauge repeatability (GR&R) of the inspection: the same printed board N times through
+    /// the simulated array with fresh noise and placement, inspected each time.
+    Grr(grr::Args),
     /// Phase of an ordinary phase-shifting image stack (PNG, JPEG, TIFF; 8 or 16 bit), fixed-point
     /// core and f64 reference side by side.
     Phase(phase::Args),

@@ -6,11 +6,14 @@
 //!   most `margin` beyond it (`margin` = `cell_margin_share` of the opening's smaller size,
 //!   clamped to `cell_margin_mm`). Cells never overlap, so no paste is counted twice, and a
 //!   deposit printed a third of a pad off is still measured whole.
-//! - **Local surface**: a plane fitted to the bare board around the pad: pixels at least
+//! - **Local surface**: a surface fitted to the bare board around the pad: pixels at least
 //!   `surface_guard_mm` from every opening and fiducial and within `surface_reach_mm` of this
-//!   one (twice and four times that when too few qualify). The fit is robust (iteratively
-//!   trimmed at 3 robust sigma, at least 3 um), so smears and neighbours' stray paste on the
-//!   board do not lift it. The plane follows the board's warp; heights are taken above it.
+//!   one (2, 4 and 8 times that when too few qualify: the middle of a large BGA), about
+//!   [`SURFACE_SCAN`] pixels of the window looked at. A quadratic where the samples pin its
+//!   curvature (a plane, then a level, where they do not): the warp curves by several um
+//!   over a few mm of a bowed board, which a plane through the ring would put under the pad.
+//!   The fit is robust (iteratively trimmed at 3 robust sigma, at least 3 um), so smears and
+//!   neighbours' stray paste on the board do not lift it. Heights are taken above it.
 //! - **Volume**: the sum of heights above the surface over the cell's pixels (an invalid pixel
 //!   takes the mean of its valid 3 x 3 neighbours in the cell), in um^3 and in % of opening
 //!   area x stencil thickness. No threshold: the walls' paste counts.
@@ -29,16 +32,19 @@
 //!   joins them (4-connected), searched in the two openings' joint box.
 
 use super::map::BoardMap;
-use super::pads::{Outline, Pad, Point, Rigid};
+use super::pads::{norm, Outline, Pad, Point, Prepared, Rigid};
 use super::program::Program;
 use serde::Serialize;
 
 /// Fewest bare-board pixels for the local surface.
 pub const MIN_SURFACE_PIXELS: usize = 24;
 
+/// About this many pixels of the surface window are looked at (a stride over larger ones).
+pub const SURFACE_SCAN: usize = 1500;
+
 /// The openings on the board (board frame) with a bin index for neighbour queries.
 pub struct Placed {
-    pub outlines: Vec<Outline>,
+    pub outlines: Vec<Prepared>,
     pub bboxes: Vec<[f64; 4]>,
     /// Smaller size of each opening, mm (design frame).
     pub min_size: Vec<f64>,
@@ -55,8 +61,11 @@ pub struct Placed {
 
 impl Placed {
     pub fn new(pads: &[Pad], t: &Rigid, fiducials: &[Point], fid_diameter: f64) -> Placed {
-        let outlines: Vec<Outline> = pads.iter().map(|p| p.outline.transformed(t)).collect();
-        let bboxes: Vec<[f64; 4]> = outlines.iter().map(|o| o.bbox()).collect();
+        let outlines: Vec<Prepared> = pads
+            .iter()
+            .map(|p| Prepared::new(p.outline.transformed(t)))
+            .collect();
+        let bboxes: Vec<[f64; 4]> = outlines.iter().map(|o| o.outline.bbox()).collect();
         let mut size_xy = Vec::with_capacity(pads.len());
         let mut min_size = Vec::with_capacity(pads.len());
         for p in pads {
@@ -205,9 +214,10 @@ pub struct PadMeasurement {
     /// Board pixels of the local surface, and their rms about the plane, um.
     pub surface_pixels: usize,
     pub surface_rms_um: f64,
-    /// Local surface `z = a + b (x - cx) + c (y - cy)` about the opening's centroid (board mm).
+    /// Local surface about the opening's centroid (board mm): [`surface_at`] coefficients of
+    /// a quadratic (or a plane where the bare board does not pin the curvature).
     #[serde(skip)]
-    pub surface: [f64; 3],
+    pub surface: Vec<f64>,
     /// Openings this pad's paste is joined to (filled by [`bridges`]).
     pub bridged_to: Vec<usize>,
 }
@@ -216,42 +226,86 @@ pub struct PadMeasurement {
 /// iteratively trimmed at `max(3 robust sigma, 3 um)`. Returns the plane and the rms of the
 /// kept samples' residuals.
 pub fn robust_plane(s: &[[f64; 3]]) -> Option<([f64; 3], f64, usize)> {
+    let (c, rms, kept) = robust_surface(s, false)?;
+    Some(([c[0], c[1], c[2]], rms, kept))
+}
+
+/// The terms of a surface at `(dx, dy)`: `1, dx, dy` and, for a quadratic, `dx^2, dx dy, dy^2`.
+#[inline]
+fn terms(dx: f64, dy: f64) -> [f64; 6] {
+    [1.0, dx, dy, dx * dx, dx * dy, dy * dy]
+}
+
+/// A robust plane or quadratic surface (coefficients in [`terms`] order) through samples,
+/// iteratively trimmed at `max(3 robust sigma, 3 um)`; its value at `(dx, dy)` is
+/// [`surface_at`]. A quadratic whose samples do not pin its curvature (a thin or one-sided
+/// region) falls back to a plane, and a plane to the level alone.
+pub fn robust_surface(s: &[[f64; 3]], quadratic: bool) -> Option<(Vec<f64>, f64, usize)> {
+    let mut nt = if quadratic { 6 } else { 3 };
     let mut keep: Vec<bool> = vec![true; s.len()];
-    let mut plane = [0.0; 3];
+    let mut coef = vec![0.0; nt];
     let mut rms = 0.0;
     let mut kept = 0;
+    let mut res: Vec<f64> = vec![0.0; s.len()];
+    let mut kept_res: Vec<f64> = Vec::with_capacity(s.len());
+    // The trimming rounds look at every `sub`-th sample (about 500); the last fit at all.
+    let sub = (s.len() / 500).max(1);
     for round in 0..4 {
-        let mut m = nalgebra::Matrix3::<f64>::zeros();
-        let mut v = nalgebra::Vector3::<f64>::zeros();
-        let mut n = 0usize;
-        for (p, k) in s.iter().zip(&keep) {
-            if !*k {
+        let step = if round < 3 { sub } else { 1 };
+        let sol = loop {
+            let mut m = nalgebra::SMatrix::<f64, 6, 6>::zeros();
+            let mut v = nalgebra::SVector::<f64, 6>::zeros();
+            let mut n = 0usize;
+            for (p, k) in s.iter().zip(&keep).step_by(step) {
+                if !*k {
+                    continue;
+                }
+                let t = terms(p[0], p[1]);
+                for i in 0..nt {
+                    v[i] += t[i] * p[2];
+                    for j in i..nt {
+                        m[(i, j)] += t[i] * t[j];
+                    }
+                }
+                n += 1;
+            }
+            if n < 2 * nt.max(3) {
+                if nt == 1 || n < 3 {
+                    return None;
+                }
+                nt = if nt == 6 { 3 } else { 1 };
                 continue;
             }
-            let r = nalgebra::Vector3::new(1.0, p[0], p[1]);
-            m += r * r.transpose();
-            v += r * p[2];
-            n += 1;
-        }
-        if n < 3 {
-            return None;
-        }
-        // A plane needs spread in both directions; otherwise fit the level alone.
-        let sol = match m.try_inverse() {
-            Some(inv) if m.determinant().abs() > 1e-12 * m[(0, 0)].powi(3) => inv * v,
-            _ => nalgebra::Vector3::new(v[0] / m[(0, 0)], 0.0, 0.0),
+            for i in 0..nt {
+                for j in 0..i {
+                    m[(i, j)] = m[(j, i)];
+                }
+            }
+            let sub = m.view((0, 0), (nt, nt)).clone_owned();
+            // Conditioning: the terms are mm-scaled, so a determinant far below the diagonal's
+            // product means a direction the samples do not see.
+            let diag: f64 = (0..nt).map(|i| sub[(i, i)]).product();
+            match sub.clone().try_inverse() {
+                Some(inv) if sub.determinant().abs() > 1e-9 * diag => {
+                    let sol = inv * v.rows(0, nt);
+                    break sol.iter().copied().collect::<Vec<f64>>();
+                }
+                _ if nt > 1 => nt = if nt == 6 { 3 } else { 1 },
+                _ => return None,
+            }
         };
-        plane = [sol[0], sol[1], sol[2]];
-        let res: Vec<f64> = s
-            .iter()
-            .map(|p| p[2] - (plane[0] + plane[1] * p[0] + plane[2] * p[1]))
-            .collect();
-        let mut kept_res: Vec<f64> = res
-            .iter()
-            .zip(&keep)
-            .filter(|(_, k)| **k)
-            .map(|(r, _)| r.abs())
-            .collect();
+        coef = sol;
+        for (r, p) in res.iter_mut().zip(s) {
+            *r = p[2] - surface_at(&coef, p[0], p[1]);
+        }
+        kept_res.clear();
+        kept_res.extend(
+            res.iter()
+                .zip(&keep)
+                .step_by(step)
+                .filter(|(_, k)| **k)
+                .map(|(r, _)| r.abs()),
+        );
         kept = kept_res.len();
         rms = (kept_res.iter().map(|r| r * r).sum::<f64>() / kept as f64).sqrt();
         if round == 3 {
@@ -264,7 +318,13 @@ pub fn robust_plane(s: &[[f64; 3]]) -> Option<([f64; 3], f64, usize)> {
             *k = r.abs() <= limit;
         }
     }
-    Some((plane, rms, kept))
+    Some((coef, rms, kept))
+}
+
+/// A [`robust_surface`]'s value at `(dx, dy)`.
+pub fn surface_at(c: &[f64], dx: f64, dy: f64) -> f64 {
+    let t = terms(dx, dy);
+    c.iter().zip(t).map(|(a, b)| a * b).sum()
 }
 
 /// Measures every pad (two threads).
@@ -329,12 +389,16 @@ pub fn cell_member(
     if d > margin {
         return (false, d);
     }
+    // Openings do not overlap: inside this one, no other is nearer.
+    if d < 0.0 {
+        return (true, d);
+    }
     for &j in near {
         let b = &placed.bboxes[j];
         // Box distance is a lower bound of the outline's distance.
         let bx = (b[0] - q[0]).max(q[0] - b[2]).max(0.0);
         let by = (b[1] - q[1]).max(q[1] - b[3]).max(0.0);
-        if bx.hypot(by) > d {
+        if norm(bx, by) > d {
             continue;
         }
         let dj = placed.outlines[j].signed_distance(q);
@@ -378,14 +442,21 @@ pub fn measure_pad(
 
     // Local surface, growing the reach until enough bare board qualifies.
     let mut surface = None;
-    for grow in [1.0, 2.0, 4.0] {
+    for grow in [1.0, 2.0, 4.0, 8.0] {
         let reach = m.surface_reach_mm * grow;
         let near = placed.near(bb, reach + m.surface_guard_mm, k);
         let win = [bb[0] - reach, bb[1] - reach, bb[2] + reach, bb[3] + reach];
         let (ri, rj) = map.window(win);
+        // Every pixel of a small window, every 2nd (3rd, ...) of a large one: about
+        // SURFACE_SCAN pixels are looked at, which pins a quadratic to a few hundredths of
+        // a um.
+        let stride = ((ri.len() * rj.len()) as f64 / SURFACE_SCAN as f64)
+            .sqrt()
+            .ceil()
+            .max(1.0) as usize;
         let mut samples: Vec<[f64; 3]> = Vec::new();
-        for i in ri.clone() {
-            for j in rj.clone() {
+        for i in ri.clone().step_by(stride) {
+            for j in rj.clone().step_by(stride) {
                 let h = map.heights.data[i * map.grid.width + j];
                 if !h.is_finite() {
                     continue;
@@ -400,19 +471,19 @@ pub fn measure_pad(
                     let b = &placed.bboxes[n];
                     let bx = (b[0] - x).max(x - b[2]).max(0.0);
                     let by = (b[1] - y).max(y - b[3]).max(0.0);
-                    bx.hypot(by) >= m.surface_guard_mm
+                    norm(bx, by) >= m.surface_guard_mm
                         || placed.outlines[n].signed_distance(q) >= m.surface_guard_mm
                 }) && placed
                     .fiducials
                     .iter()
-                    .all(|(f, r)| (x - f[0]).hypot(y - f[1]) >= r + m.surface_guard_mm);
+                    .all(|(f, r)| norm(x - f[0], y - f[1]) >= r + m.surface_guard_mm);
                 if clear {
                     samples.push([x - c[0], y - c[1], f64::from(h)]);
                 }
             }
         }
         if samples.len() >= MIN_SURFACE_PIXELS {
-            surface = robust_plane(&samples);
+            surface = robust_surface(&samples, true);
             if surface.is_some() {
                 break;
             }
@@ -422,10 +493,10 @@ pub fn measure_pad(
         pm.unmeasurable = Some(Unmeasurable::NoSurface);
         return pm;
     };
-    pm.surface = plane;
+    pm.surface = plane.clone();
     pm.surface_rms_um = rms;
     pm.surface_pixels = kept;
-    let base = |x: f64, y: f64| plane[0] + plane[1] * (x - c[0]) + plane[2] * (y - c[1]);
+    let base = |x: f64, y: f64| surface_at(&plane, x - c[0], y - c[1]);
 
     // The cell.
     let near = placed.near(bb, 2.0 * margin, k);
@@ -567,108 +638,141 @@ pub fn measure_pad(
 }
 
 /// Finds paste joining neighbouring openings; fills `bridged_to` of both pads.
+///
+/// Per pad, a flood fill (4-connected) from its paste inside its opening over pixels above
+/// the bridge height (over its local surface), within its box grown by `bridge_reach_mm`;
+/// a pixel inside another opening is a bridge to it. Each flood visits about the pad's own
+/// deposit, so the search costs little more than the deposit's area.
 pub fn bridges(map: &BoardMap, placed: &Placed, program: &Program, pm: &mut [PadMeasurement]) {
     let reach = program.measure.bridge_reach_mm;
-    let mut pairs: Vec<(usize, usize)> = Vec::new();
-    for k in 0..placed.outlines.len() {
-        if pm[k].unmeasurable.is_some() {
-            continue;
-        }
-        for j in placed.near(placed.bboxes[k], reach, k) {
-            if j > k && pm[j].unmeasurable.is_none() {
-                pairs.push((k, j));
+    let thr = program.stencil_um * program.windows.bridge_height_pct / 100.0;
+    let n = placed.outlines.len();
+    let threads = std::thread::available_parallelism()
+        .map(|v| v.get())
+        .unwrap_or(1)
+        .clamp(1, 8);
+    let chunk = n.div_ceil(threads).max(1);
+    let pm_ref: &[PadMeasurement] = pm;
+    let mut found: Vec<(usize, usize)> = Vec::new();
+    std::thread::scope(|sc| {
+        let hs: Vec<_> = (0..n)
+            .step_by(chunk)
+            .map(|s0| {
+                sc.spawn(move || {
+                    let mut out = Vec::new();
+                    for k in s0..(s0 + chunk).min(n) {
+                        if pm_ref[k].unmeasurable.is_none() {
+                            for j in flood(map, placed, &pm_ref[k], k, reach, thr) {
+                                if pm_ref[j].unmeasurable.is_none() {
+                                    out.push((k.min(j), k.max(j)));
+                                }
+                            }
+                        }
+                    }
+                    out
+                })
+            })
+            .collect();
+        for h in hs {
+            match h.join() {
+                Ok(v) => found.extend(v),
+                Err(e) => std::panic::resume_unwind(e),
             }
         }
-    }
-    // The default window's level (a bridge concerns two pads; overrides judge one).
-    let thr = program.stencil_um * program.windows.bridge_height_pct / 100.0;
-    let mut found: Vec<(usize, usize)> = Vec::new();
-    for (k, j) in pairs {
-        if joined(map, placed, &pm[k], &pm[j], k, j, thr) {
-            found.push((k, j));
-        }
-    }
+    });
+    found.sort_unstable();
+    found.dedup();
     for (k, j) in found {
         pm[k].bridged_to.push(j);
         pm[j].bridged_to.push(k);
     }
 }
 
-fn joined(
+/// The openings pad `k`'s paste reaches.
+fn flood(
     map: &BoardMap,
     placed: &Placed,
-    a: &PadMeasurement,
-    b: &PadMeasurement,
+    m: &PadMeasurement,
     k: usize,
-    j: usize,
+    reach: f64,
     thr: f64,
-) -> bool {
-    let (bk, bj) = (placed.bboxes[k], placed.bboxes[j]);
-    let win = [
-        bk[0].min(bj[0]),
-        bk[1].min(bj[1]),
-        bk[2].max(bj[2]),
-        bk[3].max(bj[3]),
-    ];
-    let (ri, rj) = map.window(win);
-    let (h_w, w_w) = (ri.len(), rj.len());
-    if h_w == 0 || w_w == 0 {
-        return false;
+) -> Vec<usize> {
+    let o = &placed.outlines[k];
+    let bb = placed.bboxes[k];
+    let near = placed.near(bb, reach, k);
+    if near.is_empty() {
+        return Vec::new();
     }
-    let ca = placed.outlines[k].centroid();
-    let cb = placed.outlines[j].centroid();
-    let za =
-        |x: f64, y: f64| a.surface[0] + a.surface[1] * (x - ca[0]) + a.surface[2] * (y - ca[1]);
-    let zb =
-        |x: f64, y: f64| b.surface[0] + b.surface[1] * (x - cb[0]) + b.surface[2] * (y - cb[1]);
-    // 0: not paste, 1: paste, 2: reached.
-    let mut state = vec![0u8; h_w * w_w];
+    let (ri, rj) = map.window([bb[0] - reach, bb[1] - reach, bb[2] + reach, bb[3] + reach]);
+    let (hw, ww) = (ri.len(), rj.len());
+    if hw == 0 || ww == 0 {
+        return Vec::new();
+    }
+    let c = o.centroid();
+    let paste = |a: usize, b: usize| -> bool {
+        let (i, j) = (ri.start + a, rj.start + b);
+        let h = map.heights.data[i * map.grid.width + j];
+        if !h.is_finite() {
+            return false;
+        }
+        let (x, y) = map.grid.centre(i, j);
+        f64::from(h) - surface_at(&m.surface, x - c[0], y - c[1]) > thr
+    };
+    // 0 unseen, 1 visited.
+    let mut seen = vec![false; hw * ww];
     let mut stack: Vec<usize> = Vec::new();
-    let mut target = vec![false; h_w * w_w];
-    for (u, i) in ri.clone().enumerate() {
-        for (v, jj) in rj.clone().enumerate() {
-            let h = map.heights.data[i * map.grid.width + jj];
-            if !h.is_finite() {
-                continue;
-            }
-            let (x, y) = map.grid.centre(i, jj);
-            let base = (za(x, y) + zb(x, y)) / 2.0;
-            if f64::from(h) - base <= thr {
-                continue;
-            }
-            let idx = u * w_w + v;
-            state[idx] = 1;
-            if placed.outlines[k].signed_distance([x, y]) <= 0.0 {
-                state[idx] = 2;
-                stack.push(idx);
-            } else if placed.outlines[j].signed_distance([x, y]) <= 0.0 {
-                target[idx] = true;
+    let (oi, oj) = map.window(bb);
+    for i in oi {
+        for j in oj.clone() {
+            let (a, b) = (i - ri.start, j - rj.start);
+            let (x, y) = map.grid.centre(i, j);
+            if o.signed_distance([x, y]) <= 0.0 && paste(a, b) {
+                seen[a * ww + b] = true;
+                stack.push(a * ww + b);
             }
         }
     }
+    let mut hit: Vec<usize> = Vec::new();
     while let Some(idx) = stack.pop() {
-        if target[idx] {
-            return true;
+        let (a, b) = (idx / ww, idx % ww);
+        let (x, y) = map.grid.centre(ri.start + a, rj.start + b);
+        if o.signed_distance([x, y]) > 0.0 {
+            let q = [x, y];
+            if let Some(&j) = near.iter().find(|&&j| {
+                let bj = &placed.bboxes[j];
+                q[0] >= bj[0]
+                    && q[0] <= bj[2]
+                    && q[1] >= bj[1]
+                    && q[1] <= bj[3]
+                    && placed.outlines[j].signed_distance(q) <= 0.0
+            }) {
+                if !hit.contains(&j) {
+                    hit.push(j);
+                }
+                // Do not flood the neighbour's own deposit.
+                continue;
+            }
         }
-        let (u, v) = (idx / w_w, idx % w_w);
-        let mut push = |n: usize| {
-            if state[n] == 1 {
-                state[n] = 2;
-                stack.push(n);
+        let mut visit = |n: usize, a2: usize, b2: usize| {
+            if !seen[n] {
+                seen[n] = true;
+                if paste(a2, b2) {
+                    stack.push(n);
+                }
             }
         };
-        if u > 0 {
-            push(idx - w_w);
+        if a > 0 {
+            visit(idx - ww, a - 1, b);
         }
-        if u + 1 < h_w {
-            push(idx + w_w);
+        if a + 1 < hw {
+            visit(idx + ww, a + 1, b);
         }
-        if v > 0 {
-            push(idx - 1);
+        if b > 0 {
+            visit(idx - 1, a, b - 1);
         }
-        if v + 1 < w_w {
-            push(idx + 1);
+        if b + 1 < ww {
+            visit(idx + 1, a, b + 1);
         }
     }
-    false
+    hit
 }

@@ -13,8 +13,11 @@
 //! | [`truth`] | a simulated board's truth by the same definitions; accuracy and detection figures |
 //! | [`run`] | `dpsa inspect` end to end, its JSON report |
 //! | [`report`] | the files: pads.csv, IPC-CFX UnitsInspected, overview, defect gallery |
+//! | [`simulated`] | a simulated board's print (`print.json`) as the truth |
+//! | [`grr`] | `dpsa grr`: the gauge repeatability study |
 
 pub mod gerber;
+pub mod grr;
 pub mod map;
 pub mod measure;
 pub mod pads;
@@ -22,6 +25,7 @@ pub mod program;
 pub mod register;
 pub mod report;
 pub mod run;
+pub mod simulated;
 pub mod truth;
 pub mod verdict;
 

@@ -150,7 +150,15 @@ fn segment_distance(p: Point, a: Point, b: Point) -> f64 {
     } else {
         0.0
     };
-    (p[0] - a[0] - t * dx).hypot(p[1] - a[1] - t * dy)
+    let (ex, ey) = (p[0] - a[0] - t * dx, p[1] - a[1] - t * dy);
+    (ex * ex + ey * ey).sqrt()
+}
+
+/// `sqrt(x^2 + y^2)` without `hypot`'s care for overflow (mm-sized values), several times
+/// faster in the inspection's inner loops.
+#[inline]
+pub fn norm(x: f64, y: f64) -> f64 {
+    (x * x + y * y).sqrt()
 }
 
 /// Crossing-number test contribution of one ring (even-odd rule).
@@ -171,12 +179,70 @@ fn ring_crossings(r: &[Point], p: Point) -> bool {
     inside
 }
 
+/// Signed distance to a rounded rectangle turned by the angle whose sine and cosine are `s`, `c`.
+#[inline]
+fn round_rect_distance(
+    p: Point,
+    centre: Point,
+    size: [f64; 2],
+    radius: f64,
+    s: f64,
+    c: f64,
+) -> f64 {
+    let (dx, dy) = (p[0] - centre[0], p[1] - centre[1]);
+    // Into the rectangle's own axes.
+    let (u, v) = (c * dx + s * dy, -s * dx + c * dy);
+    let r = radius.clamp(0.0, size[0].min(size[1]) / 2.0);
+    let qx = u.abs() - (size[0] / 2.0 - r);
+    let qy = v.abs() - (size[1] / 2.0 - r);
+    norm(qx.max(0.0), qy.max(0.0)) + qx.max(qy).min(0.0) - r
+}
+
+/// An outline with its rotation's sine and cosine worked out once: the same signed distance
+/// as [`Outline::signed_distance`], for inner loops.
+#[derive(Clone, Debug)]
+pub struct Prepared {
+    pub outline: Outline,
+    sin_cos: (f64, f64),
+}
+
+/// Every other question (area, centroid, box) goes to the outline.
+impl std::ops::Deref for Prepared {
+    type Target = Outline;
+    fn deref(&self) -> &Outline {
+        &self.outline
+    }
+}
+
+impl Prepared {
+    pub fn new(outline: Outline) -> Prepared {
+        let sin_cos = match &outline {
+            Outline::RoundRect { rotation_deg, .. } => rotation_deg.to_radians().sin_cos(),
+            _ => (0.0, 1.0),
+        };
+        Prepared { outline, sin_cos }
+    }
+
+    #[inline]
+    pub fn signed_distance(&self, p: Point) -> f64 {
+        match &self.outline {
+            Outline::RoundRect {
+                centre,
+                size,
+                radius,
+                ..
+            } => round_rect_distance(p, *centre, *size, *radius, self.sin_cos.0, self.sin_cos.1),
+            o => o.signed_distance(p),
+        }
+    }
+}
+
 impl Outline {
     /// Signed distance from `p` to the outline's edge, mm: negative inside, positive outside.
     pub fn signed_distance(&self, p: Point) -> f64 {
         match self {
             Outline::Circle { centre, diameter } => {
-                (p[0] - centre[0]).hypot(p[1] - centre[1]) - diameter / 2.0
+                norm(p[0] - centre[0], p[1] - centre[1]) - diameter / 2.0
             }
             Outline::RoundRect {
                 centre,
@@ -185,13 +251,7 @@ impl Outline {
                 rotation_deg,
             } => {
                 let (s, c) = rotation_deg.to_radians().sin_cos();
-                let (dx, dy) = (p[0] - centre[0], p[1] - centre[1]);
-                // Into the rectangle's own axes.
-                let (u, v) = (c * dx + s * dy, -s * dx + c * dy);
-                let r = radius.clamp(0.0, size[0].min(size[1]) / 2.0);
-                let qx = u.abs() - (size[0] / 2.0 - r);
-                let qy = v.abs() - (size[1] / 2.0 - r);
-                qx.max(0.0).hypot(qy.max(0.0)) + qx.max(qy).min(0.0) - r
+                round_rect_distance(p, *centre, *size, *radius, s, c)
             }
             Outline::Polygon { exterior, holes } => {
                 let mut d = f64::INFINITY;

@@ -2,7 +2,8 @@
 //!
 //! Each fiducial (a raised copper disc of the program's diameter) is searched within
 //! `fiducials.search_mm` of its nominal place (the program's placement). In that window the
-//! board is levelled by a robust plane ([`super::measure::robust_plane`]), pixels above
+//! board is levelled by a robust quadratic surface (the warp curves over a few mm;
+//! [`super::measure::robust_surface`]), pixels above
 //! 6 um form candidates (4-connected), and of the candidates shaped like the disc (0.6 to
 //! 1.5 times its area, as wide as tall within 25 %, filling 0.6 to 0.9 of their box as a
 //! disc fills pi/4 and a rectangular deposit all of it) the one nearest the nominal place is
@@ -13,7 +14,7 @@
 //! the fit's misses.
 
 use super::map::BoardMap;
-use super::measure::robust_plane;
+use super::measure::{robust_surface, surface_at};
 use super::pads::{Point, Rigid};
 use super::program::Program;
 use serde::Serialize;
@@ -77,9 +78,13 @@ pub fn find_disc(
     if hw < 3 || ww < 3 {
         return Err("its search window is off the map".into());
     }
+    // The window's surface from about 4,000 of its pixels.
+    let stride = ((hw * ww) as f64 / 4000.0).sqrt().ceil().max(1.0) as usize;
     let mut samples = Vec::with_capacity(hw * ww);
-    for i in ri.clone() {
-        for j in rj.clone() {
+    let mut looked = 0usize;
+    for i in ri.clone().step_by(stride) {
+        for j in rj.clone().step_by(stride) {
+            looked += 1;
             let h = map.heights.data[i * map.grid.width + j];
             if h.is_finite() {
                 let (x, y) = map.grid.centre(i, j);
@@ -87,14 +92,14 @@ pub fn find_disc(
             }
         }
     }
-    if samples.len() < hw * ww / 2 {
+    if samples.len() < looked / 2 {
         return Err(format!(
-            "its search window is mostly invalid ({} of {} pixels valid)",
-            samples.len(),
-            hw * ww
+            "its search window is mostly invalid ({} of {looked} pixels looked at valid)",
+            samples.len()
         ));
     }
-    let Some((plane, _, _)) = robust_plane(&samples) else {
+    // A quadratic: the warp curves over a window of a few mm.
+    let Some((plane, _, _)) = robust_surface(&samples, true) else {
         return Err("no board surface in its window".into());
     };
     let mut r = vec![f64::NAN; hw * ww];
@@ -103,8 +108,7 @@ pub fn find_disc(
             let h = map.heights.data[i * map.grid.width + j];
             if h.is_finite() {
                 let (x, y) = map.grid.centre(i, j);
-                r[a * ww + b] =
-                    f64::from(h) - (plane[0] + plane[1] * (x - q0[0]) + plane[2] * (y - q0[1]));
+                r[a * ww + b] = f64::from(h) - surface_at(&plane, x - q0[0], y - q0[1]);
             }
         }
     }
@@ -188,14 +192,13 @@ pub fn find_disc(
                     .then_some([x - c[0], y - c[1], f64::from(h)])
             })
             .collect();
-    if let Some((pl, _, _)) = robust_plane(&ring) {
+    if let Some((pl, _, _)) = robust_surface(&ring, true) {
         for (a, i) in ri.clone().enumerate() {
             for (b, j) in rj.clone().enumerate() {
                 let h = map.heights.data[i * map.grid.width + j];
                 if h.is_finite() {
                     let (x, y) = map.grid.centre(i, j);
-                    r[a * ww + b] =
-                        f64::from(h) - (pl[0] + pl[1] * (x - c[0]) + pl[2] * (y - c[1]));
+                    r[a * ww + b] = f64::from(h) - surface_at(&pl, x - c[0], y - c[1]);
                 }
             }
         }

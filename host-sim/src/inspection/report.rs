@@ -302,8 +302,7 @@ pub fn defect_picture(
         Rgb([255, 255, 255]),
     );
     let c = o.centroid();
-    let base =
-        |x: f64, y: f64| m.surface[0] + m.surface[1] * (x - c[0]) + m.surface[2] * (y - c[1]);
+    let base = |x: f64, y: f64| super::measure::surface_at(&m.surface, x - c[0], y - c[1]);
     let top = 1.6 * stencil;
     for (a, i) in ri.clone().enumerate() {
         for (bq, j) in rj.clone().enumerate() {

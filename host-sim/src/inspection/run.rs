@@ -32,6 +32,8 @@ pub struct Inspection {
     pub truth_pads: Option<Vec<PadTruth>>,
     /// Register + measure + judge, s (not reading or writing).
     pub inspect_s: f64,
+    /// Of which the registration, s.
+    pub register_s: f64,
 }
 
 /// Pads of at least this size (both ways) are the accuracy goal's group, mm.
@@ -54,6 +56,7 @@ pub fn inspect(
 ) -> Result<Inspection, RegisterError> {
     let t0 = Instant::now();
     let registration = register(map, program)?;
+    let register_s = t0.elapsed().as_secs_f64();
     let t = registration.transform;
     let placed = Placed::new(
         pads,
@@ -75,6 +78,7 @@ pub fn inspect(
         truth: None,
         truth_pads: None,
         inspect_s,
+        register_s,
     })
 }
 
@@ -219,6 +223,8 @@ pub struct TruthKeys {
 pub struct Timing {
     /// Register, measure and judge (the map in memory), s.
     pub inspect_s: f64,
+    /// Of which the registration, s.
+    pub register_s: f64,
     pub load_s: f64,
     /// The truth's integration (simulated boards), s.
     pub truth_s: f64,
@@ -273,6 +279,7 @@ impl Report {
             detection: truth.map(|t| detection_of(i, pads, t)),
             timing: Timing {
                 inspect_s: i.inspect_s,
+                register_s: i.register_s,
                 load_s,
                 truth_s,
                 write_s: 0.0,
@@ -341,4 +348,96 @@ impl Report {
         );
         s
     }
+}
+
+/// `dpsa inspect`: reads the map, the program, its paste layer (and the truth, when the
+/// program or `truth` names it), inspects (`repeat` times, the fastest reported), and writes
+/// the report files into `out`.
+pub fn inspect_dir(
+    board: &std::path::Path,
+    program_path: &std::path::Path,
+    truth: Option<&std::path::Path>,
+    out: Option<&std::path::Path>,
+    repeat: u32,
+) -> anyhow::Result<(Report, Inspection)> {
+    let t0 = Instant::now();
+    let program = Program::load(program_path)?;
+    let layer_path = program.paste_layer_path(program_path);
+    let layer = super::gerber::read_file(&layer_path)
+        .map_err(|e| anyhow::anyhow!("paste layer {}: {e}", layer_path.display()))?;
+    let pads = layer.pads;
+    if pads.is_empty() {
+        anyhow::bail!("paste layer {}: no pads", layer_path.display());
+    }
+    let map = BoardMap::open(board)?;
+    let load_s = t0.elapsed().as_secs_f64();
+    let truth_path = truth
+        .map(std::path::Path::to_path_buf)
+        .or_else(|| program.truth_path(program_path));
+    let print = match &truth_path {
+        Some(p) => Some(super::simulated::PrintTruth::load(p, pads.len())?),
+        None => None,
+    };
+    let height = |q: Point| print.as_ref().map_or(0.0, |p| p.height(q));
+    let truth = print.as_ref().map(|p| Truth {
+        transform: p.transform,
+        defects: p.defects.clone(),
+        height: &height,
+    });
+    let mut best: Option<Inspection> = None;
+    for _ in 0..repeat.max(1) {
+        let i = inspect(&map, &pads, &program)?;
+        if best.as_ref().is_none_or(|b| i.inspect_s < b.inspect_s) {
+            best = Some(i);
+        }
+    }
+    let Some(mut i) = best else {
+        anyhow::bail!("no inspection ran");
+    };
+    let mut truth_s = 0.0;
+    if let Some(tr) = &truth {
+        let t1 = Instant::now();
+        attach_truth(&mut i, &pads, &program, tr);
+        truth_s = t1.elapsed().as_secs_f64();
+    }
+    let mut report = Report::build(
+        &board.display().to_string(),
+        &program_path.display().to_string(),
+        &i,
+        &pads,
+        truth.as_ref(),
+        load_s,
+        truth_s,
+    );
+    if let Some(dir) = out {
+        let t2 = Instant::now();
+        let value = serde_json::to_value(&report)?;
+        let unit = board
+            .file_name()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "board".into());
+        let recipe = program_path
+            .file_name()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        super::report::write(
+            dir,
+            &map,
+            &pads,
+            &i,
+            &program,
+            &value,
+            super::report::Names {
+                unit: &unit,
+                recipe: &recipe,
+            },
+        )?;
+        report.timing.write_s = t2.elapsed().as_secs_f64();
+        // report.json again with the write time.
+        crate::files::write_bytes(
+            &dir.join("report.json"),
+            serde_json::to_string_pretty(&report)?.as_bytes(),
+        )?;
+    }
+    Ok((report, i))
 }

@@ -202,7 +202,7 @@ pub fn read_str(text: &str) -> Result<PasteLayer, GerberError> {
 fn parse(
     lexed: &lex::Lexed,
     warnings: &mut Vec<String>,
-) -> Result<Vec<gerber_parser::gerber_types::Command>, GerberError> {
+) -> Result<Vec<gerber_types::Command>, GerberError> {
     use gerber_parser::ContentError;
     let reader = std::io::BufReader::new(lexed.text.as_bytes());
     // The pre-processing keeps the parser away from the inputs known to panic it; a panic

@@ -1,0 +1,52 @@
+//! `dpsa inspect`: a board map judged pad by pad against the inspection program.
+
+use super::out;
+use anyhow::Result;
+use dpsa_sim::files;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Board map directory (`dpsa board --out DIR`).
+    board: PathBuf,
+    /// Inspection program (`program.toml`; `dpsa simulate` writes one into a board recording).
+    #[arg(long)]
+    program: PathBuf,
+    /// Output directory: pads.csv, report.json, cfx_units_inspected.json, overview.png,
+    /// gallery/ (may not be inside the board map).
+    #[arg(long)]
+    out: PathBuf,
+    /// Print the report as JSON.
+    #[arg(long)]
+    json: bool,
+    /// The simulator's print truth (`print.json` of the board recording) when the program
+    /// does not name it; compares every figure with it.
+    #[arg(long)]
+    truth: Option<PathBuf>,
+    /// Inspect this many times and report the fastest (a benchmark of the inspection alone).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=100))]
+    repeat: u32,
+}
+
+/// Exit status 0 whatever the verdict (it is in the report), 1 on an error.
+pub fn run(a: Args) -> Result<()> {
+    let mut inputs = vec![files::Input::Dir(&a.board), files::Input::File(&a.program)];
+    if let Some(t) = &a.truth {
+        inputs.push(files::Input::File(t));
+    }
+    files::refuse_overwrite("--out", &a.out, &inputs)?;
+    let (r, _) = dpsa_sim::inspection::run::inspect_dir(
+        &a.board,
+        &a.program,
+        a.truth.as_deref(),
+        Some(&a.out),
+        a.repeat,
+    )?;
+    if a.json {
+        out!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        out!("{}", r.summary());
+        out!("  -> {}", a.out.display());
+    }
+    Ok(())
+}
