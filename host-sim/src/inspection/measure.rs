@@ -3,9 +3,10 @@
 //! For every pad, with the openings placed on the board by the registration:
 //!
 //! - **Cell**: the points nearer to this opening's edge than to any other opening's, and at
-//!   most `margin` beyond it (`margin` = `cell_margin_share` of the opening's smaller size,
-//!   clamped to `cell_margin_mm`). Cells never overlap, so no paste is counted twice, and a
-//!   deposit printed a third of a pad off is still measured whole.
+//!   most `margin` beyond it (`margin` = `cell_margin_share` of the opening's larger size
+//!   plus the wall, clamped to `cell_margin_mm`). Cells never overlap, so no paste is counted
+//!   twice, and a deposit printed half a pad off, along either axis, is still measured whole
+//!   (up to the clamp).
 //! - **Local surface**: a surface fitted to the bare board around the pad: pixels at least
 //!   `surface_guard_mm` from every opening and fiducial and within `surface_reach_mm` of this
 //!   one (2, 4 and 8 times that when too few qualify: the middle of a large BGA), about
@@ -40,16 +41,16 @@ use serde::Serialize;
 pub const MIN_SURFACE_PIXELS: usize = 24;
 
 /// About this many pixels of the surface window are looked at (a stride over larger ones).
-pub const SURFACE_SCAN: usize = 1500;
+pub const SURFACE_SCAN: usize = 1000;
 
 /// The openings on the board (board frame) with a bin index for neighbour queries.
 pub struct Placed {
     pub outlines: Vec<Prepared>,
     pub bboxes: Vec<[f64; 4]>,
-    /// Smaller size of each opening, mm (design frame).
+    /// Smaller size of each opening (its width), mm.
     pub min_size: Vec<f64>,
-    /// Size along the design frame's x and y, mm (for offset shares).
-    pub size_xy: Vec<[f64; 2]>,
+    /// Larger size of each opening (its length), mm.
+    pub max_size: Vec<f64>,
     /// Fiducials on the board: centre and radius, mm.
     pub fiducials: Vec<(Point, f64)>,
     bins: Vec<Vec<u32>>,
@@ -66,37 +67,19 @@ impl Placed {
             .map(|p| Prepared::new(p.outline.transformed(t)))
             .collect();
         let bboxes: Vec<[f64; 4]> = outlines.iter().map(|o| o.outline.bbox()).collect();
-        let mut size_xy = Vec::with_capacity(pads.len());
-        let mut min_size = Vec::with_capacity(pads.len());
-        for p in pads {
-            let s = match &p.outline {
-                Outline::Circle { diameter, .. } => [*diameter, *diameter],
-                Outline::RoundRect {
-                    size, rotation_deg, ..
-                } => {
-                    // The opening's extent along the design axes.
-                    let b = p.outline.bbox();
-                    let q =
-                        (rotation_deg.rem_euclid(90.0)).min(90.0 - rotation_deg.rem_euclid(90.0));
-                    if q < 1e-6 {
-                        [b[2] - b[0], b[3] - b[1]]
-                    } else {
-                        let m = size[0].min(size[1]);
-                        [m, m]
-                    }
-                }
+        // The opening's smaller and larger size (its width and length), mm.
+        let (min_size, max_size): (Vec<f64>, Vec<f64>) = pads
+            .iter()
+            .map(|p| match &p.outline {
+                Outline::Circle { diameter, .. } => (*diameter, *diameter),
+                Outline::RoundRect { size, .. } => (size[0].min(size[1]), size[0].max(size[1])),
                 Outline::Polygon { .. } => {
                     let b = p.outline.bbox();
-                    [b[2] - b[0], b[3] - b[1]]
+                    let (w, h) = (b[2] - b[0], b[3] - b[1]);
+                    (w.min(h), w.max(h))
                 }
-            };
-            let m = match &p.outline {
-                Outline::RoundRect { size, .. } => size[0].min(size[1]),
-                _ => s[0].min(s[1]),
-            };
-            size_xy.push(s);
-            min_size.push(m);
-        }
+            })
+            .unzip();
         let fids: Vec<(Point, f64)> = fiducials
             .iter()
             .map(|&f| (t.apply(f), fid_diameter / 2.0))
@@ -118,7 +101,7 @@ impl Placed {
             outlines,
             bboxes,
             min_size,
-            size_xy,
+            max_size,
             fiducials: fids,
             bins: Vec::new(),
             bin_origin: lo,
@@ -241,8 +224,37 @@ fn terms(dx: f64, dy: f64) -> [f64; 6] {
 /// [`surface_at`]. A quadratic whose samples do not pin its curvature (a thin or one-sided
 /// region) falls back to a plane, and a plane to the level alone.
 pub fn robust_surface(s: &[[f64; 3]], quadratic: bool) -> Option<(Vec<f64>, f64, usize)> {
-    let mut nt = if quadratic { 6 } else { 3 };
+    // Paste lies above the board, never below: start from the lower half (a plane through
+    // the samples below their median) and keep what lies within START_BAND_UM above it, so
+    // that paste covering much of the region (an offset deposit, a smear) cannot lift the
+    // first fit and hide in the trimming.
     let mut keep: Vec<bool> = vec![true; s.len()];
+    if s.len() >= 12 {
+        let mut zs: Vec<f64> = s.iter().map(|p| p[2]).collect();
+        let mid = zs.len() / 2;
+        let (_, med, _) = zs.select_nth_unstable_by(mid, f64::total_cmp);
+        let med = *med;
+        let low: Vec<[f64; 3]> = s.iter().copied().filter(|p| p[2] <= med).collect();
+        if let Some((c, _, _)) = robust_surface_from(&low, false, vec![true; low.len()]) {
+            for (k, p) in keep.iter_mut().zip(s) {
+                let r = p[2] - surface_at(&c, p[0], p[1]);
+                *k = r <= START_BAND_UM;
+            }
+        }
+    }
+    robust_surface_from(s, quadratic, keep)
+}
+
+/// Above the lower half's plane, samples within this are the board's at the start, um.
+pub const START_BAND_UM: f64 = 15.0;
+
+/// [`robust_surface`] from a given first selection.
+fn robust_surface_from(
+    s: &[[f64; 3]],
+    quadratic: bool,
+    mut keep: Vec<bool>,
+) -> Option<(Vec<f64>, f64, usize)> {
+    let mut nt = if quadratic { 6 } else { 3 };
     let mut coef = vec![0.0; nt];
     let mut rms = 0.0;
     let mut kept = 0;
@@ -365,15 +377,80 @@ pub fn measure_all(
     out
 }
 
-/// The cell's reach beyond the opening, mm.
-pub fn cell_margin(program: &Program, min_size: f64) -> f64 {
-    let m = &program.measure;
-    (m.cell_margin_share * min_size).clamp(m.cell_margin_mm[0], m.cell_margin_mm[1])
-}
-
 /// Wall width inset for the height, mm.
 pub fn height_inset(program: &Program, min_size: f64) -> f64 {
     program.measure.wall_mm.min(0.25 * min_size)
+}
+
+/// How far pad `k`'s cell reaches: along each of the opening's own axes, `cell_margin_share`
+/// of its size there plus the wall (clamped to `cell_margin_mm`), so a long pad's cell is long
+/// and narrow; a disc's by its diameter, a polygon's by its larger size.
+#[derive(Clone, Copy, Debug)]
+pub struct Reach {
+    /// Largest distance beyond the edge, mm.
+    pub max: f64,
+    /// Box of the reach, board mm.
+    pub bbox: [f64; 4],
+    /// For a rounded rectangle: its centre, rotation (sin, cos) and half-extents with reach.
+    rect: Option<(Point, f64, f64, f64, f64)>,
+}
+
+impl Reach {
+    pub fn new(placed: &Placed, k: usize, program: &Program) -> Reach {
+        let m = &program.measure;
+        let grow = |size: f64| {
+            (m.cell_margin_share * size + m.wall_mm).clamp(m.cell_margin_mm[0], m.cell_margin_mm[1])
+        };
+        let o = &placed.outlines[k];
+        let bb = placed.bboxes[k];
+        match &o.outline {
+            Outline::RoundRect {
+                centre,
+                size,
+                rotation_deg,
+                ..
+            } => {
+                let (gu, gv) = (grow(size[0]), grow(size[1]));
+                let (hu, hv) = (size[0] / 2.0 + gu, size[1] / 2.0 + gv);
+                let (sn, cs) = rotation_deg.to_radians().sin_cos();
+                let ex = (cs * hu).abs() + (sn * hv).abs();
+                let ey = (sn * hu).abs() + (cs * hv).abs();
+                Reach {
+                    max: gu.max(gv),
+                    bbox: [
+                        centre[0] - ex,
+                        centre[1] - ey,
+                        centre[0] + ex,
+                        centre[1] + ey,
+                    ],
+                    rect: Some((*centre, sn, cs, hu, hv)),
+                }
+            }
+            _ => {
+                let g = grow(placed.max_size[k]);
+                Reach {
+                    max: g,
+                    bbox: [bb[0] - g, bb[1] - g, bb[2] + g, bb[3] + g],
+                    rect: None,
+                }
+            }
+        }
+    }
+
+    /// Whether `q`, at signed distance `d` from the opening, is within reach.
+    #[inline]
+    pub fn contains(&self, q: Point, d: f64) -> bool {
+        if d > self.max {
+            return false;
+        }
+        match self.rect {
+            Some((c, sn, cs, hu, hv)) => {
+                let (dx, dy) = (q[0] - c[0], q[1] - c[1]);
+                (cs * dx + sn * dy).abs() <= hu && (-sn * dx + cs * dy).abs() <= hv
+            }
+            None => true,
+        }
+    }
 }
 
 /// Whether a board point is in pad `k`'s cell, given its own and its neighbours' outlines:
@@ -382,11 +459,11 @@ pub fn cell_member(
     placed: &Placed,
     k: usize,
     near: &[usize],
-    margin: f64,
+    reach: &Reach,
     q: Point,
 ) -> (bool, f64) {
     let d = placed.outlines[k].signed_distance(q);
-    if d > margin {
+    if !reach.contains(q, d) {
         return (false, d);
     }
     // Openings do not overlap: inside this one, no other is nearer.
@@ -437,7 +514,8 @@ pub fn measure_pad(
     let c = o.centroid();
     let p = map.grid.pitch_mm;
     let px_area = p * p;
-    let margin = cell_margin(program, ms);
+    let reach = Reach::new(placed, k, program);
+    let margin = reach.max;
     let inset = height_inset(program, ms);
 
     // Local surface, growing the reach until enough bare board qualifies.
@@ -500,13 +578,7 @@ pub fn measure_pad(
 
     // The cell.
     let near = placed.near(bb, 2.0 * margin, k);
-    let win = [
-        bb[0] - margin,
-        bb[1] - margin,
-        bb[2] + margin,
-        bb[3] + margin,
-    ];
-    let (ri, rj) = map.window(win);
+    let (ri, rj) = map.window(reach.bbox);
     let (h_w, w_w) = (ri.len(), rj.len());
     // Residual heights over the window, NaN outside the cell or invalid.
     let mut r = vec![f64::NAN; h_w * w_w];
@@ -515,7 +587,7 @@ pub fn measure_pad(
     for (a, i) in ri.clone().enumerate() {
         for (b, j) in rj.clone().enumerate() {
             let (x, y) = map.grid.centre(i, j);
-            let (inside, d) = cell_member(placed, k, &near, margin, [x, y]);
+            let (inside, d) = cell_member(placed, k, &near, &reach, [x, y]);
             if !inside {
                 continue;
             }
@@ -628,8 +700,8 @@ pub fn measure_pad(
         let (s, co) = t.rotation_rad.sin_cos();
         let (ux, uy) = (co * dx + s * dy, -s * dx + co * dy);
         pm.offset_um = [ux * 1000.0, uy * 1000.0];
-        let sz = placed.size_xy[k];
-        pm.offset_pct = 100.0 * (ux.abs() / sz[0]).max(uy.abs() / sz[1]);
+        // Against the opening's width (its smaller size), along either axis.
+        pm.offset_pct = 100.0 * ux.abs().max(uy.abs()) / placed.min_size[k];
     }
     if open_n == 0 || pm.coverage < m.min_coverage {
         pm.unmeasurable = Some(Unmeasurable::LowCoverage);

@@ -80,8 +80,8 @@ pub struct Windows {
     pub area_pct: Window,
     /// Mean height over the opening, % of the stencil thickness.
     pub height_pct: Window,
-    /// Offset of the deposit's centre from the opening's, % of the opening's size along
-    /// that axis (the larger of the two axes' shares is judged).
+    /// Offset of the deposit's centre from the opening's along either axis, % of the
+    /// opening's width (its smaller size).
     pub offset_pct: Upper,
     /// Paste (above `shape_threshold_um`) outside the opening grown by the wall, % of the
     /// opening area: smears and misshapen deposits.
@@ -210,8 +210,9 @@ pub struct Measure {
     pub shape_threshold_um: f64,
     /// Fewest valid pixels in the opening, as a fraction, to judge the pad at all.
     pub min_coverage: f64,
-    /// The measurement cell reaches this share of the opening's smaller size beyond its edge
-    /// (clamped to `cell_margin_mm`), so that an offset deposit is still measured whole.
+    /// The measurement cell reaches this share of the opening's larger size, plus the wall,
+    /// beyond its edge (clamped to `cell_margin_mm`), so that an offset deposit is still
+    /// measured whole.
     pub cell_margin_share: f64,
     /// Limits of the cell's reach, mm.
     pub cell_margin_mm: Limits,
@@ -234,7 +235,7 @@ impl Default for Measure {
             shape_threshold_um: 10.0,
             min_coverage: 0.85,
             cell_margin_share: 0.5,
-            cell_margin_mm: [0.1, 0.6],
+            cell_margin_mm: [0.1, 0.8],
             surface_guard_mm: 0.1,
             surface_reach_mm: 0.6,
             wall_mm: 0.06,

@@ -338,8 +338,8 @@ impl Report {
         }
         if let Some(d) = &self.detection {
             s += &format!(
-                "  defects: {} injected, {} detected, {} missed, {} wrong class; {} false failures on {} good pads; smears {} of {}\n",
-                d.injected, d.detected, d.missed, d.wrong_class, d.false_fail, d.defect_free, d.smear_detected, d.smear_injected
+                "  defects: {} injected, {} detected, {} missed, {} wrong class; {} false failures on {} good pads ({} next to an injected defect); smears {} of {}\n",
+                d.injected, d.detected, d.missed, d.wrong_class, d.false_fail, d.defect_free, d.false_fail_next_to_defect, d.smear_detected, d.smear_injected
             );
         }
         s += &format!(

@@ -6,7 +6,7 @@
 //! no warp, no registration error). The differences are therefore the gauge's error alone:
 //! optics and pixels, noise, the local surface, the registration.
 
-use super::measure::{cell_margin, cell_member, height_inset, PadMeasurement, Placed};
+use super::measure::{cell_member, height_inset, PadMeasurement, Placed, Reach};
 use super::pads::{Pad, Point, Rigid};
 use super::program::Program;
 use super::verdict::{Call, Class, Level};
@@ -71,7 +71,8 @@ fn one(
     k: usize,
 ) -> PadTruth {
     let ms = placed.min_size[k];
-    let margin = cell_margin(program, ms);
+    let reach = Reach::new(placed, k, program);
+    let margin = reach.max;
     let inset = height_inset(program, ms);
     let bb = placed.bboxes[k];
     let near = placed.near(bb, 2.0 * margin, k);
@@ -81,11 +82,12 @@ fn one(
     let s = STEP_MM;
     let (mut vol, mut area, mut hs, mut hn, mut sw, mut sx, mut sy) =
         (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
-    let mut x = bb[0] - margin + s / 2.0;
-    while x < bb[2] + margin {
-        let mut y = bb[1] - margin + s / 2.0;
-        while y < bb[3] + margin {
-            let (inside, d) = cell_member(placed, k, &near, margin, [x, y]);
+    let rb = reach.bbox;
+    let mut x = rb[0] + s / 2.0;
+    while x < rb[2] {
+        let mut y = rb[1] + s / 2.0;
+        while y < rb[3] {
+            let (inside, d) = cell_member(placed, k, &near, &reach, [x, y]);
             if inside {
                 let h = height([x, y]);
                 vol += h;
@@ -205,6 +207,9 @@ pub struct Detection {
     pub wrong_class: usize,
     /// Defect-free pads called fail.
     pub false_fail: usize,
+    /// Of which within 1 mm of a pad with an injected defect (its paste: a smear or an
+    /// offset deposit reaching the neighbour); a defect-free board has none of these.
+    pub false_fail_next_to_defect: usize,
     /// Defect-free pads called warning.
     pub false_warn: usize,
     pub defect_free: usize,
@@ -232,6 +237,13 @@ pub fn detection(pads: &[Pad], defects: &[Option<String>], calls: &[Call]) -> De
                 match call.level {
                     Level::Fail => {
                         d.false_fail += 1;
+                        let c = pads[k].outline.centroid();
+                        let next = defects.iter().enumerate().any(|(j, dj)| {
+                            dj.is_some() && j != k && pads[j].outline.signed_distance(c) <= 1.0
+                        });
+                        if next {
+                            d.false_fail_next_to_defect += 1;
+                        }
                         d.errors.push(format!(
                             "{}: none -> {}",
                             pads[k].name(),

@@ -1,10 +1,11 @@
 //! Verdicts: each pad's measurement against its windows, and the board's.
 //!
 //! A pad's call is the most severe of its findings: fail over warning over pass. Its class is
-//! the first finding at that severity in this order, which is also the order an operator
-//! reworks them in: not measurable, missing, bridge, offset, insufficient, excess, shape.
-//! An offset deposit keeps its volume but lowers the height over the opening, and a bridge
-//! adds volume, so offset and bridge come before insufficient and excess.
+//! the first finding at that severity in this order: not measurable, missing, bridge,
+//! insufficient or excess by volume, offset, insufficient or excess by height or area, shape.
+//! A bridge adds volume, so it comes first; an offset deposit keeps its volume in its cell but
+//! lowers the height over the opening, so the volume decides before the offset and the
+//! height after it.
 //! "Not measurable" (the opening off the map, too few valid pixels, no bare board around it)
 //! is a failure of the inspection, never a pass.
 
@@ -107,51 +108,52 @@ fn upper(v: f64, u: &Upper) -> Level {
 
 /// Judges one pad.
 pub fn judge(m: &PadMeasurement, w: &Windows) -> Call {
+    // Findings in the order that decides the class at a level: a volume outside its window
+    // decides before an offset (an offset deposit keeps its volume in its cell), the height and
+    // area after it (an offset deposit lowers the height over its opening).
     let mut f: Vec<(Level, Class)> = Vec::new();
     if m.unmeasurable.is_some() {
         f.push((Level::Fail, Class::NotMeasurable));
+    } else if m.volume_pct < w.missing_pct {
+        f.push((Level::Fail, Class::Missing));
     } else {
-        if m.volume_pct < w.missing_pct {
-            f.push((Level::Fail, Class::Missing));
-        }
         if !m.bridged_to.is_empty() {
             f.push((Level::Fail, Class::Bridge));
         }
-        let missing = !f.is_empty() && f[0].1 == Class::Missing;
-        if !missing {
-            let off = upper(m.offset_pct, &w.offset_pct);
-            if off != Level::Pass {
-                f.push((off, Class::Offset));
+        let side_class = |side: i8| {
+            if side < 0 {
+                Class::Insufficient
+            } else {
+                Class::Excess
             }
-            for (v, win) in [
-                (m.volume_pct, &w.volume_pct),
-                (m.height_pct, &w.height_pct),
-                (m.area_pct, &w.area_pct),
-            ] {
-                let (lv, side) = two_sided(v, win);
-                if lv != Level::Pass {
-                    f.push((
-                        lv,
-                        if side < 0 {
-                            Class::Insufficient
-                        } else {
-                            Class::Excess
-                        },
-                    ));
-                }
-            }
-            let sh = upper(m.shape_pct, &w.shape_pct);
-            if sh != Level::Pass {
-                f.push((sh, Class::Shape));
+        };
+        let (lv, side) = two_sided(m.volume_pct, &w.volume_pct);
+        if lv != Level::Pass {
+            f.push((lv, side_class(side)));
+        }
+        let off = upper(m.offset_pct, &w.offset_pct);
+        if off != Level::Pass {
+            f.push((off, Class::Offset));
+        }
+        for (v, win) in [(m.height_pct, &w.height_pct), (m.area_pct, &w.area_pct)] {
+            let (lv, side) = two_sided(v, win);
+            if lv != Level::Pass {
+                f.push((lv, side_class(side)));
             }
         }
+        let sh = upper(m.shape_pct, &w.shape_pct);
+        if sh != Level::Pass {
+            f.push((sh, Class::Shape));
+        }
     }
-    f.sort_by_key(|&(l, c)| (std::cmp::Reverse(l), c));
-    f.dedup();
-    let (level, class) = match f.first() {
-        Some(&(l, c)) => (l, Some(c)),
-        None => (Level::Pass, None),
-    };
+    let level = f.iter().map(|x| x.0).max().unwrap_or(Level::Pass);
+    let class = f.iter().find(|x| x.0 == level).map(|x| x.1);
+    let mut seen = Vec::new();
+    f.retain(|x| {
+        let new = !seen.contains(x);
+        seen.push(*x);
+        new
+    });
     Call {
         level,
         class,
