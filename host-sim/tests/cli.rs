@@ -430,10 +430,12 @@ fn demo_runs_the_camera_and_the_array() {
     let out = tmp.path().join("demo");
     let text = ok(&["demo", "--out", out.to_str().unwrap()]);
     for step in [
-        "1/7",
-        "4/7",
-        "5/7",
-        "7/7",
+        "1/8",
+        "4/8",
+        "5/8",
+        "7/8",
+        "8/8",
+        "pads, 193 measured",
         "fixed/CRB",
         "board map",
         "Cramer-Rao bound",
@@ -448,6 +450,9 @@ fn demo_runs_the_camera_and_the_array() {
         "board-map/heights.png",
         "board-map/heights_um.tiff",
         "board-map/report.json",
+        "inspection/pads.csv",
+        "inspection/cfx_units_inspected.json",
+        "inspection/overview.png",
     ] {
         assert!(out.join(f).is_file(), "{f}");
     }

@@ -455,9 +455,9 @@ pub fn board_identity(array: &ArrayManifest, cameras: &[Manifest]) -> Result<Boa
     Ok(BoardId(dpsa_core::frames::fnv1a64(&bytes).max(1)))
 }
 
-fn models(scene: &ArrayScene, seed: u64) -> Vec<CameraModel> {
+fn models(scene: &ArrayScene) -> Vec<CameraModel> {
     (0..scene.cameras.len())
-        .map(|i| scene.camera_model(i, seed))
+        .map(|i| scene.camera_model(i))
         .collect()
 }
 
@@ -594,7 +594,7 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
     // The print first: a layer that cannot be printed leaves no directory behind.
     let (boxes, deposits, printed) = board_deposits(scene, seed)?;
     prepare(out)?;
-    let models = models(scene, seed);
+    let models = models(scene);
     let sl = slack(&models);
     let s0 = models
         .iter()
@@ -713,7 +713,7 @@ pub fn simulate_calibration(scene: &ArrayScene, seed: u64, out: &Path) -> Result
     scene.validate()?;
     prepare(out)?;
     let t0 = Instant::now();
-    let models = models(scene, seed);
+    let models = models(scene);
     let plan = &scene.calibration;
     let mut passes: Vec<Pass> = plan
         .plane_heights_um

@@ -330,7 +330,7 @@ mod tests {
         // A flat plane: every frame shows the same fringes; the frame mean over many frames
         // matches B + C M cos(2 pi f r + phi0 + 2 pi h / T) written out from the model.
         let scene = ArrayScene::default();
-        let model = scene.camera_model(0, 1);
+        let model = scene.camera_model(0);
         let r = CameraRenderer::new(&scene, &model, Surface::Plane { height_um: 123.0 });
         let frames: Vec<Vec<u16>> = (0..200).map(|k| r.render(k as f64 * 0.2, 5, k)).collect();
         let w = model.width as usize;

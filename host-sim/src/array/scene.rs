@@ -258,6 +258,8 @@ pub struct ArrayScene {
     pub truth_pitch_mm: f64,
     pub cameras: Vec<ArrayCamera>,
     pub calibration: CalibrationPlan,
+    /// The machine's own seed: its cameras' dead pixels (a run's `--seed` draws the noise,
+    /// the conveyor and the placement).
     pub seed: u64,
     /// Paste layer (Gerber) printed on the board, relative to the scene file; with it,
     /// `deposits` must be 0.
@@ -782,7 +784,7 @@ impl ArrayScene {
     }
 
     /// The true model of camera `i` (dead pixels drawn from `seed`).
-    pub fn camera_model(&self, i: usize, seed: u64) -> CameraModel {
+    pub fn camera_model(&self, i: usize) -> CameraModel {
         use rand::RngExt;
         let c = &self.cameras[i];
         let w = c.width as usize;
@@ -790,7 +792,9 @@ impl ArrayScene {
         let u = |col: usize| (col as f64 - half) / half;
         let pitch = self.pixel_mm * (1.0 + c.pitch_error_pct / 100.0);
         let rot = c.rotation_deg.to_radians();
-        let mut rng = crate::simulation::simulate::rng(seed, 0x100 + i as u64);
+        // Dead pixels belong to the machine (the scene's own `seed`), not to the run: a
+        // calibration recorded with one run seed lists the dead pixels of every board run.
+        let mut rng = crate::simulation::simulate::rng(self.seed, 0x100 + i as u64);
         let mut dead: Vec<[u32; 2]> = Vec::new();
         while dead.len() < c.dead_pixels as usize {
             let p = [rng.random_range(0..self.rows), rng.random_range(0..c.width)];
@@ -1041,7 +1045,7 @@ mod tests {
     #[test]
     fn model_geometry() {
         let s = ArrayScene::default();
-        let m = s.camera_model(1, 3);
+        let m = s.camera_model(1);
         // A board point keeps its board row b = r + e / cpp as the conveyor moves.
         let (x, y) = m.board_point(0.0, 20.0, 50.0);
         let s1 = 1.3;

@@ -24,23 +24,24 @@ pub struct Args {
     /// Scene: `default` or a scene TOML file.
     #[arg(long, default_value = "default")]
     scene: String,
-    /// Array scene of the second part: `small` (built in: `scenes/array-small.toml`, three
-    /// 192 px cameras over a 20 x 13.9 mm board) or an array scene file, e.g.
+    /// Array scene of the second part: `small` (built in: `scenes/array-paste.toml`, three
+    /// 192 px cameras over a 20 x 13.9 mm printed board of 193 pads) or an array scene file, e.g.
     /// `scenes/paper-board.toml` (the paper's three 2048 px cameras over 220 x 168 mm: about
     /// 0.6 GB of recordings and several minutes).
     #[arg(long, default_value = "small")]
     array: String,
 }
 
-/// The built-in array scene of the demo.
-const SMALL_ARRAY: &str = include_str!("../../../scenes/array-small.toml");
+/// The built-in array scene of the demo: the small printed board, and its paste layer.
+const SMALL_ARRAY: &str = include_str!("../../../scenes/array-paste.toml");
+const SMALL_LAYER: &[u8] = include_bytes!("../../../scenes/array-small.paste.gbr");
 
 pub fn run(a: Args, progress: bool) -> Result<()> {
     let (out, seed, scene) = (&a.out, a.seed, a.scene.as_str());
     let sc = load_scene(scene)?;
     let rec_dir = out.join("recording");
     out!(
-        "1/7 simulating the {scene} scene (seed {seed}) into {}",
+        "1/8 simulating the {scene} scene (seed {seed}) into {}",
         rec_dir.display()
     );
     let s = simulate::simulate(&sc, seed, &rec_dir, progress)?;
@@ -53,7 +54,7 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
         sc.height_per_turn_um
     );
     let rec = open(&rec_dir)?;
-    out!("2/7 reconstructing with the fixed-point core (streaming, line by line)");
+    out!("2/8 reconstructing with the fixed-point core (streaming, line by line)");
     let (stats, bytes, map) = reconstruct::reconstruct_map(&rec, progress)?;
     let stream = out.join("heights.dpsa");
     files::write_bytes(&stream, &bytes)?;
@@ -64,11 +65,11 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
         stream.display(),
         stats.state_bytes
     );
-    out!("3/7 comparing with the f64 reference, the 4-step PSP baseline and the ground truth");
+    out!("3/8 comparing with the f64 reference, the 4-step PSP baseline and the ground truth");
     let cmp = compare_recording(&rec, progress)?;
     let report = out.join("compare.json");
     files::write_bytes(&report, serde_json::to_string_pretty(&cmp)?.as_bytes())?;
-    out!("4/7 writing images");
+    out!("4/8 writing images");
     let png = out.join("heights.png");
     let colour = images::write_pngs(&map, &png)?;
     out!(
@@ -86,17 +87,19 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
 /// The second part: the camera array, calibrated, and one stitched board map.
 fn array(out: &std::path::Path, seed: u64, spec: &str) -> Result<()> {
     let (scene, name) = if spec == "small" {
-        (
-            ArrayScene::from_toml_str(SMALL_ARRAY)?,
-            "built-in small array",
-        )
+        let mut scene = ArrayScene::from_toml_str(SMALL_ARRAY)?;
+        // Its paste layer beside the recordings, where the scene finds it.
+        std::fs::create_dir_all(out)?;
+        files::write_bytes(&out.join("array-small.paste.gbr"), SMALL_LAYER)?;
+        scene.scene_dir = Some(out.to_path_buf());
+        (scene, "built-in small printed board")
     } else {
         (ArrayScene::load(std::path::Path::new(spec))?, spec)
     };
     super::warn(&scene.warnings());
     let cal_dir = out.join("array-calibration");
     out!(
-        "5/7 the camera array ({name}: {} cameras, {} x {} mm board): recording the calibration planes at {:?} um and the lateral target into {}",
+        "5/8 the camera array ({name}: {} cameras, {} x {} mm board): recording the calibration planes at {:?} um and the lateral target into {}",
         scene.cameras.len(),
         scene.board_length_mm,
         scene.board_width_mm,
@@ -131,15 +134,18 @@ fn array(out: &std::path::Path, seed: u64, spec: &str) -> Result<()> {
     }
     let board_dir = out.join("array-board");
     out!(
-        "6/7 a board with a {} um bow and {} deposits through the array into {}",
+        "6/8 a board with a {} um bow and {} through the array into {}",
         scene.warp_um,
-        scene.deposits,
+        match &scene.paste_layer {
+            Some(layer) => format!("the paste of {layer} printed on it (with defects)"),
+            None => format!("{} deposits", scene.deposits),
+        },
         board_dir.display()
     );
     record::simulate_board(&scene, seed, &board_dir)?;
     let map_dir = out.join("board-map");
     out!(
-        "7/7 the core on every camera, unwrapped, placed and blended into one map -> {}",
+        "7/8 the core on every camera, unwrapped, placed and blended into one map -> {}",
         map_dir.display()
     );
     let r = board::run::run(&board_dir, &cal, &map_dir)?;
@@ -148,9 +154,23 @@ fn array(out: &std::path::Path, seed: u64, spec: &str) -> Result<()> {
         serde_json::to_string_pretty(&r)?.as_bytes(),
     )?;
     out!("{}", r.summary());
+    let program = board_dir.join(record::PROGRAM_FILE);
+    if program.is_file() {
+        let insp = out.join("inspection");
+        out!(
+            "8/8 inspecting every pad of the paste layer against {} -> {}",
+            program.display(),
+            insp.display()
+        );
+        let (report, _) =
+            dpsa_sim::inspection::run::inspect_dir(&map_dir, &program, None, Some(&insp), 1)?;
+        out!("{}", report.summary());
+    } else {
+        out!("8/8 (the scene has no paste layer: nothing to inspect)");
+    }
     if spec == "small" {
         out!("");
-        out!("The paper's full board (three 2048 px cameras, 220 x 168 mm, about 0.6 GB and several minutes):");
+        out!("The paper's full board (three 2048 px cameras, 220 x 168 mm, 5,788 pads; about 1 GB and a few minutes):");
         out!("  dpsa demo --array scenes/paper-board.toml --out out/paper");
     }
     Ok(())
