@@ -339,31 +339,37 @@ pub fn surface_at(c: &[f64], dx: f64, dy: f64) -> f64 {
     c.iter().zip(t).map(|(a, b)| a * b).sum()
 }
 
-/// Measures every pad (two threads).
-pub fn measure_all(
-    map: &BoardMap,
-    pads: &[Pad],
-    placed: &Placed,
-    t: &Rigid,
-    program: &Program,
-) -> Vec<PadMeasurement> {
-    let n = pads.len();
+/// Sum and count of the finite values of the 3 x 3 block around `(a, b)` of a row-major
+/// grid `width` wide.
+fn mean3x3(r: &[f64], width: usize, a: usize, b: usize) -> (f64, u32) {
+    let rows = r.len() / width.max(1);
+    let (mut s, mut n) = (0.0, 0);
+    for aa in a.saturating_sub(1)..=(a + 1).min(rows.saturating_sub(1)) {
+        for bb in b.saturating_sub(1)..=(b + 1).min(width.saturating_sub(1)) {
+            let v = r[aa * width + bb];
+            if v.is_finite() {
+                s += v;
+                n += 1;
+            }
+        }
+    }
+    (s, n)
+}
+
+/// `f(k)` for `k` in `0..n`, in order, on the machine's threads (at most 8).
+pub fn per_pad<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync) -> Vec<T> {
     let threads = std::thread::available_parallelism()
         .map(|v| v.get())
         .unwrap_or(1)
         .clamp(1, 8);
     let chunk = n.div_ceil(threads).max(1);
-    let mut out: Vec<PadMeasurement> = Vec::with_capacity(n);
+    let f = &f;
+    let mut out = Vec::with_capacity(n);
     std::thread::scope(|sc| {
         let handles: Vec<_> = (0..n)
             .step_by(chunk)
             .map(|start| {
-                let end = (start + chunk).min(n);
-                sc.spawn(move || {
-                    (start..end)
-                        .map(|k| measure_pad(map, pads, placed, t, program, k))
-                        .collect::<Vec<_>>()
-                })
+                sc.spawn(move || (start..(start + chunk).min(n)).map(f).collect::<Vec<T>>())
             })
             .collect();
         for h in handles {
@@ -372,6 +378,20 @@ pub fn measure_all(
                 Err(e) => std::panic::resume_unwind(e),
             }
         }
+    });
+    out
+}
+
+/// Measures every pad (on the machine's threads), then the bridges between them.
+pub fn measure_all(
+    map: &BoardMap,
+    pads: &[Pad],
+    placed: &Placed,
+    t: &Rigid,
+    program: &Program,
+) -> Vec<PadMeasurement> {
+    let mut out = per_pad(pads.len(), |k| {
+        measure_pad(map, pads, placed, t, program, k)
     });
     bridges(map, placed, program, &mut out);
     out
@@ -621,23 +641,9 @@ pub fn measure_pad(
             let v = if r[idx].is_finite() {
                 r[idx]
             } else {
-                // Mean of the valid 3 x 3 neighbours in the cell; none: 0 outside the
-                // opening (board), the opening's mean is put in below.
-                let mut s = 0.0;
-                let mut n = 0;
-                for da in -1i64..=1 {
-                    for db in -1i64..=1 {
-                        let (aa, bb2) = (a as i64 + da, b as i64 + db);
-                        if aa < 0 || bb2 < 0 || aa >= h_w as i64 || bb2 >= w_w as i64 {
-                            continue;
-                        }
-                        let v = r[aa as usize * w_w + bb2 as usize];
-                        if v.is_finite() {
-                            s += v;
-                            n += 1;
-                        }
-                    }
-                }
+                // The mean of the valid 3 x 3 neighbours; none: 0 (counted as bare board,
+                // and the coverage says how much of the opening was seen).
+                let (s, n) = mean3x3(&r, w_w, a, b);
                 if n > 0 {
                     s / f64::from(n)
                 } else {
@@ -659,21 +665,7 @@ pub fn measure_pad(
                 hsum += r[idx];
                 hn += 1;
                 // 3 x 3 mean for the maximum.
-                let mut s = 0.0;
-                let mut n = 0;
-                for da in -1i64..=1 {
-                    for db in -1i64..=1 {
-                        let (aa, bb2) = (a as i64 + da, b as i64 + db);
-                        if aa < 0 || bb2 < 0 || aa >= h_w as i64 || bb2 >= w_w as i64 {
-                            continue;
-                        }
-                        let v = r[aa as usize * w_w + bb2 as usize];
-                        if v.is_finite() {
-                            s += v;
-                            n += 1;
-                        }
-                    }
-                }
+                let (s, n) = mean3x3(&r, w_w, a, b);
                 if n >= 5 {
                     hmax = hmax.max(s / f64::from(n));
                 }
@@ -718,40 +710,20 @@ pub fn measure_pad(
 pub fn bridges(map: &BoardMap, placed: &Placed, program: &Program, pm: &mut [PadMeasurement]) {
     let reach = program.measure.bridge_reach_mm;
     let thr = program.stencil_um * program.windows.bridge_height_pct / 100.0;
-    let n = placed.outlines.len();
-    let threads = std::thread::available_parallelism()
-        .map(|v| v.get())
-        .unwrap_or(1)
-        .clamp(1, 8);
-    let chunk = n.div_ceil(threads).max(1);
     let pm_ref: &[PadMeasurement] = pm;
-    let mut found: Vec<(usize, usize)> = Vec::new();
-    std::thread::scope(|sc| {
-        let hs: Vec<_> = (0..n)
-            .step_by(chunk)
-            .map(|s0| {
-                sc.spawn(move || {
-                    let mut out = Vec::new();
-                    for k in s0..(s0 + chunk).min(n) {
-                        if pm_ref[k].unmeasurable.is_none() {
-                            for j in flood(map, placed, &pm_ref[k], k, reach, thr) {
-                                if pm_ref[j].unmeasurable.is_none() {
-                                    out.push((k.min(j), k.max(j)));
-                                }
-                            }
-                        }
-                    }
-                    out
-                })
-            })
-            .collect();
-        for h in hs {
-            match h.join() {
-                Ok(v) => found.extend(v),
-                Err(e) => std::panic::resume_unwind(e),
-            }
+    let mut found: Vec<(usize, usize)> = per_pad(placed.outlines.len(), |k| {
+        if pm_ref[k].unmeasurable.is_some() {
+            return Vec::new();
         }
-    });
+        flood(map, placed, &pm_ref[k], k, reach, thr)
+            .into_iter()
+            .filter(|&j| pm_ref[j].unmeasurable.is_none())
+            .map(|j| (k.min(j), k.max(j)))
+            .collect::<Vec<_>>()
+    })
+    .into_iter()
+    .flatten()
+    .collect();
     found.sort_unstable();
     found.dedup();
     for (k, j) in found {

@@ -6,7 +6,7 @@
 //! no warp, no registration error). The differences are therefore the gauge's error alone:
 //! optics and pixels, noise, the local surface, the registration.
 
-use super::measure::{cell_member, height_inset, PadMeasurement, Placed, Reach};
+use super::measure::{cell_member, height_inset, per_pad, PadMeasurement, Placed, Reach};
 use super::pads::{Pad, Point, Rigid};
 use super::program::Program;
 use super::verdict::{Call, Class, Level};
@@ -33,33 +33,7 @@ pub fn measure_truth(
     height: &(dyn Fn(Point) -> f64 + Sync),
 ) -> Vec<PadTruth> {
     let placed = Placed::new(pads, t, &[], 1.0);
-    let n = pads.len();
-    let threads = std::thread::available_parallelism()
-        .map(|v| v.get())
-        .unwrap_or(1)
-        .clamp(1, 8);
-    let chunk = n.div_ceil(threads).max(1);
-    let mut out = Vec::with_capacity(n);
-    std::thread::scope(|sc| {
-        let hs: Vec<_> = (0..n)
-            .step_by(chunk)
-            .map(|s| {
-                let placed = &placed;
-                sc.spawn(move || {
-                    (s..(s + chunk).min(n))
-                        .map(|k| one(pads, placed, t, program, height, k))
-                        .collect::<Vec<_>>()
-                })
-            })
-            .collect();
-        for h in hs {
-            match h.join() {
-                Ok(v) => out.extend(v),
-                Err(e) => std::panic::resume_unwind(e),
-            }
-        }
-    });
-    out
+    per_pad(pads.len(), |k| one(pads, &placed, t, program, height, k))
 }
 
 fn one(
