@@ -163,7 +163,7 @@ fn array(out: &std::path::Path, seed: u64, spec: &str) -> Result<()> {
             insp.display()
         );
         let (report, _) =
-            dpsa_sim::inspection::run::inspect_dir(&map_dir, &program, None, Some(&insp), 1)?;
+            dpsa_sim::inspection::run::inspect_dir(&map_dir, &program, None, Some(&insp), 1, true)?;
         out!("{}", report.summary());
     } else {
         out!("8/8 (the scene has no paste layer: nothing to inspect)");

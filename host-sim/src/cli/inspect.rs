@@ -41,6 +41,7 @@ pub fn run(a: Args) -> Result<()> {
         a.truth.as_deref(),
         Some(&a.out),
         a.repeat,
+        true,
     )?;
     if a.json {
         out!("{}", serde_json::to_string_pretty(&r)?);

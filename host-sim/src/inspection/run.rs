@@ -350,15 +350,16 @@ impl Report {
     }
 }
 
-/// `dpsa inspect`: reads the map, the program, its paste layer (and the truth, when the
-/// program or `truth` names it), inspects (`repeat` times, the fastest reported), and writes
-/// the report files into `out`.
+/// `dpsa inspect`: reads the map, the program, its paste layer (and, with `use_truth`, the
+/// truth the program or `truth` names), inspects (`repeat` times, the fastest reported), and
+/// writes the report files into `out`.
 pub fn inspect_dir(
     board: &std::path::Path,
     program_path: &std::path::Path,
     truth: Option<&std::path::Path>,
     out: Option<&std::path::Path>,
     repeat: u32,
+    use_truth: bool,
 ) -> anyhow::Result<(Report, Inspection)> {
     let t0 = Instant::now();
     let program = Program::load(program_path)?;
@@ -373,7 +374,8 @@ pub fn inspect_dir(
     let load_s = t0.elapsed().as_secs_f64();
     let truth_path = truth
         .map(std::path::Path::to_path_buf)
-        .or_else(|| program.truth_path(program_path));
+        .or_else(|| program.truth_path(program_path))
+        .filter(|_| use_truth);
     let print = match &truth_path {
         Some(p) => Some(super::simulated::PrintTruth::load(p, pads.len())?),
         None => None,
