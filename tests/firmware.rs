@@ -489,7 +489,7 @@ fn truncated_recording_is_refused() {
     let dir = tempfile::tempdir().unwrap();
     let (_, h, bytes) = exported(dir.path());
     let frames_at = feed::HEADER_LEN + h.table_len();
-    let line_bytes = 2 * h.cfg.width as usize;
+    let line_bytes = h.line_len();
     // In the middle of line 7 of frame 5 (0-based), and at the start of frame 9.
     let mid = frames_at + 5 * h.frame_len() + feed::TRIGGER_LEN + 7 * line_bytes + line_bytes / 2;
     let needle = format!("feed truncated in frame 5 at line 7 (byte {mid})");

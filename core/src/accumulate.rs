@@ -7,6 +7,8 @@
 //! lines each, so the pool needs at most `max_step_rows * n (n - 1) / 2` lines: a triangle, not
 //! the `(n - 1)` full frames a frame buffer would take.
 
+use crate::dsp::{pack_bottoms, pack_tops, pair, smlad, unpack12, uqsub16};
+use crate::frames::mono12p;
 use crate::solve::{Window, MAX_N};
 
 /// `v_2`, `v_3` of one pixel in Q?.24 DN (i64), and whether a sample was saturated.
@@ -178,102 +180,257 @@ pub fn pixel_v(coef: &Coef, samples: &[u16], saturation: u16) -> V {
     }
 }
 
-/// The accumulate stage over a run of columns: `out[k]` is pixel `c0 + k` of the `N` lines,
-/// [`pixel_v`] of its samples. `N` is the window's `n` as a constant, so the sample loop
-/// unrolls into `2 N` 32-bit multiply-accumulates (`MLA` on the M7; no 64-bit arithmetic).
+/// The accumulate stage over a run of columns of 16-bit lines: `out[k]` is pixel `c0 + k` of
+/// the `n = lines.len()` lines (`3..=8`; other counts write nothing), [`pixel_v`] of its
+/// samples. The pipeline runs it when the line pool is 16-bit (`saturation > 4095`, cameras
+/// of more than 12 bits); 12-bit configurations keep Mono12p lines ([`block_packed`]).
 ///
-/// The saturation test is one add and one or per sample: with `K = 2^16 - saturation`,
-/// `x + K >= 2^16` exactly when `x >= saturation`, and the or of values below `2^16` stays
-/// below `2^16` (all `x + K < 2^17`).
+/// Two neighbouring pixels at a time, as the M7's packed 16-bit instructions want them
+/// ([`crate::dsp`]): each line is read as words (`c0` even and the lines 4-byte aligned, as
+/// the pipeline's and the firmware's buffers are; otherwise [`pixel_v`] per pixel), a word
+/// holding both pixels' samples; see [`pairs_by`]. Lanes are read as i16: samples below
+/// `2^15` as they are, and above a saturation level of `2^15` as `x - 2^15` (`x ^ 0x8000`),
+/// which the zero row sums of [`Coef`] cancel. Either way the sums of every non-saturated
+/// pixel are exact, the same values as [`pixel_v`]'s. An odd last column takes [`pixel_v`].
 ///
+/// Never inlined: the pipeline and the firmware's stage benchmark run this one copy.
 /// Every line must hold at least `c0 + out.len()` samples (the caller checks; a shorter line
 /// would be a programming error and panics).
-#[inline(always)]
-pub fn block<const N: usize>(
-    coef: &Coef,
-    lines: &[&[u16]; N],
-    c0: usize,
-    saturation: u16,
-    out: &mut [V],
-) {
-    if saturation <= 0x8000 {
-        kernel::<N, false>(coef, lines, c0, saturation, out);
-    } else {
-        kernel::<N, true>(coef, lines, c0, saturation, out);
-    }
-}
-
-/// [`block`] for one centring mode. The samples are read as i16 (`x as i16`): exact for every
-/// sample below `2^15`, so when `saturation <= 2^15` every non-saturated pixel is exact
-/// without centring (`CENTRE = false`; saturated pixels are discarded whatever their sums).
-/// Above that, `CENTRE` reads `x - 2^15` (`x ^ 0x8000` as i16), which the zero row sums
-/// cancel.
-#[inline(always)]
-fn kernel<const N: usize, const CENTRE: bool>(
-    coef: &Coef,
-    lines: &[&[u16]; N],
-    c0: usize,
-    saturation: u16,
-    out: &mut [V],
-) {
-    let len = out.len();
-    // Both rows' coefficients of sample j in one word: q2 in the bottom half, q3 in the top
-    // (the operand form of the M7's 16 x 16 multiply-accumulates, `SMLABB` / `SMLATB`).
-    let qp: [u32; N] =
-        core::array::from_fn(|j| (coef.q2[j] as u16 as u32) | ((coef.q3[j] as u32) << 16));
-    let ls: [&[u16]; N] = core::array::from_fn(|j| &lines[j][c0..c0 + len]);
-    let sat = saturation as u32;
-    for (i, o) in out.iter_mut().enumerate() {
-        let (mut v2, mut v3, mut low) = (0i32, 0i32, u32::MAX);
-        for j in 0..N {
-            let x = ls[j][i];
-            let xc = if CENTRE { x ^ 0x8000 } else { x } as i16 as i32;
-            v2 = v2.wrapping_add((qp[j] as i16 as i32).wrapping_mul(xc));
-            v3 = v3.wrapping_add(((qp[j] as i32) >> 16).wrapping_mul(xc));
-            // Bit 31 stays set while every sample is below the saturation level.
-            low &= (x as u32).wrapping_sub(sat);
-        }
-        *o = if low >> 31 == 0 {
-            [SATURATED, 0]
-        } else {
-            [v2, v3]
-        };
-    }
-}
-
-/// [`block`] with `n = lines.len()` chosen at run time, as its own (never inlined) function:
-/// what a caller outside the pipeline (the firmware's stage benchmark) runs to time the
-/// accumulate stage alone. `lines` holds `n` lines (`3..=8`, else nothing is written).
 #[inline(never)]
-pub fn row(coef: &Coef, lines: &[&[u16]], c0: usize, saturation: u16, out: &mut [V]) {
-    fn go<const N: usize>(coef: &Coef, lines: &[&[u16]], c0: usize, sat: u16, out: &mut [V]) {
-        let l: [&[u16]; N] = core::array::from_fn(|j| lines[j]);
-        block::<N>(coef, &l, c0, sat, out);
+pub fn block(coef: &Coef, lines: &[&[u16]], c0: usize, saturation: u16, out: &mut [V]) {
+    let n = lines.len();
+    if !(3..=MAX_N).contains(&n) {
+        return;
     }
-    match lines.len() {
-        3 => go::<3>(coef, lines, c0, saturation, out),
-        4 => go::<4>(coef, lines, c0, saturation, out),
-        5 => go::<5>(coef, lines, c0, saturation, out),
-        6 => go::<6>(coef, lines, c0, saturation, out),
-        7 => go::<7>(coef, lines, c0, saturation, out),
-        8 => go::<8>(coef, lines, c0, saturation, out),
-        _ => {}
+    let len = out.len();
+    if saturation == 0 {
+        out.fill([SATURATED, 0]);
+        return;
+    }
+    let even = len & !1;
+    let mut words: [&[u32]; MAX_N] = [&[]; MAX_N];
+    let mut aligned = true;
+    for (w, l) in words.iter_mut().zip(lines) {
+        match bytemuck::try_cast_slice::<u16, u32>(&l[c0..c0 + even]) {
+            Ok(x) => *w = x,
+            Err(_) => aligned = false,
+        }
+    }
+    let (pairs, rest) = out.split_at_mut(even);
+    if aligned {
+        let flip = if saturation <= 0x8000 { 0 } else { 0x8000_8000 };
+        let k = Pairs::new(coef, n, saturation, flip);
+        let m = even / 2;
+        let w: [&[u32]; MAX_N] = core::array::from_fn(|j| if j < n { &words[j][..m] } else { &[] });
+        for (i, o) in pairs.chunks_exact_mut(2).enumerate() {
+            pair_step::<MAX_N>(&k, n, |j| w[j][i] ^ flip, o);
+        }
+    } else {
+        for (k, o) in pairs.iter_mut().enumerate() {
+            *o = pixel_at(coef, n, |j| lines[j][c0 + k], saturation);
+        }
+    }
+    if let Some(o) = rest.first_mut() {
+        *o = pixel_at(coef, n, |j| lines[j][c0 + even], saturation);
     }
 }
 
-/// Pool of `W`-wide line slots with a free-list, in caller-supplied memory.
+/// [`pixel_v`] of the samples `sample(j)`, `j < n`.
+#[inline(always)]
+fn pixel_at(coef: &Coef, n: usize, sample: impl Fn(usize) -> u16, saturation: u16) -> V {
+    let mut s = [0u16; MAX_N];
+    for (j, x) in s.iter_mut().enumerate().take(n) {
+        *x = sample(j);
+    }
+    pixel_v(coef, &s[..n], saturation)
+}
+
+/// [`block`] for Mono12p lines ([`crate::frames::mono12p`]: the packed line pool of a 12-bit
+/// configuration, and lines as a 12-bit camera sends them): `out[k]` is pixel `c0 + k`,
+/// [`pixel_v`] of its samples. Each line holds at least [`mono12p::packed_len`]`(c0 +
+/// out.len())` bytes. Where it also holds the slack byte of [`mono12p::stored_len`], a pair
+/// of pixels is one 32-bit load and one [`crate::dsp::unpack12`] per line ([`mono12p::pair_at`]);
+/// elsewhere (and for an odd `c0` or an odd last column) sample by sample. Samples are below
+/// `2^15`: no lane flip. `n = lines.len()` in `3..=8` (else nothing is written); `n = 4`, the
+/// paper's and the default geometry's, has its own unrolled loop.
+#[inline(never)]
+pub fn block_packed(coef: &Coef, lines: &[&[u8]], c0: usize, saturation: u16, out: &mut [V]) {
+    let n = lines.len();
+    if !(3..=MAX_N).contains(&n) {
+        return;
+    }
+    let len = out.len();
+    if saturation == 0 {
+        out.fill([SATURATED, 0]);
+        return;
+    }
+    // Groups of eight pixels (three aligned words per line) from `c0` (a multiple of 8,
+    // lines 4-byte aligned: the pool's lines and the firmware's receive buffer are).
+    let ng = if c0 % 8 == 0 { len / 8 } else { 0 };
+    let at = 3 * c0 / 2;
+    let mut groups: [&[[u32; 3]]; MAX_N] = [&[]; MAX_N];
+    let mut fast = ng > 0;
+    for (g, l) in groups.iter_mut().zip(lines) {
+        match l
+            .get(at..at + 12 * ng)
+            .and_then(|b| bytemuck::try_cast_slice::<u8, [u32; 3]>(b).ok())
+        {
+            Some(x) => *g = x,
+            None => fast = false,
+        }
+    }
+    let done = if fast { 8 * ng } else { 0 };
+    let (head, rest) = out.split_at_mut(done);
+    if fast {
+        let k = Pairs::new(coef, n, saturation, 0);
+        if n == 4 {
+            groups_packed::<4>(&k, 4, &groups, head);
+        } else {
+            groups_packed::<MAX_N>(&k, n, &groups, head);
+        }
+    }
+    for (i, o) in rest.iter_mut().enumerate() {
+        let c = c0 + done + i;
+        *o = pixel_at(coef, n, |j| mono12p::sample(lines[j], c), saturation);
+    }
+}
+
+/// The coefficient pairs of the kernels (see [`pair_step`]), the saturation test word and
+/// the lane flip, made once per call.
+struct Pairs {
+    q2: [u32; MAX_N / 2],
+    q3: [u32; MAX_N / 2],
+    s1: u32,
+    flip: u32,
+}
+
+impl Pairs {
+    #[inline(always)]
+    fn new(coef: &Coef, n: usize, saturation: u16, flip: u32) -> Pairs {
+        let at = |q: &[i32; MAX_N], j: usize| if j < n { q[j] } else { 0 };
+        Pairs {
+            q2: core::array::from_fn(|p| pair(at(&coef.q2, 2 * p), at(&coef.q2, 2 * p + 1))),
+            q3: core::array::from_fn(|p| pair(at(&coef.q3, 2 * p), at(&coef.q3, 2 * p + 1))),
+            s1: (saturation as u32 - 1) * 0x0001_0001,
+            flip,
+        }
+    }
+}
+
+/// Two neighbouring pixels `o[0]`, `o[1]` of `n <= N` lines; `word(j)` is both pixels' samples
+/// of line `j` as two i16 lanes (flipped by `k.flip`, which the saturation test undoes).
+///
+/// [`pack_bottoms`] / [`pack_tops`] pair line `2p`'s sample with line `2p + 1`'s for each
+/// pixel, and one [`smlad`] per pair of lines and row of `P` multiplies them by the
+/// coefficient pair `[q_2p, q_2p+1]` (an odd `n` pairs its last line with a zero
+/// coefficient): `n` dual multiply-accumulates per pixel instead of `2 n` single ones, no
+/// 64-bit arithmetic. The saturation test is one [`uqsub16`] and one or per line: a lane of
+/// `x - (saturation - 1)`, floored at 0, is non-zero exactly when `x >= saturation`.
+/// Saturated pixels are marked off the hot path ([`mark_saturated`]).
+#[inline(always)]
+fn pair_step<const N: usize>(k: &Pairs, n: usize, word: impl Fn(usize) -> u32, o: &mut [V]) {
+    let (mut a2, mut a3, mut b2, mut b3) = (0i32, 0i32, 0i32, 0i32);
+    let mut sat = 0u32;
+    let mut p = 0;
+    while 2 * p < N && 2 * p < n {
+        let x0 = word(2 * p);
+        sat |= uqsub16(x0 ^ k.flip, k.s1);
+        let x1 = if 2 * p + 1 < n {
+            let x1 = word(2 * p + 1);
+            sat |= uqsub16(x1 ^ k.flip, k.s1);
+            x1
+        } else {
+            0
+        };
+        let (lo, hi) = (pack_bottoms(x0, x1), pack_tops(x0, x1));
+        a2 = smlad(lo, k.q2[p], a2);
+        a3 = smlad(lo, k.q3[p], a3);
+        b2 = smlad(hi, k.q2[p], b2);
+        b3 = smlad(hi, k.q3[p], b3);
+        p += 1;
+    }
+    o[0] = [a2, a3];
+    o[1] = [b2, b3];
+    if sat != 0 {
+        mark_saturated(o, sat);
+    }
+}
+
+/// The Mono12p loop: eight pixels (four pairs, twelve bytes, three aligned words per line) at
+/// a time. Pair `r` of a group is bytes `3r .. 3r + 3` of the line's three words `w`:
+/// `w0`, `w0 >> 24 | w1 << 8`, `w1 >> 16 | w2 << 16`, `w2 >> 8` (the top byte is ignored by
+/// [`unpack12`]). (One pass per pair of lines, which keeps fewer values live, measured
+/// slower on the target: 46 against 38.5 instructions per pixel.)
+#[inline(always)]
+fn groups_packed<const N: usize>(
+    k: &Pairs,
+    n: usize,
+    groups: &[&[[u32; 3]]; MAX_N],
+    out: &mut [V],
+) {
+    for (g, o) in out.chunks_exact_mut(8).enumerate() {
+        let w = |j: usize| &groups[j][g];
+        pair_step::<N>(k, n, |j| unpack12(w(j)[0]), &mut o[0..2]);
+        pair_step::<N>(
+            k,
+            n,
+            |j| unpack12(w(j)[0] >> 24 | w(j)[1] << 8),
+            &mut o[2..4],
+        );
+        pair_step::<N>(
+            k,
+            n,
+            |j| unpack12(w(j)[1] >> 16 | w(j)[2] << 16),
+            &mut o[4..6],
+        );
+        pair_step::<N>(k, n, |j| unpack12(w(j)[2] >> 8), &mut o[6..8]);
+    }
+}
+
+/// Marks the saturated pixels of a pair: lane 0 of `sat` for `o[0]`, lane 1 for `o[1]`.
+#[cold]
+#[inline(never)]
+fn mark_saturated(o: &mut [V], sat: u32) {
+    if sat & 0xFFFF != 0 {
+        o[0] = [SATURATED, 0];
+    }
+    if sat >> 16 != 0 {
+        o[1] = [SATURATED, 0];
+    }
+}
+
+/// Pool of line slots with a free-list, in caller-supplied memory. A slot holds one line's raw
+/// samples either as `W` u16 or, when the pool is *packed*, as Mono12p bytes
+/// ([`crate::frames::mono12p`], [`crate::frames::mono12p::stored_len`] bytes: the layout's
+/// [`crate::pipeline::Layout::pool_line_units`] u16 units per slot).
 pub struct Pool<'a> {
     width: usize,
+    /// u16 units per slot.
+    stride: usize,
+    packed: bool,
     lines: &'a mut [u16],
     free: &'a mut [u16],
     top: usize,
 }
 
 impl<'a> Pool<'a> {
-    /// `lines` holds `free.len()` slots of `width` samples each.
-    pub fn new(width: usize, lines: &'a mut [u16], free: &'a mut [u16]) -> Option<Self> {
+    /// `lines` holds `free.len()` slots of `stride` u16 units each (`stride >= width` for a
+    /// 16-bit pool; `2 stride >=` [`crate::frames::mono12p::stored_len`]`(width)` for a packed
+    /// one).
+    pub fn new(
+        width: usize,
+        stride: usize,
+        packed: bool,
+        lines: &'a mut [u16],
+        free: &'a mut [u16],
+    ) -> Option<Self> {
         let count = free.len();
-        if width == 0 || count > u16::MAX as usize || lines.len() < count * width {
+        let fits = if packed {
+            2 * stride >= mono12p::stored_len(width)
+        } else {
+            stride >= width
+        };
+        if width == 0 || !fits || count > u16::MAX as usize || lines.len() < count * stride {
             return None;
         }
         for (i, f) in free.iter_mut().enumerate() {
@@ -282,25 +439,57 @@ impl<'a> Pool<'a> {
         }
         Some(Pool {
             width,
+            stride,
+            packed,
             lines,
             free,
             top: count,
         })
     }
 
-    /// Takes a slot and copies `line` into it; `None` when the pool is exhausted.
-    pub fn store(&mut self, line: &[u16]) -> Option<u16> {
+    /// Whether slots hold Mono12p lines.
+    pub fn packed(&self) -> bool {
+        self.packed
+    }
+
+    fn take(&mut self) -> Option<(u16, &mut [u16])> {
         if self.top == 0 {
             return None;
         }
         self.top -= 1;
         let slot = self.free[self.top];
-        let w = self.width;
+        let s = self.stride;
         let dst = self
             .lines
-            .get_mut(slot as usize * w..slot as usize * w + w)?;
+            .get_mut(slot as usize * s..slot as usize * s + s)?;
+        Some((slot, dst))
+    }
+
+    /// Takes a slot and stores `line` (`W` samples) in it, packed (each sample clamped to
+    /// 4095) in a packed pool; `None` when the pool is exhausted.
+    pub fn store(&mut self, line: &[u16]) -> Option<u16> {
+        let (packed, w) = (self.packed, self.width);
+        let (slot, dst) = self.take()?;
         let n = w.min(line.len());
-        dst[..n].copy_from_slice(&line[..n]);
+        if packed {
+            mono12p::pack(&line[..n], bytemuck::cast_slice_mut(dst));
+        } else {
+            dst[..n].copy_from_slice(&line[..n]);
+        }
+        Some(slot)
+    }
+
+    /// Takes a slot of a packed pool and copies the Mono12p line `b`
+    /// ([`crate::frames::mono12p::packed_len`]`(W)` bytes) into it; `None` when the pool is
+    /// exhausted or not packed.
+    pub fn store_packed(&mut self, b: &[u8]) -> Option<u16> {
+        if !self.packed {
+            return None;
+        }
+        let len = mono12p::packed_len(self.width).min(b.len());
+        let (slot, dst) = self.take()?;
+        let dst: &mut [u8] = bytemuck::cast_slice_mut(dst);
+        dst[..len].copy_from_slice(&b[..len]);
         Some(slot)
     }
 
@@ -312,12 +501,29 @@ impl<'a> Pool<'a> {
         }
     }
 
-    /// The samples of a slot.
+    /// The samples of a slot of a 16-bit pool (empty for a packed pool).
     pub fn line(&self, slot: u16) -> &[u16] {
-        let w = self.width;
+        if self.packed {
+            return &[];
+        }
+        let (s, w) = (self.stride, self.width);
         self.lines
-            .get(slot as usize * w..slot as usize * w + w)
+            .get(slot as usize * s..slot as usize * s + w)
             .unwrap_or(&[])
+    }
+
+    /// The bytes of a slot of a packed pool: the Mono12p line and its slack byte
+    /// ([`crate::frames::mono12p::stored_len`]; empty for a 16-bit pool).
+    pub fn packed_line(&self, slot: u16) -> &[u8] {
+        if !self.packed {
+            return &[];
+        }
+        let s = self.stride;
+        let b: &[u8] = self
+            .lines
+            .get(slot as usize * s..slot as usize * s + s)
+            .map_or(&[], bytemuck::cast_slice);
+        &b[..mono12p::stored_len(self.width).min(b.len())]
     }
 
     /// Slots in use.
@@ -400,6 +606,79 @@ mod tests {
         assert_eq!(o[0], pixel_v(&c16, &[65534, 0, 65535, 1], 65535));
         assert_eq!(o[0][0], SATURATED);
         assert_ne!(o[1][0], SATURATED);
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(600))]
+
+        /// The paired kernel (and its fallbacks: odd `c0`, misaligned lines, an odd last
+        /// column) equals [`pixel_v`] for every `n`, at every saturation class (8, 12 and 16
+        /// bits, the flip boundary `2^15` and its neighbours, 1 and 0), on samples drawn
+        /// from the classes that matter (0, just below / at / above the level, `2^15 +- 1`,
+        /// 65535) and uniformly.
+        #[test]
+        fn block_equals_pixel_v(
+            n in 3usize..=8,
+            th in proptest::collection::vec(0u32..u32::MAX, 8),
+            sat_class in 0usize..9,
+            c0 in 0usize..20,
+            len in 0usize..41,
+            shift in 0usize..2,
+            samples in proptest::collection::vec((0u8..8, 0u16..=u16::MAX), 8 * 48),
+        ) {
+            let sat = [255u16, 4095, 65535, 0x8000, 0x7FFF, 0x8001, 1, 0, 3000][sat_class];
+            let Ok(w) = Window::solve(&th[..n], fixed::types::U8F8::from_num(8)) else {
+                return Ok(());
+            };
+            let Some(coef) = Coef::of(&w, sat) else { return Ok(()) };
+            let width = c0 + len;
+            // `shift` starts every line one sample into its buffer: misaligned words.
+            let data: vec::Vec<vec::Vec<u16>> = (0..n)
+                .map(|j| {
+                    (0..width + shift)
+                        .map(|c| {
+                            let (class, u) = samples[(j * 48 + c) % samples.len()];
+                            match class {
+                                0 => 0,
+                                1 => sat.saturating_sub(1),
+                                2 => sat,
+                                3 => sat.saturating_add(1),
+                                4 => 0x7FFF,
+                                5 => 0x8000,
+                                6 => 65535,
+                                _ => u,
+                            }
+                        })
+                        .collect()
+                })
+                .collect();
+            let lines: vec::Vec<&[u16]> = data.iter().map(|l| &l[shift..]).collect();
+            let mut out = vec![[7i32, 7]; len];
+            block(&coef, &lines, c0, sat, &mut out);
+            for (k, o) in out.iter().enumerate() {
+                let s: vec::Vec<u16> = lines.iter().map(|l| l[c0 + k]).collect();
+                proptest::prop_assert_eq!(*o, pixel_v(&coef, &s, sat), "column {}", c0 + k);
+            }
+            // Mono12p lines (a packed pool: saturation <= 4095), with and without the slack
+            // byte, give the same pixels: samples above 4095 are stored as 4095, still
+            // saturated.
+            if sat <= mono12p::MAX {
+                for slack in [0usize, 1] {
+                    let packed: vec::Vec<vec::Vec<u8>> = lines
+                        .iter()
+                        .map(|l| {
+                            let mut b = vec![0u8; mono12p::packed_len(width) + slack];
+                            mono12p::pack(l, &mut b);
+                            b
+                        })
+                        .collect();
+                    let pl: vec::Vec<&[u8]> = packed.iter().map(|b| &b[..]).collect();
+                    let mut outp = vec![[7i32, 7]; len];
+                    block_packed(&coef, &pl, c0, sat, &mut outp);
+                    proptest::prop_assert_eq!(&outp, &out, "packed, slack {}", slack);
+                }
+            }
+        }
     }
 
     /// The kernel's coefficients: i16, zero row sums, no overflow at any non-saturated sample
@@ -500,7 +779,7 @@ mod tests {
     fn pool_exhaustion_and_reuse() {
         let mut lines = vec![0u16; 3 * 4];
         let mut free = vec![0u16; 3];
-        let mut p = Pool::new(4, &mut lines, &mut free).unwrap();
+        let mut p = Pool::new(4, 4, false, &mut lines, &mut free).unwrap();
         let a = p.store(&[1, 2, 3, 4]).unwrap();
         let b = p.store(&[5, 6, 7, 8]).unwrap();
         let c = p.store(&[9, 9, 9, 9]).unwrap();

@@ -60,6 +60,9 @@ impl Format for FeedError {
                 f,
                 "length does not match the feed layout (short or oversized input)"
             ),
+            FeedError::Mono12p => {
+                write!(f, "Mono12p lines need a saturation level of at most 4095")
+            }
         }
     }
 }
@@ -122,6 +125,7 @@ impl<E: Format> Format for Error<E> {
                 )
             }
             Error::Finished => write!(f, "begin_frame after finish"),
+            Error::LineFormat => write!(f, "line format does not fit the line pool"),
         }
     }
 }
@@ -235,8 +239,8 @@ impl Format for Layout {
     fn format(&self, f: Formatter<'_>) {
         write!(
             f,
-            "Layout {{ width: {=usize}, pool_lines: {=usize}, slots: {=usize}, scale_columns: {=usize} }}",
-            self.width, self.pool_lines, self.slots, self.scale_columns
+            "Layout {{ width: {=usize}, pool_lines: {=usize}, slots: {=usize}, scale_columns: {=usize}, packed: {=bool} }}",
+            self.width, self.pool_lines, self.slots, self.scale_columns, self.packed
         )
     }
 }

@@ -56,6 +56,9 @@ impl Display for FeedError {
             FeedError::Length => {
                 f.write_str("length does not match the feed layout (short or oversized input)")
             }
+            FeedError::Mono12p => {
+                f.write_str("Mono12p lines need a saturation level of at most 4095")
+            }
         }
     }
 }
@@ -126,6 +129,10 @@ impl<E: Display> Display for Error<E> {
                 write!(f, "line of {got} samples (expected width {expected})")
             }
             Error::Finished => f.write_str("begin_frame after finish"),
+            Error::LineFormat => f.write_str(
+                "a packed line for a 16-bit line pool, or a 16-bit line for a packed pool \
+                 without its scratch line (Layout::scratch_bytes)",
+            ),
         }
     }
 }

@@ -90,7 +90,9 @@
 //! (`u32`, wrapping by design: see [`phase`]).
 
 #![no_std]
-#![forbid(unsafe_code)]
+// No `unsafe` anywhere but the two `asm!` instructions of `dsp` (behind its own `allow`, on
+// an ARM target with the `dsp` feature only; see that module for why and how it is tested).
+#![deny(unsafe_code)]
 
 #[cfg(feature = "alloc")]
 extern crate alloc;
@@ -98,6 +100,7 @@ extern crate alloc;
 pub mod accumulate;
 #[cfg(feature = "defmt")]
 mod defmt;
+pub mod dsp;
 mod error;
 pub mod frames;
 pub mod height;

@@ -121,7 +121,7 @@ mod tests {
             // Core: the pipeline's stages.
             let ls: Vec<&[u16]> = lines.iter().map(|l| &l[..]).collect();
             let mut vc = std::vec![[0i32; 2]; w];
-            accumulate::row(&coef, &ls, 0, sat, &mut vc);
+            accumulate::block(&coef, &ls, 0, sat, &mut vc);
             assert_eq!(v, vc, "front-end model vs core accumulate");
             let (mut h2, mut m2) = (std::vec![0i16; w], std::vec![0u8; w.div_ceil(8)]);
             let gate = scale.gate(coef.frac);

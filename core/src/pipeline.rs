@@ -19,7 +19,7 @@
 use crate::accumulate::Coef;
 use crate::accumulate::{self, Pool};
 use crate::frames::registration::{self, Kind, Registry, Step};
-use crate::frames::{Config, ConfigError, Trigger};
+use crate::frames::{mono12p, Config, ConfigError, Trigger};
 use crate::height::{ColumnScale, ColumnScaleError, Gate, Scale};
 use crate::row::{flags, Gap, Row, RowHeader, StreamInfo};
 use crate::sink::Sink;
@@ -39,17 +39,51 @@ pub struct Layout {
     /// Entries of the per-column height-scale table ([`ColumnScale`], 2 bytes each): `W` when
     /// the pipeline is given one ([`Layout::with_column_scale`]), else 0.
     pub scale_columns: usize,
+    /// The pool keeps lines as Mono12p ([`mono12p`]): when `saturation <= 4095`, so that
+    /// every sample that decides a pixel fits 12 bits (a larger one is stored as 4095, still
+    /// saturated).
+    pub packed: bool,
+    /// u16 units per pool line: `W`, or [`mono12p::stored_len`]`(W)` bytes rounded up to whole
+    /// words when packed (3 bytes per pair of pixels, one byte of slack; every line starts
+    /// word-aligned for the kernel's aligned loads, [`accumulate::block_packed`]).
+    pub pool_line_units: usize,
 }
 
 impl Layout {
     pub const fn of(cfg: &Config) -> Layout {
         let n = cfg.n as usize;
         let m = cfg.max_step_rows as usize;
+        let w = cfg.width as usize;
+        let packed = cfg.saturation <= mono12p::MAX;
         Layout {
-            width: cfg.width as usize,
+            width: w,
             pool_lines: m * n * (n - 1) / 2,
             slots: m * n,
             scale_columns: 0,
+            packed,
+            pool_line_units: if packed {
+                2 * mono12p::stored_len(w).div_ceil(4)
+            } else {
+                w
+            },
+        }
+    }
+
+    /// u16 units of the line pool ([`Memory::lines`]).
+    pub const fn pool_units(&self) -> usize {
+        self.pool_lines * self.pool_line_units
+    }
+
+    /// Bytes of [`Memory::scratch`] that [`Pipeline::push_line`] needs on a packed pool (the
+    /// last observation of a row, packed): [`mono12p::stored_len`]`(W)`; 0 for a 16-bit pool.
+    /// Not in [`Layout::bytes`]: a caller that delivers every line packed
+    /// ([`Pipeline::push_packed_line`], as a 12-bit camera's frame grabber does) passes an
+    /// empty scratch.
+    pub const fn scratch_bytes(&self) -> usize {
+        if self.packed {
+            mono12p::stored_len(self.width)
+        } else {
+            0
         }
     }
 
@@ -63,7 +97,7 @@ impl Layout {
     /// (heights and validity bits), the reference-phase table (`W` binary angles) and, if
     /// present, the per-column height-scale table (`W` u16 mantissas).
     pub const fn bytes(&self) -> usize {
-        self.pool_lines * self.width * 2
+        self.pool_units() * 2
             + self.pool_lines * 2
             + self.slots * size_of::<Slot>()
             + self.width * 2
@@ -75,8 +109,10 @@ impl Layout {
 
 /// Caller-supplied state (see [`Layout`] for the sizes).
 pub struct Memory<'a> {
-    /// `pool_lines * W` samples.
+    /// [`Layout::pool_units`] u16 units: the line pool.
     pub lines: &'a mut [u16],
+    /// [`Layout::scratch_bytes`] bytes, or empty when every line arrives packed.
+    pub scratch: &'a mut [u8],
     /// `pool_lines` entries.
     pub free: &'a mut [u16],
     /// `slots` entries.
@@ -92,6 +128,7 @@ pub struct Memory<'a> {
 #[cfg(feature = "alloc")]
 pub struct State {
     lines: alloc::boxed::Box<[u16]>,
+    scratch: alloc::boxed::Box<[u8]>,
     free: alloc::boxed::Box<[u16]>,
     slots: alloc::boxed::Box<[Slot]>,
     heights: alloc::boxed::Box<[i16]>,
@@ -105,7 +142,8 @@ impl State {
         use alloc::vec;
         let l = Layout::of(cfg);
         State {
-            lines: vec![0; l.pool_lines * l.width].into_boxed_slice(),
+            lines: vec![0; l.pool_units()].into_boxed_slice(),
+            scratch: vec![0; l.scratch_bytes()].into_boxed_slice(),
             free: vec![0; l.pool_lines].into_boxed_slice(),
             slots: vec![Slot::default(); l.slots].into_boxed_slice(),
             heights: vec![0; l.width].into_boxed_slice(),
@@ -117,6 +155,7 @@ impl State {
     pub fn memory(&mut self) -> Memory<'_> {
         Memory {
             lines: &mut self.lines,
+            scratch: &mut self.scratch,
             free: &mut self.free,
             slots: &mut self.slots,
             heights: &mut self.heights,
@@ -150,6 +189,9 @@ pub enum Error<E> {
     LineWidth { expected: u16, got: usize },
     /// `begin_frame` after `finish`.
     Finished,
+    /// [`Pipeline::push_packed_line`] on a 16-bit pool, or [`Pipeline::push_line`] on a
+    /// packed pool whose [`Memory::scratch`] is shorter than [`Layout::scratch_bytes`].
+    LineFormat,
 }
 
 /// The streaming D-PSA pipeline.
@@ -160,6 +202,8 @@ pub struct Pipeline<'a> {
     /// Per-column height scale (`None`: the uniform [`Config::lsb_per_turn`]).
     columns: Option<ColumnScale<'a>>,
     pool: Pool<'a>,
+    /// A packed copy of a 16-bit last observation ([`Layout::scratch_bytes`]).
+    scratch: &'a mut [u8],
     reg: Registry<'a>,
     heights: &'a mut [i16],
     valid: &'a mut [u8],
@@ -211,8 +255,14 @@ impl<'a> Pipeline<'a> {
         {
             return Err(NewError::Memory);
         }
-        let pool =
-            Pool::new(w, mem.lines, &mut mem.free[..lay.pool_lines]).ok_or(NewError::Memory)?;
+        let pool = Pool::new(
+            w,
+            lay.pool_line_units,
+            lay.packed,
+            mem.lines,
+            &mut mem.free[..lay.pool_lines],
+        )
+        .ok_or(NewError::Memory)?;
         let heights = &mut mem.heights[..w];
         let valid = &mut mem.valid[..w.div_ceil(8)];
         heights.fill(0);
@@ -223,6 +273,7 @@ impl<'a> Pipeline<'a> {
             ref_phase: &ref_phase[..w],
             columns,
             pool,
+            scratch: mem.scratch,
             reg: Registry::new(&mut mem.slots[..lay.slots]),
             heights,
             valid,
@@ -342,11 +393,35 @@ impl<'a> Pipeline<'a> {
         Ok(())
     }
 
-    /// Delivers image row `r` (in order `0..H`) of the open frame.
+    /// Delivers image row `r` (in order `0..H`) of the open frame: `W` samples. On a packed
+    /// pool ([`Layout::packed`]) the line is packed on the way in, which needs
+    /// [`Memory::scratch`] ([`Error::LineFormat`] without it).
     pub fn push_line<S: Sink>(
         &mut self,
         r: u16,
         line: &[u16],
+        sink: &mut S,
+    ) -> Result<(), Error<S::Error>> {
+        self.push(r, Line::Wide(line), sink)
+    }
+
+    /// Delivers image row `r` of the open frame as a 12-bit camera sends it: Mono12p,
+    /// [`mono12p::packed_len`]`(W)` bytes (extra bytes are ignored). Only for a packed pool
+    /// ([`Layout::packed`]; else [`Error::LineFormat`]); the pool keeps the bytes as they
+    /// are, and the final observation of a row is read in place.
+    pub fn push_packed_line<S: Sink>(
+        &mut self,
+        r: u16,
+        line: &[u8],
+        sink: &mut S,
+    ) -> Result<(), Error<S::Error>> {
+        self.push(r, Line::Packed(line), sink)
+    }
+
+    fn push<S: Sink>(
+        &mut self,
+        r: u16,
+        line: Line<'_>,
         sink: &mut S,
     ) -> Result<(), Error<S::Error>> {
         if !self.open {
@@ -358,12 +433,27 @@ impl<'a> Pipeline<'a> {
                 got: r,
             });
         }
-        if line.len() != self.cfg.width as usize {
-            return Err(Error::LineWidth {
-                expected: self.cfg.width,
-                got: line.len(),
-            });
-        }
+        let w = self.cfg.width as usize;
+        let line = match line {
+            Line::Wide(_) if self.pool.packed() && self.scratch.len() < mono12p::stored_len(w) => {
+                return Err(Error::LineFormat);
+            }
+            Line::Packed(_) if !self.pool.packed() => return Err(Error::LineFormat),
+            Line::Wide(l) if l.len() != w => {
+                return Err(Error::LineWidth {
+                    expected: self.cfg.width,
+                    got: l.len(),
+                });
+            }
+            Line::Packed(b) if b.len() < mono12p::packed_len(w) => {
+                return Err(Error::LineWidth {
+                    expected: self.cfg.width,
+                    got: 2 * b.len() / 3,
+                });
+            }
+            Line::Packed(b) => Line::Packed(&b[..mono12p::packed_len(w)]),
+            wide => wide,
+        };
         self.next_line += 1;
         let f = self.reg.begun().wrapping_sub(1);
         let b = self.reg.admission(f).offset + r as i64;
@@ -384,7 +474,11 @@ impl<'a> Pipeline<'a> {
             return Ok(());
         }
         if j + 1 < n {
-            match self.pool.store(line) {
+            let stored = match line {
+                Line::Wide(l) => self.pool.store(l),
+                Line::Packed(b) => self.pool.store_packed(b),
+            };
+            match stored {
                 Some(l) => {
                     let slot = &mut self.reg.slots[s];
                     slot.lines[j] = l;
@@ -548,18 +642,40 @@ impl<'a> Pipeline<'a> {
     }
 
     /// The hot loop: `v = P i`, phase, height and mask for every column of a completed row.
-    fn compute(&mut self, s: usize, coef: &Coef, gate: &Gate, rho: u32, last: &[u16]) -> u16 {
+    fn compute(&mut self, s: usize, coef: &Coef, gate: &Gate, rho: u32, last: Line<'_>) -> u16 {
         let n = coef.n;
         let slot = self.reg.slots[s];
-        let mut lines: [&[u16]; MAX_N] = [&[]; MAX_N];
-        for (j, l) in lines.iter_mut().enumerate().take(n - 1) {
-            *l = self.pool.line(slot.lines[j]);
-        }
-        lines[n - 1] = last;
         let w = self.cfg.width as usize;
-        if lines[..n].iter().any(|l| l.len() < w) {
-            return flags::OVERFLOW;
-        }
+        let lines = if self.pool.packed() {
+            let mut lines: [&[u8]; MAX_N] = [&[]; MAX_N];
+            for (j, l) in lines.iter_mut().enumerate().take(n - 1) {
+                *l = self.pool.packed_line(slot.lines[j]);
+            }
+            lines[n - 1] = match last {
+                Line::Packed(b) => b,
+                Line::Wide(l) => {
+                    mono12p::pack(l, self.scratch);
+                    &self.scratch[..]
+                }
+            };
+            if lines[..n].iter().any(|l| l.len() < mono12p::packed_len(w)) {
+                return flags::OVERFLOW;
+            }
+            Lines::Packed(lines)
+        } else {
+            let mut lines: [&[u16]; MAX_N] = [&[]; MAX_N];
+            for (j, l) in lines.iter_mut().enumerate().take(n - 1) {
+                *l = self.pool.line(slot.lines[j]);
+            }
+            lines[n - 1] = match last {
+                Line::Wide(l) => l,
+                Line::Packed(_) => &[],
+            };
+            if lines[..n].iter().any(|l| l.len() < w) {
+                return flags::OVERFLOW;
+            }
+            Lines::Wide(lines)
+        };
         let rows = Rows {
             lines,
             w,
@@ -568,16 +684,21 @@ impl<'a> Pipeline<'a> {
             ref_phase: self.ref_phase,
             columns: self.columns,
         };
-        let (heights, valid) = (&mut *self.heights, &mut *self.valid);
-        match n {
-            3 => rows.run::<3>(coef, gate, &self.scale, heights, valid),
-            4 => rows.run::<4>(coef, gate, &self.scale, heights, valid),
-            5 => rows.run::<5>(coef, gate, &self.scale, heights, valid),
-            6 => rows.run::<6>(coef, gate, &self.scale, heights, valid),
-            7 => rows.run::<7>(coef, gate, &self.scale, heights, valid),
-            _ => rows.run::<8>(coef, gate, &self.scale, heights, valid),
-        }
+        rows.run(n, coef, gate, &self.scale, self.heights, self.valid)
     }
+}
+
+/// A line as delivered: `W` u16 samples, or Mono12p bytes.
+#[derive(Clone, Copy)]
+enum Line<'l> {
+    Wide(&'l [u16]),
+    Packed(&'l [u8]),
+}
+
+/// The `n` lines of a completed row, as the pool keeps them.
+enum Lines<'l> {
+    Wide([&'l [u16]; MAX_N]),
+    Packed([&'l [u8]; MAX_N]),
 }
 
 /// Columns processed per block: the accumulate stage fills `BLOCK` reduced pixels on the stack
@@ -586,7 +707,7 @@ pub const BLOCK: usize = 64;
 
 /// The inputs of one completed row.
 struct Rows<'l> {
-    lines: [&'l [u16]; MAX_N],
+    lines: Lines<'l>,
     w: usize,
     sat: u16,
     rho: u32,
@@ -595,30 +716,36 @@ struct Rows<'l> {
 }
 
 impl Rows<'_> {
-    /// Both stages, block by block, with `n = N` known at compile time.
-    #[inline(never)]
-    fn run<const N: usize>(
+    /// Both stages, block by block: [`accumulate::block`] and [`Scale::row`] (or
+    /// [`Scale::row_columns`]), the never-inlined functions the firmware's stage benchmark
+    /// times.
+    fn run(
         &self,
+        n: usize,
         coef: &Coef,
         gate: &Gate,
         scale: &Scale,
         heights: &mut [i16],
         valid: &mut [u8],
     ) -> u16 {
-        let lines: [&[u16]; N] = core::array::from_fn(|j| self.lines[j]);
         let mut v = [[0i32; 2]; BLOCK];
         let mut row_flags = 0;
         let mut c0 = 0;
         while c0 < self.w {
             let len = BLOCK.min(self.w - c0);
-            accumulate::block::<N>(coef, &lines, c0, self.sat, &mut v[..len]);
+            match &self.lines {
+                Lines::Wide(l) => accumulate::block(coef, &l[..n], c0, self.sat, &mut v[..len]),
+                Lines::Packed(l) => {
+                    accumulate::block_packed(coef, &l[..n], c0, self.sat, &mut v[..len])
+                }
+            }
             let (v, r) = (&v[..len], &self.ref_phase[c0..c0 + len]);
             let (h, m) = (&mut heights[c0..c0 + len], &mut valid[c0 / 8..]);
             row_flags |= match &self.columns {
-                None => scale.block(gate, v, self.rho, r, h, m),
+                None => scale.row(gate, v, self.rho, r, h, m),
                 Some(t) => {
                     let k = &t.mantissa()[c0..c0 + len];
-                    scale.block_columns(gate, v, self.rho, r, t, k, h, m)
+                    scale.row_columns(gate, v, self.rho, r, t, k, h, m)
                 }
             };
             c0 += len;
@@ -739,6 +866,87 @@ mod tests {
                 "rows must be contiguous and increasing"
             );
         }
+    }
+
+    /// A 12-bit configuration keeps Mono12p lines: lines delivered packed (as a 12-bit camera
+    /// sends them) and the same lines as u16 (packed on the way in) give identical rows,
+    /// also with samples at and above the saturation level (5000 is stored as 4095 and stays
+    /// saturated); a 16-bit pool refuses packed lines and a packed pool refuses u16 lines
+    /// without the scratch line.
+    #[test]
+    fn packed_lines_give_the_rows_of_u16_lines() {
+        let c = cfg();
+        assert!(Layout::of(&c).packed && Layout::of(&c).scratch_bytes() > 0);
+        let refp: Vec<u32> = (0..W).map(|c| from_rad(phi0(c))).collect();
+        let latches: Vec<i64> = (0..12).map(|k| k * 70).collect();
+        let frames: Vec<Vec<Vec<u16>>> = latches
+            .iter()
+            .map(|&e| {
+                let mut f = frame(c.offset(e));
+                f[35][5] = 5000;
+                f[36][9] = 4095;
+                f[38][11] = 4094;
+                f
+            })
+            .collect();
+        let go = |packed: bool| {
+            let mut m = State::new(&c);
+            let mut p = Pipeline::new(c, &refp, m.memory()).unwrap();
+            let mut sink = Collect::default();
+            let mut b = vec![0u8; mono12p::packed_len(W)];
+            for (k, &e) in latches.iter().enumerate() {
+                let t = Trigger {
+                    seq: k as u32,
+                    latch: e,
+                };
+                p.begin_frame(t, &mut sink).unwrap();
+                for (r, line) in frames[k].iter().enumerate() {
+                    if packed {
+                        mono12p::pack(line, &mut b);
+                        p.push_packed_line(r as u16, &b, &mut sink).unwrap();
+                    } else {
+                        p.push_line(r as u16, line, &mut sink).unwrap();
+                    }
+                }
+                p.end_frame(&mut sink).unwrap();
+            }
+            p.finish(&mut sink).unwrap();
+            sink.0
+        };
+        let (wide, packed) = (go(false), go(true));
+        assert!(wide.len() > 20);
+        assert_eq!(wide, packed);
+        assert!(wide.iter().any(|r| r.0.flags & flags::SATURATED != 0));
+        // Formats the pool cannot take.
+        let mut s = Collect::default();
+        let mut m = State::new(&c);
+        let Memory {
+            lines,
+            free,
+            slots,
+            heights,
+            valid,
+            ..
+        } = m.memory();
+        let mem = Memory {
+            lines,
+            scratch: &mut [],
+            free,
+            slots,
+            heights,
+            valid,
+        };
+        let mut p = Pipeline::new(c, &refp, mem).unwrap();
+        p.begin_frame(Trigger { seq: 0, latch: 0 }, &mut s).unwrap();
+        assert_eq!(p.push_line(0, &[0; W], &mut s), Err(Error::LineFormat));
+        let mut c16 = c;
+        c16.saturation = 65535;
+        assert!(!Layout::of(&c16).packed);
+        let mut m = State::new(&c16);
+        let mut p = Pipeline::new(c16, &refp, m.memory()).unwrap();
+        p.begin_frame(Trigger { seq: 0, latch: 0 }, &mut s).unwrap();
+        let b = vec![0u8; mono12p::packed_len(W)];
+        assert_eq!(p.push_packed_line(0, &b, &mut s), Err(Error::LineFormat));
     }
 
     #[test]
@@ -976,6 +1184,7 @@ mod tests {
         let mut small = State::new(&c);
         let Memory {
             lines,
+            scratch,
             free,
             slots,
             heights,
@@ -983,6 +1192,7 @@ mod tests {
         } = small.memory();
         let mem = Memory {
             lines,
+            scratch,
             free: &mut free[..1],
             slots,
             heights,

@@ -70,9 +70,8 @@ pub struct Stages {
     pub phase_height: u64,
 }
 
-/// Runs the two stages of the core's per-pixel loop (`accumulate::row` and `Scale::row`: the
-/// `accumulate::block` and `Scale::block` that `Pipeline::compute` runs block by block, as
-/// never-inlined core functions, so they are the core's code) timed apart, over
+/// Runs the two stages of the core's per-pixel loop (`accumulate::block` and `Scale::row`,
+/// the very functions `Pipeline::compute` calls block by block) timed apart, over
 /// real samples (lines left in the pool by the run) with the last solved window, block by
 /// block as the pipeline runs them: [`dpsa_core::pipeline::BLOCK`] reduced pixels on the stack
 /// between the stages (no row-sized buffer). Each stage's time includes one clock read per
@@ -80,6 +79,7 @@ pub struct Stages {
 #[allow(clippy::too_many_arguments)]
 pub fn stages<C: Clock>(
     cfg: &Config,
+    layout: &dpsa_core::Layout,
     meter: &Meter,
     ref_phase: &[u32],
     columns: Option<ColumnScale<'_>>,
@@ -100,7 +100,7 @@ pub fn stages<C: Clock>(
     };
     let mut v = [[0i32; 2]; BLOCK];
     // The block buffer as a run-time pointer: otherwise the compiler may fold its address into
-    // `accumulate::row` (its only caller is this function), and the cost of that constant
+    // `accumulate::block` (its only caller is this function), and the cost of that constant
     // would be measured instead of the pipeline's code, which always has a pointer.
     let v: &mut [V; BLOCK] = core::hint::black_box(&mut v);
     // The same for the reference-phase table (the pipeline reads it through a pointer too).
@@ -108,19 +108,28 @@ pub fn stages<C: Clock>(
     let (w, n) = (cfg.width as usize, cfg.n as usize);
     let scale = Scale::new(cfg);
     let gate = scale.gate(coef.frac);
-    let groups = (pool.len() / (w * n)).min(16);
+    // Groups of `n` pool lines, in the pool's own format (Mono12p when packed).
+    let u = layout.pool_line_units;
+    let groups = (pool.len() / (u * n)).min(16);
     for g in 0..groups {
-        let base = &pool[g * w * n..(g + 1) * w * n];
+        let base = &pool[g * u * n..(g + 1) * u * n];
         let mut lines: [&[u16]; MAX_N] = [&[]; MAX_N];
-        for (j, l) in lines.iter_mut().enumerate().take(n) {
-            *l = &base[j * w..(j + 1) * w];
+        let mut packed: [&[u8]; MAX_N] = [&[]; MAX_N];
+        for j in 0..n {
+            lines[j] = &base[j * u..j * u + w.min(u)];
+            let b: &[u8] = bytemuck_bytes(&base[j * u..(j + 1) * u]);
+            packed[j] = &b[..dpsa_core::frames::mono12p::stored_len(w).min(b.len())];
         }
         let rho = cfg.row_phase(g as i64);
         let mut c0 = 0;
         while c0 < w {
             let len = BLOCK.min(w - c0);
             let t0 = clock.ticks();
-            accumulate::row(&coef, &lines[..n], c0, cfg.saturation, &mut v[..len]);
+            if layout.packed {
+                accumulate::block_packed(&coef, &packed[..n], c0, cfg.saturation, &mut v[..len]);
+            } else {
+                accumulate::block(&coef, &lines[..n], c0, cfg.saturation, &mut v[..len]);
+            }
             let t1 = clock.ticks();
             let (r, h) = (&ref_phase[c0..c0 + len], &mut heights[c0..c0 + len]);
             let m = &mut valid[c0 / 8..w.div_ceil(8)];
@@ -140,6 +149,13 @@ pub fn stages<C: Clock>(
         s.pixels += w as u64;
     }
     s
+}
+
+/// The bytes of a run of u16 units (little-endian target: the pool's byte order).
+fn bytemuck_bytes(units: &[u16]) -> &[u8] {
+    // SAFETY: u16 has no padding and alignment 2 >= 1; the byte slice covers exactly the
+    // memory of `units` and borrows it immutably for its lifetime.
+    unsafe { core::slice::from_raw_parts(units.as_ptr().cast::<u8>(), units.len() * 2) }
 }
 
 /// Instructions in the calibration loop and the ticks they took.
@@ -202,17 +218,21 @@ pub type Text = heapless::String<1024>;
 
 /// The `key value` lines of a benchmark run.
 pub fn report<C: Clock>(
-    cfg: &Config,
-    table: bool,
+    header: &dpsa_core::frames::feed::Header,
     m: &Meter,
     sink: &SinkTicks,
     st: &Stages,
     clock: &C,
 ) -> Text {
+    let (cfg, table) = (&header.cfg, header.column_scale.is_some());
     let (calib_instr, calib_ticks) = calibrate(clock);
     let w = cfg.width as u64;
     let mut t = Text::new();
-    let lines: [(&str, u64); 19] = [
+    // The DSP instructions the accumulate kernel runs as `asm!`, against their portable twins
+    // (every lane class pair, then random words): must be 0 (the host refuses the report).
+    let dsp_random = 20_000;
+    let dsp_mismatches = dpsa_core::dsp::check_against_twins(dsp_random, 0x9E37_79B9);
+    let lines: [(&str, u64); 22] = [
         ("calib_loop_instructions", calib_instr),
         ("calib_ticks", calib_ticks),
         ("rows_out", sink.rows),
@@ -232,12 +252,15 @@ pub fn report<C: Clock>(
         ),
         (
             "state_total_bytes",
-            crate::state::State::bytes_for(cfg, table) as u64,
+            crate::state::State::bytes_for(header) as u64,
         ),
         ("column_scale", table as u64),
         ("width", w),
         ("n", cfg.n as u64),
         ("rows", cfg.rows as u64),
+        ("dsp_checks", dpsa_core::dsp::checks(dsp_random) as u64),
+        ("dsp_mismatches", dsp_mismatches as u64),
+        ("mono12p", header.mono12p as u64),
     ];
     for (k, v) in lines {
         let _ = writeln!(t, "{k} {v}");

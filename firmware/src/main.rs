@@ -65,7 +65,7 @@ fn run() -> Result<(), Failed> {
     let cfg = header.cfg;
     let table = header.column_scale.is_some();
     let (layout, pool_at) = st
-        .size_for(&cfg, table)
+        .size_for(&header)
         .map_err(|e| fail("state too small for this geometry", e))?;
     let state::State {
         lines,
@@ -76,6 +76,7 @@ fn run() -> Result<(), Failed> {
         ref_phase,
         column_scale,
         line,
+        scratch,
         codec_heights,
         codec_valid,
         packet,
@@ -88,9 +89,11 @@ fn run() -> Result<(), Failed> {
         }
     };
     defmt::info!(
-        "line pool: {} ({=usize} samples)",
+        "line pool: {} ({=usize} lines of {=usize} B, Mono12p {=bool})",
         pool_at,
-        layout.pool_lines * w
+        layout.pool_lines,
+        layout.pool_line_units * 2,
+        layout.packed
     );
     defmt::info!(
         "W {=usize} H {=u16} n {=u8} max step {=u16} rows: {=u32} frames, state {=usize} B (pipeline {=usize} B), per-column height scale {=bool}",
@@ -99,7 +102,7 @@ fn run() -> Result<(), Failed> {
         cfg.n,
         cfg.max_step_rows,
         header.frames,
-        state::State::bytes_for(&cfg, table),
+        state::State::bytes_for(&header),
         layout.bytes(),
         table
     );
@@ -122,7 +125,8 @@ fn run() -> Result<(), Failed> {
     let mut sink = TimedSink::new(link, enc, &mut packet[..], bench_on.then_some(&clock));
     sink.set_run_id(header.run_id);
     let mem = Memory {
-        lines: &mut lines[..layout.pool_lines * w],
+        lines: &mut lines[..layout.pool_units()],
+        scratch: &mut scratch[..],
         free: &mut free[..layout.pool_lines],
         slots: &mut slots[..layout.slots],
         heights: &mut heights[..w],
@@ -135,7 +139,7 @@ fn run() -> Result<(), Failed> {
     let mut pipe = Pipeline::with_column_scale(cfg, &ref_phase[..w], columns, mem)
         .map_err(|e| fail("pipeline", e))?;
     let mut meter = bench::Meter::new();
-    let line = &mut line[..w];
+    let line_len = header.line_len();
 
     let mut frames = 0u32;
     loop {
@@ -152,10 +156,16 @@ fn run() -> Result<(), Failed> {
         }
         for r in 0..cfg.rows {
             let t = clock.ticks();
-            source.read_line(line).map_err(|e| fail("camera", e))?;
+            source
+                .read_line(&mut qemu::as_bytes_mut(line)[..line_len])
+                .map_err(|e| fail("camera", e))?;
             let t1 = clock.ticks();
-            pipe.push_line(r, line, &mut sink)
-                .map_err(|e| fail("push_line", e))?;
+            if header.mono12p {
+                pipe.push_packed_line(r, &qemu::as_bytes_mut(line)[..line_len], &mut sink)
+            } else {
+                pipe.push_line(r, &line[..w], &mut sink)
+            }
+            .map_err(|e| fail("push_line", e))?;
             let t2 = clock.ticks();
             meter.io += t1 - t;
             meter.pipe += t2 - t1;
@@ -179,9 +189,9 @@ fn run() -> Result<(), Failed> {
 
     if let Some(path) = &args.bench {
         let stages = bench::stages(
-            &cfg, &meter, ref_phase, columns, lines, heights, valid, &clock,
+            &cfg, &layout, &meter, ref_phase, columns, lines, heights, valid, &clock,
         );
-        write_bench(path, &cfg, table, &meter, &ticks, &stages, &clock)?;
+        write_bench(path, &header, &meter, &ticks, &stages, &clock)?;
     }
     Ok(())
 }
@@ -190,14 +200,13 @@ fn run() -> Result<(), Failed> {
 #[inline(never)]
 fn write_bench(
     path: &qemu::Path,
-    cfg: &dpsa_core::Config,
-    table: bool,
+    header: &dpsa_core::frames::feed::Header,
     meter: &bench::Meter,
     ticks: &sink::SinkTicks,
     stages: &bench::Stages,
     clock: &SysTickClock,
 ) -> Result<(), Failed> {
-    let report = bench::report(cfg, table, meter, ticks, stages, clock);
+    let report = bench::report(header, meter, ticks, stages, clock);
     qemu::write_text(path, report.as_bytes()).map_err(|e| fail("bench file", e))
 }
 

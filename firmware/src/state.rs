@@ -3,14 +3,18 @@
 //! `.state` section (`memory.x`: DTCM on a real board).
 
 use crate::board::qemu::cap;
+use dpsa_core::frames::feed::Header;
+use dpsa_core::frames::mono12p;
 use dpsa_core::frames::registration::Slot;
 use dpsa_core::packets;
 use dpsa_core::pipeline::Layout;
-use dpsa_core::Config;
 use heapless::Vec;
 
 /// Packet buffer for the widest line: header, worst-case payload, CRC.
 pub const PACKET_CAP: usize = packets::max_packet_len(cap::WIDTH);
+
+/// The pipeline's packing buffer for a 16-bit feed on a packed pool (`Layout::scratch_bytes`).
+pub const SCRATCH_CAP: usize = mono12p::stored_len(cap::WIDTH);
 
 /// Every buffer the firmware sizes by the configuration.
 pub struct State {
@@ -28,8 +32,12 @@ pub struct State {
     /// Per-column height-scale mantissas (calibration, `dpsa_core::height::ColumnScale`):
     /// `W` entries when the feed has the table, else empty.
     pub column_scale: Vec<u16, { cap::WIDTH }>,
-    /// The line being received.
+    /// The line being received, as the feed sends it: `W` u16 samples, or Mono12p bytes
+    /// (`ceil(3 ceil(W/2) / 2)` u16 units).
     pub line: Vec<u16, { cap::WIDTH }>,
+    /// The pipeline's packing buffer: only for a 16-bit feed whose configuration packs the
+    /// pool (`saturation <= 4095`); empty otherwise.
+    pub scratch: Vec<u8, SCRATCH_CAP>,
     /// Codec reference row (the previous row, for predicted rows).
     pub codec_heights: Vec<i16, { cap::WIDTH }>,
     pub codec_valid: Vec<u8, { cap::WIDTH / 8 }>,
@@ -61,10 +69,11 @@ impl State {
     /// Sizes every buffer for `cfg` (zeroed; `ref_phase` keeps its first `W` entries, and
     /// `column_scale` too with a height-scale `table`, else none), or says what is missing. The line pool is [`State::lines`] when it is large enough, else the
     /// external-RAM pool ([`PoolAt::External`], see [`ext_pool`]).
-    pub fn size_for(&mut self, cfg: &Config, table: bool) -> Result<(Layout, PoolAt), TooSmall> {
+    pub fn size_for(&mut self, header: &Header) -> Result<(Layout, PoolAt), TooSmall> {
+        let (cfg, table) = (&header.cfg, header.column_scale.is_some());
         let l = Layout::of(cfg).with_column_scale(table);
         let (w, nb) = (l.width, l.width.div_ceil(8));
-        let needed = l.pool_lines * w;
+        let needed = l.pool_units();
         let too_small = TooSmall {
             needed_samples: needed,
             have_samples: cap::EXT_POOL_SAMPLES,
@@ -84,7 +93,8 @@ impl State {
             zeroed(&mut self.slots, l.slots)?;
             zeroed(&mut self.heights, w)?;
             zeroed(&mut self.valid, nb)?;
-            zeroed(&mut self.line, w)?;
+            zeroed(&mut self.line, line_units(header))?;
+            zeroed(&mut self.scratch, scratch_bytes(header))?;
             zeroed(&mut self.codec_heights, w)?;
             zeroed(&mut self.codec_valid, nb)?;
             zeroed(&mut self.packet, packets::max_packet_len(w))
@@ -93,13 +103,32 @@ impl State {
         Ok((l, at))
     }
 
-    /// Bytes of every buffer the firmware uses for `cfg` with or without a height-scale
-    /// `table` (the pipeline's [`Layout::bytes`], the line being received, the codec reference
-    /// row and one packet).
-    pub fn bytes_for(cfg: &Config, table: bool) -> usize {
-        let l = Layout::of(cfg).with_column_scale(table);
+    /// Bytes of every buffer the firmware uses for a feed (the pipeline's [`Layout::bytes`]
+    /// with or without the height-scale table, the line being received, the packing buffer
+    /// if the feed needs one, the codec reference row and one packet).
+    pub fn bytes_for(header: &Header) -> usize {
+        let l = Layout::of(&header.cfg).with_column_scale(header.column_scale.is_some());
         let w = l.width;
-        l.bytes() + w * 2 + w * 2 + w.div_ceil(8) + packets::max_packet_len(w)
+        l.bytes()
+            + line_units(header) * 2
+            + scratch_bytes(header)
+            + w * 2
+            + w.div_ceil(8)
+            + packets::max_packet_len(w)
+    }
+}
+
+/// u16 units of the line being received: the feed's line length, rounded up.
+pub fn line_units(header: &Header) -> usize {
+    header.line_len().div_ceil(2)
+}
+
+/// Bytes of the pipeline's packing buffer: only a 16-bit feed on a packed pool needs one.
+pub fn scratch_bytes(header: &Header) -> usize {
+    if header.mono12p {
+        0
+    } else {
+        Layout::of(&header.cfg).scratch_bytes()
     }
 }
 

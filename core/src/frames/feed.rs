@@ -13,7 +13,8 @@
 //!                16 counts_per_pixel U16F16  20 fx u32  24 lsb_per_turn U16F16
 //!                28 min_modulation U20F12  32 max_noise_gain U8F8  34 max_step_rows u16
 //!                36 frames u32  40 intra period u32  44 run id u64
-//!                52 table flags u8 (bit 0: a height-scale table follows; others zero)
+//!                52 flags u8 (bit 0: a height-scale table follows; bit 1: lines are
+//!                   Mono12p; others zero)
 //!                53 height-scale exponent u8 (0..=15; zero without the table)  54..60 zero
 //!                60 CRC-32 (ISO-HDLC) of bytes 0..60
 //! ref phase      W x u32 binary angles, then CRC-32 of those 4W bytes
@@ -21,8 +22,13 @@
 //!                bits = mantissa << exponent; see `height::ColumnScale`), then CRC-32 of
 //!                those 2W bytes
 //! frame k        16 B trigger record: 0 seq u32, 4 zero u32, 8 latch i64
-//!                then H x W x u16 samples, row-major
+//!                then H lines, row-major: W x u16 samples each, or with flag bit 1
+//!                Mono12p, 3 ceil(W/2) bytes each (`frames::mono12p`)
 //! ```
+//!
+//! Mono12p lines (flag bit 1) are what a 12-bit camera sends; a feed may use them only when
+//! `saturation <= 4095` (every sample that decides a pixel fits 12 bits): the pipeline then
+//! keeps them as they arrive ([`crate::Pipeline::push_packed_line`]).
 //!
 //! Feeds written before the height-scale table existed hold zeros in bytes 52..60 (then
 //! reserved): they read as feeds without the table, whose heights use the uniform
@@ -63,10 +69,14 @@ pub struct Header {
     /// table ([`crate::height::ColumnScale`]); `None`: every column uses
     /// `cfg.lsb_per_turn`.
     pub column_scale: Option<u8>,
+    /// Lines are Mono12p ([`super::mono12p`]), not u16 (only with `saturation <= 4095`).
+    pub mono12p: bool,
 }
 
 /// Header byte 52: flag bit of the height-scale table.
 const FLAG_SCALE_TABLE: u8 = 1;
+/// Header byte 52: flag bit of Mono12p lines.
+const FLAG_MONO12P: u8 = 2;
 
 /// A malformed header or table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -87,6 +97,8 @@ pub enum FeedError {
     ColumnScale(ColumnScaleError),
     /// A buffer of the wrong size.
     Length,
+    /// Mono12p lines with a saturation level above 4095.
+    Mono12p,
 }
 
 fn u16_at(b: &[u8], i: usize) -> u16 {
@@ -123,6 +135,9 @@ impl Header {
             b[52] = FLAG_SCALE_TABLE;
             b[53] = shift;
         }
+        if self.mono12p {
+            b[52] |= FLAG_MONO12P;
+        }
         let crc = CRC.checksum(&b[..60]);
         b[60..64].copy_from_slice(&crc.to_le_bytes());
         b
@@ -146,7 +161,7 @@ impl Header {
         if CRC.checksum(&b[..60]) != u32_at(b, 60) {
             return Err(FeedError::HeaderCrc);
         }
-        let column_scale = match b[52] {
+        let column_scale = match b[52] & !FLAG_MONO12P {
             0 if b[53] == 0 => None,
             FLAG_SCALE_TABLE if b[53] <= MAX_COLUMN_SHIFT => Some(b[53]),
             FLAG_SCALE_TABLE => {
@@ -154,6 +169,7 @@ impl Header {
             }
             _ => return Err(FeedError::Reserved),
         };
+        let mono12p = b[52] & FLAG_MONO12P != 0;
         if b[54..60].iter().any(|&x| x != 0) {
             return Err(FeedError::Reserved);
         }
@@ -171,6 +187,9 @@ impl Header {
             max_step_rows: u16_at(b, 34),
         };
         cfg.validate().map_err(FeedError::Config)?;
+        if mono12p && cfg.saturation > super::mono12p::MAX {
+            return Err(FeedError::Mono12p);
+        }
         let intra_period = u32_at(b, 40);
         if intra_period == 0 {
             return Err(FeedError::IntraPeriod);
@@ -181,6 +200,7 @@ impl Header {
             intra_period,
             run_id: u64::from_le_bytes([b[44], b[45], b[46], b[47], b[48], b[49], b[50], b[51]]),
             column_scale,
+            mono12p,
         })
     }
 
@@ -202,9 +222,19 @@ impl Header {
         HEADER_LEN + self.table_len() + self.scale_table_len()
     }
 
-    /// Bytes of one frame: trigger record and samples.
+    /// Bytes of one line: `2 W`, or `3 ceil(W/2)` for Mono12p.
+    pub fn line_len(&self) -> usize {
+        let w = self.cfg.width as usize;
+        if self.mono12p {
+            super::mono12p::packed_len(w)
+        } else {
+            2 * w
+        }
+    }
+
+    /// Bytes of one frame: trigger record and lines.
     pub fn frame_len(&self) -> usize {
-        TRIGGER_LEN + self.cfg.rows as usize * self.cfg.width as usize * 2
+        TRIGGER_LEN + self.cfg.rows as usize * self.line_len()
     }
 }
 
@@ -333,6 +363,7 @@ mod tests {
             intra_period: 1,
             run_id: 0x0123_4567_89ab_cdef,
             column_scale: None,
+            mono12p: false,
         }
     }
 
@@ -380,8 +411,20 @@ mod tests {
         e[53] = 3;
         assert_eq!(Header::decode(&reseal(e)), Err(FeedError::Reserved));
         let mut e = b;
-        e[52] = 2;
+        e[52] = 4;
         assert_eq!(Header::decode(&reseal(e)), Err(FeedError::Reserved));
+        // Mono12p lines: flag bit 1, three bytes per pair; only up to a saturation of 4095.
+        let mut e = b;
+        e[52] = 2;
+        let m = Header::decode(&reseal(e)).unwrap();
+        assert!(m.mono12p && h.cfg.saturation <= 4095);
+        assert_eq!((m.line_len(), h.line_len()), (3 * 1024, 2 * 2048));
+        assert_eq!(m.frame_len(), TRIGGER_LEN + 40 * 3 * 1024);
+        assert_eq!(Header::decode(&m.encode()), Ok(m));
+        let mut c = h;
+        c.cfg.saturation = 4096;
+        c.mono12p = true;
+        assert_eq!(Header::decode(&c.encode()), Err(FeedError::Mono12p));
         let mut e = b;
         e[52] = 1;
         e[53] = 16;

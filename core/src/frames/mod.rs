@@ -16,6 +16,7 @@ use crate::solve::{MAX_N, MIN_N};
 use fixed::types::{U16F16, U20F12, U8F8};
 
 pub mod feed;
+pub mod mono12p;
 pub mod registration;
 
 /// Largest row offset magnitude ([`Config::offset`] clamps to it): 2^62 rows.

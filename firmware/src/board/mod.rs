@@ -32,8 +32,9 @@ pub trait LinePort {
     type Error: defmt::Format;
     /// Frame counter of the frame whose trigger was seen last.
     fn frame_seq(&mut self) -> Result<u32, Self::Error>;
-    /// The next line of that frame (`W` samples), in order `0..H`.
-    fn read_line(&mut self, line: &mut [u16]) -> Result<(), Self::Error>;
+    /// The next line of that frame, in order `0..H`, as the camera sends it (`line` holds
+    /// exactly one line: `2 W` bytes of u16 samples, or Mono12p).
+    fn read_line(&mut self, line: &mut [u8]) -> Result<(), Self::Error>;
     /// No further frame will come (the board has left the field of view, the feed ended).
     fn ended(&mut self) -> Result<bool, Self::Error>;
 }
@@ -44,8 +45,8 @@ pub trait LineSource {
     /// Waits for the next frame's trigger (frame counter, latched encoder count); `Ok(None)`
     /// when acquisition has ended.
     fn next_frame(&mut self) -> Result<Option<Trigger>, Self::Error>;
-    /// The next line of the current frame (`W` samples), in order `0..H`.
-    fn read_line(&mut self, line: &mut [u16]) -> Result<(), Self::Error>;
+    /// The next line of the current frame, in order `0..H`, in the camera's format.
+    fn read_line(&mut self, line: &mut [u8]) -> Result<(), Self::Error>;
 }
 
 /// A free-running tick counter for instruction counts (the benchmark only).
@@ -91,7 +92,7 @@ where
         }
     }
 
-    fn read_line(&mut self, line: &mut [u16]) -> Result<(), Self::Error> {
+    fn read_line(&mut self, line: &mut [u8]) -> Result<(), Self::Error> {
         self.port.read_line(line).map_err(SourceError::Port)
     }
 }

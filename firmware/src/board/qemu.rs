@@ -351,16 +351,16 @@ impl LinePort for Lines<'_> {
         Ok(t.seq)
     }
 
-    fn read_line(&mut self, line: &mut [u16]) -> Result<(), Error> {
+    fn read_line(&mut self, line: &mut [u8]) -> Result<(), Error> {
         let mut r = self.0.borrow_mut();
         let (frame, l) = (r.started, r.line);
         let c = r.header.cfg;
-        if frame == 0 || l >= c.rows as u32 || line.len() != c.width as usize {
+        if frame == 0 || l >= c.rows as u32 || line.len() != r.header.line_len() {
             return Err(Error::LineOrder { frame, line: l });
         }
-        // Samples are little-endian u16, which is this core's byte order: read in place.
-        let bytes = as_bytes_mut(line);
-        r.read(bytes, frame - 1, l)?;
+        // u16 samples are little-endian, this core's byte order; Mono12p is bytes: read in
+        // place either way.
+        r.read(line, frame - 1, l)?;
         r.line += 1;
         Ok(())
     }

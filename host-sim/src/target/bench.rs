@@ -6,7 +6,7 @@ use serde::Serialize;
 use std::collections::BTreeMap;
 
 /// Every key the firmware's bench file must hold (integers; ticks are SysTick ticks).
-pub const BENCH_KEYS: [&str; 17] = [
+pub const BENCH_KEYS: [&str; 19] = [
     "calib_loop_instructions",
     "calib_ticks",
     "rows_out",
@@ -24,6 +24,8 @@ pub const BENCH_KEYS: [&str; 17] = [
     "state_total_bytes",
     "width",
     "n",
+    "dsp_checks",
+    "dsp_mismatches",
 ];
 
 /// Parses a bench file: one `key value` pair (an integer) per line; blank lines are ignored.
@@ -166,6 +168,9 @@ pub struct BenchReport {
     /// Pixels the per-stage loops (accumulate, phase + height) were timed over.
     pub stage_pixels: i64,
     pub solves: i64,
+    /// Inputs on which the firmware checked its `asm!` SMLAD and UQSUB16 against their
+    /// portable twins (`core/src/dsp.rs`); a report is only made when none differed.
+    pub dsp_checks: i64,
     /// Instructions spent in semihosting file I/O (context: QEMU's host I/O, not the board's).
     pub io_instructions: f64,
     pub elf_sections: Sections,
@@ -195,6 +200,13 @@ pub fn bench_report(raw: &BTreeMap<String, i64>, elf: &ElfSizes) -> Result<Bench
     let unsigned = |k: &str| -> Result<u64> {
         u64::try_from(get(k)).map_err(|_| anyhow!("bench {k} = {} is negative", get(k)))
     };
+    ensure!(
+        get("dsp_mismatches") == 0,
+        "the firmware's SMLAD/UQSUB16 differ from their portable twins on {} of {} inputs \
+         (core/src/dsp.rs): its results cannot be trusted to match the host",
+        get("dsp_mismatches"),
+        get("dsp_checks")
+    );
     let ipt = positive("calib_loop_instructions")? / positive("calib_ticks")?;
     let ticks = |k: &str| -> Result<f64> { Ok(unsigned(k)? as f64 * ipt) };
     let pixels = positive("pixels_out")?;
@@ -229,6 +241,7 @@ pub fn bench_report(raw: &BTreeMap<String, i64>, elf: &ElfSizes) -> Result<Bench
         pixels_out: get("pixels_out"),
         stage_pixels: get("stage_pixels"),
         solves: get("solves"),
+        dsp_checks: get("dsp_checks"),
         io_instructions: ticks("ticks_io")?,
         elf_sections: elf.sections.clone(),
         raw: raw.clone(),

@@ -43,6 +43,9 @@ pub fn write_feed_to<W: Write>(
         intra_period,
         run_id: rec.run_id(),
         column_scale: core.column_scale.as_ref().map(|(shift, _)| *shift),
+        // A 12-bit configuration's lines go as a 12-bit camera sends them (Mono12p); samples
+        // above 4095 (none in a 12-bit recording) would be sent as 4095, still saturated.
+        mono12p: cfg.saturation <= dpsa_core::frames::mono12p::MAX,
     };
     // Check that the header reads back as written (the firmware applies the same checks).
     let head = header.encode();
@@ -71,8 +74,17 @@ pub fn write_feed_to<W: Write>(
         let frame = rec.frame(k)?;
         bytes.clear();
         bytes.extend_from_slice(&entry.trigger().encode());
-        for s in &frame.data {
-            bytes.extend_from_slice(&s.to_le_bytes());
+        if header.mono12p {
+            let (w, lb) = (cfg.width as usize, header.line_len());
+            for line in frame.data.chunks_exact(w) {
+                let at = bytes.len();
+                bytes.resize(at + lb, 0);
+                dpsa_core::frames::mono12p::pack(line, &mut bytes[at..]);
+            }
+        } else {
+            for s in &frame.data {
+                bytes.extend_from_slice(&s.to_le_bytes());
+            }
         }
         debug_assert_eq!(bytes.len(), header.frame_len());
         out.write_all(&bytes)?;
