@@ -34,8 +34,8 @@ pub mod cap {
     pub const POOL_SAMPLES: usize = 60 * 2048;
     /// Samples in the external-RAM line pool (`memory.x`: EXTRAM, 16 MiB), used when a
     /// geometry needs more than [`POOL_SAMPLES`]: the full-frame feed (H = 2048 rows, four
-    /// frames about 520 rows apart, max step 650 rows, W = 2048) needs 3900 lines of 2048 px,
-    /// 15.2 MiB.
+    /// frames about 520 rows apart, max step 650 rows, W = 2048) needs 3900 lines of 2048 px:
+    /// 11.4 MiB as Mono12p (15.2 MiB as u16).
     pub const EXT_POOL_SAMPLES: usize = 8 * 1024 * 1024;
     /// Lines in the pool (free-list entries).
     pub const POOL_LINES: usize = 8192;
