@@ -96,6 +96,7 @@
 extern crate alloc;
 
 pub mod accumulate;
+pub mod crc32;
 #[cfg(feature = "defmt")]
 mod defmt;
 mod error;
