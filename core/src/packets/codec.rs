@@ -260,18 +260,37 @@ fn bit(mask: &[u8], c: usize) -> bool {
     mask[c / 8] >> (c % 8) & 1 != 0
 }
 
-/// First index in `from .. w` whose bit (`byte_at(c / 8)`, bit `c % 8`) differs from `value`,
-/// or `w`. Bits past `w` are ignored.
+/// Bits `32 i .. 32 i + 32` of a mask (bit `c % 8` of byte `c / 8`), 0 past its end.
 #[inline(always)]
-fn run_end(byte_at: impl Fn(usize) -> u8, from: usize, w: usize, value: bool) -> usize {
-    let flip = if value { 0xFF } else { 0 };
+fn word(mask: &[u8], i: usize) -> u32 {
+    let s = 4 * i;
+    match mask.get(s..s + 4) {
+        Some(b) => u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+        None => word_tail(mask, s),
+    }
+}
+
+/// [`word`] at the end of the mask (fewer than 4 bytes from `s`): once per row, out of line.
+#[inline(never)]
+fn word_tail(mask: &[u8], s: usize) -> u32 {
+    mask.iter()
+        .skip(s)
+        .enumerate()
+        .fold(0, |v, (j, &b)| v | u32::from(b) << (8 * j))
+}
+
+/// First index in `from .. w` whose bit (`word_at(c / 32)`, bit `c % 32`) differs from
+/// `value`, or `w`. Bits past `w` are ignored.
+#[inline(always)]
+fn run_end(word_at: impl Fn(usize) -> u32, from: usize, w: usize, value: bool) -> usize {
+    let flip = if value { !0 } else { 0 };
     let mut c = from;
     while c < w {
-        let other = u32::from(byte_at(c / 8) ^ flip) >> (c % 8);
+        let other = (word_at(c / 32) ^ flip) >> (c % 32);
         if other != 0 {
             return (c + other.trailing_zeros() as usize).min(w);
         }
-        c = (c / 8 + 1) * 8;
+        c = (c / 32 + 1) * 32;
     }
     w
 }
@@ -348,13 +367,21 @@ impl Model {
     /// `A < 2^(16 + SHIFT)`, `k <= 15`.
     #[inline(always)]
     fn k(&self, q: usize) -> u32 {
-        32 - (self.a[q] >> (SHIFT + 1)).leading_zeros()
+        k_of(self.a[q])
     }
 
     #[inline(always)]
     fn update(&mut self, q: usize, z: u32) {
         self.a[q] = self.a[q] - (self.a[q] >> SHIFT) + z;
     }
+}
+
+/// `k = bitlen(A >> (SHIFT + 1))`, computed as `floor(log2((A >> SHIFT) | 1))` (the same
+/// number: `(A >> SHIFT) | 1` has the top bit of `2 (A >> (SHIFT + 1))`, or is 1), which the
+/// compiler knows to be below 32 (no shift masking where `k` is a shift amount).
+#[inline(always)]
+fn k_of(a: u32) -> u32 {
+    31 - ((a | 1 << SHIFT) >> SHIFT).leading_zeros()
 }
 
 /// MSB-first bit writer with a 32-bit accumulator; stores whole words, counts past the end
@@ -381,20 +408,27 @@ impl<'o> BitWriter<'o> {
     /// Appends the low `len` bits of `v` (`1 <= len <= 32`, `v < 2^len`).
     #[inline(always)]
     fn put(&mut self, v: u32, len: u32) {
-        if len < self.free {
-            self.free -= len;
+        // len < free: the bits fit with one to spare (one signed subtraction and its flags).
+        let left = self.free as i32 - len as i32;
+        if left > 0 {
+            self.free = left as u32;
             self.acc |= v << self.free;
         } else {
-            let spill = len - self.free;
-            let word = self.acc | (v >> spill);
-            if let Some(dst) = self.out.get_mut(self.pos..self.pos + 4) {
-                dst.copy_from_slice(&word.to_be_bytes());
-            }
-            self.pos += 4;
+            let spill = left.unsigned_abs();
+            self.store(self.acc | (v >> spill));
             self.free = 32 - spill;
             // v << (32 - spill), 0 for spill = 0.
             self.acc = (v << 1) << (31 - spill);
         }
+    }
+
+    /// Stores a full word (if it fits).
+    #[inline(always)]
+    fn store(&mut self, word: u32) {
+        if let Some(dst) = self.out.get_mut(self.pos..self.pos + 4) {
+            dst.copy_from_slice(&word.to_be_bytes());
+        }
+        self.pos += 4;
     }
 
     fn bits(&self) -> usize {
@@ -405,7 +439,8 @@ impl<'o> BitWriter<'o> {
     fn put_rice(&mut self, z: u32, k: u32) {
         let q = z >> k;
         if q < QMAX {
-            self.put((1 << k) | (z & ((1 << k) - 1)), q + 1 + k);
+            // A 1 bit then the low k bits of z: z - (q << k) + (1 << k).
+            self.put(z.wrapping_sub(q.wrapping_sub(1) << k), q + 1 + k);
         } else {
             // 16 zero bits, then z in 16 bits.
             self.put(z, 32);
@@ -641,6 +676,88 @@ fn code(bw: &mut BitWriter<'_>, model: &mut Model, q: usize, pred: i32, x: i16) 
     model.update(q, z);
 }
 
+/// Codes a run of valid pixels `xs` of an intra row; `a`, `aa`: the filled heights `R[c-1]`,
+/// `R[c-2]` left of the run. [`predict_i`] and [`code`], with the bit writer and the contexts'
+/// accumulators in locals (registers) and one copy of the coder per context.
+#[inline(never)]
+fn code_intra_run(bw: &mut BitWriter<'_>, model: &mut Model, xs: &[i16], mut a: i32, mut aa: i32) {
+    let mut w = BitWriter {
+        out: &mut *bw.out,
+        ..*bw
+    };
+    let [mut a0, mut a1, mut a2] = model.a;
+    for &x in xs {
+        let x = i32::from(x);
+        let d = a - aa;
+        // |d| < T_FLAT_I: the average (a + aa + 1) >> 1 = a - (d >> 1).
+        if (d + (T_FLAT_I - 1)) as u32 <= 2 * (T_FLAT_I - 1) as u32 {
+            let e = x - (a - (d >> 1));
+            if (d + (T_CTX_I - 1)) as u32 <= 2 * (T_CTX_I - 1) as u32 {
+                code_acc(&mut w, &mut a0, e);
+            } else {
+                code_acc(&mut w, &mut a1, e);
+            }
+        } else {
+            code_acc(&mut w, &mut a2, x - a);
+        }
+        (a, aa) = (x, a);
+    }
+    model.a = [a0, a1, a2];
+    (bw.pos, bw.acc, bw.free) = (w.pos, w.acc, w.free);
+}
+
+/// [`code`] with the context's accumulator `ctx`: the residual `e` is taken mod 2^16.
+#[inline(always)]
+fn code_acc(bw: &mut BitWriter<'_>, ctx: &mut u32, e: i32) {
+    let e = i32::from(e as i16);
+    // zigzag of the i16 residual, in 0 ..= 65535.
+    let z = ((e << 1) ^ (e >> 31)) as u32;
+    bw.put_rice(z, k_of(*ctx));
+    *ctx = *ctx - (*ctx >> SHIFT) + z;
+}
+
+/// Codes a run of valid pixels `xs` (pixels `c .. c + xs.len()`) of a predicted row with
+/// [`predict_p`] and [`code`]; `refh`: the reference heights `U` of the whole row, overwritten
+/// by the run's `R` one pixel behind where they are read.
+#[inline(never)]
+fn code_predicted_run(
+    bw: &mut BitWriter<'_>,
+    model: &mut Model,
+    xs: &[i16],
+    refh: &mut [i16],
+    c: usize,
+) {
+    let mut w = BitWriter {
+        out: &mut *bw.out,
+        ..*bw
+    };
+    let mut m = Model { a: model.a };
+    let e = c + xs.len();
+    // a = R[c-1] = U[c-1] (pixel c-1 is invalid, or c = 0: U[0]), u = U[c-1].
+    let mut a = i32::from(refh[c.saturating_sub(1)]);
+    let mut u = a;
+    // d of the run's last pixel: U[e] (invalid, not overwritten) or U[W-1].
+    let tail = i32::from(refh[e.min(refh.len() - 1)]);
+    let mut run = refh[c..e].iter_mut();
+    let (Some(mut r), Some((&x_last, xs))) = (run.next(), xs.split_last()) else {
+        return;
+    };
+    let mut b = i32::from(*r);
+    for (&x, dn) in xs.iter().zip(run) {
+        let d = i32::from(*dn);
+        let (p, q) = predict_p(a, b, u, d);
+        code(&mut w, &mut m, q, p, x);
+        *r = x;
+        r = dn;
+        (a, u, b) = (i32::from(x), b, d);
+    }
+    let (p, q) = predict_p(a, b, u, tail);
+    code(&mut w, &mut m, q, p, x_last);
+    *r = x_last;
+    model.a = m.a;
+    (bw.pos, bw.acc, bw.free) = (w.pos, w.acc, w.free);
+}
+
 /// Codes the body; `Some((plain_mask, bytes))`, or `None` if it would exceed the raw body
 /// (the reference heights are then half updated: the caller rewrites them).
 fn encode_body(
@@ -654,9 +771,9 @@ fn encode_body(
     let ref_valid: &[u8] = r.valid;
     let m = |i: usize| {
         if predicted {
-            valid[i] ^ ref_valid[i]
+            word(valid, i) ^ word(ref_valid, i)
         } else {
-            !valid[i]
+            !word(valid, i)
         }
     };
 
@@ -685,38 +802,14 @@ fn encode_body(
     let mut c = 0;
     while c < w {
         let v = bit(valid, c);
-        let e = run_end(|i| valid[i], c, w, v);
+        let e = run_end(|i| word(valid, i), c, w, v);
         match (v, predicted) {
-            (true, true) => {
-                // The reference row is read one pixel ahead of where it is overwritten.
-                let cells = Cell::from_mut(&mut *refh).as_slice_of_cells();
-                // a = R[c-1] = U[c-1] (pixel c-1 is invalid, or c = 0: U[0]), u = U[c-1].
-                let mut a = i32::from(cells[c.saturating_sub(1)].get());
-                let mut u = a;
-                let mut b = i32::from(cells[c].get());
-                // d of the run's last pixel: U[e] (invalid, not overwritten) or U[W-1].
-                let tail = i32::from(cells[e.min(w - 1)].get());
-                let (xs, x_last) = heights[c..e].split_at(e - c - 1);
-                for ((&x, r), dn) in xs.iter().zip(&cells[c..e - 1]).zip(&cells[c + 1..e]) {
-                    let d = i32::from(dn.get());
-                    let (p, q) = predict_p(a, b, u, d);
-                    code(&mut bw, &mut model, q, p, x);
-                    r.set(x);
-                    (a, u, b) = (i32::from(x), b, d);
-                }
-                let (p, q) = predict_p(a, b, u, tail);
-                code(&mut bw, &mut model, q, p, x_last[0]);
-                cells[e - 1].set(x_last[0]);
-            }
+            (true, true) => code_predicted_run(&mut bw, &mut model, &heights[c..e], refh, c),
             (true, false) => {
-                let mut a = if c >= 1 { i32::from(refh[c - 1]) } else { 0 };
-                let mut aa = if c >= 2 { i32::from(refh[c - 2]) } else { 0 };
-                for (&x, r) in heights[c..e].iter().zip(&mut refh[c..e]) {
-                    let (p, q) = predict_i(a, aa);
-                    code(&mut bw, &mut model, q, p, x);
-                    *r = x;
-                    (a, aa) = (i32::from(x), a);
-                }
+                let a = if c >= 1 { i32::from(refh[c - 1]) } else { 0 };
+                let aa = if c >= 2 { i32::from(refh[c - 2]) } else { 0 };
+                code_intra_run(&mut bw, &mut model, &heights[c..e], a, aa);
+                refh[c..e].copy_from_slice(&heights[c..e]);
             }
             (false, true) => {}
             (false, false) => {
@@ -936,7 +1029,7 @@ impl<'a> Decoder<'a> {
         let mut c = 0;
         while c < w {
             let v = bit(valid, c);
-            let e = run_end(|i| valid[i], c, w, v);
+            let e = run_end(|i| word(valid, i), c, w, v);
             match (v, predicted) {
                 (true, true) => {
                     let cells = Cell::from_mut(&mut *refh).as_slice_of_cells();
