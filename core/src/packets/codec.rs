@@ -376,12 +376,10 @@ impl Model {
     }
 }
 
-/// `k = bitlen(A >> (SHIFT + 1))`, computed as `floor(log2((A >> SHIFT) | 1))` (the same
-/// number: `(A >> SHIFT) | 1` has the top bit of `2 (A >> (SHIFT + 1))`, or is 1), which the
-/// compiler knows to be below 32 (no shift masking where `k` is a shift amount).
+/// `k = bitlen(A >> (SHIFT + 1))` of an accumulator `A` (see [`Model::k`]).
 #[inline(always)]
 fn k_of(a: u32) -> u32 {
-    31 - ((a | 1 << SHIFT) >> SHIFT).leading_zeros()
+    32 - (a >> (SHIFT + 1)).leading_zeros()
 }
 
 /// MSB-first bit writer with a 32-bit accumulator; stores whole words, counts past the end
@@ -672,8 +670,9 @@ impl<'a> Encoder<'a> {
 #[inline(always)]
 fn code(bw: &mut BitWriter<'_>, model: &mut Model, q: usize, pred: i32, x: i16) {
     let z = zigzag((i32::from(x) - pred) as i16);
-    bw.put_rice(z, model.k(q));
+    let k = model.k(q);
     model.update(q, z);
+    bw.put_rice(z, k);
 }
 
 /// Codes a run of valid pixels `xs` of an intra row; `a`, `aa`: the filled heights `R[c-1]`,
@@ -712,8 +711,9 @@ fn code_acc(bw: &mut BitWriter<'_>, ctx: &mut u32, e: i32) {
     let e = i32::from(e as i16);
     // zigzag of the i16 residual, in 0 ..= 65535.
     let z = ((e << 1) ^ (e >> 31)) as u32;
-    bw.put_rice(z, k_of(*ctx));
+    let k = k_of(*ctx);
     *ctx = *ctx - (*ctx >> SHIFT) + z;
+    bw.put_rice(z, k);
 }
 
 /// Codes a run of valid pixels `xs` (pixels `c .. c + xs.len()`) of a predicted row with
