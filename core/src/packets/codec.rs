@@ -679,15 +679,16 @@ fn code(bw: &mut BitWriter<'_>, model: &mut Model, q: usize, pred: i32, x: i16) 
 /// `R[c-2]` left of the run. [`predict_i`] and [`code`], with the bit writer and the contexts'
 /// accumulators in locals (registers) and one copy of the coder per context.
 #[inline(never)]
-fn code_intra_run(bw: &mut BitWriter<'_>, model: &mut Model, xs: &[i16], mut a: i32, mut aa: i32) {
+fn code_intra_run(bw: &mut BitWriter<'_>, model: &mut Model, xs: &[i16], mut a: i32, aa: i32) {
     let mut w = BitWriter {
         out: &mut *bw.out,
         ..*bw
     };
     let [mut a0, mut a1, mut a2] = model.a;
+    // The gradient a - aa, carried instead of aa.
+    let mut d = a - aa;
     for &x in xs {
         let x = i32::from(x);
-        let d = a - aa;
         // |d| < T_FLAT_I: the average (a + aa + 1) >> 1 = a - (d >> 1).
         if (d + (T_FLAT_I - 1)) as u32 <= 2 * (T_FLAT_I - 1) as u32 {
             let e = x - (a - (d >> 1));
@@ -699,7 +700,7 @@ fn code_intra_run(bw: &mut BitWriter<'_>, model: &mut Model, xs: &[i16], mut a: 
         } else {
             code_acc(&mut w, &mut a2, x - a);
         }
-        (a, aa) = (x, a);
+        (a, d) = (x, x - a);
     }
     model.a = [a0, a1, a2];
     (bw.pos, bw.acc, bw.free) = (w.pos, w.acc, w.free);
