@@ -423,8 +423,12 @@ impl<'o> BitWriter<'o> {
     /// Stores a full word (if it fits).
     #[inline(always)]
     fn store(&mut self, word: u32) {
-        if let Some(dst) = self.out.get_mut(self.pos..self.pos + 4) {
-            dst.copy_from_slice(&word.to_be_bytes());
+        if let Some(dst) = self
+            .out
+            .get_mut(self.pos..)
+            .and_then(|d| d.first_chunk_mut())
+        {
+            *dst = word.to_be_bytes();
         }
         self.pos += 4;
     }
