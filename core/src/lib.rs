@@ -98,6 +98,7 @@
 extern crate alloc;
 
 pub mod accumulate;
+pub mod crc32;
 #[cfg(feature = "defmt")]
 mod defmt;
 pub mod dsp;

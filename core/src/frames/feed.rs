@@ -38,8 +38,8 @@
 //! caught by the reader as a truncation at a named frame and line.
 
 use super::{Config, Trigger};
+use crate::crc32;
 use crate::height::{ColumnScale, ColumnScaleError, MAX_COLUMN_SHIFT};
-use crc::{Crc, CRC_32_ISO_HDLC};
 use fixed::types::{U16F16, U20F12, U8F8};
 
 /// Magic of a feed.
@@ -50,8 +50,6 @@ pub const VERSION: u16 = 1;
 pub const HEADER_LEN: usize = 64;
 /// Bytes of a frame's trigger record.
 pub const TRIGGER_LEN: usize = 16;
-
-const CRC: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
 
 /// What the header says besides the configuration.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -138,7 +136,7 @@ impl Header {
         if self.mono12p {
             b[52] |= FLAG_MONO12P;
         }
-        let crc = CRC.checksum(&b[..60]);
+        let crc = crc32::checksum(&b[..60]);
         b[60..64].copy_from_slice(&crc.to_le_bytes());
         b
     }
@@ -158,7 +156,7 @@ impl Header {
         if u16_at(b, 6) as usize != HEADER_LEN {
             return Err(FeedError::HeaderLen(u16_at(b, 6)));
         }
-        if CRC.checksum(&b[..60]) != u32_at(b, 60) {
+        if crc32::checksum(&b[..60]) != u32_at(b, 60) {
             return Err(FeedError::HeaderCrc);
         }
         let column_scale = match b[52] & !FLAG_MONO12P {
@@ -247,7 +245,7 @@ pub fn encode_table(ref_phase: &[u32], out: &mut [u8]) -> Result<(), FeedError> 
     for (o, p) in out.chunks_exact_mut(4).zip(ref_phase) {
         o.copy_from_slice(&p.to_le_bytes());
     }
-    let crc = CRC.checksum(&out[..n]);
+    let crc = crc32::checksum(&out[..n]);
     out[n..].copy_from_slice(&crc.to_le_bytes());
     Ok(())
 }
@@ -258,7 +256,7 @@ pub fn decode_table(b: &[u8], ref_phase: &mut [u32]) -> Result<(), FeedError> {
     if b.len() != n + 4 {
         return Err(FeedError::Length);
     }
-    if CRC.checksum(&b[..n]) != u32_at(b, n) {
+    if crc32::checksum(&b[..n]) != u32_at(b, n) {
         return Err(FeedError::TableCrc);
     }
     for (p, c) in ref_phase.iter_mut().zip(b.chunks_exact(4)) {
@@ -276,7 +274,7 @@ pub fn encode_scale_table(mantissa: &[u16], out: &mut [u8]) -> Result<(), FeedEr
     for (o, m) in out.chunks_exact_mut(2).zip(mantissa) {
         o.copy_from_slice(&m.to_le_bytes());
     }
-    let crc = CRC.checksum(&out[..n]);
+    let crc = crc32::checksum(&out[..n]);
     out[n..].copy_from_slice(&crc.to_le_bytes());
     Ok(())
 }
@@ -296,7 +294,7 @@ pub fn decode_scale_table(
     if b.len() != n + 4 || mantissa.len() != header.cfg.width as usize {
         return Err(FeedError::Length);
     }
-    if CRC.checksum(&b[..n]) != u32_at(b, n) {
+    if crc32::checksum(&b[..n]) != u32_at(b, n) {
         return Err(FeedError::ScaleCrc);
     }
     for (m, c) in mantissa.iter_mut().zip(b.chunks_exact(2)) {
@@ -387,7 +385,7 @@ mod tests {
 
     /// Re-seals a header whose bytes were edited (a new CRC), to test the checks behind it.
     fn reseal(mut b: [u8; HEADER_LEN]) -> [u8; HEADER_LEN] {
-        let crc = CRC.checksum(&b[..60]);
+        let crc = crc32::checksum(&b[..60]);
         b[60..64].copy_from_slice(&crc.to_le_bytes());
         b
     }

@@ -124,11 +124,15 @@
 //!
 //! Per valid pixel: 4 neighbour loads (one new), 3 absolute differences, the average or MED,
 //! zigzag, `k` from one `clz`, one Rice code into a 32-bit bit buffer (a word store every 32
-//! bits), one accumulator update, one store to the reference row. Compiled for
-//! `thumbv7em-none-eabihf` the hot loop of a predicted row is about 75 instructions per pixel,
-//! about 15 of them stack spills; about 12 ns per pixel on a desktop host. Reaching 8
-//! instructions per pixel would need a different format (e.g. `k` per block of pixels instead of
-//! per pixel, and a predictor that allows 2-pixel DSP instructions).
+//! bits), one accumulator update, one store to the reference row. The runs of valid pixels are
+//! coded by two out-of-line loops, one per row kind, that keep the bit writer and (intra) the
+//! three contexts' accumulators in locals, one copy of the coder per context and two pixels a
+//! step, so that the compiler holds them in registers. Compiled for `thumbv7em-none-eabihf`
+//! (`dpsa target-run --bench`: QEMU-retired instructions per output pixel of the whole packet
+//! encode, codec, framing and CRC-32): about 44 for intra rows (the stream default; the
+//! CRC-32 about 4 of them, the copy into the reference row about 2) and 74 with intra period 8.
+//! Reaching 8 instructions per pixel would need a different format (e.g. `k` per block of
+//! pixels instead of per pixel, and a predictor that allows 2-pixel DSP instructions).
 
 use core::cell::Cell;
 
@@ -260,18 +264,37 @@ fn bit(mask: &[u8], c: usize) -> bool {
     mask[c / 8] >> (c % 8) & 1 != 0
 }
 
-/// First index in `from .. w` whose bit (`byte_at(c / 8)`, bit `c % 8`) differs from `value`,
-/// or `w`. Bits past `w` are ignored.
+/// Bits `32 i .. 32 i + 32` of a mask (bit `c % 8` of byte `c / 8`), 0 past its end.
 #[inline(always)]
-fn run_end(byte_at: impl Fn(usize) -> u8, from: usize, w: usize, value: bool) -> usize {
-    let flip = if value { 0xFF } else { 0 };
+fn word(mask: &[u8], i: usize) -> u32 {
+    let s = 4 * i;
+    match mask.get(s..s + 4) {
+        Some(b) => u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+        None => word_tail(mask, s),
+    }
+}
+
+/// [`word`] at the end of the mask (fewer than 4 bytes from `s`): once per row, out of line.
+#[inline(never)]
+fn word_tail(mask: &[u8], s: usize) -> u32 {
+    mask.iter()
+        .skip(s)
+        .enumerate()
+        .fold(0, |v, (j, &b)| v | u32::from(b) << (8 * j))
+}
+
+/// First index in `from .. w` whose bit (`word_at(c / 32)`, bit `c % 32`) differs from
+/// `value`, or `w`. Bits past `w` are ignored.
+#[inline(always)]
+fn run_end(word_at: impl Fn(usize) -> u32, from: usize, w: usize, value: bool) -> usize {
+    let flip = if value { !0 } else { 0 };
     let mut c = from;
     while c < w {
-        let other = u32::from(byte_at(c / 8) ^ flip) >> (c % 8);
+        let other = (word_at(c / 32) ^ flip) >> (c % 32);
         if other != 0 {
             return (c + other.trailing_zeros() as usize).min(w);
         }
-        c = (c / 8 + 1) * 8;
+        c = (c / 32 + 1) * 32;
     }
     w
 }
@@ -348,13 +371,19 @@ impl Model {
     /// `A < 2^(16 + SHIFT)`, `k <= 15`.
     #[inline(always)]
     fn k(&self, q: usize) -> u32 {
-        32 - (self.a[q] >> (SHIFT + 1)).leading_zeros()
+        k_of(self.a[q])
     }
 
     #[inline(always)]
     fn update(&mut self, q: usize, z: u32) {
         self.a[q] = self.a[q] - (self.a[q] >> SHIFT) + z;
     }
+}
+
+/// `k = bitlen(A >> (SHIFT + 1))` of an accumulator `A` (see [`Model::k`]).
+#[inline(always)]
+fn k_of(a: u32) -> u32 {
+    32 - (a >> (SHIFT + 1)).leading_zeros()
 }
 
 /// MSB-first bit writer with a 32-bit accumulator; stores whole words, counts past the end
@@ -381,20 +410,31 @@ impl<'o> BitWriter<'o> {
     /// Appends the low `len` bits of `v` (`1 <= len <= 32`, `v < 2^len`).
     #[inline(always)]
     fn put(&mut self, v: u32, len: u32) {
-        if len < self.free {
-            self.free -= len;
+        // len < free: the bits fit with one to spare (one signed subtraction and its flags).
+        let left = self.free as i32 - len as i32;
+        if left > 0 {
+            self.free = left as u32;
             self.acc |= v << self.free;
         } else {
-            let spill = len - self.free;
-            let word = self.acc | (v >> spill);
-            if let Some(dst) = self.out.get_mut(self.pos..self.pos + 4) {
-                dst.copy_from_slice(&word.to_be_bytes());
-            }
-            self.pos += 4;
+            let spill = left.unsigned_abs();
+            self.store(self.acc | (v >> spill));
             self.free = 32 - spill;
             // v << (32 - spill), 0 for spill = 0.
             self.acc = (v << 1) << (31 - spill);
         }
+    }
+
+    /// Stores a full word (if it fits).
+    #[inline(always)]
+    fn store(&mut self, word: u32) {
+        if let Some(dst) = self
+            .out
+            .get_mut(self.pos..)
+            .and_then(|d| d.first_chunk_mut())
+        {
+            *dst = word.to_be_bytes();
+        }
+        self.pos += 4;
     }
 
     fn bits(&self) -> usize {
@@ -405,7 +445,8 @@ impl<'o> BitWriter<'o> {
     fn put_rice(&mut self, z: u32, k: u32) {
         let q = z >> k;
         if q < QMAX {
-            self.put((1 << k) | (z & ((1 << k) - 1)), q + 1 + k);
+            // A 1 bit then the low k bits of z: z - (q << k) + (1 << k).
+            self.put(z.wrapping_sub(q.wrapping_sub(1) << k), q + 1 + k);
         } else {
             // 16 zero bits, then z in 16 bits.
             self.put(z, 32);
@@ -637,8 +678,111 @@ impl<'a> Encoder<'a> {
 #[inline(always)]
 fn code(bw: &mut BitWriter<'_>, model: &mut Model, q: usize, pred: i32, x: i16) {
     let z = zigzag((i32::from(x) - pred) as i16);
-    bw.put_rice(z, model.k(q));
+    let k = model.k(q);
     model.update(q, z);
+    bw.put_rice(z, k);
+}
+
+/// [`code`] out of line: the last pixel of a predicted run, the odd pixel of an intra run.
+#[inline(never)]
+fn code_one(bw: &mut BitWriter<'_>, model: &mut Model, q: usize, pred: i32, x: i16) {
+    code(bw, model, q, pred, x);
+}
+
+/// Codes a run of valid pixels `xs` of an intra row; `a`, `aa`: the filled heights `R[c-1]`,
+/// `R[c-2]` left of the run. [`predict_i`] and [`code`], with the bit writer and the contexts'
+/// accumulators in locals (registers) and one copy of the coder per context.
+#[inline(never)]
+fn code_intra_run(bw: &mut BitWriter<'_>, model: &mut Model, xs: &[i16], mut a: i32, aa: i32) {
+    let mut w = BitWriter {
+        out: &mut *bw.out,
+        ..*bw
+    };
+    let [mut a0, mut a1, mut a2] = model.a;
+    // The gradient a - aa, carried instead of aa.
+    let mut d = a - aa;
+    macro_rules! pixel {
+        ($x:expr) => {
+            let x = i32::from($x);
+            // |d| < T_FLAT_I: the average (a + aa + 1) >> 1 = a - (d >> 1).
+            if (d + (T_FLAT_I - 1)) as u32 <= 2 * (T_FLAT_I - 1) as u32 {
+                let e = x - (a - (d >> 1));
+                if (d + (T_CTX_I - 1)) as u32 <= 2 * (T_CTX_I - 1) as u32 {
+                    code_acc(&mut w, &mut a0, e);
+                } else {
+                    code_acc(&mut w, &mut a1, e);
+                }
+            } else {
+                code_acc(&mut w, &mut a2, x - a);
+            }
+            (a, d) = (x, x - a);
+        };
+    }
+    // Two pixels a step (no moves between the steps' registers).
+    let mut pairs = xs.chunks_exact(2);
+    for p in &mut pairs {
+        pixel!(p[0]);
+        pixel!(p[1]);
+    }
+    model.a = [a0, a1, a2];
+    (bw.pos, bw.acc, bw.free) = (w.pos, w.acc, w.free);
+    if let [x] = pairs.remainder() {
+        let (p, q) = predict_i(a, a - d);
+        code_one(bw, model, q, p, *x);
+    }
+}
+
+/// [`code`] with the context's accumulator `ctx`: the residual `e` is taken mod 2^16.
+#[inline(always)]
+fn code_acc(bw: &mut BitWriter<'_>, ctx: &mut u32, e: i32) {
+    let e = i32::from(e as i16);
+    // zigzag of the i16 residual, in 0 ..= 65535.
+    let z = ((e << 1) ^ (e >> 31)) as u32;
+    let k = k_of(*ctx);
+    *ctx = *ctx - (*ctx >> SHIFT) + z;
+    bw.put_rice(z, k);
+}
+
+/// Codes a run of valid pixels `xs` (pixels `c .. c + xs.len()`) of a predicted row with
+/// [`predict_p`] and [`code`]; `refh`: the reference heights `U` of the whole row, overwritten
+/// by the run's `R` one pixel behind where they are read.
+#[inline(never)]
+fn code_predicted_run(
+    bw: &mut BitWriter<'_>,
+    model: &mut Model,
+    xs: &[i16],
+    refh: &mut [i16],
+    c: usize,
+) {
+    let mut w = BitWriter {
+        out: &mut *bw.out,
+        ..*bw
+    };
+    let mut m = Model { a: model.a };
+    let e = c + xs.len();
+    // a = R[c-1] = U[c-1] (pixel c-1 is invalid, or c = 0: U[0]), u = U[c-1].
+    let mut a = i32::from(refh[c.saturating_sub(1)]);
+    let mut u = a;
+    // d of the run's last pixel: U[e] (invalid, not overwritten) or U[W-1].
+    let tail = i32::from(refh[e.min(refh.len() - 1)]);
+    let mut run = refh[c..e].iter_mut();
+    let (Some(mut r), Some((&x_last, xs))) = (run.next(), xs.split_last()) else {
+        return;
+    };
+    let mut b = i32::from(*r);
+    for (&x, dn) in xs.iter().zip(run) {
+        let d = i32::from(*dn);
+        let (p, q) = predict_p(a, b, u, d);
+        code(&mut w, &mut m, q, p, x);
+        *r = x;
+        r = dn;
+        (a, u, b) = (i32::from(x), b, d);
+    }
+    *r = x_last;
+    model.a = m.a;
+    (bw.pos, bw.acc, bw.free) = (w.pos, w.acc, w.free);
+    let (p, q) = predict_p(a, b, u, tail);
+    code_one(bw, model, q, p, x_last);
 }
 
 /// Codes the body; `Some((plain_mask, bytes))`, or `None` if it would exceed the raw body
@@ -654,9 +798,9 @@ fn encode_body(
     let ref_valid: &[u8] = r.valid;
     let m = |i: usize| {
         if predicted {
-            valid[i] ^ ref_valid[i]
+            word(valid, i) ^ word(ref_valid, i)
         } else {
-            !valid[i]
+            !word(valid, i)
         }
     };
 
@@ -685,38 +829,14 @@ fn encode_body(
     let mut c = 0;
     while c < w {
         let v = bit(valid, c);
-        let e = run_end(|i| valid[i], c, w, v);
+        let e = run_end(|i| word(valid, i), c, w, v);
         match (v, predicted) {
-            (true, true) => {
-                // The reference row is read one pixel ahead of where it is overwritten.
-                let cells = Cell::from_mut(&mut *refh).as_slice_of_cells();
-                // a = R[c-1] = U[c-1] (pixel c-1 is invalid, or c = 0: U[0]), u = U[c-1].
-                let mut a = i32::from(cells[c.saturating_sub(1)].get());
-                let mut u = a;
-                let mut b = i32::from(cells[c].get());
-                // d of the run's last pixel: U[e] (invalid, not overwritten) or U[W-1].
-                let tail = i32::from(cells[e.min(w - 1)].get());
-                let (xs, x_last) = heights[c..e].split_at(e - c - 1);
-                for ((&x, r), dn) in xs.iter().zip(&cells[c..e - 1]).zip(&cells[c + 1..e]) {
-                    let d = i32::from(dn.get());
-                    let (p, q) = predict_p(a, b, u, d);
-                    code(&mut bw, &mut model, q, p, x);
-                    r.set(x);
-                    (a, u, b) = (i32::from(x), b, d);
-                }
-                let (p, q) = predict_p(a, b, u, tail);
-                code(&mut bw, &mut model, q, p, x_last[0]);
-                cells[e - 1].set(x_last[0]);
-            }
+            (true, true) => code_predicted_run(&mut bw, &mut model, &heights[c..e], refh, c),
             (true, false) => {
-                let mut a = if c >= 1 { i32::from(refh[c - 1]) } else { 0 };
-                let mut aa = if c >= 2 { i32::from(refh[c - 2]) } else { 0 };
-                for (&x, r) in heights[c..e].iter().zip(&mut refh[c..e]) {
-                    let (p, q) = predict_i(a, aa);
-                    code(&mut bw, &mut model, q, p, x);
-                    *r = x;
-                    (a, aa) = (i32::from(x), a);
-                }
+                let a = if c >= 1 { i32::from(refh[c - 1]) } else { 0 };
+                let aa = if c >= 2 { i32::from(refh[c - 2]) } else { 0 };
+                code_intra_run(&mut bw, &mut model, &heights[c..e], a, aa);
+                refh[c..e].copy_from_slice(&heights[c..e]);
             }
             (false, true) => {}
             (false, false) => {
@@ -936,7 +1056,7 @@ impl<'a> Decoder<'a> {
         let mut c = 0;
         while c < w {
             let v = bit(valid, c);
-            let e = run_end(|i| valid[i], c, w, v);
+            let e = run_end(|i| word(valid, i), c, w, v);
             match (v, predicted) {
                 (true, true) => {
                     let cells = Cell::from_mut(&mut *refh).as_slice_of_cells();

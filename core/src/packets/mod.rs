@@ -60,8 +60,8 @@ mod track;
 
 pub use track::{Summary, Tracker, Verdict};
 
+use crate::crc32;
 use crate::row::{Gap, Row, RowHeader, StreamInfo};
-use crc::{Crc, CRC_32_ISO_HDLC};
 
 /// Sync word at the start of every packet.
 pub const SYNC: [u8; 4] = *b"DPSA";
@@ -94,8 +94,6 @@ pub const STREAM_INTRA_PERIOD: u32 = 1;
 /// Intra period of predicted streams in the codec benchmark (`dpsa codec-bench`): rows are
 /// predicted from the previous one, with an intra row every 32 rows.
 pub const PREDICTED_INTRA_PERIOD: u32 = 32;
-
-const CRC: Crc<u32> = Crc::<u32>::new(&CRC_32_ISO_HDLC);
 
 /// Raw payload bytes for a row of `width` pixels.
 pub const fn raw_payload_len(width: usize) -> usize {
@@ -365,9 +363,9 @@ fn frame(f: &Fields, plen: usize, buf: &mut [u8]) -> usize {
     out[28..30].copy_from_slice(&f.flags.to_le_bytes());
     out[30..32].copy_from_slice(&f.width.to_le_bytes());
     out[32..36].copy_from_slice(&(plen as u32).to_le_bytes());
-    let hcrc = CRC.checksum(&out[4..36]);
+    let hcrc = crc32::checksum(&out[4..36]);
     out[36..40].copy_from_slice(&hcrc.to_le_bytes());
-    let crc = CRC.checksum(&buf[4..HEADER_LEN + plen]);
+    let crc = crc32::checksum(&buf[4..HEADER_LEN + plen]);
     buf[HEADER_LEN + plen..HEADER_LEN + plen + TRAILER_LEN].copy_from_slice(&crc.to_le_bytes());
     HEADER_LEN + plen + TRAILER_LEN
 }
@@ -385,7 +383,7 @@ fn frame_v1(h: &RowHeader, codec: u8, plen: usize, buf: &mut [u8]) -> usize {
     out[24..26].copy_from_slice(&h.flags.to_le_bytes());
     out[26..28].copy_from_slice(&h.width.to_le_bytes());
     out[28..32].copy_from_slice(&(plen as u32).to_le_bytes());
-    let crc = CRC.checksum(&buf[4..HEADER_LEN_V1 + plen]);
+    let crc = crc32::checksum(&buf[4..HEADER_LEN_V1 + plen]);
     buf[HEADER_LEN_V1 + plen..HEADER_LEN_V1 + plen + TRAILER_LEN]
         .copy_from_slice(&crc.to_le_bytes());
     HEADER_LEN_V1 + plen + TRAILER_LEN
@@ -568,7 +566,7 @@ fn decode_v1(buf: &[u8], crc: bool) -> Result<(Packet<'_>, usize), PacketError> 
     if !crc {
         return Err(PacketError::Unchecked);
     }
-    if CRC.checksum(&buf[4..HEADER_LEN_V1 + plen]) != u32_at(buf, total - 4) {
+    if crc32::checksum(&buf[4..HEADER_LEN_V1 + plen]) != u32_at(buf, total - 4) {
         return Err(PacketError::BadCrc);
     }
     let header = RowHeader {
@@ -613,14 +611,14 @@ fn decode_v2(buf: &[u8]) -> Result<(Packet<'_>, usize), (PacketError, Option<usi
     if !len_ok {
         return Err((PacketError::BadLength, None));
     }
-    if CRC.checksum(&buf[4..36]) != u32_at(buf, 36) {
+    if crc32::checksum(&buf[4..36]) != u32_at(buf, 36) {
         return Err((PacketError::BadHeaderCrc, None));
     }
     let total = HEADER_LEN + plen + TRAILER_LEN;
     if buf.len() < total {
         return Err((PacketError::Truncated, None));
     }
-    if CRC.checksum(&buf[4..HEADER_LEN + plen]) != u32_at(buf, total - 4) {
+    if crc32::checksum(&buf[4..HEADER_LEN + plen]) != u32_at(buf, total - 4) {
         return Err((PacketError::BadCrc, Some(total)));
     }
     let header = RowHeader {
