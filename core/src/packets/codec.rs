@@ -129,8 +129,8 @@
 //! three contexts' accumulators in locals, one copy of the coder per context and two pixels a
 //! step, so that the compiler holds them in registers. Compiled for `thumbv7em-none-eabihf`
 //! (`dpsa target-run --bench`: QEMU-retired instructions per output pixel of the whole packet
-//! encode, codec, framing and CRC-32): about 44 for intra rows (the stream default; the
-//! CRC-32 about 4 of them, the copy into the reference row about 2) and 74 with intra period 8.
+//! encode, codec, framing and CRC-32): about 43 for intra rows (the stream default; the
+//! CRC-32 about 3 of them, the copy into the reference row about 2) and 73 with intra period 8.
 //! Reaching 8 instructions per pixel would need a different format (e.g. `k` per block of
 //! pixels instead of per pixel, and a predictor that allows 2-pixel DSP instructions).
 
