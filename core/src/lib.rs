@@ -5,7 +5,10 @@
 //!
 //! Features (all off by default): `alloc` adds owned, heap-allocated state
 //! ([`pipeline::State`], [`packets::codec::ReferenceRow`]) for hosts; `defmt` adds
-//! `defmt::Format` for the core's types and errors (all in one file, `src/defmt.rs`).
+//! `defmt::Format` for the core's types and errors (all in one file, `src/defmt.rs`); `dsp`
+//! runs the accumulate kernel's `SMLAD`, `UQSUB16` and Mono12p unpack as `asm!` on an ARM
+//! target (the firmware turns it on), instead of their portable twins, with the same results
+//! ([`dsp`]: the only `unsafe` in the crate).
 //!
 //! ## Measurement model (units)
 //!

@@ -293,6 +293,8 @@ mod tests {
             ("width", 2048),
             ("state_total_bytes", 1000),
             ("stack_high_water", 24),
+            ("dsp_checks", 100),
+            ("dsp_mismatches", 0),
         ] {
             m.insert(k.into(), v);
         }
@@ -327,6 +329,7 @@ mod tests {
         let v = serde_json::to_value(&r).unwrap();
         assert_eq!(v["ram_bytes"]["static"], 7);
         assert_eq!(v["instructions_per_pixel"]["total"], 20.0);
+        assert_eq!(v["dsp_checks"], 100);
     }
 
     #[test]
@@ -343,6 +346,16 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("calib_ticks"), "{e}");
+        // The target's asm! DSP instructions disagreed with their portable twins.
+        let mut m = raw();
+        m.insert("dsp_mismatches".into(), 3);
+        let e = bench_report(&m, &ElfSizes::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("3 of 100") && e.contains("portable twins"),
+            "{e}"
+        );
         assert_eq!(
             parse_bench("a 1\n\nb -2\n").unwrap(),
             BTreeMap::from([("a".into(), 1), ("b".into(), -2)])
