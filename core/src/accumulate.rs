@@ -222,8 +222,14 @@ pub fn block(coef: &Coef, lines: &[&[u16]], c0: usize, saturation: u16, out: &mu
         let k = Pairs::new(coef, n, saturation, flip);
         let m = even / 2;
         let w: [&[u32]; MAX_N] = core::array::from_fn(|j| if j < n { &words[j][..m] } else { &[] });
-        for (i, o) in pairs.chunks_exact_mut(2).enumerate() {
-            pair_step::<MAX_N>(&k, n, |j| w[j][i] ^ flip, o);
+        if n == 4 {
+            for (i, o) in pairs.chunks_exact_mut(2).enumerate() {
+                pair_step::<4>(&k, 4, |j| w[j][i] ^ flip, o);
+            }
+        } else {
+            for (i, o) in pairs.chunks_exact_mut(2).enumerate() {
+                pair_step::<MAX_N>(&k, n, |j| w[j][i] ^ flip, o);
+            }
         }
     } else {
         for (k, o) in pairs.iter_mut().enumerate() {
