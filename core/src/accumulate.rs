@@ -198,13 +198,8 @@ pub fn pixel_v(coef: &Coef, samples: &[u16], saturation: u16) -> V {
 /// would be a programming error and panics).
 #[inline(never)]
 pub fn block(coef: &Coef, lines: &[&[u16]], c0: usize, saturation: u16, out: &mut [V]) {
-    let n = lines.len();
-    if !(3..=MAX_N).contains(&n) {
-        return;
-    }
-    let len = out.len();
-    if saturation == 0 {
-        out.fill([SATURATED, 0]);
+    let (n, len) = (lines.len(), out.len());
+    if !kernel_applies(n, saturation, out) {
         return;
     }
     let even = len & !1;
@@ -241,6 +236,20 @@ pub fn block(coef: &Coef, lines: &[&[u16]], c0: usize, saturation: u16, out: &mu
     }
 }
 
+/// Whether a kernel has work for `n` lines: `n` in `3..=8` (else nothing is written), and a
+/// saturation level above 0 (at 0 every sample is saturated: `out` is marked so here).
+#[inline(always)]
+fn kernel_applies(n: usize, saturation: u16, out: &mut [V]) -> bool {
+    if !(3..=MAX_N).contains(&n) {
+        return false;
+    }
+    if saturation == 0 {
+        out.fill([SATURATED, 0]);
+        return false;
+    }
+    true
+}
+
 /// [`pixel_v`] of the samples `sample(j)`, `j < n`.
 #[inline(always)]
 fn pixel_at(coef: &Coef, n: usize, sample: impl Fn(usize) -> u16, saturation: u16) -> V {
@@ -254,20 +263,16 @@ fn pixel_at(coef: &Coef, n: usize, sample: impl Fn(usize) -> u16, saturation: u1
 /// [`block`] for Mono12p lines ([`crate::frames::mono12p`]: the packed line pool of a 12-bit
 /// configuration, and lines as a 12-bit camera sends them): `out[k]` is pixel `c0 + k`,
 /// [`pixel_v`] of its samples. Each line holds at least [`mono12p::packed_len`]`(c0 +
-/// out.len())` bytes. Where it also holds the slack byte of [`mono12p::stored_len`], a pair
-/// of pixels is one 32-bit load and one [`crate::dsp::unpack12`] per line ([`mono12p::pair_at`]);
-/// elsewhere (and for an odd `c0` or an odd last column) sample by sample. Samples are below
-/// `2^15`: no lane flip. `n = lines.len()` in `3..=8` (else nothing is written); `n = 4`, the
-/// paper's and the default geometry's, has its own unrolled loop.
+/// out.len())` bytes. From a `c0` that is a multiple of 8, on word-aligned lines (the pool's
+/// and the firmware's buffers are), eight pixels are three aligned words per line and one
+/// [`unpack12`] per pair ([`groups_packed`]); the rest (a short last block, or any other
+/// `c0` or alignment) sample by sample. Samples are below `2^15`: no lane flip.
+/// `n = lines.len()` in `3..=8` (else nothing is written); `n = 4`, the paper's and the
+/// default geometry's, has its own unrolled loop.
 #[inline(never)]
 pub fn block_packed(coef: &Coef, lines: &[&[u8]], c0: usize, saturation: u16, out: &mut [V]) {
-    let n = lines.len();
-    if !(3..=MAX_N).contains(&n) {
-        return;
-    }
-    let len = out.len();
-    if saturation == 0 {
-        out.fill([SATURATED, 0]);
+    let (n, len) = (lines.len(), out.len());
+    if !kernel_applies(n, saturation, out) {
         return;
     }
     // Groups of eight pixels (three aligned words per line) from `c0` (a multiple of 8,
