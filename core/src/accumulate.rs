@@ -213,17 +213,32 @@ pub fn block(coef: &Coef, lines: &[&[u16]], c0: usize, saturation: u16, out: &mu
     }
     let (pairs, rest) = out.split_at_mut(even);
     if aligned {
-        let flip = if saturation <= 0x8000 { 0 } else { 0x8000_8000 };
-        let k = Pairs::new(coef, n, saturation, flip);
+        let k = Pairs::new(coef, n, saturation);
         let m = even / 2;
         let w: [&[u32]; MAX_N] = core::array::from_fn(|j| if j < n { &words[j][..m] } else { &[] });
-        if n == 4 {
-            for (i, o) in pairs.chunks_exact_mut(2).enumerate() {
-                pair_step::<4>(&k, 4, |j| w[j][i] ^ flip, o);
+        // Lanes flipped (`x ^ 0x8000`) only above a saturation level of 2^15, where samples
+        // of 2^15 and more count; the flip is a constant of each loop.
+        const FLIP: u32 = 0x8000_8000;
+        match (saturation <= 0x8000, n == 4) {
+            (true, true) => {
+                for (i, o) in pairs.chunks_exact_mut(2).enumerate() {
+                    pair_step::<4, 0>(&k, 4, |j| w[j][i], o);
+                }
             }
-        } else {
-            for (i, o) in pairs.chunks_exact_mut(2).enumerate() {
-                pair_step::<MAX_N>(&k, n, |j| w[j][i] ^ flip, o);
+            (true, false) => {
+                for (i, o) in pairs.chunks_exact_mut(2).enumerate() {
+                    pair_step::<MAX_N, 0>(&k, n, |j| w[j][i], o);
+                }
+            }
+            (false, true) => {
+                for (i, o) in pairs.chunks_exact_mut(2).enumerate() {
+                    pair_step::<4, FLIP>(&k, 4, |j| w[j][i] ^ FLIP, o);
+                }
+            }
+            (false, false) => {
+                for (i, o) in pairs.chunks_exact_mut(2).enumerate() {
+                    pair_step::<MAX_N, FLIP>(&k, n, |j| w[j][i] ^ FLIP, o);
+                }
             }
         }
     } else {
@@ -293,7 +308,7 @@ pub fn block_packed(coef: &Coef, lines: &[&[u8]], c0: usize, saturation: u16, ou
     let done = if fast { 8 * ng } else { 0 };
     let (head, rest) = out.split_at_mut(done);
     if fast {
-        let k = Pairs::new(coef, n, saturation, 0);
+        let k = Pairs::new(coef, n, saturation);
         if n == 4 {
             groups_packed::<4>(&k, 4, &groups, head);
         } else {
@@ -306,30 +321,28 @@ pub fn block_packed(coef: &Coef, lines: &[&[u8]], c0: usize, saturation: u16, ou
     }
 }
 
-/// The coefficient pairs of the kernels (see [`pair_step`]), the saturation test word and
-/// the lane flip, made once per call.
+/// The coefficient pairs of the kernels (see [`pair_step`]) and the saturation test word,
+/// made once per call.
 struct Pairs {
     q2: [u32; MAX_N / 2],
     q3: [u32; MAX_N / 2],
     s1: u32,
-    flip: u32,
 }
 
 impl Pairs {
     #[inline(always)]
-    fn new(coef: &Coef, n: usize, saturation: u16, flip: u32) -> Pairs {
+    fn new(coef: &Coef, n: usize, saturation: u16) -> Pairs {
         let at = |q: &[i32; MAX_N], j: usize| if j < n { q[j] } else { 0 };
         Pairs {
             q2: core::array::from_fn(|p| pair(at(&coef.q2, 2 * p), at(&coef.q2, 2 * p + 1))),
             q3: core::array::from_fn(|p| pair(at(&coef.q3, 2 * p), at(&coef.q3, 2 * p + 1))),
             s1: (saturation as u32 - 1) * 0x0001_0001,
-            flip,
         }
     }
 }
 
 /// Two neighbouring pixels `o[0]`, `o[1]` of `n <= N` lines; `word(j)` is both pixels' samples
-/// of line `j` as two i16 lanes (flipped by `k.flip`, which the saturation test undoes).
+/// of line `j` as two i16 lanes (flipped by `FLIP`, which the saturation test undoes).
 ///
 /// [`pack_bottoms`] / [`pack_tops`] pair line `2p`'s sample with line `2p + 1`'s for each
 /// pixel, and one [`smlad`] per pair of lines and row of `P` multiplies them by the
@@ -339,16 +352,21 @@ impl Pairs {
 /// `x - (saturation - 1)`, floored at 0, is non-zero exactly when `x >= saturation`.
 /// Saturated pixels are marked off the hot path ([`mark_saturated`]).
 #[inline(always)]
-fn pair_step<const N: usize>(k: &Pairs, n: usize, word: impl Fn(usize) -> u32, o: &mut [V]) {
+fn pair_step<const N: usize, const FLIP: u32>(
+    k: &Pairs,
+    n: usize,
+    word: impl Fn(usize) -> u32,
+    o: &mut [V],
+) {
     let (mut a2, mut a3, mut b2, mut b3) = (0i32, 0i32, 0i32, 0i32);
     let mut sat = 0u32;
     let mut p = 0;
     while 2 * p < N && 2 * p < n {
         let x0 = word(2 * p);
-        sat |= uqsub16(x0 ^ k.flip, k.s1);
+        sat |= uqsub16(x0 ^ FLIP, k.s1);
         let x1 = if 2 * p + 1 < n {
             let x1 = word(2 * p + 1);
-            sat |= uqsub16(x1 ^ k.flip, k.s1);
+            sat |= uqsub16(x1 ^ FLIP, k.s1);
             x1
         } else {
             0
@@ -381,20 +399,20 @@ fn groups_packed<const N: usize>(
 ) {
     for (g, o) in out.chunks_exact_mut(8).enumerate() {
         let w = |j: usize| &groups[j][g];
-        pair_step::<N>(k, n, |j| unpack12(w(j)[0]), &mut o[0..2]);
-        pair_step::<N>(
+        pair_step::<N, 0>(k, n, |j| unpack12(w(j)[0]), &mut o[0..2]);
+        pair_step::<N, 0>(
             k,
             n,
             |j| unpack12(w(j)[0] >> 24 | w(j)[1] << 8),
             &mut o[2..4],
         );
-        pair_step::<N>(
+        pair_step::<N, 0>(
             k,
             n,
             |j| unpack12(w(j)[1] >> 16 | w(j)[2] << 16),
             &mut o[4..6],
         );
-        pair_step::<N>(k, n, |j| unpack12(w(j)[2] >> 8), &mut o[6..8]);
+        pair_step::<N, 0>(k, n, |j| unpack12(w(j)[2] >> 8), &mut o[6..8]);
     }
 }
 
