@@ -541,7 +541,7 @@ impl<'a> Pool<'a> {
             .unwrap_or(&[])
     }
 
-    /// The bytes of a slot of a packed pool: the Mono12p line and its slack byte
+    /// The bytes of a slot of a packed pool: the Mono12p line, rounded up to whole words
     /// ([`crate::frames::mono12p::stored_len`]; empty for a 16-bit pool).
     pub fn packed_line(&self, slot: u16) -> &[u8] {
         if !self.packed {
@@ -688,8 +688,8 @@ mod tests {
                 let s: vec::Vec<u16> = lines.iter().map(|l| l[c0 + k]).collect();
                 proptest::prop_assert_eq!(*o, pixel_v(&coef, &s, sat), "column {}", c0 + k);
             }
-            // Mono12p lines (a packed pool: saturation <= 4095), with and without the slack
-            // byte, give the same pixels: samples above 4095 are stored as 4095, still
+            // Mono12p lines (a packed pool: saturation <= 4095), with and without a spare byte
+            // give the same pixels: samples above 4095 are stored as 4095, still
             // saturated.
             if sat <= mono12p::MAX {
                 for slack in [0usize, 1] {

@@ -43,9 +43,9 @@ pub struct Layout {
     /// every sample that decides a pixel fits 12 bits (a larger one is stored as 4095, still
     /// saturated).
     pub packed: bool,
-    /// u16 units per pool line: `W`, or [`mono12p::stored_len`]`(W)` bytes rounded up to whole
-    /// words when packed (3 bytes per pair of pixels, one byte of slack; every line starts
-    /// word-aligned for the kernel's aligned loads, [`accumulate::block_packed`]).
+    /// u16 units per pool line: `W`, or [`mono12p::stored_len`]`(W) / 2` when packed (3 bytes
+    /// per pair of pixels, rounded up to whole words: every line starts word-aligned for the
+    /// kernel's aligned loads, [`accumulate::block_packed`]).
     pub pool_line_units: usize,
 }
 
@@ -62,7 +62,7 @@ impl Layout {
             scale_columns: 0,
             packed,
             pool_line_units: if packed {
-                2 * mono12p::stored_len(w).div_ceil(4)
+                mono12p::stored_len(w) / 2
             } else {
                 w
             },

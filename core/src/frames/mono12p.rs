@@ -13,8 +13,9 @@
 //! it at or above any such saturation level: the pipeline's output is the same as with 16-bit
 //! storage (tested in `pipeline`).
 //!
-//! The accumulate kernel reads a pair with one unaligned 32-bit load ([`pair_at`]), so a
-//! pool line has one byte of slack after its [`packed_len`] bytes ([`stored_len`]).
+//! The accumulate kernel reads eight pixels of a line as three aligned words
+//! ([`crate::accumulate::block_packed`]), so a pool line takes [`stored_len`] bytes: the
+//! packed line rounded up to whole words, and every line starts on a word.
 
 /// Largest sample a packed line holds.
 pub const MAX: u16 = 0x0FFF;
@@ -24,10 +25,10 @@ pub const fn packed_len(width: usize) -> usize {
     3 * width.div_ceil(2)
 }
 
-/// Bytes a line takes in the line pool: [`packed_len`] and one byte of slack for the 32-bit
-/// read of the last pair.
+/// Bytes a line takes in the line pool and in the pipeline's packing buffer: [`packed_len`]
+/// rounded up to whole 32-bit words.
 pub const fn stored_len(width: usize) -> usize {
-    packed_len(width) + 1
+    packed_len(width).div_ceil(4) * 4
 }
 
 /// Packs `line` into `out` (at least [`packed_len`]`(line.len())` bytes), each sample clamped
@@ -57,15 +58,6 @@ pub fn sample(b: &[u8], c: usize) -> u16 {
     ((v >> (12 * (c & 1))) & 0xFFF) as u16
 }
 
-/// Pixels `2i` and `2i + 1` as a word of two 16-bit lanes (`2i` in the bottom), from the four
-/// bytes at `3i` (`b` holds at least `3i + 4` bytes: [`stored_len`]): one load and
-/// [`crate::dsp::unpack12`].
-#[inline(always)]
-pub fn pair_at(b: &[u8], i: usize) -> u32 {
-    let k = 3 * i;
-    crate::dsp::unpack12(u32::from_le_bytes([b[k], b[k + 1], b[k + 2], b[k + 3]]))
-}
-
 #[cfg(test)]
 mod tests {
     extern crate std;
@@ -73,21 +65,18 @@ mod tests {
     use std::vec;
 
     #[test]
-    fn round_trip_clamp_and_pairs() {
+    fn round_trip_and_clamp() {
         for w in [1usize, 2, 3, 7, 64, 2048] {
             let line: vec::Vec<u16> = (0..w).map(|c| ((c * 2654435761) % 5000) as u16).collect();
-            let mut b = vec![0xAAu8; stored_len(w)];
+            let mut b = vec![0xAAu8; packed_len(w) + 1];
             pack(&line, &mut b);
-            assert_eq!(b[packed_len(w)], 0xAA, "slack byte untouched");
+            assert_eq!(b[packed_len(w)], 0xAA, "bytes past the line untouched");
+            assert!(stored_len(w) >= packed_len(w) && stored_len(w) % 4 == 0);
             let mut back = vec![0u16; w];
             unpack(&b, &mut back);
             for c in 0..w {
                 assert_eq!(back[c], line[c].min(MAX), "w {w} c {c}");
                 assert_eq!(sample(&b, c), line[c].min(MAX));
-            }
-            for i in 0..w / 2 {
-                let hi = line[2 * i + 1].min(MAX) as u32;
-                assert_eq!(pair_at(&b, i), line[2 * i].min(MAX) as u32 | hi << 16);
             }
         }
         // The PFNC layout, byte by byte: 0xABC, 0x123 -> BC 3A 12.
