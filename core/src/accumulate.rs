@@ -2,10 +2,16 @@
 //!
 //! A board row needs `n` samples from `n` consecutive frames, but its window's `P` is only
 //! known once the encoder latch of its last frame arrives. So the first `n - 1` samples of
-//! every open row are kept raw (u16) in a pool of line slots, and the `n`-th line is combined
-//! with them as it streams in. Open rows entered in the last `n - 1` frames hold `1..n-1`
-//! lines each, so the pool needs at most `max_step_rows * n (n - 1) / 2` lines: a triangle, not
-//! the `(n - 1)` full frames a frame buffer would take.
+//! every open row are kept raw in a pool of line slots ([`Pool`]: Mono12p for a 12-bit
+//! configuration, u16 otherwise), and the `n`-th line is combined with them as it streams in.
+//! Open rows entered in the last `n - 1` frames hold `1..n-1` lines each, so the pool needs at
+//! most `max_step_rows * n (n - 1) / 2` lines: a triangle, not the `(n - 1)` full frames a
+//! frame buffer would take.
+//!
+//! The kernels ([`block`] for u16 lines, [`block_packed`] for Mono12p) work on pairs of
+//! neighbouring pixels with the M7's dual 16-bit instructions ([`crate::dsp`]); [`pixel_v`] is
+//! their scalar definition, and [`crate::offload`] the seam where a front end can take the
+//! stage over.
 
 use crate::dsp::{pack_bottoms, pack_tops, pair, smlad, unpack12, uqsub16};
 use crate::frames::mono12p;
@@ -188,7 +194,7 @@ pub fn pixel_v(coef: &Coef, samples: &[u16], saturation: u16) -> V {
 /// Two neighbouring pixels at a time, as the M7's packed 16-bit instructions want them
 /// ([`crate::dsp`]): each line is read as words (`c0` even and the lines 4-byte aligned, as
 /// the pipeline's and the firmware's buffers are; otherwise [`pixel_v`] per pixel), a word
-/// holding both pixels' samples; see [`pairs_by`]. Lanes are read as i16: samples below
+/// holding both pixels' samples; see `pair_step`. Lanes are read as i16: samples below
 /// `2^15` as they are, and above a saturation level of `2^15` as `x - 2^15` (`x ^ 0x8000`),
 /// which the zero row sums of [`Coef`] cancel. Either way the sums of every non-saturated
 /// pixel are exact, the same values as [`pixel_v`]'s. An odd last column takes [`pixel_v`].
@@ -280,7 +286,7 @@ fn pixel_at(coef: &Coef, n: usize, sample: impl Fn(usize) -> u16, saturation: u1
 /// [`pixel_v`] of its samples. Each line holds at least [`mono12p::packed_len`]`(c0 +
 /// out.len())` bytes. From a `c0` that is a multiple of 8, on word-aligned lines (the pool's
 /// and the firmware's buffers are), eight pixels are three aligned words per line and one
-/// [`unpack12`] per pair ([`groups_packed`]); the rest (a short last block, or any other
+/// [`unpack12`] per pair (`groups_packed`); the rest (a short last block, or any other
 /// `c0` or alignment) sample by sample. Samples are below `2^15`: no lane flip.
 /// `n = lines.len()` in `3..=8` (else nothing is written); `n = 4`, the paper's and the
 /// default geometry's, has its own unrolled loop.
