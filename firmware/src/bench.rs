@@ -117,7 +117,7 @@ pub fn stages<C: Clock>(
         let mut packed: [&[u8]; MAX_N] = [&[]; MAX_N];
         for j in 0..n {
             lines[j] = &base[j * u..j * u + w.min(u)];
-            let b: &[u8] = bytemuck_bytes(&base[j * u..(j + 1) * u]);
+            let b: &[u8] = bytemuck::cast_slice(&base[j * u..(j + 1) * u]);
             packed[j] = &b[..dpsa_core::frames::mono12p::stored_len(w).min(b.len())];
         }
         let rho = cfg.row_phase(g as i64);
@@ -149,13 +149,6 @@ pub fn stages<C: Clock>(
         s.pixels += w as u64;
     }
     s
-}
-
-/// The bytes of a run of u16 units (little-endian target: the pool's byte order).
-fn bytemuck_bytes(units: &[u16]) -> &[u8] {
-    // SAFETY: u16 has no padding and alignment 2 >= 1; the byte slice covers exactly the
-    // memory of `units` and borrows it immutably for its lifetime.
-    unsafe { core::slice::from_raw_parts(units.as_ptr().cast::<u8>(), units.len() * 2) }
 }
 
 /// Instructions in the calibration loop and the ticks they took.

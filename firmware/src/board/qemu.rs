@@ -373,9 +373,7 @@ impl LinePort for Lines<'_> {
 
 /// The samples of a line as bytes (little-endian target, so the file's byte order).
 pub fn as_bytes_mut(line: &mut [u16]) -> &mut [u8] {
-    // SAFETY: u16 has no invalid bit patterns and alignment 2 >= 1; the byte slice covers
-    // exactly the memory of `line` and borrows it mutably for its lifetime.
-    unsafe { core::slice::from_raw_parts_mut(line.as_mut_ptr().cast::<u8>(), line.len() * 2) }
+    bytemuck::cast_slice_mut(line)
 }
 
 /// The output link: a host file.
