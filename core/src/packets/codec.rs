@@ -898,6 +898,18 @@ fn decode_px(
 /// Row decoder. Holds the reference row in caller memory.
 pub struct Decoder<'a> {
     r: Reference<'a>,
+    /// The reference's state outside this decoder (a [`ReferenceRow`]'s): kept up to date after
+    /// every row, so that the next decoder over the same memory takes up where this one left
+    /// off. `None` for a decoder over plain slices.
+    home: Option<&'a mut RefState>,
+}
+
+/// Whether a reference is held and its sequence number: the part of a decoder's reference that
+/// is not in the row memory.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct RefState {
+    present: bool,
+    seq: u8,
 }
 
 impl<'a> Decoder<'a> {
@@ -909,6 +921,7 @@ impl<'a> Decoder<'a> {
     ) -> Option<Self> {
         Some(Self {
             r: Reference::new(prev_heights, prev_valid, width)?,
+            home: None,
         })
     }
 
@@ -916,6 +929,17 @@ impl<'a> Decoder<'a> {
     /// the next intra row.
     pub fn reset(&mut self) {
         self.r.present = false;
+        self.save();
+    }
+
+    /// Copies the reference's state to its home, if it has one.
+    fn save(&mut self) {
+        if let Some(h) = self.home.as_deref_mut() {
+            *h = RefState {
+                present: self.r.present,
+                seq: self.r.seq,
+            };
+        }
     }
 
     /// Row width.
@@ -943,7 +967,7 @@ impl<'a> Decoder<'a> {
         }
         let (heights, valid) = (&mut heights[..w], &mut valid[..nb]);
         let result = self.decode_inner(input, heights, valid);
-        match result {
+        let result = match result {
             Ok(seq) => {
                 self.r.set_valid(valid);
                 self.r.present = true;
@@ -954,7 +978,9 @@ impl<'a> Decoder<'a> {
                 self.r.present = false;
                 Err(e)
             }
-        }
+        };
+        self.save();
+        result
     }
 
     fn decode_inner(
@@ -1103,12 +1129,20 @@ impl<'a> Decoder<'a> {
     }
 }
 
-/// Owned reference-row memory for one end of a stream: `W` heights and `ceil(W/8)` validity
-/// bytes, from which an [`Encoder`] or a [`Decoder`] borrows (`alloc` feature).
+/// Owned reference memory for one end of a stream: `W` heights and `ceil(W/8)` validity
+/// bytes, from which an [`Encoder`] or a [`Decoder`] borrows (`alloc` feature), and, for the
+/// decoding end, whether a reference is held and its sequence number.
+///
+/// Decoding end: a [`ReferenceRow::decoder`] may be taken per row; it starts from the state
+/// the previous one left (the reference is the row decoded last through this memory), so
+/// predicted rows decode. Encoding end: keep one [`ReferenceRow::encoder`] for the whole
+/// stream (its sequence number and intra budget live in the encoder; a new encoder starts with
+/// an intra row and sequence number 0).
 #[cfg(feature = "alloc")]
 pub struct ReferenceRow {
     heights: alloc::boxed::Box<[i16]>,
     valid: alloc::boxed::Box<[u8]>,
+    state: RefState,
 }
 
 #[cfg(feature = "alloc")]
@@ -1118,6 +1152,7 @@ impl ReferenceRow {
         ReferenceRow {
             heights: alloc::vec![0; width].into_boxed_slice(),
             valid: alloc::vec![0; width.div_ceil(8)].into_boxed_slice(),
+            state: RefState::default(),
         }
     }
 
@@ -1133,10 +1168,15 @@ impl ReferenceRow {
         Encoder::new(&mut self.heights, &mut self.valid, w, intra_period)
     }
 
-    /// A decoder over this memory; `None` if the width is not supported.
+    /// A decoder over this memory that goes on from the row decoded last through it (see the
+    /// type's docs); `None` if the width is not supported.
     pub fn decoder(&mut self) -> Option<Decoder<'_>> {
         let w = self.width();
-        Decoder::new(&mut self.heights, &mut self.valid, w)
+        let mut d = Decoder::new(&mut self.heights, &mut self.valid, w)?;
+        d.r.present = self.state.present;
+        d.r.seq = self.state.seq;
+        d.home = Some(&mut self.state);
+        Some(d)
     }
 }
 
@@ -1456,6 +1496,53 @@ mod tests {
             dec.decode(&p[1], &mut oh, &mut ov),
             Err(CodecError::MissingReference)
         );
+        assert!(!dec.has_reference());
+    }
+
+    /// A [`ReferenceRow`] keeps the whole reference, its state included: a decoder taken per
+    /// row (as the host stream decoder does) decodes predicted rows, still detects a loss and
+    /// recovers at the next intra row, and a reset through one decoder holds for the next.
+    #[test]
+    fn reference_row_decoders_taken_per_row_follow_the_stream() {
+        let mut rng = Rng(12);
+        let w = 300;
+        let img = board(&mut rng, w, 40, 8.0, 4);
+        for intra_period in [0u32, 2, 8, 32] {
+            let p = round_trip(&img, intra_period, &[]);
+            let predicted = p
+                .iter()
+                .filter(|p| peek(p).unwrap().0 == RowKind::Predicted)
+                .count();
+            assert!(predicted >= 20, "K {intra_period}: {predicted} predicted rows");
+            let mut reference = ReferenceRow::new(w);
+            let (mut oh, mut ov) = (vec![0i16; w], vec![0u8; w.div_ceil(8)]);
+            for (r, pl) in p.iter().enumerate() {
+                let mut dec = reference.decoder().unwrap();
+                dec.decode(pl, &mut oh, &mut ov)
+                    .unwrap_or_else(|e| panic!("K {intra_period} row {r}: {e:?}"));
+                let (xh, xv) = expected(w, &img.h[r], &img.v[r]);
+                assert_eq!((&oh, &ov), (&xh, &xv), "K {intra_period} row {r}");
+            }
+        }
+        // A loss: the rows after it fail until the next intra row (K = 6: rows 12, 18, ...).
+        let p = round_trip(&img, 6, &[]);
+        let mut reference = ReferenceRow::new(w);
+        let (mut oh, mut ov) = (vec![0i16; w], vec![0u8; w.div_ceil(8)]);
+        for (r, pl) in p.iter().enumerate().take(20) {
+            if r == 8 {
+                continue;
+            }
+            let res = reference.decoder().unwrap().decode(pl, &mut oh, &mut ov);
+            if (9..12).contains(&r) {
+                assert_eq!(res, Err(CodecError::MissingReference), "row {r}");
+            } else {
+                res.unwrap_or_else(|e| panic!("row {r}: {e:?}"));
+                assert_eq!(oh, expected(w, &img.h[r], &img.v[r]).0, "row {r}");
+            }
+        }
+        // A reset through one decoder holds for the next one over the same memory.
+        reference.decoder().unwrap().reset();
+        let dec = reference.decoder().unwrap();
         assert!(!dec.has_reference());
     }
 
