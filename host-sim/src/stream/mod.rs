@@ -9,7 +9,8 @@
 
 use crate::heightmap::{HeightMap, HeightRow};
 use dpsa_core::packets::{
-    codec, Item, Kind, Packet, PacketError, Summary, Totals, Tracker, Verdict, Walk, MAX_PACKET_LEN,
+    self, codec, Item, Kind, Packet, PacketError, Summary, Totals, Tracker, Verdict, Walk,
+    MAX_PACKET_LEN,
 };
 use serde::Serialize;
 use std::io::Read;
@@ -242,6 +243,10 @@ struct Decoder {
     /// Codec reference state per width (at most 4 widths; one serves a whole stream so that
     /// predicted rows find their reference).
     refs: Vec<(usize, codec::ReferenceRow)>,
+    /// Sequence number of the last version 2 packet followed: a packet that does not come
+    /// next drops the references, so that a predicted row is never decoded against a row from
+    /// before a loss (the codec's 8-bit row sequence misses a loss of 256 rows).
+    last_seq: Option<u32>,
     /// Decoded rows with their offsets (width chosen at the end). Without kept heights an
     /// entry is 32 bytes, less than the smallest packet (44 bytes, 36 for version 1): memory
     /// stays below the input's size.
@@ -269,7 +274,14 @@ impl Decoder {
             }
         }
         match self.tracker.packet(p) {
-            Verdict::Accept => {}
+            Verdict::Accept => {
+                if p.version == packets::VERSION {
+                    if self.last_seq.is_some_and(|s| p.seq != s.wrapping_add(1)) {
+                        self.refs.clear();
+                    }
+                    self.last_seq = Some(p.seq);
+                }
+            }
             Verdict::Duplicate => return,
             Verdict::WrongWidth => {
                 let w = self.tracker.summary().info.map_or(0, |i| i.width);
@@ -486,6 +498,7 @@ pub fn decode_reader_with<R: Read>(
         rep: DecodeReport::default(),
         tracker: Tracker::new(),
         refs: Vec::new(),
+        last_seq: None,
         rows: Vec::new(),
         keep,
         kept_pixels: 0,
@@ -500,6 +513,11 @@ pub fn decode_reader_with<R: Read>(
             match item {
                 Item::Packet { offset, packet } => d.packet(base + offset as u64, &packet),
                 Item::Damage { offset, error } => {
+                    // Version 1 packets carry no sequence number: bytes that are not a packet
+                    // may have held rows, so the references go.
+                    if d.tracker.summary().version != packets::VERSION {
+                        d.refs.clear();
+                    }
                     d.tracker.damage();
                     d.rep.damage(base + offset as u64, error);
                     d.rep.resynced += 1;
