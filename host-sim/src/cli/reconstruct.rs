@@ -22,7 +22,8 @@ pub struct Args {
     /// Codec intra period: 1 (default) makes every packet decodable on its own, so a
     /// damaged packet loses only itself; K > 1 predicts rows from the previous one
     /// (smaller, but a lost packet costs up to K - 1 more rows).
-    #[arg(long, default_value_t = dpsa_core::packets::STREAM_INTRA_PERIOD)]
+    #[arg(long, default_value_t = dpsa_core::packets::STREAM_INTRA_PERIOD,
+          value_parser = intra_period)]
     intra_period: u32,
     /// Array calibration file (`dpsa calibrate`): use camera `--camera`'s encoder scale,
     /// fringe period, reference-phase table and height per turn instead of the manifest's.
@@ -31,6 +32,23 @@ pub struct Args {
     /// Camera of `--cal` (default: the manifest's camera id).
     #[arg(long, requires = "cal")]
     camera: Option<u8>,
+}
+
+/// Parses `--intra-period`: a whole number of rows, at least 1 (0 would never force an intra
+/// row, so one lost packet would cost the rest of the stream).
+pub(super) fn intra_period(s: &str) -> std::result::Result<u32, String> {
+    match s.parse::<u32>() {
+        Ok(0) => Err(
+            "the codec intra period must be at least 1 (1: every row decodes on its \
+                      own; K: an intra row at least every K rows)"
+                .into(),
+        ),
+        Ok(k) => Ok(k),
+        Err(_) => Err(format!(
+            "the codec intra period must be a whole number of rows from 1 to {}",
+            u32::MAX
+        )),
+    }
 }
 
 pub fn run(a: Args, progress: bool) -> Result<()> {

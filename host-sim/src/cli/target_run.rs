@@ -13,7 +13,8 @@ pub struct Args {
     #[arg(long, required_unless_present = "bench")]
     out: Option<PathBuf>,
     /// Codec intra period of the stream (as for `dpsa reconstruct`).
-    #[arg(long, default_value_t = dpsa_core::packets::STREAM_INTRA_PERIOD)]
+    #[arg(long, default_value_t = dpsa_core::packets::STREAM_INTRA_PERIOD,
+          value_parser = super::reconstruct::intra_period)]
     intra_period: u32,
     /// Firmware ELF to run; default: build it with `firmware/build.sh` if needed.
     #[arg(long)]

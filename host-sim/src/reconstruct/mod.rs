@@ -36,7 +36,7 @@ pub fn run<W: Write>(rec: &Recording, out: W, progress: bool) -> Result<(RunStat
 
 /// [`run`] with a chosen codec intra period (1: every packet decodes alone; `intra_period > 1`:
 /// rows are predicted from the previous one, smaller but a lost packet costs up to
-/// `intra_period - 1` more).
+/// `intra_period - 1` more). 0 is refused.
 pub fn run_with<W: Write>(
     rec: &Recording,
     out: W,
@@ -57,6 +57,10 @@ pub fn run_link<L: Link>(
 where
     L::Error: std::fmt::Display,
 {
+    anyhow::ensure!(
+        intra_period >= 1,
+        "the codec intra period must be at least 1 (got 0)"
+    );
     let core = config(&rec.manifest)?;
     let cfg = core.cfg;
     let mut state = State::new(&cfg);
