@@ -276,7 +276,11 @@ fn a_loss_of_256_predicted_rows_is_not_decoded_against_the_wrong_reference() {
     // Rice context whichever row is the reference, so a row decoded against the wrong one
     // parses and comes out wrong by a little, not as a corrupt payload.
     let rows: Vec<Vec<i16>> = (0..n_rows)
-        .map(|r| (0..w).map(|c| 100 + (r % 3) as i16 + (c / 4) as i16).collect())
+        .map(|r| {
+            (0..w)
+                .map(|c| 100 + (r % 3) as i16 + (c / 4) as i16)
+                .collect()
+        })
         .collect();
     let valid = vec![0xFFu8; w / 8];
     let mut reference = codec::ReferenceRow::new(w);

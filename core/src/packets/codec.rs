@@ -1513,7 +1513,10 @@ mod tests {
                 .iter()
                 .filter(|p| peek(p).unwrap().0 == RowKind::Predicted)
                 .count();
-            assert!(predicted >= 20, "K {intra_period}: {predicted} predicted rows");
+            assert!(
+                predicted >= 20,
+                "K {intra_period}: {predicted} predicted rows"
+            );
             let mut reference = ReferenceRow::new(w);
             let (mut oh, mut ov) = (vec![0i16; w], vec![0u8; w.div_ceil(8)]);
             for (r, pl) in p.iter().enumerate() {
