@@ -257,8 +257,7 @@ fn intra_period_zero_is_refused() {
     // The library refuses it too.
     let recording = Recording::open(&rec).unwrap();
     let e = dpsa_sim::reconstruct::run_with(&recording, Vec::new(), 0, false)
-        .err()
-        .expect("intra period 0 accepted");
+        .expect_err("intra period 0 accepted");
     assert!(e.to_string().contains("at least 1"), "{e}");
 }
 
