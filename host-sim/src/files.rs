@@ -10,8 +10,22 @@
 //!   `.NAME.XXXXXX` temporary, which an error removes), and two writers of the same path leave
 //!   one whole file (the last to finish). An existing destination that is not a regular file
 //!   (`/dev/null`, `/dev/full`, a FIFO) is written directly.
+//!   A FIFO or socket destination is refused (opening it would wait for a reader).
+//! * **Output directories appear whole or not at all.** [`OutputDir`] builds a command's
+//!   directory (a board map, an inspection report, a recording) as a hidden `.NAME.XXXXXX`
+//!   directory beside the destination and swaps it in whole in [`OutputDir::commit`]. The
+//!   destination must be new, empty, or an earlier output of the same kind (recognised by the
+//!   hidden [`MARKER`] file or the kind's own manifest); anything else is refused. An error,
+//!   a SIGINT/SIGTERM or a crash leaves the earlier directory as it was; two writers of one
+//!   destination leave one of them whole; nothing of an earlier run (a stale gallery image)
+//!   survives a new one.
+//! * **Modes follow the umask.** Files are created `0666 & !umask`, directories
+//!   `0777 & !umask` (0644 and 0755 under umask 022), not the 0600/0700 of a bare temporary.
 //! * **Outputs never overwrite inputs.** [`refuse_overwrite`] refuses an output that is an
-//!   input file (after resolving symlinks) or lies inside an input directory, before any work.
+//!   input file (after resolving symlinks), lies inside an input directory, or is a directory
+//!   holding an input, before any work.
+//! * **Temporary directories go on a signal.** [`TempDir`] is a scratch directory removed
+//!   when dropped and by the SIGINT/SIGTERM handler.
 
 use anyhow::{bail, Result};
 use std::fs::File;
@@ -137,6 +151,66 @@ fn unfinished() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
     UNFINISHED.lock().unwrap_or_else(|p| p.into_inner())
 }
 
+/// Removes a file, or a directory with everything in it (retried: a writer thread may still be
+/// adding files while the interrupt handler runs).
+fn remove_any(p: &Path) {
+    match std::fs::symlink_metadata(p) {
+        Ok(m) if m.is_dir() => {
+            for _ in 0..5 {
+                if std::fs::remove_dir_all(p).is_ok() || !p.exists() {
+                    break;
+                }
+            }
+        }
+        Ok(_) => {
+            let _ = std::fs::remove_file(p);
+        }
+        Err(_) => {}
+    }
+}
+
+fn register(p: &Path) {
+    unfinished().push(p.to_path_buf());
+}
+
+fn unregister(p: &Path) {
+    unfinished().retain(|q| q != p);
+}
+
+/// Mode requested for a new file; the process umask clears bits from it at creation.
+fn file_mode() -> std::fs::Permissions {
+    mode(0o666)
+}
+
+/// Mode requested for a new directory (umask applied at creation).
+fn dir_mode() -> std::fs::Permissions {
+    mode(0o777)
+}
+
+#[cfg(unix)]
+fn mode(m: u32) -> std::fs::Permissions {
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::Permissions::from_mode(m)
+}
+
+#[cfg(not(unix))]
+fn mode(_: u32) -> std::fs::Permissions {
+    std::fs::metadata(".")
+        .map(|m| m.permissions())
+        .unwrap_or_else(|_| unreachable!("the working directory has metadata"))
+}
+
+#[cfg(unix)]
+fn is_fifo_or_socket(m: &std::fs::Metadata) -> bool {
+    use std::os::unix::fs::FileTypeExt;
+    m.file_type().is_fifo() || m.file_type().is_socket()
+}
+
+#[cfg(not(unix))]
+fn is_fifo_or_socket(_: &std::fs::Metadata) -> bool {
+    false
+}
+
 /// Makes SIGINT, SIGTERM and SIGHUP remove the temporary files of every unfinished output
 /// before the process exits (status 130): an interrupted run leaves neither a partial output
 /// nor a hidden temporary behind, and an earlier output at the destination stays as it was.
@@ -144,9 +218,12 @@ fn unfinished() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
 /// dropped). Called once by `main`; a second call is ignored.
 pub fn remove_unfinished_on_interrupt() {
     let _ = ctrlc::set_handler(|| {
-        let paths = std::mem::take(&mut *unfinished());
+        // The registry stays locked until the exit: a thread that fails because its
+        // temporary vanished blocks on it (in `Drop`) instead of exiting first with status 1.
+        let list = unfinished();
+        let paths: Vec<PathBuf> = list.clone();
         for p in &paths {
-            let _ = std::fs::remove_file(p);
+            remove_any(p);
         }
         eprintln!(
             "error: interrupted{}",
@@ -183,6 +260,7 @@ impl AtomicFile {
         let fail = |e: std::io::Error| anyhow::anyhow!("{} {}", path.display(), write_cause(&e));
         match std::fs::metadata(path) {
             Ok(m) if m.is_dir() => bail!("cannot write {}: it is a directory", path.display()),
+            Ok(m) if is_fifo_or_socket(&m) => refuse_fifo_output("the output", path)?,
             Ok(m) if !m.is_file() => {
                 let f = std::fs::OpenOptions::new()
                     .write(true)
@@ -205,6 +283,7 @@ impl AtomicFile {
             .unwrap_or_else(|| "out".into());
         let tmp = tempfile::Builder::new()
             .prefix(&format!(".{name}."))
+            .permissions(file_mode())
             .tempfile_in(&dir)
             .map_err(|e| {
                 anyhow::anyhow!(
@@ -342,6 +421,313 @@ impl<W: Write> Write for Tee<W> {
     }
 }
 
+/// Name of the hidden file that marks a directory written by [`OutputDir`]; it holds
+/// `{"format": KIND}`.
+pub const MARKER: &str = ".dpsa-output";
+
+/// A kind of output directory.
+#[derive(Clone, Copy)]
+pub struct DirKind {
+    /// Recorded in the [`MARKER`], e.g. `dpsa-board-map`.
+    pub format: &'static str,
+    /// For messages, e.g. `board map`.
+    pub noun: &'static str,
+    /// Recognises an earlier output of this kind written before the marker existed (by its
+    /// own manifest).
+    pub ours: fn(&Path) -> bool,
+}
+
+/// An output directory under construction: a hidden directory beside the destination until
+/// [`OutputDir::commit`] swaps it in (see the module docs).
+pub struct OutputDir {
+    dest: PathBuf,
+    tmp: PathBuf,
+    kind: DirKind,
+    done: bool,
+}
+
+/// The kind recorded in `dir`'s [`MARKER`], if any.
+fn marker_kind(dir: &Path) -> Option<String> {
+    let b = read_capped_io(&dir.join(MARKER), 4096).ok()?;
+    let v: serde_json::Value = serde_json::from_slice(&b).ok()?;
+    Some(v.get("format")?.as_str()?.to_string())
+}
+
+/// Checks (before any work) that `dest` may be replaced by an output of `kind`: it does not
+/// exist, is an empty directory, or holds an earlier output of this kind (its [`MARKER`] or
+/// `kind.ours`). A symbolic link is refused (the swap would replace the link).
+pub fn check_output_dir(dest: &Path, kind: DirKind) -> Result<()> {
+    let noun = kind.noun;
+    let meta = match std::fs::symlink_metadata(dest) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => bail!("output directory {} {}", dest.display(), io_cause(&e)),
+    };
+    if !meta.is_dir() {
+        bail!(
+            "refusing to write the {noun} into {}: it exists and is not a directory",
+            dest.display()
+        );
+    }
+    let first = std::fs::read_dir(dest)
+        .and_then(|mut d| d.next().transpose())
+        .map_err(|e| anyhow::anyhow!("output directory {} {}", dest.display(), io_cause(&e)))?;
+    let Some(first) = first else {
+        return Ok(());
+    };
+    match marker_kind(dest) {
+        Some(k) if k == kind.format => return Ok(()),
+        Some(k) => bail!(
+            "refusing to write the {noun} into {}: it holds another dpsa output ({k}); choose another directory",
+            dest.display()
+        ),
+        None if (kind.ours)(dest) => return Ok(()),
+        None => {}
+    }
+    bail!(
+        "refusing to write the {noun} into {}: it is not empty and holds no earlier {noun} (it has {:?}); choose a new or empty directory",
+        dest.display(),
+        first.file_name()
+    )
+}
+
+impl OutputDir {
+    /// Starts an output directory of `kind` for `dest`: checks the destination (see
+    /// [`check_output_dir`]) and creates the hidden directory beside it, removed on an error,
+    /// on drop and by the interrupt handler.
+    pub fn create(dest: &Path, kind: DirKind) -> Result<OutputDir> {
+        check_output_dir(dest, kind)?;
+        let parent = match dest.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        std::fs::create_dir_all(&parent).map_err(|e| {
+            anyhow::anyhow!("cannot create {}: it {}", parent.display(), write_cause(&e))
+        })?;
+        let name = dest
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "out".into());
+        // Registered while the lock is held, so an interrupt cannot miss it.
+        let mut list = unfinished();
+        let tmp = tempfile::Builder::new()
+            .prefix(&format!(".{name}."))
+            .permissions(dir_mode())
+            .tempdir_in(&parent)
+            .map_err(|e| {
+                anyhow::anyhow!(
+                    "cannot write {}: a temporary directory in {} {}",
+                    dest.display(),
+                    parent.display(),
+                    write_cause(&e)
+                )
+            })?
+            .keep();
+        list.push(tmp.clone());
+        drop(list);
+        Ok(OutputDir {
+            dest: dest.to_path_buf(),
+            tmp,
+            kind,
+            done: false,
+        })
+    }
+
+    /// The directory to write into (the hidden one until [`OutputDir::commit`]).
+    pub fn path(&self) -> &Path {
+        &self.tmp
+    }
+
+    /// The destination.
+    pub fn dest(&self) -> &Path {
+        &self.dest
+    }
+
+    /// Writes the marker and swaps the finished directory in whole; the earlier directory
+    /// (if any) is removed.
+    pub fn commit(mut self) -> Result<()> {
+        let marker = serde_json::json!({ "format": self.kind.format }).to_string();
+        write_bytes(&self.tmp.join(MARKER), marker.as_bytes())?;
+        // Re-checked: something else may have appeared at the destination meanwhile.
+        check_output_dir(&self.dest, self.kind)?;
+        let fail = |e: std::io::Error| {
+            anyhow::anyhow!(
+                "cannot replace {} with the new {}: {}",
+                self.dest.display(),
+                self.kind.noun,
+                plain(&e)
+            )
+        };
+        {
+            // The interrupt handler waits for the swap: it then removes the hidden path,
+            // which holds either the new directory (not swapped) or the old one (swapped).
+            let _list = unfinished();
+            swap_in(&self.tmp, &self.dest).map_err(fail)?;
+        }
+        remove_any(&self.tmp);
+        unregister(&self.tmp);
+        self.done = true;
+        Ok(())
+    }
+}
+
+impl Drop for OutputDir {
+    fn drop(&mut self) {
+        if !self.done {
+            remove_any(&self.tmp);
+            unregister(&self.tmp);
+        }
+    }
+}
+
+/// Moves the directory `new` to `dest`; an existing `dest` ends up at `new` (to be removed by
+/// the caller). On Linux one `renameat2` call: `RENAME_EXCHANGE` when `dest` exists (the
+/// destination is a whole directory at every instant, even across a crash), `RENAME_NOREPLACE`
+/// when it does not (a concurrent writer that got there first is exchanged with instead of
+/// failing). Elsewhere, or on a file system without these flags, the old directory is renamed
+/// aside first (a crash between the two renames leaves it under its hidden name).
+fn swap_in(new: &Path, dest: &Path) -> std::io::Result<()> {
+    for _ in 0..100 {
+        let exists = std::fs::symlink_metadata(dest).is_ok();
+        match rename2(new, dest, exists) {
+            Ok(()) => return Ok(()),
+            // Raced: the destination appeared or vanished between the check and the call.
+            Err(e)
+                if matches!(
+                    e.raw_os_error(),
+                    Some(libc_errno::EEXIST | libc_errno::ENOENT)
+                ) =>
+            {
+                continue
+            }
+            Err(e)
+                if matches!(
+                    e.raw_os_error(),
+                    Some(libc_errno::EINVAL | libc_errno::ENOSYS)
+                ) =>
+            {
+                return swap_aside(new, dest)
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    Err(std::io::Error::other(
+        "the destination kept changing while it was being replaced",
+    ))
+}
+
+mod libc_errno {
+    pub const ENOENT: i32 = 2;
+    pub const EEXIST: i32 = 17;
+    pub const EINVAL: i32 = 22;
+    pub const ENOSYS: i32 = 38;
+}
+
+#[cfg(target_os = "linux")]
+fn rename2(from: &Path, to: &Path, exchange: bool) -> std::io::Result<()> {
+    use rustix::fs::{renameat_with, RenameFlags, CWD};
+    let flags = if exchange {
+        RenameFlags::EXCHANGE
+    } else {
+        RenameFlags::NOREPLACE
+    };
+    renameat_with(CWD, from, CWD, to, flags).map_err(std::io::Error::from)
+}
+
+#[cfg(not(target_os = "linux"))]
+fn rename2(_: &Path, _: &Path, _: bool) -> std::io::Result<()> {
+    Err(std::io::Error::from_raw_os_error(libc_errno::ENOSYS))
+}
+
+/// [`swap_in`] without `renameat2`: the old directory is renamed to a hidden name beside it,
+/// the new one renamed in, and the old one moved to `new` for the caller to remove.
+fn swap_aside(new: &Path, dest: &Path) -> std::io::Result<()> {
+    let parent = dest.parent().unwrap_or(Path::new("."));
+    for _ in 0..100 {
+        let aside = tempfile::Builder::new()
+            .prefix(".dpsa-old.")
+            .tempdir_in(if parent.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                parent
+            })?
+            .keep();
+        register(&aside);
+        let moved = match std::fs::rename(dest, &aside) {
+            Ok(()) => true,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => false,
+            Err(e) => {
+                remove_any(&aside);
+                unregister(&aside);
+                return Err(e);
+            }
+        };
+        match std::fs::rename(new, dest) {
+            Ok(()) => {
+                let _ = std::fs::rename(&aside, new);
+                remove_any(&aside);
+                unregister(&aside);
+                return Ok(());
+            }
+            // Another writer put its directory in between: try again.
+            Err(_) if std::fs::symlink_metadata(dest).is_ok() => {
+                let _ = moved;
+                remove_any(&aside);
+                unregister(&aside);
+                continue;
+            }
+            Err(e) => {
+                if moved {
+                    let _ = std::fs::rename(&aside, dest);
+                }
+                remove_any(&aside);
+                unregister(&aside);
+                return Err(e);
+            }
+        }
+    }
+    Err(std::io::Error::other(
+        "the destination kept changing while it was being replaced",
+    ))
+}
+
+/// A scratch directory (in the system temporary directory unless given a parent), removed when
+/// dropped and by the SIGINT/SIGTERM handler (see [`remove_unfinished_on_interrupt`]).
+pub struct TempDir {
+    path: PathBuf,
+}
+
+impl TempDir {
+    /// A new scratch directory whose name starts with `prefix`.
+    pub fn new(prefix: &str) -> Result<TempDir> {
+        let mut list = unfinished();
+        let path = tempfile::Builder::new()
+            .prefix(prefix)
+            .tempdir()
+            .map_err(|e| {
+                anyhow::anyhow!(
+                    "cannot create a temporary directory in {}: it {}",
+                    std::env::temp_dir().display(),
+                    write_cause(&e)
+                )
+            })?
+            .keep();
+        list.push(path.clone());
+        Ok(TempDir { path })
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        remove_any(&self.path);
+        unregister(&self.path);
+    }
+}
+
 /// An input of a command, for [`refuse_overwrite`].
 pub enum Input<'a> {
     /// A file read by the command.
@@ -366,33 +752,61 @@ fn resolve(path: &Path) -> PathBuf {
     }
 }
 
-/// Refuses (before any work) to write `output` when it is one of the `inputs` or lies inside
-/// an input directory. `what` names the option, e.g. `--out`.
+/// Refuses (before any work) to write the file `output` when it is one of the `inputs` or lies
+/// inside an input directory. `what` names the option, e.g. `--out`.
 pub fn refuse_overwrite(what: &str, output: &Path, inputs: &[Input]) -> Result<()> {
+    refuse(what, output, inputs, false)
+}
+
+/// [`refuse_overwrite`] for an output directory (replaced whole, see [`OutputDir`]): also
+/// refused when it holds an input (a program, a paste layer, a calibration inside it).
+pub fn refuse_overwrite_dir(what: &str, output: &Path, inputs: &[Input]) -> Result<()> {
+    refuse(what, output, inputs, true)
+}
+
+fn refuse(what: &str, output: &Path, inputs: &[Input], out_is_dir: bool) -> Result<()> {
     let out = resolve(output);
     for input in inputs {
-        match input {
-            Input::File(p) => {
-                if resolve(p) == out {
-                    bail!(
-                        "refusing to write {what} {}: it is the input {}",
-                        output.display(),
-                        p.display()
-                    );
-                }
-            }
-            Input::Dir(d) => {
-                if out.starts_with(resolve(d)) {
-                    bail!(
-                        "refusing to write {what} {}: it is inside the recording {} being read",
-                        output.display(),
-                        d.display()
-                    );
-                }
-            }
+        let (p, dir) = match input {
+            Input::File(p) => (*p, false),
+            Input::Dir(d) => (*d, true),
+        };
+        let inp = resolve(p);
+        if inp == out {
+            bail!(
+                "refusing to write {what} {}: it is the input {}",
+                output.display(),
+                p.display()
+            );
+        }
+        if dir && out.starts_with(&inp) {
+            bail!(
+                "refusing to write {what} {}: it is inside the input directory {} being read",
+                output.display(),
+                p.display()
+            );
+        }
+        if out_is_dir && inp.starts_with(&out) {
+            bail!(
+                "refusing to write {what} {}: it holds the input {} (it would be replaced)",
+                output.display(),
+                p.display()
+            );
         }
     }
     Ok(())
+}
+
+/// Refuses (before any work) an output path that is a FIFO or a socket: writing it would wait
+/// for a reader. Devices such as `/dev/null` stay allowed.
+pub fn refuse_fifo_output(what: &str, path: &Path) -> Result<()> {
+    match std::fs::metadata(path) {
+        Ok(m) if is_fifo_or_socket(&m) => bail!(
+            "cannot write {what} {}: it is a FIFO or socket (a write would wait for a reader); give a regular file",
+            path.display()
+        ),
+        _ => Ok(()),
+    }
 }
 
 /// Refuses two outputs of one command that are the same file.
@@ -469,6 +883,9 @@ mod tests {
         assert!(
             refuse_overwrite("--out", &other.path().join("o"), &[Input::Dir(dir.path())]).is_ok()
         );
+        // An output directory that holds an input file.
+        assert!(refuse_overwrite_dir("--out", dir.path(), &[Input::File(&f)]).is_err());
+        assert!(refuse_overwrite("--out", dir.path(), &[Input::File(&f)]).is_ok());
         assert!(require_png("--png", Path::new("a.PNG")).is_ok());
         assert!(require_png("--png", Path::new("a.dpsa")).is_err());
     }

@@ -315,7 +315,12 @@ fn board_recording_is_read_by_the_single_camera_tools() {
     assert!(rec.truth().unwrap().is_some());
     // A calibration pass name in a board recording: plain error, no panic.
     assert!(a.manifest.passes.iter().all(|p| p.kind != PassKind::Target));
-    assert!(record::simulate_board(&scene, 5, &tmp.path().join("png")).is_err());
+    // A non-empty directory that holds no array recording is refused, untouched.
+    let other = tmp.path().join("other");
+    std::fs::create_dir_all(&other).unwrap();
+    std::fs::write(other.join("notes.txt"), b"mine").unwrap();
+    assert!(record::simulate_board(&scene, 5, &other).is_err());
+    assert_eq!(std::fs::read(other.join("notes.txt")).unwrap(), b"mine");
 }
 
 /// The calibration of the shared calibration recording, in a file (made once).

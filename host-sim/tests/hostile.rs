@@ -245,7 +245,7 @@ fn case04_output_inside_the_recording_is_refused() {
     let m = rec.join("manifest.json");
     let e = fails(
         &["reconstruct", s(&rec), "--out", s(&m)],
-        &["refusing", "manifest.json", "inside the recording"],
+        &["refusing", "manifest.json", "inside the input directory"],
     );
     assert!(e.contains(s(&rec)), "{e}");
     let f = rec.join("frames/000003.png");

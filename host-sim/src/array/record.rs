@@ -298,19 +298,21 @@ pub fn conveyor(scene: &ArrayScene, seed: u64, stream: u64, s_start: f64, s_end:
     )
 }
 
-/// Creates `dir` (new or empty; an earlier array recording there is refused, to keep it
-/// simple and safe: choose a new directory).
-fn prepare(dir: &Path) -> Result<()> {
-    if let Ok(mut d) = std::fs::read_dir(dir) {
-        if d.next().is_some() {
-            bail!(
-                "refusing to write an array recording into {}: it is not empty; choose a new or empty directory",
-                dir.display()
-            );
-        }
-    }
-    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))
+/// Whether `dir` holds an array recording (its `array.json` of format [`ARRAY_FORMAT`]).
+pub fn is_array_recording(dir: &Path) -> bool {
+    crate::files::read_capped_io(&dir.join(ARRAY_FILE), crate::files::MAX_MANIFEST_BYTES)
+        .ok()
+        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+        .is_some_and(|v| v.get("format").and_then(|f| f.as_str()) == Some(ARRAY_FORMAT))
 }
+
+/// An array recording directory, for [`crate::files::OutputDir`]: written whole into a hidden
+/// directory beside the destination (new, empty or an earlier array recording) and swapped in.
+pub const DIR_KIND: crate::files::DirKind = crate::files::DirKind {
+    format: ARRAY_FORMAT,
+    noun: "array recording",
+    ours: is_array_recording,
+};
 
 /// Renders and writes one camera's recording of one pass into `dir`: frames and truth; the
 /// manifest is returned, validated, for the caller to save (a board's cameras get their board
@@ -593,7 +595,8 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
     let t0 = Instant::now();
     // The print first: a layer that cannot be printed leaves no directory behind.
     let (boxes, deposits, printed) = board_deposits(scene, seed)?;
-    prepare(out)?;
+    let staging = crate::files::OutputDir::create(out, DIR_KIND)?;
+    let out = staging.path();
     let models = models(scene);
     let sl = slack(&models);
     let s0 = models
@@ -703,6 +706,7 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
         m.save(&out.join(format!("cam{i}")))?;
     }
     sum.bytes += write_json(&out.join(ARRAY_FILE), &manifest)?;
+    staging.commit()?;
     sum.seconds = t0.elapsed().as_secs_f64();
     Ok(sum)
 }
@@ -711,7 +715,8 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
 /// plane of `calibration.plane_heights_um`, the held-out plane and the lateral target.
 pub fn simulate_calibration(scene: &ArrayScene, seed: u64, out: &Path) -> Result<WriteSummary> {
     scene.validate()?;
-    prepare(out)?;
+    let staging = crate::files::OutputDir::create(out, DIR_KIND)?;
+    let out = staging.path();
     let t0 = Instant::now();
     let models = models(scene);
     let plan = &scene.calibration;
@@ -823,6 +828,7 @@ pub fn simulate_calibration(scene: &ArrayScene, seed: u64, out: &Path) -> Result
         print: None,
     };
     sum.bytes += write_json(&out.join(ARRAY_FILE), &manifest)?;
+    staging.commit()?;
     sum.seconds = t0.elapsed().as_secs_f64();
     Ok(sum)
 }

@@ -79,7 +79,31 @@ pub const FILE_NAMES: [&str; 5] = [
     "board.json",
 ];
 
-/// Writes every file of the map into `dir` (created if needed); returns the metadata.
+/// Whether `dir` holds a board map (its `board.json` of format [`FORMAT`]): an earlier map,
+/// which a new one may replace.
+pub fn is_board_map(dir: &Path) -> bool {
+    crate::files::read_capped_io(&dir.join("board.json"), 1 << 20)
+        .ok()
+        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+        .is_some_and(|v| v.get("format").and_then(|f| f.as_str()) == Some(FORMAT))
+}
+
+/// Refuses (before any work) a destination that a board map may not replace: a file, or a
+/// non-empty directory holding no earlier map (see [`crate::files::OutputDir`]).
+pub fn check_destination(dir: &Path) -> Result<()> {
+    crate::files::check_output_dir(dir, DIR_KIND)
+}
+
+/// A board map directory, for [`crate::files::OutputDir`].
+pub const DIR_KIND: crate::files::DirKind = crate::files::DirKind {
+    format: FORMAT,
+    noun: "board map",
+    ours: is_board_map,
+};
+
+/// Writes the map into `dir`, whole or not at all: built in a hidden directory beside it and
+/// swapped in at the end (an earlier map there is replaced, see [`crate::files::OutputDir`]);
+/// returns the metadata.
 pub fn write(
     dir: &Path,
     grid: &BoardGrid,
@@ -87,8 +111,19 @@ pub fn write(
     cameras: usize,
     missing_rows: &[u64],
 ) -> Result<Metadata> {
-    std::fs::create_dir_all(dir)
-        .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", dir.display()))?;
+    let staging = crate::files::OutputDir::create(dir, DIR_KIND)?;
+    let meta = write_files(staging.path(), grid, b, cameras, missing_rows)?;
+    staging.commit()?;
+    Ok(meta)
+}
+
+fn write_files(
+    dir: &Path,
+    grid: &BoardGrid,
+    b: &Blended,
+    cameras: usize,
+    missing_rows: &[u64],
+) -> Result<Metadata> {
     let files = Files {
         heights_png: "heights.png",
         heights_tiff: "heights_um.tiff",

@@ -15,7 +15,8 @@ pub struct Args {
     #[arg(long)]
     cal: PathBuf,
     /// Output directory: heights.png, heights_um.tiff, heights.colour.png, camera.png,
-    /// board.json (may not be inside the recording).
+    /// board.json. New, empty or an earlier board map (replaced whole); it may not be, hold
+    /// or lie inside an input.
     #[arg(long)]
     out: PathBuf,
     /// Print the figures as JSON.
@@ -34,10 +35,10 @@ pub struct Args {
 pub fn run(a: Args) -> Result<i32> {
     let mut inputs = vec![files::Input::Dir(&a.dir), files::Input::File(&a.cal)];
     inputs.extend(a.streams.iter().map(|p| files::Input::File(p)));
-    files::refuse_overwrite("--out", &a.out, &inputs)?;
-    for name in dpsa_sim::board::output::FILE_NAMES {
-        files::refuse_overwrite("--out", &a.out.join(name), &inputs)?;
-    }
+    // The map directory may not be, hold or lie inside an input; it replaces only an
+    // earlier map (checked again when it is swapped in).
+    files::refuse_overwrite_dir("--out", &a.out, &inputs)?;
+    dpsa_sim::board::output::check_destination(&a.out)?;
     let cal = CalFile::load(&a.cal)?;
     let source = if a.streams.is_empty() {
         Source::Core

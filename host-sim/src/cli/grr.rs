@@ -18,7 +18,7 @@ pub struct Args {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Working directory for the recordings (removed as the study goes; default: a new
-    /// temporary directory).
+    /// temporary directory, removed at the end and on SIGINT/SIGTERM).
     #[arg(long)]
     work: Option<PathBuf>,
     /// Print the report as JSON.
@@ -31,7 +31,8 @@ pub fn run(a: Args) -> Result<()> {
     let work = match &a.work {
         Some(w) => w.clone(),
         None => {
-            tmp = tempfile::tempdir()?;
+            // 50-130 MB of recordings: removed on drop and by the interrupt handler.
+            tmp = dpsa_sim::files::TempDir::new("dpsa-grr-")?;
             tmp.path().to_path_buf()
         }
     };

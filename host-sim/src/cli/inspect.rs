@@ -2,7 +2,6 @@
 
 use super::out;
 use anyhow::Result;
-use dpsa_sim::files;
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -13,7 +12,8 @@ pub struct Args {
     #[arg(long)]
     program: PathBuf,
     /// Output directory: pads.csv, report.json, cfx_units_inspected.json, overview.png,
-    /// gallery/ (may not be inside the board map).
+    /// gallery/. New, empty or an earlier inspection output (replaced whole); it may not be,
+    /// hold or lie inside an input.
     #[arg(long)]
     out: PathBuf,
     /// Print the report as JSON.
@@ -30,11 +30,9 @@ pub struct Args {
 
 /// Exit status 0 whatever the verdict (it is in the report), 1 on an error.
 pub fn run(a: Args) -> Result<()> {
-    let mut inputs = vec![files::Input::Dir(&a.board), files::Input::File(&a.program)];
-    if let Some(t) = &a.truth {
-        inputs.push(files::Input::File(t));
-    }
-    files::refuse_overwrite("--out", &a.out, &inputs)?;
+    // `inspect_dir` refuses an `--out` that is, holds or lies inside an input (the board map,
+    // the program, its paste layer, the truth) and one that is not new, empty or an earlier
+    // inspection output, before the inspection runs.
     let (r, _) = dpsa_sim::inspection::run::inspect_dir(
         &a.board,
         &a.program,

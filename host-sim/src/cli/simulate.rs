@@ -39,7 +39,7 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
     let sc = load_scene(&a.scene)?;
     let seed = a.seed.unwrap_or(sc.seed);
     if a.scene != "default" {
-        files::refuse_overwrite("--out", &a.out, &[files::Input::File(Path::new(&a.scene))])?;
+        files::refuse_overwrite_dir("--out", &a.out, &[files::Input::File(Path::new(&a.scene))])?;
     }
     let s = simulate::simulate_with(&sc, seed, &a.out, progress, a.force)?;
     out!(
@@ -57,7 +57,7 @@ fn run_array(a: Args) -> Result<()> {
     let sc = array::scene::ArrayScene::load(Path::new(&a.scene))?;
     super::warn(&sc.warnings());
     let seed = a.seed.unwrap_or(sc.seed);
-    files::refuse_overwrite("--out", &a.out, &[files::Input::File(Path::new(&a.scene))])?;
+    files::refuse_overwrite_dir("--out", &a.out, &[files::Input::File(Path::new(&a.scene))])?;
     let s = if a.calibration {
         array::record::simulate_calibration(&sc, seed, &a.out)?
     } else {

@@ -39,7 +39,12 @@ pub struct Args {
 /// Runs the firmware on the recording, writes the stream to `--out` and prints a summary (or
 /// one JSON object with `--json`). The decoded firmware log goes to stderr.
 pub fn run(a: Args, progress: bool) -> Result<()> {
+    // Before any work: the ELF a regular file of bounded size, the output not a FIFO.
+    if let Some(elf) = &a.elf {
+        target::read_elf(elf)?;
+    }
     if let Some(out) = &a.out {
+        files::refuse_fifo_output("--out", out)?;
         let mut inputs = vec![files::Input::Dir(&a.recording)];
         if let Some(elf) = &a.elf {
             inputs.push(files::Input::File(elf));
@@ -57,7 +62,7 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
         Some(e) => e,
         None => target::firmware_elf(true)?,
     };
-    let elf_bytes = std::fs::read(&elf).with_context(|| format!("reading {}", elf.display()))?;
+    let elf_bytes = target::read_elf(&elf)?;
     let sizes =
         target::elf_sizes(&elf_bytes).with_context(|| format!("firmware ELF {}", elf.display()))?;
     let opts = target::RunOptions {

@@ -373,8 +373,69 @@ pub struct Names<'a> {
     pub recipe: &'a str,
 }
 
-/// Writes every file of the report into `dir`.
+/// Kind of an inspection output directory (its [`crate::files::MARKER`]).
+pub const FORMAT: &str = "dpsa-inspection";
+
+/// The files (and the `gallery` directory) [`write`] puts into its directory.
+pub const FILE_NAMES: [&str; 5] = [
+    "pads.csv",
+    "report.json",
+    "cfx_units_inspected.json",
+    "overview.png",
+    "gallery",
+];
+
+/// Whether `dir` holds an earlier inspection output written before the marker existed: a
+/// `report.json` and nothing but the files [`write`] writes.
+pub fn is_inspection_dir(dir: &Path) -> bool {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return false;
+    };
+    dir.join("report.json").is_file()
+        && entries.flatten().all(|e| {
+            let n = e.file_name();
+            FILE_NAMES.iter().any(|f| n == *f)
+        })
+}
+
+/// Refuses (before any work) a destination that an inspection output may not replace.
+pub fn check_destination(dir: &Path) -> Result<()> {
+    crate::files::check_output_dir(dir, DIR_KIND)
+}
+
+/// An inspection output directory, for [`crate::files::OutputDir`].
+pub const DIR_KIND: crate::files::DirKind = crate::files::DirKind {
+    format: FORMAT,
+    noun: "inspection report",
+    ours: is_inspection_dir,
+};
+
+/// Writes every file of the report into `dir`, whole or not at all: built in a hidden
+/// directory beside it and swapped in at the end (an earlier report there is replaced with
+/// all its gallery images, see [`crate::files::OutputDir`]). `report_again` gives the final
+/// `report.json` once the other files are written (with the time they took).
+#[allow(clippy::too_many_arguments)]
 pub fn write(
+    dir: &Path,
+    map: &BoardMap,
+    pads: &[Pad],
+    i: &Inspection,
+    program: &Program,
+    report: &Value,
+    names: Names,
+    report_again: impl FnOnce() -> Result<Value>,
+) -> Result<usize> {
+    let staging = crate::files::OutputDir::create(dir, DIR_KIND)?;
+    let n = write_files(staging.path(), map, pads, i, program, report, names)?;
+    crate::files::write_bytes(
+        &staging.path().join("report.json"),
+        serde_json::to_string_pretty(&report_again()?)?.as_bytes(),
+    )?;
+    staging.commit()?;
+    Ok(n)
+}
+
+fn write_files(
     dir: &Path,
     map: &BoardMap,
     pads: &[Pad],
@@ -384,8 +445,6 @@ pub fn write(
     names: Names,
 ) -> Result<usize> {
     let Names { unit, recipe } = names;
-    std::fs::create_dir_all(dir)
-        .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", dir.display()))?;
     crate::files::write_bytes(&dir.join("pads.csv"), csv(pads, i).as_bytes())?;
     crate::files::write_bytes(
         &dir.join("report.json"),

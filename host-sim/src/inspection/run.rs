@@ -364,6 +364,23 @@ pub fn inspect_dir(
     let t0 = Instant::now();
     let program = Program::load(program_path)?;
     let layer_path = program.paste_layer_path(program_path);
+    if let Some(dir) = out {
+        // Before any work: the output may not be (or hold) an input, and may replace only an
+        // earlier inspection output.
+        let mut inputs = vec![
+            crate::files::Input::Dir(board),
+            crate::files::Input::File(program_path),
+            crate::files::Input::File(&layer_path),
+        ];
+        let truth_in = truth
+            .map(std::path::Path::to_path_buf)
+            .or_else(|| program.truth_path(program_path));
+        if let Some(t) = &truth_in {
+            inputs.push(crate::files::Input::File(t));
+        }
+        crate::files::refuse_overwrite_dir("--out", dir, &inputs)?;
+        super::report::check_destination(dir)?;
+    }
     let layer = super::gerber::read_file(&layer_path)
         .map_err(|e| anyhow::anyhow!("paste layer {}: {e}", layer_path.display()))?;
     let pads = layer.pads;
@@ -422,6 +439,8 @@ pub fn inspect_dir(
             .file_name()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default();
+        // report.json again with the write time, before the directory is swapped in.
+        let report_ref = &mut report;
         super::report::write(
             dir,
             &map,
@@ -433,12 +452,10 @@ pub fn inspect_dir(
                 unit: &unit,
                 recipe: &recipe,
             },
-        )?;
-        report.timing.write_s = t2.elapsed().as_secs_f64();
-        // report.json again with the write time.
-        crate::files::write_bytes(
-            &dir.join("report.json"),
-            serde_json::to_string_pretty(&report)?.as_bytes(),
+            move || {
+                report_ref.timing.write_s = t2.elapsed().as_secs_f64();
+                Ok(serde_json::to_value(&*report_ref)?)
+            },
         )?;
     }
     Ok((report, i))

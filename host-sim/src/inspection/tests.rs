@@ -410,6 +410,7 @@ fn truth_comparison_and_report_files() {
             unit: "b",
             recipe: "p",
         },
+        || Ok(value.clone()),
     )
     .unwrap();
     assert_eq!(n, 6);

@@ -514,90 +514,32 @@ pub fn output_size_estimate(scene: &Scene, frames: u64) -> u64 {
     frames * png + truth + manifest
 }
 
-/// Makes `out` ready for a new recording, before anything is rendered: a missing directory is
-/// fine (created later), an empty one too; a directory holding a dpsa recording (a
-/// `manifest.json` of format `dpsa-recording`, or only the `frames/` and `truth/` of an
-/// interrupted run) is cleared of that recording's files (manifest first, then every
-/// `frames/NNNNNN.png` and the truth files) so no stale frame survives. Anything else is
+/// Whether `dir` holds a dpsa recording (a `manifest.json` of format `dpsa-recording`, or only
+/// the `frames/` and `truth/` of a run interrupted before the marker existed).
+pub fn is_recording_dir(dir: &Path) -> bool {
+    let ours =
+        crate::files::read_capped_io(&dir.join(MANIFEST_FILE), crate::files::MAX_MANIFEST_BYTES)
+            .ok()
+            .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+            .is_some_and(|v| v.get("format").and_then(|f| f.as_str()) == Some(FORMAT));
+    ours || std::fs::read_dir(dir).is_ok_and(|d| {
+        d.flatten()
+            .all(|e| e.file_name() == "frames" || e.file_name() == "truth")
+    })
+}
+
+/// A recording directory, for [`crate::files::OutputDir`].
+pub const DIR_KIND: crate::files::DirKind = crate::files::DirKind {
+    format: FORMAT,
+    noun: "recording",
+    ours: is_recording_dir,
+};
+
+/// Checks `out` before anything is rendered: new, empty, or an earlier recording (replaced
+/// whole when the new one is complete, see [`crate::files::OutputDir`]); anything else is
 /// refused.
 pub fn prepare_out_dir(out: &Path) -> anyhow::Result<()> {
-    let meta = match std::fs::metadata(out) {
-        Ok(m) => m,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
-        Err(e) => anyhow::bail!(
-            "output directory {} {}",
-            out.display(),
-            crate::files::io_cause(&e)
-        ),
-    };
-    anyhow::ensure!(
-        meta.is_dir(),
-        "output {} exists and is not a directory",
-        out.display()
-    );
-    let names: Vec<String> = std::fs::read_dir(out)
-        .and_then(|d| {
-            d.map(|e| e.map(|e| e.file_name().to_string_lossy().into_owned()))
-                .collect()
-        })
-        .map_err(|e| {
-            anyhow::anyhow!(
-                "output directory {} {}",
-                out.display(),
-                crate::files::io_cause(&e)
-            )
-        })?;
-    if names.is_empty() {
-        return Ok(());
-    }
-    let manifest_path = out.join(MANIFEST_FILE);
-    let ours = crate::files::read_capped_io(&manifest_path, crate::files::MAX_MANIFEST_BYTES)
-        .ok()
-        .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
-        .is_some_and(|v| v.get("format").and_then(|f| f.as_str()) == Some(FORMAT));
-    let only_layout = names.iter().all(|n| n == "frames" || n == "truth");
-    if !ours && !only_layout {
-        let other = names
-            .iter()
-            .find(|n| *n != "frames" && *n != "truth")
-            .cloned()
-            .unwrap_or_default();
-        anyhow::bail!(
-            "refusing to write a recording into {}: it is not empty and holds no dpsa recording (it has {other:?}); choose a new or empty directory",
-            out.display()
-        );
-    }
-    let remove = |p: &Path| -> anyhow::Result<()> {
-        match std::fs::remove_file(p) {
-            Ok(()) => Ok(()),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
-            Err(e) => anyhow::bail!(
-                "cannot remove the old {}: it {}",
-                p.display(),
-                crate::files::io_cause(&e)
-            ),
-        }
-    };
-    remove(&manifest_path)?;
-    if let Ok(entries) = std::fs::read_dir(out.join("frames")) {
-        for e in entries.flatten() {
-            let name = e.file_name().to_string_lossy().into_owned();
-            let stem = name.strip_suffix(".png").unwrap_or("");
-            let frame = !stem.is_empty() && stem.bytes().all(|b| b.is_ascii_digit());
-            let temp = name.starts_with('.') && name.contains(".png.");
-            if frame || temp {
-                remove(&e.path())?;
-            }
-        }
-    }
-    for name in [
-        TRUTH_HEIGHT_FILE,
-        TRUTH_BACKGROUND_FILE,
-        TRUTH_CONTRAST_FILE,
-    ] {
-        remove(&out.join(name))?;
-    }
-    Ok(())
+    crate::files::check_output_dir(out, DIR_KIND)
 }
 
 /// [`simulate`]; `force` lifts the [`MAX_OUTPUT_BYTES`] limit.
@@ -623,8 +565,10 @@ pub fn simulate_with(
         scene.width,
         MAX_OUTPUT_BYTES / 1_000_000_000
     );
-    prepare_out_dir(out)?;
-
+    // Built in a hidden directory beside `out` and swapped in whole at the end: an earlier
+    // recording stays as it was until then, and none of its frames survives.
+    let staging = crate::files::OutputDir::create(out, DIR_KIND)?;
+    let out = staging.path();
     for dir in [out.to_path_buf(), out.join("frames"), out.join("truth")] {
         std::fs::create_dir_all(&dir).map_err(|e| {
             anyhow::anyhow!(
@@ -700,6 +644,7 @@ pub fn simulate_with(
     }
     manifest.save(out)?;
     bytes_written += file_size(&manifest_path);
+    staging.commit()?;
 
     Ok(SimSummary {
         frames,

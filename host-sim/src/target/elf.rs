@@ -3,6 +3,16 @@
 use anyhow::{ensure, Context, Result};
 use serde::Serialize;
 
+/// Largest firmware ELF read, bytes (64 MiB: the firmware with its debug information is a few
+/// MB; the Cortex-M7's flash holds 2 MB).
+pub const MAX_ELF_BYTES: u64 = 64 << 20;
+
+/// Reads a firmware ELF: a regular file of at most [`MAX_ELF_BYTES`] (a FIFO or a device such
+/// as `/dev/zero` is refused before it is opened), the error one sentence naming the file.
+pub fn read_elf(path: &std::path::Path) -> Result<Vec<u8>> {
+    crate::files::read_capped(path, MAX_ELF_BYTES, "firmware ELF")
+}
+
 /// Sizes of the firmware image, bytes.
 #[derive(Clone, Debug, Default, Serialize, PartialEq, Eq)]
 pub struct ElfSizes {
