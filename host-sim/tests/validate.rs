@@ -576,3 +576,125 @@ fn calibrate_refuses_another_cameras_frames() {
         "{e}"
     );
 }
+
+// ---------------------------------------------------------------------------------------------
+// 5. `dpsa inspect`: the truth of another board, a board.json this build cannot read, a
+// program whose fiducials are one mark.
+
+/// Two printed boards of `scenes/array-paste.toml` (seeds 4 and 5; array-small's cameras, so
+/// the shared calibration serves) and the map of the first.
+struct Paste {
+    boards: [PathBuf; 2],
+    map: PathBuf,
+}
+
+fn paste() -> &'static Paste {
+    static P: OnceLock<Paste> = OnceLock::new();
+    P.get_or_init(|| {
+        let scene = ArrayScene::load(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/array-paste.toml"),
+        )
+        .unwrap();
+        let boards = [root().join("paste4"), root().join("paste5")];
+        for (b, seed) in boards.iter().zip([4, 5]) {
+            record::simulate_board(&scene, seed, b).unwrap();
+        }
+        let map = root().join("paste4.map");
+        let o = board_run(&boards[0], cal_file(), &map);
+        assert!(o.status.success(), "{}", stderr(&o));
+        Paste { boards, map }
+    })
+}
+
+fn inspect(map: &Path, program: &Path, truth: Option<&Path>, out: &Path) -> Output {
+    let mut a: Vec<&std::ffi::OsStr> = vec![
+        "inspect".as_ref(),
+        map.as_os_str(),
+        "--program".as_ref(),
+        program.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+        "--json".as_ref(),
+    ];
+    if let Some(t) = truth {
+        a.push("--truth".as_ref());
+        a.push(t.as_os_str());
+    }
+    dpsa(&a)
+}
+
+fn inspect_refused(map: &Path, program: &Path, truth: Option<&Path>) -> String {
+    let out = map.with_extension("inspect-refused");
+    let o = inspect(map, program, truth, &out);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(
+        !out.exists(),
+        "a refused inspection wrote {}",
+        out.display()
+    );
+    stderr(&o)
+}
+
+#[test]
+fn inspect_refuses_another_boards_truth() {
+    let p = paste();
+    let program = p.boards[0].join("program.toml");
+    // Its own truth: inspected.
+    let o = inspect(&p.map, &program, None, &root().join("paste4.inspect"));
+    assert!(o.status.success(), "{}", stderr(&o));
+    // The map and the print carry the board's identity, array.json's.
+    let id = read_json(&p.boards[0].join(ARRAY_FILE))["board_id"].clone();
+    assert_eq!(read_json(&p.map.join("board.json"))["board_id"], id);
+    assert_eq!(read_json(&p.boards[0].join("print.json"))["board_id"], id);
+    // Board 5's print truth for board 4's map.
+    let other = p.boards[1].join("print.json");
+    let e = inspect_refused(&p.map, &program, Some(&other));
+    let other_id = read_json(&p.boards[1].join(ARRAY_FILE))["board_id"].clone();
+    assert!(
+        e.contains(other_id.as_str().unwrap()) && e.contains(id.as_str().unwrap()),
+        "{e}"
+    );
+}
+
+#[test]
+fn inspect_refuses_a_map_it_cannot_read_and_one_fiducial_three_times() {
+    let p = paste();
+    let program = p.boards[0].join("program.toml");
+    // board.json edited: a copy of the map with the other files linked.
+    let variant = |name: &str, edit: &dyn Fn(&mut Value)| -> PathBuf {
+        let d = fresh(name);
+        for e in std::fs::read_dir(&p.map).unwrap().flatten() {
+            if e.file_name() != "board.json" {
+                std::os::unix::fs::symlink(e.path(), d.join(e.file_name())).unwrap();
+            }
+        }
+        let mut j = read_json(&p.map.join("board.json"));
+        edit(&mut j);
+        std::fs::write(d.join("board.json"), serde_json::to_vec(&j).unwrap()).unwrap();
+        d
+    };
+    let m = variant("map-v9", &|j| j["version"] = 9.into());
+    let e = inspect_refused(&m, &program, None);
+    assert!(e.contains("version 9"), "{e}");
+    let m = variant("map-inch", &|j| j["units"]["lengths"] = "inch".into());
+    let e = inspect_refused(&m, &program, None);
+    assert!(e.contains("\"inch\"") && e.contains("units"), "{e}");
+    let m = variant("map-lsb0", &|j| j["units"]["png_lsb_um"] = 0.0.into());
+    let e = inspect_refused(&m, &program, None);
+    assert!(e.contains("png_lsb_um"), "{e}");
+
+    // The program's three fiducials at one place.
+    let text = std::fs::read_to_string(&program).unwrap();
+    let one = text.replace(
+        "points_mm = [[1.0, 1.0], [19.0, 1.0], [1.0, 12.9]]",
+        "points_mm = [[1.0, 1.0], [1.0, 1.0], [1.0, 1.0]]",
+    );
+    assert_ne!(one, text);
+    let prog = p.boards[0].join("one-fiducial.toml");
+    std::fs::write(&prog, one).unwrap();
+    let e = inspect_refused(&p.map, &prog, None);
+    assert!(
+        e.contains("fiducials.points_mm") && e.contains("fiducials 0 and 1"),
+        "{e}"
+    );
+}

@@ -709,10 +709,9 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
         seed,
     };
     sum.bytes += write_json(&out.join(ARRAY_TRUTH_FILE), &truth)?;
-    if let Some((print, layer)) = &printed {
+    if let Some((_, layer)) = &printed {
         crate::files::write_bytes(&out.join(PASTE_LAYER_FILE), layer)?;
         sum.bytes += layer.len() as u64;
-        sum.bytes += write_json(&out.join(PRINT_FILE), print)?;
         let program = inspection_program(scene);
         let text = program.to_toml_string();
         crate::files::write_bytes(&out.join(PROGRAM_FILE), text.as_bytes())?;
@@ -737,6 +736,10 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
     // last, as before: a recording without it is incomplete).
     let id = board_identity(&manifest, &manifests)?;
     manifest.board_id = Some(id);
+    if let Some((mut print, _)) = printed {
+        print.board_id = Some(id);
+        sum.bytes += write_json(&out.join(PRINT_FILE), &print)?;
+    }
     for (i, mut m) in manifests.into_iter().enumerate() {
         m.board_id = Some(id);
         m.save(&out.join(format!("cam{i}")))?;

@@ -522,7 +522,7 @@ pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Re
         None => vec![0; cams.len()],
     };
     let t1 = Instant::now();
-    super::output::write(out, &grid, &a.blended, cams.len(), &missing)?;
+    super::output::write(out, &grid, &a.blended, cams.len(), &missing, board)?;
     let write_s = t1.elapsed().as_secs_f64();
 
     let truth = match arr.truth()? {
