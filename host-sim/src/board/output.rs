@@ -302,7 +302,7 @@ mod tests {
             edge_median_um: Some(0.0),
             seams: Vec::new(),
         };
-        let meta = write(dir.path(), &grid, &b, 2, &[0, 0]).unwrap();
+        let meta = write(dir.path(), &grid, &b, 2, &[0, 0], None).unwrap();
         assert_eq!(meta.pixels.valid, h.valid() as u64);
         assert_eq!(
             meta.pixels.per_camera.iter().sum::<u64>(),
