@@ -247,7 +247,7 @@ fn every_calibration_field_is_validated_on_reading() {
             c.camera[1].counts_per_pixel = -11.0
         }),
         (Some(1), "counts_per_pixel", |c| {
-            c.camera[1].counts_per_pixel += 1e-6
+            c.camera[1].counts_per_pixel = 1e-9
         }),
         (Some(1), "counts_per_mm", |c| {
             c.camera[1].counts_per_mm = f64::INFINITY

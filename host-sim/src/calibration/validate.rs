@@ -318,22 +318,22 @@ impl CalFile {
                 )
             })?;
         }
-        let cpp_bits = c.counts_per_pixel * 65536.0;
+        // `apply` rounds it to the core's Q16.16; the rounded value must be the core's.
+        let cpp_bits = (c.counts_per_pixel * 65536.0).round();
         x.check(
             c.counts_per_pixel.is_finite()
                 && c.counts_per_pixel > 0.0
-                && cpp_bits.fract() == 0.0
-                && cpp_bits < 4_294_967_296.0,
+                && (1.0..4_294_967_296.0).contains(&cpp_bits),
             "counts_per_pixel",
             || {
                 format!(
-                    "{} counts/px, expected a finite multiple of 2^-16 in 2^-16 ..< 65536 (the core's Q16.16 encoder step)",
+                    "{} counts/px, expected a finite value that rounds to 2^-16 ..< 65536 in steps of 2^-16 (the core's Q16.16 encoder step)",
                     c.counts_per_pixel
                 )
             },
         )?;
         let mut block = crate::simulation::recording::Calibration {
-            counts_per_pixel: c.counts_per_pixel,
+            counts_per_pixel: cpp_bits / 65536.0,
             fringe_period_px: c.fringe_period_px,
             reference_phase_rad: c.core_reference_phase_rad.clone(),
             height_per_turn_um: 0.0,
