@@ -575,6 +575,11 @@ pub struct Print {
     pub print_offset_mm: Point,
     pub params: PrintParams,
     pub seed: u64,
+    /// The identity of the board printed (`array.json`'s `board_id`, also in its map's
+    /// `board.json`): `dpsa inspect` refuses the truth of another board. Absent in prints
+    /// written before it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub board_id: Option<crate::simulation::recording::BoardId>,
     /// One per pad of the layer, in its order.
     pub pads: Vec<PrintedPad>,
     /// Everything on the board: pads' deposits, bridge strips, then fiducials.
@@ -1091,6 +1096,7 @@ pub fn print(
         print_offset_mm: offset,
         params: params.clone(),
         seed,
+        board_id: None,
         pads: printed,
         deposits,
         fiducials: fids,

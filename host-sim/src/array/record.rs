@@ -223,6 +223,28 @@ impl ArrayRecording {
                     c.id
                 );
             }
+            if !(c.x_mm.is_finite() && c.y_mm.is_finite()) {
+                bail!(
+                    "{}: camera {i}'s design position (x_mm {}, y_mm {}) is not finite",
+                    path.display(),
+                    c.x_mm,
+                    c.y_mm
+                );
+            }
+        }
+        let m = &manifest;
+        for (key, v, lo, hi) in [
+            ("pixel_mm", m.pixel_mm, 1e-3, 1.0),
+            ("nominal_counts_per_mm", m.nominal_counts_per_mm, 1e-3, 1e6),
+            ("board_length_mm", m.board_length_mm, 1e-3, 10_000.0),
+            ("board_width_mm", m.board_width_mm, 1e-3, 10_000.0),
+        ] {
+            if !(v.is_finite() && (lo..=hi).contains(&v)) {
+                bail!(
+                    "{}: {key} = {v}, expected a finite value in {lo} ..= {hi}",
+                    path.display()
+                );
+            }
         }
         Ok(ArrayRecording {
             dir: dir.to_path_buf(),
@@ -273,6 +295,23 @@ impl ArrayRecording {
             Err(e) => bail!("{} {}", path.display(), crate::files::io_cause(&e)),
         }
     }
+}
+
+/// Refuses camera recordings that are not at their place: the recording at index `i`
+/// (directory `cam{i}`) must say `camera.id = i` in its manifest. Swapped camera directories
+/// would otherwise be measured with each other's calibration.
+pub fn check_camera_ids(recs: &[Recording], array_dir: &Path) -> Result<()> {
+    for (i, r) in recs.iter().enumerate() {
+        let id = r.manifest.camera.id;
+        if usize::from(id) != i {
+            bail!(
+                "{} is camera {i}'s place in {}, but its manifest says camera.id = {id}: the camera directories are swapped or misnamed",
+                r.dir.display(),
+                array_dir.display()
+            );
+        }
+    }
+    Ok(())
 }
 
 /// What a write produced (sizes and times measured while writing).
@@ -673,10 +712,9 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
         seed,
     };
     sum.bytes += write_json(&out.join(ARRAY_TRUTH_FILE), &truth)?;
-    if let Some((print, layer)) = &printed {
+    if let Some((_, layer)) = &printed {
         crate::files::write_bytes(&out.join(PASTE_LAYER_FILE), layer)?;
         sum.bytes += layer.len() as u64;
-        sum.bytes += write_json(&out.join(PRINT_FILE), print)?;
         let program = inspection_program(scene);
         let text = program.to_toml_string();
         crate::files::write_bytes(&out.join(PROGRAM_FILE), text.as_bytes())?;
@@ -701,6 +739,10 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
     // last, as before: a recording without it is incomplete).
     let id = board_identity(&manifest, &manifests)?;
     manifest.board_id = Some(id);
+    if let Some((mut print, _)) = printed {
+        print.board_id = Some(id);
+        sum.bytes += write_json(&out.join(PRINT_FILE), &print)?;
+    }
     for (i, mut m) in manifests.into_iter().enumerate() {
         m.board_id = Some(id);
         m.save(&out.join(format!("cam{i}")))?;

@@ -27,6 +27,10 @@ pub const PNG_LSB_UM: f64 = 0.25;
 pub struct Metadata {
     pub format: &'static str,
     pub version: u32,
+    /// The board's identity (`array.json`'s `board_id`), when the recording has one: `dpsa
+    /// inspect` refuses a print truth of another board with it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub board_id: Option<crate::simulation::recording::BoardId>,
     pub grid: BoardGrid,
     /// Units of every height file.
     pub units: Units,
@@ -110,6 +114,7 @@ pub fn write(
     b: &Blended,
     cameras: usize,
     missing_rows: &[u64],
+    board_id: Option<crate::simulation::recording::BoardId>,
 ) -> Result<Metadata> {
     let staging = crate::files::OutputDir::create(dir, DIR_KIND)?;
     let meta = write_files(staging.path(), grid, b, cameras, missing_rows)?;
@@ -160,6 +165,7 @@ fn write_files(
     let meta = Metadata {
         format: FORMAT,
         version: 1,
+        board_id,
         grid: *grid,
         units: Units {
             lengths: "mm",
@@ -331,7 +337,7 @@ mod tests {
             edge_median_um: Some(0.0),
             seams: Vec::new(),
         };
-        let meta = write(dir.path(), &grid, &b, 2, &[0, 0]).unwrap();
+        let meta = write(dir.path(), &grid, &b, 2, &[0, 0], None).unwrap();
         assert_eq!(meta.pixels.valid, h.valid() as u64);
         assert_eq!(
             meta.pixels.per_camera.iter().sum::<u64>(),

@@ -41,6 +41,9 @@ pub enum Source<'a> {
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
     pub cameras: usize,
+    /// The evidence that the map is wrong or useless (empty when none), one sentence each:
+    /// `dpsa board` prints each as `warning: ...` and exits with status 2.
+    pub warnings: Vec<String>,
     pub grid: BoardGrid,
     pub seams: Seams,
     pub pixels: PixelCounts,
@@ -307,13 +310,19 @@ pub(crate) fn open(dir: &Path, cal: &CalFile) -> Result<Opened> {
         .map(|c| (c.width, c.rows))
         .collect();
     cal.check_array(&dims)?;
+    cal.check_design(&arr.manifest)
+        .with_context(|| format!("{} and its calibration", dir.display()))?;
     let recs: Vec<Recording> = (0..dims.len())
         .map(|i| {
             let d = arr.camera_dir(i, None);
             Recording::open(&d).with_context(|| format!("camera {i}: {}", d.display()))
         })
         .collect::<Result<_>>()?;
+    crate::array::record::check_camera_ids(&recs, &arr.dir)?;
     let board = arr.board_id(&recs)?;
+    for ((r, c), i) in recs.iter().zip(&cal.camera).zip(0..) {
+        check_latch_steps(r, c, i)?;
+    }
 
     let m = &arr.manifest;
     let pitch = m.pixel_mm;
@@ -337,6 +346,102 @@ pub(crate) fn open(dir: &Path, cal: &CalFile) -> Result<Opened> {
         board,
         grid,
     })
+}
+
+/// Refuses a camera recording whose frames advance further per frame than its core can take:
+/// the median latch step divided by the calibration's `counts_per_pixel` (board rows per
+/// frame) above the recording's `processing.max_step_rows`. The simulator sets
+/// `max_step_rows` to 1.25 times the nominal step, so a good recording's median step is about
+/// 0.8 of it; latches doubled (or a calibration of another encoder scale) give 1.6.
+fn check_latch_steps(rec: &Recording, cal: &CameraCal, i: usize) -> Result<()> {
+    let f = &rec.manifest.frames;
+    if f.len() < 3 {
+        return Ok(());
+    }
+    let mut steps: Vec<i64> = f
+        .windows(2)
+        .map(|w| w[1].latch.saturating_sub(w[0].latch))
+        .collect();
+    steps.sort_unstable();
+    let median = steps[steps.len() / 2] as f64 / cal.counts_per_pixel;
+    let max = rec.manifest.processing.max_step_rows;
+    if median > f64::from(max) {
+        bail!(
+            "camera {i}: its frames advance a median {median:.1} board rows each (latch steps of {} counts over the calibration's counts_per_pixel {}), more than the {max} rows (processing.max_step_rows) its core takes: the latches of {} are scaled wrong (doubled?) or the calibration is of another encoder",
+            steps[steps.len() / 2],
+            cal.counts_per_pixel,
+            rec.dir.join(crate::simulation::recording::MANIFEST_FILE).display()
+        );
+    }
+    Ok(())
+}
+
+/// A camera that contributes less than this fraction of an equal share (valid map pixels /
+/// cameras) to the map, or whose own rows are less than [`MIN_CAMERA_VALID`] valid, is
+/// reported (exit status 2). The small scene's cameras give 0.9 to 1.2 of an equal share and
+/// 97 % valid rows (`docs/board.md`).
+pub const MIN_CAMERA_SHARE: f64 = 0.25;
+/// See [`MIN_CAMERA_SHARE`].
+pub const MIN_CAMERA_VALID: f64 = 0.5;
+/// A map less valid than this is reported (the shipped scenes' maps are 97 % valid or more).
+pub const MIN_MAP_VALID: f64 = 0.5;
+/// Seams this many times over their acceptance budgets (0.3 um height step, 5 um
+/// misregistration, `docs/board.md`) are reported: 3 um and 50 um. The shipped scenes meet
+/// them with 0.07 um and 1.7 um at most.
+pub const SEAM_ALARM: f64 = 10.0;
+/// The seams' acceptance budgets, um: height step, misregistration.
+pub const SEAM_BUDGET_UM: (f64, f64) = (0.3, 5.0);
+
+/// The evidence that a written map is wrong or useless, one sentence each (printed as
+/// `warning: ...`, exit status 2).
+fn evidence(cams: &[CameraRows], b: &super::blend::Blended, seams: &Seams) -> Vec<String> {
+    let mut w = Vec::new();
+    let total = b.heights.data.len().max(1) as f64;
+    let valid = b.heights.valid();
+    if (valid as f64) < MIN_MAP_VALID * total {
+        w.push(format!(
+            "the board map is {:.1} % valid ({valid} of {} px), less than {} %: check pixel_mm and the board size in array.json and the calibration",
+            100.0 * valid as f64 / total,
+            b.heights.data.len(),
+            MIN_MAP_VALID * 100.0
+        ));
+    }
+    let share = valid as f64 / cams.len().max(1) as f64;
+    for (i, c) in cams.iter().enumerate() {
+        let own = c.heights.valid() as f64 / c.heights.data.len().max(1) as f64;
+        let src = b.camera.iter().filter(|&&k| usize::from(k) == i).count();
+        if own < MIN_CAMERA_VALID {
+            w.push(format!(
+                "camera {i} contributes almost nothing: {:.1} % of its own pixels are valid (less than {} %): check its calibration (fringe period, height per turn) and its frames",
+                own * 100.0,
+                MIN_CAMERA_VALID * 100.0
+            ));
+        } else if (src as f64) < MIN_CAMERA_SHARE * share {
+            w.push(format!(
+                "camera {i} contributes almost nothing: {src} map px, less than {} % of an equal share ({share:.0} px): check its lateral calibration",
+                MIN_CAMERA_SHARE * 100.0
+            ));
+        }
+    }
+    if let Some(h) = seams
+        .height_step_um_max
+        .filter(|&h| h > SEAM_ALARM * SEAM_BUDGET_UM.0)
+    {
+        w.push(format!(
+            "the cameras' heights differ by up to {h:.2} um at a seam, more than {} times the 0.3 um budget: a camera's calibration is wrong or belongs to another camera",
+            SEAM_ALARM
+        ));
+    }
+    if let Some(l) = seams
+        .lateral_um_max
+        .filter(|&l| l > SEAM_ALARM * SEAM_BUDGET_UM.1)
+    {
+        w.push(format!(
+            "the cameras are misregistered by up to {l:.1} um at a seam, more than {} times the 5 um budget: a camera's lateral calibration is wrong or belongs to another camera",
+            SEAM_ALARM
+        ));
+    }
+    w
 }
 
 /// Builds the board map of the array recording `dir` with `cal` into `out`, the core on
@@ -417,7 +522,7 @@ pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Re
         None => vec![0; cams.len()],
     };
     let t1 = Instant::now();
-    super::output::write(out, &grid, &a.blended, cams.len(), &missing)?;
+    super::output::write(out, &grid, &a.blended, cams.len(), &missing, board)?;
     let write_s = t1.elapsed().as_secs_f64();
 
     let truth = match arr.truth()? {
@@ -468,14 +573,17 @@ pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Re
             .map(f64::abs)
             .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))))
     };
+    let seams = Seams {
+        height_step_um_max: fold(|s| s.height_step_um),
+        lateral_um_max: fold(|s| s.lateral_um()),
+        per_seam: b.seams.clone(),
+    };
+    let warnings = evidence(&cams, b, &seams);
     Ok(Report {
         cameras: cams.len(),
+        warnings,
         grid,
-        seams: Seams {
-            height_step_um_max: fold(|s| s.height_step_um),
-            lateral_um_max: fold(|s| s.lateral_um()),
-            per_seam: b.seams.clone(),
-        },
+        seams,
         pixels: PixelCounts {
             total,
             valid,

@@ -665,10 +665,13 @@ pub fn calibrate(rec: &ArrayRecording, fx_budget_um: f64) -> Result<CalFile> {
         }
     }
     let planes_ref: &[&crate::array::record::Pass] = &planes;
+    let holdout = m.passes.iter().find(|p| p.kind == PassKind::Holdout);
     let results: Vec<Result<CameraCal>> = std::thread::scope(|sc| {
         let handles: Vec<_> = (0..m.cameras.len())
             .map(|i| {
-                sc.spawn(move || calibrate_camera(rec, i, planes_ref, target, tinfo, fx_budget_um))
+                sc.spawn(move || {
+                    calibrate_camera(rec, i, planes_ref, target, holdout, tinfo, fx_budget_um)
+                })
             })
             .collect();
         handles
@@ -700,6 +703,7 @@ fn calibrate_camera(
     i: usize,
     planes: &[&crate::array::record::Pass],
     target: &crate::array::record::Pass,
+    holdout: Option<&crate::array::record::Pass>,
     tinfo: &crate::array::record::TargetInfo,
     fx_budget_um: f64,
 ) -> Result<CameraCal> {
@@ -707,6 +711,14 @@ fn calibrate_camera(
     let open = |name: &str| -> Result<Recording> {
         let r = Recording::open(rec.camera_dir(i, Some(name)))
             .with_context(|| format!("camera {i}, pass {name}"))?;
+        if usize::from(r.manifest.camera.id) != i {
+            bail!(
+                "camera {i}, pass {name}: {} holds camera {}'s frames (its manifest says camera.id = {}), not camera {i}'s: the camera directories are swapped or misnamed",
+                r.dir.display(),
+                r.manifest.camera.id,
+                r.manifest.camera.id
+            );
+        }
         if (r.manifest.camera.width, r.manifest.camera.rows) != (design.width, design.rows) {
             bail!(
                 "camera {i}, pass {name}: {} x {} px frames, array.json says {} x {}",
@@ -803,6 +815,18 @@ fn calibrate_camera(
         proc.max_step_rows,
     );
     cal.fx_over_budget = cal.fx_height_error_um.is_nan() || cal.fx_height_error_um > fx_budget_um;
+    if let Some(p) = holdout {
+        let hr = open(&p.name)?;
+        let (rms, bound, bias, px) = super::evaluate::holdout_bound(&hr, &cal, p.height_um)?;
+        let limit = super::evaluate::HOLDOUT_CRB_LIMIT;
+        if rms.is_nan() || bound.is_nan() || rms > limit * bound {
+            bail!(
+                "camera {i}: the held-out plane ({} um in array.json) measures {rms:.2} um rms off with this calibration (bias {bias:+.2} um over {px} px), {:.1} times its Cramer-Rao bound of {bound:.2} um (at most {limit} allowed): a plane height in array.json is wrong, or the planes are not flat, or not the heights given",
+                p.height_um,
+                rms / bound
+            );
+        }
+    }
     Ok(cal)
 }
 

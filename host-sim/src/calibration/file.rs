@@ -80,6 +80,15 @@ pub struct CameraCal {
     pub lateral: Lateral,
 }
 
+/// How far a calibrated camera position may lie from its design position, mm. `dpsa
+/// calibrate` identifies the target's marks from the design position (within 0.3 of the
+/// 1 mm target pitch), the simulator mounts cameras within 0.2 mm of their design, and the
+/// shipped arrays' cameras are 4.3 mm (small) and 55 mm (paper) apart.
+pub const DESIGN_TOLERANCE_MM: f64 = 1.0;
+/// How far a calibrated pitch may lie from `array.json`'s nominal `pixel_mm` (relative): the
+/// simulator's magnification errors are within 0.5 %.
+pub const PITCH_TOLERANCE: f64 = 0.1;
+
 /// Units of the flat-field maps: `MAP_ONE` is the column's own level.
 pub const MAP_ONE: f64 = 10000.0;
 
@@ -150,6 +159,14 @@ impl CameraCal {
     /// (`height_per_turn_um_per_column`: the core emits every column in calibrated LSB).
     /// Refuses a manifest of another camera geometry.
     pub fn apply(&self, manifest: &mut Manifest, height_lsb_um: f64) -> Result<()> {
+        if manifest.camera.id != self.id {
+            bail!(
+                "the recording is camera {}'s (its manifest says camera.id = {}), the calibration given is camera {}'s: a camera's frames measured with another camera's calibration give wrong heights and positions",
+                manifest.camera.id,
+                manifest.camera.id,
+                self.id
+            );
+        }
         if (manifest.camera.width, manifest.camera.rows) != (self.width, self.rows) {
             bail!(
                 "calibration of camera {} is for {} x {} px frames, the recording has {} x {}",
@@ -180,7 +197,7 @@ impl CalFile {
         Ok(toml::to_string(self)?)
     }
 
-    /// Parses and checks a calibration file's text.
+    /// Parses and checks a calibration file's text ([`CalFile::validate`]).
     pub fn from_toml(text: &str) -> Result<CalFile> {
         let cal: CalFile = toml::from_str(text).context("not a valid calibration file")?;
         if cal.format != CAL_FORMAT || cal.version != CAL_VERSION {
@@ -190,52 +207,7 @@ impl CalFile {
                 cal.version
             );
         }
-        for (i, c) in cal.camera.iter().enumerate() {
-            let w = c.width as usize;
-            if usize::from(c.id) != i {
-                bail!("camera {i} has id {}", c.id);
-            }
-            for (name, v) in [
-                ("height_per_turn_um", &c.height_per_turn_um),
-                ("reference_phase_rad", &c.reference_phase_rad),
-                ("core_reference_phase_rad", &c.core_reference_phase_rad),
-                ("background_dn", &c.background_dn),
-                ("modulation_dn", &c.modulation_dn),
-            ] {
-                if v.len() != w || v.iter().any(|x| !x.is_finite()) {
-                    bail!(
-                        "camera {i}: {name} has {} values, expected {w} finite values",
-                        v.len()
-                    );
-                }
-            }
-            if c.height_per_turn_um.iter().any(|&t| t <= 0.0)
-                || c.counts_per_pixel.is_nan()
-                || c.counts_per_pixel <= 0.0
-            {
-                bail!("camera {i}: height_per_turn_um and counts_per_pixel must be > 0");
-            }
-            for (name, m) in [
-                ("background_map", &c.background_map),
-                ("modulation_map", &c.modulation_map),
-            ] {
-                if !m.is_empty()
-                    && (m.len() != c.rows as usize || m.iter().any(|row| row.len() != w))
-                {
-                    bail!("camera {i}: {name} must be {} rows of {w} values", c.rows);
-                }
-            }
-            if c.dead_pixels
-                .iter()
-                .any(|&[r, col]| r >= c.rows || col >= c.width)
-            {
-                bail!(
-                    "camera {i}: a dead pixel lies outside the {} x {} frame",
-                    c.rows,
-                    c.width
-                );
-            }
-        }
+        cal.validate().map_err(|e| anyhow::anyhow!("{e}"))?;
         Ok(cal)
     }
 
@@ -244,6 +216,51 @@ impl CalFile {
         let bytes = crate::files::read_capped(path, 1 << 28, "calibration file")?;
         CalFile::from_toml(&String::from_utf8_lossy(&bytes))
             .with_context(|| format!("calibration file {}", path.display()))
+    }
+
+    /// Refuses a calibration whose cameras are not where the array's design puts them
+    /// (`array.json`): camera `i`'s calibrated position of pixel (0, 0) must lie within
+    /// [`DESIGN_TOLERANCE_MM`] of design camera `i`'s, and its pitch within [`PITCH_TOLERANCE`]
+    /// of the nominal `pixel_mm`. A `[[camera]]` block swapped with another (ids renumbered or
+    /// not) is caught here: the sentence names the design camera it does match.
+    pub fn check_design(&self, arr: &crate::array::record::ArrayManifest) -> Result<()> {
+        for (i, (c, d)) in self.camera.iter().zip(&arr.cameras).enumerate() {
+            let off = |d: &crate::array::record::DesignCamera| {
+                (c.lateral.x0_mm - d.x_mm)
+                    .abs()
+                    .max((c.lateral.y0_mm - d.y_mm).abs())
+            };
+            if off(d) > DESIGN_TOLERANCE_MM {
+                let other = arr
+                    .cameras
+                    .iter()
+                    .find(|o| off(o) <= DESIGN_TOLERANCE_MM)
+                    .map_or_else(String::new, |o| {
+                        format!(
+                            "; it is where design camera {} is: the [[camera]] blocks of the calibration (or the camera directories) are swapped",
+                            o.id
+                        )
+                    });
+                bail!(
+                    "calibration camera {i} has pixel (0, 0) at x {:.3} mm, y {:.3} mm, but array.json puts camera {i} at x {:.3} mm, y {:.3} mm (more than {DESIGN_TOLERANCE_MM} mm off){other}",
+                    c.lateral.x0_mm,
+                    c.lateral.y0_mm,
+                    d.x_mm,
+                    d.y_mm
+                );
+            }
+            if !(arr.pixel_mm.is_finite()
+                && (c.lateral.pitch_mm / arr.pixel_mm - 1.0).abs() <= PITCH_TOLERANCE)
+            {
+                bail!(
+                    "array.json says pixel_mm = {} mm, but camera {i}'s calibrated pitch is {} mm (more than {} % apart): the board map's grid would not be the cameras' pixels",
+                    arr.pixel_mm,
+                    c.lateral.pitch_mm,
+                    PITCH_TOLERANCE * 100.0
+                );
+            }
+        }
+        Ok(())
     }
 
     /// Refuses a calibration for another array (camera count, widths, rows).

@@ -6,6 +6,7 @@
 pub mod estimate;
 pub mod evaluate;
 pub mod file;
+pub mod validate;
 
 pub use estimate::{calibrate, FX_BUDGET_UM};
 pub use evaluate::{evaluate, Report};

@@ -31,7 +31,8 @@ pub struct Args {
 }
 
 /// Builds the map; returns the exit status: 0, or 2 when a stream was damaged or incomplete
-/// (the map is written with the rows it lost invalid), as `dpsa decode`.
+/// (the map is written with the rows it lost invalid), as `dpsa decode`, or when the map
+/// itself shows it is wrong or useless (`Report::warnings`).
 pub fn run(a: Args) -> Result<i32> {
     let mut inputs = vec![files::Input::Dir(&a.dir), files::Input::File(&a.cal)];
     inputs.extend(a.streams.iter().map(|p| files::Input::File(p)));
@@ -46,7 +47,11 @@ pub fn run(a: Args) -> Result<i32> {
         Source::Streams(&a.streams)
     };
     let r = dpsa_sim::board::run::run_from(&a.dir, &cal, &a.out, source)?;
-    let status = r.streams.as_ref().map_or(0, |s| s.status);
+    let mut status = r.streams.as_ref().map_or(0, |s| s.status);
+    for w in &r.warnings {
+        eprintln!("warning: {w} (the map is written; exit status 2)");
+        status = 2;
+    }
     if let Some(s) = &r.streams {
         for c in s.cameras.iter().filter(|c| c.status != 0) {
             eprintln!(

@@ -12,6 +12,8 @@ pub const MAX_PIXELS: u64 = 400_000_000;
 /// Heights (um, NaN invalid) on the board grid.
 #[derive(Clone, Debug)]
 pub struct BoardMap {
+    /// The board's identity from `board.json` (None in maps written without one).
+    pub board_id: Option<crate::simulation::recording::BoardId>,
     pub grid: BoardGrid,
     pub heights: Grid,
 }
@@ -19,8 +21,23 @@ pub struct BoardMap {
 #[derive(serde::Deserialize)]
 struct MetaIn {
     format: String,
+    version: u32,
     grid: BoardGrid,
+    units: UnitsIn,
+    /// The board's identity (`array.json`'s `board_id`), in maps of recordings that have one.
+    #[serde(default)]
+    board_id: Option<crate::simulation::recording::BoardId>,
 }
+
+#[derive(serde::Deserialize)]
+struct UnitsIn {
+    lengths: String,
+    heights: String,
+    png_lsb_um: f64,
+}
+
+/// The `board.json` version this build reads.
+pub const MAP_VERSION: u32 = 1;
 
 impl BoardMap {
     /// Reads a map directory.
@@ -35,6 +52,30 @@ impl BoardMap {
                 json_path.display(),
                 meta.format,
                 crate::board::output::FORMAT
+            );
+        }
+        if meta.version != MAP_VERSION {
+            bail!(
+                "{}: version {}, this build reads version {MAP_VERSION} of {:?}",
+                json_path.display(),
+                meta.version,
+                crate::board::output::FORMAT
+            );
+        }
+        let u = &meta.units;
+        if u.lengths != "mm" || u.heights != "um" {
+            bail!(
+                "{}: units lengths {:?} and heights {:?}, this build reads \"mm\" and \"um\" (the TIFF's heights and the grid would be misread)",
+                json_path.display(),
+                u.lengths,
+                u.heights
+            );
+        }
+        if !(u.png_lsb_um.is_finite() && u.png_lsb_um > 0.0) {
+            bail!(
+                "{}: units.png_lsb_um = {}, expected a finite value > 0 (the height of one heights.png step)",
+                json_path.display(),
+                u.png_lsb_um
             );
         }
         let g = meta.grid;
@@ -94,6 +135,7 @@ impl BoardMap {
             );
         }
         Ok(BoardMap {
+            board_id: meta.board_id,
             grid: g,
             heights: Grid {
                 width: g.width,

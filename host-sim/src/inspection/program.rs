@@ -441,6 +441,24 @@ impl Program {
             10.0,
         )?;
         check_range("fiducials.search_mm", self.fiducials.search_mm, 0.1, 20.0)?;
+        // Two fiducials closer than a diameter are one mark (or a copy-paste): the search
+        // finds the same mark for both, and the registration's rotation and scale rest on the
+        // fiducials' spread.
+        let pts = &self.fiducials.points_mm;
+        for (a, p) in pts.iter().enumerate() {
+            for (b, q) in pts.iter().enumerate().skip(a + 1) {
+                let d = (p[0] - q[0]).hypot(p[1] - q[1]);
+                if d < self.fiducials.diameter_mm {
+                    return Err(ProgramError::Invalid {
+                        key: "fiducials.points_mm".into(),
+                        why: format!(
+                            "fiducials {a} and {b} are {d:.3} mm apart ([{}, {}] and [{}, {}]), less than their diameter {} mm: they are the same mark; every fiducial must be a different mark",
+                            p[0], p[1], q[0], q[1], self.fiducials.diameter_mm
+                        ),
+                    });
+                }
+            }
+        }
         let m = &self.measure;
         check_range(
             "measure.area_threshold_pct",

@@ -394,7 +394,19 @@ pub fn inspect_dir(
         .or_else(|| program.truth_path(program_path))
         .filter(|_| use_truth);
     let print = match &truth_path {
-        Some(p) => Some(super::simulated::PrintTruth::load(p, pads.len())?),
+        Some(p) => {
+            let t = super::simulated::PrintTruth::load(p, pads.len())?;
+            if let (Some(have), Some(want)) = (t.board_id, map.board_id) {
+                if have != want {
+                    anyhow::bail!(
+                        "the print truth {} is of board {have}, the map {} of board {want}: a truth of another board would judge this board's pads against another print",
+                        p.display(),
+                        board.display()
+                    );
+                }
+            }
+            Some(t)
+        }
         None => None,
     };
     let height = |q: Point| print.as_ref().map_or(0.0, |p| p.height(q));

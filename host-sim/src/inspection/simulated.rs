@@ -10,6 +10,8 @@ pub const MAX_PRINT_BYTES: u64 = 1 << 30;
 
 /// The true placement, defects and paste surface of a printed board.
 pub struct PrintTruth {
+    /// The printed board's identity (None in prints written before it).
+    pub board_id: Option<crate::simulation::recording::BoardId>,
     pub transform: Rigid,
     /// Per pad of the layer: the injected defect's name, None for a good print.
     pub defects: Vec<Option<String>>,
@@ -59,6 +61,7 @@ impl PrintTruth {
             .collect();
         let index = DepositIndex::new(&deposits);
         Ok(PrintTruth {
+            board_id: print.board_id,
             transform: print.design_to_board,
             defects,
             deposits,

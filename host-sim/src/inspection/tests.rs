@@ -212,6 +212,7 @@ fn scene(seed: u64) -> Scene {
     program.fiducials.points_mm = fids;
     Scene {
         map: BoardMap {
+            board_id: None,
             grid,
             heights: Grid {
                 width: grid.width,

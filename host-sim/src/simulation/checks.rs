@@ -57,75 +57,7 @@ pub fn check_blocks(cam: &Camera, cal: &Calibration, p: &Processing) -> Result<(
         },
     )?;
 
-    let cpp = cal.counts_per_pixel;
-    let q16 = cpp * 65536.0;
-    check(
-        cpp.is_finite() && cpp > 0.0,
-        "calibration.counts_per_pixel",
-        || format!("{cpp} counts/px, expected a finite value > 0"),
-    )?;
-    check(
-        q16.fract() == 0.0 && (1.0..4_294_967_296.0).contains(&q16),
-        "calibration.counts_per_pixel",
-        || {
-            format!("{cpp} counts/px is not a multiple of 2^-16 in 2^-16 ..< 65536 (counts_per_pixel * 65536 = {q16} must be an integer in 1 ..< 2^32)")
-        },
-    )?;
-    check(
-        cal.fringe_period_px.is_finite() && cal.fringe_period_px >= 2.0,
-        "calibration.fringe_period_px",
-        || format!("{} px, expected a finite value >= 2", cal.fringe_period_px),
-    )?;
-    check(
-        cal.reference_phase_rad.len() == cam.width as usize,
-        "calibration.reference_phase_rad",
-        || {
-            format!(
-                "{} values, expected one per column ({})",
-                cal.reference_phase_rad.len(),
-                cam.width
-            )
-        },
-    )?;
-    if let Some(c) = cal.reference_phase_rad.iter().position(|p| !p.is_finite()) {
-        check(
-            false,
-            &format!("calibration.reference_phase_rad[{c}]"),
-            || {
-                format!(
-                    "{}, expected a finite phase (rad)",
-                    cal.reference_phase_rad[c]
-                )
-            },
-        )?;
-    }
-    for (v, field) in [
-        (cal.height_per_turn_um, "calibration.height_per_turn_um"),
-        (cal.height_lsb_um, "calibration.height_lsb_um"),
-    ] {
-        check(v.is_finite() && v > 0.0, field, || {
-            format!("{v} um, expected a finite value > 0")
-        })?;
-    }
-    let turn_lsb = cal.height_per_turn_um / cal.height_lsb_um;
-    check(turn_lsb < 32768.0, "calibration.height_per_turn_um", || {
-        format!(
-            "one fringe turn is {turn_lsb} LSB (height_per_turn_um {} / height_lsb_um {}), expected < 32768 so it fits the i16 output",
-            cal.height_per_turn_um, cal.height_lsb_um
-        )
-    })?;
-    let turn_q16 = (turn_lsb * 65536.0).round();
-    check(
-        (1.0..2_147_483_648.0).contains(&turn_q16),
-        "calibration.height_per_turn_um",
-        || {
-            format!(
-                "one fringe turn is {turn_lsb:e} LSB (height_per_turn_um {:e} / height_lsb_um {}), which the core's Q16.16 LSB-per-turn cannot hold (expected 2^-16 ..< 32768 LSB)",
-                cal.height_per_turn_um, cal.height_lsb_um
-            )
-        },
-    )?;
-    column_scale_table(cal, cam.width)?;
+    check_calibration(cal, cam.width)?;
 
     check((3..=8).contains(&p.n), "processing.n", || {
         format!("{}, expected 3..=8", p.n)
@@ -170,6 +102,82 @@ pub fn check_blocks(cam: &Camera, cal: &Calibration, p: &Processing) -> Result<(
         "processing.max_noise_gain",
         || format!("{}, expected 1..=8", p.max_noise_gain),
     )?;
+    Ok(())
+}
+
+/// Checks a calibration block for frames `width` px wide: what the core takes (the encoder
+/// step, fringe period, reference-phase table, height scale and its per-column table). Also
+/// used on every camera of an array calibration file (`calibration::file`).
+pub fn check_calibration(cal: &Calibration, width: u32) -> Result<(), Invalid> {
+    let cpp = cal.counts_per_pixel;
+    let q16 = cpp * 65536.0;
+    check(
+        cpp.is_finite() && cpp > 0.0,
+        "calibration.counts_per_pixel",
+        || format!("{cpp} counts/px, expected a finite value > 0"),
+    )?;
+    check(
+        q16.fract() == 0.0 && (1.0..4_294_967_296.0).contains(&q16),
+        "calibration.counts_per_pixel",
+        || {
+            format!("{cpp} counts/px is not a multiple of 2^-16 in 2^-16 ..< 65536 (counts_per_pixel * 65536 = {q16} must be an integer in 1 ..< 2^32)")
+        },
+    )?;
+    check(
+        cal.fringe_period_px.is_finite() && cal.fringe_period_px >= 2.0,
+        "calibration.fringe_period_px",
+        || format!("{} px, expected a finite value >= 2", cal.fringe_period_px),
+    )?;
+    check(
+        cal.reference_phase_rad.len() == width as usize,
+        "calibration.reference_phase_rad",
+        || {
+            format!(
+                "{} values, expected one per column ({})",
+                cal.reference_phase_rad.len(),
+                width
+            )
+        },
+    )?;
+    if let Some(c) = cal.reference_phase_rad.iter().position(|p| !p.is_finite()) {
+        check(
+            false,
+            &format!("calibration.reference_phase_rad[{c}]"),
+            || {
+                format!(
+                    "{}, expected a finite phase (rad)",
+                    cal.reference_phase_rad[c]
+                )
+            },
+        )?;
+    }
+    for (v, field) in [
+        (cal.height_per_turn_um, "calibration.height_per_turn_um"),
+        (cal.height_lsb_um, "calibration.height_lsb_um"),
+    ] {
+        check(v.is_finite() && v > 0.0, field, || {
+            format!("{v} um, expected a finite value > 0")
+        })?;
+    }
+    let turn_lsb = cal.height_per_turn_um / cal.height_lsb_um;
+    check(turn_lsb < 32768.0, "calibration.height_per_turn_um", || {
+        format!(
+            "one fringe turn is {turn_lsb} LSB (height_per_turn_um {} / height_lsb_um {}), expected < 32768 so it fits the i16 output",
+            cal.height_per_turn_um, cal.height_lsb_um
+        )
+    })?;
+    let turn_q16 = (turn_lsb * 65536.0).round();
+    check(
+        (1.0..2_147_483_648.0).contains(&turn_q16),
+        "calibration.height_per_turn_um",
+        || {
+            format!(
+                "one fringe turn is {turn_lsb:e} LSB (height_per_turn_um {:e} / height_lsb_um {}), which the core's Q16.16 LSB-per-turn cannot hold (expected 2^-16 ..< 32768 LSB)",
+                cal.height_per_turn_um, cal.height_lsb_um
+            )
+        },
+    )?;
+    column_scale_table(cal, width)?;
     Ok(())
 }
 
