@@ -34,6 +34,10 @@ pub struct Args {
 }
 
 pub fn run(a: Args, progress: bool) -> Result<()> {
+    dpsa_sim::kind::expect(&a.dir, "DIR", dpsa_sim::kind::Kind::Recording, &[])?;
+    if let Some(c) = &a.cal {
+        dpsa_sim::kind::expect(c, "--cal", dpsa_sim::kind::Kind::Calibration, &[])?;
+    }
     // Every output is checked before any work.
     let inputs = [Input::Dir(&a.dir)];
     files::refuse_overwrite("--out", &a.out, &inputs)?;

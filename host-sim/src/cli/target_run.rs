@@ -38,6 +38,10 @@ pub struct Args {
 /// Runs the firmware on the recording, writes the stream to `--out` and prints a summary (or
 /// one JSON object with `--json`). The decoded firmware log goes to stderr.
 pub fn run(a: Args, progress: bool) -> Result<()> {
+    dpsa_sim::kind::expect(&a.recording, "DIR", dpsa_sim::kind::Kind::Recording, &[])?;
+    if let Some(c) = &a.cal {
+        dpsa_sim::kind::expect(c, "--cal", dpsa_sim::kind::Kind::Calibration, &[])?;
+    }
     if let Some(out) = &a.out {
         let mut inputs = vec![files::Input::Dir(&a.recording)];
         if let Some(elf) = &a.elf {
