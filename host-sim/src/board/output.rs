@@ -27,6 +27,10 @@ pub const PNG_LSB_UM: f64 = 0.25;
 pub struct Metadata {
     pub format: &'static str,
     pub version: u32,
+    /// The board's identity (`array.json`'s `board_id`, 16 hex digits), which the inspection
+    /// reports as the CFX `UnitIdentifier`; absent for a recording without one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub board_id: Option<crate::simulation::recording::BoardId>,
     pub grid: BoardGrid,
     /// Units of every height file.
     pub units: Units,
@@ -86,6 +90,7 @@ pub fn write(
     b: &Blended,
     cameras: usize,
     missing_rows: &[u64],
+    board_id: Option<crate::simulation::recording::BoardId>,
 ) -> Result<Metadata> {
     std::fs::create_dir_all(dir)
         .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", dir.display()))?;
@@ -125,6 +130,7 @@ pub fn write(
     let meta = Metadata {
         format: FORMAT,
         version: 1,
+        board_id,
         grid: *grid,
         units: Units {
             lengths: "mm",

@@ -31,7 +31,17 @@ pub struct Args {
 
 /// Builds the map; returns the exit status: 0, or 2 when a stream was damaged or incomplete
 /// (the map is written with the rows it lost invalid), as `dpsa decode`.
-pub fn run(a: Args) -> Result<i32> {
+pub fn run(a: Args, progress: bool) -> Result<i32> {
+    dpsa_sim::kind::expect(
+        &a.dir,
+        "DIR",
+        dpsa_sim::kind::Kind::ArrayBoardRecording,
+        &[],
+    )?;
+    dpsa_sim::kind::expect(&a.cal, "--cal", dpsa_sim::kind::Kind::Calibration, &[])?;
+    for s in &a.streams {
+        dpsa_sim::kind::expect(s, "--streams", dpsa_sim::kind::Kind::Stream, &[])?;
+    }
     let mut inputs = vec![files::Input::Dir(&a.dir), files::Input::File(&a.cal)];
     inputs.extend(a.streams.iter().map(|p| files::Input::File(p)));
     files::refuse_overwrite("--out", &a.out, &inputs)?;
@@ -44,7 +54,7 @@ pub fn run(a: Args) -> Result<i32> {
     } else {
         Source::Streams(&a.streams)
     };
-    let r = dpsa_sim::board::run::run_from(&a.dir, &cal, &a.out, source)?;
+    let r = dpsa_sim::board::run::run_shown(&a.dir, &cal, &a.out, source, progress)?;
     let status = r.streams.as_ref().map_or(0, |s| s.status);
     if let Some(s) = &r.streams {
         for c in s.cameras.iter().filter(|c| c.status != 0) {

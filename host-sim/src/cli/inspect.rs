@@ -29,19 +29,25 @@ pub struct Args {
 }
 
 /// Exit status 0 whatever the verdict (it is in the report), 1 on an error.
-pub fn run(a: Args) -> Result<()> {
+pub fn run(a: Args, progress: bool) -> Result<()> {
+    dpsa_sim::kind::expect(&a.board, "MAPDIR", dpsa_sim::kind::Kind::BoardMap, &[])?;
+    dpsa_sim::kind::expect(&a.program, "--program", dpsa_sim::kind::Kind::Program, &[])?;
+    if let Some(t) = &a.truth {
+        dpsa_sim::kind::expect(t, "--truth", dpsa_sim::kind::Kind::PrintTruth, &[])?;
+    }
     let mut inputs = vec![files::Input::Dir(&a.board), files::Input::File(&a.program)];
     if let Some(t) = &a.truth {
         inputs.push(files::Input::File(t));
     }
     files::refuse_overwrite("--out", &a.out, &inputs)?;
-    let (r, _) = dpsa_sim::inspection::run::inspect_dir(
+    let (r, _) = dpsa_sim::inspection::run::inspect_dir_shown(
         &a.board,
         &a.program,
         a.truth.as_deref(),
         Some(&a.out),
         a.repeat,
         true,
+        progress,
     )?;
     if a.json {
         out!("{}", serde_json::to_string_pretty(&r)?);

@@ -14,11 +14,15 @@ pub const MAX_PIXELS: u64 = 400_000_000;
 pub struct BoardMap {
     pub grid: BoardGrid,
     pub heights: Grid,
+    /// The board's identity from `board.json` (`None` for a map without one).
+    pub board_id: Option<String>,
 }
 
 #[derive(serde::Deserialize)]
 struct MetaIn {
     format: String,
+    #[serde(default)]
+    board_id: Option<String>,
     grid: BoardGrid,
 }
 
@@ -100,6 +104,7 @@ impl BoardMap {
                 rows: g.rows,
                 data,
             },
+            board_id: meta.board_id,
         })
     }
 
