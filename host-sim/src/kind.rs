@@ -162,12 +162,11 @@ fn json_format(bytes: &[u8]) -> Option<String> {
     Some(rest[..rest.find('"')?].to_string())
 }
 
-/// A line of TOML that sets `key` at the top level (before any table), or anywhere if
-/// `anywhere`.
-fn toml_has(text: &str, key: &str, anywhere: bool) -> bool {
+/// A line of TOML that sets `key` at the top level (before any table).
+fn toml_has(text: &str, key: &str) -> bool {
     for line in text.lines() {
         let l = line.trim_start();
-        if l.starts_with('[') && !anywhere {
+        if l.starts_with('[') {
             return false;
         }
         if let Some(rest) = l.strip_prefix(key) {
@@ -177,6 +176,11 @@ fn toml_has(text: &str, key: &str, anywhere: bool) -> bool {
         }
     }
     false
+}
+
+/// A line that is exactly `line` (surrounding blanks aside): a TOML table header.
+fn has_line(text: &str, line: &str) -> bool {
+    text.lines().any(|l| l.trim() == line)
 }
 
 /// The kind of `bytes`, the head of a file.
@@ -218,20 +222,27 @@ pub fn sniff_bytes(bytes: &[u8]) -> Kind {
             Kind::Other
         };
     }
-    if toml_has(t, "format", true) && t.contains(crate::calibration::file::CAL_FORMAT) {
+    let cal_format = format!("\"{}\"", crate::calibration::file::CAL_FORMAT);
+    let is_cal = t.lines().any(|l| {
+        l.trim_start()
+            .strip_prefix("format")
+            .and_then(|r| r.trim_start().strip_prefix('='))
+            .is_some_and(|v| v.trim() == cal_format)
+    });
+    if is_cal {
         return Kind::Calibration;
     }
-    if toml_has(t, "paste_layer", false) {
+    if toml_has(t, "paste_layer") {
         // A program names its layer at the top; so does an array scene, which has cameras.
-        if t.contains("[[cameras]]") {
+        if has_line(t, "[[cameras]]") {
             return Kind::ArrayScene;
         }
         return Kind::Program;
     }
-    if t.contains("[[cameras]]") {
+    if has_line(t, "[[cameras]]") {
         return Kind::ArrayScene;
     }
-    if toml_has(t, "width", false) && toml_has(t, "fringe_period_px", false) {
+    if toml_has(t, "width") && toml_has(t, "fringe_period_px") {
         return Kind::Scene;
     }
     Kind::Other

@@ -302,7 +302,8 @@ mod tests {
             edge_median_um: Some(0.0),
             seams: Vec::new(),
         };
-        let meta = write(dir.path(), &grid, &b, 2, &[0, 0]).unwrap();
+        let id = crate::simulation::recording::BoardId(0x0123_4567_89ab_cdef);
+        let meta = write(dir.path(), &grid, &b, 2, &[0, 0], Some(id)).unwrap();
         assert_eq!(meta.pixels.valid, h.valid() as u64);
         assert_eq!(
             meta.pixels.per_camera.iter().sum::<u64>(),
@@ -334,6 +335,7 @@ mod tests {
             serde_json::from_str(&std::fs::read_to_string(dir.path().join("board.json")).unwrap())
                 .unwrap();
         assert_eq!(v["format"], FORMAT);
+        assert_eq!(v["board_id"], "0123456789abcdef");
         assert_eq!(v["grid"]["pitch_mm"], 0.03);
     }
 }
