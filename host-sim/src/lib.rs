@@ -30,6 +30,7 @@ pub mod files;
 pub mod heightmap;
 pub mod images;
 pub mod inspection;
+pub mod kind;
 pub mod progress;
 pub mod reconstruct;
 pub mod reference;

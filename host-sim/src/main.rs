@@ -25,13 +25,13 @@ fn main() {
         Cmd::Simulate(a) => cli::simulate::run(a, progress),
         Cmd::Calibrate(a) => cli::calibrate::run(a),
         // 0, or 2 when a --streams stream was damaged or incomplete (cli/board.rs).
-        Cmd::Board(a) => cli::board::run(a).map(exit_unless_zero),
+        Cmd::Board(a) => cli::board::run(a, progress).map(exit_unless_zero),
         Cmd::Layout(a) => cli::layout::run(a),
         Cmd::Reconstruct(a) => cli::reconstruct::run(a, progress),
         Cmd::Compare(a) => cli::compare::run(a, progress),
         Cmd::Phase(a) => cli::phase::run(a),
         Cmd::Pads(a) => cli::pads::run(a),
-        Cmd::Inspect(a) => cli::inspect::run(a),
+        Cmd::Inspect(a) => cli::inspect::run(a, progress),
         Cmd::Grr(a) => cli::grr::run(a),
         // 0 clean, 2 damaged or incomplete, 3 nothing decodable (cli/decode.rs).
         Cmd::Decode(a) => cli::decode::run(a).map(exit_unless_zero),

@@ -37,6 +37,15 @@ pub const PROGRAM_FILE: &str = "program.toml";
 /// stencil, nominal placement and fiducials, the default windows, and the print truth.
 pub fn inspection_program(scene: &ArrayScene) -> crate::inspection::program::Program {
     let mut p = crate::inspection::program::Program::new(PASTE_LAYER_FILE);
+    // Named after the board design: its paste layer's file name without `.gbr` / `.paste`.
+    p.name = scene.paste_layer.as_ref().map(|l| {
+        let f = Path::new(l)
+            .file_name()
+            .map(|f| f.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let f = f.strip_suffix(".gbr").unwrap_or(&f);
+        f.strip_suffix(".paste").unwrap_or(f).to_string()
+    });
     p.stencil_um = scene.print.stencil_um;
     p.placement.design_origin_mm = scene.placement.design_origin_mm;
     p.placement.orientation_deg = scene.placement.orientation_deg;
@@ -242,6 +251,20 @@ impl ArrayRecording {
             if !(v.is_finite() && (lo..=hi).contains(&v)) {
                 bail!(
                     "{}: {key} = {v}, expected a finite value in {lo} ..= {hi}",
+                    path.display()
+                );
+            }
+        }
+        // The same ranges as the scene's keys: a 0 here would size a board map from a
+        // division by zero (or a map of no rows).
+        for (key, v, lo, hi) in [
+            ("pixel_mm", manifest.pixel_mm, 1e-4, 10.0),
+            ("board_length_mm", manifest.board_length_mm, 1.0, 2000.0),
+            ("board_width_mm", manifest.board_width_mm, 1.0, 2000.0),
+        ] {
+            if !(v.is_finite() && (lo..=hi).contains(&v)) {
+                bail!(
+                    "{}: `{key}` is {v}, expected a finite value in {lo}..={hi} (mm)",
                     path.display()
                 );
             }

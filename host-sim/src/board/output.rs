@@ -27,8 +27,9 @@ pub const PNG_LSB_UM: f64 = 0.25;
 pub struct Metadata {
     pub format: &'static str,
     pub version: u32,
-    /// The board's identity (`array.json`'s `board_id`), when the recording has one: `dpsa
-    /// inspect` refuses a print truth of another board with it.
+    /// The board's identity (`array.json`'s `board_id`, 16 hex digits), when the recording has
+    /// one: `dpsa inspect` refuses a print truth of another board with it and reports it as the
+    /// CFX `UnitIdentifier`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub board_id: Option<crate::simulation::recording::BoardId>,
     pub grid: BoardGrid,
@@ -117,7 +118,7 @@ pub fn write(
     board_id: Option<crate::simulation::recording::BoardId>,
 ) -> Result<Metadata> {
     let staging = crate::files::OutputDir::create(dir, DIR_KIND)?;
-    let meta = write_files(staging.path(), grid, b, cameras, missing_rows)?;
+    let meta = write_files(staging.path(), grid, b, cameras, missing_rows, board_id)?;
     staging.commit()?;
     Ok(meta)
 }
@@ -128,6 +129,7 @@ fn write_files(
     b: &Blended,
     cameras: usize,
     missing_rows: &[u64],
+    board_id: Option<crate::simulation::recording::BoardId>,
 ) -> Result<Metadata> {
     let files = Files {
         heights_png: "heights.png",
@@ -337,7 +339,8 @@ mod tests {
             edge_median_um: Some(0.0),
             seams: Vec::new(),
         };
-        let meta = write(dir.path(), &grid, &b, 2, &[0, 0], None).unwrap();
+        let id = crate::simulation::recording::BoardId(0x0123_4567_89ab_cdef);
+        let meta = write(dir.path(), &grid, &b, 2, &[0, 0], Some(id)).unwrap();
         assert_eq!(meta.pixels.valid, h.valid() as u64);
         assert_eq!(
             meta.pixels.per_camera.iter().sum::<u64>(),
@@ -369,6 +372,7 @@ mod tests {
             serde_json::from_str(&std::fs::read_to_string(dir.path().join("board.json")).unwrap())
                 .unwrap();
         assert_eq!(v["format"], FORMAT);
+        assert_eq!(v["board_id"], "0123456789abcdef");
         assert_eq!(v["grid"]["pitch_mm"], 0.03);
     }
 }

@@ -95,6 +95,12 @@ pub struct RunTiming {
     pub assemble: Timing,
     /// Writing the files, s.
     pub write_s: f64,
+    /// Opening and checking the recording (before the core), s.
+    pub open_s: f64,
+    /// The comparison with the simulator's truth (0 without it), s.
+    pub truth_s: f64,
+    /// The whole run, s: the sum of the steps above and what lies between them.
+    pub total_s: f64,
 }
 
 impl Report {
@@ -117,23 +123,35 @@ impl Report {
             self.unwrap.turns
         );
         if let Some(t) = &self.truth {
+            // The bound needs every camera's per-pixel truth (B, C, phase) and noise model;
+            // scenes with `camera_truth = false` (scenes/paper-board.toml: 12 bytes per
+            // camera pixel saved) have none.
+            let crb = match t.crb_rms_um {
+                Some(_) => format!(
+                    "Cramer-Rao bound {} um (ratio {})",
+                    opt(t.crb_rms_um),
+                    opt(t.over_crb)
+                ),
+                None => "no Cramer-Rao bound (it needs the cameras' truth files, which this recording lacks: its scene sets `camera_truth = false`, or it has no noise model)".into(),
+            };
             s += &format!(
-                "truth: rms {} um (bias {}), Cramer-Rao bound {} um (ratio {}) over {} flat px, {} wrong-turn px\n",
+                "truth: rms {} um (bias {}), {crb} over {} flat px, {} wrong-turn px\n",
                 opt(t.rms_um),
                 opt(t.bias_um),
-                opt(t.crb_rms_um),
-                opt(t.over_crb),
                 t.flat_pixels,
                 t.wrong_turn_pixels
             );
         }
         s += &format!(
-            "time: core {:.2} s, unwrap {:.2} s, resample {:.2} s, blend {:.2} s, write {:.2} s",
+            "time: open {:.2} s, core {:.2} s, unwrap {:.2} s, resample {:.2} s, blend {:.2} s, write {:.2} s, truth {:.2} s; total {:.2} s",
+            self.timing.open_s,
             self.timing.core_s,
             self.timing.assemble.unwrap_s,
             self.timing.assemble.resample_s,
             self.timing.assemble.blend_s,
-            self.timing.write_s
+            self.timing.write_s,
+            self.timing.truth_s,
+            self.timing.total_s
         );
         s
     }
@@ -276,9 +294,21 @@ pub(crate) fn calibrated(rec: &Recording, cal: &CameraCal, lsb_um: f64) -> Resul
 
 /// Row source 1: the core on one camera's calibrated recording.
 pub(crate) fn core_rows(rec: &Recording, cal: &CameraCal, lsb_um: f64) -> Result<Collector> {
+    core_rows_counted(rec, cal, lsb_um, &indicatif::ProgressBar::hidden())
+}
+
+/// [`core_rows`], counting every row on `bar` (its length grows by the camera's planned rows).
+fn core_rows_counted(
+    rec: &Recording,
+    cal: &CameraCal,
+    lsb_um: f64,
+    bar: &indicatif::ProgressBar,
+) -> Result<Collector> {
+    bar.inc_length(crate::reference::plan(&rec.manifest).len() as u64);
     let mut rows = Collector::new(cal, lsb_um);
     crate::reconstruct::reconstruct_rows(rec, false, |r| {
         rows.push(&r);
+        bar.inc(1);
         Ok(())
     })?;
     Ok(rows)
@@ -453,6 +483,19 @@ pub fn run(dir: &Path, cal: &CalFile, out: &Path) -> Result<Report> {
 /// Builds the board map of the array recording `dir` with `cal` into `out`, the rows from
 /// `source`. Every check (recording, calibration, streams) comes before any file is written.
 pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Result<Report> {
+    run_shown(dir, cal, out, source, false)
+}
+
+/// [`run_from`] with progress bars on stderr when `progress` (the core's rows over every
+/// camera, then the assembly's steps).
+pub fn run_shown(
+    dir: &Path,
+    cal: &CalFile,
+    out: &Path,
+    source: Source<'_>,
+    progress: bool,
+) -> Result<Report> {
+    let t_open = Instant::now();
     let Opened {
         arr,
         recs,
@@ -460,9 +503,12 @@ pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Re
         grid,
     } = open(dir, cal)?;
 
+    let open_s = t_open.elapsed().as_secs_f64();
     let t0 = Instant::now();
     let (cams, mut streams_report) = match source {
         Source::Core => {
+            let bar = crate::progress::progress_bar(progress, 0, "board core");
+            let bar = &bar;
             let cams: Vec<CameraRows> = std::thread::scope(|s| {
                 let handles: Vec<_> = recs
                     .iter()
@@ -471,7 +517,13 @@ pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Re
                         s.spawn(move || {
                             let max_step = r.manifest.processing.max_step_rows;
                             let r = calibrated(r, c, cal.height_lsb_um)?;
-                            core_rows(&r, c, cal.height_lsb_um)?.finish(&r, c, max_step, &[], true)
+                            core_rows_counted(&r, c, cal.height_lsb_um, bar)?.finish(
+                                &r,
+                                c,
+                                max_step,
+                                &[],
+                                true,
+                            )
                         })
                     })
                     .collect();
@@ -484,6 +536,7 @@ pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Re
                     })
                     .collect::<Result<Vec<_>>>()
             })?;
+            bar.finish_and_clear();
             (cams, None)
         }
         Source::Streams(paths) => {
@@ -513,7 +566,10 @@ pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Re
     };
     let core_s = t0.elapsed().as_secs_f64();
 
+    // The steps after the core, one bar position each.
+    let steps = crate::progress::progress_bar(progress, 3, "board map");
     let a = assemble(&cams, &grid);
+    steps.inc(1);
     if let Some(r) = &mut streams_report {
         r.gap_board_pixels = a.lost_pixels;
     }
@@ -524,7 +580,9 @@ pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Re
     let t1 = Instant::now();
     super::output::write(out, &grid, &a.blended, cams.len(), &missing, board)?;
     let write_s = t1.elapsed().as_secs_f64();
+    steps.inc(1);
 
+    let t2 = Instant::now();
     let truth = match arr.truth()? {
         Some(t) => match t.board {
             Some(b) => {
@@ -562,6 +620,8 @@ pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Re
         },
         None => None,
     };
+    let truth_s = t2.elapsed().as_secs_f64();
+    steps.finish_and_clear();
 
     let b = &a.blended;
     let valid = b.heights.valid() as u64;
@@ -604,6 +664,9 @@ pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Re
             core_s,
             assemble: a.timing,
             write_s,
+            open_s,
+            truth_s,
+            total_s: t_open.elapsed().as_secs_f64(),
         },
         streams: streams_report,
     })

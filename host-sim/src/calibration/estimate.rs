@@ -496,17 +496,18 @@ fn fit_lateral(
     ))
 }
 
-/// Per-pixel results of the f64 reference on one plane recording with a calibrated camera.
-pub struct PlanePixels {
-    /// `(column, D)` with `D = wrap(Phi - 2 pi f (b - o_w))` (no reference-phase table).
-    pub pixels: Vec<(usize, f64)>,
-    /// Image rows of each pixel's window samples, `n` per pixel.
-    pub sample_rows: Vec<Vec<i64>>,
-}
-
 /// Runs the f64 reference D-PSA with the calibrated encoder scale and `f_x` and a zero
-/// reference-phase table; keeps valid pixels whose samples avoid dead pixels.
-pub fn plane_phases(rec: &Recording, cal: &CameraCal) -> Result<PlanePixels> {
+/// reference-phase table and hands every valid pixel whose samples avoid dead pixels to
+/// `each(column, D, sample rows)`, with `D = wrap(Phi - 2 pi f (b - o_w))` (no
+/// reference-phase table) and the image rows of the pixel's `n` window samples.
+///
+/// Streaming, row by row: memory is one window of frames and one row, whatever the plane's
+/// length (collecting the rows and pixels of a 150 mm plane held about 100 MB per camera).
+pub fn plane_phases(
+    rec: &Recording,
+    cal: &CameraCal,
+    mut each: impl FnMut(usize, f64, &[i64]),
+) -> Result<()> {
     let mut m = rec.manifest.clone();
     m.calibration.counts_per_pixel = round_counts_per_pixel(cal.counts_per_pixel);
     m.calibration.fringe_period_px = cal.fringe_period_px;
@@ -515,21 +516,22 @@ pub fn plane_phases(rec: &Recording, cal: &CameraCal) -> Result<PlanePixels> {
     // Phase in mrad in every column: no per-column height scale.
     m.calibration.height_per_turn_um_per_column = None;
     let mut src = LazyFrames::new(rec);
-    let out = reference::reconstruct_from(&m, &mut src)?;
+    let mut eval = reference::RowEval::dpsa(&m);
     let width = rec.width();
     let mut dead = vec![false; rec.rows() * width];
     for &[r, c] in &cal.dead_pixels {
-        dead[r as usize * width + c as usize] = true;
+        if let Some(d) = dead.get_mut(r as usize * width + c as usize) {
+            *d = true;
+        }
     }
-    let mut res = PlanePixels {
-        pixels: Vec::new(),
-        sample_rows: Vec::new(),
-    };
-    for row in &out.rows {
+    let mut rows: Vec<i64> = Vec::new();
+    while let Some(row) = eval.next_row(&mut src) {
+        let row = row?;
         let Some(win) = row.window.as_ref().filter(|_| row.is_valid()) else {
             continue;
         };
-        let rows: Vec<i64> = win.offsets.iter().map(|o| row.row - o).collect();
+        rows.clear();
+        rows.extend(win.offsets.iter().map(|o| row.row - o));
         for c in 0..width {
             if !row.valid[c] {
                 continue;
@@ -540,11 +542,10 @@ pub fn plane_phases(rec: &Recording, cal: &CameraCal) -> Result<PlanePixels> {
             {
                 continue;
             }
-            res.pixels.push((c, row.phase_rad[c]));
-            res.sample_rows.push(rows.clone());
+            each(c, row.phase_rad[c], &rows);
         }
     }
-    Ok(res)
+    Ok(())
 }
 
 /// Worst height error (um) the field variation of `f_x` causes when the core uses one value,
@@ -591,25 +592,20 @@ pub fn fx_height_error(cal: &CameraCal, n: usize, step_px: f64, max_step: u32) -
     worst
 }
 
-/// Heights of a plane measured with the calibration: `(column, h, sample rows)` per valid
-/// pixel, `h` unwrapped to the turn nearest the known height.
+/// Heights of a plane measured with the calibration, streamed: `each(column, h, sample rows)`
+/// per valid pixel, `h` unwrapped to the turn nearest the known height.
 pub fn measure_plane(
     rec: &Recording,
     cal: &CameraCal,
     known_um: f64,
-) -> Result<Vec<(usize, f64, Vec<i64>)>> {
-    let pp = plane_phases(rec, cal)?;
-    Ok(pp
-        .pixels
-        .iter()
-        .zip(pp.sample_rows)
-        .map(|(&(c, d), rows)| {
-            let t = cal.height_per_turn_um[c];
-            let mut h = wrap(d - cal.core_reference_phase_rad[c]) / TAU * t;
-            h += t * ((known_um - h) / t).round();
-            (c, h, rows)
-        })
-        .collect())
+    mut each: impl FnMut(usize, f64, &[i64]),
+) -> Result<()> {
+    plane_phases(rec, cal, |c, d, rows| {
+        let t = cal.height_per_turn_um[c];
+        let mut h = wrap(d - cal.core_reference_phase_rad[c]) / TAU * t;
+        h += t * ((known_um - h) / t).round();
+        each(c, h, rows)
+    })
 }
 
 /// The array calibration of a calibration recording.
@@ -787,12 +783,12 @@ fn calibrate_camera(
     // The core's table: the f64 reference D-PSA on the planes, circular mean per column.
     let mut acc = vec![(0.0f64, 0.0f64); width];
     for (r, &h) in recs.iter().zip(&heights) {
-        let pp = plane_phases(r, &cal)?;
-        for &(c, d) in &pp.pixels {
-            let e = d - TAU * h / cal.height_per_turn_um[c];
+        let tz = &cal.height_per_turn_um;
+        plane_phases(r, &cal, |c, d, _| {
+            let e = d - TAU * h / tz[c];
             acc[c].0 += e.sin();
             acc[c].1 += e.cos();
-        }
+        })?;
     }
     for (c, &(s, co)) in acc.iter().enumerate() {
         cal.core_reference_phase_rad[c] = if s == 0.0 && co == 0.0 {

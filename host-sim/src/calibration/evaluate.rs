@@ -157,10 +157,8 @@ pub fn holdout_bound(
         .zip(&sq)
         .map(|(&s, &q)| ((q - s * s / n) / (n - 1.0)).max(1.0 / 12.0))
         .collect();
-    let px = measure_plane(hr, cal, known_um)?;
     let (mut e2, mut bias, mut crb2, mut used) = (0.0, 0.0, 0.0, 0usize);
-    for (c, v, rows) in &px {
-        let c = *c;
+    measure_plane(hr, cal, known_um, |c, v, rows| {
         let f = cal.fringe_frequency(c as f64);
         let t = cal.height_per_turn_um[c];
         let md = cal.modulation_dn[c];
@@ -180,7 +178,7 @@ pub fn holdout_bound(
             bias += v - known_um;
             used += 1;
         }
-    }
+    })?;
     let m = used.max(1) as f64;
     Ok(((e2 / m).sqrt(), (crb2 / m).sqrt(), bias / m, used))
 }
@@ -297,42 +295,44 @@ pub fn evaluate(rec: &ArrayRecording, cal: &CalFile) -> Result<Report> {
         if let (Some(p), Some(h)) = (holdout, ho.as_mut()) {
             let hr = Recording::open(rec.camera_dir(i, Some(&p.name)))
                 .with_context(|| format!("camera {i}, held-out plane"))?;
-            let px = measure_plane(&hr, c, p.height_um)?;
-            let n = px.len().max(1) as f64;
-            let bias = px.iter().map(|(_, v, _)| v - p.height_um).sum::<f64>() / n;
-            let rms = (px
-                .iter()
-                .map(|(_, v, _)| (v - p.height_um).powi(2))
-                .sum::<f64>()
-                / n)
-                .sqrt();
+            let noise_truth = truth
+                .as_ref()
+                .zip(hr.manifest.noise.as_ref())
+                .map(|(t, noise)| (&t.cameras[i], t, noise));
+            // Streamed: sums of the error, its square and the CRB variance, no pixel list.
+            let (mut count, mut sum, mut sum2, mut var_sum) = (0u64, 0.0f64, 0.0f64, 0.0f64);
+            measure_plane(&hr, c, p.height_um, |col, v, rows| {
+                count += 1;
+                sum += v - p.height_um;
+                sum2 += (v - p.height_um).powi(2);
+                if let Some((m, t, noise)) = noise_truth {
+                    var_sum += crb_var(
+                        m,
+                        t.plane_background_dn[i][col],
+                        t.plane_modulation_dn[i][col],
+                        (noise.gain_e_per_dn, noise.read_noise_dn),
+                        col,
+                        p.height_um,
+                        rows,
+                    )
+                    .unwrap_or(0.0);
+                }
+            })?;
+            let n = count.max(1) as f64;
+            let bias = sum / n;
+            let rms = (sum2 / n).sqrt();
             let (brms, bound, _, _) = holdout_bound(&hr, c, p.height_um)?;
             fig.holdout_bound_um = bound;
             fig.holdout_rms_over_bound = brms / bound;
             fig.holdout_bias_um = bias;
             fig.holdout_rms_um = rms;
-            h.pixels += px.len() as u64;
+            h.pixels += count;
             h.bias_um_max = h.bias_um_max.max(bias.abs());
             if rms >= h.rms_um {
                 h.rms_um = rms;
             }
-            if let (Some(t), Some(noise)) = (&truth, &hr.manifest.noise) {
-                let m = &t.cameras[i];
-                let var: f64 = px
-                    .iter()
-                    .filter_map(|(col, _, rows)| {
-                        crb_var(
-                            m,
-                            t.plane_background_dn[i][*col],
-                            t.plane_modulation_dn[i][*col],
-                            (noise.gain_e_per_dn, noise.read_noise_dn),
-                            *col,
-                            p.height_um,
-                            rows,
-                        )
-                    })
-                    .sum::<f64>()
-                    / n;
+            if noise_truth.is_some() {
+                let var = var_sum / n;
                 let crb = var.sqrt();
                 fig.holdout_crb_rms_um = Some(crb);
                 let ratio = rms / crb;

@@ -33,7 +33,17 @@ pub struct Args {
 /// Builds the map; returns the exit status: 0, or 2 when a stream was damaged or incomplete
 /// (the map is written with the rows it lost invalid), as `dpsa decode`, or when the map
 /// itself shows it is wrong or useless (`Report::warnings`).
-pub fn run(a: Args) -> Result<i32> {
+pub fn run(a: Args, progress: bool) -> Result<i32> {
+    dpsa_sim::kind::expect(
+        &a.dir,
+        "DIR",
+        dpsa_sim::kind::Kind::ArrayBoardRecording,
+        &[],
+    )?;
+    dpsa_sim::kind::expect(&a.cal, "--cal", dpsa_sim::kind::Kind::Calibration, &[])?;
+    for s in &a.streams {
+        dpsa_sim::kind::expect(s, "--streams", dpsa_sim::kind::Kind::Stream, &[])?;
+    }
     let mut inputs = vec![files::Input::Dir(&a.dir), files::Input::File(&a.cal)];
     inputs.extend(a.streams.iter().map(|p| files::Input::File(p)));
     // The map directory may not be, hold or lie inside an input; it replaces only an
@@ -46,7 +56,7 @@ pub fn run(a: Args) -> Result<i32> {
     } else {
         Source::Streams(&a.streams)
     };
-    let r = dpsa_sim::board::run::run_from(&a.dir, &cal, &a.out, source)?;
+    let r = dpsa_sim::board::run::run_shown(&a.dir, &cal, &a.out, source, progress)?;
     let mut status = r.streams.as_ref().map_or(0, |s| s.status);
     for w in &r.warnings {
         eprintln!("warning: {w} (the map is written; exit status 2)");

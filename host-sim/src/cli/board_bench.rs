@@ -22,6 +22,13 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    dpsa_sim::kind::expect(
+        &a.dir,
+        "DIR",
+        dpsa_sim::kind::Kind::ArrayBoardRecording,
+        &[],
+    )?;
+    dpsa_sim::kind::expect(&a.cal, "--cal", dpsa_sim::kind::Kind::Calibration, &[])?;
     let cal = CalFile::load(&a.cal)?;
     let py = (!a.no_numpy).then_some(a.python.as_str());
     let r = dpsa_sim::benches::board::run(&a.dir, &cal, py)?;

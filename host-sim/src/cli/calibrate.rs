@@ -24,6 +24,12 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    dpsa_sim::kind::expect(
+        &a.dir,
+        "DIR",
+        dpsa_sim::kind::Kind::ArrayCalibrationRecording,
+        &[],
+    )?;
     let rec = ArrayRecording::open(&a.dir)?;
     files::refuse_overwrite("--out", &a.out, &[files::Input::Dir(&a.dir)])?;
     let cal = calibration::calibrate(&rec, a.fx_budget_um)?;

@@ -15,6 +15,12 @@ pub struct Args {
 }
 
 pub fn run(a: Args, progress: bool) -> Result<()> {
+    dpsa_sim::kind::expect(
+        &a.input,
+        "INPUT",
+        dpsa_sim::kind::Kind::Recording,
+        &[dpsa_sim::kind::Kind::Stream],
+    )?;
     let (rows, source) = codec::load(&a.input, progress)?;
     if let Source::Stream { ok, corrupt } = source {
         if corrupt > 0 {

@@ -15,6 +15,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args, progress: bool) -> Result<()> {
+    dpsa_sim::kind::expect(&a.dir, "DIR", dpsa_sim::kind::Kind::Recording, &[])?;
     let rec = open(&a.dir)?;
     let cmp = compare_recording(&rec, progress)?;
     if a.json {

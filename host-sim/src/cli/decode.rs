@@ -30,6 +30,7 @@ pub struct Args {
 
 /// Decodes; returns the exit status.
 pub fn run(a: Args) -> Result<i32> {
+    dpsa_sim::kind::expect(&a.stream, "STREAM", dpsa_sim::kind::Kind::Stream, &[])?;
     if let Some(png) = &a.png {
         dpsa_sim::files::require_png("--png", png)?;
         let inputs = [dpsa_sim::files::Input::File(&a.stream)];

@@ -24,12 +24,13 @@ pub struct Args {
     /// Scene: `default` or a scene TOML file.
     #[arg(long, default_value = "default")]
     scene: String,
-    /// Array scene of the second part: `small` (built in: `scenes/array-paste.toml`, three
-    /// 192 px cameras over a 20 x 13.9 mm printed board of 193 pads) or an array scene file, e.g.
-    /// `scenes/paper-board.toml` (the paper's three 2048 px cameras over 220 x 168 mm: about
-    /// 0.6 GB of recordings and several minutes).
-    #[arg(long, default_value = "small")]
-    array: String,
+    /// Run only the camera array, on this array scene: `small` (built in:
+    /// `scenes/array-paste.toml`, three 192 px cameras over a 20 x 13.9 mm printed board of
+    /// 193 pads) or an array scene file, e.g. `scenes/paper-board.toml` (the paper's three
+    /// 2048 px cameras over 220 x 168 mm: about 0.95 GB of recordings, measured, and several
+    /// minutes). Without it the demo runs the single-camera scene, then the small array.
+    #[arg(long)]
+    array: Option<String>,
 }
 
 /// The built-in array scene of the demo: the small printed board, and its paste layer.
@@ -37,6 +38,10 @@ const SMALL_ARRAY: &str = include_str!("../../../scenes/array-paste.toml");
 const SMALL_LAYER: &[u8] = include_bytes!("../../../scenes/array-small.paste.gbr");
 
 pub fn run(a: Args, progress: bool) -> Result<()> {
+    if let Some(spec) = &a.array {
+        // `--array`: the array alone, not the single-camera scene first.
+        return array(&a.out, a.seed, spec, 0, progress);
+    }
     let (out, seed, scene) = (&a.out, a.seed, a.scene.as_str());
     let sc = load_scene(scene)?;
     let rec_dir = out.join("recording");
@@ -81,11 +86,20 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
     out!("{}", cmp.summary());
     out!("full report: {}", report.display());
     out!("");
-    array(out, seed, &a.array)
+    array(out, seed, "small", 4, progress)
 }
 
-/// The second part: the camera array, calibrated, and one stitched board map.
-fn array(out: &std::path::Path, seed: u64, spec: &str) -> Result<()> {
+/// The second part: the camera array, calibrated, and one stitched board map. `before`:
+/// the steps already printed (4 after the single-camera part, 0 alone).
+fn array(
+    out: &std::path::Path,
+    seed: u64,
+    spec: &str,
+    before: usize,
+    progress: bool,
+) -> Result<()> {
+    let total = before + 4;
+    let step = |k: usize| format!("{}/{total}", before + k);
     let (scene, name) = if spec == "small" {
         let mut scene = ArrayScene::from_toml_str(SMALL_ARRAY)?;
         // Its paste layer beside the recordings, where the scene finds it.
@@ -99,7 +113,8 @@ fn array(out: &std::path::Path, seed: u64, spec: &str) -> Result<()> {
     super::warn(&scene.warnings());
     let cal_dir = out.join("array-calibration");
     out!(
-        "5/8 the camera array ({name}: {} cameras, {} x {} mm board): recording the calibration planes at {:?} um and the lateral target into {}",
+        "{} the camera array ({name}: {} cameras, {} x {} mm board): recording the calibration planes at {:?} um and the lateral target into {}",
+        step(1),
         scene.cameras.len(),
         scene.board_length_mm,
         scene.board_width_mm,
@@ -134,7 +149,8 @@ fn array(out: &std::path::Path, seed: u64, spec: &str) -> Result<()> {
     }
     let board_dir = out.join("array-board");
     out!(
-        "6/8 a board with a {} um bow and {} through the array into {}",
+        "{} a board with a {} um bow and {} through the array into {}",
+        step(2),
         scene.warp_um,
         match &scene.paste_layer {
             Some(layer) => format!("the paste of {layer} printed on it (with defects)"),
@@ -142,13 +158,26 @@ fn array(out: &std::path::Path, seed: u64, spec: &str) -> Result<()> {
         },
         board_dir.display()
     );
-    record::simulate_board(&scene, seed, &board_dir)?;
+    let wb = record::simulate_board(&scene, seed, &board_dir)?;
+    out!(
+        "    {} frames, {:.0} MB (with the calibration: {:.0} MB of recordings)",
+        wb.frames,
+        wb.bytes as f64 / 1e6,
+        (w.bytes + wb.bytes) as f64 / 1e6
+    );
     let map_dir = out.join("board-map");
     out!(
-        "7/8 the core on every camera, unwrapped, placed and blended into one map -> {}",
+        "{} the core on every camera, unwrapped, placed and blended into one map -> {}",
+        step(3),
         map_dir.display()
     );
-    let r = board::run::run(&board_dir, &cal, &map_dir)?;
+    let r = board::run::run_shown(
+        &board_dir,
+        &cal,
+        &map_dir,
+        board::run::Source::Core,
+        progress,
+    )?;
     files::write_bytes(
         &map_dir.join("report.json"),
         serde_json::to_string_pretty(&r)?.as_bytes(),
@@ -158,19 +187,30 @@ fn array(out: &std::path::Path, seed: u64, spec: &str) -> Result<()> {
     if program.is_file() {
         let insp = out.join("inspection");
         out!(
-            "8/8 inspecting every pad of the paste layer against {} -> {}",
+            "{} inspecting every pad of the paste layer against {} -> {}",
+            step(4),
             program.display(),
             insp.display()
         );
-        let (report, _) =
-            dpsa_sim::inspection::run::inspect_dir(&map_dir, &program, None, Some(&insp), 1, true)?;
+        let (report, _) = dpsa_sim::inspection::run::inspect_dir_shown(
+            &map_dir,
+            &program,
+            None,
+            Some(&insp),
+            1,
+            true,
+            progress,
+        )?;
         out!("{}", report.summary());
     } else {
-        out!("8/8 (the scene has no paste layer: nothing to inspect)");
+        out!(
+            "{} (the scene has no paste layer: nothing to inspect)",
+            step(4)
+        );
     }
     if spec == "small" {
         out!("");
-        out!("The paper's full board (three 2048 px cameras, 220 x 168 mm, 5,788 pads; about 1 GB and a few minutes):");
+        out!("The paper's full board (three 2048 px cameras, 220 x 168 mm, 5,788 pads; about 0.95 GB of recordings and a few minutes):");
         out!("  dpsa demo --array scenes/paper-board.toml --out out/paper");
     }
     Ok(())

@@ -14,6 +14,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    dpsa_sim::kind::expect(&a.dir, "DIR", dpsa_sim::kind::Kind::Recording, &[])?;
     let rec = super::open(&a.dir)?;
     let r = dpsa_sim::benches::frames::run(&rec, a.frames)?;
     out!("{}", serde_json::to_string_pretty(&r)?);

@@ -29,17 +29,23 @@ pub struct Args {
 }
 
 /// Exit status 0 whatever the verdict (it is in the report), 1 on an error.
-pub fn run(a: Args) -> Result<()> {
-    // `inspect_dir` refuses an `--out` that is, holds or lies inside an input (the board map,
-    // the program, its paste layer, the truth) and one that is not new, empty or an earlier
-    // inspection output, before the inspection runs.
-    let (r, _) = dpsa_sim::inspection::run::inspect_dir(
+pub fn run(a: Args, progress: bool) -> Result<()> {
+    dpsa_sim::kind::expect(&a.board, "MAPDIR", dpsa_sim::kind::Kind::BoardMap, &[])?;
+    dpsa_sim::kind::expect(&a.program, "--program", dpsa_sim::kind::Kind::Program, &[])?;
+    if let Some(t) = &a.truth {
+        dpsa_sim::kind::expect(t, "--truth", dpsa_sim::kind::Kind::PrintTruth, &[])?;
+    }
+    // `inspect_dir_shown` refuses an `--out` that is, holds or lies inside an input (the board
+    // map, the program, its paste layer, the truth) and one that is not new, empty or an
+    // earlier inspection output, before the inspection runs.
+    let (r, _) = dpsa_sim::inspection::run::inspect_dir_shown(
         &a.board,
         &a.program,
         a.truth.as_deref(),
         Some(&a.out),
         a.repeat,
         true,
+        progress,
     )?;
     if a.json {
         out!("{}", serde_json::to_string_pretty(&r)?);

@@ -15,6 +15,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
+    dpsa_sim::kind::expect(&a.file, "FILE", dpsa_sim::kind::Kind::Gerber, &[])?;
     let layer = read_file(&a.file).map_err(|e| anyhow::anyhow!("{}: {e}", a.file.display()))?;
     let s = layer.summary();
     if a.json {

@@ -52,6 +52,10 @@ pub(super) fn intra_period(s: &str) -> std::result::Result<u32, String> {
 }
 
 pub fn run(a: Args, progress: bool) -> Result<()> {
+    dpsa_sim::kind::expect(&a.dir, "DIR", dpsa_sim::kind::Kind::Recording, &[])?;
+    if let Some(c) = &a.cal {
+        dpsa_sim::kind::expect(c, "--cal", dpsa_sim::kind::Kind::Calibration, &[])?;
+    }
     // Every output is checked before any work.
     let inputs = [Input::Dir(&a.dir)];
     files::refuse_overwrite("--out", &a.out, &inputs)?;

@@ -27,6 +27,14 @@ pub struct Args {
 
 pub fn run(a: Args, progress: bool) -> Result<()> {
     if a.scene != "default" {
+        dpsa_sim::kind::expect(
+            Path::new(&a.scene),
+            "--scene",
+            dpsa_sim::kind::Kind::Scene,
+            &[dpsa_sim::kind::Kind::ArrayScene],
+        )?;
+    }
+    if a.scene != "default" {
         let text = files::read_capped(Path::new(&a.scene), files::MAX_SCENE_BYTES, "scene")?;
         if array::scene::is_array_scene(&String::from_utf8_lossy(&text)) {
             return run_array(a);

@@ -39,6 +39,10 @@ pub struct Args {
 /// Runs the firmware on the recording, writes the stream to `--out` and prints a summary (or
 /// one JSON object with `--json`). The decoded firmware log goes to stderr.
 pub fn run(a: Args, progress: bool) -> Result<()> {
+    dpsa_sim::kind::expect(&a.recording, "DIR", dpsa_sim::kind::Kind::Recording, &[])?;
+    if let Some(c) = &a.cal {
+        dpsa_sim::kind::expect(c, "--cal", dpsa_sim::kind::Kind::Calibration, &[])?;
+    }
     // Before any work: the ELF a regular file of bounded size, the output not a FIFO.
     if let Some(elf) = &a.elf {
         target::read_elf(elf)?;

@@ -248,6 +248,10 @@ impl Default for Measure {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Program {
+    /// The program's (recipe's) name, reported as the CFX `RecipeName`; without it the
+    /// program file's name stands in.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
     /// The top paste layer (Gerber), relative to the program file.
     pub paste_layer: String,
     /// Stencil thickness, um.
@@ -365,6 +369,7 @@ impl Program {
     /// A program for `paste_layer` with every default.
     pub fn new(paste_layer: impl Into<String>) -> Program {
         Program {
+            name: None,
             paste_layer: paste_layer.into(),
             stencil_um: default_stencil(),
             placement: Placement::default(),

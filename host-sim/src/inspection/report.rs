@@ -142,8 +142,36 @@ pub fn iso_now() -> String {
     )
 }
 
+/// `v` rounded to `decimals` decimal places (a negative count rounds to tens, hundreds...).
+fn round_to(v: f64, decimals: i32) -> f64 {
+    let k = 10f64.powi(decimals);
+    let r = (v * k).round() / k;
+    // Printing `r` may still show a binary tail (0.1 * 3); parsing its rounded decimal text
+    // gives the closest f64 to the decimal, which prints short.
+    format!("{r:.*}", decimals.max(0) as usize)
+        .parse()
+        .unwrap_or(r)
+}
+
+/// Decimal places that carry meaning, per unit: volumes to 1 um^3, heights to 0.01 um (the
+/// map's heights are f32 um, its PNG LSB 0.25 um) and lateral offsets to 0.01 um.
+fn decimals(units: &str) -> i32 {
+    match units {
+        "um3" => 0,
+        "um" => 2,
+        _ => 3,
+    }
+}
+
 fn numeric(value: f64, units: &str, expected: f64, lo: f64, hi: f64) -> Value {
-    let f = |v: f64| if v.is_finite() { json!(v) } else { Value::Null };
+    let d = decimals(units);
+    let f = |v: f64| {
+        if v.is_finite() {
+            json!(round_to(v, d))
+        } else {
+            Value::Null
+        }
+    };
     json!({
         "Value": f(value),
         "ValueUnits": units,
@@ -205,7 +233,12 @@ pub fn cfx(pads: &[Pad], i: &Inspection, program: &Program, unit: &str, recipe: 
             "TransactionId": uuid(seed, u64::MAX),
             "InspectionMethod": "SPI",
             "SampleType": "Production",
-            "Inspector": Value::Null,
+            // The inspecting tool and its version (no human operator).
+            "Inspector": {
+                "OperatorIdentifier": concat!("dpsa ", env!("CARGO_PKG_VERSION")),
+                "ActorType": "Robot",
+                "LoginName": "dpsa",
+            },
             "RecipeName": recipe,
             "InspectedUnits": [{
                 "UnitIdentifier": unit,

@@ -6,7 +6,7 @@ use super::measure::{measure_all, PadMeasurement, Placed};
 use super::pads::{Pad, Point, Rigid};
 use super::program::Program;
 use super::register::{register, RegisterError, Registration};
-use super::truth::{accuracy, detection, measure_truth, Accuracy, Detection, PadTruth};
+use super::truth::{accuracy, detection, Accuracy, Detection, PadTruth};
 use super::verdict::{judge, Call, Class, Level};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -84,9 +84,22 @@ pub fn inspect(
 
 /// Measures the truth of every pad and the inspection's accuracy against it.
 pub fn attach_truth(i: &mut Inspection, pads: &[Pad], program: &Program, tr: &Truth) {
+    attach_truth_shown(i, pads, program, tr, false)
+}
+
+/// [`attach_truth`] with a progress bar over the pads on stderr when `progress`.
+pub fn attach_truth_shown(
+    i: &mut Inspection,
+    pads: &[Pad],
+    program: &Program,
+    tr: &Truth,
+    progress: bool,
+) {
     let t = i.registration.transform;
     let placed = Placed::new(pads, &t, &[], 1.0);
-    let tp = measure_truth(pads, &tr.transform, program, tr.height);
+    let bar = crate::progress::progress_bar(progress, pads.len() as u64, "truth");
+    let tp = super::truth::measure_truth_counted(pads, &tr.transform, program, tr.height, &bar);
+    bar.finish_and_clear();
     let good: Vec<usize> = (0..pads.len())
         .filter(|&k| tr.defects.get(k).cloned().flatten().is_none())
         .collect();
@@ -226,9 +239,12 @@ pub struct Timing {
     /// Of which the registration, s.
     pub register_s: f64,
     pub load_s: f64,
-    /// The truth's integration (simulated boards), s.
+    /// Reading the print truth and integrating it (simulated boards), s.
     pub truth_s: f64,
     pub write_s: f64,
+    /// The whole `dpsa inspect`, s: load + the inspections (`--repeat`) + truth + write and
+    /// what lies between them.
+    pub total_s: f64,
 }
 
 impl Report {
@@ -283,6 +299,7 @@ impl Report {
                 load_s,
                 truth_s,
                 write_s: 0.0,
+                total_s: 0.0,
             },
             failures,
         }
@@ -343,8 +360,12 @@ impl Report {
             );
         }
         s += &format!(
-            "  inspect {:.3} s (map load {:.2} s)",
-            self.timing.inspect_s, self.timing.load_s
+            "  time: map load {:.2} s, inspect {:.3} s, truth {:.2} s, write {:.2} s; total {:.2} s",
+            self.timing.load_s,
+            self.timing.inspect_s,
+            self.timing.truth_s,
+            self.timing.write_s,
+            self.timing.total_s
         );
         s
     }
@@ -360,6 +381,19 @@ pub fn inspect_dir(
     out: Option<&std::path::Path>,
     repeat: u32,
     use_truth: bool,
+) -> anyhow::Result<(Report, Inspection)> {
+    inspect_dir_shown(board, program_path, truth, out, repeat, use_truth, false)
+}
+
+/// [`inspect_dir`] with progress bars on stderr when `progress` (the truth's pads).
+pub fn inspect_dir_shown(
+    board: &std::path::Path,
+    program_path: &std::path::Path,
+    truth: Option<&std::path::Path>,
+    out: Option<&std::path::Path>,
+    repeat: u32,
+    use_truth: bool,
+    progress: bool,
 ) -> anyhow::Result<(Report, Inspection)> {
     let t0 = Instant::now();
     let program = Program::load(program_path)?;
@@ -393,6 +427,7 @@ pub fn inspect_dir(
         .map(std::path::Path::to_path_buf)
         .or_else(|| program.truth_path(program_path))
         .filter(|_| use_truth);
+    let t_print = Instant::now();
     let print = match &truth_path {
         Some(p) => {
             let t = super::simulated::PrintTruth::load(p, pads.len())?;
@@ -409,6 +444,7 @@ pub fn inspect_dir(
         }
         None => None,
     };
+    let print_s = t_print.elapsed().as_secs_f64();
     let height = |q: Point| print.as_ref().map_or(0.0, |p| p.height(q));
     let truth = print.as_ref().map(|p| Truth {
         transform: p.transform,
@@ -425,11 +461,11 @@ pub fn inspect_dir(
     let Some(mut i) = best else {
         anyhow::bail!("no inspection ran");
     };
-    let mut truth_s = 0.0;
+    let mut truth_s = print_s;
     if let Some(tr) = &truth {
         let t1 = Instant::now();
-        attach_truth(&mut i, &pads, &program, tr);
-        truth_s = t1.elapsed().as_secs_f64();
+        attach_truth_shown(&mut i, &pads, &program, tr, progress);
+        truth_s += t1.elapsed().as_secs_f64();
     }
     let mut report = Report::build(
         &board.display().to_string(),
@@ -443,14 +479,20 @@ pub fn inspect_dir(
     if let Some(dir) = out {
         let t2 = Instant::now();
         let value = serde_json::to_value(&report)?;
-        let unit = board
-            .file_name()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_else(|| "board".into());
-        let recipe = program_path
-            .file_name()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default();
+        // The board's identity as the map carries it (`board.json`'s `board_id`); a map
+        // without one (written before board identities) is named by its directory.
+        let unit = map.board_id.map(|id| id.to_string()).unwrap_or_else(|| {
+            board
+                .file_name()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_else(|| "board".into())
+        });
+        let recipe = program.name.clone().unwrap_or_else(|| {
+            program_path
+                .file_name()
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default()
+        });
         // report.json again with the write time, before the directory is swapped in.
         let report_ref = &mut report;
         super::report::write(
@@ -466,9 +508,11 @@ pub fn inspect_dir(
             },
             move || {
                 report_ref.timing.write_s = t2.elapsed().as_secs_f64();
+                report_ref.timing.total_s = t0.elapsed().as_secs_f64();
                 Ok(serde_json::to_value(&*report_ref)?)
             },
         )?;
     }
+    report.timing.total_s = t0.elapsed().as_secs_f64();
     Ok((report, i))
 }

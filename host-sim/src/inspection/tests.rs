@@ -219,6 +219,7 @@ fn scene(seed: u64) -> Scene {
                 rows: grid.rows,
                 data,
             },
+            board_id: None,
         },
         pads,
         program,

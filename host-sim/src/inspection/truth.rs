@@ -32,8 +32,23 @@ pub fn measure_truth(
     program: &Program,
     height: &(dyn Fn(Point) -> f64 + Sync),
 ) -> Vec<PadTruth> {
+    measure_truth_counted(pads, t, program, height, &indicatif::ProgressBar::hidden())
+}
+
+/// [`measure_truth`], counting every pad on `bar`.
+pub fn measure_truth_counted(
+    pads: &[Pad],
+    t: &Rigid,
+    program: &Program,
+    height: &(dyn Fn(Point) -> f64 + Sync),
+    bar: &indicatif::ProgressBar,
+) -> Vec<PadTruth> {
     let placed = Placed::new(pads, t, &[], 1.0);
-    per_pad(pads.len(), |k| one(pads, &placed, t, program, height, k))
+    per_pad(pads.len(), |k| {
+        let r = one(pads, &placed, t, program, height, k);
+        bar.inc(1);
+        r
+    })
 }
 
 fn one(

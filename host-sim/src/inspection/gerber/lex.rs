@@ -266,7 +266,49 @@ fn rewrite(st: &Statement) -> Result<Option<String>, GerberError> {
             _ => return Err(syntax(st.line, format!("unknown command {s:?}"))),
         }));
     }
+    check_transform(st.line, s)?;
     Ok(Some(s.to_string()))
+}
+
+/// The load-transform commands (`%LP`, `%LM`, `%LR`, `%LS`) checked here, so that a bad
+/// value is reported with its own command's syntax (the parser's message quotes the `%LM`
+/// pattern for any of them).
+fn check_transform(line: usize, s: &str) -> Result<(), GerberError> {
+    let Some(body) = s.strip_prefix("%L").and_then(|b| b.strip_suffix("*%")) else {
+        return Ok(());
+    };
+    let (cmd, value) = body.split_at(body.len().min(1));
+    let decimal = |v: &str| -> Option<f64> {
+        let ok = !v.is_empty()
+            && v.chars()
+                .all(|c| c.is_ascii_digit() || matches!(c, '.' | '+' | '-'));
+        ok.then(|| v.parse::<f64>().ok())
+            .flatten()
+            .filter(|x| x.is_finite())
+    };
+    match cmd {
+        "P" if !matches!(value, "C" | "D") => Err(syntax(
+            line,
+            format!("%LP (load polarity) takes C or D, found {value:?} in {s:?}"),
+        )),
+        "M" if !matches!(value, "N" | "X" | "Y" | "XY") => Err(syntax(
+            line,
+            format!("%LM (load mirroring) takes N, X, Y or XY, found {value:?} in {s:?}"),
+        )),
+        "R" if decimal(value).is_none() => Err(syntax(
+            line,
+            format!(
+                "%LR (load rotation) takes a decimal angle in degrees (e.g. %LR45.0*%), found {value:?} in {s:?}"
+            ),
+        )),
+        "S" if decimal(value).is_none_or(|x| x <= 0.0) => Err(syntax(
+            line,
+            format!(
+                "%LS (load scaling) takes a decimal scale factor above 0 (e.g. %LS0.8*%), found {value:?} in {s:?}"
+            ),
+        )),
+        _ => Ok(()),
+    }
 }
 
 /// Pre-processes a whole file. Errors on binary data, an unterminated `%` block (an aperture
