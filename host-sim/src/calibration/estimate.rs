@@ -45,8 +45,8 @@ fn filled<T: Clone>(n: usize, v: T, what: &str) -> Result<Vec<T>> {
     out.try_reserve_exact(n).map_err(|e| {
         anyhow::anyhow!(
             "cannot allocate the {what} ({n} values of {} bytes, {:.0} MB): {e}",
-            std::mem::size_of::<T>(),
-            n as f64 * std::mem::size_of::<T>() as f64 / 1e6
+            size_of::<T>(),
+            n as f64 * size_of::<T>() as f64 / 1e6
         )
     })?;
     out.resize(n, v);
