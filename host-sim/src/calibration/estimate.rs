@@ -37,10 +37,30 @@ pub const FX_BUDGET_UM: f64 = 0.5;
 /// Smallest height difference between two calibration planes, um.
 pub const MIN_PLANE_SPACING_UM: f64 = 5.0;
 
+/// `n` copies of `v` for the image-sized buffers (`rows x width` of a camera, up to
+/// 4096 x 8192): reserved with `try_reserve_exact`, so that a size the machine cannot hold
+/// is an error naming the buffer instead of an abort without a message.
+fn filled<T: Clone>(n: usize, v: T, what: &str) -> Result<Vec<T>> {
+    let mut out = Vec::new();
+    out.try_reserve_exact(n).map_err(|e| {
+        anyhow::anyhow!(
+            "cannot allocate the {what} ({n} values of {} bytes, {:.0} MB): {e}",
+            size_of::<T>(),
+            n as f64 * size_of::<T>() as f64 / 1e6
+        )
+    })?;
+    out.resize(n, v);
+    Ok(out)
+}
+
 /// Mean image of a recording, row-major `rows x width`, and the frame count.
 fn mean_image(rec: &Recording) -> Result<Vec<f64>> {
     let (h, w) = (rec.rows(), rec.width());
-    let mut sum = vec![0f64; h * w];
+    let mut sum = filled(
+        h.saturating_mul(w),
+        0f64,
+        "mean image of a calibration plane",
+    )?;
     for k in 0..rec.len() {
         let f = rec.frame(k)?;
         for (s, &v) in sum.iter_mut().zip(&f.data) {
@@ -176,7 +196,7 @@ fn fit_planes(
     let column =
         |img: &[f64], c: usize| -> Vec<f64> { (0..rows).map(|r| img[r * width + c]).collect() };
     // Pass 1: all rows; pixels far off their column's sinusoid in any plane are excluded.
-    let mut keep = vec![true; rows * width];
+    let mut keep = filled(rows * width, true, "per-pixel outlier mask")?;
     for img in means {
         for c in 0..width {
             let y = column(img, c);
@@ -286,8 +306,8 @@ fn fit_planes(
         phi0[c] = wrap(intercept);
     }
     // Per pixel: background and amplitude across the planes (their phases differ).
-    let mut pix_a = vec![0.0; rows * width];
-    let mut pix_amp = vec![0.0; rows * width];
+    let mut pix_a = filled(rows * width, 0.0, "per-pixel background")?;
+    let mut pix_amp = filled(rows * width, 0.0, "per-pixel amplitude")?;
     let mut dead = Vec::new();
     for r in 0..rows {
         for c in 0..width {
@@ -339,8 +359,8 @@ struct Mark {
 fn detect_marks(rec: &Recording, pf: &PlaneFit, pitch_px: f64) -> Result<Vec<Mark>> {
     let (rows, width) = (rec.rows(), rec.width());
     let half = width as f64 / 2.0;
-    let mut model = vec![0.0; rows * width];
-    let mut dead = vec![false; rows * width];
+    let mut model = filled(rows * width, 0.0, "target's fringe model")?;
+    let mut dead = filled(rows * width, false, "dead-pixel mask")?;
     for &[r, c] in &pf.dead {
         dead[r as usize * width + c as usize] = true;
     }
@@ -353,7 +373,7 @@ fn detect_marks(rec: &Recording, pf: &PlaneFit, pitch_px: f64) -> Result<Vec<Mar
     }
     let rad = ((pitch_px * 0.2).round() as usize).clamp(2, 40);
     let mut out = Vec::new();
-    let mut dark = vec![0.0; rows * width];
+    let mut dark = filled(rows * width, 0.0, "target's darkness image")?;
     for k in 0..rec.len() {
         let fr = rec.frame(k)?;
         for i in 0..rows * width {
@@ -518,7 +538,7 @@ pub fn plane_phases(
     let mut src = LazyFrames::new(rec);
     let mut eval = reference::RowEval::dpsa(&m);
     let width = rec.width();
-    let mut dead = vec![false; rec.rows() * width];
+    let mut dead = filled(rec.rows() * width, false, "dead-pixel mask")?;
     for &[r, c] in &cal.dead_pixels {
         if let Some(d) = dead.get_mut(r as usize * width + c as usize) {
             *d = true;
@@ -873,6 +893,18 @@ mod tests {
         assert!(small > 0.0 && large > 3.0 * small, "{small} {large}");
         // 0.2 % at the field edge: a few tenths of a micrometre at 500 um per turn.
         assert!((0.05..1.0).contains(&large), "{large}");
+    }
+
+    #[test]
+    fn an_image_buffer_too_large_is_an_error_naming_it() {
+        let e = filled(usize::MAX / 4, 0f64, "mean image of a calibration plane").unwrap_err();
+        let msg = format!("{e}");
+        assert!(
+            msg.starts_with("cannot allocate the mean image of a calibration plane ("),
+            "{msg}"
+        );
+        let v = filled(12, 7u8, "x").unwrap();
+        assert_eq!(v, vec![7u8; 12]);
     }
 
     #[test]
