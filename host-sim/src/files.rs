@@ -458,6 +458,12 @@ fn marker_kind(dir: &Path) -> Option<String> {
 /// `kind.ours`). A symbolic link is refused (the swap would replace the link).
 pub fn check_output_dir(dest: &Path, kind: DirKind) -> Result<()> {
     let noun = kind.noun;
+    if dest.file_name().is_none() {
+        bail!(
+            "refusing to write the {noun} into {}: name the directory (it is replaced whole, so `.`, `..` and `/` cannot be)",
+            dest.display()
+        );
+    }
     let meta = match std::fs::symlink_metadata(dest) {
         Ok(m) => m,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
@@ -858,6 +864,59 @@ mod tests {
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     }
 
+    const KIND: DirKind = DirKind {
+        format: "dpsa-test",
+        noun: "test output",
+        ours: |_| false,
+    };
+
+    #[test]
+    fn output_dirs_are_swapped_in_whole() {
+        let root = tempfile::tempdir().unwrap();
+        let dest = root.path().join("out");
+        let listing = || -> Vec<String> {
+            let mut v: Vec<String> = std::fs::read_dir(root.path())
+                .unwrap()
+                .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .collect();
+            v.sort();
+            v
+        };
+        for run in 0..2 {
+            let o = OutputDir::create(&dest, KIND).unwrap();
+            std::fs::write(o.path().join(format!("f{run}")), b"x").unwrap();
+            // Nothing at the destination changes before the commit.
+            assert_eq!(dest.join("f0").exists(), run == 1);
+            o.commit().unwrap();
+            assert!(dest.join(format!("f{run}")).is_file());
+            assert_eq!(dest.join("f0").exists(), run == 0, "stale file of run 0");
+            assert_eq!(listing(), ["out"]);
+        }
+        // Dropped without a commit: the old directory stays, the hidden one goes.
+        let o = OutputDir::create(&dest, KIND).unwrap();
+        std::fs::write(o.path().join("g"), b"x").unwrap();
+        drop(o);
+        assert!(dest.join("f1").is_file() && !dest.join("g").exists());
+        assert_eq!(listing(), ["out"]);
+        // Another kind's directory, an unrelated one and a file are refused.
+        let other = DirKind {
+            format: "dpsa-other",
+            ..KIND
+        };
+        assert!(OutputDir::create(&dest, other).is_err());
+        let mine = root.path().join("mine");
+        std::fs::create_dir(&mine).unwrap();
+        std::fs::write(mine.join("notes"), b"x").unwrap();
+        assert!(OutputDir::create(&mine, KIND).is_err());
+        assert!(OutputDir::create(&mine.join("notes"), KIND).is_err());
+        // The fallback without renameat2: old renamed aside, new renamed in.
+        let new = root.path().join("new");
+        std::fs::create_dir(&new).unwrap();
+        std::fs::write(new.join("h"), b"x").unwrap();
+        swap_aside(&new, &dest).unwrap();
+        assert!(dest.join("h").is_file() && new.join("f1").is_file());
+    }
+
     #[test]
     fn capped_reads() {
         let dir = tempfile::tempdir().unwrap();
@@ -883,6 +942,8 @@ mod tests {
         assert!(
             refuse_overwrite("--out", &other.path().join("o"), &[Input::Dir(dir.path())]).is_ok()
         );
+        // `.` cannot be swapped.
+        assert!(check_output_dir(Path::new("."), crate::board::output::DIR_KIND).is_err());
         // An output directory that holds an input file.
         assert!(refuse_overwrite_dir("--out", dir.path(), &[Input::File(&f)]).is_err());
         assert!(refuse_overwrite("--out", dir.path(), &[Input::File(&f)]).is_ok());

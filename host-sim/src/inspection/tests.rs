@@ -219,7 +219,6 @@ fn scene(seed: u64) -> Scene {
                 rows: grid.rows,
                 data,
             },
-            board_id: None,
         },
         pads,
         program,
