@@ -140,9 +140,10 @@ pub fn read_file(path: &Path) -> Result<PasteLayer, GerberError> {
     match String::from_utf8(bytes) {
         Ok(text) => read_str(&text),
         Err(e) => {
-            let at = e.utf8_error().valid_up_to();
-            let line = 1 + e.as_bytes()[..at].iter().filter(|&&b| b == b'\n').count();
-            Err(GerberError::Binary { line })
+            // Not UTF-8: Latin-1 (every byte one character), as old exporters wrote their
+            // comments; the pre-pass refuses non-ASCII outside comments as binary data.
+            let text: String = e.into_bytes().into_iter().map(char::from).collect();
+            read_lexed(&text, lex::lex_latin1(&text)?)
         }
     }
 }
@@ -155,7 +156,17 @@ pub fn read_str(text: &str) -> Result<PasteLayer, GerberError> {
             limit: MAX_FILE_BYTES,
         });
     }
-    let lexed = lex::lex(text)?;
+    read_lexed(text, lex::lex(text)?)
+}
+
+/// The rest of the reading after the pre-pass.
+fn read_lexed(text: &str, lexed: lex::Lexed) -> Result<PasteLayer, GerberError> {
+    if text.len() as u64 > MAX_FILE_BYTES {
+        return Err(GerberError::TooLarge {
+            bytes: text.len() as u64,
+            limit: MAX_FILE_BYTES,
+        });
+    }
     let mut warnings = Vec::new();
     let commands = parse(&lexed, &mut warnings)?;
     let interp::Interpreted {
