@@ -266,3 +266,47 @@ fn crlf_line_ends_and_a_macro_closed_on_its_own_line() {
         5,
     );
 }
+
+#[test]
+fn a_layer_without_its_end_is_refused_by_the_inspection_unless_allowed() {
+    use dpsa_sim::inspection::program::Program;
+    use dpsa_sim::inspection::run::paste_layer_pads;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let gbr = dir.path().join("paste.gbr");
+    let prog = dir.path().join("program.toml");
+    // Cut at a line end: three flashes of the four survive, no M02.
+    let full = format!(
+        "{MM}%ADD10C,0.5*%\nD10*\nX0Y0D03*\nX1000000Y0D03*\nX2000000Y0D03*\nX3000000Y0D03*\nM02*\n"
+    );
+    let cut: String = full.lines().take(7).map(|l| format!("{l}\n")).collect();
+    std::fs::write(&gbr, &cut).expect("write");
+    // The reader says so.
+    let l = read_file(&gbr).expect("reads");
+    assert!(!l.complete);
+    circles(&l, 0.5, &[[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]]);
+    // The inspection refuses it, naming the file and the key.
+    std::fs::write(&prog, "paste_layer = \"paste.gbr\"\n").expect("write");
+    let p = Program::load(&prog).expect("program");
+    let e = paste_layer_pads(&p, &prog)
+        .expect_err("truncated layer")
+        .to_string();
+    assert!(e.contains("paste.gbr") && e.contains("M02"), "{e}");
+    assert!(e.contains("allow_truncated_layer"), "{e}");
+    // Allowed: the pads, and a note for the report.
+    std::fs::write(
+        &prog,
+        "paste_layer = \"paste.gbr\"\nallow_truncated_layer = true\n",
+    )
+    .expect("write");
+    let p = Program::load(&prog).expect("program");
+    let (pads, notes) = paste_layer_pads(&p, &prog).expect("allowed");
+    assert_eq!(pads.len(), 3);
+    assert_eq!(notes.len(), 1);
+    assert!(notes[0].contains("truncated"), "{notes:?}");
+    // The whole file: complete, no note.
+    std::fs::write(&gbr, &full).expect("write");
+    assert!(read_file(&gbr).expect("reads").complete);
+    let (pads, notes) = paste_layer_pads(&p, &prog).expect("complete");
+    assert_eq!(pads.len(), 4);
+    assert!(notes.is_empty());
+}

@@ -59,6 +59,8 @@ pub(super) struct Interpreted {
     pub units: &'static str,
     pub generator: Option<String>,
     pub warnings: Vec<String>,
+    /// The file ended with M02.
+    pub complete: bool,
 }
 
 /// The open `%SR` block.
@@ -1160,5 +1162,6 @@ pub(super) fn interpret(lexed: &Lexed, commands: &[Command]) -> Result<Interpret
         units: st.units.unwrap_or("mm"),
         generator: st.generator,
         warnings: st.warnings,
+        complete: st.ended,
     })
 }

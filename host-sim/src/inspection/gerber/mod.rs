@@ -110,6 +110,10 @@ pub struct PasteLayer {
     pub generator: Option<String>,
     /// What was odd but did not stop the reading (no M02, unclosed contours, ...).
     pub warnings: Vec<String>,
+    /// Whether the file ends with its end-of-file statement (`M02`). A file without it may
+    /// be cut short: the inspection refuses it unless the program allows it
+    /// (`allow_truncated_layer`).
+    pub complete: bool,
 }
 
 /// Reads a paste layer file (at most [`MAX_FILE_BYTES`]).
@@ -174,6 +178,7 @@ fn read_lexed(text: &str, lexed: lex::Lexed) -> Result<PasteLayer, GerberError> 
         units,
         generator,
         warnings: w,
+        complete,
     } = interp::interpret(&lexed, &commands)?;
     warnings.extend(w);
     let pads = merge::pads(&objects, &mut warnings);
@@ -205,6 +210,7 @@ fn read_lexed(text: &str, lexed: lex::Lexed) -> Result<PasteLayer, GerberError> 
         bbox_mm,
         generator,
         warnings,
+        complete,
     })
 }
 
