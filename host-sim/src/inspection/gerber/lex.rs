@@ -9,6 +9,12 @@
 //! absolute/incremental, `G55`, `%LN`) and drops plain comments, so that every `G04` comment
 //! the parser returns is one of our markers (standard `G04 #@! ...` X2 attribute comments of
 //! KiCad 5 are kept: the parser turns them into attributes).
+//!
+//! It also fixes what the parser would read wrongly or refuse although the specification
+//! allows it: a unit stated twice the same way (`%MOIN*%` and `G70`) is kept once, two that
+//! disagree are an error naming both lines; every data word goes through our own tokenizer
+//! (coordinates a sign and digits: `+` dropped, decimals, exponents and NaN refused; a
+//! missing operation code repeated from the previous one); a byte-order mark is dropped.
 
 use super::GerberError;
 
