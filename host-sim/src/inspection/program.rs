@@ -7,6 +7,7 @@
 //!
 //! ```toml
 //! paste_layer = "paste.gbr"        # relative to this file
+//! allow_truncated_layer = false    # inspect a paste layer without its M02 end (reported)
 //! stencil_um = 100.0
 //!
 //! [placement]                      # where the design lands on the conveyor (nominal)
@@ -267,6 +268,10 @@ pub struct Program {
     pub windows: Windows,
     #[serde(default, rename = "override", skip_serializing_if = "Vec::is_empty")]
     pub overrides: Vec<Override>,
+    /// Inspect a paste layer whose file has no end (`M02`): it may be cut short, so it is
+    /// refused unless this is true (the report then says so).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub allow_truncated_layer: bool,
     /// Simulator only: the recording's print truth (`print.json`), relative to the program.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub truth: Option<String>,
@@ -377,6 +382,7 @@ impl Program {
             measure: Measure::default(),
             windows: Windows::default(),
             overrides: Vec::new(),
+            allow_truncated_layer: false,
             truth: None,
         }
     }

@@ -209,6 +209,9 @@ pub struct Report {
     pub timing: Timing,
     /// The failed pads, `name: class` (at most 200).
     pub failures: Vec<String>,
+    /// What the inspection of this layer must not hide (a layer without its M02 end).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub paste_layer_notes: Vec<String>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -302,12 +305,18 @@ impl Report {
                 total_s: 0.0,
             },
             failures,
+            paste_layer_notes: Vec::new(),
         }
     }
 
     /// The terminal summary.
     pub fn summary(&self) -> String {
-        let mut s = format!(
+        let mut s: String = self
+            .paste_layer_notes
+            .iter()
+            .map(|n| format!("WARNING: {n}\n"))
+            .collect();
+        s += &format!(
             "{} pads, {} measured: {} pass, {} warn, {} fail -> board {}\n",
             self.pads.total,
             self.pads.measured,
@@ -371,6 +380,40 @@ impl Report {
     }
 }
 
+/// The pads of a program's paste layer, and what the report must say about the layer. A
+/// layer without its end (`M02`) may be cut short: refused unless the program has
+/// `allow_truncated_layer = true`, then inspected with a note.
+pub fn paste_layer_pads(
+    program: &Program,
+    program_path: &std::path::Path,
+) -> anyhow::Result<(Vec<Pad>, Vec<String>)> {
+    let layer_path = program.paste_layer_path(program_path);
+    let layer = super::gerber::read_file(&layer_path)
+        .map_err(|e| anyhow::anyhow!("paste layer {}: {e}", layer_path.display()))?;
+    let mut notes = Vec::new();
+    if !layer.complete {
+        if !program.allow_truncated_layer {
+            anyhow::bail!(
+                "paste layer {}: the file has no end (M02) and may be truncated; set \
+                 allow_truncated_layer = true in {} to inspect the {} pads it has",
+                layer_path.display(),
+                program_path.display(),
+                layer.pads.len()
+            );
+        }
+        notes.push(format!(
+            "paste layer {} has no end (M02) and may be truncated: {} pads inspected \
+             (allow_truncated_layer = true)",
+            layer_path.display(),
+            layer.pads.len()
+        ));
+    }
+    if layer.pads.is_empty() {
+        anyhow::bail!("paste layer {}: no pads", layer_path.display());
+    }
+    Ok((layer.pads, notes))
+}
+
 /// `dpsa inspect`: reads the map, the program, its paste layer (and, with `use_truth`, the
 /// truth the program or `truth` names), inspects (`repeat` times, the fastest reported), and
 /// writes the report files into `out`.
@@ -415,12 +458,7 @@ pub fn inspect_dir_shown(
         crate::files::refuse_overwrite_dir("--out", dir, &inputs)?;
         super::report::check_destination(dir)?;
     }
-    let layer = super::gerber::read_file(&layer_path)
-        .map_err(|e| anyhow::anyhow!("paste layer {}: {e}", layer_path.display()))?;
-    let pads = layer.pads;
-    if pads.is_empty() {
-        anyhow::bail!("paste layer {}: no pads", layer_path.display());
-    }
+    let (pads, layer_notes) = paste_layer_pads(&program, program_path)?;
     let map = BoardMap::open(board)?;
     let load_s = t0.elapsed().as_secs_f64();
     let truth_path = truth
@@ -476,6 +514,7 @@ pub fn inspect_dir_shown(
         load_s,
         truth_s,
     );
+    report.paste_layer_notes = layer_notes;
     if let Some(dir) = out {
         let t2 = Instant::now();
         let value = serde_json::to_value(&report)?;

@@ -59,6 +59,8 @@ pub(super) struct Interpreted {
     pub units: &'static str,
     pub generator: Option<String>,
     pub warnings: Vec<String>,
+    /// The file ended with M02.
+    pub complete: bool,
 }
 
 /// The open `%SR` block.
@@ -591,11 +593,33 @@ impl State {
 
     /// The shape of an aperture definition, about its origin, mm.
     fn define(&self, ap: &Aperture) -> Result<ApertureShape, GerberError> {
-        let hole = |h: Option<f64>| -> Result<Vec<Vec<Point>>, GerberError> {
-            match h {
-                Some(d) if d > 0.0 => Ok(vec![circle_points([0.0, 0.0], self.length(d, "hole")?)]),
-                _ => Ok(vec![]),
+        // The round hole of a standard aperture: it must lie inside the aperture (`inside`
+        // is the diameter of the largest centred disc the aperture holds), else the file
+        // describes no shape and is refused.
+        let hole = |h: Option<f64>, inside: f64| -> Result<Vec<Vec<Point>>, GerberError> {
+            let Some(d) = h else {
+                return Ok(vec![]);
+            };
+            let mm = self.length(d, "hole")?;
+            if mm < 0.0 {
+                return Err(GerberError::OutOfRange {
+                    line: self.line,
+                    what: format!("negative hole {d}"),
+                });
             }
+            if mm == 0.0 {
+                return Ok(vec![]);
+            }
+            if mm >= inside {
+                return Err(err(
+                    self.line,
+                    format!(
+                        "aperture hole {d} is not inside its aperture (at most {} wide there)",
+                        num(inside / self.scale()?)
+                    ),
+                ));
+            }
+            Ok(vec![circle_points([0.0, 0.0], mm)])
         };
         let positive = |v: f64, what: &str| -> Result<f64, GerberError> {
             let mm = self.length(v, what)?;
@@ -610,7 +634,7 @@ impl State {
         Ok(match ap {
             Aperture::Circle(c) => {
                 let d = positive(c.diameter, "diameter")?;
-                let holes = hole(c.hole_diameter)?;
+                let holes = hole(c.hole_diameter, d)?;
                 let exact = holes.is_empty().then_some(Exact::Circle { d });
                 let shape = if d > 0.0 {
                     MultiPolygon::new(vec![polygon(&circle_points([0.0, 0.0], d), &holes)])
@@ -628,7 +652,7 @@ impl State {
                 let (w, h) = (positive(r.x, "width")?, positive(r.y, "height")?);
                 let obround = matches!(ap, Aperture::Obround(_));
                 let radius = if obround { w.min(h) / 2.0 } else { 0.0 };
-                let holes = hole(r.hole_diameter)?;
+                let holes = hole(r.hole_diameter, w.min(h))?;
                 let exact = (holes.is_empty() && w > 0.0 && h > 0.0).then_some(Exact::RoundRect {
                     w,
                     h,
@@ -664,6 +688,14 @@ impl State {
                     ));
                 }
                 let rot = p.rotation.unwrap_or(0.0);
+                if !rot.is_finite() {
+                    return Err(GerberError::OutOfRange {
+                        line: self.line,
+                        what: format!("polygon rotation {rot}"),
+                    });
+                }
+                // The inscribed circle: the largest hole the polygon holds.
+                let inside = d * (std::f64::consts::PI / f64::from(n)).cos();
                 let pts: Vec<Point> = (0..n)
                     .map(|i| {
                         let a = (rot + 360.0 * f64::from(i) / f64::from(n)).to_radians();
@@ -671,7 +703,7 @@ impl State {
                     })
                     .collect();
                 ApertureShape {
-                    shape: MultiPolygon::new(vec![polygon(&pts, &hole(p.hole_diameter)?)]),
+                    shape: MultiPolygon::new(vec![polygon(&pts, &hole(p.hole_diameter, inside)?)]),
                     exact: None,
                     class: format!("P {} n{n}", num(d)),
                     stroke: Stroke::None,
@@ -1130,5 +1162,6 @@ pub(super) fn interpret(lexed: &Lexed, commands: &[Command]) -> Result<Interpret
         units: st.units.unwrap_or("mm"),
         generator: st.generator,
         warnings: st.warnings,
+        complete: st.ended,
     })
 }

@@ -9,6 +9,12 @@
 //! absolute/incremental, `G55`, `%LN`) and drops plain comments, so that every `G04` comment
 //! the parser returns is one of our markers (standard `G04 #@! ...` X2 attribute comments of
 //! KiCad 5 are kept: the parser turns them into attributes).
+//!
+//! It also fixes what the parser would read wrongly or refuse although the specification
+//! allows it: a unit stated twice the same way (`%MOIN*%` and `G70`) is kept once, two that
+//! disagree are an error naming both lines; every data word goes through our own tokenizer
+//! (coordinates a sign and digits: `+` dropped, decimals, exponents and NaN refused; a
+//! missing operation code repeated from the previous one); a byte-order mark is dropped.
 
 use super::GerberError;
 
@@ -60,7 +66,7 @@ fn is_text(c: char) -> bool {
 }
 
 /// Splits `text` into statements. Errors on binary data and on a `%` block left open.
-fn statements(text: &str) -> Result<(Vec<Statement>, Vec<String>), GerberError> {
+fn statements(text: &str, latin1: bool) -> Result<(Vec<Statement>, Vec<String>), GerberError> {
     let mut out = Vec::new();
     let mut warnings = Vec::new();
     let mut line = 1usize;
@@ -71,6 +77,21 @@ fn statements(text: &str) -> Result<(Vec<Statement>, Vec<String>), GerberError> 
     for c in text.chars() {
         if !is_text(c) {
             return Err(GerberError::Binary { line });
+        }
+        if latin1 && !c.is_ascii() {
+            // Text that is not UTF-8 may have Latin-1 only in comments and attributes.
+            let free = match &block {
+                Some((words, _)) => {
+                    words.first().is_some_and(|(_, w)| w.starts_with("AM"))
+                        || ["TF", "TA", "TO", "TD", "IN", "AM"]
+                            .iter()
+                            .any(|p| word.starts_with(p))
+                }
+                None => word.starts_with("G04"),
+            };
+            if !free {
+                return Err(GerberError::Binary { line });
+            }
         }
         match c {
             '\n' => {
@@ -206,68 +227,207 @@ fn free_text(s: &str) -> bool {
         || s.starts_with("%AM")
 }
 
-/// Rewrites one word statement for the parser: `None` drops it, an error refuses it.
-fn rewrite(st: &Statement) -> Result<Option<String>, GerberError> {
-    let s = st.text.as_str();
-    if !free_text(s) && !s.is_ascii() {
-        return Err(syntax(
-            st.line,
-            format!(
-                "unexpected character in {:?}",
-                s.chars().take(40).collect::<String>()
-            ),
-        ));
+/// What the rewriting remembers from one statement to the next.
+#[derive(Default)]
+struct Rewriter {
+    /// The units stated so far (`"MM"` or `"IN"`), the line and the statement that said so.
+    units: Option<(&'static str, usize, String)>,
+    /// The last operation code (1, 2, 3 for D01, D02, D03): coordinates without one repeat it.
+    last_op: Option<u8>,
+    /// The text was not UTF-8 and was read as Latin-1: non-ASCII outside comments is binary.
+    latin1: bool,
+}
+
+impl Rewriter {
+    /// A unit statement (`%MOMM*%`, `%MOIN*%`, `G71`, `G70`): the first is kept, a later one
+    /// that says the same is dropped (the parser refuses a second one), one that disagrees
+    /// is an error naming both lines.
+    fn unit(
+        &mut self,
+        unit: &'static str,
+        line: usize,
+        said: &str,
+    ) -> Result<Option<String>, GerberError> {
+        match &self.units {
+            None => {
+                self.units = Some((unit, line, said.to_string()));
+                Ok(Some(format!("%MO{unit}*%")))
+            }
+            Some((u, _, _)) if *u == unit => Ok(None),
+            Some((_, first_line, first)) => Err(syntax(
+                line,
+                format!("{said:?} sets units that disagree with {first:?} on line {first_line}"),
+            )),
+        }
     }
-    if let Some(comment) = s.strip_prefix("G04") {
-        // Standard comments (`#@!`) carry X2 attributes (KiCad 5); others are dropped.
-        return Ok(if comment.trim_start().starts_with("#@!") {
-            Some(s.to_string())
-        } else {
-            None
-        });
-    }
-    if let Some(after_g) = s.strip_prefix('G') {
-        // The parser slices the 3 characters after 'G'; a shorter word would panic it.
-        let digits: String = after_g.chars().take_while(|c| c.is_ascii_digit()).collect();
-        let rest = &after_g[digits.len()..];
-        let code: u32 = digits
-            .parse()
-            .map_err(|_| syntax(st.line, format!("unknown command {s:?}")))?;
-        let with_rest = |word: &str| -> String {
-            if rest.is_empty() {
-                word.to_string()
-            } else {
-                format!("{word}\n{rest}")
+
+    /// A data word: an aperture selection (`D10`), a bare operation (`D03`) or coordinates
+    /// with an optional operation (`X+100Y-20D01`). Coordinates must be a sign and digits
+    /// (the specification allows nothing else: no decimal point, exponent or NaN); a `+`
+    /// is dropped (the parser does not take it) and a missing operation code is the previous
+    /// one (deprecated modal operation of old generators).
+    fn data_word(&mut self, line: usize, w: &str) -> Result<String, GerberError> {
+        let bad = |why: String| syntax(line, format!("{w:?}: {why}"));
+        if let Some(code) = w.strip_prefix('D') {
+            if code.is_empty() || !code.bytes().all(|b| b.is_ascii_digit()) {
+                return Err(bad("a D code is digits".into()));
+            }
+            let n: u32 = code
+                .parse()
+                .map_err(|_| bad("D code out of range".into()))?;
+            return match n {
+                1..=3 => {
+                    self.last_op = Some(n as u8);
+                    Ok(format!("D0{n}"))
+                }
+                10.. => Ok(w.to_string()),
+                _ => Err(bad(format!("unknown operation D{n}"))),
+            };
+        }
+        let mut out = String::with_capacity(w.len() + 3);
+        let mut seen = String::new();
+        let mut op = None;
+        let mut rest = w;
+        while let Some(letter) = rest.chars().next() {
+            let value_len = rest[1..]
+                .find(|c: char| c.is_ascii_uppercase() && "XYIJD".contains(c))
+                .unwrap_or(rest.len() - 1);
+            let value = &rest[1..1 + value_len];
+            rest = &rest[1 + value_len..];
+            if op.is_some() {
+                return Err(bad("the operation code must come last".into()));
+            }
+            match letter {
+                'X' | 'Y' | 'I' | 'J' => {
+                    if seen.contains(letter) {
+                        return Err(bad(format!("{letter} given twice")));
+                    }
+                    seen.push(letter);
+                    let digits = value.strip_prefix(['+', '-']).unwrap_or(value);
+                    if digits.is_empty() || !digits.bytes().all(|b| b.is_ascii_digit()) {
+                        return Err(bad(format!(
+                            "coordinate {letter}{value:?} is not an integer of the %FS format \
+                             (only a sign and digits are allowed: no decimal point, exponent \
+                             or NaN)"
+                        )));
+                    }
+                    out.push(letter);
+                    out.push_str(value.strip_prefix('+').unwrap_or(value));
+                }
+                'D' => {
+                    let n: u32 = value
+                        .parse()
+                        .ok()
+                        .filter(|n| {
+                            (1..=3).contains(n) && value.bytes().all(|b| b.is_ascii_digit())
+                        })
+                        .ok_or_else(|| {
+                            bad(format!("D{value} is not an operation (D01, D02, D03)"))
+                        })?;
+                    op = Some(n as u8);
+                }
+                c => return Err(bad(format!("unexpected {c:?} in a coordinate word"))),
+            }
+        }
+        let op = match op.or(self.last_op) {
+            Some(op) => op,
+            None => {
+                return Err(bad(
+                    "coordinates without an operation code (D01, D02, D03) and no earlier one \
+                     to repeat"
+                        .into(),
+                ))
             }
         };
-        return Ok(Some(match code {
-            1 => with_rest("G01"),
-            2 => with_rest("G02"),
-            3 => with_rest("G03"),
-            36 => with_rest("G36"),
-            37 => with_rest("G37"),
-            54 => with_rest("G54"),
-            // G55: "prepare for flash", deprecated, no effect.
-            55 => {
-                return Ok(if rest.is_empty() {
-                    None
-                } else {
-                    Some(rest.to_string())
-                })
-            }
-            // Units (deprecated words).
-            70 => with_rest("%MOIN*%"),
-            71 => with_rest("%MOMM*%"),
-            74 => with_rest("G74"),
-            75 => with_rest("G75"),
-            // Absolute / incremental notation (deprecated): told by marker.
-            90 => with_rest(&format!("G04 {MARKER}notation:absolute")),
-            91 => with_rest(&format!("G04 {MARKER}notation:incremental")),
-            _ => return Err(syntax(st.line, format!("unknown command {s:?}"))),
-        }));
+        self.last_op = Some(op);
+        out.push_str(&format!("D0{op}"));
+        Ok(out)
     }
-    check_transform(st.line, s)?;
-    Ok(Some(s.to_string()))
+
+    /// Rewrites one statement for the parser: `None` drops it, an error refuses it.
+    fn rewrite(&mut self, st: &Statement) -> Result<Option<String>, GerberError> {
+        let s = st.text.as_str();
+        if !free_text(s) && !s.is_ascii() {
+            if self.latin1 {
+                return Err(GerberError::Binary { line: st.line });
+            }
+            return Err(syntax(
+                st.line,
+                format!(
+                    "unexpected character in {:?}",
+                    s.chars().take(40).collect::<String>()
+                ),
+            ));
+        }
+        if let Some(comment) = s.strip_prefix("G04") {
+            // Standard comments (`#@!`) carry X2 attributes (KiCad 5); others are dropped.
+            return Ok(if comment.trim_start().starts_with("#@!") {
+                Some(s.to_string())
+            } else {
+                None
+            });
+        }
+        if let Some(u) = s.strip_prefix("%MO").and_then(|u| u.strip_suffix("*%")) {
+            return match u {
+                "MM" => self.unit("MM", st.line, s),
+                "IN" => self.unit("IN", st.line, s),
+                _ => Err(syntax(st.line, format!("unknown units {s:?}"))),
+            };
+        }
+        if s.starts_with(['X', 'Y', 'I', 'J', 'D']) {
+            return self.data_word(st.line, s).map(Some);
+        }
+        if let Some(after_g) = s.strip_prefix('G') {
+            // The parser slices the 3 characters after 'G'; a shorter word would panic it.
+            let digits: String = after_g.chars().take_while(|c| c.is_ascii_digit()).collect();
+            let rest = &after_g[digits.len()..];
+            let code: u32 = digits
+                .parse()
+                .map_err(|_| syntax(st.line, format!("unknown command {s:?}")))?;
+            let rest = if rest.is_empty() {
+                String::new()
+            } else {
+                self.data_word(st.line, rest)?
+            };
+            let with_rest = |word: &str| -> String {
+                if rest.is_empty() {
+                    word.to_string()
+                } else {
+                    format!("{word}\n{rest}")
+                }
+            };
+            let unit = |me: &mut Self, unit: &'static str| -> Result<String, GerberError> {
+                let word = me.unit(unit, st.line, s)?;
+                Ok(match (word, rest.is_empty()) {
+                    (Some(w), _) => with_rest(&w),
+                    (None, true) => String::new(),
+                    (None, false) => rest.clone(),
+                })
+            };
+            let out = match code {
+                1 => with_rest("G01"),
+                2 => with_rest("G02"),
+                3 => with_rest("G03"),
+                36 => with_rest("G36"),
+                37 => with_rest("G37"),
+                54 => with_rest("G54"),
+                // G55: "prepare for flash", deprecated, no effect.
+                55 => rest.clone(),
+                // Units (deprecated words).
+                70 => unit(self, "IN")?,
+                71 => unit(self, "MM")?,
+                74 => with_rest("G74"),
+                75 => with_rest("G75"),
+                // Absolute / incremental notation (deprecated): told by marker.
+                90 => with_rest(&format!("G04 {MARKER}notation:absolute")),
+                91 => with_rest(&format!("G04 {MARKER}notation:incremental")),
+                _ => return Err(syntax(st.line, format!("unknown command {s:?}"))),
+            };
+            return Ok(if out.is_empty() { None } else { Some(out) });
+        }
+        check_transform(st.line, s)?;
+        Ok(Some(s.to_string()))
+    }
 }
 
 /// The load-transform commands (`%LP`, `%LM`, `%LR`, `%LS`) checked here, so that a bad
@@ -311,29 +471,51 @@ fn check_transform(line: usize, s: &str) -> Result<(), GerberError> {
     }
 }
 
+
 /// Pre-processes a whole file. Errors on binary data, an unterminated `%` block (an aperture
 /// macro or another extended command) and statements the parser cannot be given safely.
 pub(super) fn lex(text: &str) -> Result<Lexed, GerberError> {
-    let (stmts, warnings) = statements(text)?;
+    lex_text(text, false)
+}
+
+/// [`lex`] of a text decoded as Latin-1 (the file is not UTF-8): non-ASCII characters are
+/// allowed only in comments and attributes, elsewhere they are binary data.
+pub(super) fn lex_latin1(text: &str) -> Result<Lexed, GerberError> {
+    lex_text(text, true)
+}
+
+fn lex_text(text: &str, latin1: bool) -> Result<Lexed, GerberError> {
+    // A UTF-8 byte-order mark (some Windows exporters) is not part of the text.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let (stmts, mut warnings) = statements(text, latin1)?;
+    if latin1 {
+        warnings.push(
+            "the file is not UTF-8: read as Latin-1 (non-ASCII characters only in comments)".into(),
+        );
+    }
+    let mut rw = Rewriter {
+        latin1,
+        ..Rewriter::default()
+    };
     let mut out = String::with_capacity(text.len() + stmts.len() * 20);
     let mut line_map = Vec::with_capacity(stmts.len() * 2);
     for st in &stmts {
-        let Some(body) = rewrite(st)? else { continue };
-        let body = if body.starts_with('%') || body.ends_with('*') {
-            body
-        } else {
-            // Words lost their '*' in splitting; the parser wants it back.
-            body.split('\n')
-                .map(|w| {
-                    if w.ends_with('*') {
-                        w.to_string()
-                    } else {
-                        format!("{w}*")
-                    }
-                })
-                .collect::<Vec<_>>()
-                .join("\n")
+        let Some(body) = rw.rewrite(st)? else {
+            continue;
         };
+        // Words lost their '*' in splitting; the parser wants it back (extended blocks and
+        // macro lines end in '*' or '%' already).
+        let body = body
+            .split('\n')
+            .map(|w| {
+                if w.ends_with('*') || w.ends_with('%') {
+                    w.to_string()
+                } else {
+                    format!("{w}*")
+                }
+            })
+            .collect::<Vec<_>>()
+            .join("\n");
         out.push_str(&format!("G04 {MARKER}line:{}*\n", st.line));
         line_map.push(st.line);
         for l in body.split('\n') {

@@ -110,6 +110,10 @@ pub struct PasteLayer {
     pub generator: Option<String>,
     /// What was odd but did not stop the reading (no M02, unclosed contours, ...).
     pub warnings: Vec<String>,
+    /// Whether the file ends with its end-of-file statement (`M02`). A file without it may
+    /// be cut short: the inspection refuses it unless the program allows it
+    /// (`allow_truncated_layer`).
+    pub complete: bool,
 }
 
 /// Reads a paste layer file (at most [`MAX_FILE_BYTES`]).
@@ -140,9 +144,10 @@ pub fn read_file(path: &Path) -> Result<PasteLayer, GerberError> {
     match String::from_utf8(bytes) {
         Ok(text) => read_str(&text),
         Err(e) => {
-            let at = e.utf8_error().valid_up_to();
-            let line = 1 + e.as_bytes()[..at].iter().filter(|&&b| b == b'\n').count();
-            Err(GerberError::Binary { line })
+            // Not UTF-8: Latin-1 (every byte one character), as old exporters wrote their
+            // comments; the pre-pass refuses non-ASCII outside comments as binary data.
+            let text: String = e.into_bytes().into_iter().map(char::from).collect();
+            read_lexed(&text, lex::lex_latin1(&text)?)
         }
     }
 }
@@ -155,7 +160,17 @@ pub fn read_str(text: &str) -> Result<PasteLayer, GerberError> {
             limit: MAX_FILE_BYTES,
         });
     }
-    let lexed = lex::lex(text)?;
+    read_lexed(text, lex::lex(text)?)
+}
+
+/// The rest of the reading after the pre-pass.
+fn read_lexed(text: &str, lexed: lex::Lexed) -> Result<PasteLayer, GerberError> {
+    if text.len() as u64 > MAX_FILE_BYTES {
+        return Err(GerberError::TooLarge {
+            bytes: text.len() as u64,
+            limit: MAX_FILE_BYTES,
+        });
+    }
     let mut warnings = Vec::new();
     let commands = parse(&lexed, &mut warnings)?;
     let interp::Interpreted {
@@ -163,6 +178,7 @@ pub fn read_str(text: &str) -> Result<PasteLayer, GerberError> {
         units,
         generator,
         warnings: w,
+        complete,
     } = interp::interpret(&lexed, &commands)?;
     warnings.extend(w);
     let pads = merge::pads(&objects, &mut warnings);
@@ -194,6 +210,7 @@ pub fn read_str(text: &str) -> Result<PasteLayer, GerberError> {
         bbox_mm,
         generator,
         warnings,
+        complete,
     })
 }
 
