@@ -122,7 +122,10 @@ pub fn read_file(path: &Path) -> Result<PasteLayer, GerberError> {
         path: path.display().to_string(),
         source,
     };
-    let file = std::fs::File::open(path).map_err(io)?;
+    // A FIFO or device is refused before it is opened (opening a FIFO waits for a writer).
+    let file = crate::files::check_regular(path)
+        .and_then(|_| std::fs::File::open(path))
+        .map_err(io)?;
     let len = file.metadata().map_err(io)?.len();
     if len > MAX_FILE_BYTES {
         return Err(GerberError::TooLarge {
