@@ -70,10 +70,15 @@ def generator(g, path):
         return m.group(1).strip()
     for pat in (r"EasyEDA[^*,]*", r"Created by KiCad \(PCBNEW [^)]*\)", r"\(created by PCBNEW [^*]*",
                 r"EAGLE Gerber[^*]*", r"Creator: [^*]*", r"Mentor Graphics[^*]*",
-                r"PADS[^*]*generated Gerber", r"DipTrace[^*]*", r"Layer_Color"):
+                r"PADS[^*]*generated Gerber", r"DipTrace[^*]*", r"Layer_Color",
+                r"%AMOC8\*\s*5,1,8,0,0,1\.08239X\$1,22\.5"):
         m = re.search(pat, head)
         if m:
-            return "Altium (Layer_Color header)" if pat == r"Layer_Color" else m.group(0).strip()
+            if pat == r"Layer_Color":
+                return "Altium (Layer_Color header)"
+            if pat.startswith("%AMOC8"):
+                return "EAGLE (no header; its OC8 macro)"
+            return m.group(0).strip()
     return gen or "unknown"
 
 
