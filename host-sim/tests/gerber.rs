@@ -623,8 +623,20 @@ fn bad_input_is_a_clear_error() {
         "{MM}G36*\nX0Y0D02*\nX1000000Y0D01*\nX0Y1000000D01*\n"
     ));
     assert!(matches!(e, GerberError::UnclosedRegion { line: 3 }), "{e}");
-    let e = fails(&format!("{MM}G36*\nX0Y0D02*\nX1000000Y0D01*\nG37*\nM02*\n"));
-    assert!(matches!(e, GerberError::BadRegion { line: 3, .. }), "{e}");
+    // A contour of one segment draws nothing (Altium and TARGET 3001! write such slivers):
+    // skipped with a warning, not a pad.
+    let l = read_str(&format!(
+        "{MM}%ADD10C,1*%\nD10*\nX5000000Y0D03*\nG36*\nX0Y0D02*\nX1000000Y0D01*\nG37*\nM02*\n"
+    ))
+    .unwrap();
+    assert_eq!(l.pads.len(), 1);
+    assert!(
+        l.warnings
+            .iter()
+            .any(|w| w.contains("1 region contour(s) with no area")),
+        "{:?}",
+        l.warnings
+    );
     let e = fails("%FSLAX46Y46*%\n%ADD10C,1*%\nD10*\nX0Y0D03*\nM02*\n");
     assert!(matches!(e, GerberError::NoUnits { line: 2 }), "{e}");
     let e = fails("%FSLAX46Y46*%\n%MOIN*%\n%ADD10C,0.01*%\nD10*\nX9999000000Y0D03*\nM02*\n");

@@ -26,40 +26,7 @@ const BBOX_TOL_MM: f64 = 0.01;
 
 /// Files dpsa does not read (or reads differently from gerbonara) today, with a part of the
 /// error (or of the disagreement) it gives. Empty it as the reader learns them.
-const KNOWN_FAILING: &[(&str, &str)] = &[
-    (
-        "clockblock/clockblock-F_Paste.gbr",
-        "another unit command was found",
-    ),
-    ("diet-agnus-a500/PCB1.GTP", "another unit command was found"),
-    ("gottagofastram/PCB1.GTP", "another unit command was found"),
-    ("gyw-eagle9/solderpaste_top.gbr", "is not terminated by '*'"),
-    ("lasmo/SolderPasteTop.gdo", "%ICAS*%"),
-    (
-        "limenet-micro/LimeNet-Micro_2v1.GTP",
-        "another unit command was found",
-    ),
-    (
-        "limesdr-mini-panels/LimeSDR_Mini_1v0_Rounded_panel.GTP",
-        "another unit command was found",
-    ),
-    (
-        "limesdr-mini-panels/LimeSDR_Mini_1v3_Rounded_panel.GTP",
-        "another unit command was found",
-    ),
-    (
-        "limesdr-qpcie/LimeSDR-QPCIe_1v2.GTP",
-        "another unit command was found",
-    ),
-    (
-        "minnowboard-turbot/80101_0125_F200_SolderPasteTop.gdo",
-        "%ICAS*%",
-    ),
-    (
-        "target3001-solarcast/IRNASIoTbank1.2.PasteTop",
-        "a contour with fewer than 3 points",
-    ),
-];
+const KNOWN_FAILING: &[(&str, &str)] = &[];
 
 fn corpus_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../tests/data/gerber")

@@ -310,3 +310,14 @@ fn a_layer_without_its_end_is_refused_by_the_inspection_unless_allowed() {
     assert_eq!(pads.len(), 4);
     assert!(notes.is_empty());
 }
+
+/// Eagle 9 writes its X2 attributes as comments with a `%` inside (`G04 #@! %TF...*`); Mentor
+/// writes the deprecated `%ICAS*%`. Both read; another input code is refused with its line.
+#[test]
+fn eagle9_attribute_comments_and_mentor_input_code() {
+    let l = layer(&format!(
+        "G04 #@! %TF.FileFunction,Paste,Top*\n%ICAS*%\n{MM}%ADD10C,0.5*%\nD10*\nX1000000Y2000000D03*\nM02*\n"
+    ));
+    circles(&l, 0.5, &[[1.0, 2.0]]);
+    fails_at(&format!("{MM}%ICEB*%\nM02*\n"), 3);
+}

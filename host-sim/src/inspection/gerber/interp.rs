@@ -106,6 +106,9 @@ struct State {
     generator: Option<String>,
     warnings: Vec<String>,
     unclosed_contours: usize,
+    /// Region contours with no area (fewer than 3 distinct points, or all on one line): they
+    /// draw nothing and are skipped with a warning (Altium writes such slivers).
+    degenerate_contours: usize,
     zero_strokes: usize,
     ended: bool,
 }
@@ -181,6 +184,7 @@ impl State {
             generator: None,
             warnings: Vec::new(),
             unclosed_contours: 0,
+            degenerate_contours: 0,
             zero_strokes: 0,
             ended: false,
         }
@@ -1060,7 +1064,9 @@ impl State {
         let line = self.line;
         self.line = region.line;
         for contour in region.contours {
-            if contour.is_empty() {
+            // A start point with no segment after it (Altium ends every region with a bare
+            // `D02*` before `G37*`) draws nothing: it is not a contour.
+            if contour.len() < 2 {
                 continue;
             }
             let (first, last) = (contour[0], contour[contour.len() - 1]);
@@ -1068,18 +1074,14 @@ impl State {
                 self.unclosed_contours += 1;
             }
             let pts = dedup(contour);
-            if pts.len() < 3 {
-                return Err(GerberError::BadRegion {
-                    line: region.line,
-                    message: "a contour with fewer than 3 points".into(),
-                });
-            }
-            let shape = union_all(&[polygon(&pts, &[])]);
+            let shape = if pts.len() < 3 {
+                MultiPolygon::new(Vec::new())
+            } else {
+                union_all(&[polygon(&pts, &[])])
+            };
             if shape.0.is_empty() {
-                return Err(GerberError::BadRegion {
-                    line: region.line,
-                    message: "a contour with no area".into(),
-                });
+                self.degenerate_contours += 1;
+                continue;
             }
             self.push(shape, None, "region".into())?;
         }
@@ -1149,6 +1151,12 @@ pub(super) fn interpret(lexed: &Lexed, commands: &[Command]) -> Result<Interpret
         st.warnings.push(format!(
             "{} region contour(s) not closed by the file; closed with a straight edge",
             st.unclosed_contours
+        ));
+    }
+    if st.degenerate_contours > 0 {
+        st.warnings.push(format!(
+            "{} region contour(s) with no area (fewer than 3 distinct points or all on one line) ignored",
+            st.degenerate_contours
         ));
     }
     if st.zero_strokes > 0 {

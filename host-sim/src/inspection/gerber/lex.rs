@@ -106,6 +106,9 @@ fn statements(text: &str, latin1: bool) -> Result<(Vec<Statement>, Vec<String>),
             continue;
         }
         match c {
+            // A comment runs to its `*`: Eagle 9 writes its X2 attributes as
+            // `G04 #@! %TF.Part,Single*`, with the attribute's `%` inside the comment.
+            '%' if block.is_none() && word.trim_start().starts_with("G04") => word.push(c),
             '%' => {
                 let w = std::mem::take(&mut word);
                 match block.take() {
@@ -207,6 +210,17 @@ fn push_block(
         // Deprecated: layer name (no meaning for the image).
         if w.starts_with("LN") {
             continue;
+        }
+        // Deprecated input code (RS-274X 1998; Mentor writes `%ICAS*%`): ASCII is what this
+        // reader reads; another code (EBCDIC, ISO) is not text it can take.
+        if let Some(code) = w.strip_prefix("IC") {
+            if code == "AS" {
+                continue;
+            }
+            return Err(syntax(
+                line,
+                format!("%{w}*%: input code {code:?} is not supported (only ICAS, ASCII)"),
+            ));
         }
         out.push(Statement {
             line,
@@ -361,11 +375,18 @@ impl Rewriter {
         }
         if let Some(comment) = s.strip_prefix("G04") {
             // Standard comments (`#@!`) carry X2 attributes (KiCad 5); others are dropped.
-            return Ok(if comment.trim_start().starts_with("#@!") {
-                Some(s.to_string())
-            } else {
-                None
-            });
+            // Eagle 9 writes them with a leading `%` (`G04 #@! %TF...`): the parser takes
+            // the KiCad form, without it.
+            return Ok(
+                if let Some(attr) = comment.trim_start().strip_prefix("#@!") {
+                    Some(format!(
+                        "G04 #@! {}",
+                        attr.trim_start().trim_start_matches('%')
+                    ))
+                } else {
+                    None
+                },
+            );
         }
         if let Some(u) = s.strip_prefix("%MO").and_then(|u| u.strip_suffix("*%")) {
             return match u {
@@ -470,7 +491,6 @@ fn check_transform(line: usize, s: &str) -> Result<(), GerberError> {
         _ => Ok(()),
     }
 }
-
 
 /// Pre-processes a whole file. Errors on binary data, an unterminated `%` block (an aperture
 /// macro or another extended command) and statements the parser cannot be given safely.
