@@ -377,16 +377,10 @@ impl Rewriter {
             // Standard comments (`#@!`) carry X2 attributes (KiCad 5); others are dropped.
             // Eagle 9 writes them with a leading `%` (`G04 #@! %TF...`): the parser takes
             // the KiCad form, without it.
-            return Ok(
-                if let Some(attr) = comment.trim_start().strip_prefix("#@!") {
-                    Some(format!(
-                        "G04 #@! {}",
-                        attr.trim_start().trim_start_matches('%')
-                    ))
-                } else {
-                    None
-                },
-            );
+            return Ok(comment
+                .trim_start()
+                .strip_prefix("#@!")
+                .map(|attr| format!("G04 #@! {}", attr.trim_start().trim_start_matches('%'))));
         }
         if let Some(u) = s.strip_prefix("%MO").and_then(|u| u.strip_suffix("*%")) {
             return match u {
