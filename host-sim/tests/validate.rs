@@ -407,7 +407,7 @@ fn board_refuses_a_wrong_pixel_pitch_and_doubled_latches() {
         |_, _| false,
     );
     let e = board_refused(&d, cal_file());
-    assert!(e.contains("pixel_mm = 1000"), "{e}");
+    assert!(e.contains("`pixel_mm` is 1000"), "{e}");
     // pixel_mm 20 % off: in range for array.json, but not the cameras' calibrated pitch.
     let d = board_variant(
         "pixel-20pct",

@@ -241,30 +241,24 @@ impl ArrayRecording {
                 );
             }
         }
-        let m = &manifest;
-        for (key, v, lo, hi) in [
-            ("pixel_mm", m.pixel_mm, 1e-3, 1.0),
-            ("nominal_counts_per_mm", m.nominal_counts_per_mm, 1e-3, 1e6),
-            ("board_length_mm", m.board_length_mm, 1e-3, 10_000.0),
-            ("board_width_mm", m.board_width_mm, 1e-3, 10_000.0),
-        ] {
-            if !(v.is_finite() && (lo..=hi).contains(&v)) {
-                bail!(
-                    "{}: {key} = {v}, expected a finite value in {lo} ..= {hi}",
-                    path.display()
-                );
-            }
-        }
         // The same ranges as the scene's keys: a 0 here would size a board map from a
         // division by zero (or a map of no rows).
-        for (key, v, lo, hi) in [
-            ("pixel_mm", manifest.pixel_mm, 1e-4, 10.0),
-            ("board_length_mm", manifest.board_length_mm, 1.0, 2000.0),
-            ("board_width_mm", manifest.board_width_mm, 1.0, 2000.0),
+        let m = &manifest;
+        for (key, v, lo, hi, unit) in [
+            ("pixel_mm", m.pixel_mm, 1e-4, 10.0, "mm"),
+            (
+                "nominal_counts_per_mm",
+                m.nominal_counts_per_mm,
+                1e-3,
+                1e6,
+                "counts/mm",
+            ),
+            ("board_length_mm", m.board_length_mm, 1.0, 2000.0, "mm"),
+            ("board_width_mm", m.board_width_mm, 1.0, 2000.0, "mm"),
         ] {
             if !(v.is_finite() && (lo..=hi).contains(&v)) {
                 bail!(
-                    "{}: `{key}` is {v}, expected a finite value in {lo}..={hi} (mm)",
+                    "{}: `{key}` is {v}, expected a finite value in {lo}..={hi} ({unit})",
                     path.display()
                 );
             }

@@ -187,10 +187,12 @@ pub fn against_truth(
     period: impl Fn(usize, usize) -> f32,
     grid: &BoardGrid,
     truth: &TruthRaster,
+    rows_done: &indicatif::ProgressBar,
 ) -> TruthStats {
     let mut st = TruthStats::default();
     let (mut sum, mut sq, mut vsum) = (0.0f64, 0.0f64, 0.0f64);
     for i in 0..grid.rows {
+        rows_done.inc(1);
         for j in 0..grid.width {
             let h = map.at(i, j);
             if !h.is_finite() {
@@ -336,6 +338,7 @@ mod tests {
             |_, _| t_um,
             &grid,
             &truth,
+            &indicatif::ProgressBar::hidden(),
         );
         assert_eq!(st.wrong_turn_pixels, 0, "{st:?}");
         assert!(st.flat_pixels > 50_000, "{st:?}");

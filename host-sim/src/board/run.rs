@@ -566,8 +566,8 @@ pub fn run_shown(
     };
     let core_s = t0.elapsed().as_secs_f64();
 
-    // The steps after the core, one bar position each.
-    let steps = crate::progress::progress_bar(progress, 3, "board map");
+    // The steps after the core, one bar position each; the truth comparison has its own bar.
+    let steps = crate::progress::progress_bar(progress, 2, "board map");
     let a = assemble(&cams, &grid);
     steps.inc(1);
     if let Some(r) = &mut streams_report {
@@ -580,7 +580,7 @@ pub fn run_shown(
     let t1 = Instant::now();
     super::output::write(out, &grid, &a.blended, cams.len(), &missing, board)?;
     let write_s = t1.elapsed().as_secs_f64();
-    steps.inc(1);
+    steps.finish_and_clear();
 
     let t2 = Instant::now();
     let truth = match arr.truth()? {
@@ -608,20 +608,24 @@ pub fn run_shown(
                     .sum::<f64>()
                     / cal.camera.len().max(1) as f64;
                 let with_crb = cams.iter().all(|c| c.variance.is_some());
-                Some(against_truth(
+                let rows_done =
+                    crate::progress::progress_bar(progress, grid.rows as u64, "board truth");
+                let st = against_truth(
                     &a.blended.heights,
                     with_crb.then_some(&a.blended.variance),
                     |_, _| t_mean as f32,
                     &grid,
                     &raster,
-                ))
+                    &rows_done,
+                );
+                rows_done.finish_and_clear();
+                Some(st)
             }
             None => None,
         },
         None => None,
     };
     let truth_s = t2.elapsed().as_secs_f64();
-    steps.finish_and_clear();
 
     let b = &a.blended;
     let valid = b.heights.valid() as u64;

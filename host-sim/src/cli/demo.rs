@@ -27,7 +27,7 @@ pub struct Args {
     /// Run only the camera array, on this array scene: `small` (built in:
     /// `scenes/array-paste.toml`, three 192 px cameras over a 20 x 13.9 mm printed board of
     /// 193 pads) or an array scene file, e.g. `scenes/paper-board.toml` (the paper's three
-    /// 2048 px cameras over 220 x 168 mm: about 0.95 GB of recordings, measured, and several
+    /// 2048 px cameras over 220 x 168 mm: about 0.6 GB of recordings (585 MB measured) and several
     /// minutes). Without it the demo runs the single-camera scene, then the small array.
     #[arg(long)]
     array: Option<String>,
@@ -210,7 +210,7 @@ fn array(
     }
     if spec == "small" {
         out!("");
-        out!("The paper's full board (three 2048 px cameras, 220 x 168 mm, 5,788 pads; about 0.95 GB of recordings and a few minutes):");
+        out!("The paper's full board (three 2048 px cameras, 220 x 168 mm, 5,788 pads; about 0.6 GB of recordings and a few minutes):");
         out!("  dpsa demo --array scenes/paper-board.toml --out out/paper");
     }
     Ok(())
