@@ -200,11 +200,19 @@ fn which_report(dir: &Path) -> Option<usize> {
         same_names
             && same_files
             && board(&got["report.json"]) == board(&want["report.json"])
-            && String::from_utf8_lossy(&got["cfx_units_inspected.json"]).contains(&format!(
-                "\"{}\"",
-                fixture().maps[k].file_name().unwrap().to_string_lossy()
-            ))
+            && String::from_utf8_lossy(&got["cfx_units_inspected.json"])
+                .contains(&format!("\"{}\"", unit_of(&fixture().maps[k])))
     })
+}
+
+/// The CFX unit of a map's inspection: its board id (`board.json`), else its directory name.
+fn unit_of(map: &Path) -> String {
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(map.join("board.json")).unwrap()).unwrap();
+    match meta["board_id"].as_str() {
+        Some(id) => id.to_string(),
+        None => map.file_name().unwrap().to_string_lossy().into_owned(),
+    }
 }
 
 fn inspect_args(k: usize, out: &Path) -> Vec<String> {
