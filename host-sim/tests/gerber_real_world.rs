@@ -321,3 +321,17 @@ fn eagle9_attribute_comments_and_mentor_input_code() {
     circles(&l, 0.5, &[[1.0, 2.0]]);
     fails_at(&format!("{MM}%ICEB*%\nM02*\n"), 3);
 }
+
+/// A pin attribute without its pin number (found by the `load_gerber` fuzz target: the parser
+/// crate indexed its second value and panicked) is refused with its line, in both X2 forms.
+#[test]
+fn a_pin_attribute_without_its_pin_is_refused_not_a_panic() {
+    fails_at(&format!("{MM}%TO.P,U1*%\nM02*\n"), 3);
+    fails_at(&format!("{MM}%TO.P*%\nM02*\n"), 3);
+    fails_at(&format!("{MM}G04 #@! TO.P,U1*\nM02*\n"), 3);
+    // Well formed: the pad is named.
+    let l = layer(&format!(
+        "{MM}%ADD10C,0.5*%\n%TO.P,U1,7*%\nD10*\nX0Y0D03*\nM02*\n"
+    ));
+    assert_eq!(l.pads[0].name(), "U1-7");
+}

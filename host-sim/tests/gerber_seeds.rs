@@ -1,5 +1,5 @@
-//! Replays the committed seed corpus `fuzz/host/corpus/load_gerber` (seeds for a Gerber fuzz
-//! target; the target itself is not written yet) through the oracle such a target would check: a layer that reads has at most `MAX_OBJECTS` pads, in order, each with finite
+//! Replays the committed seeds of the `load_gerber` fuzz target (`fuzz/host/corpus/load_gerber`)
+//! through the same oracle: a layer that reads has at most `MAX_OBJECTS` pads, in order, each with finite
 //! geometry and positive area. The seeds are crafted to read: flashes, a region with a clear
 //! dot, strokes with an arc, a macro in a step and repeat, copies on one point with X2
 //! attributes in inches, touching pads without M02.

@@ -377,10 +377,14 @@ impl Rewriter {
             // Standard comments (`#@!`) carry X2 attributes (KiCad 5); others are dropped.
             // Eagle 9 writes them with a leading `%` (`G04 #@! %TF...`): the parser takes
             // the KiCad form, without it.
-            return Ok(comment
-                .trim_start()
-                .strip_prefix("#@!")
-                .map(|attr| format!("G04 #@! {}", attr.trim_start().trim_start_matches('%'))));
+            return match comment.trim_start().strip_prefix("#@!") {
+                Some(attr) => {
+                    let attr = attr.trim_start().trim_start_matches('%');
+                    check_pin_attribute(st.line, attr)?;
+                    Ok(Some(format!("G04 #@! {attr}")))
+                }
+                None => Ok(None),
+            };
         }
         if let Some(u) = s.strip_prefix("%MO").and_then(|u| u.strip_suffix("*%")) {
             return match u {
@@ -441,8 +445,32 @@ impl Rewriter {
             return Ok(if out.is_empty() { None } else { Some(out) });
         }
         check_transform(st.line, s)?;
+        if let Some(attr) = s.strip_prefix('%') {
+            check_pin_attribute(st.line, attr)?;
+        }
         Ok(Some(s.to_string()))
     }
+}
+
+/// A pin attribute (`TO.P,<refdes>,<pin>[,<function>]`) with fewer than two values: the parser
+/// crate indexes its second value without looking (a panic, found by the `load_gerber` fuzz
+/// target), and such an attribute names no pin anyway.
+fn check_pin_attribute(line: usize, attr: &str) -> Result<(), GerberError> {
+    let Some(body) = attr.strip_prefix("TO") else {
+        return Ok(());
+    };
+    let body = body.trim_end_matches(['*', '%']);
+    let mut fields = body.split(',');
+    if fields.next().map(str::trim) != Some(".P") || fields.count() >= 2 {
+        return Ok(());
+    }
+    Err(syntax(
+        line,
+        format!(
+            "%TO{body}*%: a pin attribute takes a reference designator and a pin number \
+             (%TO.P,U3,14*%)"
+        ),
+    ))
 }
 
 /// The load-transform commands (`%LP`, `%LM`, `%LR`, `%LS`) checked here, so that a bad

@@ -1,0 +1,31 @@
+//! Arbitrary bytes as a top paste layer (Gerber RS-274X / X2, docs/inspection.md): what
+//! `dpsa pads` and `dpsa inspect` do with the text of a paste-layer file.
+//!
+//! Oracles besides "no panic, no hang, no overflow, no allocation beyond the reader's limits":
+//! a layer that reads has at most `MAX_OBJECTS` pads, indexed in file order, each with a finite
+//! bounding box and a finite, positive area (slivers are dropped, never kept as empty pads).
+
+#![no_main]
+
+use dpsa_sim::inspection::gerber::{read_str, MAX_OBJECTS};
+use libfuzzer_sys::fuzz_target;
+
+fuzz_target!(|data: &[u8]| {
+    let Ok(text) = std::str::from_utf8(data) else {
+        return;
+    };
+    let Ok(layer) = read_str(text) else {
+        return;
+    };
+    assert!(layer.pads.len() <= MAX_OBJECTS, "{} pads", layer.pads.len());
+    for (i, p) in layer.pads.iter().enumerate() {
+        assert_eq!(p.index, i, "pads out of file order");
+        assert!(
+            p.outline.bbox().iter().all(|v| v.is_finite()),
+            "pad {i}: a bounding box that is not finite: {:?}",
+            p.outline
+        );
+        let a = p.outline.area();
+        assert!(a.is_finite() && a > 0.0, "pad {i}: area {a}");
+    }
+});
