@@ -6,9 +6,10 @@ prints one JSON object, keyed by the path relative to this folder:
      "generator": "...", "objects": N, "area_mm2": A}
 
 or {"error": "..."} when gerbonara cannot read the file. Pads are connected dark areas:
-each object's primitives (`to_primitives(unit=MM)`) become shapely shapes (circles and line
-caps with 64 segments per quarter), dark objects are unioned, clear ones subtracted in file
-order, pieces under 1e-6 mm^2 dropped. The box is the union's bounds (zeros when empty).
+each object's primitives (`to_primitives(unit=MM)`) become shapely shapes (circles, line
+caps and arcs with 64 segments per quarter turn, the arcs of region outlines included),
+dark objects are unioned, clear ones subtracted in file order, pieces under 1e-6 mm^2
+dropped. The box is the union's bounds (zeros when empty).
 
     python reference.py [--check reference.json] [FILE...]
 
@@ -35,6 +36,22 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 NOT_LAYER = re.compile(r"(^readme|^licen[cs]e|^copying|\.py$|\.json$|\.md$|\.txt$)", re.I)
 
 
+def arc_points(cx, cy, x1, y1, x2, y2, clockwise):
+    """Points along a circular arc from (x1, y1) to (x2, y2) around the ABSOLUTE centre (cx, cy)
+    (gerbonara's primitives carry absolute centres), 64 per quarter turn, both ends included.
+    Coincident ends are a full circle (gerbonara's `Arc.is_circle`)."""
+    a0 = math.atan2(y1 - cy, x1 - cx)
+    a1 = math.atan2(y2 - cy, x2 - cx)
+    sw = (a0 - a1) % (2 * math.pi) if clockwise else (a1 - a0) % (2 * math.pi)
+    if math.isclose(x1, x2, abs_tol=1e-6) and math.isclose(y1, y2, abs_tol=1e-6):
+        sw = 2 * math.pi
+    r = math.hypot(x1 - cx, y1 - cy)
+    d = -1 if clockwise else 1
+    n = max(1, math.ceil(64 * sw / (math.pi / 2)))
+    return [(cx + r * math.cos(a0 + d * sw * i / n), cy + r * math.sin(a0 + d * sw * i / n))
+            for i in range(n + 1)]
+
+
 def prim_shape(p):
     if isinstance(p, gp.Circle):
         return Point(p.x, p.y).buffer(p.r, quad_segs=64)
@@ -44,18 +61,15 @@ def prim_shape(p):
         r = box(p.x - p.w / 2, p.y - p.h / 2, p.x + p.w / 2, p.y + p.h / 2)
         return affinity.rotate(r, p.rotation, origin=(p.x, p.y), use_radians=True)
     if isinstance(p, gp.ArcPoly):
-        pts = [tuple(q) for q in p.outline]
+        # A region: straight sides and arcs (KiCad 5's rounded pads, Allegro's outlines).
+        pts = []
+        for (x1, y1), (x2, y2), (clockwise, (cx, cy)) in p.segments:
+            pts.append((x1, y1))
+            if clockwise is not None:
+                pts.extend(arc_points(cx, cy, x1, y1, x2, y2, clockwise)[1:-1])
         return Polygon(pts).buffer(0) if len(pts) >= 3 else None
     if isinstance(p, gp.Arc):
-        n = 64
-        cx, cy = p.cx + p.x1, p.cy + p.y1
-        a0 = math.atan2(p.y1 - cy, p.x1 - cx)
-        a1 = math.atan2(p.y2 - cy, p.x2 - cx)
-        sw = (a0 - a1) % (2 * math.pi) if p.clockwise else (a1 - a0) % (2 * math.pi)
-        r = math.hypot(p.x1 - cx, p.y1 - cy)
-        d = -1 if p.clockwise else 1
-        pts = [(cx + r * math.cos(a0 + d * sw * i / n), cy + r * math.sin(a0 + d * sw * i / n))
-               for i in range(n + 1)]
+        pts = arc_points(p.cx, p.cy, p.x1, p.y1, p.x2, p.y2, p.clockwise)
         return LineString(pts).buffer(p.width / 2, quad_segs=64)
     raise TypeError(type(p))
 
@@ -70,7 +84,7 @@ def generator(g, path):
         return m.group(1).strip()
     for pat in (r"EasyEDA[^*,]*", r"Created by KiCad \(PCBNEW [^)]*\)", r"\(created by PCBNEW [^*]*",
                 r"EAGLE Gerber[^*]*", r"Creator: [^*]*", r"Mentor Graphics[^*]*",
-                r"PADS[^*]*generated Gerber", r"DipTrace[^*]*", r"Layer_Color",
+                r"PADS[^*]*generated Gerber", r"DipTrace[^*]*", r"Cadence Allegro[^*]*", r"Layer_Color",
                 r"%AMOC8\*\s*5,1,8,0,0,1\.08239X\$1,22\.5"):
         m = re.search(pat, head)
         if m:
