@@ -6,6 +6,9 @@
 //!   equal). Files dpsa cannot read yet are listed in [`KNOWN_FAILING`] with the error; a file
 //!   listed there that now reads (or fails differently) fails the test, so the list only
 //!   shrinks. A per-file table is printed (`--nocapture`).
+//! * `corpus_meets_quotas`: the corpus holds what issue 20 asks of it, by the generator each
+//!   file names (as `reference.json` records it): at least 40 layers; Altium >= 8 (>= 3 in inch,
+//!   >= 2 panels); KiCad >= 10 over versions 4 to 8 at least; Eagle / Fusion 360 >= 4; EasyEDA >= 3.
 //! * `committed_reference_is_current`: builds a venv in the target directory with pinned
 //!   gerbonara and shapely (reused when present), runs `reference.py --check` over the corpus
 //!   and fails when the committed JSON differs from what gerbonara says now. If the venv or pip
@@ -169,8 +172,82 @@ fn corpus_agrees_with_committed_reference() {
         "{} files: {agree} agree with gerbonara, {known} known failures",
         files.len()
     );
-    assert!(files.len() >= 20, "the corpus has {} files", files.len());
+    assert!(files.len() >= 40, "the corpus has {} files", files.len());
     assert!(problems.is_empty(), "{}", problems.join("\n"));
+}
+
+/// The family of a generator string as `reference.py` records it.
+fn family(generator: &str) -> &'static str {
+    let g = generator.to_ascii_lowercase();
+    if g.contains("altium") {
+        "Altium"
+    } else if g.contains("kicad") || g.contains("pcbnew") {
+        "KiCad"
+    } else if g.contains("eagle") {
+        "Eagle"
+    } else if g.contains("easyeda") {
+        "EasyEDA"
+    } else {
+        "other"
+    }
+}
+
+/// The KiCad major version a generator string names (`4` for "PCBNEW 4.0.6", `2013` for the
+/// BZR builds, `6` for "KiCad,Pcbnew,(6.0.6)").
+fn kicad_major(generator: &str) -> Option<u32> {
+    let at = generator
+        .find("Pcbnew,")
+        .map(|i| i + 7)
+        .or_else(|| generator.find("PCBNEW ").map(|i| i + 7))
+        .or_else(|| generator.find("PCBNEW (").map(|i| i + 8))?;
+    let digits: String = generator[at..]
+        .chars()
+        .skip_while(|c| !c.is_ascii_digit())
+        .take_while(|c| c.is_ascii_digit())
+        .collect();
+    digits.parse().ok()
+}
+
+#[test]
+fn corpus_meets_quotas() {
+    let reference = committed();
+    let count =
+        |f: &dyn Fn(&str, &Value) -> bool| reference.iter().filter(|(k, v)| f(k, v)).count();
+    let generator = |v: &Value| v["generator"].as_str().unwrap_or("").to_string();
+    let of = |fam: &'static str| move |_: &str, v: &Value| family(&generator(v)) == fam;
+    let altium = count(&of("Altium"));
+    let altium_inch = count(&|k, v| of("Altium")(k, v) && v["units"] == "inch");
+    let altium_panels =
+        count(&|k, v| of("Altium")(k, v) && k.to_ascii_lowercase().contains("panel"));
+    let kicad = count(&of("KiCad"));
+    let eagle = count(&of("Eagle"));
+    let easyeda = count(&of("EasyEDA"));
+    let mut kicad_versions: Vec<u32> = reference
+        .values()
+        .filter_map(|v| kicad_major(&generator(v)))
+        .collect();
+    kicad_versions.sort();
+    kicad_versions.dedup();
+    println!(
+        "{} files: Altium {altium} (inch {altium_inch}, panels {altium_panels}), KiCad {kicad} \
+         (versions {kicad_versions:?}), Eagle {eagle}, EasyEDA {easyeda}, others {}",
+        reference.len(),
+        reference.len() - altium - kicad - eagle - easyeda
+    );
+    assert!(reference.len() >= 40, "{} files", reference.len());
+    assert!(
+        altium >= 8 && altium_inch >= 3 && altium_panels >= 2,
+        "Altium {altium}, inch {altium_inch}, panels {altium_panels}"
+    );
+    assert!(kicad >= 10, "KiCad {kicad}");
+    for v in [4, 5, 6, 7, 8] {
+        assert!(
+            kicad_versions.contains(&v),
+            "no KiCad {v} layer: {kicad_versions:?}"
+        );
+    }
+    assert!(eagle >= 4, "Eagle {eagle}");
+    assert!(easyeda >= 3, "EasyEDA {easyeda}");
 }
 
 /// The venv's python, made (once) in the target directory with the pinned packages.
