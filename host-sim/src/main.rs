@@ -37,6 +37,7 @@ fn main() {
         Cmd::Decode(a) => cli::decode::run(a).map(exit_unless_zero),
         Cmd::FrameBench(a) => cli::frame_bench::run(a),
         Cmd::BoardBench(a) => cli::board_bench::run(a),
+        Cmd::PadsBench(a) => cli::pads_bench::run(a),
         Cmd::CodecBench(a) => cli::codec_bench::run(a, progress),
         Cmd::TargetRun(a) => cli::target_run::run(a, progress),
         Cmd::Demo(a) => cli::demo::run(a, progress),

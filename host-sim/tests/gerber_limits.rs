@@ -81,10 +81,95 @@ fn a_file_over_the_size_limit_is_refused_before_reading() {
 
 #[test]
 fn too_many_vertices_is_refused() {
-    // A 50 mm circle (1 um chords: over 300 vertices) stepped and repeated 500,000 times: under
-    // the object limit, over the vertex limit; refused before expanding.
-    let text =
-        "%FSLAX46Y46*%\n%MOMM*%\n%ADD10C,50*%\n%SRX1000Y500I0J0*%\nD10*\nX0Y0D03*\n%SR*%\nM02*\n";
+    // A 50 mm circle with a hole (not a plain flash: its pad keeps its polygon, over 600
+    // vertices) stepped and repeated 500,000 times: under the object limit, over the vertex
+    // limit; refused before expanding.
+    let text = "%FSLAX46Y46*%\n%MOMM*%\n%ADD10C,50X10*%\n%SRX1000Y500I0J0*%\nD10*\nX0Y0D03*\n%SR*%\nM02*\n";
     let e = within(60, move || read_str(text)).expect_err("too complex");
-    assert!(matches!(e, GerberError::TooComplex { .. }), "{e}");
+    assert!(matches!(e, GerberError::TooComplex { line: 4, .. }), "{e}");
+}
+
+#[test]
+fn a_huge_aperture_stroked_along_an_arc_is_refused_at_once() {
+    // The load_gerber fuzz target's out-of-memory input (97 bytes; 1.2 GB and 12 s before):
+    // a 9,092 mm disc swept along the 4096 chords of an arc.
+    let text = "%FSLAX45Y46*%\n%MOMM*%\n%ADD10C,09092*%\nD10*\nG75*\nX0Y1D02*\nG01X100000002Y0D01*\nG03X100020Y0002000*\n";
+    let e = within(10, move || read_str(text)).expect_err("too complex");
+    assert!(
+        matches!(e, GerberError::StrokeTooComplex { line: 8, vertices, .. } if vertices > 1_000_000),
+        "{e}"
+    );
+    assert!(e.to_string().contains("C 9092"), "{e}");
+}
+
+/// A layer of `n` flashes of 0.2 x 0.1 mm on a 0.5 mm grid, `per_row` to a row, with the
+/// apertures, polarity, attributes and a step and repeat spread over the file: long enough
+/// to be read in several chunks.
+fn long_layer(n: usize) -> String {
+    let mut t = String::from("%FSLAX46Y46*%\n%MOMM*%\n%ADD10R,0.2X0.1*%\nD10*\n");
+    for i in 0..n {
+        if i == n / 2 {
+            // A second aperture defined deep in the file, a component attribute.
+            t.push_str("%ADD11C,0.3*%\n%TO.C,U7*%\nD11*\n");
+        }
+        t.push_str(&format!(
+            "X{}Y{}D03*\n",
+            (i % 200) * 500_000,
+            (i / 200) * 500_000
+        ));
+    }
+    t.push_str("%TD*%\nM02*\n");
+    t
+}
+
+#[test]
+fn a_layer_read_in_chunks_is_read_whole() {
+    use dpsa_sim::inspection::gerber::CHUNK_STATEMENTS;
+    use dpsa_sim::inspection::pads::Outline;
+    // Three and a half chunks of flashes: every pad where the file put it, with its
+    // aperture and attribute, whichever chunk it was in.
+    let n = CHUNK_STATEMENTS * 7 / 2;
+    let layer = within(120, move || read_str(&long_layer(n))).expect("reads");
+    assert_eq!(layer.pads.len(), n);
+    assert!(layer.complete);
+    for (i, p) in layer.pads.iter().enumerate() {
+        let want = [(i % 200) as f64 * 0.5, (i / 200) as f64 * 0.5];
+        let (centre, second) = match &p.outline {
+            Outline::RoundRect { centre, .. } => (centre, false),
+            Outline::Circle { centre, .. } => (centre, true),
+            o => panic!("pad {i}: {o:?}"),
+        };
+        assert!(
+            (centre[0] - want[0]).abs() < 1e-9 && (centre[1] - want[1]).abs() < 1e-9,
+            "pad {i} at {centre:?}, want {want:?}"
+        );
+        assert_eq!(second, i >= n / 2, "pad {i}");
+        assert_eq!(
+            p.component.as_deref(),
+            (i >= n / 2).then_some("U7"),
+            "pad {i}"
+        );
+    }
+}
+
+#[test]
+fn errors_deep_in_a_long_file_name_their_line() {
+    use dpsa_sim::inspection::gerber::CHUNK_STATEMENTS;
+    let n = CHUNK_STATEMENTS * 3;
+    // A coordinate the parser refuses (the format has 4 integer digits... as decimals) far
+    // into the third chunk, and an aperture defined twice chunks apart.
+    let mut lines: Vec<String> = long_layer(n).lines().map(str::to_string).collect();
+    let at = 2 * CHUNK_STATEMENTS + 1234;
+    lines[at] = "X1.5Y2D03*".into();
+    let text = lines.join("\n");
+    let e = within(120, move || read_str(&text)).expect_err("bad coordinate");
+    assert_eq!(e.line(), at + 1, "{e}");
+
+    let mut lines: Vec<String> = long_layer(n).lines().map(str::to_string).collect();
+    let at = 2 * CHUNK_STATEMENTS + 99;
+    lines.insert(at, "%ADD10C,0.5*%".into());
+    let text = lines.join("\n");
+    let e = within(120, move || read_str(&text)).expect_err("defined twice");
+    assert_eq!(e.line(), at + 1, "{e}");
+    assert!(e.to_string().contains("D10 is defined twice"), "{e}");
 }

@@ -7,14 +7,12 @@
 
 #![no_main]
 
-use dpsa_sim::inspection::gerber::{read_str, MAX_OBJECTS};
+use dpsa_sim::inspection::gerber::{read_bytes, MAX_OBJECTS};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    let Ok(text) = std::str::from_utf8(data) else {
-        return;
-    };
-    let Ok(layer) = read_str(text) else {
+    // UTF-8 or, failing that, Latin-1, as `read_file` takes a file.
+    let Ok(layer) = read_bytes(data.to_vec()) else {
         return;
     };
     assert!(layer.pads.len() <= MAX_OBJECTS, "{} pads", layer.pads.len());

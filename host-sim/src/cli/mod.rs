@@ -13,6 +13,7 @@ pub mod grr;
 pub mod inspect;
 pub mod layout;
 pub mod pads;
+pub mod pads_bench;
 pub mod phase;
 pub mod reconstruct;
 pub mod simulate;
@@ -80,6 +81,10 @@ pub enum Cmd {
     /// provenance, unwrap, resampling and blending timed per stage, beside a numpy float64
     /// least-squares phase of the same frames; as JSON.
     BoardBench(board_bench::Args),
+    /// Benchmark the paste-layer reader on synthetic layers of up to 10^6 objects (flashes,
+    /// apertures, arcs, strokes, regions), each read in a child process: time, peak memory,
+    /// pads or the refusal; as JSON.
+    PadsBench(pads_bench::Args),
     /// Run the firmware under QEMU (Cortex-M7, mps2-an500) on a recording: the same core on the
     /// target, writing the packet stream it emitted; `--bench` adds its measured figures.
     TargetRun(target_run::Args),

@@ -1,13 +1,17 @@
 //! The graphics state machine: the parser's commands in file order -> the layer's objects
 //! (flashes, strokes, regions), each a dark or clear shape in mm with its X2 attributes.
 
-use super::lex::{Lexed, MARKER};
-use super::shapes::{
-    arc_points, capsule, circle_points, dedup, eval_expr, map_multi, polygon, recognise,
-    rect_points, round_rect_points, swept_rect, union_all, Affine, Exact, Prim,
+use super::lex::MARKER;
+use super::object::{
+    line_shape, num, vertex_count, ApertureShape, Class, Flat, Geom, Layer, MacroShape, Object,
+    Stroke,
 };
-use super::{GerberError, MAX_COORD_MM, MAX_OBJECTS, MAX_VERTICES};
-use crate::inspection::pads::{Outline, Point};
+use super::shapes::{
+    arc_points, arc_segments, capsule, circle_points, dedup, eval_expr, polygon, recognise,
+    rect_points, swept_rect, union_all, Exact, Prim,
+};
+use super::{GerberError, MAX_COORD_MM, MAX_OBJECTS, MAX_STROKE_VERTICES, MAX_VERTICES};
+use crate::inspection::pads::Point;
 use geo::{BooleanOps, MultiPolygon, Polygon};
 use gerber_parser::gerber_types::{
     Aperture, ApertureBlock, ApertureMacro, AttributeDeletionCriterion, AxisSelect, Command,
@@ -17,45 +21,11 @@ use gerber_parser::gerber_types::{
     Polarity, QuadrantMode, StandardComment, StepAndRepeat, Unit, ZeroOmission,
 };
 use std::collections::HashMap;
-
-/// One graphical object of the layer.
-#[derive(Clone, Debug)]
-pub(super) struct Object {
-    /// Dark (adds paste) or clear (removes what was drawn before it).
-    pub dark: bool,
-    /// The shape, mm, rings oriented counter-clockwise outside.
-    pub shape: MultiPolygon<f64>,
-    /// The exact outline of a plain flash (circle or rounded rectangle), when it is one.
-    pub exact: Option<Outline>,
-    /// The aperture class (`R 0.60x0.30`, `C 0.25`, `region`, `stroke C 0.10`, macro name).
-    pub class: String,
-    pub component: Option<String>,
-    pub pin: Option<String>,
-    /// Bounding box `[xmin, ymin, xmax, ymax]`, mm.
-    pub bbox: [f64; 4],
-}
-
-/// An aperture ready to flash or draw: its shape about its origin, mm.
-#[derive(Clone, Debug)]
-struct ApertureShape {
-    shape: MultiPolygon<f64>,
-    exact: Option<Exact>,
-    class: String,
-    /// What it sweeps when drawn: a circle's diameter or a rectangle's sides.
-    stroke: Stroke,
-}
-
-#[derive(Clone, Copy, Debug)]
-enum Stroke {
-    Circle(f64),
-    Rect(f64, f64),
-    /// Not allowed for D01 by the specification (obround, polygon, macro).
-    None,
-}
+use std::sync::Arc;
 
 /// What the interpreter made of the file.
 pub(super) struct Interpreted {
-    pub objects: Vec<Object>,
+    pub layer: Layer,
     pub units: &'static str,
     pub generator: Option<String>,
     pub warnings: Vec<String>,
@@ -95,13 +65,17 @@ struct State {
     rotation_deg: f64,
     scaling: f64,
     macros: HashMap<String, ApertureMacro>,
-    apertures: HashMap<i32, ApertureShape>,
+    apertures: HashMap<i32, Arc<ApertureShape>>,
     current: Option<i32>,
-    component: Option<String>,
-    pin: Option<String>,
+    component: Option<Arc<str>>,
+    pin: Option<Arc<str>>,
+    /// The entries of `layer.attributes` and `layer.linears` for the current attributes
+    /// and flash transform (`None`: changed since, a new entry is made on the next object).
+    attributes_entry: Option<u32>,
+    linear_entry: Option<u32>,
     region: Option<Region>,
     step: Option<StepRepeat>,
-    objects: Vec<Object>,
+    layer: Layer,
     vertices: usize,
     generator: Option<String>,
     warnings: Vec<String>,
@@ -127,15 +101,6 @@ fn unsupported(line: usize, what: impl Into<String>) -> GerberError {
     }
 }
 
-/// `R 0.60x0.30`-style number: at least 2 and at most 3 decimals.
-fn num(v: f64) -> String {
-    let s = format!("{v:.3}");
-    match s.strip_suffix('0') {
-        Some(t) => t.to_string(),
-        None => s,
-    }
-}
-
 fn bbox_of(mp: &MultiPolygon<f64>) -> [f64; 4] {
     let mut b = [
         f64::INFINITY,
@@ -149,12 +114,6 @@ fn bbox_of(mp: &MultiPolygon<f64>) -> [f64; 4] {
         }
     }
     b
-}
-
-fn vertex_count(mp: &MultiPolygon<f64>) -> usize {
-    mp.iter()
-        .map(|p| p.exterior().0.len() + p.interiors().iter().map(|r| r.0.len()).sum::<usize>())
-        .sum()
 }
 
 impl State {
@@ -177,9 +136,11 @@ impl State {
             current: None,
             component: None,
             pin: None,
+            attributes_entry: Some(0),
+            linear_entry: Some(0),
             region: None,
             step: None,
-            objects: Vec::new(),
+            layer: Layer::default(),
             vertices: 0,
             generator: None,
             warnings: Vec::new(),
@@ -240,8 +201,8 @@ impl State {
     }
 
     /// The flash transform of the current `%LM`, `%LR`, `%LS` (mirror, then rotate, then
-    /// scale, about the flash point), placed at `at`.
-    fn flash_transform(&self, at: Point) -> Affine {
+    /// scale, about the flash point): the linear part of its [`Affine`].
+    fn flash_transform(&self) -> [f64; 4] {
         let (mx, my) = match self.mirroring {
             Mirroring::None => (1.0, 1.0),
             Mirroring::X => (-1.0, 1.0),
@@ -250,13 +211,24 @@ impl State {
         };
         let (s, c) = self.rotation_deg.to_radians().sin_cos();
         let k = self.scaling;
-        Affine {
-            m: [k * c * mx, -k * s * my, k * s * mx, k * c * my],
-            t: at,
+        [k * c * mx, -k * s * my, k * s * mx, k * c * my]
+    }
+
+    /// The entry of `layer.linears` for the current flash transform.
+    fn linear(&mut self) -> u32 {
+        match self.linear_entry {
+            Some(e) => e,
+            None => {
+                let e = self.layer.linears.len() as u32;
+                let m = self.flash_transform();
+                self.layer.linears.push(m);
+                self.linear_entry = Some(e);
+                e
+            }
         }
     }
 
-    fn aperture(&self) -> Result<&ApertureShape, GerberError> {
+    fn aperture(&self) -> Result<&Arc<ApertureShape>, GerberError> {
         let code = self
             .current
             .ok_or_else(|| err(self.line, "no aperture selected"))?;
@@ -268,39 +240,70 @@ impl State {
             })
     }
 
-    fn push(
-        &mut self,
-        shape: MultiPolygon<f64>,
-        exact: Option<Outline>,
-        class: String,
-    ) -> Result<(), GerberError> {
-        if shape.0.is_empty() {
-            return Ok(());
-        }
-        self.vertices += vertex_count(&shape);
+    /// Counts `n` more polygon vertices held by the layer.
+    fn count_vertices(&mut self, n: usize, line: usize) -> Result<(), GerberError> {
+        self.vertices = self.vertices.saturating_add(n);
         if self.vertices > MAX_VERTICES {
             return Err(GerberError::TooComplex {
-                line: self.line,
+                line,
                 limit: MAX_VERTICES,
             });
         }
-        if self.objects.len() >= MAX_OBJECTS {
+        Ok(())
+    }
+
+    /// The vertices an object adds to the layer: a plain flash none (its pad is its exact
+    /// outline, its polygon is made only where the merging needs it), any other flash its
+    /// aperture's polygon (its pad will hold it), a stroke or region its polygon.
+    fn held_vertices(o: &Object) -> usize {
+        match &o.geom {
+            Geom::Flash { ap, .. } if ap.exact().is_some() => 0,
+            Geom::Flash { ap, .. } => vertex_count(&ap.polygon()),
+            Geom::Line { ap, a, b } => vertex_count(&line_shape(ap, *a, *b)),
+            Geom::Drawn { shape, .. } => shape.vertices(),
+            Geom::Done => 0,
+        }
+    }
+
+    /// Adds an object with the current polarity and attributes.
+    fn push(&mut self, geom: Geom) -> Result<(), GerberError> {
+        if self.layer.objects.len() >= MAX_OBJECTS {
             return Err(GerberError::TooManyObjects {
                 line: self.line,
                 limit: MAX_OBJECTS,
             });
         }
-        let bbox = bbox_of(&shape);
-        self.objects.push(Object {
-            dark: self.dark,
-            shape,
-            exact,
-            class,
-            component: self.component.clone(),
-            pin: self.pin.clone(),
+        let attributes = match self.attributes_entry {
+            Some(e) => e,
+            None => {
+                let e = self.layer.attributes.len() as u32;
+                self.layer
+                    .attributes
+                    .push((self.component.clone(), self.pin.clone()));
+                self.attributes_entry = Some(e);
+                e
+            }
+        };
+        let bbox = match &geom {
+            Geom::Drawn { shape, .. } => shape.bbox(),
+            Geom::Flash { .. } | Geom::Line { .. } | Geom::Done => [0.0; 4],
+        };
+        self.layer.objects.push(Object {
+            geom,
             bbox,
+            dark: self.dark,
+            attributes,
+            copy: 0,
         });
-        Ok(())
+        let i = self.layer.objects.len() - 1;
+        if matches!(
+            self.layer.objects[i].geom,
+            Geom::Flash { .. } | Geom::Line { .. }
+        ) {
+            self.layer.objects[i].bbox = bbox_of(&self.layer.shape(i));
+        }
+        let n = Self::held_vertices(&self.layer.objects[i]);
+        self.count_vertices(n, self.line)
     }
 
     fn command(&mut self, cmd: &Command) -> Result<(), GerberError> {
@@ -400,13 +403,14 @@ impl State {
 
     fn object_attribute(&mut self, oa: &ObjectAttribute) {
         match oa {
-            ObjectAttribute::Component(c) => self.component = Some(c.clone()),
+            ObjectAttribute::Component(c) => self.component = Some(Arc::from(c.as_str())),
             ObjectAttribute::Pin(p) => {
-                self.component = Some(p.refdes.clone());
-                self.pin = Some(p.name.clone());
+                self.component = Some(Arc::from(p.refdes.as_str()));
+                self.pin = Some(Arc::from(p.name.as_str()));
             }
-            _ => {}
+            _ => return,
         }
+        self.attributes_entry = None;
     }
 
     fn delete_attribute(&mut self, d: &AttributeDeletionCriterion) {
@@ -420,8 +424,9 @@ impl State {
                 ".P" | "P" => self.pin = None,
                 _ => {}
             },
-            AttributeDeletionCriterion::SingleApertureAttribute(_) => {}
+            AttributeDeletionCriterion::SingleApertureAttribute(_) => return,
         }
+        self.attributes_entry = None;
     }
 
     fn extended(&mut self, x: &ExtendedCode) -> Result<(), GerberError> {
@@ -434,16 +439,29 @@ impl State {
                 self.macros.insert(m.name.clone(), m.clone());
             }
             ExtendedCode::ApertureDefinition(d) => {
+                if self.apertures.contains_key(&d.code) {
+                    return Err(err(
+                        self.line,
+                        format!("aperture D{} is defined twice", d.code),
+                    ));
+                }
                 let shape = self.define(&d.aperture)?;
-                self.apertures.insert(d.code, shape);
+                if let ApertureShape::Macro(m) = &shape {
+                    self.count_vertices(vertex_count(&m.shape), self.line)?;
+                }
+                self.apertures.insert(d.code, Arc::new(shape));
             }
             ExtendedCode::LoadPolarity(p) => self.dark = *p == Polarity::Dark,
-            ExtendedCode::LoadMirroring(m) => self.mirroring = *m,
+            ExtendedCode::LoadMirroring(m) => {
+                self.mirroring = *m;
+                self.linear_entry = None;
+            }
             ExtendedCode::LoadRotation(r) => {
                 if !r.rotation.is_finite() {
                     return Err(err(self.line, "rotation is not a number"));
                 }
                 self.rotation_deg = r.rotation;
+                self.linear_entry = None;
             }
             ExtendedCode::LoadScaling(s) => {
                 if !(s.scale.is_finite() && s.scale > 0.0 && s.scale < 1e6) {
@@ -453,6 +471,7 @@ impl State {
                     });
                 }
                 self.scaling = s.scale;
+                self.linear_entry = None;
             }
             ExtendedCode::StepAndRepeat(sr) => self.step_repeat(sr)?,
             ExtendedCode::ApertureBlock(ApertureBlock::Open { .. }) => {
@@ -530,16 +549,17 @@ impl State {
                 ny: repeat_y,
                 dx,
                 dy,
-                first: self.objects.len(),
+                first: self.layer.objects.len(),
                 line: self.line,
             });
         }
         Ok(())
     }
 
-    /// Replicates the objects of a closed `%SR` block.
+    /// Replicates the objects of a closed `%SR` block: the copies share the block's
+    /// apertures and polygons, each with its offset.
     fn expand(&mut self, sr: StepRepeat) -> Result<(), GerberError> {
-        let block: Vec<Object> = self.objects[sr.first..].to_vec();
+        let block: Vec<Object> = self.layer.objects[sr.first..].to_vec();
         let copies = (sr.nx as usize) * (sr.ny as usize);
         let total = sr.first + block.len() * copies;
         if total > MAX_OBJECTS {
@@ -548,39 +568,29 @@ impl State {
                 limit: MAX_OBJECTS,
             });
         }
-        let verts: usize = block.iter().map(|o| vertex_count(&o.shape)).sum();
-        self.vertices += verts * copies.saturating_sub(1);
-        if self.vertices > MAX_VERTICES {
-            return Err(GerberError::TooComplex {
-                line: sr.line,
-                limit: MAX_VERTICES,
-            });
-        }
-        self.objects.truncate(sr.first);
+        let verts: usize = block.iter().map(Self::held_vertices).sum();
+        self.count_vertices(verts.saturating_mul(copies.saturating_sub(1)), sr.line)?;
+        self.layer.objects.truncate(sr.first);
+        self.layer.objects.reserve(block.len() * copies);
         for j in 0..sr.ny {
             for i in 0..sr.nx {
                 let t = [f64::from(i) * sr.dx, f64::from(j) * sr.dy];
+                let copy = if i != 0 || j != 0 {
+                    self.layer.shifts.push(t);
+                    (self.layer.shifts.len() - 1) as u32
+                } else {
+                    0
+                };
                 for o in &block {
-                    let f = Affine {
-                        m: [1.0, 0.0, 0.0, 1.0],
-                        t,
-                    };
                     let mut c = o.clone();
-                    if i != 0 || j != 0 {
-                        c.shape = map_multi(&o.shape, &f);
+                    if copy != 0 {
+                        c.copy = copy;
                         c.bbox = [
                             o.bbox[0] + t[0],
                             o.bbox[1] + t[1],
                             o.bbox[2] + t[0],
                             o.bbox[3] + t[1],
                         ];
-                        c.exact = o.exact.as_ref().map(|e| {
-                            e.transformed(&crate::inspection::pads::Rigid {
-                                rotation_rad: 0.0,
-                                tx: t[0],
-                                ty: t[1],
-                            })
-                        });
                         if c.bbox.iter().any(|v| v.abs() > MAX_COORD_MM) {
                             return Err(GerberError::OutOfRange {
                                 line: sr.line,
@@ -588,7 +598,7 @@ impl State {
                             });
                         }
                     }
-                    self.objects.push(c);
+                    self.layer.objects.push(c);
                 }
             }
         }
@@ -600,9 +610,9 @@ impl State {
         // The round hole of a standard aperture: it must lie inside the aperture (`inside`
         // is the diameter of the largest centred disc the aperture holds), else the file
         // describes no shape and is refused.
-        let hole = |h: Option<f64>, inside: f64| -> Result<Vec<Vec<Point>>, GerberError> {
+        let hole = |h: Option<f64>, inside: f64| -> Result<f64, GerberError> {
             let Some(d) = h else {
-                return Ok(vec![]);
+                return Ok(0.0);
             };
             let mm = self.length(d, "hole")?;
             if mm < 0.0 {
@@ -612,7 +622,7 @@ impl State {
                 });
             }
             if mm == 0.0 {
-                return Ok(vec![]);
+                return Ok(0.0);
             }
             if mm >= inside {
                 return Err(err(
@@ -623,7 +633,7 @@ impl State {
                     ),
                 ));
             }
-            Ok(vec![circle_points([0.0, 0.0], mm)])
+            Ok(mm)
         };
         let positive = |v: f64, what: &str| -> Result<f64, GerberError> {
             let mm = self.length(v, what)?;
@@ -638,48 +648,17 @@ impl State {
         Ok(match ap {
             Aperture::Circle(c) => {
                 let d = positive(c.diameter, "diameter")?;
-                let holes = hole(c.hole_diameter, d)?;
-                let exact = holes.is_empty().then_some(Exact::Circle { d });
-                let shape = if d > 0.0 {
-                    MultiPolygon::new(vec![polygon(&circle_points([0.0, 0.0], d), &holes)])
-                } else {
-                    MultiPolygon::new(vec![])
-                };
-                ApertureShape {
-                    shape,
-                    exact: if d > 0.0 { exact } else { None },
-                    class: format!("C {}", num(d)),
-                    stroke: Stroke::Circle(d),
-                }
+                let hole = hole(c.hole_diameter, d)?;
+                ApertureShape::Circle { d, hole }
             }
             Aperture::Rectangle(r) | Aperture::Obround(r) => {
                 let (w, h) = (positive(r.x, "width")?, positive(r.y, "height")?);
-                let obround = matches!(ap, Aperture::Obround(_));
-                let radius = if obround { w.min(h) / 2.0 } else { 0.0 };
-                let holes = hole(r.hole_diameter, w.min(h))?;
-                let exact = (holes.is_empty() && w > 0.0 && h > 0.0).then_some(Exact::RoundRect {
+                let hole = hole(r.hole_diameter, w.min(h))?;
+                ApertureShape::Rect {
                     w,
                     h,
-                    r: radius,
-                    rot: 0.0,
-                });
-                let shape = if w > 0.0 && h > 0.0 {
-                    MultiPolygon::new(vec![polygon(
-                        &round_rect_points([0.0, 0.0], w, h, radius, 0.0),
-                        &holes,
-                    )])
-                } else {
-                    MultiPolygon::new(vec![])
-                };
-                ApertureShape {
-                    shape,
-                    exact,
-                    class: format!("{} {}x{}", if obround { "O" } else { "R" }, num(w), num(h)),
-                    stroke: if obround {
-                        Stroke::None
-                    } else {
-                        Stroke::Rect(w, h)
-                    },
+                    obround: matches!(ap, Aperture::Obround(_)),
+                    hole,
                 }
             }
             Aperture::Polygon(p) => {
@@ -700,17 +679,11 @@ impl State {
                 }
                 // The inscribed circle: the largest hole the polygon holds.
                 let inside = d * (std::f64::consts::PI / f64::from(n)).cos();
-                let pts: Vec<Point> = (0..n)
-                    .map(|i| {
-                        let a = (rot + 360.0 * f64::from(i) / f64::from(n)).to_radians();
-                        [d / 2.0 * a.cos(), d / 2.0 * a.sin()]
-                    })
-                    .collect();
-                ApertureShape {
-                    shape: MultiPolygon::new(vec![polygon(&pts, &hole(p.hole_diameter, inside)?)]),
-                    exact: None,
-                    class: format!("P {} n{n}", num(d)),
-                    stroke: Stroke::None,
+                ApertureShape::Regular {
+                    d,
+                    n: u32::from(n),
+                    rot,
+                    hole: hole(p.hole_diameter, inside)?,
                 }
             }
             Aperture::Macro(name, params) => self.define_macro(name, params.as_deref())?,
@@ -948,12 +921,11 @@ impl State {
             Some(Exact::Circle { d }) => format!("{name} {}", num(d)),
             None => name.to_string(),
         };
-        Ok(ApertureShape {
+        Ok(ApertureShape::Macro(Box::new(MacroShape {
             shape,
             exact,
             class,
-            stroke: Stroke::None,
-        })
+        })))
     }
 
     fn operation(&mut self, op: &Operation) -> Result<(), GerberError> {
@@ -1021,17 +993,44 @@ impl State {
     }
 
     fn flash(&mut self, at: Point) -> Result<(), GerberError> {
-        let f = self.flash_transform(at);
-        let ap = self.aperture()?;
-        let shape = map_multi(&ap.shape, &f);
-        let exact = ap.exact.map(|e| e.placed(at, &f));
-        let class = ap.class.clone();
-        self.push(shape, exact, class)
+        let ap = Arc::clone(self.aperture()?);
+        if ap.is_empty() {
+            return Ok(());
+        }
+        let linear = self.linear();
+        self.push(Geom::Flash { ap, at, linear })
     }
 
     fn stroke(&mut self, start: Point, path: &[Point]) -> Result<(), GerberError> {
-        let ap = self.aperture()?;
-        let (class, stroke) = (format!("stroke {}", ap.class), ap.stroke);
+        let ap = Arc::clone(self.aperture()?);
+        let stroke = ap.stroke();
+        // What the pieces will hold before their union, checked before any is made: an
+        // absurd aperture swept along a long arc (a 9 m disc along 4096 chords) is refused
+        // here, not after gigabytes.
+        let per_piece = match stroke {
+            Stroke::Circle(d) if d > 0.0 => {
+                2 * (arc_segments(d / 2.0, std::f64::consts::PI).max(4) + 1)
+            }
+            _ => 8,
+        };
+        let pieces_vertices = per_piece.saturating_mul(path.len());
+        if pieces_vertices > MAX_STROKE_VERTICES {
+            return Err(GerberError::StrokeTooComplex {
+                line: self.line,
+                aperture: ap.class(),
+                vertices: pieces_vertices,
+                limit: MAX_STROKE_VERTICES,
+            });
+        }
+        if let ([b], Stroke::Circle(_) | Stroke::Rect(..)) = (path, stroke) {
+            // A straight stroke: its polygon is made where it is needed.
+            if matches!(stroke, Stroke::Circle(d) if d <= 0.0) {
+                self.zero_strokes += 1;
+                return Ok(());
+            }
+            let b = *b;
+            return self.push(Geom::Line { ap, a: start, b });
+        }
         let mut pieces = Vec::with_capacity(path.len());
         let mut a = start;
         for &b in path {
@@ -1045,7 +1044,10 @@ impl State {
                 Stroke::None => {
                     return Err(unsupported(
                         self.line,
-                        format!("drawing (D01) with aperture {class:?}: only C and R may draw"),
+                        format!(
+                            "drawing (D01) with aperture {:?}: only C and R may draw",
+                            ap.class()
+                        ),
                     ))
                 }
             };
@@ -1057,7 +1059,13 @@ impl State {
         } else {
             union_all(&pieces)
         };
-        self.push(shape, None, class)
+        if shape.0.is_empty() {
+            return Ok(());
+        }
+        self.push(Geom::Drawn {
+            shape: Flat::new(&shape),
+            class: Class::Stroke(ap),
+        })
     }
 
     fn region_objects(&mut self, region: Region) -> Result<(), GerberError> {
@@ -1083,7 +1091,10 @@ impl State {
                 self.degenerate_contours += 1;
                 continue;
             }
-            self.push(shape, None, "region".into())?;
+            self.push(Geom::Drawn {
+                shape: Flat::new(&shape),
+                class: Class::Region,
+            })?;
         }
         self.line = line;
         Ok(())
@@ -1113,16 +1124,39 @@ fn single_quadrant_centre(start: Point, end: Point, i: f64, j: f64, cw: bool) ->
     best.0
 }
 
-/// Runs the parser's commands through the graphics state.
-pub(super) fn interpret(lexed: &Lexed, commands: &[Command]) -> Result<Interpreted, GerberError> {
-    let mut st = State::new();
-    st.warnings.extend(lexed.warnings.iter().cloned());
-    for cmd in commands {
-        st.command(cmd)?;
-        if st.ended {
-            break;
-        }
+/// The graphics state fed with the parser's commands a chunk at a time.
+pub(super) struct Interpreter {
+    st: State,
+}
+
+impl Interpreter {
+    pub fn new() -> Interpreter {
+        Interpreter { st: State::new() }
     }
+
+    /// Runs a chunk of commands (those after `M02` are ignored).
+    pub fn feed(&mut self, commands: &[Command]) -> Result<(), GerberError> {
+        for cmd in commands {
+            if self.st.ended {
+                break;
+            }
+            self.st.command(cmd)?;
+        }
+        Ok(())
+    }
+
+    /// Notes a warning of the pre-processing.
+    pub fn warn(&mut self, warnings: impl IntoIterator<Item = String>) {
+        self.st.warnings.extend(warnings);
+    }
+
+    /// The end of the file: open blocks, the end-of-file statement, the warnings.
+    pub fn finish(self) -> Result<Interpreted, GerberError> {
+        finish(self.st)
+    }
+}
+
+fn finish(mut st: State) -> Result<Interpreted, GerberError> {
     if let Some(region) = &st.region {
         return Err(GerberError::UnclosedRegion { line: region.line });
     }
@@ -1166,7 +1200,7 @@ pub(super) fn interpret(lexed: &Lexed, commands: &[Command]) -> Result<Interpret
         ));
     }
     Ok(Interpreted {
-        objects: st.objects,
+        layer: st.layer,
         units: st.units.unwrap_or("mm"),
         generator: st.generator,
         warnings: st.warnings,

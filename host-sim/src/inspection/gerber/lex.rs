@@ -30,28 +30,6 @@ struct Statement {
     text: String,
 }
 
-/// The pre-processed text and what the parser cannot be told.
-#[derive(Debug)]
-pub(super) struct Lexed {
-    /// Statements, one per line, each after a `G04 dpsa:line:N*` marker.
-    pub text: String,
-    /// Original line of every line of `text` (index 0 = line 1 of `text`).
-    pub line_map: Vec<usize>,
-    /// Whether the text ended inside an unterminated statement (no closing `*` or `%`).
-    pub warnings: Vec<String>,
-}
-
-impl Lexed {
-    /// The original line of a line of the pre-processed text (1-based in, 1-based out).
-    pub fn original_line(&self, pre_line: usize) -> usize {
-        pre_line
-            .checked_sub(1)
-            .and_then(|i| self.line_map.get(i))
-            .copied()
-            .unwrap_or(0)
-    }
-}
-
 fn syntax(line: usize, message: impl Into<String>) -> GerberError {
     GerberError::Syntax {
         line,
@@ -65,22 +43,65 @@ fn is_text(c: char) -> bool {
     !c.is_control() || matches!(c, '\n' | '\r' | '\t')
 }
 
-/// Splits `text` into statements. Errors on binary data and on a `%` block left open.
-fn statements(text: &str, latin1: bool) -> Result<(Vec<Statement>, Vec<String>), GerberError> {
-    let mut out = Vec::new();
-    let mut warnings = Vec::new();
-    let mut line = 1usize;
-    let mut word = String::new();
-    let mut word_line = 1usize;
-    // Inside `%...%`: the block's words so far and the line it opened on.
-    let mut block: Option<(Vec<(usize, String)>, usize)> = None;
-    for c in text.chars() {
+/// Splits a text into statements, one at a time (the whole file is never held as statements).
+/// Errors on binary data and on a `%` block left open.
+struct Splitter<'a> {
+    chars: std::str::Chars<'a>,
+    latin1: bool,
+    line: usize,
+    word: String,
+    word_line: usize,
+    /// Inside `%...%`: the block's words so far and the line it opened on.
+    block: Option<(Vec<(usize, String)>, usize)>,
+    /// Statements of a block already split, handed out first.
+    pending: std::collections::VecDeque<Statement>,
+    warnings: Vec<String>,
+    ended: bool,
+}
+
+impl<'a> Splitter<'a> {
+    fn new(text: &'a str, latin1: bool) -> Splitter<'a> {
+        Splitter {
+            chars: text.chars(),
+            latin1,
+            line: 1,
+            word: String::new(),
+            word_line: 1,
+            block: None,
+            pending: Default::default(),
+            warnings: Vec::new(),
+            ended: false,
+        }
+    }
+
+    /// The next statement, `None` at the end of the text.
+    fn next(&mut self) -> Result<Option<Statement>, GerberError> {
+        loop {
+            if let Some(st) = self.pending.pop_front() {
+                return Ok(Some(st));
+            }
+            if self.ended {
+                return Ok(None);
+            }
+            let Some(c) = self.chars.next() else {
+                self.finish()?;
+                continue;
+            };
+            if let Some(st) = self.char(c)? {
+                return Ok(Some(st));
+            }
+        }
+    }
+
+    fn char(&mut self, c: char) -> Result<Option<Statement>, GerberError> {
+        let line = self.line;
         if !is_text(c) {
             return Err(GerberError::Binary { line });
         }
-        if latin1 && !c.is_ascii() {
+        if self.latin1 && !c.is_ascii() {
             // Text that is not UTF-8 may have Latin-1 only in comments and attributes.
-            let free = match &block {
+            let word = &self.word;
+            let free = match &self.block {
                 Some((words, _)) => {
                     words.first().is_some_and(|(_, w)| w.starts_with("AM"))
                         || ["TF", "TA", "TO", "TD", "IN", "AM"]
@@ -95,90 +116,112 @@ fn statements(text: &str, latin1: bool) -> Result<(Vec<Statement>, Vec<String>),
         }
         match c {
             '\n' => {
-                line += 1;
-                continue;
+                self.line += 1;
+                return Ok(None);
             }
-            '\r' | '\t' => continue,
+            '\r' | '\t' => return Ok(None),
             _ => {}
         }
-        if word.is_empty() && c != '%' && c.is_whitespace() {
+        if self.word.is_empty() && c != '%' && c.is_whitespace() {
             // Blanks between statements.
-            continue;
+            return Ok(None);
         }
         match c {
             // A comment runs to its `*`: Eagle 9 writes its X2 attributes as
             // `G04 #@! %TF.Part,Single*`, with the attribute's `%` inside the comment.
-            '%' if block.is_none() && word.trim_start().starts_with("G04") => word.push(c),
+            '%' if self.block.is_none() && self.word.trim_start().starts_with("G04") => {
+                self.word.push(c)
+            }
             '%' => {
-                let w = std::mem::take(&mut word);
-                match block.take() {
+                let w = std::mem::take(&mut self.word);
+                match self.block.take() {
                     None => {
                         if !w.trim().is_empty() {
                             return Err(syntax(
-                                word_line,
+                                self.word_line,
                                 format!("{:?} is not terminated by '*'", w.trim()),
                             ));
                         }
-                        block = Some((Vec::new(), line));
+                        self.block = Some((Vec::new(), line));
                     }
                     Some((words, start)) => {
                         if !w.trim().is_empty() {
                             return Err(syntax(
-                                word_line,
+                                self.word_line,
                                 format!("{:?} is not terminated by '*' before '%'", w.trim()),
                             ));
                         }
-                        push_block(&mut out, words, start)?;
+                        push_block(&mut self.pending, words, start)?;
                     }
                 }
             }
             '*' => {
-                let w = std::mem::take(&mut word);
+                let w = std::mem::take(&mut self.word);
                 let w = w.trim().to_string();
-                match &mut block {
-                    Some((words, _)) => words.push((word_line, w)),
+                match &mut self.block {
+                    Some((words, _)) => {
+                        // A block's words are held until its `%`: a block that never
+                        // closes is refused before it holds the whole file.
+                        if words.len() >= MAX_BLOCK_WORDS {
+                            return Err(syntax(
+                                self.block.as_ref().map_or(line, |b| b.1),
+                                format!("a %...% block of more than {MAX_BLOCK_WORDS} words"),
+                            ));
+                        }
+                        words.push((self.word_line, w))
+                    }
                     None => {
                         if !w.is_empty() {
-                            out.push(Statement {
-                                line: word_line,
+                            return Ok(Some(Statement {
+                                line: self.word_line,
                                 text: w,
-                            })
+                            }));
                         }
                     }
                 }
             }
             _ => {
-                if word.is_empty() {
-                    word_line = line;
+                if self.word.is_empty() {
+                    self.word_line = line;
                 }
-                word.push(c);
+                self.word.push(c);
             }
         }
+        Ok(None)
     }
-    if let Some((words, start)) = block {
-        let what = words
-            .first()
-            .map(|(_, w)| w.chars().take(2).collect::<String>())
-            .unwrap_or_default();
-        return Err(if what == "AM" {
-            GerberError::UnterminatedMacro { line: start }
-        } else {
-            syntax(start, "extended command '%' is never closed")
-        });
+
+    /// The end of the text: an open block is an error, text after the last `*` a warning.
+    fn finish(&mut self) -> Result<(), GerberError> {
+        self.ended = true;
+        if let Some((words, start)) = self.block.take() {
+            let what = words
+                .first()
+                .map(|(_, w)| w.chars().take(2).collect::<String>())
+                .unwrap_or_default();
+            return Err(if what == "AM" {
+                GerberError::UnterminatedMacro { line: start }
+            } else {
+                syntax(start, "extended command '%' is never closed")
+            });
+        }
+        if !self.word.trim().is_empty() {
+            self.warnings.push(format!(
+                "line {}: text after the last statement ignored: {:?}",
+                self.word_line,
+                self.word.trim().chars().take(40).collect::<String>()
+            ));
+        }
+        Ok(())
     }
-    if !word.trim().is_empty() {
-        warnings.push(format!(
-            "line {word_line}: text after the last statement ignored: {:?}",
-            word.trim().chars().take(40).collect::<String>()
-        ));
-    }
-    Ok((out, warnings))
 }
+
+/// Most words in one `%...%` block (an aperture macro's primitives): far above any real macro.
+const MAX_BLOCK_WORDS: usize = 100_000;
 
 /// One `%...%` block: an aperture macro stays one multi-line block; any other block with
 /// several words becomes one block per word (`%FSLAX24Y24*MOIN*%`).
 fn push_block(
-    out: &mut Vec<Statement>,
+    out: &mut std::collections::VecDeque<Statement>,
     words: Vec<(usize, String)>,
     start: usize,
 ) -> Result<(), GerberError> {
@@ -200,7 +243,7 @@ fn push_block(
                 text.push('\n');
             }
         }
-        out.push(Statement { line: start, text });
+        out.push_back(Statement { line: start, text });
         return Ok(());
     }
     for (line, w) in words {
@@ -222,7 +265,7 @@ fn push_block(
                 format!("%{w}*%: input code {code:?} is not supported (only ICAS, ASCII)"),
             ));
         }
-        out.push(Statement {
+        out.push_back(Statement {
             line,
             text: format!("%{w}*%"),
         });
@@ -514,63 +557,131 @@ fn check_transform(line: usize, s: &str) -> Result<(), GerberError> {
     }
 }
 
-/// Pre-processes a whole file. Errors on binary data, an unterminated `%` block (an aperture
-/// macro or another extended command) and statements the parser cannot be given safely.
-pub(super) fn lex(text: &str) -> Result<Lexed, GerberError> {
-    lex_text(text, false)
+/// The pre-processing of one text, a chunk of statements at a time: the parser and the
+/// interpreter never hold more than one chunk's commands, whatever the size of the file.
+pub(super) struct Lexer<'a> {
+    split: Splitter<'a>,
+    rw: Rewriter,
+    /// The first `%FS` statement: repeated at the head of every later chunk (the parser
+    /// needs it for coordinates), with the units.
+    format: Option<String>,
+    /// Chunks handed out so far.
+    chunks: usize,
+    latin1_warned: bool,
 }
 
-/// [`lex`] of a text decoded as Latin-1 (the file is not UTF-8): non-ASCII characters are
-/// allowed only in comments and attributes, elsewhere they are binary data.
-pub(super) fn lex_latin1(text: &str) -> Result<Lexed, GerberError> {
-    lex_text(text, true)
+/// One chunk of the pre-processed text.
+#[derive(Debug)]
+pub(super) struct Lexed {
+    /// Statements, one per line, each after a `G04 dpsa:line:N*` marker.
+    pub text: String,
+    /// Original line of every line of `text` (index 0 = line 1 of `text`).
+    pub line_map: Vec<usize>,
+    /// The first `prelude` lines repeat the format and units of earlier chunks: the parser's
+    /// commands for them are not the file's.
+    pub prelude: usize,
+    /// What the pre-processing noticed (non-UTF-8 text, text after the last statement).
+    pub warnings: Vec<String>,
 }
 
-fn lex_text(text: &str, latin1: bool) -> Result<Lexed, GerberError> {
-    // A UTF-8 byte-order mark (some Windows exporters) is not part of the text.
-    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-    let (stmts, mut warnings) = statements(text, latin1)?;
-    if latin1 {
-        warnings.push(
-            "the file is not UTF-8: read as Latin-1 (non-ASCII characters only in comments)".into(),
-        );
+impl Lexed {
+    /// The original line of a line of the pre-processed text (1-based in, 1-based out).
+    pub fn original_line(&self, pre_line: usize) -> usize {
+        pre_line
+            .checked_sub(1)
+            .and_then(|i| self.line_map.get(i))
+            .copied()
+            .unwrap_or(0)
     }
-    let mut rw = Rewriter {
-        latin1,
-        ..Rewriter::default()
-    };
-    let mut out = String::with_capacity(text.len() + stmts.len() * 20);
-    let mut line_map = Vec::with_capacity(stmts.len() * 2);
-    for st in &stmts {
-        let Some(body) = rw.rewrite(st)? else {
-            continue;
-        };
-        // Words lost their '*' in splitting; the parser wants it back (extended blocks and
-        // macro lines end in '*' or '%' already).
-        let body = body
-            .split('\n')
-            .map(|w| {
-                if w.ends_with('*') || w.ends_with('%') {
-                    w.to_string()
-                } else {
-                    format!("{w}*")
-                }
-            })
-            .collect::<Vec<_>>()
-            .join("\n");
-        out.push_str(&format!("G04 {MARKER}line:{}*\n", st.line));
-        line_map.push(st.line);
-        for l in body.split('\n') {
-            out.push_str(l);
-            out.push('\n');
-            line_map.push(st.line);
+}
+
+impl<'a> Lexer<'a> {
+    /// A lexer of a text; `latin1`: the file was not UTF-8 and was decoded as Latin-1, so
+    /// non-ASCII characters are allowed only in comments and attributes (else binary data).
+    pub fn new(text: &'a str, latin1: bool) -> Lexer<'a> {
+        // A UTF-8 byte-order mark (some Windows exporters) is not part of the text.
+        let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+        Lexer {
+            split: Splitter::new(text, latin1),
+            rw: Rewriter {
+                latin1,
+                ..Rewriter::default()
+            },
+            format: None,
+            chunks: 0,
+            latin1_warned: false,
         }
     }
-    Ok(Lexed {
-        text: out,
-        line_map,
-        warnings,
-    })
+
+    /// The next chunk of at most `statements` statements (`None` after the last). Errors on
+    /// binary data, an unterminated `%` block (an aperture macro or another extended
+    /// command) and statements the parser cannot be given safely.
+    pub fn next_chunk(&mut self, statements: usize) -> Result<Option<Lexed>, GerberError> {
+        let mut out = String::new();
+        let mut line_map = Vec::new();
+        let mut prelude = 0;
+        if self.chunks > 0 {
+            let units = self.rw.units.as_ref().map(|u| format!("%MO{}*%", u.0));
+            for head in [self.format.clone(), units].into_iter().flatten() {
+                out.push_str(&head);
+                out.push('\n');
+                line_map.push(self.split.line);
+                prelude += 1;
+            }
+        }
+        let mut warnings = Vec::new();
+        if self.rw.latin1 && !self.latin1_warned {
+            self.latin1_warned = true;
+            warnings.push(
+                "the file is not UTF-8: read as Latin-1 (non-ASCII characters only in comments)"
+                    .into(),
+            );
+        }
+        let mut taken = 0;
+        while taken < statements {
+            let Some(st) = self.split.next()? else {
+                break;
+            };
+            taken += 1;
+            let Some(body) = self.rw.rewrite(&st)? else {
+                continue;
+            };
+            if self.format.is_none() && body.starts_with("%FS") {
+                self.format = Some(body.clone());
+            }
+            out.push_str(&format!("G04 {MARKER}line:{}*\n", st.line));
+            line_map.push(st.line);
+            // Words lost their '*' in splitting; the parser wants it back (extended blocks
+            // and macro lines end in '*' or '%' already).
+            for w in body.split('\n') {
+                out.push_str(w);
+                if !(w.ends_with('*') || w.ends_with('%')) {
+                    out.push('*');
+                }
+                out.push('\n');
+                line_map.push(st.line);
+            }
+        }
+        warnings.append(&mut self.split.warnings);
+        if taken == 0 && self.chunks > 0 {
+            return Ok(None);
+        }
+        self.chunks += 1;
+        Ok(Some(Lexed {
+            text: out,
+            line_map,
+            prelude,
+            warnings,
+        }))
+    }
+}
+
+/// Pre-processes a whole text as one chunk (tests).
+#[cfg(test)]
+pub(super) fn lex(text: &str) -> Result<Lexed, GerberError> {
+    Lexer::new(text, false)
+        .next_chunk(usize::MAX)
+        .map(|c| c.expect("the first chunk"))
 }
 
 #[cfg(test)]

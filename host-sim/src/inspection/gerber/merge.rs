@@ -5,10 +5,12 @@
 //! objects add, a clear object removes what was drawn before it) and every connected polygon
 //! of the result is one pad. A group of a single plain flash keeps its exact outline.
 
-use super::interp::Object;
+use super::object::{vertex_count, Geom, Layer};
 use super::shapes::{outline_of, union_all};
+use super::{GerberError, MAX_VERTICES};
 use crate::inspection::pads::Pad;
 use geo::{BooleanOps, Intersects, MultiPolygon, Polygon};
+use std::sync::Arc;
 
 /// Smallest pad kept, mm^2: boolean slivers below it are dropped (with a warning).
 const MIN_AREA_MM2: f64 = 1e-6;
@@ -49,24 +51,26 @@ fn boxes_meet(a: &[f64; 4], b: &[f64; 4]) -> bool {
 }
 
 /// The value all of `values` agree on, if they do.
-fn consensus<'a>(mut values: impl Iterator<Item = Option<&'a String>>) -> Option<String> {
+fn consensus<'a>(mut values: impl Iterator<Item = Option<&'a Arc<str>>>) -> Option<String> {
     let first = values.next()??;
-    values.all(|v| v == Some(first)).then(|| first.clone())
+    values.all(|v| v == Some(first)).then(|| first.to_string())
 }
 
 /// For each object, the first dark object of the file with the very same (non-empty) shape: copies
 /// (10^5 flashes on one point) are grouped at once and evaluated once.
-fn first_copies(objects: &[Object]) -> Vec<usize> {
+fn first_copies(layer: &Layer) -> Vec<usize> {
     use std::collections::HashMap;
     use std::hash::{Hash, Hasher};
+    let objects = &layer.objects;
     let mut first: HashMap<u64, usize> = HashMap::new();
     let mut rep: Vec<usize> = (0..objects.len()).collect();
     for (i, o) in objects.iter().enumerate() {
-        if o.shape.0.is_empty() {
+        let shape = layer.shape(i);
+        if shape.0.is_empty() {
             continue;
         }
         let mut h = std::collections::hash_map::DefaultHasher::new();
-        for c in o.shape.0.iter().flat_map(|p| {
+        for c in shape.0.iter().flat_map(|p| {
             std::iter::once(p.exterior())
                 .chain(p.interiors())
                 .flat_map(|r| {
@@ -82,7 +86,7 @@ fn first_copies(objects: &[Object]) -> Vec<usize> {
         // joins it as the pair test would (at least one of the two dark).
         match first.get(&h.finish()) {
             // A hash collision between different shapes only loses the shortcut.
-            Some(&j) if objects[j].shape == o.shape => rep[i] = j,
+            Some(&j) if *layer.shape(j) == *shape => rep[i] = j,
             Some(_) => {}
             None if o.dark => {
                 first.insert(h.finish(), i);
@@ -97,10 +101,11 @@ fn first_copies(objects: &[Object]) -> Vec<usize> {
 /// them dark. Copies join their first copy (identical non-empty shapes intersect); the other
 /// objects are found through an R-tree of their boxes, so a layer costs n log n plus the
 /// pairs whose boxes meet, not n^2 for objects sharing an x range.
-fn join_touching(objects: &[Object], rep: &[usize], groups: &mut Groups) {
+fn join_touching(layer: &Layer, rep: &[usize], groups: &mut Groups) {
     use rstar::primitives::{GeomWithData, Rectangle};
     use rstar::{RTree, AABB};
     const EPS: f64 = 1e-9;
+    let objects = &layer.objects;
     let finite = |b: &[f64; 4]| b.iter().all(|v| v.is_finite()) && b[0] <= b[2] && b[1] <= b[3];
     let mut leaves = Vec::new();
     for (i, o) in objects.iter().enumerate() {
@@ -121,87 +126,54 @@ fn join_touching(objects: &[Object], rep: &[usize], groups: &mut Groups) {
             continue;
         }
         let query = AABB::from_corners([b[0] - EPS, b[1] - EPS], [b[2] + EPS, b[3] + EPS]);
+        // The polygon of `i`, made once and only if a box meets its box.
+        let mut shape_i = None;
         for leaf in tree.locate_in_envelope_intersecting(&query) {
             let j = leaf.data;
             if j <= i || !(objects[i].dark || objects[j].dark) {
                 continue;
             }
-            if boxes_meet(&b, &objects[j].bbox)
-                && groups.find(i) != groups.find(j)
-                && objects[i].shape.intersects(&objects[j].shape)
-            {
-                groups.join(i, j);
+            if boxes_meet(&b, &objects[j].bbox) && groups.find(i) != groups.find(j) {
+                let si = shape_i.get_or_insert_with(|| layer.shape(i));
+                if si.intersects(&*layer.shape(j)) {
+                    groups.join(i, j);
+                }
             }
         }
     }
 }
 
-/// The pads of a layer's objects, in the order of the file.
-pub(super) fn pads(objects: &[Object], warnings: &mut Vec<String>) -> Vec<Pad> {
-    let n = objects.len();
-    let rep = first_copies(objects);
+/// The pads of a layer's objects, in the order of the file. Errors when the merged pads'
+/// outlines need more than [`MAX_VERTICES`] vertices. The layer's geometry is freed as its
+/// pads are made.
+pub(super) fn pads(mut layer: Layer, warnings: &mut Vec<String>) -> Result<Vec<Pad>, GerberError> {
+    let n = layer.objects.len();
+    let rep = first_copies(&layer);
     let mut groups = Groups::new(n);
-    join_touching(objects, &rep, &mut groups);
-    pads_of_groups(objects, &rep, groups, warnings)
+    join_touching(&layer, &rep, &mut groups);
+    pads_of_groups(&mut layer, &rep, groups, warnings)
 }
 
 fn pads_of_groups(
-    objects: &[Object],
+    layer: &mut Layer,
     rep: &[usize],
     mut groups: Groups,
     warnings: &mut Vec<String>,
-) -> Vec<Pad> {
-    let n = objects.len();
-    let mut members: Vec<Vec<usize>> = vec![Vec::new(); n];
-    for i in 0..n {
-        let r = groups.find(i);
-        members[r].push(i);
-    }
-    let mut pads = Vec::new();
+) -> Result<Vec<Pad>, GerberError> {
+    let n = layer.objects.len();
+    // The members of every group, in file order, groups in the order of their first member
+    // (a group's root is its first member): (root, member) pairs sorted.
+    let mut members: Vec<(usize, usize)> = (0..n).map(|i| (groups.find(i), i)).collect();
+    drop(groups);
+    members.sort_unstable();
+    let mut pads = Vec::with_capacity(members.iter().filter(|m| m.0 == m.1).count());
     let mut slivers = 0usize;
-    for group in members.iter().filter(|g| !g.is_empty()) {
-        let any_clear = group.iter().any(|&i| !objects[i].dark);
-        let darks: Vec<usize> = group.iter().copied().filter(|&i| objects[i].dark).collect();
-        if darks.is_empty() {
-            continue;
-        }
-        if let ([only], false) = (darks.as_slice(), any_clear) {
-            let o = &objects[*only];
-            if let Some(exact) = &o.exact {
-                pads.push(pad(exact.clone(), &[*only], objects));
-                continue;
-            }
-        }
-        let result = evaluate(group, objects, rep);
-        for poly in result.iter() {
-            let area = super::shapes::area(&MultiPolygon::new(vec![poly.clone()]));
-            if area < MIN_AREA_MM2 {
-                slivers += 1;
-                continue;
-            }
-            let pb = bbox(poly);
-            let mut meets: std::collections::HashMap<usize, bool> = Default::default();
-            let contributors: Vec<usize> = darks
-                .iter()
-                .copied()
-                .filter(|&i| {
-                    *meets.entry(rep[i]).or_insert_with(|| {
-                        let o = &objects[rep[i]];
-                        boxes_meet(&o.bbox, &pb) && o.shape.intersects(poly)
-                    })
-                })
-                .collect();
-            let contributors = if contributors.is_empty() {
-                darks.clone()
-            } else {
-                contributors
-            };
-            let first = &objects[contributors[0]];
-            let outline = match (&first.exact, contributors.len(), any_clear) {
-                (Some(e), 1, false) => e.clone(),
-                _ => outline_of(poly),
-            };
-            pads.push(pad(outline, &contributors, objects));
+    let mut vertices = 0usize;
+    for run in members.chunk_by(|a, b| a.0 == b.0) {
+        let group: Vec<usize> = run.iter().map(|m| m.1).collect();
+        group_pads(layer, rep, &group, &mut pads, &mut slivers, &mut vertices)?;
+        for &i in &group {
+            layer.objects[i].geom = Geom::Done;
         }
     }
     if slivers > 0 {
@@ -212,7 +184,68 @@ fn pads_of_groups(
     for (i, p) in pads.iter_mut().enumerate() {
         p.index = i;
     }
-    pads
+    Ok(pads)
+}
+
+/// The pads of one group (its members in file order).
+fn group_pads(
+    layer: &Layer,
+    rep: &[usize],
+    group: &[usize],
+    pads: &mut Vec<Pad>,
+    slivers: &mut usize,
+    vertices: &mut usize,
+) -> Result<(), GerberError> {
+    let objects = &layer.objects;
+    let any_clear = group.iter().any(|&i| !objects[i].dark);
+    let darks: Vec<usize> = group.iter().copied().filter(|&i| objects[i].dark).collect();
+    if darks.is_empty() {
+        return Ok(());
+    }
+    if let ([only], false) = (darks.as_slice(), any_clear) {
+        if let Some(exact) = layer.exact(*only) {
+            pads.push(pad(exact, &[*only], layer));
+            return Ok(());
+        }
+    }
+    let result = evaluate(group, layer, rep)?;
+    *vertices = vertices.saturating_add(vertex_count(&result));
+    if *vertices > MAX_VERTICES {
+        return Err(GerberError::TooComplex {
+            line: 0,
+            limit: MAX_VERTICES,
+        });
+    }
+    for poly in result.iter() {
+        let area = super::shapes::area(&MultiPolygon::new(vec![poly.clone()]));
+        if area < MIN_AREA_MM2 {
+            *slivers += 1;
+            continue;
+        }
+        let pb = bbox(poly);
+        let mut meets: std::collections::HashMap<usize, bool> = Default::default();
+        let contributors: Vec<usize> = darks
+            .iter()
+            .copied()
+            .filter(|&i| {
+                *meets.entry(rep[i]).or_insert_with(|| {
+                    let o = &objects[rep[i]];
+                    boxes_meet(&o.bbox, &pb) && layer.shape(rep[i]).intersects(poly)
+                })
+            })
+            .collect();
+        let contributors = if contributors.is_empty() {
+            darks.clone()
+        } else {
+            contributors
+        };
+        let outline = match (layer.exact(contributors[0]), contributors.len(), any_clear) {
+            (Some(e), 1, false) => e,
+            _ => outline_of(poly),
+        };
+        pads.push(pad(outline, &contributors, layer));
+    }
+    Ok(())
 }
 
 fn bbox(p: &Polygon<f64>) -> [f64; 4] {
@@ -228,18 +261,21 @@ fn bbox(p: &Polygon<f64>) -> [f64; 4] {
     b
 }
 
-fn pad(
-    outline: crate::inspection::pads::Outline,
-    contributors: &[usize],
-    objects: &[Object],
-) -> Pad {
-    let of = || contributors.iter().map(|&i| &objects[i]);
-    let class = consensus(of().map(|o| Some(&o.class))).unwrap_or_else(|| "merged".into());
+fn pad(outline: crate::inspection::pads::Outline, contributors: &[usize], layer: &Layer) -> Pad {
+    let class = {
+        let mut classes = contributors.iter().map(|&i| layer.class(i));
+        let first = classes.next().unwrap_or_default();
+        if classes.all(|c| c == first) {
+            first
+        } else {
+            "merged".into()
+        }
+    };
     Pad {
         index: 0,
         outline,
-        component: consensus(of().map(|o| o.component.as_ref())),
-        pin: consensus(of().map(|o| o.pin.as_ref())),
+        component: consensus(contributors.iter().map(|&i| layer.component(i))),
+        pin: consensus(contributors.iter().map(|&i| layer.pin(i))),
         aperture: Some(class),
     }
 }
@@ -247,15 +283,29 @@ fn pad(
 /// The group's area in file order: runs of dark objects are unioned at once, a clear object
 /// is subtracted from everything before it.
 /// A copy of a dark object already in the run adds nothing (union is idempotent) and is skipped.
-fn evaluate(group: &[usize], objects: &[Object], rep: &[usize]) -> MultiPolygon<f64> {
+/// Errors when the run to union holds more than [`MAX_VERTICES`] vertices.
+fn evaluate(
+    group: &[usize],
+    layer: &Layer,
+    rep: &[usize],
+) -> Result<MultiPolygon<f64>, GerberError> {
     let mut acc = MultiPolygon::<f64>::new(vec![]);
     let mut run: Vec<Polygon<f64>> = Vec::new();
+    let mut run_vertices = 0usize;
     let mut in_run = std::collections::HashSet::new();
     for &i in group {
-        let o = &objects[i];
+        let o = &layer.objects[i];
         if o.dark {
             if in_run.insert(rep[i]) {
-                run.extend(o.shape.iter().cloned());
+                let shape = layer.shape(i).into_owned();
+                run_vertices = run_vertices.saturating_add(vertex_count(&shape));
+                if run_vertices > MAX_VERTICES {
+                    return Err(GerberError::TooComplex {
+                        line: 0,
+                        limit: MAX_VERTICES,
+                    });
+                }
+                run.extend(shape.0);
             }
         } else {
             in_run.clear();
@@ -263,29 +313,32 @@ fn evaluate(group: &[usize], objects: &[Object], rep: &[usize]) -> MultiPolygon<
                 run.append(&mut acc.0);
                 acc = union_all(&run);
                 run.clear();
+                run_vertices = 0;
             }
-            acc = acc.difference(&o.shape);
+            acc = acc.difference(&*layer.shape(i));
         }
     }
     if !run.is_empty() {
         run.append(&mut acc.0);
         acc = union_all(&run);
     }
-    acc
+    Ok(acc)
 }
 
 #[cfg(test)]
 mod tests {
+    use super::super::object::{Class, Flat, Geom, Object};
     use super::*;
     use geo::{Coord, LineString};
 
     /// The reference: every pair of objects tested, no copies shortcut, no index.
-    fn brute_groups(objects: &[Object]) -> Groups {
+    fn brute_groups(layer: &Layer) -> Groups {
+        let objects = &layer.objects;
         let mut groups = Groups::new(objects.len());
         for i in 0..objects.len() {
             for j in 0..i {
                 if (objects[i].dark || objects[j].dark)
-                    && objects[i].shape.intersects(&objects[j].shape)
+                    && layer.shape(i).intersects(&*layer.shape(j))
                 {
                     groups.join(i, j);
                 }
@@ -330,19 +383,20 @@ mod tests {
         }
         let ls = LineString::new(ring.iter().map(|p| Coord { x: p[0], y: p[1] }).collect());
         Object {
-            dark,
-            shape: MultiPolygon::new(vec![Polygon::new(ls, vec![])]),
-            exact: None,
-            class: class.into(),
-            component: None,
-            pin: None,
+            geom: Geom::Drawn {
+                shape: Flat::new(&MultiPolygon::new(vec![Polygon::new(ls, vec![])])),
+                class: Class::Named(class.into()),
+            },
             bbox: b,
+            dark,
+            attributes: 0,
+            copy: 0,
         }
     }
 
     /// Rectangles and octagons on a 0.25 mm grid (so edges and corners touch exactly), with
     /// copies of earlier objects, some of them clear.
-    fn layout(rng: &mut Rng, n: usize) -> Vec<Object> {
+    fn layout(rng: &mut Rng, n: usize) -> Layer {
         let mut objects: Vec<Object> = Vec::new();
         for _ in 0..n {
             let dark = rng.below(5) != 0;
@@ -371,7 +425,10 @@ mod tests {
             };
             objects.push(object(dark, ring, if dark { "D10" } else { "clear" }));
         }
-        objects
+        Layer {
+            objects,
+            ..Layer::default()
+        }
     }
 
     /// The indexed grouping (R-tree + copies) equals testing every pair, and so do the pads, on
@@ -391,9 +448,15 @@ mod tests {
 
             let mut w1 = Vec::new();
             let mut w2 = Vec::new();
-            let got = pads(&objects, &mut w1);
+            let brute = brute_groups(&objects);
+            let mut copy = Layer {
+                objects: objects.objects.clone(),
+                ..Layer::default()
+            };
+            let got = pads(objects, &mut w1).expect("within the limits");
             let identity: Vec<usize> = (0..n).collect();
-            let want = pads_of_groups(&objects, &identity, brute_groups(&objects), &mut w2);
+            let want =
+                pads_of_groups(&mut copy, &identity, brute, &mut w2).expect("within the limits");
             assert_eq!(got.len(), want.len(), "round {round}");
             assert_eq!(w1, w2, "round {round}");
             for (a, b) in got.iter().zip(&want) {
@@ -422,11 +485,14 @@ mod tests {
     #[test]
     fn copies_on_one_point_are_one_pad() {
         let square = vec![[0.0, 0.0], [0.5, 0.0], [0.5, 0.5], [0.0, 0.5], [0.0, 0.0]];
-        let objects: Vec<Object> = (0..10_000)
-            .map(|_| object(true, square.clone(), "R 0.50x0.50"))
-            .collect();
+        let objects = Layer {
+            objects: (0..10_000)
+                .map(|_| object(true, square.clone(), "R 0.50x0.50"))
+                .collect(),
+            ..Layer::default()
+        };
         let mut w = Vec::new();
-        let got = pads(&objects, &mut w);
+        let got = pads(objects, &mut w).expect("within the limits");
         assert_eq!(got.len(), 1);
         assert!((got[0].outline.area() - 0.25).abs() < 1e-12);
         assert_eq!(got[0].aperture.as_deref(), Some("R 0.50x0.50"));

@@ -6,19 +6,25 @@
 //! | --- | --- |
 //! | [`lex`] | size and character checks; one statement per line with its original line number; deprecated words translated |
 //! | `gerber_parser` (crate) | statements -> `gerber-types` commands |
-//! | [`interp`] | the graphics state: apertures, macros, flashes, strokes, regions, step and repeat, polarity, X2 object attributes -> objects in mm |
+//! | [`interp`] | the graphics state: apertures, macros, flashes, strokes, regions, step and repeat, polarity, X2 object attributes -> objects in mm ([`object`]) |
 //! | [`merge`] | objects -> pads: connected openings (union; clear objects cut), exact outlines for plain flashes |
+//!
+//! The first three run a chunk of [`CHUNK_STATEMENTS`] statements at a time, so the file is
+//! never held as statements or commands whole: what grows with the file is the objects
+//! (compact: a flash is its aperture and place, [`object`]) and then the pads.
 //!
 //! [`shapes`] holds the geometry (polygons within 1 um of the curves, macro expressions, the
 //! recognition of rounded rectangles built from macro primitives).
 //!
 //! Coordinates stay in the file's own frame, converted to mm. Bad input is a [`GerberError`]
 //! with the line it was found on, never a panic; memory and time are bounded by
-//! [`MAX_FILE_BYTES`], [`MAX_OBJECTS`] and [`MAX_VERTICES`].
+//! [`MAX_FILE_BYTES`], [`MAX_OBJECTS`], [`MAX_VERTICES`] and [`MAX_STROKE_VERTICES`]: within them
+//! a layer is read in at most 512 MB (`docs/inspection.md`, "At scale").
 
 mod interp;
 mod lex;
 mod merge;
+mod object;
 mod shapes;
 
 use super::pads::Pad;
@@ -30,8 +36,16 @@ use std::path::Path;
 pub const MAX_FILE_BYTES: u64 = 64 << 20;
 /// Most objects (flashes, strokes, region contours, after step and repeat) in one layer.
 pub const MAX_OBJECTS: usize = 1_000_000;
-/// Most polygon vertices of all objects together (about 0.5 GB of geometry).
-pub const MAX_VERTICES: usize = 30_000_000;
+/// Most polygon vertices the layer holds: those of its strokes, regions, aperture macros and
+/// flashes of apertures that are not a plain circle or rounded rectangle (step-and-repeat
+/// copies each count), and then those of its merged pads' outlines (128 MB of coordinates
+/// each). A plain flash counts none: its pad is its exact outline.
+pub const MAX_VERTICES: usize = 8_000_000;
+/// Most vertices of the pieces of one stroke before their union (an aperture swept along the
+/// chords of an arc).
+pub const MAX_STROKE_VERTICES: usize = 1_000_000;
+/// Statements pre-processed, parsed and interpreted at a time.
+pub const CHUNK_STATEMENTS: usize = 16_384;
 /// Largest coordinate or size, mm (10 m): beyond it a file is corrupt, not a board.
 pub const MAX_COORD_MM: f64 = 10_000.0;
 
@@ -69,6 +83,16 @@ pub enum GerberError {
     TooManyObjects { line: usize, limit: usize },
     #[error("line {line}: more than {limit} polygon vertices in the layer")]
     TooComplex { line: usize, limit: usize },
+    #[error(
+        "line {line}: this stroke of aperture {aperture} needs {vertices} polygon vertices, more \
+         than the {limit} one stroke may have (an aperture far too large for its path)"
+    )]
+    StrokeTooComplex {
+        line: usize,
+        aperture: String,
+        vertices: usize,
+        limit: usize,
+    },
     #[error("line {line}: not supported: {what}")]
     Unsupported { line: usize, what: String },
     #[error("line {line}: the file ends early: {what}")]
@@ -91,6 +115,7 @@ impl GerberError {
             | GerberError::OutOfRange { line, .. }
             | GerberError::TooManyObjects { line, .. }
             | GerberError::TooComplex { line, .. }
+            | GerberError::StrokeTooComplex { line, .. }
             | GerberError::Unsupported { line, .. }
             | GerberError::Truncated { line, .. } => *line,
         }
@@ -144,13 +169,25 @@ pub fn read_file(path: &Path) -> Result<PasteLayer, GerberError> {
             limit: MAX_FILE_BYTES,
         });
     }
+    read_bytes(bytes)
+}
+
+/// Reads a paste layer from the bytes of its file: UTF-8, or else Latin-1 (old exporters'
+/// comments), where non-ASCII characters outside comments and attributes are binary data.
+pub fn read_bytes(bytes: Vec<u8>) -> Result<PasteLayer, GerberError> {
+    if bytes.len() as u64 > MAX_FILE_BYTES {
+        return Err(GerberError::TooLarge {
+            bytes: bytes.len() as u64,
+            limit: MAX_FILE_BYTES,
+        });
+    }
     match String::from_utf8(bytes) {
-        Ok(text) => read_str(&text),
+        Ok(text) => read_text(text, false),
         Err(e) => {
             // Not UTF-8: Latin-1 (every byte one character), as old exporters wrote their
             // comments; the pre-pass refuses non-ASCII outside comments as binary data.
             let text: String = e.into_bytes().into_iter().map(char::from).collect();
-            read_lexed(&text, lex::lex_latin1(&text)?)
+            read_text(text, true)
         }
     }
 }
@@ -163,28 +200,49 @@ pub fn read_str(text: &str) -> Result<PasteLayer, GerberError> {
             limit: MAX_FILE_BYTES,
         });
     }
-    read_lexed(text, lex::lex(text)?)
+    let mut warnings = Vec::new();
+    let interpreted = interpret(text, false, &mut warnings)?;
+    layer_of(interpreted, warnings)
 }
 
-/// The rest of the reading after the pre-pass.
-fn read_lexed(text: &str, lexed: lex::Lexed) -> Result<PasteLayer, GerberError> {
-    if text.len() as u64 > MAX_FILE_BYTES {
-        return Err(GerberError::TooLarge {
-            bytes: text.len() as u64,
-            limit: MAX_FILE_BYTES,
-        });
-    }
+/// [`read_str`] of an owned text, dropped before the pads are made.
+fn read_text(text: String, latin1: bool) -> Result<PasteLayer, GerberError> {
     let mut warnings = Vec::new();
-    let commands = parse(&lexed, &mut warnings)?;
+    let interpreted = interpret(&text, latin1, &mut warnings)?;
+    drop(text);
+    layer_of(interpreted, warnings)
+}
+
+/// Pre-processing, parsing and interpretation, a chunk of statements at a time.
+fn interpret(
+    text: &str,
+    latin1: bool,
+    warnings: &mut Vec<String>,
+) -> Result<interp::Interpreted, GerberError> {
+    let mut lexer = lex::Lexer::new(text, latin1);
+    let mut state = interp::Interpreter::new();
+    while let Some(chunk) = lexer.next_chunk(CHUNK_STATEMENTS)? {
+        state.warn(chunk.warnings.iter().cloned());
+        let commands = parse(&chunk, warnings)?;
+        state.feed(&commands)?;
+    }
+    state.finish()
+}
+
+/// The pads of the interpreted objects.
+fn layer_of(
+    interpreted: interp::Interpreted,
+    mut warnings: Vec<String>,
+) -> Result<PasteLayer, GerberError> {
     let interp::Interpreted {
-        objects,
+        layer,
         units,
         generator,
         warnings: w,
         complete,
-    } = interp::interpret(&lexed, &commands)?;
+    } = interpreted;
     warnings.extend(w);
-    let pads = merge::pads(&objects, &mut warnings);
+    let pads = merge::pads(layer, &mut warnings)?;
     let bbox_mm = if pads.is_empty() {
         warnings.push("the layer has no pads".into());
         [0.0; 4]
@@ -244,7 +302,23 @@ fn parse(
         }
     };
     let mut out = Vec::with_capacity(doc.commands.len());
-    for c in doc.commands {
+    let mut commands = doc.commands.into_iter();
+    // The chunk's head repeats the format and units of earlier chunks: not the file's.
+    for _ in 0..lexed.prelude {
+        use gerber_types::{Command, ExtendedCode};
+        match commands.next() {
+            Some(Ok(Command::ExtendedCode(
+                ExtendedCode::CoordinateFormat(_) | ExtendedCode::Unit(_),
+            ))) => {}
+            _ => {
+                return Err(GerberError::Syntax {
+                    line: lexed.original_line(1),
+                    message: "the parser did not take the format and units again".into(),
+                })
+            }
+        }
+    }
+    for c in commands {
         match c {
             Ok(cmd) => out.push(cmd),
             Err(e) => {
