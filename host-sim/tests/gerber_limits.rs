@@ -91,15 +91,29 @@ fn too_many_vertices_is_refused() {
 
 #[test]
 fn a_huge_aperture_stroked_along_an_arc_is_refused_at_once() {
-    // The load_gerber fuzz target's out-of-memory input (97 bytes; 1.2 GB and 12 s before):
-    // a 9,092 mm disc swept along the 4096 chords of an arc.
-    let text = "%FSLAX45Y46*%\n%MOMM*%\n%ADD10C,09092*%\nD10*\nG75*\nX0Y1D02*\nG01X100000002Y0D01*\nG03X100020Y0002000*\n";
+    // A 9 m disc swept along a half circle of 100 mm radius (the disc covers the centre, so
+    // the stroke is the union of a capsule per chord): over a million vertices, refused
+    // before any is made.
+    let text = "%FSLAX46Y46*%\n%MOMM*%\n%ADD10C,9000*%\nD10*\nG75*\nX0Y100000000D02*\nG03X0Y-100000000I0J-100000000D01*\nM02*\n";
     let e = within(10, move || read_str(text)).expect_err("too complex");
     assert!(
-        matches!(e, GerberError::StrokeTooComplex { line: 8, vertices, .. } if vertices > 1_000_000),
+        matches!(e, GerberError::StrokeTooComplex { line: 7, vertices, .. } if vertices > 200_000),
         "{e}"
     );
-    assert!(e.to_string().contains("C 9092"), "{e}");
+    assert!(e.to_string().contains("C 9000"), "{e}");
+    // The load_gerber fuzz target's out-of-memory input (97 bytes; 1.2 GB and 12 s before):
+    // a 9,092 mm disc along an "arc" from its own centre to a point 100 m away; and its
+    // timeout input (the same with a 92 mm disc, 1,111 capsules): not one circle.
+    for text in [
+        "%FSLAX45Y46*%\n%MOMM*%\n%ADD10C,09092*%\nD10*\nG75*\nX0Y1D02*\nG01X100000002Y0D01*\nG03X100020Y0002000*\n",
+        "%FSLAX43YAM46*%\n%MOMM*%\n%ADD10C,092*%\nD10*\nG75*\nX0Y1D02*\nG01X1000003Y0D01*\nG03X000110Y0000000*\n",
+    ] {
+        let e = within(10, move || read_str(text)).expect_err("not one circle");
+        assert!(
+            e.line() == 8 && e.to_string().contains("not one circle"),
+            "{e}"
+        );
+    }
 }
 
 /// A layer of `n` flashes of 0.2 x 0.1 mm on a 0.5 mm grid, `per_row` to a row, with the

@@ -23,6 +23,7 @@ pub mod measure;
 pub mod pads;
 pub mod program;
 pub mod register;
+pub mod register_paste;
 pub mod report;
 pub mod run;
 pub mod simulated;

@@ -23,6 +23,8 @@ use serde::Serialize;
 pub enum RegisterError {
     #[error("the program lists no fiducials: the design cannot be registered to the board")]
     NoFiducials,
+    #[error("registration by the paste pattern (the program has no fiducials): {why}")]
+    NoPattern { why: String },
     #[error("found {found} of {listed} fiducials (need at least 2): {missing}")]
     TooFew {
         found: usize,
@@ -57,8 +59,13 @@ pub struct Registration {
     pub shift_mm: Point,
     pub rotation_deg: f64,
     pub fiducials: Vec<FiducialHit>,
-    /// Rms of the fit's misses over the found fiducials, um (0 for two: exact).
+    /// Rms of the fit's misses over the found fiducials, um (0 for two: exact), or over the
+    /// deposits the paste pattern was fitted to.
     pub residual_um: f64,
+    /// The pads whose deposits the paste pattern was fitted to (registration without
+    /// fiducials, [`super::register_paste`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pads_used: Option<usize>,
 }
 
 /// Lowest fiducial disc height found, um (copper is about 35 um; the candidates are cut at
@@ -340,6 +347,7 @@ pub fn register(map: &BoardMap, program: &Program) -> Result<Registration, Regis
         rotation_deg: delta.rotation_rad.to_degrees(),
         fiducials: hits,
         residual_um: residual,
+        pads_used: None,
     })
 }
 

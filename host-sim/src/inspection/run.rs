@@ -55,7 +55,12 @@ pub fn inspect(
     program: &Program,
 ) -> Result<Inspection, RegisterError> {
     let t0 = Instant::now();
-    let registration = register(map, program)?;
+    // Fiducials when the program lists them, else the paste pattern.
+    let registration = if program.fiducials.points_mm.is_empty() {
+        super::register_paste::register_paste(map, pads, program)?
+    } else {
+        register(map, program)?
+    };
     let register_s = t0.elapsed().as_secs_f64();
     let t = registration.transform;
     let placed = Placed::new(
@@ -221,6 +226,9 @@ pub struct RegistrationReport {
     pub shift_mm: Point,
     pub rotation_deg: f64,
     pub fiducials: Vec<super::register::FiducialHit>,
+    /// Registration by the paste pattern: the pads fitted.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pads_used: Option<usize>,
 }
 
 /// `truth.*`: the accuracy goal's group (openings of at least 0.5 x 0.5 mm, defect-free) at
@@ -286,6 +294,7 @@ impl Report {
                 shift_mm: i.registration.shift_mm,
                 rotation_deg: i.registration.rotation_deg,
                 fiducials: i.registration.fiducials.clone(),
+                pads_used: i.registration.pads_used,
             },
             truth: i.truth.as_ref().map(|t| TruthKeys {
                 volume_err_pct: t.large.volume_err_pct.clone(),
@@ -334,13 +343,19 @@ impl Report {
                 .collect();
             s += &format!("  failures: {}\n", v.join(", "));
         }
+        let by = match self.registration.pads_used {
+            Some(n) => format!("paste pattern of {n} pads"),
+            None => format!(
+                "{} fiducials",
+                self.registration
+                    .fiducials
+                    .iter()
+                    .filter(|f| f.found_mm.is_some())
+                    .count()
+            ),
+        };
         s += &format!(
-            "  registration: {} fiducials, residual {:.2} um, board shifted ({:.3}, {:.3}) mm, turned {:.3} deg\n",
-            self.registration
-                .fiducials
-                .iter()
-                .filter(|f| f.found_mm.is_some())
-                .count(),
+            "  registration: {by}, residual {:.2} um, board shifted ({:.3}, {:.3}) mm, turned {:.3} deg\n",
             self.registration.residual_um,
             self.registration.shift_mm[0],
             self.registration.shift_mm[1],

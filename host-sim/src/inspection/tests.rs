@@ -83,6 +83,48 @@ fn rr(c: Point, w: f64, h: f64) -> Outline {
     }
 }
 
+/// The map of `deps` on a warped board: pixel integration (4 x 4), noise, a few invalid
+/// pixels.
+fn render(grid: &BoardGrid, deps: &[(usize, Dep)], seed: u64) -> Vec<f32> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let noise = Normal::new(0.0, 1.3).unwrap();
+    let mut data = vec![0f32; grid.rows * grid.width];
+    for i in 0..grid.rows {
+        for j in 0..grid.width {
+            let (x, y) = grid.centre(i, j);
+            let mut s = 0.0;
+            // Pixel integration, 4 x 4 sub-samples.
+            for a in 0..4 {
+                for b in 0..4 {
+                    let q = [
+                        x + (f64::from(a) - 1.5) / 4.0 * grid.pitch_mm,
+                        y + (f64::from(b) - 1.5) / 4.0 * grid.pitch_mm,
+                    ];
+                    let mut h = warp(q);
+                    for (_, d) in deps {
+                        let bb = d.outline.bbox();
+                        if q[0] > bb[0] - 0.01
+                            && q[0] < bb[2] + 0.01
+                            && q[1] > bb[1] - 0.01
+                            && q[1] < bb[3] + 0.01
+                        {
+                            h += d.at(q);
+                        }
+                    }
+                    s += h;
+                }
+            }
+            data[i * grid.width + j] = (s / 16.0 + noise.sample(&mut rng)) as f32;
+        }
+    }
+    // A few invalid pixels.
+    for k in 0..200 {
+        let n = data.len();
+        data[(k * 7919) % n] = f32::NAN;
+    }
+    data
+}
+
 fn scene(seed: u64) -> Scene {
     let pads = vec![
         pad(0, rr([3.0, 3.0], 1.0, 0.6)),
@@ -171,42 +213,7 @@ fn scene(seed: u64) -> Scene {
         rows: 432,
         width: 324,
     };
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let noise = Normal::new(0.0, 1.3).unwrap();
-    let mut data = vec![0f32; grid.rows * grid.width];
-    for i in 0..grid.rows {
-        for j in 0..grid.width {
-            let (x, y) = grid.centre(i, j);
-            let mut s = 0.0;
-            // Pixel integration, 4 x 4 sub-samples.
-            for a in 0..4 {
-                for b in 0..4 {
-                    let q = [
-                        x + (f64::from(a) - 1.5) / 4.0 * grid.pitch_mm,
-                        y + (f64::from(b) - 1.5) / 4.0 * grid.pitch_mm,
-                    ];
-                    let mut h = warp(q);
-                    for (_, d) in &deps {
-                        let bb = d.outline.bbox();
-                        if q[0] > bb[0] - 0.01
-                            && q[0] < bb[2] + 0.01
-                            && q[1] > bb[1] - 0.01
-                            && q[1] < bb[3] + 0.01
-                        {
-                            h += d.at(q);
-                        }
-                    }
-                    s += h;
-                }
-            }
-            data[i * grid.width + j] = (s / 16.0 + noise.sample(&mut rng)) as f32;
-        }
-    }
-    // A few invalid pixels.
-    for k in 0..200 {
-        let n = data.len();
-        data[(k * 7919) % n] = f32::NAN;
-    }
+    let data = render(&grid, &deps, seed);
     let mut program = Program::new("x.gbr");
     program.stencil_um = stencil;
     program.fiducials.points_mm = fids;
@@ -452,4 +459,149 @@ fn truth_comparison_and_report_files() {
     }
     let ov = image::open(dir.path().join("overview.png")).unwrap();
     assert_eq!(ov.height() as usize, s.map.grid.rows);
+}
+
+/// Without fiducials the design is registered by its paste pattern: the same board as
+/// above (a missing, a bridged and an offset deposit among nine) placed within a few um of
+/// the true transform, and the report says so.
+#[test]
+fn registration_by_the_paste_pattern_without_fiducials() {
+    let mut s = scene(5);
+    s.program.fiducials.points_mm.clear();
+    let reg = super::register_paste::register_paste(&s.map, &s.pads, &s.program).unwrap();
+    assert_eq!(reg.method, "paste pattern");
+    assert!(reg.fiducials.is_empty());
+    let used = reg.pads_used.unwrap();
+    assert!((5..=8).contains(&used), "{used} pads used");
+    for p in &s.pads {
+        let c = p.outline.centroid();
+        let (a, b) = (reg.transform.apply(c), s.truth_t.apply(c));
+        let e = (a[0] - b[0]).hypot(a[1] - b[1]) * 1000.0;
+        assert!(e < 6.0, "pad {} placed {e:.2} um off", p.index);
+    }
+    assert!(reg.residual_um < 6.0, "{}", reg.residual_um);
+    // `inspect` takes it when the program lists no fiducials; the summary names it.
+    let i = super::run::inspect(&s.map, &s.pads, &s.program).unwrap();
+    assert_eq!(i.registration.method, "paste pattern");
+}
+
+/// Thirty openings of random sizes at random places (no pattern that repeats), printed at a
+/// true placement 1.2 mm and 0.3 deg from the program's nominal one: found within a few um.
+#[test]
+fn registration_by_the_paste_pattern_finds_a_board_far_from_its_nominal_place() {
+    use rand::RngExt;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(41);
+    let mut pads: Vec<Pad> = Vec::new();
+    for _ in 0..100_000 {
+        if pads.len() == 30 {
+            break;
+        }
+        let c = [rng.random_range(2.0..10.0), rng.random_range(2.0..7.0)];
+        let (w, h) = (rng.random_range(0.2..0.8), rng.random_range(0.2..0.8));
+        let o = rr(c, w, h);
+        let b = o.bbox();
+        // Keep openings 0.3 mm apart.
+        if pads.iter().all(|p| {
+            let q = p.outline.bbox();
+            b[0] > q[2] + 0.3 || q[0] > b[2] + 0.3 || b[1] > q[3] + 0.3 || q[1] > b[3] + 0.3
+        }) {
+            pads.push(pad(pads.len(), o));
+        }
+    }
+    assert_eq!(pads.len(), 30, "placing the openings");
+    let truth = Rigid {
+        rotation_rad: 0.1f64.to_radians(),
+        tx: 0.3,
+        ty: -0.2,
+    };
+    let deps: Vec<(usize, Dep)> = pads
+        .iter()
+        .map(|p| {
+            (
+                p.index,
+                Dep {
+                    outline: p.outline.transformed(&truth),
+                    height: 95.0,
+                    wall: 0.03,
+                },
+            )
+        })
+        .collect();
+    let s = scene(9);
+    let map = BoardMap {
+        heights: Grid {
+            data: render(&s.map.grid, &deps, 9),
+            ..s.map.heights.clone()
+        },
+        ..s.map.clone()
+    };
+    let mut program = s.program.clone();
+    program.fiducials.points_mm.clear();
+    // Nominal: the true placement's shift less (1.2, -0.6) mm, turned 0.3 deg less.
+    program.placement.orientation_deg = 0.1 - 0.3;
+    let a = program.placement.orientation_deg.to_radians();
+    let (sn, cs) = a.sin_cos();
+    let (tx, ty) = (truth.tx - 1.2, truth.ty + 0.6);
+    // nominal(p) = R(a) p + t, with t = -R(a) origin.
+    program.placement.design_origin_mm = [-(cs * tx + sn * ty), -(-sn * tx + cs * ty)];
+    let reg = super::register_paste::register_paste(&map, &pads, &program).unwrap();
+    assert_eq!(reg.pads_used, Some(30));
+    for p in &pads {
+        let c = p.outline.centroid();
+        let (a, b) = (reg.transform.apply(c), truth.apply(c));
+        let e = (a[0] - b[0]).hypot(a[1] - b[1]) * 1000.0;
+        assert!(e < 6.0, "pad {} placed {e:.2} um off", p.index);
+    }
+    assert!(
+        (reg.shift_mm[0] - 1.2).hypot(reg.shift_mm[1] + 0.6) < 0.05,
+        "{:?}",
+        reg.shift_mm
+    );
+}
+
+/// A board with no paste, and a pattern that repeats (one row of equal pads at a 0.5 mm
+/// pitch) are refused, never registered at a plausible wrong place.
+#[test]
+fn registration_by_the_paste_pattern_refuses_what_it_cannot_tell() {
+    let mut s = scene(6);
+    s.program.fiducials.points_mm.clear();
+    let flat = BoardMap {
+        heights: Grid {
+            data: render(&s.map.grid, &[], 6),
+            ..s.map.heights.clone()
+        },
+        ..s.map.clone()
+    };
+    let e = super::register_paste::register_paste(&flat, &s.pads, &s.program)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("was not found"), "{e}");
+
+    let row: Vec<Pad> = (0..16)
+        .map(|k| pad(k, rr([2.0 + 0.5 * k as f64, 4.0], 0.25, 0.8)))
+        .collect();
+    let deps: Vec<(usize, Dep)> = row
+        .iter()
+        .map(|p| {
+            (
+                p.index,
+                Dep {
+                    outline: p.outline.clone(),
+                    height: 95.0,
+                    wall: 0.03,
+                },
+            )
+        })
+        .collect();
+    let periodic = BoardMap {
+        heights: Grid {
+            data: render(&s.map.grid, &deps, 6),
+            ..s.map.heights.clone()
+        },
+        ..s.map.clone()
+    };
+    let e = super::register_paste::register_paste(&periodic, &row, &s.program)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("repeats"), "{e}");
 }

@@ -7,8 +7,8 @@ use super::object::{
     Stroke,
 };
 use super::shapes::{
-    arc_points, arc_segments, capsule, circle_points, dedup, eval_expr, polygon, recognise,
-    rect_points, swept_rect, union_all, Exact, Prim,
+    arc_band, arc_points, arc_segments, capsule, circle_points, dedup, eval_expr, polygon,
+    recognise, rect_points, swept_rect, union_all, Exact, Prim,
 };
 use super::{GerberError, MAX_COORD_MM, MAX_OBJECTS, MAX_STROKE_VERTICES, MAX_VERTICES};
 use crate::inspection::pads::Point;
@@ -952,6 +952,7 @@ impl State {
             Operation::Interpolate(c, off) => {
                 let p = self.target(c.as_ref().map(|c| (c.x, c.y)))?;
                 let start = self.point;
+                let mut arc = None;
                 let path: Vec<Point> = match self.mode {
                     InterpolationMode::Linear => vec![p],
                     m => {
@@ -965,6 +966,25 @@ impl State {
                         } else {
                             single_quadrant_centre(start, p, i.abs(), j.abs(), cw)
                         };
+                        // The end must lie on the start's circle (files round the two
+                        // radii differently by a few um): an "arc" from its own centre to
+                        // a point a metre away is a corrupt file, not a spiral to draw.
+                        let (r0, r1) = (
+                            (start[0] - centre[0]).hypot(start[1] - centre[1]),
+                            (p[0] - centre[0]).hypot(p[1] - centre[1]),
+                        );
+                        if (r1 - r0).abs() > ARC_RADII_MM + ARC_RADII_SHARE * r0.max(r1) {
+                            return Err(err(
+                                self.line,
+                                format!(
+                                    "arc: its start is {r0:.4} mm from its centre, its end \
+                                     {r1:.4} mm: not one circle (at most {ARC_RADII_MM} mm + \
+                                     {}% apart)",
+                                    ARC_RADII_SHARE * 100.0
+                                ),
+                            ));
+                        }
+                        arc = Some((centre, cw));
                         arc_points(start, p, centre, cw)
                     }
                 };
@@ -973,6 +993,8 @@ impl State {
                         region.current.push(start);
                     }
                     region.current.extend(path);
+                } else if let Some((centre, cw)) = arc {
+                    self.stroke_arc(start, p, centre, cw, &path)?;
                 } else {
                     self.stroke(start, &path)?;
                 }
@@ -999,6 +1021,37 @@ impl State {
         }
         let linear = self.linear();
         self.push(Geom::Flash { ap, at, linear })
+    }
+
+    /// A stroke along an arc: with a circular aperture, the band the disc sweeps (an annular
+    /// sector and the discs at its ends, [`arc_band`]), else the union of the chords' pieces.
+    fn stroke_arc(
+        &mut self,
+        start: Point,
+        end: Point,
+        centre: Point,
+        cw: bool,
+        path: &[Point],
+    ) -> Result<(), GerberError> {
+        let ap = Arc::clone(self.aperture()?);
+        let Stroke::Circle(d) = ap.stroke() else {
+            return self.stroke(start, path);
+        };
+        if d <= 0.0 {
+            self.zero_strokes += 1;
+            return Ok(());
+        }
+        let Some(pieces) = arc_band(start, end, centre, cw, d) else {
+            return self.stroke(start, path);
+        };
+        let shape = union_all(&pieces);
+        if shape.0.is_empty() {
+            return Ok(());
+        }
+        self.push(Geom::Drawn {
+            shape: Flat::new(&shape),
+            class: Class::Stroke(ap),
+        })
     }
 
     fn stroke(&mut self, start: Point, path: &[Point]) -> Result<(), GerberError> {
@@ -1102,6 +1155,12 @@ impl State {
 }
 
 const TAU_DEG: f64 = 360.0;
+
+/// Most the radii of an arc's start and end may differ: this, plus [`ARC_RADII_SHARE`] of
+/// the radius, mm (files round them differently; more is not one circle).
+pub(super) const ARC_RADII_MM: f64 = 0.05;
+/// See [`ARC_RADII_MM`].
+pub(super) const ARC_RADII_SHARE: f64 = 0.02;
 
 /// The centre of a single-quadrant (`G74`) arc: the signs of `i`, `j` are not given; the
 /// one whose arc is at most 90 degrees and whose radii agree best wins.

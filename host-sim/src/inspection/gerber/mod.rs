@@ -43,7 +43,7 @@ pub const MAX_OBJECTS: usize = 1_000_000;
 pub const MAX_VERTICES: usize = 8_000_000;
 /// Most vertices of the pieces of one stroke before their union (an aperture swept along the
 /// chords of an arc).
-pub const MAX_STROKE_VERTICES: usize = 1_000_000;
+pub const MAX_STROKE_VERTICES: usize = 200_000;
 /// Statements pre-processed, parsed and interpreted at a time.
 pub const CHUNK_STATEMENTS: usize = 16_384;
 /// Largest coordinate or size, mm (10 m): beyond it a file is corrupt, not a board.
