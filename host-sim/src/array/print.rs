@@ -10,7 +10,7 @@
 //! Heights of overlapping deposits add. [`DepositIndex`] bins deposits on a grid so that
 //! [`paste_height`] costs a few outline evaluations per point, whatever the board.
 //!
-//! [`print`] fills every opening of the layer to `stencil x TE(AR)` of its volume
+//! [`print`](fn@print) fills every opening of the layer to `stencil x TE(AR)` of its volume
 //! ([`transfer_efficiency`] of the area ratio), slumps it, offsets it (one print offset per
 //! board, scatter per pad), puts dog-ears on some rectangular openings, injects the requested
 //! defects at random pads and records the truth per pad ([`PrintedPad`]). Fiducials are copper
