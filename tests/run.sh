@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # The test command (README, CI): the firmware's cross build, rustfmt and clippy (host and
-# target, warnings are errors), every test of the workspace (the firmware tests run it under
-# QEMU) and the benchmark build. Installs what is missing;
-# needs ../shared/data/real beside the repo.
+# target, warnings are errors), the workspace's docs (rustdoc warnings are errors), every test
+# of the workspace (the firmware tests run it under QEMU) and the benchmark build. Installs
+# what is missing; needs ../shared/data/real beside the repo.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -30,6 +30,9 @@ cargo fmt --all --check
 cargo clippy --workspace --all-targets --locked -- -D warnings
 bash firmware/build.sh --install --clippy
 (cd fuzz && cargo fmt --check && cargo check --quiet)   # the fuzz target builds on dpsa-core alone
+
+echo "== documentation (rustdoc warnings, e.g. broken intra-doc links, are errors)"
+RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --workspace --locked --quiet
 
 echo "== unit, property and end-to-end tests (the firmware tests run it under QEMU)"
 log=$(mktemp)

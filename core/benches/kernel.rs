@@ -6,12 +6,12 @@
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use dpsa_core::{
-    accumulate,
+    bench,
+    bench::Window,
     fixed::types::{U16F16, U20F12, U8F8},
     height::Scale,
     phase::from_rad,
     pipeline::{Pipeline, State},
-    solve::Window,
     Config, Row, Sink, Trigger,
 };
 use std::hint::black_box;
@@ -61,7 +61,7 @@ fn kernel(c: &mut Criterion) {
         b.iter(|| {
             for col in 0..W {
                 let s = [l[0][col], l[1][col], l[2][col], l[3][col]];
-                let acc = accumulate::pixel(&win, &s, cfg.saturation);
+                let acc = bench::pixel(&win, &s, cfg.saturation);
                 out[col] = scale.pixel(&acc, refp[col]).unwrap_or(0);
             }
             black_box(&out);

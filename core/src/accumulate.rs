@@ -192,7 +192,7 @@ pub fn pixel_v(coef: &Coef, samples: &[u16], saturation: u16) -> V {
 /// of more than 12 bits); 12-bit configurations keep Mono12p lines ([`block_packed`]).
 ///
 /// Two neighbouring pixels at a time, as the M7's packed 16-bit instructions want them
-/// ([`crate::dsp`]): each line is read as words (`c0` even and the lines 4-byte aligned, as
+/// (`crate::dsp`): each line is read as words (`c0` even and the lines 4-byte aligned, as
 /// the pipeline's and the firmware's buffers are; otherwise [`pixel_v`] per pixel), a word
 /// holding both pixels' samples; see `pair_step`. Lanes are read as i16: samples below
 /// `2^15` as they are, and above a saturation level of `2^15` as `x - 2^15` (`x ^ 0x8000`),
@@ -286,7 +286,7 @@ fn pixel_at(coef: &Coef, n: usize, sample: impl Fn(usize) -> u16, saturation: u1
 /// [`pixel_v`] of its samples. Each line holds at least [`mono12p::packed_len`]`(c0 +
 /// out.len())` bytes. From a `c0` that is a multiple of 8, on word-aligned lines (the pool's
 /// and the firmware's buffers are), eight pixels are three aligned words per line and one
-/// [`unpack12`] per pair (`groups_packed`); the rest (a short last block, or any other
+/// `unpack12` per pair (`groups_packed`); the rest (a short last block, or any other
 /// `c0` or alignment) sample by sample. Samples are below `2^15`: no lane flip.
 /// `n = lines.len()` in `3..=8` (else nothing is written); `n = 4`, the paper's and the
 /// default geometry's, has its own unrolled loop.

@@ -108,8 +108,10 @@ pub const fn pair(lo: i32, hi: i32) -> u32 {
     (lo as u16 as u32) | ((hi as u16 as u32) << 16)
 }
 
-/// The instructions themselves. Each `asm!` is one register-to-register instruction: no
-/// memory, no stack, inputs and output in general registers. That is all its safety needs.
+/// The instructions themselves: three `asm!` blocks, `SMLAD` and `UQSUB16` one instruction
+/// each, the Mono12p unpack three (`UBFX`, `UBFX`, `ORR`). Each is register to register only:
+/// no memory, no stack, inputs and outputs in general registers. That is all their safety
+/// needs.
 #[cfg(all(feature = "dsp", target_arch = "arm"))]
 #[allow(unsafe_code)]
 mod target {
@@ -182,7 +184,7 @@ pub const fn checks(random: u32) -> u32 {
     n * n * n * n + random
 }
 
-/// Compares [`smlad`], [`uqsub16`] and [`unpack12`] with their twins on every pair of [`LANE_CLASSES`]
+/// Compares `smlad`, `uqsub16` and `unpack12` with their twins on every pair of `LANE_CLASSES`
 /// words and `random` more inputs (xorshift from `seed`); returns the number of mismatches.
 /// The firmware runs it on the target; on the host it compares the twins with themselves
 /// (and the unit tests below check the twins against wide arithmetic).

@@ -55,12 +55,20 @@ pub struct ColumnScale<'a> {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ColumnScaleError {
     /// The table has `got` entries, the configuration `expected` columns.
-    Length { expected: u16, got: usize },
+    Length {
+        /// Columns of the configuration.
+        expected: u16,
+        /// Entries of the table.
+        got: usize,
+    },
     /// The exponent is above [`MAX_COLUMN_SHIFT`].
     Shift(u8),
     /// Column `column`'s LSB per turn is zero or more than a factor of two away from
     /// [`Config::lsb_per_turn`].
-    Range { column: u16 },
+    Range {
+        /// The first column out of range.
+        column: u16,
+    },
 }
 
 impl<'a> ColumnScale<'a> {
@@ -69,10 +77,13 @@ impl<'a> ColumnScale<'a> {
         ColumnScale { shift, mantissa }
     }
 
+    /// The table's exponent: column `c`'s LSB per turn is `mantissa[c] << shift` in Q16.16
+    /// bits.
     pub const fn shift(&self) -> u8 {
         self.shift
     }
 
+    /// The `W` mantissas, one per column.
     pub const fn mantissa(&self) -> &'a [u16] {
         self.mantissa
     }
@@ -263,6 +274,7 @@ impl Scale {
         Gate { fast, thr2 }
     }
 
+    /// The scale of a configuration ([`Config::lsb_per_turn`], [`Config::min_modulation`]).
     pub fn new(cfg: &Config) -> Scale {
         Scale::from_parts(cfg.lsb_per_turn, cfg.min_modulation)
     }

@@ -8,7 +8,8 @@
 //! `defmt::Format` for the core's types and errors (all in one file, `src/defmt.rs`); `dsp`
 //! runs the accumulate kernel's `SMLAD`, `UQSUB16` and Mono12p unpack as `asm!` on an ARM
 //! target (the firmware turns it on), instead of their portable twins, with the same results
-//! ([`dsp`]: the only `unsafe` in the crate).
+//! (`src/dsp.rs`: the only `unsafe` in the crate; checked on the target by
+//! [`bench::check_against_twins`]).
 //!
 //! ## Measurement model (units)
 //!
@@ -39,14 +40,16 @@
 //!
 //! ## Data flow (one module per stage)
 //!
-//! frames -> [`solve`] -> [`accumulate`] -> [`phase`] -> [`height`] -> [`row`] -> [`packets`] -> [`sink`]
+//! frames -> `solve` -> `accumulate` -> [`phase`] -> [`height`] -> [`row`] -> [`packets`] -> [`sink`]
 //!
 //! - [`frames`]: integer and fixed-point [`frames::Config`], the frame [`frames::Trigger`], encoder latch to row
 //!   offset and phase shift ([`frames::Config::shift`]); [`frames::registration`]: which board
 //!   rows a frame admits or skips, the slot ring of open rows; [`frames::feed`]: the byte format
 //!   a frame grabber is fed (configuration, reference phase, triggers and lines).
-//! - [`solve`]: `P = (M^T M)^-1 M^T` once per window, integer, with the ill-conditioning test.
-//! - [`accumulate`]: raw samples of open rows in a line pool; `v = P i` per pixel.
+//! - `solve` (internal): `P = (M^T M)^-1 M^T` once per window, integer, with the
+//!   ill-conditioning test ([`bench::Window`]).
+//! - `accumulate` (internal): raw samples of open rows in a line pool; `v = P i` per pixel
+//!   ([`bench::Coef`], [`bench::block`]).
 //! - [`phase`]: binary angles, integer `atan2`, `sin`/`cos`.
 //! - [`height`]: phase to height, validity mask.
 //! - [`row`]: the output row ([`Row`], [`RowHeader`]) and its [`flags`].
@@ -55,6 +58,10 @@
 //! - [`sink`]: where rows go: the [`Sink`] trait, and [`sink::PacketSink`], which frames rows
 //!   into packets over any [`sink::Link`].
 //! - [`pipeline`]: the streaming API that runs all of the above line by line.
+//!
+//! `solve`, `accumulate` and the `asm!` kernel instructions (`dsp`) are internal to the
+//! pipeline; [`bench`](mod@bench) re-exports them for the firmware's on-target benchmark and the host's
+//! reference comparisons, outside the stable API.
 //!
 //! ## State memory
 //!
@@ -73,7 +80,7 @@
 //! | --- | --- | --- |
 //! | `cos`, `sin` of the shifts | Q1.30, then Q1.24 | `4 * 2^-30`, then `2^-25` |
 //! | `P` | Q7.24 (i32) | relative `3e-7 * g^2` vs f64 |
-//! | kernel coefficients [`accumulate::Coef`] | i16, `Q?.frac` (largest `frac <= 24` that fits), row sums exactly 0 | `<= 1/2 + n/2` units of `2^-frac` per entry; largest entry `>= 2^14` (12-bit samples), `>= 2^12` (16-bit) |
+//! | kernel coefficients [`bench::Coef`] | i16, `Q?.frac` (largest `frac <= 24` that fits), row sums exactly 0 | `<= 1/2 + n/2` units of `2^-frac` per entry; largest entry `>= 2^14` (12-bit samples), `>= 2^12` (16-bit) |
 //! | `v = P i` per pixel | wrapping i32, DN * 2^frac | exact given the coefficients (no 64-bit arithmetic); the accumulate stage can be offloaded ([`offload`]) |
 //! | modulation test [`height::Gate`] | folded into `atan2`'s `max(abs x, abs y)` | identical to `C^2 >= min_modulation^2` |
 //! | `atan2` | u32 binary angle | `2e-5` rad |
@@ -85,26 +92,28 @@
 //! The configuration's Q-formats are [`fixed`] types (re-exported as [`crate::fixed`], so a
 //! dependent needs no version of its own): [`Config::counts_per_pixel`] and
 //! [`Config::lsb_per_turn`] `U16F16`, [`Config::min_modulation`] `U20F12`,
-//! [`Config::max_noise_gain`] `U8F8` (also the limit [`solve::Window::solve`] takes), and
+//! [`Config::max_noise_gain`] `U8F8` (also the limit [`bench::Window::solve`] takes), and
 //! [`height::Scale::from_parts`] takes the same types. Their bits are taken once per
 //! configuration or window (`to_bits()`), never in a per-pixel loop. What the per-pixel loops
 //! read stays a plain integer with its format documented: the `P` entries of
-//! [`solve::Window`] (Q7.24 `i32`), the constants inside [`height::Scale`], and binary angles
+//! [`bench::Window`] (Q7.24 `i32`), the constants inside [`height::Scale`], and binary angles
 //! (`u32`, wrapping by design: see [`phase`]).
 
 #![no_std]
-// No `unsafe` anywhere but the two `asm!` instructions of `dsp` (behind its own `allow`, on
-// an ARM target with the `dsp` feature only; see that module for why and how it is tested).
+// No `unsafe` anywhere but the three `asm!` blocks of `dsp` (`SMLAD`, `UQSUB16` and the
+// Mono12p unpack; behind that module's own `allow`, on an ARM target with the `dsp` feature
+// only; see that module for why and how it is tested).
 #![deny(unsafe_code)]
 
 #[cfg(feature = "alloc")]
 extern crate alloc;
 
-pub mod accumulate;
+pub(crate) mod accumulate;
+pub mod bench;
 pub mod crc32;
 #[cfg(feature = "defmt")]
 mod defmt;
-pub mod dsp;
+pub(crate) mod dsp;
 mod error;
 pub mod frames;
 pub mod height;
@@ -114,7 +123,7 @@ pub mod phase;
 pub mod pipeline;
 pub mod row;
 pub mod sink;
-pub mod solve;
+pub(crate) mod solve;
 
 pub use fixed;
 pub use frames::{Config, Trigger};

@@ -63,7 +63,7 @@ fn floor(x: f64) -> f64 {
 ///    `hi` has its top bit set; nothing is lost.
 /// 2. Divisor `d = hi >> 16` in `[2^15, 2^16)` (relative truncation `< 2^-15`), and the ratio
 ///    `t = lo / d` in Q16 (`t <= 2^16`, clamped).
-/// 3. `atan(t)` from the 256-segment table [`ATAN`], linear interpolation on the low 8 bits of
+/// 3. `atan(t)` from the 256-segment table `ATAN`, linear interpolation on the low 8 bits of
 ///    `t`: interpolation error `<= (1/256)^2 / 8 * max|atan''| = 1.3e-6 rad`.
 /// 4. Octant, then quadrant folding by wrapping binary-angle arithmetic.
 ///
@@ -105,7 +105,7 @@ pub fn atan2(y: i32, x: i32) -> u32 {
 ///
 /// The angle is folded into the first octant `x in [0, pi/4]` (Q2.30 radians), where Taylor
 /// series of 5 (sin) and 6 (cos) terms in Horner form have truncation error `< 2e-9`; each
-/// Horner step rounds at Q30. Used once per window in [`crate::solve`], never per pixel.
+/// Horner step rounds at Q30. Used once per window in `crate::solve`, never per pixel.
 pub fn sincos(a: u32) -> (i32, i32) {
     // pi/2 in Q30.
     const HALF_PI_Q30: u64 = 1_686_629_713;

@@ -7,7 +7,7 @@
 //!
 //! At `begin_frame` the encoder latch gives the frame's row offset `o`; rows that left the ROI
 //! are closed, new rows at the bottom are admitted ([`crate::frames::registration`]), and the window of the rows that complete in
-//! this frame is solved (once, see [`crate::solve`]). Each `push_line` either stores the line for
+//! this frame is solved (once, see `crate::solve`). Each `push_line` either stores the line for
 //! the rows it opens or continues, or combines it with the stored lines of the rows it completes
 //! and emits them. Rows reach the sink in increasing board-row order, each exactly once, with
 //! flags that say why a row or pixel is invalid (see [`crate::flags`]).
@@ -50,6 +50,8 @@ pub struct Layout {
 }
 
 impl Layout {
+    /// The state sizes of a configuration (without a per-column height-scale table; see
+    /// [`Layout::with_column_scale`]).
     pub const fn of(cfg: &Config) -> Layout {
         let n = cfg.n as usize;
         let m = cfg.max_step_rows as usize;
@@ -167,6 +169,7 @@ impl State {
 /// Why a pipeline could not be built.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum NewError {
+    /// The configuration is out of range.
     Config(ConfigError),
     /// A memory slice or the reference-phase table is smaller than [`Layout`] says.
     Memory,
@@ -184,9 +187,19 @@ pub enum Error<E> {
     /// `push_line`/`end_frame` without an open frame.
     NoFrame,
     /// Lines must arrive in order `0..H`.
-    LineOrder { expected: u16, got: u16 },
+    LineOrder {
+        /// The next line due.
+        expected: u16,
+        /// The line pushed.
+        got: u16,
+    },
     /// A line of the wrong width.
-    LineWidth { expected: u16, got: usize },
+    LineWidth {
+        /// Columns `W`.
+        expected: u16,
+        /// Pixels in the line pushed (a packed line: `2 / 3` of its bytes).
+        got: usize,
+    },
     /// `begin_frame` after `finish`.
     Finished,
     /// [`Pipeline::push_packed_line`] on a 16-bit pool, or [`Pipeline::push_line`] on a
@@ -312,6 +325,7 @@ impl<'a> Pipeline<'a> {
         Ok(())
     }
 
+    /// The configuration the pipeline runs.
     pub fn config(&self) -> &Config {
         &self.cfg
     }

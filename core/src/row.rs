@@ -53,8 +53,11 @@ pub struct RowHeader {
 /// pixel `c` is valid. Invalid pixels carry height 0.
 #[derive(Clone, Copy, Debug)]
 pub struct Row<'a> {
+    /// Board row, latch and flags.
     pub header: RowHeader,
+    /// `W` heights, LSB.
     pub heights: &'a [i16],
+    /// `ceil(W / 8)` bytes of validity bits.
     pub valid: &'a [u8],
 }
 

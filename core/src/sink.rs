@@ -9,6 +9,7 @@ use crate::row::{Gap, Row, StreamInfo};
 /// once, either as a row or inside a gap record; [`Sink::start`] before anything else and
 /// [`Sink::end`] last (from `Pipeline::finish`).
 pub trait Sink {
+    /// What a failed call reports (the pipeline returns it as [`crate::pipeline::Error::Sink`]).
     type Error;
     /// A completed board row.
     fn row(&mut self, row: &Row<'_>) -> Result<(), Self::Error>;
@@ -29,6 +30,7 @@ pub trait Sink {
 
 /// The link a packet stream leaves by (Ethernet, USB, a FIFO to the host PC, a file).
 pub trait Link {
+    /// What a failed send or flush reports.
     type Error;
     /// Sends one whole packet (the link may queue it).
     fn send(&mut self, packet: &[u8]) -> Result<(), Self::Error>;
@@ -64,6 +66,8 @@ pub struct PacketSink<'a, L> {
 }
 
 impl<'a, L: Link> PacketSink<'a, L> {
+    /// A sink that encodes rows with `enc` into packets built in `buf` (see [`PacketSink`]
+    /// for its size) and sends them on `link`.
     pub fn new(link: L, enc: codec::Encoder<'a>, buf: &'a mut [u8]) -> Self {
         PacketSink {
             link,
@@ -99,10 +103,12 @@ impl<'a, L: Link> PacketSink<'a, L> {
         self.bytes
     }
 
+    /// The link.
     pub fn link(&self) -> &L {
         &self.link
     }
 
+    /// The link, mutably.
     pub fn link_mut(&mut self) -> &mut L {
         &mut self.link
     }
@@ -112,6 +118,7 @@ impl<'a, L: Link> PacketSink<'a, L> {
         self.link.flush()
     }
 
+    /// The link back (every packet has been handed to it already).
     pub fn into_link(self) -> L {
         self.link
     }

@@ -44,7 +44,7 @@ pub enum SolveError {
 ///
 /// The entries stay raw `i32` (Q7.24, [`P_FRAC`] fractional bits) rather than `fixed`'s
 /// `I8F24`, because they are consumed as raw integers by the per-pixel multiply-accumulate
-/// `v = P i` (`p as i64 * sample as i64`, an `SMLAL` on the Cortex-M7, in [`crate::accumulate`]),
+/// `v = P i` (`p as i64 * sample as i64`, an `SMLAL` on the Cortex-M7, in `crate::accumulate`),
 /// the hot loop this type exists for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Window {

@@ -9,9 +9,9 @@
 use crate::board::Clock;
 use crate::sink::SinkTicks;
 use core::fmt::Write;
-use dpsa_core::accumulate::{self, V};
+// The core's internal stages, timed apart, come through its one bench-facing module.
+use dpsa_core::bench::{self, Window, MAX_N, V};
 use dpsa_core::height::{ColumnScale, Scale};
-use dpsa_core::solve::{Window, MAX_N};
 use dpsa_core::Config;
 
 /// Ticks of the main run and of the window solves.
@@ -95,7 +95,7 @@ pub fn stages<C: Clock>(
         phase_height: 0,
     };
     let Some(win) = meter.window else { return s };
-    let Some(coef) = accumulate::Coef::of(&win, cfg.saturation) else {
+    let Some(coef) = bench::Coef::of(&win, cfg.saturation) else {
         return s;
     };
     let mut v = [[0i32; 2]; BLOCK];
@@ -126,9 +126,9 @@ pub fn stages<C: Clock>(
             let len = BLOCK.min(w - c0);
             let t0 = clock.ticks();
             if layout.packed {
-                accumulate::block_packed(&coef, &packed[..n], c0, cfg.saturation, &mut v[..len]);
+                bench::block_packed(&coef, &packed[..n], c0, cfg.saturation, &mut v[..len]);
             } else {
-                accumulate::block(&coef, &lines[..n], c0, cfg.saturation, &mut v[..len]);
+                bench::block(&coef, &lines[..n], c0, cfg.saturation, &mut v[..len]);
             }
             let t1 = clock.ticks();
             let (r, h) = (&ref_phase[c0..c0 + len], &mut heights[c0..c0 + len]);
@@ -152,6 +152,7 @@ pub fn stages<C: Clock>(
 }
 
 /// Instructions in the calibration loop and the ticks they took.
+#[allow(unsafe_code)] // the `asm!` loop of known length
 pub fn calibrate<C: Clock>(clock: &C) -> (u64, u64) {
     const ITER: u32 = 1 << 20;
     let t0 = clock.ticks();
@@ -180,6 +181,7 @@ extern "C" {
 
 /// Fills the free stack with a pattern (from the end of static RAM up to just below the
 /// current stack pointer), so that [`stack_high_water`] can see how deep it went.
+#[allow(unsafe_code)] // writes the unused stack
 pub fn paint_stack() {
     let sp = cortex_m::register::msp::read() as usize;
     // SAFETY: the words between the end of statics and 256 bytes below the live stack pointer
@@ -194,6 +196,7 @@ pub fn paint_stack() {
 }
 
 /// Deepest stack use since [`paint_stack`], in bytes.
+#[allow(unsafe_code)] // reads the painted stack
 pub fn stack_high_water() -> usize {
     // SAFETY: reads the painted region only (see `paint_stack`).
     unsafe {
@@ -224,7 +227,7 @@ pub fn report<C: Clock>(
     // The DSP instructions the accumulate kernel runs as `asm!`, against their portable twins
     // (every lane class pair, then random words): must be 0 (the host refuses the report).
     let dsp_random = 20_000;
-    let dsp_mismatches = dpsa_core::dsp::check_against_twins(dsp_random, 0x9E37_79B9);
+    let dsp_mismatches = bench::check_against_twins(dsp_random, 0x9E37_79B9);
     let lines: [(&str, u64); 22] = [
         ("calib_loop_instructions", calib_instr),
         ("calib_ticks", calib_ticks),
@@ -251,7 +254,7 @@ pub fn report<C: Clock>(
         ("width", w),
         ("n", cfg.n as u64),
         ("rows", cfg.rows as u64),
-        ("dsp_checks", dpsa_core::dsp::checks(dsp_random) as u64),
+        ("dsp_checks", bench::checks(dsp_random) as u64),
         ("dsp_mismatches", dsp_mismatches as u64),
         ("mono12p", header.mono12p as u64),
     ];

@@ -26,6 +26,7 @@ use dpsa_core::pipeline::{Memory, Pipeline};
 use sink::TimedSink;
 
 #[cortex_m_rt::entry]
+#[allow(unsafe_code)] // the ITCM copy, once, first
 fn main() -> ! {
     // SAFETY: runs first, before any code placed in ITCM is called.
     unsafe { itcm_load() };
@@ -214,6 +215,7 @@ fn write_bench(
 ///
 /// # Safety
 /// Must run before any function placed in `.itcm` is called, and only once.
+#[allow(unsafe_code)]
 unsafe fn itcm_load() {
     extern "C" {
         static mut __sitcm: u32;
@@ -234,6 +236,7 @@ unsafe fn itcm_load() {
 }
 
 #[cortex_m_rt::exception]
+#[allow(unsafe_code)] // the signature cortex-m-rt requires
 unsafe fn HardFault(ef: &cortex_m_rt::ExceptionFrame) -> ! {
     defmt::error!("hard fault at pc {=u32:#x}", ef.pc());
     qemu::exit(102)

@@ -144,6 +144,7 @@ pub enum PoolAt {
 /// The external-RAM line pool, once: `memory.x` places it in the `.extram` NOLOAD section
 /// (under QEMU the 16 MiB RAM of mps2-an500 at 0x60000000, on a frame grabber its SDRAM).
 /// Not zeroed: the pipeline writes every sample before reading it.
+#[allow(unsafe_code)] // a `static mut` handed out once
 pub fn ext_pool() -> Option<&'static mut [u16]> {
     use core::sync::atomic::{AtomicBool, Ordering};
     #[link_section = ".extram"]
@@ -158,6 +159,7 @@ pub fn ext_pool() -> Option<&'static mut [u16]> {
 }
 
 /// Takes the state, once, zeroed: every `Vec` empty.
+#[allow(unsafe_code)] // a `static mut` handed out once, zeroed
 pub fn take() -> Option<&'static mut State> {
     use core::mem::MaybeUninit;
     use core::sync::atomic::{AtomicBool, Ordering};

@@ -157,7 +157,7 @@ fn check_row(w: usize, h: &[i16], v: &[u8]) {
     for (c, &x) in h.iter().enumerate().take(w) {
         assert!(valid(c) || x == 0, "invalid pixel {c} has height {x}");
     }
-    if w % 8 != 0 {
+    if !w.is_multiple_of(8) {
         assert_eq!(v[nb - 1] >> (w % 8), 0, "padding bits set");
     }
     let (mut eh, mut ev, mut dh, mut dv) =

@@ -9,8 +9,8 @@
 //! | [`simulation`] | scenes, the simulator with ground truth, recordings on disk (the input of everything) |
 //! | [`reconstruct`] | runs `dpsa-core` on a recording through its streaming API, as the frame grabber does |
 //! | [`stream`] | packet streams back into height maps, with the damage report |
-//! | [`reference`] | the independent f64 D-PSA, the PSP baseline, the Cramer-Rao bound, truth statistics, and `compare` on top |
-//! | [`array`] | the camera array: array scenes in board mm, the area-integrating renderer, array and calibration recordings, `.zfr` frames |
+//! | [`reference`](mod@reference) | the independent f64 D-PSA, the PSP baseline, the Cramer-Rao bound, truth statistics, and `compare` on top |
+//! | [`array`](mod@array) | the camera array: array scenes in board mm, the area-integrating renderer, array and calibration recordings, `.zfr` frames |
 //! | [`calibration`] | `dpsa calibrate`: per-camera fringe frequency, reference phase, height per turn, flat field, lateral mapping and encoder scale from flat planes and a target |
 //! | [`board`] | the board map: cameras' rows unwrapped, placed in millimetres and blended |
 //! | [`inspection`] | the paste layer as pads (Gerber), the inspection program, per-pad measurement and verdicts |

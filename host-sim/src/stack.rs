@@ -3,7 +3,7 @@
 
 use anyhow::{anyhow, bail, Result};
 use dpsa_core::fixed::types::{U16F16, U20F12, U8F8};
-use dpsa_core::{accumulate, height::Scale, phase, solve::Window};
+use dpsa_core::{bench, bench::Window, height::Scale, phase};
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 use std::path::Path;
@@ -162,7 +162,7 @@ pub fn run(stack: &Stack, min_modulation: f64) -> Result<(StackPhase, PhaseRepor
         U20F12::from_bits((min_modulation * 4096.0).round() as u32),
     );
     // The pipeline's kernel: 16-bit coefficients, 32-bit sums, the folded modulation gate.
-    let coef = accumulate::Coef::of(&win, saturation)
+    let coef = bench::Coef::of(&win, saturation)
         .ok_or_else(|| anyhow!("the phase steps give coefficients too large for the kernel"))?;
     let gate = scale.gate(coef.frac);
     // f64 path: P = (M^T M)^-1 M^T with rows [1, cos s, -sin s].
@@ -190,7 +190,7 @@ pub fn run(stack: &Stack, min_modulation: f64) -> Result<(StackPhase, PhaseRepor
             iv[j] = samples[j] as f64;
             sat |= samples[j] >= saturation;
         }
-        let v = accumulate::pixel_v(&coef, &samples[..n], saturation);
+        let v = bench::pixel_v(&coef, &samples[..n], saturation);
         fixed.push(scale.phase_v(&gate, v).ok().map(phase::to_rad));
         let v = &p * &iv;
         let c = v[1].hypot(v[2]);

@@ -54,6 +54,7 @@ pub const TRIGGER_LEN: usize = 16;
 /// What the header says besides the configuration.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Header {
+    /// The pipeline configuration.
     pub cfg: Config,
     /// Frames that follow.
     pub frames: u32,
@@ -79,15 +80,21 @@ const FLAG_MONO12P: u8 = 2;
 /// A malformed header or table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FeedError {
+    /// The magic is not `DPSR`: not a feed.
     Magic,
+    /// A feed version other than [`VERSION`].
     Version(u16),
+    /// A header length other than [`HEADER_LEN`].
     HeaderLen(u16),
+    /// The header CRC does not match.
     HeaderCrc,
     /// Reserved bytes not zero.
     Reserved,
+    /// The configuration in the header is out of range.
     Config(super::ConfigError),
     /// Intra period 0.
     IntraPeriod,
+    /// The reference-phase table's CRC does not match.
     TableCrc,
     /// The per-column height-scale table's CRC does not match.
     ScaleCrc,
@@ -307,6 +314,7 @@ pub fn decode_scale_table(
 
 /// A frame's trigger record in the feed (16 bytes: `seq` u32, 4 zero bytes, `latch` i64).
 impl Trigger {
+    /// The 16-byte record of this trigger.
     pub fn encode(&self) -> [u8; TRIGGER_LEN] {
         let mut b = [0u8; TRIGGER_LEN];
         b[0..4].copy_from_slice(&self.seq.to_le_bytes());
@@ -314,6 +322,7 @@ impl Trigger {
         b
     }
 
+    /// The trigger of a 16-byte record ([`FeedError::Reserved`] when bytes 4..8 are not zero).
     pub fn decode(b: &[u8; TRIGGER_LEN]) -> Result<Trigger, FeedError> {
         if b[4..8] != [0; 4] {
             return Err(FeedError::Reserved);

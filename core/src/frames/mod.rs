@@ -83,12 +83,19 @@ pub struct Config {
 /// A configuration value out of range.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ConfigError {
+    /// [`Config::width`] is 0.
     Width,
+    /// [`Config::rows`] is 0.
     Rows,
+    /// [`Config::n`] is outside `3..=8`.
     Count,
+    /// [`Config::counts_per_pixel`] is 0.
     CountsPerPixel,
+    /// [`Config::lsb_per_turn`] is 0 or not below 32768.
     LsbPerTurn,
+    /// [`Config::max_noise_gain`] is outside `1..=8`.
     NoiseGain,
+    /// [`Config::max_step_rows`] is outside `1..=rows`.
     MaxStep,
 }
 

@@ -4,8 +4,8 @@
 //! bottom of the ROI (those past every row entered so far) are *admitted*, at most
 //! `max_step_rows` of them per frame: each gets a [`Slot`] in a ring of `max_step_rows * n`
 //! slots. Rows that entered beyond that bound are *skipped* (they never get samples). The
-//! [`Admission`] of each of the last `n + 1` frames records both ranges, so a board row can be
-//! classified ([`Registry::kind`]) and its window's latch found ([`Registry::window_latch`])
+//! `Admission` of each of the last `n + 1` frames records both ranges, so a board row can be
+//! classified (`Registry::kind`) and its window's latch found (`Registry::window_latch`)
 //! without per-row bookkeeping beyond the slot. The full rule is in `docs/model.md`.
 
 //!
@@ -19,7 +19,7 @@
 //!   forward step of more than the ROI height `H` over the previous bottom) is a **jump**: the
 //!   board rows `[E_{k-1}, o_k)` were never in any frame. They are emitted as ONE gap record
 //!   (`SKIPPED | ENCODER_FAULT`), the open rows are flagged `ENCODER_FAULT`, and registration
-//!   restarts at `o_k` exactly as at the first frame ([`Registry::restart`]).
+//!   restarts at `o_k` exactly as at the first frame (`Registry::restart`).
 //!
 //! So a frame enters at most `H` board rows (plus at most one gap record), whatever the latch:
 //! with every row emitted once, the pipeline's output per input frame is bounded by
@@ -50,7 +50,12 @@ pub enum Step {
     Reversal,
     /// The frame's top row lies past every row entered so far: board rows
     /// `[gap_first, gap_first + gap_rows)` were never imaged.
-    Jump { gap_first: i64, gap_rows: u64 },
+    Jump {
+        /// First board row of the gap.
+        gap_first: i64,
+        /// Board rows in the gap.
+        gap_rows: u64,
+    },
 }
 
 /// Classifies a trigger: `first` for the stream's first frame, `prev_latch` / `latch` the

@@ -403,6 +403,7 @@ pub struct Packet<'a> {
     pub header: RowHeader,
     /// Row packets: the payload codec; other kinds: the kind byte.
     pub codec: u8,
+    /// The payload bytes (CRC-checked, still encoded).
     pub payload: &'a [u8],
 }
 
@@ -654,11 +655,21 @@ pub fn find_sync(buf: &[u8], from: usize) -> Option<usize> {
 #[derive(Clone, Copy, Debug)]
 pub enum Item<'a> {
     /// A packet starting at byte `offset`.
-    Packet { offset: usize, packet: Packet<'a> },
+    Packet {
+        /// Byte offset of the packet's sync word in the stream.
+        offset: usize,
+        /// The packet.
+        packet: Packet<'a>,
+    },
     /// Bytes at `offset` that are not a packet (bad sync, truncation, bad length, bad CRC, ...).
     /// The stream resynchronises on the next sync word after `offset` (or, for a version 2
     /// packet whose header checked out but whose payload CRC did not, right after it).
-    Damage { offset: usize, error: PacketError },
+    Damage {
+        /// Byte offset where the damage starts.
+        offset: usize,
+        /// What is wrong there.
+        error: PacketError,
+    },
 }
 
 /// The resynchronising walk through a stream that arrives in pieces: the state a chunked
@@ -696,6 +707,7 @@ pub const V1_CRC_BUDGET_PER_BYTE: u64 = 8;
 pub const V1_CRC_BUDGET_BASE: u64 = 1 << 20;
 
 impl Walk {
+    /// A walk from the start of a stream.
     pub fn new() -> Self {
         Walk::default()
     }
@@ -785,6 +797,7 @@ pub struct Stream<'a> {
 }
 
 impl<'a> Stream<'a> {
+    /// The walk through `bytes`, from its first byte.
     pub fn new(bytes: &'a [u8]) -> Self {
         Stream {
             bytes,

@@ -16,7 +16,7 @@ pub const SEQ_WINDOW: u32 = 1024;
 pub enum Verdict {
     /// Use it (it may be late: rows are placed by their board row).
     Accept,
-    /// Its sequence number was seen already (or is older than [`SEQ_WINDOW`]): drop it.
+    /// Its sequence number was seen already (or is older than `SEQ_WINDOW`): drop it.
     Duplicate,
     /// A row or gap of another width than the stream header's: drop it.
     WrongWidth,
@@ -35,11 +35,13 @@ pub struct Summary {
     pub packets: u64,
     /// Row packets accepted.
     pub rows: u64,
-    /// Gap records accepted, and the board rows in them.
+    /// Gap records accepted.
     pub gaps: u64,
+    /// Board rows in the accepted gap records.
     pub gap_rows: u64,
-    /// Lowest and highest board row covered by accepted rows and gaps (`first > last`: none).
+    /// Lowest board row covered by accepted rows and gaps (`first_row > last_row`: none).
     pub first_row: i64,
+    /// Highest board row covered by accepted rows and gaps.
     pub last_row: i64,
     /// Sequence numbers never seen below the highest one seen (version 2), plus the packets
     /// after it that the end packet's total says exist.
@@ -106,6 +108,7 @@ impl Default for Tracker {
 }
 
 impl Tracker {
+    /// A tracker that has seen nothing yet.
     pub fn new() -> Self {
         Tracker {
             s: Summary {

@@ -507,9 +507,18 @@ fn margin(f: Family, tight: bool) -> f64 {
     }
 }
 
-/// Generates a board's layout (deterministic: the same every time, on every machine).
-pub fn generate(board: LayoutBoard) -> Layout {
-    let [length, width] = board.size_mm();
+/// What a board is made of: the component orders (placed in this order), the fiducials'
+/// inset and keep-out (mm), the random seed and whether components are spread over the
+/// board (the paper board) or packed (the small board).
+struct Plan {
+    orders: Vec<Order>,
+    fid_inset: f64,
+    keepout: f64,
+    seed: u64,
+    spread: bool,
+}
+
+fn plan(board: LayoutBoard) -> Plan {
     let (orders, fid_inset, keepout, seed, spread) = match board {
         LayoutBoard::Paper => (
             vec![
@@ -555,6 +564,137 @@ pub fn generate(board: LayoutBoard) -> Layout {
             false,
         ),
     };
+    Plan {
+        orders,
+        fid_inset,
+        keepout,
+        seed,
+        spread,
+    }
+}
+
+/// Candidate lower-left corners: a 1 mm grid for a spread board (the caller shuffles it), a
+/// row-major 0.25 mm scan for a packed one, `edge` mm clear of the board's edges.
+fn anchors(length: f64, width: f64, edge: f64, spread: bool) -> Vec<Point> {
+    let step = if spread { 1.0 } else { 0.25 };
+    let nx = ((length - 2.0 * edge) / step).floor() as usize + 1;
+    let ny = ((width - 2.0 * edge) / step).floor() as usize + 1;
+    (0..ny)
+        .flat_map(|j| (0..nx).map(move |i| [edge + i as f64 * step, edge + j as f64 * step]))
+        .collect()
+}
+
+/// Half the courtyard of one component about its centre (its openings plus `m` mm).
+fn courtyard_half(fp: &[FootPad], m: f64) -> [f64; 2] {
+    let mut half = [0.0f64, 0.0f64];
+    for p in fp {
+        let h = p.shape.half();
+        half[0] = half[0].max(p.at[0].abs() + h[0] + m);
+        half[1] = half[1].max(p.at[1].abs() + h[1] + m);
+    }
+    half
+}
+
+/// The first free rectangle of `size` at an anchor, from anchor `start` on (wrapping), inside
+/// the board less `edge`.
+fn find_room(
+    anchors: &[Point],
+    start: usize,
+    size: [f64; 2],
+    occ: &Occupancy,
+    board_mm: [f64; 2],
+    edge: f64,
+) -> Option<Rect> {
+    for t in 0..anchors.len() {
+        let a = anchors[(start + t) % anchors.len()];
+        let r = [a[0], a[1], a[0] + size[0], a[1] + size[1]];
+        if r[2] > board_mm[0] - edge || r[3] > board_mm[1] - edge {
+            continue;
+        }
+        if occ.hit(&r).is_none() {
+            return Some(r);
+        }
+    }
+    None
+}
+
+/// The layout's pads, components and apertures as components are added.
+#[derive(Default)]
+struct Parts {
+    /// Components per reference-designator prefix.
+    counters: std::collections::BTreeMap<&'static str, usize>,
+    pads: Vec<Pad>,
+    components: Vec<Component>,
+    apertures: Vec<(i32, Shape)>,
+}
+
+impl Parts {
+    /// One component of `family` with openings `fp` centred on `centre` (a chip's prefix, C or
+    /// R, drawn from `rng`); its openings become pads, with a new aperture per new shape.
+    fn add(
+        &mut self,
+        family: Family,
+        fp: &[FootPad],
+        centre: Point,
+        turned: bool,
+        rng: &mut impl rand::Rng,
+    ) {
+        let prefix = if family.is_chip() {
+            if rng.random_range(0..2) == 0 {
+                "C"
+            } else {
+                "R"
+            }
+        } else {
+            family.prefix()
+        };
+        let n = self.counters.entry(prefix).or_insert(0);
+        *n += 1;
+        let refdes = format!("{prefix}{n}");
+        let first = self.pads.len();
+        for p in fp {
+            let code = match self
+                .apertures
+                .iter()
+                .find(|(_, s)| s.key() == p.shape.key())
+            {
+                Some(&(code, _)) => code,
+                None => {
+                    let code = 10 + self.apertures.len() as i32;
+                    self.apertures.push((code, p.shape));
+                    code
+                }
+            };
+            let at = [snap(centre[0] + p.at[0]), snap(centre[1] + p.at[1])];
+            self.pads.push(Pad {
+                index: self.pads.len(),
+                outline: p.shape.outline(at),
+                component: Some(refdes.clone()),
+                pin: Some(p.pin.clone()),
+                aperture: Some(format!("D{code}")),
+            });
+        }
+        self.components.push(Component {
+            refdes,
+            family,
+            centre,
+            rotation_deg: if turned { 90.0 } else { 0.0 },
+            first_pad: first,
+            pad_count: fp.len(),
+        });
+    }
+}
+
+/// Generates a board's layout (deterministic: the same every time, on every machine).
+pub fn generate(board: LayoutBoard) -> Layout {
+    let [length, width] = board.size_mm();
+    let Plan {
+        orders,
+        fid_inset,
+        keepout,
+        seed,
+        spread,
+    } = plan(board);
     let mut rng = crate::simulation::simulate::rng(seed, 0x1a70);
     let fiducials: Vec<Point> = vec![
         [fid_inset, fid_inset],
@@ -570,27 +710,19 @@ pub fn generate(board: LayoutBoard) -> Layout {
             f[1] + keepout,
         ]);
     }
-    // Candidate lower-left corners: a shuffled 1 mm grid spreads the paper board's
-    // components over the whole board; a row-major 0.25 mm scan packs the small board.
-    // The paper board keeps 1.5 mm clear of its edges, so that the board's placement error
-    // on the conveyor (`[placement]`, up to 3 sigma) cannot push an opening off it.
+    // A shuffled 1 mm grid spreads the paper board's components over the whole board; a
+    // row-major 0.25 mm scan packs the small board. The paper board keeps 1.5 mm clear of its
+    // edges, so that the board's placement error on the conveyor (`[placement]`, up to 3
+    // sigma) cannot push an opening off it.
     let edge = match board {
         LayoutBoard::Paper => 1.5,
         LayoutBoard::Small => EDGE_CLEARANCE_MM,
     };
-    let step = if spread { 1.0 } else { 0.25 };
-    let nx = ((length - 2.0 * edge) / step).floor() as usize + 1;
-    let ny = ((width - 2.0 * edge) / step).floor() as usize + 1;
-    let mut anchors: Vec<Point> = (0..ny)
-        .flat_map(|j| (0..nx).map(move |i| [edge + i as f64 * step, edge + j as f64 * step]))
-        .collect();
+    let mut anchors = anchors(length, width, edge, spread);
     if spread {
         anchors.shuffle(&mut rng);
     }
-    let mut counters: std::collections::BTreeMap<&str, usize> = Default::default();
-    let mut pads: Vec<Pad> = Vec::new();
-    let mut components: Vec<Component> = Vec::new();
-    let mut apertures: Vec<(i32, Shape)> = Vec::new();
+    let mut parts = Parts::default();
     for o in &orders {
         let mut left = o.count;
         while left > 0 {
@@ -604,14 +736,7 @@ pub fn generate(board: LayoutBoard) -> Layout {
                     p.at = [-p.at[1], p.at[0]];
                 }
             }
-            // Courtyard of one component about its centre.
-            let m = margin(o.family, !spread);
-            let mut half = [0.0f64, 0.0f64];
-            for p in &fp {
-                let h = p.shape.half();
-                half[0] = half[0].max(p.at[0].abs() + h[0] + m);
-                half[1] = half[1].max(p.at[1].abs() + h[1] + m);
-            }
+            let half = courtyard_half(&fp, margin(o.family, !spread));
             // A group runs along x for unturned chips, along y for turned ones.
             let along = usize::from(turned);
             let mut size = [2.0 * half[0], 2.0 * half[1]];
@@ -621,19 +746,7 @@ pub fn generate(board: LayoutBoard) -> Layout {
             } else {
                 0
             };
-            let mut placed = None;
-            for t in 0..anchors.len() {
-                let a = anchors[(start + t) % anchors.len()];
-                let r = [a[0], a[1], a[0] + size[0], a[1] + size[1]];
-                if r[2] > length - edge || r[3] > width - edge {
-                    continue;
-                }
-                if occ.hit(&r).is_none() {
-                    placed = Some(r);
-                    break;
-                }
-            }
-            let Some(r) = placed else {
+            let Some(r) = find_room(&anchors, start, size, &occ, [length, width], edge) else {
                 assert!(
                     o.optional,
                     "internal error: layout {}: no room for {} x {}",
@@ -648,45 +761,7 @@ pub fn generate(board: LayoutBoard) -> Layout {
                 let mut centre = [r[0] + half[0], r[1] + half[1]];
                 centre[along] += c as f64 * 2.0 * half[along];
                 let centre = [snap(centre[0]), snap(centre[1])];
-                let prefix = if o.family.is_chip() {
-                    if rng.random_range(0..2) == 0 {
-                        "C"
-                    } else {
-                        "R"
-                    }
-                } else {
-                    o.family.prefix()
-                };
-                let n = counters.entry(prefix).or_insert(0);
-                *n += 1;
-                let refdes = format!("{prefix}{n}");
-                let first = pads.len();
-                for p in &fp {
-                    let code = match apertures.iter().find(|(_, s)| s.key() == p.shape.key()) {
-                        Some(&(code, _)) => code,
-                        None => {
-                            let code = 10 + apertures.len() as i32;
-                            apertures.push((code, p.shape));
-                            code
-                        }
-                    };
-                    let at = [snap(centre[0] + p.at[0]), snap(centre[1] + p.at[1])];
-                    pads.push(Pad {
-                        index: pads.len(),
-                        outline: p.shape.outline(at),
-                        component: Some(refdes.clone()),
-                        pin: Some(p.pin.clone()),
-                        aperture: Some(format!("D{code}")),
-                    });
-                }
-                components.push(Component {
-                    refdes,
-                    family: o.family,
-                    centre,
-                    rotation_deg: if turned { 90.0 } else { 0.0 },
-                    first_pad: first,
-                    pad_count: fp.len(),
-                });
+                parts.add(o.family, &fp, centre, turned, &mut rng);
             }
         }
     }
@@ -694,10 +769,10 @@ pub fn generate(board: LayoutBoard) -> Layout {
         board,
         length_mm: length,
         width_mm: width,
-        pads,
+        pads: parts.pads,
         fiducials,
-        components,
-        apertures,
+        components: parts.components,
+        apertures: parts.apertures,
     }
 }
 

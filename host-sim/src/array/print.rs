@@ -10,7 +10,7 @@
 //! Heights of overlapping deposits add. [`DepositIndex`] bins deposits on a grid so that
 //! [`paste_height`] costs a few outline evaluations per point, whatever the board.
 //!
-//! [`print`] fills every opening of the layer to `stencil x TE(AR)` of its volume
+//! [`print`](fn@print) fills every opening of the layer to `stencil x TE(AR)` of its volume
 //! ([`transfer_efficiency`] of the area ratio), slumps it, offsets it (one print offset per
 //! board, scatter per pad), puts dog-ears on some rectangular openings, injects the requested
 //! defects at random pads and records the truth per pad ([`PrintedPad`]). Fiducials are copper
@@ -814,6 +814,54 @@ pub fn print(
     design_to_board: &Rigid,
     seed: u64,
 ) -> Result<Print, PrintError> {
+    check_inputs(pads, params)?;
+    let mut rng = crate::simulation::simulate::rng(seed, 0x7072_696e);
+    let t_um = params.stencil_um;
+    let offset = [
+        params.offset_sigma_mm * normal3(&mut rng),
+        params.offset_sigma_mm * normal3(&mut rng),
+    ];
+    let (defect, partner) = assign_defects(pads, &params.defects, &mut rng)?;
+
+    let mut drafts: Vec<Draft> = Vec::new();
+    let mut printed: Vec<PrintedPad> = Vec::with_capacity(pads.len());
+    for (i, pad) in pads.iter().enumerate() {
+        let (own, pp) = print_pad(i, pad, defect[i], offset, params, &mut rng);
+        let first = drafts.len();
+        drafts.extend(own);
+        printed.push(PrintedPad {
+            partner: partner[i],
+            deposits: (first..drafts.len()).collect(),
+            ..pp
+        });
+    }
+    bridge_strips(&partner, &mut printed, &mut drafts, params, &mut rng);
+    let mut deposits: Vec<Deposit> = drafts
+        .into_iter()
+        .map(|d| d.on_board(design_to_board))
+        .collect();
+    for (pp, pad) in printed.iter_mut().zip(pads) {
+        let v = pp
+            .deposits
+            .iter()
+            .fold(0.0, |v, &k| v + deposits[k].volume());
+        pp.volume_factor = v / (pad.outline.area() * t_um);
+    }
+    let fids = fiducial_deposits(fiducials, params, design_to_board, &mut deposits)?;
+    Ok(Print {
+        design_to_board: *design_to_board,
+        print_offset_mm: offset,
+        params: params.clone(),
+        seed,
+        board_id: None,
+        pads: printed,
+        deposits,
+        fiducials: fids,
+    })
+}
+
+/// The parameters in range, every outline sane, and enough pads for the defects asked for.
+fn check_inputs(pads: &[Pad], params: &PrintParams) -> Result<(), PrintError> {
     params.validate()?;
     for p in pads {
         if !p.outline.is_sane() {
@@ -830,23 +878,25 @@ pub fn print(
             pads.len()
         )));
     }
-    let mut rng = crate::simulation::simulate::rng(seed, 0x7072_696e);
-    let t_um = params.stencil_um;
-    let offset = [
-        params.offset_sigma_mm * normal3(&mut rng),
-        params.offset_sigma_mm * normal3(&mut rng),
-    ];
+    Ok(())
+}
 
-    // Defects: bridges first (they need free nearest neighbours), then the others.
+/// Which pad gets which defect (and each bridged pad's partner), in a random order: bridges
+/// first (they need free nearest neighbours), then the others.
+fn assign_defects(
+    pads: &[Pad],
+    d: &DefectCounts,
+    rng: &mut impl rand::Rng,
+) -> Result<(Vec<Defect>, Vec<Option<usize>>), PrintError> {
     let mut defect = vec![Defect::None; pads.len()];
     let mut partner: Vec<Option<usize>> = vec![None; pads.len()];
     let mut order: Vec<usize> = (0..pads.len()).collect();
-    order.shuffle(&mut rng);
-    if params.defects.bridge > 0 {
+    order.shuffle(rng);
+    if d.bridge > 0 {
         let nn = nearest_neighbours(pads);
         let mut made = 0;
         for &i in &order {
-            if made == params.defects.bridge {
+            if made == d.bridge {
                 break;
             }
             if let Some(j) = nn[i] {
@@ -859,14 +909,13 @@ pub fn print(
                 }
             }
         }
-        if made < params.defects.bridge {
+        if made < d.bridge {
             return Err(PrintError::Defects(format!(
                 "bridge = {}, but only {made} free pairs of nearest neighbours with a gap <= {MAX_BRIDGE_GAP_MM} mm",
-                params.defects.bridge
+                d.bridge
             )));
         }
     }
-    let d = &params.defects;
     let mut classes = Vec::new();
     for (n, c) in [
         (d.missing, Defect::Missing),
@@ -882,135 +931,167 @@ pub fn print(
         .copied()
         .filter(|&i| defect[i] == Defect::None)
         .collect();
-    // The count check above guarantees enough free pads.
+    // The count check of `check_inputs` guarantees enough free pads.
     for (c, i) in classes.into_iter().zip(free) {
         defect[i] = c;
     }
+    Ok((defect, partner))
+}
 
-    let mut drafts: Vec<Draft> = Vec::new();
-    let mut printed: Vec<PrintedPad> = Vec::with_capacity(pads.len());
-    for (i, pad) in pads.iter().enumerate() {
-        let o = &pad.outline;
-        let ar = area_ratio(o, t_um);
-        let te = transfer_efficiency(ar);
-        let v_open = o.area() * t_um;
-        let scatter_v = 1.0 + params.height_scatter_pct / 100.0 * normal3(&mut rng);
-        let scatter_p = [
-            params.position_sigma_mm * normal3(&mut rng),
-            params.position_sigma_mm * normal3(&mut rng),
-        ];
-        let u: [f64; 6] = std::array::from_fn(|_| rng.random::<f64>());
-        let slumped = o.offset(params.slump_mm).unwrap_or_else(|| o.clone());
-        let mut shift = [offset[0] + scatter_p[0], offset[1] + scatter_p[1]];
-        let mut own: Vec<Draft> = Vec::new();
-        let mut volume = te * scatter_v * v_open;
-        let mut footprint = slumped.clone();
-        let mut ears = false;
-        match defect[i] {
-            Defect::Missing => volume = 0.0,
-            Defect::Insufficient => {
-                volume = (0.15 + 0.35 * u[0]) * v_open;
-                // Half of them cover only part of the opening (lower on the rest).
-                if u[1] < 0.5 {
-                    let f = volume / v_open;
-                    let c = (f + 0.15).max(0.5) + u[2] * (0.85 - (f + 0.15).max(0.5));
-                    let k = usize::from(u[3] < 0.5);
-                    let sign = if u[4] < 0.5 { -1.0 } else { 1.0 };
-                    if let Some(part) = partial(o, k, c, sign) {
-                        footprint = part.offset(params.slump_mm).unwrap_or(part);
-                    }
+/// Pad `i`'s deposits (design frame; none when missing, a second one for a smear) and its
+/// record, without `partner`, `deposits` and `volume_factor` (the caller's).
+fn print_pad(
+    i: usize,
+    pad: &Pad,
+    defect: Defect,
+    offset: Point,
+    params: &PrintParams,
+    rng: &mut impl rand::Rng,
+) -> (Vec<Draft>, PrintedPad) {
+    let t_um = params.stencil_um;
+    let o = &pad.outline;
+    let ar = area_ratio(o, t_um);
+    let te = transfer_efficiency(ar);
+    let v_open = o.area() * t_um;
+    let scatter_v = 1.0 + params.height_scatter_pct / 100.0 * normal3(rng);
+    let scatter_p = [
+        params.position_sigma_mm * normal3(rng),
+        params.position_sigma_mm * normal3(rng),
+    ];
+    let u: [f64; 6] = std::array::from_fn(|_| rng.random::<f64>());
+    let slumped = o.offset(params.slump_mm).unwrap_or_else(|| o.clone());
+    let mut shift = [offset[0] + scatter_p[0], offset[1] + scatter_p[1]];
+    let mut own: Vec<Draft> = Vec::new();
+    let mut volume = te * scatter_v * v_open;
+    let mut footprint = slumped.clone();
+    let mut ears = false;
+    match defect {
+        Defect::Missing => volume = 0.0,
+        Defect::Insufficient => {
+            volume = (0.15 + 0.35 * u[0]) * v_open;
+            // Half of them cover only part of the opening (lower on the rest).
+            if u[1] < 0.5 {
+                let f = volume / v_open;
+                let c = (f + 0.15).max(0.5) + u[2] * (0.85 - (f + 0.15).max(0.5));
+                let k = usize::from(u[3] < 0.5);
+                let sign = if u[4] < 0.5 { -1.0 } else { 1.0 };
+                if let Some(part) = partial(o, k, c, sign) {
+                    footprint = part.offset(params.slump_mm).unwrap_or(part);
                 }
             }
-            Defect::Excess => {
-                volume = (1.5 + 0.5 * u[0]) * v_open;
-                let spread = 0.03 + 0.05 * u[1];
-                footprint = o
-                    .offset(params.slump_mm + spread)
-                    .unwrap_or_else(|| o.clone());
-            }
-            Defect::Offset => {
-                let k = usize::from(u[0] < 0.5);
-                let sign = if u[1] < 0.5 { -1.0 } else { 1.0 };
-                shift[k] += sign * (1.0 / 3.0 + u[2] / 6.0) * extent(o, k);
-                ears = true;
-            }
-            Defect::None | Defect::Bridge | Defect::Smear => ears = true,
         }
-        let c0 = o.centroid();
-        let mut height = 0.0;
-        let mut offset_mm = [0.0, 0.0];
-        if volume > 0.0 {
-            let fp = footprint.shifted(shift);
-            let aeff = effective_area(&fp, params.edge_mm);
-            height = volume / aeff;
-            let is_rect = matches!(&fp, Outline::RoundRect { size, radius, .. }
-                if *radius < 0.45 * size[0].min(size[1]));
-            let bumps = if ears && is_rect && rng.random::<f64>() < params.dog_ear_fraction {
-                dog_ears(&fp, params, &mut rng)
-            } else {
-                Vec::new()
-            };
-            let c1 = fp.centroid();
-            offset_mm = [c1[0] - c0[0], c1[1] - c0[1]];
-            own.push(Draft {
-                outline: fp,
-                height_um: height,
-                edge_mm: params.edge_mm,
-                bumps,
-                material: Material::Paste,
-                pad: Some(i),
-            });
+        Defect::Excess => {
+            volume = (1.5 + 0.5 * u[0]) * v_open;
+            let spread = 0.03 + 0.05 * u[1];
+            footprint = o
+                .offset(params.slump_mm + spread)
+                .unwrap_or_else(|| o.clone());
         }
-        if defect[i] == Defect::Smear {
-            if let Some(main) = own.first() {
-                let b = main.outline.bbox();
-                let k = usize::from(u[3] < 0.5);
-                let across = 1 - k;
-                let sign = if u[4] < 0.5 { -1.0 } else { 1.0 };
-                let reach = (0.2 + 0.3 * u[5]) * (b[k + 2] - b[k]);
-                let width = (0.6 + 0.3 * rng.random::<f64>()) * (b[across + 2] - b[across]);
-                let e = params.edge_mm;
-                let side = if sign > 0.0 { b[k + 2] } else { b[k] };
-                let mut centre = [0.0; 2];
-                centre[k] = side + sign * (reach - e) / 2.0;
-                centre[across] = (b[across] + b[across + 2]) / 2.0;
-                let mut size = [0.0; 2];
-                size[k] = reach + e;
-                size[across] = width;
-                own.push(Draft {
-                    outline: Outline::RoundRect {
-                        centre,
-                        size,
-                        radius: 0.2 * size[0].min(size[1]),
-                        rotation_deg: 0.0,
-                    },
-                    height_um: 15.0 + 15.0 * rng.random::<f64>(),
-                    edge_mm: e,
-                    bumps: Vec::new(),
-                    material: Material::Paste,
-                    pad: Some(i),
-                });
-            }
+        Defect::Offset => {
+            let k = usize::from(u[0] < 0.5);
+            let sign = if u[1] < 0.5 { -1.0 } else { 1.0 };
+            shift[k] += sign * (1.0 / 3.0 + u[2] / 6.0) * extent(o, k);
+            ears = true;
         }
-        let first = drafts.len();
-        drafts.extend(own);
-        printed.push(PrintedPad {
-            pad: i,
-            name: pad.name(),
-            defect: defect[i],
-            partner: partner[i],
-            area_ratio: ar,
-            transfer_efficiency: te,
-            volume_factor: 0.0,
+        Defect::None | Defect::Bridge | Defect::Smear => ears = true,
+    }
+    let c0 = o.centroid();
+    let mut height = 0.0;
+    let mut offset_mm = [0.0, 0.0];
+    if volume > 0.0 {
+        let fp = footprint.shifted(shift);
+        let aeff = effective_area(&fp, params.edge_mm);
+        height = volume / aeff;
+        let is_rect = matches!(&fp, Outline::RoundRect { size, radius, .. }
+            if *radius < 0.45 * size[0].min(size[1]));
+        let bumps = if ears && is_rect && rng.random::<f64>() < params.dog_ear_fraction {
+            dog_ears(&fp, params, rng)
+        } else {
+            Vec::new()
+        };
+        let c1 = fp.centroid();
+        offset_mm = [c1[0] - c0[0], c1[1] - c0[1]];
+        own.push(Draft {
+            outline: fp,
             height_um: height,
-            offset_mm,
-            deposits: (first..drafts.len()).collect(),
-            bridge: None,
+            edge_mm: params.edge_mm,
+            bumps,
+            material: Material::Paste,
+            pad: Some(i),
         });
     }
-    // Bridge strips: from inside one deposit's wall to inside the other's, along the line
-    // between their centroids, so the walls blend (smoothstep(u) + smoothstep(1 - u) = 1).
-    for i in 0..pads.len() {
+    if defect == Defect::Smear {
+        if let Some(main) = own.first() {
+            let smear = smear_draft(&main.outline, i, &u, params, rng);
+            own.push(smear);
+        }
+    }
+    let pp = PrintedPad {
+        pad: i,
+        name: pad.name(),
+        defect,
+        partner: None,
+        area_ratio: ar,
+        transfer_efficiency: te,
+        volume_factor: 0.0,
+        height_um: height,
+        offset_mm,
+        deposits: Vec::new(),
+        bridge: None,
+    };
+    (own, pp)
+}
+
+/// The smear beside pad `i`'s deposit `main`: a low strip out of one side (`u`: the pad's
+/// uniform draws, which side and how far).
+fn smear_draft(
+    main: &Outline,
+    i: usize,
+    u: &[f64; 6],
+    params: &PrintParams,
+    rng: &mut impl rand::Rng,
+) -> Draft {
+    let b = main.bbox();
+    let k = usize::from(u[3] < 0.5);
+    let across = 1 - k;
+    let sign = if u[4] < 0.5 { -1.0 } else { 1.0 };
+    let reach = (0.2 + 0.3 * u[5]) * (b[k + 2] - b[k]);
+    let width = (0.6 + 0.3 * rng.random::<f64>()) * (b[across + 2] - b[across]);
+    let e = params.edge_mm;
+    let side = if sign > 0.0 { b[k + 2] } else { b[k] };
+    let mut centre = [0.0; 2];
+    centre[k] = side + sign * (reach - e) / 2.0;
+    centre[across] = (b[across] + b[across + 2]) / 2.0;
+    let mut size = [0.0; 2];
+    size[k] = reach + e;
+    size[across] = width;
+    Draft {
+        outline: Outline::RoundRect {
+            centre,
+            size,
+            radius: 0.2 * size[0].min(size[1]),
+            rotation_deg: 0.0,
+        },
+        height_um: 15.0 + 15.0 * rng.random::<f64>(),
+        edge_mm: e,
+        bumps: Vec::new(),
+        material: Material::Paste,
+        pad: Some(i),
+    }
+}
+
+/// Bridge strips: from inside one deposit's wall to inside the other's, along the line
+/// between their centroids, so the walls blend (smoothstep(u) + smoothstep(1 - u) = 1).
+/// Appended to `drafts`; both pads' `bridge` set to it.
+fn bridge_strips(
+    partner: &[Option<usize>],
+    printed: &mut [PrintedPad],
+    drafts: &mut Vec<Draft>,
+    params: &PrintParams,
+    rng: &mut impl rand::Rng,
+) {
+    let t_um = params.stencil_um;
+    for i in 0..partner.len() {
         let Some(j) = partner[i] else { continue };
         if j < i {
             continue;
@@ -1054,17 +1135,16 @@ pub fn print(
         printed[i].bridge = Some(k);
         printed[j].bridge = Some(k);
     }
-    let mut deposits: Vec<Deposit> = drafts
-        .into_iter()
-        .map(|d| d.on_board(design_to_board))
-        .collect();
-    for (pp, pad) in printed.iter_mut().zip(pads) {
-        let v = pp
-            .deposits
-            .iter()
-            .fold(0.0, |v, &k| v + deposits[k].volume());
-        pp.volume_factor = v / (pad.outline.area() * t_um);
-    }
+}
+
+/// The copper fiducials (design frame) as board-frame deposits appended to `deposits`, and
+/// their records.
+fn fiducial_deposits(
+    fiducials: &[Point],
+    params: &PrintParams,
+    design_to_board: &Rigid,
+    deposits: &mut Vec<Deposit>,
+) -> Result<Vec<PrintedFiducial>, PrintError> {
     let mut fids = Vec::with_capacity(fiducials.len());
     for &f in fiducials {
         if !(f[0].is_finite() && f[1].is_finite()) {
@@ -1091,16 +1171,7 @@ pub fn print(
             pad: None,
         });
     }
-    Ok(Print {
-        design_to_board: *design_to_board,
-        print_offset_mm: offset,
-        params: params.clone(),
-        seed,
-        board_id: None,
-        pads: printed,
-        deposits,
-        fiducials: fids,
-    })
+    Ok(fids)
 }
 
 #[cfg(test)]

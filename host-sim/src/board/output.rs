@@ -75,7 +75,7 @@ pub struct Files {
 
 pub const FORMAT: &str = "dpsa-board-map";
 
-/// The files [`write`] writes into its directory.
+/// The files [`write`](fn@write) writes into its directory.
 pub const FILE_NAMES: [&str; 5] = [
     "heights.png",
     "heights_um.tiff",

@@ -137,7 +137,7 @@ pub fn mask_dead_pixels(rec: &Recording, dead: &[[u32; 2]], first_row: i64, g: &
 /// `height_per_turn_um[c]`. NaN where the pixel is invalid or the truth does not cover it.
 /// `Ok(None)` when the recording has no truth or no noise model.
 ///
-/// Model (as [`crate::reference::crb`]): samples `I_j = B + C cos(Phi + theta_j)` with
+/// Model (as [`crate::reference::crb`](fn@crate::reference::crb)): samples `I_j = B + C cos(Phi + theta_j)` with
 /// independent Gaussian noise `sigma_j^2 = read^2 + I_j / gain + 1/12` DN^2; Fisher matrix of
 /// `(B, C, Phi)` from Jacobian rows `[1, cos, -C sin]`; `var_h = (F^-1)_Phi (T_z / 2 pi)^2`.
 pub fn crb_variance(

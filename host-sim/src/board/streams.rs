@@ -242,8 +242,42 @@ pub fn read_streams(
             paths.len()
         );
     }
+    let decoded = decode_all(paths, cal)?;
+    let order = match_cameras(paths, &decoded, n)?;
+    check_widths(paths, &decoded, &order, cal)?;
+    let board = check_board(paths, &decoded, &order, board, rec_dir)?;
+    check_configs(paths, &decoded, &order, cal, recs)?;
+
+    // Rows and what was lost, camera by camera.
+    let mut slots: Vec<Option<(HeightMap, DecodeReport)>> = decoded.into_iter().map(Some).collect();
+    let mut arrived = Vec::with_capacity(n);
+    let mut cameras = Vec::with_capacity(n);
+    for (i, &k) in order.iter().enumerate() {
+        let Some((map, rep)) = slots[k].take() else {
+            bail!("internal error: stream {k} matched twice");
+        };
+        let (camera, rows) = camera_stream(i, &paths[k], map, rep, extents[i]);
+        cameras.push(camera);
+        arrived.push(rows);
+    }
+    let status = cameras.iter().map(|c| c.status).max().unwrap_or(0);
+    Ok((
+        arrived,
+        StreamsReport {
+            damaged: status != 0,
+            status,
+            missing_rows: cameras.iter().map(|c| c.missing_rows).collect(),
+            gap_board_pixels: 0,
+            run_id: board.to_string(),
+            cameras,
+        },
+    ))
+}
+
+/// Decodes every stream (one thread each, at most [`max_stream_bytes`] of `cal` read).
+fn decode_all(paths: &[PathBuf], cal: &CalFile) -> Result<Vec<(HeightMap, DecodeReport)>> {
     let max_bytes = max_stream_bytes(cal);
-    let decoded: Vec<(HeightMap, DecodeReport)> = std::thread::scope(|s| {
+    std::thread::scope(|s| {
         let handles: Vec<_> = paths
             .iter()
             .map(|p| s.spawn(move || read(p, cal.height_lsb_um, max_bytes)))
@@ -256,11 +290,18 @@ pub fn read_streams(
                 })
             })
             .collect::<Result<Vec<_>>>()
-    })?;
+    })
+}
 
-    // Match by camera id.
+/// Matches the streams to the `n` cameras by the camera id of their stream headers: which
+/// stream is camera `i`'s (one per camera, none twice, every id below `n`).
+fn match_cameras(
+    paths: &[PathBuf],
+    decoded: &[(HeightMap, DecodeReport)],
+    n: usize,
+) -> Result<Vec<usize>> {
     let mut slot: Vec<Option<usize>> = vec![None; n];
-    for (k, (path, (_, rep))) in paths.iter().zip(&decoded).enumerate() {
+    for (k, (path, (_, rep))) in paths.iter().zip(decoded).enumerate() {
         let st = &rep.stream;
         let Some(camera) = st.camera else {
             bail!(
@@ -287,8 +328,16 @@ pub fn read_streams(
         slot[i] = Some(k);
     }
     // One stream per camera: n streams, none twice, every id below n.
-    let order: Vec<usize> = slot.into_iter().map(|k| k.unwrap_or(0)).collect();
+    Ok(slot.into_iter().map(|k| k.unwrap_or(0)).collect())
+}
 
+/// Each camera's stream is as wide as the calibration's camera.
+fn check_widths(
+    paths: &[PathBuf],
+    decoded: &[(HeightMap, DecodeReport)],
+    order: &[usize],
+    cal: &CalFile,
+) -> Result<()> {
     for (i, &k) in order.iter().enumerate() {
         let st = &decoded[k].1.stream;
         let w = st.width.map_or(0, u32::from);
@@ -300,6 +349,17 @@ pub fn read_streams(
             );
         }
     }
+    Ok(())
+}
+
+/// Every stream has the same run id, and it is the recording's board identity (returned).
+fn check_board(
+    paths: &[PathBuf],
+    decoded: &[(HeightMap, DecodeReport)],
+    order: &[usize],
+    board: Option<BoardId>,
+    rec_dir: &Path,
+) -> Result<BoardId> {
     let run_of = |k: usize| decoded[k].1.stream.run_id.unwrap_or(0);
     let first = order[0];
     for &k in &order[1..] {
@@ -331,6 +391,18 @@ pub fn read_streams(
             run_of(first)
         );
     }
+    Ok(board)
+}
+
+/// Each camera's stream was made with the configuration its recording and the calibration
+/// give (configuration hash).
+fn check_configs(
+    paths: &[PathBuf],
+    decoded: &[(HeightMap, DecodeReport)],
+    order: &[usize],
+    cal: &CalFile,
+    recs: &[Recording],
+) -> Result<()> {
     for (i, &k) in order.iter().enumerate() {
         let want = format!(
             "{:016x}",
@@ -346,56 +418,45 @@ pub fn read_streams(
             );
         }
     }
+    Ok(())
+}
 
-    // Rows and what was lost, camera by camera.
-    let mut slots: Vec<Option<(HeightMap, DecodeReport)>> = decoded.into_iter().map(Some).collect();
-    let mut arrived = Vec::with_capacity(n);
-    let mut cameras = Vec::with_capacity(n);
-    for (i, &k) in order.iter().enumerate() {
-        let Some((map, rep)) = slots[k].take() else {
-            bail!("internal error: stream {k} matched twice");
-        };
-        let (lost, missing, listed) = lost_rows(&map, &rep, extents[i]);
-        let verdict = rep.verdict(&map);
-        let status = if verdict == Verdict2::Clean && missing == 0 {
-            0
-        } else {
-            Verdict2::Damaged as i32
-        };
-        let st = &rep.stream;
-        cameras.push(CameraStream {
-            camera: i as u8,
-            file: paths[k].display().to_string(),
-            bytes: rep.bytes,
-            config_hash: st.config_hash.clone().unwrap_or_default(),
-            rows: map.rows.len() as u64,
-            missing_rows: missing,
-            lost_ranges: listed,
-            packets_ok: rep.ok,
-            damaged_packets: rep.corrupt,
-            missing_packets: st.missing,
-            duplicated_packets: st.duplicated,
-            reordered_packets: st.reordered,
-            truncated: st.truncated,
-            end_packet: st.end_totals.is_some(),
-            gap_rows: st.gap_rows,
-            damage: rep.damage.clone(),
-            status,
-        });
-        arrived.push(Arrived { map, lost });
-    }
-    let status = cameras.iter().map(|c| c.status).max().unwrap_or(0);
-    Ok((
-        arrived,
-        StreamsReport {
-            damaged: status != 0,
-            status,
-            missing_rows: cameras.iter().map(|c| c.missing_rows).collect(),
-            gap_board_pixels: 0,
-            run_id: board.to_string(),
-            cameras,
-        },
-    ))
+/// Camera `i`'s report line and rows from its decoded stream at `path` (board rows `extent`).
+fn camera_stream(
+    i: usize,
+    path: &Path,
+    map: HeightMap,
+    rep: DecodeReport,
+    extent: (i64, i64),
+) -> (CameraStream, Arrived) {
+    let (lost, missing, listed) = lost_rows(&map, &rep, extent);
+    let verdict = rep.verdict(&map);
+    let status = if verdict == Verdict2::Clean && missing == 0 {
+        0
+    } else {
+        Verdict2::Damaged as i32
+    };
+    let st = &rep.stream;
+    let camera = CameraStream {
+        camera: i as u8,
+        file: path.display().to_string(),
+        bytes: rep.bytes,
+        config_hash: st.config_hash.clone().unwrap_or_default(),
+        rows: map.rows.len() as u64,
+        missing_rows: missing,
+        lost_ranges: listed,
+        packets_ok: rep.ok,
+        damaged_packets: rep.corrupt,
+        missing_packets: st.missing,
+        duplicated_packets: st.duplicated,
+        reordered_packets: st.reordered,
+        truncated: st.truncated,
+        end_packet: st.end_totals.is_some(),
+        gap_rows: st.gap_rows,
+        damage: rep.damage.clone(),
+        status,
+    };
+    (camera, Arrived { map, lost })
 }
 
 #[cfg(test)]

@@ -1,6 +1,6 @@
 //! Camera-array calibration (`dpsa calibrate`, issue 10): estimation from calibration
-//! recordings ([`estimate`]), the calibration file ([`file`]), and the figures against the
-//! held-out plane and the simulator's truth ([`evaluate`]). `docs/calibration.md` documents
+//! recordings ([`estimate`]), the calibration file ([`file`](mod@file)), and the figures against the
+//! held-out plane and the simulator's truth ([`evaluate`](mod@evaluate)). `docs/calibration.md` documents
 //! the method and the file.
 
 pub mod estimate;

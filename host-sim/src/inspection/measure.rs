@@ -219,7 +219,7 @@ fn terms(dx: f64, dy: f64) -> [f64; 6] {
     [1.0, dx, dy, dx * dx, dx * dy, dy * dy]
 }
 
-/// A robust plane or quadratic surface (coefficients in [`terms`] order) through samples,
+/// A robust plane or quadratic surface (coefficients in `terms` order) through samples,
 /// iteratively trimmed at `max(3 robust sigma, 3 um)`; its value at `(dx, dy)` is
 /// [`surface_at`]. A quadratic whose samples do not pin its curvature (a thin or one-sided
 /// region) falls back to a plane, and a plane to the level alone.

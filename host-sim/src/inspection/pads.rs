@@ -16,7 +16,7 @@ pub type Point = [f64; 2];
 /// The shape of one paste opening, mm.
 ///
 /// JSON: an object with `kind` (`circle`, `round_rect`, `polygon`) beside the variant's fields.
-/// It is read through [`OutlineRepr`] rather than serde's internally tagged enum: that one
+/// It is read through `OutlineRepr` rather than serde's internally tagged enum: that one
 /// buffers numbers, and with serde_json's `arbitrary_precision` (which `defmt-decoder` turns on
 /// in this workspace) a buffered number no longer reads as an `f64`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -409,7 +409,7 @@ pub struct Names<'a> {
 /// Kind of an inspection output directory (its [`crate::files::MARKER`]).
 pub const FORMAT: &str = "dpsa-inspection";
 
-/// The files (and the `gallery` directory) [`write`] puts into its directory.
+/// The files (and the `gallery` directory) [`write`](fn@write) puts into its directory.
 pub const FILE_NAMES: [&str; 5] = [
     "pads.csv",
     "report.json",
@@ -419,7 +419,7 @@ pub const FILE_NAMES: [&str; 5] = [
 ];
 
 /// Whether `dir` holds an earlier inspection output written before the marker existed: a
-/// `report.json` and nothing but the files [`write`] writes.
+/// `report.json` and nothing but the files [`write`](fn@write) writes.
 pub fn is_inspection_dir(dir: &Path) -> bool {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return false;

@@ -7,7 +7,7 @@ use nalgebra::{Matrix3, Vector3};
 use std::f64::consts::TAU;
 
 /// Cramer-Rao bound on the height variance, um^2, of each pixel of `out` (which must come
-/// from [`reconstruct`]: the actual window shifts are used). Indexed `[i][c]` for
+/// from [`reconstruct`](super::reconstruct): the actual window shifts are used). Indexed `[i][c]` for
 /// `out.rows[i]`, column `c`.
 ///
 /// Defined (Some) for pixels of valid rows with a window whose truth exists; parameters

@@ -7,9 +7,9 @@
 //! centred 2x2 shortcut, which is only used for the noise gain, as the model defines it), the
 //! phase is an f64 `atan2` and the output is f64-rounded.
 //!
-//! Besides [`reconstruct`] this module provides the conventional baseline [`psp`] (nominal
-//! uniform shifts), the Cramer-Rao bound [`crb`] of the height variance and the truth mask
-//! [`flat_mask`] used by [`crate::reference::compare`].
+//! Besides [`reconstruct`] this module provides the conventional baseline [`psp`](fn@super::psp) (nominal
+//! uniform shifts), the Cramer-Rao bound [`crb`](fn@super::crb) of the height variance and the truth mask
+//! [`flat_mask`](super::flat_mask) used by [`crate::reference::compare`].
 
 use crate::heightmap::{flags, HeightMap, HeightRow};
 use crate::simulation::recording::{Frame, Manifest};
@@ -244,7 +244,7 @@ pub struct Window {
     /// Offsets `o_{w+j}`, px.
     pub offsets: Vec<i64>,
     /// Shifts `theta_j`, rad (actual `-2 pi f_x (o_{w+j} - o_w)` for [`reconstruct`],
-    /// nominal `-j delta` for [`psp`]).
+    /// nominal `-j delta` for [`psp`](fn@super::psp)).
     pub shifts_rad: Vec<f64>,
     /// Noise gain `g` of the shifts (see [`noise_gain`]); `+inf` when singular.
     pub noise_gain: f64,
@@ -310,7 +310,7 @@ impl RefRow {
     }
 }
 
-/// Output of [`reconstruct`] or [`psp`]: one row per planned board row, sorted by `row`.
+/// Output of [`reconstruct`] or [`psp`](fn@super::psp): one row per planned board row, sorted by `row`.
 #[derive(Clone, Debug, PartialEq, Default)]
 pub struct RefOutput {
     /// Columns per row, px.
@@ -490,7 +490,7 @@ pub(super) fn run(
 }
 
 /// The reference evaluated one board row at a time, in the plan's increasing board-row order:
-/// [`run`] collects the rows; the comparison ([`super::compare`]) folds each row into its
+/// `run` collects the rows; the comparison ([`super::compare`]) folds each row into its
 /// statistics and drops it, so its memory is one window of frames plus one row per result.
 ///
 /// The entry frame `w` of the planned rows never decreases (rows enter at the frame whose top
@@ -515,7 +515,7 @@ impl<'m> RowEval<'m> {
         RowEval::new(manifest, Shifts::Actual)
     }
 
-    /// The conventional baseline ([`super::psp`]).
+    /// The conventional baseline ([`super::psp`](fn@super::psp)).
     pub fn psp(manifest: &'m Manifest) -> Self {
         let f_x = 1.0 / manifest.calibration.fringe_period_px;
         RowEval::new(

@@ -2,8 +2,8 @@
 //!
 //! - [`dpsa`]: D-PSA in f64, written from the measurement model (`docs/model.md`), with
 //!   nalgebra's full least squares; shares no code with `dpsa-core`.
-//! - [`psp`]: the conventional phase-shift baseline (nominal uniform steps).
-//! - [`crb`]: the Cramer-Rao bound of the height variance per pixel.
+//! - [`psp`](mod@psp): the conventional phase-shift baseline (nominal uniform steps).
+//! - [`crb`](mod@crb): the Cramer-Rao bound of the height variance per pixel.
 //! - [`truth`]: ground-truth lookups and the flat-pixel mask.
 //! - [`compare`]: the fixed-point core against all of the above.
 

@@ -15,7 +15,7 @@ pub fn nominal_step_px(manifest: &Manifest) -> f64 {
 }
 
 /// Conventional phase-shift baseline: same registration, samples, reference phase, height and
-/// validity rules as [`reconstruct`], but the shifts are the nominal uniform set
+/// validity rules as [`reconstruct`](super::reconstruct), but the shifts are the nominal uniform set
 /// `theta_j = -j delta`, `delta = 2 pi f_x * nominal_step` ([`nominal_step_px`]; 90 degrees
 /// for the default scene, i.e. the classic 4-step formula).
 ///

@@ -18,7 +18,7 @@ use gerber_parser::gerber_types::{
     CommentContent, CoordinateMode, CoordinateNumber, DCode, ExtendedCode, FileAttribute,
     FunctionCode, GCode, ImageMirroring, ImagePolarity, ImageRotation, InterpolationMode,
     MacroBoolean, MacroContent, MacroDecimal, MacroInteger, Mirroring, ObjectAttribute, Operation,
-    Polarity, QuadrantMode, StandardComment, StepAndRepeat, Unit, ZeroOmission,
+    Polarity, QuadrantMode, StandardComment, StepAndRepeat, ThermalPrimitive, Unit, ZeroOmission,
 };
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -699,213 +699,14 @@ impl State {
             .macros
             .get(name)
             .ok_or_else(|| err(self.line, format!("aperture macro {name:?} is not defined")))?;
-        let mut vars: HashMap<u32, f64> = HashMap::new();
-        for (i, p) in params.unwrap_or(&[]).iter().enumerate() {
-            let v = match p {
-                MacroDecimal::Value(v) => *v,
-                MacroDecimal::Variable(_) | MacroDecimal::Expression(_) => {
-                    return Err(err(self.line, "aperture parameters must be numbers"));
-                }
-            };
-            vars.insert(i as u32 + 1, v);
-        }
-        let scale = self.scale()?;
-        let line = self.line;
-        let dec = |d: &MacroDecimal, vars: &HashMap<u32, f64>| -> Result<f64, GerberError> {
-            let v = match d {
-                MacroDecimal::Value(v) => *v,
-                MacroDecimal::Variable(n) => vars.get(n).copied().unwrap_or(0.0),
-                MacroDecimal::Expression(e) => eval_expr(e, vars)
-                    .map_err(|m| err(line, format!("macro {name}: {m} in {e:?}")))?,
-            };
-            if !v.is_finite() || v.abs() * scale > MAX_COORD_MM {
-                return Err(GerberError::OutOfRange {
-                    line,
-                    what: format!("macro {name} value {v}"),
-                });
-            }
-            Ok(v)
+        let mut vars = macro_params(params, self.line)?;
+        let eval = MacroEval {
+            name,
+            line: self.line,
+            scale: self.scale()?,
         };
-        let boolean = |b: &MacroBoolean, vars: &HashMap<u32, f64>| -> Result<bool, GerberError> {
-            Ok(match b {
-                MacroBoolean::Value(v) => *v,
-                MacroBoolean::Variable(n) => vars.get(n).copied().unwrap_or(0.0) != 0.0,
-                MacroBoolean::Expression(e) => {
-                    eval_expr(e, vars).map_err(|m| err(line, format!("macro {name}: {m}")))? != 0.0
-                }
-            })
-        };
-        let integer = |i: &MacroInteger, vars: &HashMap<u32, f64>| -> Result<u32, GerberError> {
-            let v = match i {
-                MacroInteger::Value(v) => f64::from(*v),
-                MacroInteger::Variable(n) => vars.get(n).copied().unwrap_or(0.0),
-                MacroInteger::Expression(e) => {
-                    eval_expr(e, vars).map_err(|m| err(line, format!("macro {name}: {m}")))?
-                }
-            };
-            if !(0.0..=1e6).contains(&v) {
-                return Err(err(line, format!("macro {name}: bad count {v}")));
-            }
-            Ok(v.round() as u32)
-        };
-        let rotate = |p: Point, deg: f64| -> Point {
-            let (s, c) = deg.to_radians().sin_cos();
-            [c * p[0] - s * p[1], s * p[0] + c * p[1]]
-        };
-        // (exposure, primitive), mm, macro rotation applied.
-        let mut prims: Vec<(bool, Prim)> = Vec::new();
-        for content in &m.content {
-            let prim = match content {
-                MacroContent::Comment(_) => continue,
-                MacroContent::VariableDefinition(v) => {
-                    let value = eval_expr(&v.expression, &vars)
-                        .map_err(|e| err(line, format!("macro {name}: {e}")))?;
-                    vars.insert(v.number, value);
-                    continue;
-                }
-                MacroContent::Circle(c) => {
-                    let rot = c
-                        .angle
-                        .as_ref()
-                        .map(|a| dec(a, &vars))
-                        .transpose()?
-                        .unwrap_or(0.0);
-                    let centre = rotate([dec(&c.center.0, &vars)?, dec(&c.center.1, &vars)?], rot);
-                    (
-                        boolean(&c.exposure, &vars)?,
-                        Prim::Circle {
-                            c: [centre[0] * scale, centre[1] * scale],
-                            d: dec(&c.diameter, &vars)?.abs() * scale,
-                        },
-                    )
-                }
-                MacroContent::VectorLine(v) => {
-                    let rot = dec(&v.angle, &vars)?;
-                    let (a, b) = (
-                        [dec(&v.start.0, &vars)?, dec(&v.start.1, &vars)?],
-                        [dec(&v.end.0, &vars)?, dec(&v.end.1, &vars)?],
-                    );
-                    let w = dec(&v.width, &vars)?.abs();
-                    let len = (b[0] - a[0]).hypot(b[1] - a[1]);
-                    let dir = (b[1] - a[1]).atan2(b[0] - a[0]).to_degrees();
-                    let mid = rotate([(a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0], rot);
-                    (
-                        boolean(&v.exposure, &vars)?,
-                        Prim::Rect {
-                            c: [mid[0] * scale, mid[1] * scale],
-                            w: len * scale,
-                            h: w * scale,
-                            rot: dir + rot,
-                        },
-                    )
-                }
-                MacroContent::CenterLine(c) => {
-                    let rot = dec(&c.angle, &vars)?;
-                    let centre = rotate([dec(&c.center.0, &vars)?, dec(&c.center.1, &vars)?], rot);
-                    (
-                        boolean(&c.exposure, &vars)?,
-                        Prim::Rect {
-                            c: [centre[0] * scale, centre[1] * scale],
-                            w: dec(&c.dimensions.0, &vars)?.abs() * scale,
-                            h: dec(&c.dimensions.1, &vars)?.abs() * scale,
-                            rot,
-                        },
-                    )
-                }
-                MacroContent::Outline(o) => {
-                    let rot = dec(&o.angle, &vars)?;
-                    let mut pts = Vec::with_capacity(o.points.len());
-                    for (x, y) in &o.points {
-                        let p = rotate([dec(x, &vars)?, dec(y, &vars)?], rot);
-                        pts.push([p[0] * scale, p[1] * scale]);
-                    }
-                    let pts = dedup(pts);
-                    if pts.len() < 3 {
-                        return Err(err(line, format!("macro {name}: outline with < 3 points")));
-                    }
-                    (boolean(&o.exposure, &vars)?, Prim::Poly(pts))
-                }
-                MacroContent::Polygon(p) => {
-                    let rot = dec(&p.angle, &vars)?;
-                    let n = integer(&p.vertices, &vars)?;
-                    if !(3..=12).contains(&n) {
-                        return Err(err(
-                            line,
-                            format!("macro {name}: polygon with {n} vertices"),
-                        ));
-                    }
-                    let c = [dec(&p.center.0, &vars)?, dec(&p.center.1, &vars)?];
-                    let d = dec(&p.diameter, &vars)?.abs();
-                    let pts = (0..n)
-                        .map(|i| {
-                            let a = TAU_DEG * f64::from(i) / f64::from(n);
-                            let q = [
-                                c[0] + d / 2.0 * a.to_radians().cos(),
-                                c[1] + d / 2.0 * a.to_radians().sin(),
-                            ];
-                            let q = rotate(q, rot);
-                            [q[0] * scale, q[1] * scale]
-                        })
-                        .collect();
-                    (boolean(&p.exposure, &vars)?, Prim::Poly(pts))
-                }
-                MacroContent::Thermal(t) => {
-                    // A ring cut by a cross of `gap` width; its pieces as polygons.
-                    let rot = dec(&t.angle, &vars)?;
-                    let c = [dec(&t.center.0, &vars)?, dec(&t.center.1, &vars)?];
-                    let (od, id, gap) = (
-                        dec(&t.outer_diameter, &vars)?.abs(),
-                        dec(&t.inner_diameter, &vars)?.abs(),
-                        dec(&t.gap, &vars)?.abs(),
-                    );
-                    let ring = polygon(&circle_points(c, od), &[circle_points(c, id)]);
-                    let cross = MultiPolygon::new(vec![
-                        polygon(&rect_points(c, od * 2.0, gap, 0.0), &[]),
-                        polygon(&rect_points(c, gap, od * 2.0, 0.0), &[]),
-                    ]);
-                    let pieces = ring.difference(&cross);
-                    for piece in pieces.iter() {
-                        let pts: Vec<Point> = piece
-                            .exterior()
-                            .coords()
-                            .map(|q| {
-                                let r = rotate([q.x, q.y], rot);
-                                [r[0] * scale, r[1] * scale]
-                            })
-                            .collect();
-                        prims.push((true, Prim::Poly(dedup(pts))));
-                    }
-                    continue;
-                }
-                MacroContent::Moire(_) => {
-                    return Err(unsupported(
-                        line,
-                        format!("moire primitive in macro {name}"),
-                    ));
-                }
-            };
-            prims.push(prim);
-        }
-        // Sequential exposure: dark runs are unioned at once, clear ones cut.
-        let mut shape = MultiPolygon::<f64>::new(vec![]);
-        let mut run: Vec<Polygon<f64>> = Vec::new();
-        for (on, p) in &prims {
-            let poly = polygon(&p.points(), &[]);
-            if *on {
-                run.push(poly);
-            } else {
-                if !run.is_empty() {
-                    run.append(&mut shape.0);
-                    shape = union_all(&run);
-                    run.clear();
-                }
-                shape = shape.difference(&poly);
-            }
-        }
-        if !run.is_empty() {
-            run.append(&mut shape.0);
-            shape = union_all(&run);
-        }
+        let prims = eval.primitives(&m.content, &mut vars)?;
+        let shape = expose(&prims);
         let all_on = prims.iter().all(|(on, _)| *on);
         let only: Vec<Prim> = prims.into_iter().map(|(_, p)| p).collect();
         let exact = if all_on {
@@ -913,18 +714,10 @@ impl State {
         } else {
             None
         };
-        let class = match exact {
-            Some(Exact::RoundRect { w, h, r, .. }) if r > 0.0 => {
-                format!("{name} {}x{} r{}", num(w), num(h), num(r))
-            }
-            Some(Exact::RoundRect { w, h, .. }) => format!("{name} {}x{}", num(w), num(h)),
-            Some(Exact::Circle { d }) => format!("{name} {}", num(d)),
-            None => name.to_string(),
-        };
         Ok(ApertureShape::Macro(Box::new(MacroShape {
             shape,
             exact,
-            class,
+            class: macro_class(name, exact),
         })))
     }
 
@@ -1265,4 +1058,299 @@ fn finish(mut st: State) -> Result<Interpreted, GerberError> {
         warnings: st.warnings,
         complete: st.ended,
     })
+}
+
+/// An aperture's parameters as the macro's variables `$1`, `$2`, ... (numbers only).
+fn macro_params(
+    params: Option<&[MacroDecimal]>,
+    line: usize,
+) -> Result<HashMap<u32, f64>, GerberError> {
+    let mut vars: HashMap<u32, f64> = HashMap::new();
+    for (i, p) in params.unwrap_or(&[]).iter().enumerate() {
+        let v = match p {
+            MacroDecimal::Value(v) => *v,
+            MacroDecimal::Variable(_) | MacroDecimal::Expression(_) => {
+                return Err(err(line, "aperture parameters must be numbers"));
+            }
+        };
+        vars.insert(i as u32 + 1, v);
+    }
+    Ok(vars)
+}
+
+/// `p` turned by `deg` degrees about the origin.
+fn rotate(p: Point, deg: f64) -> Point {
+    let (s, c) = deg.to_radians().sin_cos();
+    [c * p[0] - s * p[1], s * p[0] + c * p[1]]
+}
+
+/// Evaluates the primitives of macro `name` (instantiated at `line`, file units times
+/// `scale` = mm).
+struct MacroEval<'a> {
+    name: &'a str,
+    line: usize,
+    scale: f64,
+}
+
+impl MacroEval<'_> {
+    /// A decimal value, finite and inside the coordinate range.
+    fn dec(&self, d: &MacroDecimal, vars: &HashMap<u32, f64>) -> Result<f64, GerberError> {
+        let (name, line) = (self.name, self.line);
+        let v = match d {
+            MacroDecimal::Value(v) => *v,
+            MacroDecimal::Variable(n) => vars.get(n).copied().unwrap_or(0.0),
+            MacroDecimal::Expression(e) => {
+                eval_expr(e, vars).map_err(|m| err(line, format!("macro {name}: {m} in {e:?}")))?
+            }
+        };
+        if !v.is_finite() || v.abs() * self.scale > MAX_COORD_MM {
+            return Err(GerberError::OutOfRange {
+                line,
+                what: format!("macro {name} value {v}"),
+            });
+        }
+        Ok(v)
+    }
+
+    /// An exposure (non-zero: on).
+    fn boolean(&self, b: &MacroBoolean, vars: &HashMap<u32, f64>) -> Result<bool, GerberError> {
+        let (name, line) = (self.name, self.line);
+        Ok(match b {
+            MacroBoolean::Value(v) => *v,
+            MacroBoolean::Variable(n) => vars.get(n).copied().unwrap_or(0.0) != 0.0,
+            MacroBoolean::Expression(e) => {
+                eval_expr(e, vars).map_err(|m| err(line, format!("macro {name}: {m}")))? != 0.0
+            }
+        })
+    }
+
+    /// A count in `0..=10^6`, rounded.
+    fn integer(&self, i: &MacroInteger, vars: &HashMap<u32, f64>) -> Result<u32, GerberError> {
+        let (name, line) = (self.name, self.line);
+        let v = match i {
+            MacroInteger::Value(v) => f64::from(*v),
+            MacroInteger::Variable(n) => vars.get(n).copied().unwrap_or(0.0),
+            MacroInteger::Expression(e) => {
+                eval_expr(e, vars).map_err(|m| err(line, format!("macro {name}: {m}")))?
+            }
+        };
+        if !(0.0..=1e6).contains(&v) {
+            return Err(err(line, format!("macro {name}: bad count {v}")));
+        }
+        Ok(v.round() as u32)
+    }
+
+    /// A point of two decimals.
+    fn point(
+        &self,
+        p: &(MacroDecimal, MacroDecimal),
+        vars: &HashMap<u32, f64>,
+    ) -> Result<Point, GerberError> {
+        Ok([self.dec(&p.0, vars)?, self.dec(&p.1, vars)?])
+    }
+
+    /// The macro's body in order: variable definitions update `vars`, primitives become
+    /// (exposure, primitive) in mm with the macro rotation applied.
+    fn primitives(
+        &self,
+        content: &[MacroContent],
+        vars: &mut HashMap<u32, f64>,
+    ) -> Result<Vec<(bool, Prim)>, GerberError> {
+        let (name, line) = (self.name, self.line);
+        let mut prims: Vec<(bool, Prim)> = Vec::new();
+        for content in content {
+            let prim = match content {
+                MacroContent::Comment(_) => continue,
+                MacroContent::VariableDefinition(v) => {
+                    let value = eval_expr(&v.expression, vars)
+                        .map_err(|e| err(line, format!("macro {name}: {e}")))?;
+                    vars.insert(v.number, value);
+                    continue;
+                }
+                MacroContent::Thermal(t) => {
+                    for poly in self.thermal(t, vars)? {
+                        prims.push((true, poly));
+                    }
+                    continue;
+                }
+                MacroContent::Moire(_) => {
+                    return Err(unsupported(
+                        line,
+                        format!("moire primitive in macro {name}"),
+                    ));
+                }
+                other => self.primitive(other, vars)?,
+            };
+            prims.push(prim);
+        }
+        Ok(prims)
+    }
+
+    /// One circle, vector line, centre line, outline or polygon primitive.
+    fn primitive(
+        &self,
+        content: &MacroContent,
+        vars: &HashMap<u32, f64>,
+    ) -> Result<(bool, Prim), GerberError> {
+        let (name, line, scale) = (self.name, self.line, self.scale);
+        Ok(match content {
+            MacroContent::Circle(c) => {
+                let rot = c
+                    .angle
+                    .as_ref()
+                    .map(|a| self.dec(a, vars))
+                    .transpose()?
+                    .unwrap_or(0.0);
+                let centre = rotate(self.point(&c.center, vars)?, rot);
+                (
+                    self.boolean(&c.exposure, vars)?,
+                    Prim::Circle {
+                        c: [centre[0] * scale, centre[1] * scale],
+                        d: self.dec(&c.diameter, vars)?.abs() * scale,
+                    },
+                )
+            }
+            MacroContent::VectorLine(v) => {
+                let rot = self.dec(&v.angle, vars)?;
+                let (a, b) = (self.point(&v.start, vars)?, self.point(&v.end, vars)?);
+                let w = self.dec(&v.width, vars)?.abs();
+                let len = (b[0] - a[0]).hypot(b[1] - a[1]);
+                let dir = (b[1] - a[1]).atan2(b[0] - a[0]).to_degrees();
+                let mid = rotate([(a[0] + b[0]) / 2.0, (a[1] + b[1]) / 2.0], rot);
+                (
+                    self.boolean(&v.exposure, vars)?,
+                    Prim::Rect {
+                        c: [mid[0] * scale, mid[1] * scale],
+                        w: len * scale,
+                        h: w * scale,
+                        rot: dir + rot,
+                    },
+                )
+            }
+            MacroContent::CenterLine(c) => {
+                let rot = self.dec(&c.angle, vars)?;
+                let centre = rotate(self.point(&c.center, vars)?, rot);
+                (
+                    self.boolean(&c.exposure, vars)?,
+                    Prim::Rect {
+                        c: [centre[0] * scale, centre[1] * scale],
+                        w: self.dec(&c.dimensions.0, vars)?.abs() * scale,
+                        h: self.dec(&c.dimensions.1, vars)?.abs() * scale,
+                        rot,
+                    },
+                )
+            }
+            MacroContent::Outline(o) => {
+                let rot = self.dec(&o.angle, vars)?;
+                let mut pts = Vec::with_capacity(o.points.len());
+                for (x, y) in &o.points {
+                    let p = rotate([self.dec(x, vars)?, self.dec(y, vars)?], rot);
+                    pts.push([p[0] * scale, p[1] * scale]);
+                }
+                let pts = dedup(pts);
+                if pts.len() < 3 {
+                    return Err(err(line, format!("macro {name}: outline with < 3 points")));
+                }
+                (self.boolean(&o.exposure, vars)?, Prim::Poly(pts))
+            }
+            MacroContent::Polygon(p) => {
+                let rot = self.dec(&p.angle, vars)?;
+                let n = self.integer(&p.vertices, vars)?;
+                if !(3..=12).contains(&n) {
+                    return Err(err(
+                        line,
+                        format!("macro {name}: polygon with {n} vertices"),
+                    ));
+                }
+                let c = self.point(&p.center, vars)?;
+                let d = self.dec(&p.diameter, vars)?.abs();
+                let pts = (0..n)
+                    .map(|i| {
+                        let a = TAU_DEG * f64::from(i) / f64::from(n);
+                        let q = [
+                            c[0] + d / 2.0 * a.to_radians().cos(),
+                            c[1] + d / 2.0 * a.to_radians().sin(),
+                        ];
+                        let q = rotate(q, rot);
+                        [q[0] * scale, q[1] * scale]
+                    })
+                    .collect();
+                (self.boolean(&p.exposure, vars)?, Prim::Poly(pts))
+            }
+            _ => unreachable!("primitives() handles the other macro contents"),
+        })
+    }
+
+    /// A thermal: a ring cut by a cross of `gap` width; its pieces as polygons (always on).
+    fn thermal(
+        &self,
+        t: &ThermalPrimitive,
+        vars: &HashMap<u32, f64>,
+    ) -> Result<Vec<Prim>, GerberError> {
+        let scale = self.scale;
+        let rot = self.dec(&t.angle, vars)?;
+        let c = self.point(&t.center, vars)?;
+        let (od, id, gap) = (
+            self.dec(&t.outer_diameter, vars)?.abs(),
+            self.dec(&t.inner_diameter, vars)?.abs(),
+            self.dec(&t.gap, vars)?.abs(),
+        );
+        let ring = polygon(&circle_points(c, od), &[circle_points(c, id)]);
+        let cross = MultiPolygon::new(vec![
+            polygon(&rect_points(c, od * 2.0, gap, 0.0), &[]),
+            polygon(&rect_points(c, gap, od * 2.0, 0.0), &[]),
+        ]);
+        let pieces = ring.difference(&cross);
+        Ok(pieces
+            .iter()
+            .map(|piece| {
+                let pts: Vec<Point> = piece
+                    .exterior()
+                    .coords()
+                    .map(|q| {
+                        let r = rotate([q.x, q.y], rot);
+                        [r[0] * scale, r[1] * scale]
+                    })
+                    .collect();
+                Prim::Poly(dedup(pts))
+            })
+            .collect())
+    }
+}
+
+/// Sequential exposure of a macro's primitives: dark runs are unioned at once, clear ones cut.
+fn expose(prims: &[(bool, Prim)]) -> MultiPolygon<f64> {
+    let mut shape = MultiPolygon::<f64>::new(vec![]);
+    let mut run: Vec<Polygon<f64>> = Vec::new();
+    for (on, p) in prims {
+        let poly = polygon(&p.points(), &[]);
+        if *on {
+            run.push(poly);
+        } else {
+            if !run.is_empty() {
+                run.append(&mut shape.0);
+                shape = union_all(&run);
+                run.clear();
+            }
+            shape = shape.difference(&poly);
+        }
+    }
+    if !run.is_empty() {
+        run.append(&mut shape.0);
+        shape = union_all(&run);
+    }
+    shape
+}
+
+/// The aperture class of a macro instance: its name, and the size when it is exactly a
+/// rounded rectangle or a circle.
+fn macro_class(name: &str, exact: Option<Exact>) -> String {
+    match exact {
+        Some(Exact::RoundRect { w, h, r, .. }) if r > 0.0 => {
+            format!("{name} {}x{} r{}", num(w), num(h), num(r))
+        }
+        Some(Exact::RoundRect { w, h, .. }) => format!("{name} {}x{}", num(w), num(h)),
+        Some(Exact::Circle { d }) => format!("{name} {}", num(d)),
+        None => name.to_string(),
+    }
 }

@@ -4,16 +4,16 @@
 //!
 //! | file | step |
 //! | --- | --- |
-//! | [`lex`] | size and character checks; one statement per line with its original line number; deprecated words translated |
+//! | `lex` | size and character checks; one statement per line with its original line number; deprecated words translated |
 //! | `gerber_parser` (crate) | statements -> `gerber-types` commands |
-//! | [`interp`] | the graphics state: apertures, macros, flashes, strokes, regions, step and repeat, polarity, X2 object attributes -> objects in mm ([`object`]) |
-//! | [`merge`] | objects -> pads: connected openings (union; clear objects cut), exact outlines for plain flashes |
+//! | `interp` | the graphics state: apertures, macros, flashes, strokes, regions, step and repeat, polarity, X2 object attributes -> objects in mm (`object`) |
+//! | `merge` | objects -> pads: connected openings (union; clear objects cut), exact outlines for plain flashes |
 //!
 //! The first three run a chunk of [`CHUNK_STATEMENTS`] statements at a time, so the file is
 //! never held as statements or commands whole: what grows with the file is the objects
-//! (compact: a flash is its aperture and place, [`object`]) and then the pads.
+//! (compact: a flash is its aperture and place, `object`) and then the pads.
 //!
-//! [`shapes`] holds the geometry (polygons within 1 um of the curves, macro expressions, the
+//! `shapes` holds the geometry (polygons within 1 um of the curves, macro expressions, the
 //! recognition of rounded rectangles built from macro primitives).
 //!
 //! Coordinates stay in the file's own frame, converted to mm. Bad input is a [`GerberError`]
