@@ -363,3 +363,96 @@ fn programs_without_a_placement_file_are_unchanged() {
     .unwrap_err();
     assert!(e.to_string().contains("override[0].package"), "{e}");
 }
+
+/// The shipped small board (`scenes/array-paste.toml`): its paste layer, a copper layer with
+/// the scene's fiducials and a few copper pads, and its outline (the 20 x 13.9 mm board from
+/// the origin) -> `dpsa program` gives the same placement, fiducials and stencil as the
+/// program `dpsa simulate` writes from the scene itself; then `dpsa inspect` judges a
+/// simulated print of that board with it.
+#[test]
+fn the_taught_program_of_the_simulated_board_inspects_it() {
+    use dpsa_sim::array::{record, scene::ArrayScene};
+    let scenes = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+    let scene = ArrayScene::load(&scenes.join("array-paste.toml")).unwrap();
+    let dir = tempfile::tempdir_in(env!("CARGO_TARGET_TMPDIR")).unwrap();
+    let d = dir.path();
+    let mut cu = String::from(
+        "%FSLAX46Y46*%\n%MOMM*%\n%ADD10C,1.000000*%\n%ADD11R,0.500000X0.500000*%\nD10*\n",
+    );
+    let um = |v: f64| (v * 1e6).round() as i64;
+    for f in &scene.fiducials {
+        cu.push_str(&format!("X{}Y{}D03*\n", um(f[0]), um(f[1])));
+    }
+    // Copper pads beside the paste (not fiducials: square).
+    cu.push_str("D11*\nX10000000Y7000000D03*\nM02*\n");
+    std::fs::write(d.join("cu.gbr"), cu).unwrap();
+    std::fs::write(
+        d.join("edge.gbr"),
+        "%FSLAX46Y46*%\n%MOMM*%\n%ADD10C,0.100000*%\nD10*\nX0Y0D02*\nX20000000Y0D01*\nX20000000Y13900000D01*\nX0Y13900000D01*\nX0Y0D01*\nM02*\n",
+    )
+    .unwrap();
+    let prog = d.join("program.toml");
+    let layer = scenes.join(scene.paste_layer.as_ref().unwrap());
+    ok(&[
+        "program",
+        "--paste",
+        s(&layer),
+        "--copper",
+        s(&d.join("cu.gbr")),
+        "--outline",
+        s(&d.join("edge.gbr")),
+        "--stencil-um",
+        &scene.print.stencil_um.to_string(),
+        "--out",
+        s(&prog),
+    ]);
+    let taught = Program::load(&prog).unwrap();
+    let want = record::inspection_program(&scene);
+    assert_eq!(taught.fiducials.points_mm, want.fiducials.points_mm);
+    assert_eq!(taught.fiducials.diameter_mm, want.fiducials.diameter_mm);
+    assert_eq!(
+        taught.placement.design_origin_mm,
+        want.placement.design_origin_mm
+    );
+    assert_eq!(taught.stencil_um, want.stencil_um);
+    // The simulated print of that board, measured and inspected with the taught program.
+    let board = d.join("board");
+    record::simulate_board(&scene, 5, &board).unwrap();
+    let caldir = d.join("cal");
+    record::simulate_calibration(&scene, 3, &caldir).unwrap();
+    let cal = dpsa_sim::calibration::calibrate(
+        &record::ArrayRecording::open(&caldir).unwrap(),
+        dpsa_sim::calibration::FX_BUDGET_UM,
+    )
+    .unwrap();
+    let calf = d.join("cal.toml");
+    std::fs::write(&calf, cal.to_toml().unwrap()).unwrap();
+    let map = d.join("map");
+    ok(&["board", s(&board), "--cal", s(&calf), "--out", s(&map)]);
+    // The search radius is the simulator's (it knows its placement error).
+    let mut t = std::fs::read_to_string(&prog).unwrap();
+    t = t.replace(
+        "search_mm = 1.5",
+        &format!("search_mm = {}", want.fiducials.search_mm),
+    );
+    std::fs::write(&prog, t).unwrap();
+    let out = ok(&[
+        "inspect",
+        s(&map),
+        "--program",
+        s(&prog),
+        "--truth",
+        s(&board.join("print.json")),
+        "--out",
+        s(&d.join("insp")),
+        "--json",
+    ]);
+    let r: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(r["registration"]["fiducials"].as_array().unwrap().len(), 3);
+    let total = r["pads"]["total"].as_u64().unwrap();
+    assert_eq!(total, gerber::read_file(&layer).unwrap().pads.len() as u64);
+    assert!(
+        r["pads"]["measured"].as_u64().unwrap() > total * 9 / 10,
+        "{out}"
+    );
+}

@@ -67,7 +67,7 @@ pub enum Cmd {
     /// Teach: an inspection program from the design files: the top paste layer, the copper
     /// layer (fiducials), the outline (board corner) and a pick-and-place file (pad names);
     /// per-family default windows; prints what it found.
-    Program(program::Args),
+    Program(Box<program::Args>),
     /// Gauge repeatability (GR&R) of the inspection: the same printed board N times through
     /// the simulated array with fresh noise and placement, inspected each time.
     Grr(grr::Args),
