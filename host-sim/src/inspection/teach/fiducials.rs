@@ -134,6 +134,61 @@ pub fn x2_fiducial_flashes(text: &str) -> Vec<Point> {
     out
 }
 
+/// Boxes on a grid of cells: which boxes, grown by the largest reach a search uses, cover a
+/// point's cell. A box covering more than [`BoxIndex::MAX_CELLS`] cells (a copper pour) is
+/// kept aside and checked for every point.
+struct BoxIndex {
+    cell: f64,
+    cells: std::collections::HashMap<(i64, i64), Vec<usize>>,
+    big: Vec<usize>,
+}
+
+impl BoxIndex {
+    const MAX_CELLS: i64 = 4096;
+    /// The largest reach of a search, mm: the clear ring of the widest fiducial.
+    const REACH: f64 = CLEAR_RING * MAX_DIAMETER_MM / 2.0;
+
+    fn new(boxes: &[[f64; 4]]) -> BoxIndex {
+        let cell = 4.0;
+        let mut ix = BoxIndex {
+            cell,
+            cells: Default::default(),
+            big: Vec::new(),
+        };
+        for (i, b) in boxes.iter().enumerate() {
+            let lo = ix.key([b[0] - Self::REACH, b[1] - Self::REACH]);
+            let hi = ix.key([b[2] + Self::REACH, b[3] + Self::REACH]);
+            if (hi.0 - lo.0 + 1).saturating_mul(hi.1 - lo.1 + 1) > Self::MAX_CELLS {
+                ix.big.push(i);
+                continue;
+            }
+            for gx in lo.0..=hi.0 {
+                for gy in lo.1..=hi.1 {
+                    ix.cells.entry((gx, gy)).or_default().push(i);
+                }
+            }
+        }
+        ix
+    }
+
+    fn key(&self, p: Point) -> (i64, i64) {
+        (
+            (p[0] / self.cell).floor() as i64,
+            (p[1] / self.cell).floor() as i64,
+        )
+    }
+
+    /// The boxes that may lie within [`BoxIndex::REACH`] of `p`.
+    fn near(&self, p: Point) -> impl Iterator<Item = usize> + '_ {
+        self.cells
+            .get(&self.key(p))
+            .into_iter()
+            .flatten()
+            .chain(&self.big)
+            .copied()
+    }
+}
+
 /// Finds the fiducials among the copper pads (see the module's rule). `x2` holds the places
 /// of the file's X2 fiducial flashes ([`x2_fiducial_flashes`]).
 pub fn find(copper: &[Pad], paste: &[Pad], x2: &[Point]) -> Found {
@@ -141,6 +196,8 @@ pub fn find(copper: &[Pad], paste: &[Pad], x2: &[Point]) -> Found {
     let mut cands: Vec<(Point, f64, &'static str)> = Vec::new();
     let paste_boxes: Vec<[f64; 4]> = paste.iter().map(|p| p.outline.bbox()).collect();
     let copper_boxes: Vec<[f64; 4]> = copper.iter().map(|p| p.outline.bbox()).collect();
+    let paste_ix = BoxIndex::new(&paste_boxes);
+    let copper_ix = BoxIndex::new(&copper_boxes);
     for (k, pad) in copper.iter().enumerate() {
         let Outline::Circle { centre, diameter } = pad.outline else {
             continue;
@@ -155,10 +212,9 @@ pub fn find(copper: &[Pad], paste: &[Pad], x2: &[Point]) -> Found {
                 && centre[1] >= b[1] - reach
                 && centre[1] <= b[3] + reach
         };
-        let pasted = paste
-            .iter()
-            .zip(&paste_boxes)
-            .any(|(p, b)| near(b, r) && p.outline.signed_distance(centre) < r);
+        let pasted = paste_ix
+            .near(centre)
+            .any(|j| near(&paste_boxes[j], r) && paste[j].outline.signed_distance(centre) < r);
         let at = format!("({:.3}, {:.3}) d {:.3}", centre[0], centre[1], diameter);
         if pasted {
             if found.rejected.len() < 20 {
@@ -174,13 +230,11 @@ pub fn find(copper: &[Pad], paste: &[Pad], x2: &[Point]) -> Found {
             continue;
         }
         let reach = CLEAR_RING * r;
-        let crowded = copper
-            .iter()
-            .zip(&copper_boxes)
-            .enumerate()
-            .any(|(j, (q, b))| {
-                j != k && near(b, reach) && q.outline.signed_distance(centre) < reach
-            });
+        let crowded = copper_ix.near(centre).any(|j| {
+            j != k
+                && near(&copper_boxes[j], reach)
+                && copper[j].outline.signed_distance(centre) < reach
+        });
         if crowded {
             if found.rejected.len() < 20 {
                 found
