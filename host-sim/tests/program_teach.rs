@@ -455,4 +455,68 @@ fn the_taught_program_of_the_simulated_board_inspects_it() {
         r["pads"]["measured"].as_u64().unwrap() > total * 9 / 10,
         "{out}"
     );
+
+    // The same layer without its X2 names (`%TO` lines dropped) and a KiCad placement file
+    // of the generator's components: `dpsa inspect` names every pad with the component the
+    // generator gave it (the X2 names of the first inspection are the reference).
+    let gen = dpsa_sim::array::layout::generate(dpsa_sim::array::layout::LayoutBoard::Small);
+    let stripped: String = std::fs::read_to_string(&layer)
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with("%TO") && !l.starts_with("%TD"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    let bare = d.join("bare.gbr");
+    std::fs::write(&bare, stripped).unwrap();
+    let mut pos = String::from("## Unit = mm, Angle = deg.\n");
+    for c in &gen.components {
+        pos.push_str(&format!(
+            "{} val {} {:.4} {:.4} {:.1} top\n",
+            c.refdes,
+            c.family.name(),
+            c.centre[0],
+            c.centre[1],
+            c.rotation_deg
+        ));
+    }
+    std::fs::write(d.join("top.pos"), pos).unwrap();
+    let prog2 = d.join("program2.toml");
+    ok(&[
+        "program",
+        "--paste",
+        s(&bare),
+        "--copper",
+        s(&d.join("cu.gbr")),
+        "--outline",
+        s(&d.join("edge.gbr")),
+        "--placement",
+        s(&d.join("top.pos")),
+        "--out",
+        s(&prog2),
+    ]);
+    let t = std::fs::read_to_string(&prog2).unwrap().replace(
+        "search_mm = 1.5",
+        &format!("search_mm = {}", want.fiducials.search_mm),
+    );
+    std::fs::write(&prog2, t).unwrap();
+    ok(&[
+        "inspect",
+        s(&map),
+        "--program",
+        s(&prog2),
+        "--out",
+        s(&d.join("insp2")),
+    ]);
+    let components = |dir: &str| -> Vec<String> {
+        std::fs::read_to_string(d.join(dir).join("pads.csv"))
+            .unwrap()
+            .lines()
+            .skip(1)
+            .map(|l| l.split(',').nth(1).unwrap().to_string())
+            .collect()
+    };
+    let (x2, placed) = (components("insp"), components("insp2"));
+    assert_eq!(x2.len(), total as usize);
+    assert!(x2.iter().all(|c| !c.is_empty()));
+    assert_eq!(placed, x2);
 }

@@ -6,8 +6,9 @@
 //!   gives a QFP's corner pads to the decoupling capacitors beside it, so the choice is in two
 //!   passes: (1) the nearest component about whose centre the pad has a mirror image (another
 //!   pad of the same class within [`MIRROR_TOLERANCE_MM`] of the pad's image under a half turn
-//!   about the centre or a reflection across the component's own x or y axis: chips, QFP,
-//!   QFN, SOIC, BGA, SOT-23's pins 1 and 2, most connectors are so symmetric); (2) a pad with no mirror
+//!   about the centre, or the pad on the centre itself: chips, QFP, QFN with their thermal pad,
+//!   SOIC, BGA), else the nearest across whose own x or y
+//!   axis it has one (SOT-23's pins 1 and 2, switches, most connectors); (2) a pad with no mirror
 //!   goes to the nearest component that got no pad in pass 1 (SOT-23, connectors whose
 //!   placement point is not their centre), else to the nearest.
 //! - Its pin: the X2 pin when the layer has one; else its 1-based index among the component's
@@ -74,14 +75,19 @@ pub fn assign(pads: &mut [Pad], components: &[Component], max_distance_mm: f64) 
     };
     // The pad's images through the component's centre: the half turn, and the reflections
     // across the component's own two axes.
-    let mirrored = |k: usize, comp: &Component| -> bool {
+    let mirrored = |k: usize, comp: &Component, axes: bool| -> bool {
         let c = comp.at_mm;
         let (dx, dy) = (centres[k][0] - c[0], centres[k][1] - c[1]);
         let (s, co) = comp.rotation_deg.to_radians().sin_cos();
         // Along the component's axes.
         let (u, v) = (co * dx + s * dy, -s * dx + co * dy);
         let back = |u: f64, v: f64| [c[0] + co * u - s * v, c[1] + s * u + co * v];
-        has_pad_at(k, back(-u, -v)) || has_pad_at(k, back(-u, v)) || has_pad_at(k, back(u, -v))
+        if axes {
+            has_pad_at(k, back(-u, v)) || has_pad_at(k, back(u, -v))
+        } else {
+            // A pad on the centre (a thermal pad, a BGA's middle ball) is its own image.
+            u.hypot(v) <= MIRROR_TOLERANCE_MM || has_pad_at(k, back(-u, -v))
+        }
     };
     // Pass 1: the nearest component about whose centre the pad has a mirror image.
     let mut symmetric = vec![false; top.len()];
@@ -114,7 +120,13 @@ pub fn assign(pads: &mut [Pad], components: &[Component], max_distance_mm: f64) 
         }
         // Nearest first; ties go to the earlier component of the file.
         cands.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        match cands.iter().find(|&&(_, i)| mirrored(k, top[i])) {
+        // The half turn first: a row of pads beside another part reflects onto itself
+        // across that part's axis more easily than it turns onto itself about its centre.
+        let hit = cands
+            .iter()
+            .find(|&&(_, i)| mirrored(k, top[i], false))
+            .or_else(|| cands.iter().find(|&&(_, i)| mirrored(k, top[i], true)));
+        match hit {
             Some(&(_, i)) => {
                 owner[k] = Some(i);
                 symmetric[i] = true;
