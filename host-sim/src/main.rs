@@ -32,6 +32,7 @@ fn main() {
         Cmd::Phase(a) => cli::phase::run(a),
         Cmd::Pads(a) => cli::pads::run(a),
         Cmd::Inspect(a) => cli::inspect::run(a, progress),
+        Cmd::Program(a) => cli::program::run(*a),
         Cmd::Grr(a) => cli::grr::run(a),
         // 0 clean, 2 damaged or incomplete, 3 nothing decodable (cli/decode.rs).
         Cmd::Decode(a) => cli::decode::run(a).map(exit_unless_zero),

@@ -15,6 +15,7 @@ pub mod layout;
 pub mod pads;
 pub mod pads_bench;
 pub mod phase;
+pub mod program;
 pub mod reconstruct;
 pub mod simulate;
 pub mod target_run;
@@ -63,6 +64,10 @@ pub enum Cmd {
     /// pads.csv, report.json, an IPC-CFX UnitsInspected message, an overview and a defect
     /// gallery.
     Inspect(inspect::Args),
+    /// Teach: an inspection program from the design files: the top paste layer, the copper
+    /// layer (fiducials), the outline (board corner) and a pick-and-place file (pad names);
+    /// per-family default windows; prints what it found.
+    Program(Box<program::Args>),
     /// Gauge repeatability (GR&R) of the inspection: the same printed board N times through
     /// the simulated array with fresh noise and placement, inspected each time.
     Grr(grr::Args),

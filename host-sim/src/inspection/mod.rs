@@ -15,6 +15,7 @@
 //! | [`report`] | the files: pads.csv, IPC-CFX UnitsInspected, overview, defect gallery |
 //! | [`simulated`] | a simulated board's print (`print.json`) as the truth |
 //! | [`grr`] | `dpsa grr`: the gauge repeatability study |
+//! | [`teach`] | `dpsa program`: the program from the design files (paste, copper, outline, pick-and-place) |
 
 pub mod gerber;
 pub mod grr;
@@ -27,6 +28,7 @@ pub mod register_paste;
 pub mod report;
 pub mod run;
 pub mod simulated;
+pub mod teach;
 pub mod truth;
 pub mod verdict;
 

@@ -28,8 +28,14 @@
 //! volume_pct = { warn = [65.0, 135.0], fail = [55.0, 145.0] }
 //! # ... area_pct, height_pct, offset_pct, shape_pct, missing_pct, bridge_height_pct
 //!
-//! [[override]]                     # per pad class or component (first match wins)
-//! component = "U7"                 # or: aperture = "C 0.25" (the pad class), pad = "U7-3"
+//! [components]                     # pad names from a pick-and-place file (`dpsa program`)
+//! file = "board-top.pos"           # relative to this file
+//! format = "kicad"                 # kicad, kicad-csv, altium, csv (+ columns, units)
+//! max_distance_mm = 8.0            # a pad goes to the nearest component centre within this
+//!
+//! [[override]]                     # per pad class, component or package (first match wins)
+//! component = "U7"                 # or: aperture = "C 0.25" (the pad class), pad = "U7-3",
+//!                                  # package = "QFN-32" (needs [components])
 //! volume_pct = { warn = [60.0, 140.0], fail = [50.0, 150.0] }
 //! ```
 
@@ -135,6 +141,11 @@ pub struct Override {
     /// One pad by name (`U7-3`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pad: Option<String>,
+    /// Every component of this package (exact, as the placement file names it); needs
+    /// `[components]`. Resolved when the pads are named: the override stands for one copy per
+    /// component of the package, in the file's order.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub package: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub volume_pct: Option<Window>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -266,6 +277,10 @@ pub struct Program {
     pub measure: Measure,
     #[serde(default)]
     pub windows: Windows,
+    /// Pad names from a pick-and-place file (`dpsa program`): the nearest component and a
+    /// pin for every pad the layer does not name itself.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub components: Option<super::teach::placement::ComponentsFile>,
     #[serde(default, rename = "override", skip_serializing_if = "Vec::is_empty")]
     pub overrides: Vec<Override>,
     /// Inspect a paste layer whose file has no end (`M02`): it may be cut short, so it is
@@ -381,6 +396,7 @@ impl Program {
             fiducials: Fiducials::default(),
             measure: Measure::default(),
             windows: Windows::default(),
+            components: None,
             overrides: Vec::new(),
             allow_truncated_layer: false,
             truth: None,
@@ -417,6 +433,13 @@ impl Program {
     /// The paste layer's path, resolved against the program's directory.
     pub fn paste_layer_path(&self, program_path: &Path) -> PathBuf {
         resolve(program_path, &self.paste_layer)
+    }
+
+    /// The placement file's path (`[components]`), resolved against the program's directory.
+    pub fn components_path(&self, program_path: &Path) -> Option<PathBuf> {
+        self.components
+            .as_ref()
+            .map(|c| resolve(program_path, &c.file))
     }
 
     /// The truth file's path (simulator recordings only).
@@ -497,11 +520,36 @@ impl Program {
         check_range("measure.wall_mm", m.wall_mm, 0.0, 1.0)?;
         check_range("measure.bridge_reach_mm", m.bridge_reach_mm, 0.0, 5.0)?;
         self.windows.validate("windows.")?;
+        if let Some(c) = &self.components {
+            if c.file.trim().is_empty() {
+                return Err(ProgramError::Invalid {
+                    key: "components.file".into(),
+                    why: "empty".into(),
+                });
+            }
+            check_range("components.max_distance_mm", c.max_distance_mm, 0.1, 100.0)?;
+            if (c.format == super::teach::placement::Format::Csv) != c.columns.is_some() {
+                return Err(ProgramError::Invalid {
+                    key: "components.columns".into(),
+                    why: "given for a format other than csv, or missing for csv".into(),
+                });
+            }
+        }
         for (i, o) in self.overrides.iter().enumerate() {
-            if o.component.is_none() && o.aperture.is_none() && o.pad.is_none() {
+            if o.component.is_none()
+                && o.aperture.is_none()
+                && o.pad.is_none()
+                && o.package.is_none()
+            {
                 return Err(ProgramError::Invalid {
                     key: format!("override[{i}]"),
-                    why: "matching nothing: give component, aperture or pad".into(),
+                    why: "matching nothing: give component, aperture, pad or package".into(),
+                });
+            }
+            if o.package.is_some() && self.components.is_none() {
+                return Err(ProgramError::Invalid {
+                    key: format!("override[{i}].package"),
+                    why: "given without [components]: packages come from the placement file".into(),
                 });
             }
             self.windows.with(o).validate(&format!("override[{i}]."))?;
@@ -509,9 +557,37 @@ impl Program {
         Ok(())
     }
 
-    /// The windows of a pad: the first override that matches it, else the default.
+    /// Puts in the packages of the components (`[components]`): every override with a
+    /// `package` becomes one copy per component of that package (`components`: reference and
+    /// package, in the placement file's order), with `component` set; one that also names a
+    /// component stays only if that component has the package.
+    pub fn resolve_packages(&mut self, components: &[(String, String)]) {
+        let mut out = Vec::with_capacity(self.overrides.len());
+        for o in self.overrides.drain(..) {
+            let Some(pkg) = &o.package else {
+                out.push(o);
+                continue;
+            };
+            for (r, p) in components {
+                if p == pkg && o.component.as_ref().is_none_or(|c| c == r) {
+                    out.push(Override {
+                        component: Some(r.clone()),
+                        ..o.clone()
+                    });
+                }
+            }
+        }
+        self.overrides = out;
+    }
+
+    /// The windows of a pad: the first override that matches it, else the default. An
+    /// override whose `package` was not resolved ([`Program::resolve_packages`]) matches
+    /// nothing.
     pub fn windows_for(&self, pad: &super::pads::Pad) -> Windows {
         for o in &self.overrides {
+            if o.package.is_some() && o.component.is_none() {
+                continue;
+            }
             let hit = o
                 .component
                 .as_ref()

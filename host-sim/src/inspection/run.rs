@@ -454,8 +454,9 @@ pub fn inspect_dir_shown(
     progress: bool,
 ) -> anyhow::Result<(Report, Inspection)> {
     let t0 = Instant::now();
-    let program = Program::load(program_path)?;
+    let mut program = Program::load(program_path)?;
     let layer_path = program.paste_layer_path(program_path);
+    let components_path = program.components_path(program_path);
     if let Some(dir) = out {
         // Before any work: the output may not be (or hold) an input, and may replace only an
         // earlier inspection output.
@@ -470,10 +471,16 @@ pub fn inspect_dir_shown(
         if let Some(t) = &truth_in {
             inputs.push(crate::files::Input::File(t));
         }
+        if let Some(c) = &components_path {
+            inputs.push(crate::files::Input::File(c));
+        }
         crate::files::refuse_overwrite_dir("--out", dir, &inputs)?;
         super::report::check_destination(dir)?;
     }
-    let (pads, layer_notes) = paste_layer_pads(&program, program_path)?;
+    let (mut pads, layer_notes) = paste_layer_pads(&program, program_path)?;
+    // Pad names (and package overrides) from the program's placement file, if it has one.
+    super::teach::apply_components(&mut program, program_path, &mut pads)?;
+    let pads = pads;
     let map = BoardMap::open(board)?;
     let load_s = t0.elapsed().as_secs_f64();
     let truth_path = truth
