@@ -455,6 +455,38 @@ fn the_taught_program_of_the_simulated_board_inspects_it() {
         r["pads"]["measured"].as_u64().unwrap() > total * 9 / 10,
         "{out}"
     );
+    let by_fiducials = r["truth"]["registration_error_um"].as_f64().unwrap();
+
+    // The same program without its fiducials: `dpsa inspect` registers the design by its
+    // paste pattern, and says so.
+    let mut nofid = Program::load(&prog).unwrap();
+    nofid.fiducials.points_mm.clear();
+    let nofid_path = prog.with_file_name("nofid.toml");
+    std::fs::write(&nofid_path, nofid.to_toml_string()).unwrap();
+    let out = ok(&[
+        "inspect",
+        s(&map),
+        "--program",
+        s(&nofid_path),
+        "--truth",
+        s(&board.join("print.json")),
+        "--out",
+        s(&d.join("insp-nofid")),
+        "--json",
+    ]);
+    let r: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(r["registration"]["method"], "paste pattern", "{out}");
+    assert!(
+        r["registration"]["pads_used"].as_u64().unwrap() > total / 2,
+        "{out}"
+    );
+    let by_paste = r["truth"]["registration_error_um"].as_f64().unwrap();
+    eprintln!("registration error: fiducials {by_fiducials:.1} um, paste pattern {by_paste:.1} um");
+    assert!(by_paste < 30.0, "{out}");
+    assert!(
+        r["pads"]["measured"].as_u64().unwrap() > total * 9 / 10,
+        "{out}"
+    );
 
     // The same layer without its X2 names (`%TO` lines dropped) and a KiCad placement file
     // of the generator's components: `dpsa inspect` names every pad with the component the

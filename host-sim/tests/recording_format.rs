@@ -41,7 +41,11 @@ fn a_recording_written_without_the_simulator_reads_to_its_surface() {
     make(dir.path(), None);
     let stream = dir.path().join("s.bin");
     let out = reconstruct(&dir.path().join("rec"), &stream);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let (map, report) = dpsa_sim::stream::decode_stream(&std::fs::read(&stream).unwrap(), 0.25);
     assert_eq!(report.corrupt, 0);
     let expected: serde_json::Value =

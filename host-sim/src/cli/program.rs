@@ -115,7 +115,7 @@ pub fn run(a: Args) -> Result<()> {
     );
     if s.fiducials.points_mm.is_empty() {
         out!(
-            "fiducials: NONE {}: dpsa inspect refuses this program until [fiducials] points_mm is filled in",
+            "fiducials: NONE {}: dpsa inspect will register the design by its paste pattern (or fill in [fiducials] points_mm)",
             if s.copper_given {
                 "found on the copper layer"
             } else {

@@ -224,14 +224,19 @@ fn group_pads(
         }
         let pb = bbox(poly);
         let mut meets: std::collections::HashMap<usize, bool> = Default::default();
+        // One piece and nothing clear: every dark object is in it (no test needed; a step
+        // and repeat of 220 overlapping copies would test each against the union's long
+        // outline).
+        let single = result.0.len() == 1 && !any_clear;
         let contributors: Vec<usize> = darks
             .iter()
             .copied()
             .filter(|&i| {
-                *meets.entry(rep[i]).or_insert_with(|| {
-                    let o = &objects[rep[i]];
-                    boxes_meet(&o.bbox, &pb) && layer.shape(rep[i]).intersects(poly)
-                })
+                single
+                    || *meets.entry(rep[i]).or_insert_with(|| {
+                        let o = &objects[rep[i]];
+                        boxes_meet(&o.bbox, &pb) && layer.shape(rep[i]).intersects(poly)
+                    })
             })
             .collect();
         let contributors = if contributors.is_empty() {

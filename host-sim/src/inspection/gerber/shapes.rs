@@ -237,13 +237,23 @@ pub(super) fn arc_band(
     ])
 }
 
-/// Union of polygons.
+/// Polygons united in one overlay at most; more are united in halves, then the halves.
+const CASCADE: usize = 32;
+
+/// Union of polygons. Up to [`CASCADE`] in one overlay; more in a balanced cascade (each half
+/// united, then the two): one overlay of many polygons whose edges overlap along their length
+/// (a step and repeat of a long line, 0.02 mm apart) costs the square of their count, while
+/// the halves' unions stay as small as the result (880 such copies: 3.5 s in one overlay).
 pub(super) fn union_all(polys: &[Polygon<f64>]) -> MultiPolygon<f64> {
     if polys.len() == 1 {
         // Through the overlay too: resolves self-touching contours (cut-ins) into holes.
         return polys[0].union(&MultiPolygon::<f64>::new(vec![]));
     }
-    unary_union(polys.iter())
+    if polys.len() <= CASCADE {
+        return unary_union(polys.iter());
+    }
+    let (a, b) = polys.split_at(polys.len() / 2);
+    union_all(a).union(&union_all(b))
 }
 
 /// An affine map of the plane: `p -> [a p.x + b p.y + tx, c p.x + d p.y + ty]`.

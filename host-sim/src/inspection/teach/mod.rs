@@ -332,9 +332,9 @@ pub fn program_text(t: &Taught) -> String {
     h.push_str(&format!("# board corner from the {}\n", s.outline));
     if s.fiducials.points_mm.is_empty() {
         h.push_str(if s.copper_given {
-            "# FIDUCIALS: NONE FOUND on the copper layer. `dpsa inspect` refuses a program without\n# fiducials: add their design-frame centres to [fiducials] points_mm.\n"
+            "# FIDUCIALS: NONE FOUND on the copper layer. `dpsa inspect` registers the design by its\n# paste pattern instead (docs/inspection.md); to register by fiducials, add their\n# design-frame centres to [fiducials] points_mm.\n"
         } else {
-            "# FIDUCIALS: NONE (no --copper layer given). `dpsa inspect` refuses a program without\n# fiducials: add their design-frame centres to [fiducials] points_mm.\n"
+            "# FIDUCIALS: NONE (no --copper layer given). `dpsa inspect` registers the design by its\n# paste pattern instead (docs/inspection.md); to register by fiducials, add their\n# design-frame centres to [fiducials] points_mm.\n"
         });
     } else {
         h.push_str(&format!(
