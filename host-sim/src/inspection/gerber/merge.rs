@@ -7,7 +7,7 @@
 
 use super::object::{vertex_count, Geom, Layer};
 use super::shapes::{outline_of, union_all};
-use super::{GerberError, MAX_VERTICES};
+use super::{GerberError, MAX_PAIR_WORK, MAX_VERTICES};
 use crate::inspection::pads::Pad;
 use geo::{BooleanOps, Intersects, MultiPolygon, Polygon};
 use std::sync::Arc;
@@ -101,7 +101,17 @@ fn first_copies(layer: &Layer) -> Vec<usize> {
 /// them dark. Copies join their first copy (identical non-empty shapes intersect); the other
 /// objects are found through an R-tree of their boxes, so a layer costs n log n plus the
 /// pairs whose boxes meet, not n^2 for objects sharing an x range.
-fn join_touching(layer: &Layer, rep: &[usize], groups: &mut Groups) {
+///
+/// The exact tests cost about the product of the two polygons' vertex counts each; their sum
+/// is bounded by [`MAX_PAIR_WORK`] (objects whose boxes meet but whose shapes do not, e.g. a
+/// step and repeat of long diagonal lines 0.02 mm apart, are not joined by any earlier test,
+/// so their count grows with the square of the copies): beyond it the layer is refused.
+fn join_touching(
+    layer: &Layer,
+    rep: &[usize],
+    groups: &mut Groups,
+    budget: u64,
+) -> Result<(), GerberError> {
     use rstar::primitives::{GeomWithData, Rectangle};
     use rstar::{RTree, AABB};
     const EPS: f64 = 1e-9;
@@ -120,6 +130,7 @@ fn join_touching(layer: &Layer, rep: &[usize], groups: &mut Groups) {
         }
     }
     let tree = RTree::bulk_load(leaves);
+    let mut work = 0u64;
     for i in 0..objects.len() {
         let b = objects[i].bbox;
         if rep[i] != i || !finite(&b) {
@@ -134,13 +145,23 @@ fn join_touching(layer: &Layer, rep: &[usize], groups: &mut Groups) {
                 continue;
             }
             if boxes_meet(&b, &objects[j].bbox) && groups.find(i) != groups.find(j) {
-                let si = shape_i.get_or_insert_with(|| layer.shape(i));
-                if si.intersects(&*layer.shape(j)) {
+                let (si, ni) = shape_i.get_or_insert_with(|| {
+                    let s = layer.shape(i);
+                    let n = vertex_count(&s) as u64;
+                    (s, n)
+                });
+                let sj = layer.shape(j);
+                work = work.saturating_add(*ni * vertex_count(&sj) as u64);
+                if work > budget {
+                    return Err(GerberError::TooEntangled { limit: budget });
+                }
+                if si.intersects(&*sj) {
                     groups.join(i, j);
                 }
             }
         }
     }
+    Ok(())
 }
 
 /// The pads of a layer's objects, in the order of the file. Errors when the merged pads'
@@ -150,7 +171,7 @@ pub(super) fn pads(mut layer: Layer, warnings: &mut Vec<String>) -> Result<Vec<P
     let n = layer.objects.len();
     let rep = first_copies(&layer);
     let mut groups = Groups::new(n);
-    join_touching(&layer, &rep, &mut groups);
+    join_touching(&layer, &rep, &mut groups, MAX_PAIR_WORK)?;
     pads_of_groups(&mut layer, &rep, groups, warnings)
 }
 
@@ -447,7 +468,7 @@ mod tests {
             let objects = layout(&mut rng, n);
             let rep = first_copies(&objects);
             let mut fast = Groups::new(n);
-            join_touching(&objects, &rep, &mut fast);
+            join_touching(&objects, &rep, &mut fast, MAX_PAIR_WORK).expect("within the limits");
             let slow = brute_groups(&objects);
             assert_eq!(partition(fast), partition(slow), "round {round}");
 
@@ -501,5 +522,42 @@ mod tests {
         assert_eq!(got.len(), 1);
         assert!((got[0].outline.area() - 0.25).abs() < 1e-12);
         assert_eq!(got[0].aperture.as_deref(), Some("R 0.50x0.50"));
+    }
+
+    /// Parallel diagonal strips whose boxes all meet but whose shapes do not: the exact tests
+    /// are counted, and a layer over the budget is refused, not tested pair by pair for
+    /// minutes; under it they stay separate pads.
+    #[test]
+    fn entangled_objects_are_refused_beyond_the_work_budget() {
+        let strips: Vec<Object> = (0..40)
+            .map(|k| {
+                let d = 0.05 * k as f64;
+                object(
+                    true,
+                    vec![
+                        [d, 0.0],
+                        [d + 0.02, 0.0],
+                        [d + 10.02, 10.0],
+                        [d + 10.0, 10.0],
+                        [d, 0.0],
+                    ],
+                    "strip",
+                )
+            })
+            .collect();
+        let layer = Layer {
+            objects: strips,
+            ..Layer::default()
+        };
+        let rep = first_copies(&layer);
+        // 780 pairs of 5 x 5 vertices.
+        let mut g = Groups::new(40);
+        assert!(matches!(
+            join_touching(&layer, &rep, &mut g, 10_000),
+            Err(GerberError::TooEntangled { limit: 10_000 })
+        ));
+        let mut g = Groups::new(40);
+        join_touching(&layer, &rep, &mut g, 780 * 25).expect("within the budget");
+        assert_eq!(partition(g), (0..40).collect::<Vec<_>>());
     }
 }

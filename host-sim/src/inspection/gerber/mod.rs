@@ -44,6 +44,10 @@ pub const MAX_VERTICES: usize = 8_000_000;
 /// Most vertices of the pieces of one stroke before their union (an aperture swept along the
 /// chords of an arc).
 pub const MAX_STROKE_VERTICES: usize = 200_000;
+/// Most work of the exact tests between objects whose bounding boxes meet: the sum over the
+/// tested pairs of the product of their vertex counts (about 16 ns each on this project's
+/// machine, so at most about 20 s).
+pub const MAX_PAIR_WORK: u64 = 1_000_000_000;
 /// Statements pre-processed, parsed and interpreted at a time.
 pub const CHUNK_STATEMENTS: usize = 16_384;
 /// Largest coordinate or size, mm (10 m): beyond it a file is corrupt, not a board.
@@ -84,6 +88,11 @@ pub enum GerberError {
     #[error("line {line}: more than {limit} polygon vertices in the layer")]
     TooComplex { line: usize, limit: usize },
     #[error(
+        "the layer's objects overlap too densely to merge in bounded time: the exact tests \
+         of the objects whose boxes meet would compare more than {limit} pairs of edges"
+    )]
+    TooEntangled { limit: u64 },
+    #[error(
         "line {line}: this stroke of aperture {aperture} needs {vertices} polygon vertices, more \
          than the {limit} one stroke may have (an aperture far too large for its path)"
     )]
@@ -103,7 +112,9 @@ impl GerberError {
     /// The 1-based line of the file the error was found on (0: none).
     pub fn line(&self) -> usize {
         match self {
-            GerberError::Io { .. } | GerberError::TooLarge { .. } => 0,
+            GerberError::Io { .. }
+            | GerberError::TooLarge { .. }
+            | GerberError::TooEntangled { .. } => 0,
             GerberError::Binary { line }
             | GerberError::Syntax { line, .. }
             | GerberError::NoUnits { line }
