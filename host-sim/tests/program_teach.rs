@@ -436,18 +436,23 @@ fn the_taught_program_of_the_simulated_board_inspects_it() {
         &format!("search_mm = {}", want.fiducials.search_mm),
     );
     std::fs::write(&prog, t).unwrap();
-    let out = ok(&[
-        "inspect",
-        s(&map),
-        "--program",
-        s(&prog),
-        "--truth",
-        s(&board.join("print.json")),
-        "--out",
-        s(&d.join("insp")),
-        "--json",
-    ]);
-    let r: serde_json::Value = serde_json::from_str(&out).unwrap();
+    // `dpsa inspect --json` of the map with a program, into `d/OUT`.
+    let inspect = |program: &Path, out: &str| -> (String, serde_json::Value) {
+        let text = ok(&[
+            "inspect",
+            s(&map),
+            "--program",
+            s(program),
+            "--truth",
+            s(&board.join("print.json")),
+            "--out",
+            s(&d.join(out)),
+            "--json",
+        ]);
+        let v = serde_json::from_str(&text).unwrap();
+        (text, v)
+    };
+    let (out, r) = inspect(&prog, "insp");
     assert_eq!(r["registration"]["fiducials"].as_array().unwrap().len(), 3);
     let total = r["pads"]["total"].as_u64().unwrap();
     assert_eq!(total, gerber::read_file(&layer).unwrap().pads.len() as u64);
@@ -463,18 +468,7 @@ fn the_taught_program_of_the_simulated_board_inspects_it() {
     nofid.fiducials.points_mm.clear();
     let nofid_path = prog.with_file_name("nofid.toml");
     std::fs::write(&nofid_path, nofid.to_toml_string()).unwrap();
-    let out = ok(&[
-        "inspect",
-        s(&map),
-        "--program",
-        s(&nofid_path),
-        "--truth",
-        s(&board.join("print.json")),
-        "--out",
-        s(&d.join("insp-nofid")),
-        "--json",
-    ]);
-    let r: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let (out, r) = inspect(&nofid_path, "insp-nofid");
     assert_eq!(r["registration"]["method"], "paste pattern", "{out}");
     assert!(
         r["registration"]["pads_used"].as_u64().unwrap() > total / 2,

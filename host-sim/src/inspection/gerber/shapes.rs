@@ -150,14 +150,9 @@ pub(super) fn swept_rect(a: Point, b: Point, w: f64, h: f64) -> Vec<Point> {
     convex_hull(pts)
 }
 
-/// Points along an arc from `start` (excluded) to `end` (included) about `centre`, turning
-/// clockwise or not; a full turn when `start == end`. The radius goes linearly from the
-/// start's to the end's (files round them differently).
-pub(super) fn arc_points(start: Point, end: Point, centre: Point, clockwise: bool) -> Vec<Point> {
-    let (r0, r1) = (
-        (start[0] - centre[0]).hypot(start[1] - centre[1]),
-        (end[0] - centre[0]).hypot(end[1] - centre[1]),
-    );
+/// An arc's start angle about `centre` and its sweep (rad, `0..=2 pi`), turning clockwise or
+/// not; a full turn when `start == end`.
+fn arc_sweep(start: Point, end: Point, centre: Point, clockwise: bool) -> (f64, f64) {
     let a0 = (start[1] - centre[1]).atan2(start[0] - centre[0]);
     let a1 = (end[1] - centre[1]).atan2(end[0] - centre[0]);
     let mut sweep = if clockwise { a0 - a1 } else { a1 - a0 };
@@ -166,6 +161,18 @@ pub(super) fn arc_points(start: Point, end: Point, centre: Point, clockwise: boo
     if same || sweep < 1e-12 {
         sweep = if same { TAU } else { 0.0 };
     }
+    (a0, sweep)
+}
+
+/// Points along an arc from `start` (excluded) to `end` (included) about `centre`, turning
+/// clockwise or not; a full turn when `start == end`. The radius goes linearly from the
+/// start's to the end's (files round them differently).
+pub(super) fn arc_points(start: Point, end: Point, centre: Point, clockwise: bool) -> Vec<Point> {
+    let (r0, r1) = (
+        (start[0] - centre[0]).hypot(start[1] - centre[1]),
+        (end[0] - centre[0]).hypot(end[1] - centre[1]),
+    );
+    let (a0, sweep) = arc_sweep(start, end, centre, clockwise);
     let n = arc_segments(r0.max(r1), sweep);
     let dir = if clockwise { -1.0 } else { 1.0 };
     let mut pts = Vec::with_capacity(n);
@@ -205,14 +212,7 @@ pub(super) fn arc_band(
     if inner.is_nan() || inner <= CHORD_MM || (r1 - r0).abs() > 0.1 * d {
         return None;
     }
-    let a0 = (start[1] - centre[1]).atan2(start[0] - centre[0]);
-    let a1 = (end[1] - centre[1]).atan2(end[0] - centre[0]);
-    let mut sweep = if clockwise { a0 - a1 } else { a1 - a0 };
-    sweep = sweep.rem_euclid(TAU);
-    let same = (start[0] - end[0]).abs() < 1e-9 && (start[1] - end[1]).abs() < 1e-9;
-    if same || sweep < 1e-12 {
-        sweep = if same { TAU } else { 0.0 };
-    }
+    let (a0, sweep) = arc_sweep(start, end, centre, clockwise);
     let dir = if clockwise { -1.0 } else { 1.0 };
     let n = arc_segments(r0.max(r1) + r, sweep).max(1);
     let at = |t: f64, off: f64| -> Point {
