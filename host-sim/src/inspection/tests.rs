@@ -473,12 +473,18 @@ fn registration_by_the_paste_pattern_without_fiducials() {
     assert!(reg.fiducials.is_empty());
     let used = reg.pads_used.unwrap();
     assert!((5..=8).contains(&used), "{used} pads used");
+    let mut worst: f64 = 0.0;
     for p in &s.pads {
         let c = p.outline.centroid();
         let (a, b) = (reg.transform.apply(c), s.truth_t.apply(c));
         let e = (a[0] - b[0]).hypot(a[1] - b[1]) * 1000.0;
         assert!(e < 6.0, "pad {} placed {e:.2} um off", p.index);
+        worst = worst.max(e);
     }
+    eprintln!(
+        "paste pattern: {used} pads kept, residual {:.1} um, worst pad {worst:.1} um from the truth",
+        reg.residual_um
+    );
     assert!(reg.residual_um < 6.0, "{}", reg.residual_um);
     // `inspect` takes it when the program lists no fiducials; the summary names it.
     let i = super::run::inspect(&s.map, &s.pads, &s.program).unwrap();
