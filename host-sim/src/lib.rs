@@ -26,15 +26,14 @@ pub mod array;
 pub mod benches;
 pub mod board;
 pub mod calibration;
-pub mod files;
-pub mod heightmap;
-pub mod images;
 pub mod inspection;
 pub mod kind;
-pub mod progress;
 pub mod reconstruct;
 pub mod reference;
 pub mod simulation;
 pub mod stack;
-pub mod stream;
 pub mod target;
+
+// The bottom layer, re-exported at its old paths.
+pub use dpsa_formats::{files, heightmap, images, progress};
+pub use dpsa_stream as stream;

@@ -26,41 +26,4 @@ pub mod run;
 pub mod streams;
 pub mod unwrap;
 
-/// A row-major grid of heights, um; NaN is invalid. Row `r` is along the motion (board `x`),
-/// column `c` across it (board `y`).
-#[derive(Clone, Debug, PartialEq)]
-pub struct Grid {
-    pub width: usize,
-    pub rows: usize,
-    pub data: Vec<f32>,
-}
-
-impl Grid {
-    /// A grid of invalid pixels.
-    pub fn invalid(width: usize, rows: usize) -> Grid {
-        Grid {
-            width,
-            rows,
-            data: vec![f32::NAN; width * rows],
-        }
-    }
-
-    /// Height at row `r`, column `c` (NaN when invalid or outside).
-    pub fn at(&self, r: usize, c: usize) -> f32 {
-        if r < self.rows && c < self.width {
-            self.data[r * self.width + c]
-        } else {
-            f32::NAN
-        }
-    }
-
-    /// Mutable height at row `r`, column `c`. Panics outside the grid.
-    pub fn at_mut(&mut self, r: usize, c: usize) -> &mut f32 {
-        &mut self.data[r * self.width + c]
-    }
-
-    /// Valid (finite) pixels.
-    pub fn valid(&self) -> usize {
-        self.data.iter().filter(|v| v.is_finite()).count()
-    }
-}
+pub use dpsa_formats::grid::Grid;

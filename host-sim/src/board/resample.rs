@@ -53,26 +53,7 @@ impl Placement {
     }
 }
 
-/// The board grid: `rows` along the motion from `x0_mm`, `width` across from `y0_mm`, square
-/// pixels of `pitch_mm`. Pixel `(i, j)` is centred at `(x0 + (i + 1/2) p, y0 + (j + 1/2) p)`.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct BoardGrid {
-    pub x0_mm: f64,
-    pub y0_mm: f64,
-    pub pitch_mm: f64,
-    pub rows: usize,
-    pub width: usize,
-}
-
-impl BoardGrid {
-    /// Centre of pixel `(i, j)`, mm.
-    pub fn centre(&self, i: usize, j: usize) -> (f64, f64) {
-        (
-            self.x0_mm + (i as f64 + 0.5) * self.pitch_mm,
-            self.y0_mm + (j as f64 + 0.5) * self.pitch_mm,
-        )
-    }
-}
+pub use dpsa_formats::grid::BoardGrid;
 
 /// One camera on the board grid.
 #[derive(Clone, Debug)]

@@ -17,11 +17,9 @@
 //! | [`grr`] | `dpsa grr`: the gauge repeatability study |
 //! | [`teach`] | `dpsa program`: the program from the design files (paste, copper, outline, pick-and-place) |
 
-pub mod gerber;
 pub mod grr;
 pub mod map;
 pub mod measure;
-pub mod pads;
 pub mod program;
 pub mod register;
 pub mod register_paste;
@@ -34,3 +32,7 @@ pub mod verdict;
 
 #[cfg(test)]
 mod tests;
+
+// The paste layer and the pad geometry (crate `dpsa-gerber`), at their old paths.
+pub use dpsa_gerber as gerber;
+pub use dpsa_gerber::pads;

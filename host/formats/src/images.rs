@@ -83,7 +83,7 @@ pub fn write_phase_png(phase: &[Option<f64>], width: usize, path: &Path) -> Resu
 }
 
 /// Writes an image as PNG atomically (temporary file renamed into place when complete).
-pub(crate) fn save_png<P, C>(img: &ImageBuffer<P, C>, path: &Path) -> Result<()>
+pub fn save_png<P, C>(img: &ImageBuffer<P, C>, path: &Path) -> Result<()>
 where
     P: image::PixelWithColorType,
     [P::Subpixel]: image::EncodableLayout,
@@ -96,7 +96,7 @@ where
 }
 
 /// A perceptually ordered blue -> cyan -> green -> yellow -> red ramp, `t` in `[0, 1]`.
-pub(crate) fn colour(t: f64) -> [u8; 3] {
+pub fn colour(t: f64) -> [u8; 3] {
     const STOPS: [[f64; 3]; 5] = [
         [0.19, 0.07, 0.60],
         [0.10, 0.60, 0.90],

@@ -7,7 +7,7 @@
 //! and at most [`MAX_DAMAGE_ENTRIES`] damage entries and [`MAX_GAP_ENTRIES`] gap entries (the
 //! counts are always complete); time is linear in the input (`dpsa_core::packets::Walk`).
 
-use crate::heightmap::{HeightMap, HeightRow};
+use dpsa_formats::heightmap::{HeightMap, HeightRow};
 use dpsa_core::packets::{
     self, codec, Item, Kind, Packet, PacketError, Summary, Totals, Tracker, Verdict, Walk,
     MAX_PACKET_LEN,

@@ -11,7 +11,7 @@ use super::shapes::{
     recognise, rect_points, swept_rect, union_all, Exact, Prim,
 };
 use super::{GerberError, MAX_COORD_MM, MAX_OBJECTS, MAX_STROKE_VERTICES, MAX_VERTICES};
-use crate::inspection::pads::Point;
+use crate::pads::Point;
 use geo::{BooleanOps, MultiPolygon, Polygon};
 use gerber_parser::gerber_types::{
     Aperture, ApertureBlock, ApertureMacro, AttributeDeletionCriterion, AxisSelect, Command,

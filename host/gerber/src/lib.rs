@@ -27,7 +27,9 @@ mod merge;
 mod object;
 mod shapes;
 
-use super::pads::Pad;
+pub mod pads;
+
+use pads::Pad;
 use serde::Serialize;
 use std::io::Read;
 use std::path::Path;
@@ -159,7 +161,7 @@ pub fn read_file(path: &Path) -> Result<PasteLayer, GerberError> {
         source,
     };
     // A FIFO or device is refused before it is opened (opening a FIFO waits for a writer).
-    let file = crate::files::check_regular(path)
+    let file = dpsa_formats::files::check_regular(path)
         .and_then(|_| std::fs::File::open(path))
         .map_err(io)?;
     let len = file.metadata().map_err(io)?.len();

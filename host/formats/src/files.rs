@@ -943,7 +943,12 @@ mod tests {
             refuse_overwrite("--out", &other.path().join("o"), &[Input::Dir(dir.path())]).is_ok()
         );
         // `.` cannot be swapped.
-        assert!(check_output_dir(Path::new("."), crate::board::output::DIR_KIND).is_err());
+        let kind = DirKind {
+            format: "test-kind",
+            noun: "test output",
+            ours: |_| false,
+        };
+        assert!(check_output_dir(Path::new("."), kind).is_err());
         // An output directory that holds an input file.
         assert!(refuse_overwrite_dir("--out", dir.path(), &[Input::File(&f)]).is_err());
         assert!(refuse_overwrite("--out", dir.path(), &[Input::File(&f)]).is_ok());

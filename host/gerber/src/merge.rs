@@ -8,7 +8,7 @@
 use super::object::{vertex_count, Geom, Layer};
 use super::shapes::{outline_of, union_all};
 use super::{GerberError, MAX_PAIR_WORK, MAX_VERTICES};
-use crate::inspection::pads::Pad;
+use crate::pads::Pad;
 use geo::{BooleanOps, Intersects, MultiPolygon, Polygon};
 use std::sync::Arc;
 
@@ -287,7 +287,7 @@ fn bbox(p: &Polygon<f64>) -> [f64; 4] {
     b
 }
 
-fn pad(outline: crate::inspection::pads::Outline, contributors: &[usize], layer: &Layer) -> Pad {
+fn pad(outline: crate::pads::Outline, contributors: &[usize], layer: &Layer) -> Pad {
     let class = {
         let mut classes = contributors.iter().map(|&i| layer.class(i));
         let first = classes.next().unwrap_or_default();
@@ -353,7 +353,7 @@ fn evaluate(
 
 #[cfg(test)]
 mod tests {
-    use super::super::object::{Class, Flat, Geom, Object};
+    use crate::object::{Class, Flat, Geom, Object};
     use super::*;
     use geo::{Coord, LineString};
 

@@ -12,7 +12,7 @@
 use super::shapes::{
     capsule, circle_points, map_multi, polygon, round_rect_points, swept_rect, Affine, Exact,
 };
-use crate::inspection::pads::{Outline, Point, Rigid};
+use crate::pads::{Outline, Point, Rigid};
 use geo::{Coord, LineString, MultiPolygon, Polygon};
 use std::borrow::Cow;
 use std::sync::Arc;

@@ -1,7 +1,7 @@
 //! Height maps: the common result type of every reconstruction path.
 //!
 //! The fixed-point core's packets decode into a [`HeightMap`]; the f64 reference
-//! ([`crate::reference::RefOutput::to_height_map`]) can be converted into one as well, so the
+//! (`dpsa_sim::reference::RefOutput::to_height_map`) can be converted into one as well, so the
 //! comparison tools treat both alike. Row flag bit values are those of `docs/model.md`
 //! ("Validity").
 

@@ -4,7 +4,7 @@
 //! Curves become polygons whose chords stay within [`CHORD_MM`] of the true curve; unions and
 //! differences use geo's `BooleanOps`.
 
-use super::super::pads::{Outline, Point};
+use crate::pads::{Outline, Point};
 use geo::orient::{Direction, Orient};
 use geo::{unary_union, BooleanOps, Coord, LineString, MultiPolygon, Polygon};
 use std::collections::HashMap;

@@ -1,0 +1,21 @@
+//! # dpsa-formats: the bottom of the host
+//!
+//! What every host crate above reads and writes, with no knowledge of how it was measured:
+//!
+//! | module | what |
+//! | --- | --- |
+//! | [`files`] | bounded reads, atomic writes, output directories that appear whole, inputs never overwritten |
+//! | [`heightmap`] | the core's rows as a height map (the decoded stream, the reference) |
+//! | [`grid`] | the board map's grids: heights in board millimetres and their placement |
+//! | [`board_id`] | the board identity shared by a board's recordings, streams and maps |
+//! | [`images`] | 16-bit and false-colour PNGs |
+//! | [`progress`] | progress bars on stderr |
+
+pub mod board_id;
+pub mod files;
+pub mod grid;
+pub mod heightmap;
+pub mod images;
+pub mod progress;
+
+pub use board_id::BoardId;
