@@ -237,29 +237,23 @@ fn group_pads(
             limit: MAX_VERTICES,
         });
     }
+    // One piece and nothing clear: every dark object is in it (no test needed; a step and
+    // repeat of 220 overlapping copies would test each against the union's long outline).
+    // Otherwise each piece tests only the objects whose boxes meet its box, once per set of
+    // coinciding copies (`rep`): a group of n objects in m pieces costs about
+    // (n + m) log n, not n x m.
+    let single = result.0.len() == 1 && !any_clear;
+    let index = (!single).then(|| ContributorIndex::new(layer, rep, &darks));
     for poly in result.iter() {
         let area = super::shapes::area(&MultiPolygon::new(vec![poly.clone()]));
         if area < MIN_AREA_MM2 {
             *slivers += 1;
             continue;
         }
-        let pb = bbox(poly);
-        let mut meets: std::collections::HashMap<usize, bool> = Default::default();
-        // One piece and nothing clear: every dark object is in it (no test needed; a step
-        // and repeat of 220 overlapping copies would test each against the union's long
-        // outline).
-        let single = result.0.len() == 1 && !any_clear;
-        let contributors: Vec<usize> = darks
-            .iter()
-            .copied()
-            .filter(|&i| {
-                single
-                    || *meets.entry(rep[i]).or_insert_with(|| {
-                        let o = &objects[rep[i]];
-                        boxes_meet(&o.bbox, &pb) && layer.shape(rep[i]).intersects(poly)
-                    })
-            })
-            .collect();
+        let contributors: Vec<usize> = match &index {
+            None => darks.clone(),
+            Some(index) => index.meeting(layer, poly),
+        };
         let contributors = if contributors.is_empty() {
             darks.clone()
         } else {
@@ -272,6 +266,54 @@ fn group_pads(
         pads.push(pad(outline, &contributors, layer));
     }
     Ok(())
+}
+
+/// The dark objects of a group by the box of their first copy, to find the objects of a piece.
+struct ContributorIndex {
+    tree: rstar::RTree<rstar::primitives::GeomWithData<rstar::primitives::Rectangle<[f64; 2]>, usize>>,
+    /// The group's dark objects per first copy: `(rep, object)` sorted.
+    members: Vec<(usize, usize)>,
+}
+
+impl ContributorIndex {
+    fn new(layer: &Layer, rep: &[usize], darks: &[usize]) -> ContributorIndex {
+        use rstar::primitives::{GeomWithData, Rectangle};
+        let mut members: Vec<(usize, usize)> = darks.iter().map(|&i| (rep[i], i)).collect();
+        members.sort_unstable();
+        let mut leaves = Vec::new();
+        for run in members.chunk_by(|a, b| a.0 == b.0) {
+            let r = run[0].0;
+            let b = layer.objects[r].bbox;
+            if b.iter().all(|v| v.is_finite()) && b[0] <= b[2] && b[1] <= b[3] {
+                leaves.push(GeomWithData::new(
+                    Rectangle::from_corners([b[0], b[1]], [b[2], b[3]]),
+                    r,
+                ));
+            }
+        }
+        ContributorIndex {
+            tree: rstar::RTree::bulk_load(leaves),
+            members,
+        }
+    }
+
+    /// The objects whose shapes meet `poly`, in file order.
+    fn meeting(&self, layer: &Layer, poly: &Polygon<f64>) -> Vec<usize> {
+        const EPS: f64 = 1e-9;
+        let pb = bbox(poly);
+        let query =
+            rstar::AABB::from_corners([pb[0] - EPS, pb[1] - EPS], [pb[2] + EPS, pb[3] + EPS]);
+        let mut out = Vec::new();
+        for leaf in self.tree.locate_in_envelope_intersecting(&query) {
+            let r = leaf.data;
+            if boxes_meet(&layer.objects[r].bbox, &pb) && layer.shape(r).intersects(poly) {
+                let from = self.members.partition_point(|m| m.0 < r);
+                out.extend(self.members[from..].iter().take_while(|m| m.0 == r).map(|m| m.1));
+            }
+        }
+        out.sort_unstable();
+        out
+    }
 }
 
 fn bbox(p: &Polygon<f64>) -> [f64; 4] {
