@@ -73,7 +73,7 @@ pub struct Files {
     pub camera_png: &'static str,
 }
 
-pub const FORMAT: &str = "dpsa-board-map";
+pub use dpsa_formats::board_map::{colour_range, FORMAT};
 
 /// The files [`write`](fn@write) writes into its directory.
 pub const FILE_NAMES: [&str; 5] = [
@@ -205,18 +205,6 @@ pub fn write_tiff(path: &Path, h: &Grid) -> Result<()> {
         )?;
         Ok(())
     })
-}
-
-/// The 1st and 99th percentiles of the valid heights (None: no valid pixel).
-pub fn colour_range(h: &Grid) -> Option<(f32, f32)> {
-    let mut v: Vec<f32> = h.data.iter().copied().filter(|x| x.is_finite()).collect();
-    if v.is_empty() {
-        return None;
-    }
-    v.sort_by(f32::total_cmp);
-    let lo = v[v.len() / 100];
-    let hi = v[(v.len() * 99 / 100).min(v.len() - 1)];
-    Some((lo, if hi > lo { hi } else { lo + 1.0 }))
 }
 
 /// Rows of the scale bar under the false-colour map.

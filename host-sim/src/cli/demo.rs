@@ -192,7 +192,7 @@ fn array(
             program.display(),
             insp.display()
         );
-        let (report, _) = dpsa_sim::inspection::run::inspect_dir_shown(
+        let (report, _) = dpsa_sim::inspection::evaluate::inspect_dir_shown(
             &map_dir,
             &program,
             None,

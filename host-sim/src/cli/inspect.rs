@@ -38,7 +38,7 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
     // `inspect_dir_shown` refuses an `--out` that is, holds or lies inside an input (the board
     // map, the program, its paste layer, the truth) and one that is not new, empty or an
     // earlier inspection output, before the inspection runs.
-    let (r, _) = dpsa_sim::inspection::run::inspect_dir_shown(
+    let (r, _) = dpsa_sim::inspection::evaluate::inspect_dir_shown(
         &a.board,
         &a.program,
         a.truth.as_deref(),

@@ -9,7 +9,7 @@
 //! `grr_pct`. Only pads measured in every repeat count. The calibration is recorded and
 //! computed once, as on a machine.
 
-use super::run::inspect_dir;
+use dpsa_inspect::run::inspect_dir;
 use crate::array::{record, record::ArrayRecording, scene::ArrayScene};
 use crate::calibration;
 use anyhow::{bail, Context, Result};
@@ -84,7 +84,7 @@ pub fn grr(scene_path: &Path, repeats: u32, seed: u64, work: &Path) -> Result<Gr
         record::simulate_board(&scene, seed + 1 + u64::from(r), &board)?;
         crate::board::run::run(&board, &cal, &map)?;
         let program_path = board.join("program.toml");
-        let (report, insp) = inspect_dir(&map, &program_path, None, None, 1, false)?;
+        let (report, insp) = inspect_dir(&map, &program_path, None, 1)?;
         let program = super::program::Program::load(&program_path)?;
         tolerance = program.windows.volume_pct.fail[1] - program.windows.volume_pct.fail[0];
         placements.push((

@@ -3,36 +3,31 @@
 //!
 //! | file | what |
 //! | --- | --- |
-//! | [`pads`] | one pad = one connected paste opening: its outline in mm, names from X2 attributes; rigid transforms |
-//! | [`gerber`] | the top paste layer (Gerber RS-274X / X2) read into pads |
-//! | [`program`] | the inspection program (TOML): stencil, placement, fiducials, measurement settings, tolerance windows |
-//! | [`map`] | the board map (`dpsa board`) as the inspection reads it |
-//! | [`register`] | fiducials found on the map, the design-to-board transform |
-//! | [`measure`] | per pad: local surface, volume, area, height, offset, shape, coverage, bridges |
-//! | [`verdict`] | pass / warning / fail with the defect class |
-//! | [`truth`] | a simulated board's truth by the same definitions; accuracy and detection figures |
-//! | [`run`] | `dpsa inspect` end to end, its JSON report |
-//! | [`report`] | the files: pads.csv, IPC-CFX UnitsInspected, overview, defect gallery |
+//! The production inspection is its own crate, `dpsa-inspect` (on the board map's format and
+//! the paste layer only), re-exported here at its old paths with the paste layer
+//! (`dpsa-gerber`): [`program`], [`teach`], [`map`], [`register`], [`register_paste`],
+//! [`measure`], [`verdict`], [`run`], [`report`], [`gerber`], [`pads`]. What stays here is the
+//! simulator's side:
+//!
+//! | file | what |
+//! | --- | --- |
+//! | [`evaluate`] | a production inspection against the print the simulator made: accuracy, detection, the report's `truth` and `detection` keys |
+//! | [`truth`] | a simulated board's truth by the measurement's own definitions; accuracy and detection figures |
 //! | [`simulated`] | a simulated board's print (`print.json`) as the truth |
-//! | [`grr`] | `dpsa grr`: the gauge repeatability study |
-//! | [`teach`] | `dpsa program`: the program from the design files (paste, copper, outline, pick-and-place) |
+//! | [`grr`] | `dpsa grr`: the gauge repeatability study on simulated boards |
 
+pub mod evaluate;
 pub mod grr;
-pub mod map;
-pub mod measure;
-pub mod program;
-pub mod register;
-pub mod register_paste;
-pub mod report;
-pub mod run;
 pub mod simulated;
-pub mod teach;
 pub mod truth;
-pub mod verdict;
 
 #[cfg(test)]
 mod tests;
 
-// The paste layer and the pad geometry (crate `dpsa-gerber`), at their old paths.
+// The production inspection (crate `dpsa-inspect`) and the paste layer with the pad geometry
+// (crate `dpsa-gerber`), at their old paths.
 pub use dpsa_gerber as gerber;
 pub use dpsa_gerber::pads;
+pub use dpsa_inspect::{
+    map, measure, program, register, register_paste, report, run, teach, verdict,
+};

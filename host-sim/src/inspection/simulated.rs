@@ -1,6 +1,6 @@
 //! A simulated board's print (`print.json`, `array::print`) as the inspection's truth.
 
-use super::pads::{Point, Rigid};
+use dpsa_gerber::pads::{Point, Rigid};
 use crate::array::print::{Defect, Deposit, DepositIndex, Material, Print};
 use anyhow::{bail, Context, Result};
 use std::path::Path;
@@ -11,7 +11,7 @@ pub const MAX_PRINT_BYTES: u64 = 1 << 30;
 /// The true placement, defects and paste surface of a printed board.
 pub struct PrintTruth {
     /// The printed board's identity (None in prints written before it).
-    pub board_id: Option<crate::simulation::recording::BoardId>,
+    pub board_id: Option<dpsa_formats::BoardId>,
     pub transform: Rigid,
     /// Per pad of the layer: the injected defect's name, None for a good print.
     pub defects: Vec<Option<String>>,

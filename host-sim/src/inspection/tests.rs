@@ -334,7 +334,7 @@ fn missing_fiducials_are_an_error() {
 #[test]
 fn truth_comparison_and_report_files() {
     let s = scene(8);
-    let mut i = super::run::inspect(&s.map, &s.pads, &s.program).unwrap();
+    let i = super::run::inspect(&s.map, &s.pads, &s.program).unwrap();
     let deps = &s.deps;
     let height = |q: Point| -> f64 {
         deps.iter()
@@ -352,13 +352,13 @@ fn truth_comparison_and_report_files() {
             _ => None,
         })
         .collect();
-    let truth = super::run::Truth {
+    let truth = super::evaluate::Truth {
         transform: s.truth_t,
         defects,
         height: &height,
     };
-    super::run::attach_truth(&mut i, &s.pads, &s.program, &truth);
-    let tp = i.truth_pads.as_ref().unwrap();
+    let e = super::evaluate::evaluate(&i, &s.pads, &s.program, &truth);
+    let tp = &e.pads;
     // The truth's volume by the cell equals the deposit's own (the cells hold them whole).
     for k in [0usize, 1, 6, 7, 8] {
         let v: f64 = s
@@ -387,8 +387,11 @@ fn truth_comparison_and_report_files() {
         );
     }
     assert!((tp[5].offset_um[0] - 300.0).abs() < 2.0);
-    let r = super::run::Report::build("b", "p", &i, &s.pads, Some(&truth), 0.0, 0.0);
-    let d = r.detection.as_ref().unwrap();
+    let r = super::evaluate::with_evaluation(
+        super::run::Report::build("b", "p", &i, &s.pads, 0.0),
+        &e,
+    );
+    let d = &e.detection;
     assert_eq!(
         (
             d.injected,
@@ -400,10 +403,20 @@ fn truth_comparison_and_report_files() {
         (6, 6, 0, 0, 0),
         "{d:?}"
     );
-    let t = r.truth.as_ref().unwrap();
-    let v = t.volume_err_pct.as_ref().unwrap();
+    let t = &e.report;
+    let v = t.large.volume_err_pct.as_ref().unwrap();
     assert!(v.n == 3 && v.rms < 1.0, "{v:?}");
     assert!(t.registration_error_um < 3.0);
+    // The report carries them as `truth.*` and `detection`, where they were before the split.
+    let json = serde_json::to_value(&r).unwrap();
+    let keys: Vec<&str> = json.as_object().unwrap().keys().map(|k| k.as_str()).collect();
+    assert_eq!(json["truth"]["volume_err_pct"]["n"], 3);
+    assert_eq!(json["detection"]["injected"], 6);
+    let text = serde_json::to_string(&r).unwrap();
+    let at = |k: &str| text.find(&format!("\"{k}\":")).unwrap();
+    assert!(at("registration") < at("truth") && at("truth") < at("detection"));
+    assert!(at("detection") < at("timing"), "{keys:?}");
+    assert!(r.summary().contains("defects: 6 injected, 6 detected"));
 
     let dir = tempfile::tempdir().unwrap();
     let value = serde_json::to_value(&r).unwrap();

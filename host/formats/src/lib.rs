@@ -7,11 +7,13 @@
 //! | [`files`] | bounded reads, atomic writes, output directories that appear whole, inputs never overwritten |
 //! | [`heightmap`] | the core's rows as a height map (the decoded stream, the reference) |
 //! | [`grid`] | the board map's grids: heights in board millimetres and their placement |
+//! | [`board_map`] | the board map directory's format name and colour scale |
 //! | [`board_id`] | the board identity shared by a board's recordings, streams and maps |
 //! | [`images`] | 16-bit and false-colour PNGs |
 //! | [`progress`] | progress bars on stderr |
 
 pub mod board_id;
+pub mod board_map;
 pub mod files;
 pub mod grid;
 pub mod heightmap;

@@ -20,15 +20,15 @@
 //!    around its registered place above the plane through its ring points, weights rising
 //!    from 0 at 20 % of the stencil to 1 at 50 %) is
 //!    paired with the pad's design centre, and a rotation and shift is fitted by least
-//!    squares ([`super::register::fit_rigid`]); pads whose deposits miss by more than three
+//!    squares ([`crate::register::fit_rigid`]); pads whose deposits miss by more than three
 //!    times the median miss (and 50 um) are left out (an offset or bridged print is a defect
 //!    to find, not a placement) and the fit repeated. The residual is the rms of the kept
 //!    pads' misses: part placement, part print offset; the report says how many pads it used.
 
-use super::map::BoardMap;
-use super::pads::{Pad, Point, Rigid};
-use super::program::Program;
-use super::register::{fit_rigid, RegisterError, Registration};
+use crate::map::BoardMap;
+use dpsa_gerber::pads::{Pad, Point, Rigid};
+use crate::program::Program;
+use crate::register::{fit_rigid, RegisterError, Registration};
 
 /// Largest departure from the nominal placement searched, mm (each way).
 pub const SEARCH_MM: f64 = 2.0;

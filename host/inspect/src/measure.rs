@@ -32,9 +32,9 @@
 //!   whether paste above `bridge_height_pct` of the stencil (over the mean of the two planes)
 //!   joins them (4-connected), searched in the two openings' joint box.
 
-use super::map::BoardMap;
-use super::pads::{norm, Outline, Pad, Point, Prepared, Rigid};
-use super::program::Program;
+use crate::map::BoardMap;
+use dpsa_gerber::pads::{norm, Outline, Pad, Point, Prepared, Rigid};
+use crate::program::Program;
 use serde::Serialize;
 
 /// Fewest bare-board pixels for the local surface.

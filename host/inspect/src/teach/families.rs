@@ -17,8 +17,8 @@
 //! almost all their paste, so their windows are tighter. `standard` and `chip-0603`,
 //! `chip-0805+`, `pitch-0.65` keep the program's default windows.
 
-use crate::inspection::pads::Pad;
-use crate::inspection::program::{Override, Window};
+use dpsa_gerber::pads::Pad;
+use crate::program::{Override, Window};
 use std::collections::BTreeMap;
 
 /// The family of every pad (see the module's table). `packages` maps a component to its
@@ -68,7 +68,7 @@ pub fn classify(pads: &[Pad], packages: &BTreeMap<String, String>) -> Vec<&'stat
             if area >= 4.0 {
                 return "large";
             }
-            let round = matches!(p.outline, crate::inspection::pads::Outline::Circle { diameter, .. } if diameter < 0.6);
+            let round = matches!(p.outline, dpsa_gerber::pads::Outline::Circle { diameter, .. } if diameter < 0.6);
             let pi = pitch(i);
             if package.as_deref().is_some_and(|s| s.contains("BGA")) || (round && pi <= 1.0) {
                 return "bga";
@@ -146,7 +146,7 @@ mod tests {
         assert_eq!(chip_code("X04025"), None);
         for f in ["chip-0201", "bga", "fine-pitch", "chip-0402", "large"] {
             let o = default_override(f).unwrap();
-            let mut p = crate::inspection::program::Program::new("a.gbr");
+            let mut p = crate::program::Program::new("a.gbr");
             p.overrides.push(Override {
                 component: Some("U1".into()),
                 ..o

@@ -8,12 +8,12 @@
 //! | `overview.png` | the board's heights in grey with every opening outlined in its verdict's colour: green pass, amber warning, red failure, magenta not measurable |
 //! | `gallery/NNN_class_pad.png` | every failure (at most [`MAX_GALLERY`]): the heights above the pad's local surface around it (false colour, 0 to 1.6 x stencil, the opening outlined in white) over a profile through the opening's centre along the board's x (the stencil thickness dashed) |
 
-use super::map::BoardMap;
-use super::measure::PadMeasurement;
-use super::pads::{Pad, Rigid};
-use super::program::Program;
-use super::run::Inspection;
-use super::verdict::{Call, Level};
+use crate::map::BoardMap;
+use crate::measure::PadMeasurement;
+use dpsa_gerber::pads::{Pad, Rigid};
+use crate::program::Program;
+use crate::run::Inspection;
+use crate::verdict::{Call, Level};
 use anyhow::Result;
 use image::{ImageBuffer, Rgb, RgbImage};
 use serde_json::{json, Value};
@@ -278,7 +278,7 @@ pub fn overview(
     let g = &map.grid;
     let f = g.rows.max(g.width).div_ceil(max_px.max(1)).max(1);
     let (h, w) = (g.rows.div_ceil(f), g.width.div_ceil(f));
-    let (lo, hi) = crate::board::output::colour_range(&map.heights).unwrap_or((0.0, 1.0));
+    let (lo, hi) = dpsa_formats::board_map::colour_range(&map.heights).unwrap_or((0.0, 1.0));
     let span = (hi - lo).max(1e-3);
     let mut img: RgbImage = ImageBuffer::from_pixel(w as u32, h as u32, Rgb([30, 30, 60]));
     for y in 0..h {
@@ -335,14 +335,14 @@ pub fn defect_picture(
         Rgb([255, 255, 255]),
     );
     let c = o.centroid();
-    let base = |x: f64, y: f64| super::measure::surface_at(&m.surface, x - c[0], y - c[1]);
+    let base = |x: f64, y: f64| crate::measure::surface_at(&m.surface, x - c[0], y - c[1]);
     let top = 1.6 * stencil;
     for (a, i) in ri.clone().enumerate() {
         for (bq, j) in rj.clone().enumerate() {
             let v = map.heights.data[i * map.grid.width + j];
             let (x, y) = map.grid.centre(i, j);
             let col = if v.is_finite() {
-                crate::images::colour(((f64::from(v) - base(x, y)) / top).clamp(0.0, 1.0))
+                dpsa_formats::images::colour(((f64::from(v) - base(x, y)) / top).clamp(0.0, 1.0))
             } else {
                 [40, 40, 40]
             };
@@ -406,7 +406,7 @@ pub struct Names<'a> {
     pub recipe: &'a str,
 }
 
-/// Kind of an inspection output directory (its [`crate::files::MARKER`]).
+/// Kind of an inspection output directory (its [`dpsa_formats::files::MARKER`]).
 pub const FORMAT: &str = "dpsa-inspection";
 
 /// The files (and the `gallery` directory) [`write`](fn@write) puts into its directory.
@@ -433,11 +433,11 @@ pub fn is_inspection_dir(dir: &Path) -> bool {
 
 /// Refuses (before any work) a destination that an inspection output may not replace.
 pub fn check_destination(dir: &Path) -> Result<()> {
-    crate::files::check_output_dir(dir, DIR_KIND)
+    dpsa_formats::files::check_output_dir(dir, DIR_KIND)
 }
 
-/// An inspection output directory, for [`crate::files::OutputDir`].
-pub const DIR_KIND: crate::files::DirKind = crate::files::DirKind {
+/// An inspection output directory, for [`dpsa_formats::files::OutputDir`].
+pub const DIR_KIND: dpsa_formats::files::DirKind = dpsa_formats::files::DirKind {
     format: FORMAT,
     noun: "inspection report",
     ours: is_inspection_dir,
@@ -445,7 +445,7 @@ pub const DIR_KIND: crate::files::DirKind = crate::files::DirKind {
 
 /// Writes every file of the report into `dir`, whole or not at all: built in a hidden
 /// directory beside it and swapped in at the end (an earlier report there is replaced with
-/// all its gallery images, see [`crate::files::OutputDir`]). `report_again` gives the final
+/// all its gallery images, see [`dpsa_formats::files::OutputDir`]). `report_again` gives the final
 /// `report.json` once the other files are written (with the time they took).
 #[allow(clippy::too_many_arguments)]
 pub fn write(
@@ -458,9 +458,9 @@ pub fn write(
     names: Names,
     report_again: impl FnOnce() -> Result<Value>,
 ) -> Result<usize> {
-    let staging = crate::files::OutputDir::create(dir, DIR_KIND)?;
+    let staging = dpsa_formats::files::OutputDir::create(dir, DIR_KIND)?;
     let n = write_files(staging.path(), map, pads, i, program, report, names)?;
-    crate::files::write_bytes(
+    dpsa_formats::files::write_bytes(
         &staging.path().join("report.json"),
         serde_json::to_string_pretty(&report_again()?)?.as_bytes(),
     )?;
@@ -478,18 +478,18 @@ fn write_files(
     names: Names,
 ) -> Result<usize> {
     let Names { unit, recipe } = names;
-    crate::files::write_bytes(&dir.join("pads.csv"), csv(pads, i).as_bytes())?;
-    crate::files::write_bytes(
+    dpsa_formats::files::write_bytes(&dir.join("pads.csv"), csv(pads, i).as_bytes())?;
+    dpsa_formats::files::write_bytes(
         &dir.join("report.json"),
         serde_json::to_string_pretty(report)?.as_bytes(),
     )?;
     let msg = cfx(pads, i, program, unit, recipe);
-    crate::files::write_bytes(
+    dpsa_formats::files::write_bytes(
         &dir.join("cfx_units_inspected.json"),
         serde_json::to_string_pretty(&msg)?.as_bytes(),
     )?;
     let t = i.registration.transform;
-    crate::images::save_png(&overview(map, pads, &t, i, 2400), &dir.join("overview.png"))?;
+    dpsa_formats::images::save_png(&overview(map, pads, &t, i, 2400), &dir.join("overview.png"))?;
     let gal = dir.join("gallery");
     std::fs::create_dir_all(&gal)
         .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", gal.display()))?;
@@ -511,7 +511,7 @@ fn write_files(
             })
             .collect();
         let img = defect_picture(map, &pads[k], &i.measurements[k], &t, program.stencil_um);
-        crate::images::save_png(&img, &gal.join(format!("{n:03}_{class}_{name}.png")))?;
+        dpsa_formats::images::save_png(&img, &gal.join(format!("{n:03}_{class}_{name}.png")))?;
         n += 1;
     }
     Ok(n)

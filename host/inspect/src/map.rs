@@ -1,8 +1,8 @@
 //! The board map as the inspection reads it: `board.json` and `heights_um.tiff` of a
 //! `dpsa board --out DIR` (docs/board.md), heights in um on a grid in board mm.
 
-use crate::board::resample::BoardGrid;
-use crate::board::Grid;
+use dpsa_formats::grid::BoardGrid;
+use dpsa_formats::grid::Grid;
 use anyhow::{bail, Context, Result};
 use std::path::Path;
 
@@ -13,7 +13,7 @@ pub const MAX_PIXELS: u64 = 400_000_000;
 #[derive(Clone, Debug)]
 pub struct BoardMap {
     /// The board's identity from `board.json` (None in maps written without one).
-    pub board_id: Option<crate::simulation::recording::BoardId>,
+    pub board_id: Option<dpsa_formats::BoardId>,
     pub grid: BoardGrid,
     pub heights: Grid,
 }
@@ -26,7 +26,7 @@ struct MetaIn {
     units: UnitsIn,
     /// The board's identity (`array.json`'s `board_id`), in maps of recordings that have one.
     #[serde(default)]
-    board_id: Option<crate::simulation::recording::BoardId>,
+    board_id: Option<dpsa_formats::BoardId>,
 }
 
 #[derive(serde::Deserialize)]
@@ -43,15 +43,15 @@ impl BoardMap {
     /// Reads a map directory.
     pub fn open(dir: &Path) -> Result<BoardMap> {
         let json_path = dir.join("board.json");
-        let bytes = crate::files::read_capped(&json_path, 1 << 20, "board map metadata")?;
+        let bytes = dpsa_formats::files::read_capped(&json_path, 1 << 20, "board map metadata")?;
         let meta: MetaIn = serde_json::from_slice(&bytes)
             .with_context(|| format!("{} is not a board map's board.json", json_path.display()))?;
-        if meta.format != crate::board::output::FORMAT {
+        if meta.format != dpsa_formats::board_map::FORMAT {
             bail!(
                 "{}: format {:?}, expected {:?}",
                 json_path.display(),
                 meta.format,
-                crate::board::output::FORMAT
+                dpsa_formats::board_map::FORMAT
             );
         }
         if meta.version != MAP_VERSION {
@@ -59,7 +59,7 @@ impl BoardMap {
                 "{}: version {}, this build reads version {MAP_VERSION} of {:?}",
                 json_path.display(),
                 meta.version,
-                crate::board::output::FORMAT
+                dpsa_formats::board_map::FORMAT
             );
         }
         let u = &meta.units;
@@ -100,7 +100,7 @@ impl BoardMap {
             );
         }
         let tiff_path = dir.join("heights_um.tiff");
-        let f = crate::files::open_regular(&tiff_path, "board heights")?;
+        let f = dpsa_formats::files::open_regular(&tiff_path, "board heights")?;
         let mut dec = tiff::decoder::Decoder::new(std::io::BufReader::new(f))
             .with_context(|| format!("{} is not a TIFF", tiff_path.display()))?;
         let (w, h) = dec

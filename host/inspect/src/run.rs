@@ -1,52 +1,28 @@
-//! `dpsa inspect`: register, measure, judge, and (for a simulated board) compare with the
-//! truth. Files are written by [`super::report`].
+//! `dpsa inspect`: register, measure, judge, and report. Files are written by
+//! [`crate::report`].
+//!
+//! An inspection can be handed to an [`Evaluate`] (the simulator's comparison with the print it
+//! made, in `dpsa-sim`), whose keys and lines the report carries; the production path has none.
 
-use super::map::BoardMap;
-use super::measure::{measure_all, PadMeasurement, Placed};
-use super::pads::{Pad, Point, Rigid};
-use super::program::Program;
-use super::register::{register, RegisterError, Registration};
-use super::truth::{accuracy, detection, Accuracy, Detection, PadTruth};
-use super::verdict::{judge, Call, Class, Level};
+use crate::map::BoardMap;
+use crate::measure::{measure_all, PadMeasurement, Placed};
+use dpsa_gerber::pads::{Pad, Point};
+use crate::program::Program;
+use crate::register::{register, RegisterError, Registration};
+use crate::verdict::{judge, Call, Class, Level};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::time::Instant;
-
-/// What the simulator knows about a board it printed.
-pub struct Truth<'a> {
-    /// The true design-to-board transform.
-    pub transform: Rigid,
-    /// The injected defect of each pad (`missing`, `insufficient`, `excess`, `offset`,
-    /// `bridge`, `smear`), None for a good print.
-    pub defects: Vec<Option<String>>,
-    /// The true paste height above the board at a board point, um.
-    pub height: &'a (dyn Fn(Point) -> f64 + Sync),
-}
 
 /// Everything one inspection found.
 pub struct Inspection {
     pub registration: Registration,
     pub measurements: Vec<PadMeasurement>,
     pub calls: Vec<Call>,
-    pub truth: Option<TruthReport>,
-    pub truth_pads: Option<Vec<PadTruth>>,
     /// Register + measure + judge, s (not reading or writing).
     pub inspect_s: f64,
     /// Of which the registration, s.
     pub register_s: f64,
-}
-
-/// Pads of at least this size (both ways) are the accuracy goal's group, mm.
-pub const LARGE_MM: f64 = 0.5;
-
-#[derive(Clone, Debug, Serialize)]
-pub struct TruthReport {
-    /// Pads with openings of at least 0.5 x 0.5 mm, defect-free.
-    pub large: Accuracy,
-    /// Smaller defect-free pads.
-    pub small: Accuracy,
-    /// The registration against the true placement: largest miss at a pad, um.
-    pub registration_error_um: f64,
 }
 
 pub fn inspect(
@@ -57,7 +33,7 @@ pub fn inspect(
     let t0 = Instant::now();
     // Fiducials when the program lists them, else the paste pattern.
     let registration = if program.fiducials.points_mm.is_empty() {
-        super::register_paste::register_paste(map, pads, program)?
+        crate::register_paste::register_paste(map, pads, program)?
     } else {
         register(map, program)?
     };
@@ -80,49 +56,9 @@ pub fn inspect(
         registration,
         measurements,
         calls,
-        truth: None,
-        truth_pads: None,
         inspect_s,
         register_s,
     })
-}
-
-/// Measures the truth of every pad and the inspection's accuracy against it.
-pub fn attach_truth(i: &mut Inspection, pads: &[Pad], program: &Program, tr: &Truth) {
-    attach_truth_shown(i, pads, program, tr, false)
-}
-
-/// [`attach_truth`] with a progress bar over the pads on stderr when `progress`.
-pub fn attach_truth_shown(
-    i: &mut Inspection,
-    pads: &[Pad],
-    program: &Program,
-    tr: &Truth,
-    progress: bool,
-) {
-    let t = i.registration.transform;
-    let placed = Placed::new(pads, &t, &[], 1.0);
-    let bar = crate::progress::progress_bar(progress, pads.len() as u64, "truth");
-    let tp = super::truth::measure_truth_counted(pads, &tr.transform, program, tr.height, &bar);
-    bar.finish_and_clear();
-    let good: Vec<usize> = (0..pads.len())
-        .filter(|&k| tr.defects.get(k).cloned().flatten().is_none())
-        .collect();
-    let (large, small): (Vec<usize>, Vec<usize>) = good
-        .into_iter()
-        .partition(|&k| placed.min_size[k] >= LARGE_MM - 1e-9);
-    let mut reg_err: f64 = 0.0;
-    for p in pads {
-        let c = p.outline.centroid();
-        let (a, b) = (t.apply(c), tr.transform.apply(c));
-        reg_err = reg_err.max((a[0] - b[0]).hypot(a[1] - b[1]) * 1000.0);
-    }
-    i.truth = Some(TruthReport {
-        large: accuracy(&large, &i.measurements, &tp),
-        small: accuracy(&small, &i.measurements, &tp),
-        registration_error_um: reg_err,
-    });
-    i.truth_pads = Some(tp);
 }
 
 /// Pad counts and calls.
@@ -193,11 +129,6 @@ pub fn counts(i: &Inspection) -> (Counts, Calls) {
     )
 }
 
-/// The detection figures of a simulated board.
-pub fn detection_of(i: &Inspection, pads: &[Pad], truth: &Truth) -> Detection {
-    detection(pads, &truth.defects, &i.calls)
-}
-
 /// The JSON report of `dpsa inspect` (`--json`, `report.json`).
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
@@ -206,11 +137,9 @@ pub struct Report {
     pub pads: Counts,
     pub calls: Calls,
     pub registration: RegistrationReport,
-    /// Simulated boards only.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub truth: Option<TruthKeys>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub detection: Option<Detection>,
+    /// An evaluation's keys (the simulator's `truth` and `detection`), in their place.
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    pub evaluation: Option<Evaluation>,
     pub timing: Timing,
     /// The failed pads, `name: class` (at most 200).
     pub failures: Vec<String>,
@@ -225,22 +154,48 @@ pub struct RegistrationReport {
     pub residual_um: f64,
     pub shift_mm: Point,
     pub rotation_deg: f64,
-    pub fiducials: Vec<super::register::FiducialHit>,
+    pub fiducials: Vec<crate::register::FiducialHit>,
     /// Registration by the paste pattern: the pads fitted.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub pads_used: Option<usize>,
 }
 
-/// `truth.*`: the accuracy goal's group (openings of at least 0.5 x 0.5 mm, defect-free) at
-/// the top level, the smaller pads apart.
-#[derive(Clone, Debug, Serialize)]
-pub struct TruthKeys {
-    pub volume_err_pct: Option<super::truth::ErrStats>,
-    pub height_err_um: Option<super::truth::ErrStats>,
-    pub offset_err_um: Option<super::truth::ErrStats>,
-    pub area_err_pct: Option<super::truth::ErrStats>,
-    pub small: Accuracy,
-    pub registration_error_um: f64,
+/// What an [`Evaluate`] adds to a report: JSON keys (between `registration` and `timing`, in
+/// the order given) and summary lines (before the time line, each ending in a newline).
+#[derive(Clone, Debug, Default)]
+pub struct Evaluation {
+    /// The keys and their values, in the order they are written.
+    pub keys: Vec<(String, serde_json::Value)>,
+    /// The summary's lines.
+    pub summary: String,
+}
+
+impl Serialize for Evaluation {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut m = s.serialize_map(Some(self.keys.len()))?;
+        for (k, v) in &self.keys {
+            m.serialize_entry(k, v)?;
+        }
+        m.end()
+    }
+}
+
+/// A comparison of an inspection with what is known about the board beyond the measurement
+/// (the simulator knows the print it made). The production path has none.
+pub trait Evaluate {
+    /// The files it reads, which an `--out` must not overwrite.
+    fn inputs(&self) -> Vec<std::path::PathBuf>;
+    /// Its keys and lines for `inspection` of `pads` on `map`; `progress` shows a bar on
+    /// stderr.
+    fn evaluate(
+        &mut self,
+        map: &BoardMap,
+        pads: &[Pad],
+        program: &Program,
+        inspection: &Inspection,
+        progress: bool,
+    ) -> anyhow::Result<Evaluation>;
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -250,8 +205,10 @@ pub struct Timing {
     /// Of which the registration, s.
     pub register_s: f64,
     pub load_s: f64,
-    /// Reading the print truth and integrating it (simulated boards), s.
-    pub truth_s: f64,
+    /// The evaluation, s (reading and integrating the print truth of a simulated board; 0
+    /// without one).
+    #[serde(rename = "truth_s")]
+    pub evaluation_s: f64,
     pub write_s: f64,
     /// The whole `dpsa inspect`, s: load + the inspections (`--repeat`) + truth + write and
     /// what lies between them.
@@ -264,9 +221,7 @@ impl Report {
         program: &str,
         i: &Inspection,
         pads: &[Pad],
-        truth: Option<&Truth>,
         load_s: f64,
-        truth_s: f64,
     ) -> Report {
         let (c, calls) = counts(i);
         let failures = i
@@ -296,20 +251,12 @@ impl Report {
                 fiducials: i.registration.fiducials.clone(),
                 pads_used: i.registration.pads_used,
             },
-            truth: i.truth.as_ref().map(|t| TruthKeys {
-                volume_err_pct: t.large.volume_err_pct.clone(),
-                height_err_um: t.large.height_err_um.clone(),
-                offset_err_um: t.large.offset_err_um.clone(),
-                area_err_pct: t.large.area_err_pct.clone(),
-                small: t.small.clone(),
-                registration_error_um: t.registration_error_um,
-            }),
-            detection: truth.map(|t| detection_of(i, pads, t)),
+            evaluation: None,
             timing: Timing {
                 inspect_s: i.inspect_s,
                 register_s: i.register_s,
                 load_s,
-                truth_s,
+                evaluation_s: 0.0,
                 write_s: 0.0,
                 total_s: 0.0,
             },
@@ -361,33 +308,14 @@ impl Report {
             self.registration.shift_mm[1],
             self.registration.rotation_deg
         );
-        if let Some(t) = &self.truth {
-            if let (Some(v), Some(h), Some(o)) =
-                (&t.volume_err_pct, &t.height_err_um, &t.offset_err_um)
-            {
-                s += &format!(
-                    "  against the truth (openings >= 0.5 mm, {} pads): volume bias {:+.2} rms {:.2} %, height rms {:.2} um, offset rms {:.1} um\n",
-                    v.n, v.bias, v.rms, h.rms, o.rms
-                );
-            }
-            if let Some(v) = &t.small.volume_err_pct {
-                s += &format!(
-                    "  smaller openings ({} pads): volume bias {:+.2} rms {:.2} %\n",
-                    v.n, v.bias, v.rms
-                );
-            }
-        }
-        if let Some(d) = &self.detection {
-            s += &format!(
-                "  defects: {} injected, {} detected, {} missed, {} wrong class; {} false failures on {} good pads ({} next to an injected defect); smears {} of {}\n",
-                d.injected, d.detected, d.missed, d.wrong_class, d.false_fail, d.defect_free, d.false_fail_next_to_defect, d.smear_detected, d.smear_injected
-            );
+        if let Some(e) = &self.evaluation {
+            s += &e.summary;
         }
         s += &format!(
             "  time: map load {:.2} s, inspect {:.3} s, truth {:.2} s, write {:.2} s; total {:.2} s",
             self.timing.load_s,
             self.timing.inspect_s,
-            self.timing.truth_s,
+            self.timing.evaluation_s,
             self.timing.write_s,
             self.timing.total_s
         );
@@ -403,7 +331,7 @@ pub fn paste_layer_pads(
     program_path: &std::path::Path,
 ) -> anyhow::Result<(Vec<Pad>, Vec<String>)> {
     let layer_path = program.paste_layer_path(program_path);
-    let layer = super::gerber::read_file(&layer_path)
+    let layer = dpsa_gerber::read_file(&layer_path)
         .map_err(|e| anyhow::anyhow!("paste layer {}: {e}", layer_path.display()))?;
     let mut notes = Vec::new();
     if !layer.complete {
@@ -429,28 +357,25 @@ pub fn paste_layer_pads(
     Ok((layer.pads, notes))
 }
 
-/// `dpsa inspect`: reads the map, the program, its paste layer (and, with `use_truth`, the
-/// truth the program or `truth` names), inspects (`repeat` times, the fastest reported), and
-/// writes the report files into `out`.
+/// `dpsa inspect`: reads the map, the program and its paste layer, inspects (`repeat` times,
+/// the fastest reported), and writes the report files into `out`.
 pub fn inspect_dir(
     board: &std::path::Path,
     program_path: &std::path::Path,
-    truth: Option<&std::path::Path>,
     out: Option<&std::path::Path>,
     repeat: u32,
-    use_truth: bool,
 ) -> anyhow::Result<(Report, Inspection)> {
-    inspect_dir_shown(board, program_path, truth, out, repeat, use_truth, false)
+    inspect_dir_with(board, program_path, out, repeat, None, false)
 }
 
-/// [`inspect_dir`] with progress bars on stderr when `progress` (the truth's pads).
-pub fn inspect_dir_shown(
+/// [`inspect_dir`] with an evaluation whose keys and lines the report carries, and progress
+/// bars on stderr when `progress`.
+pub fn inspect_dir_with(
     board: &std::path::Path,
     program_path: &std::path::Path,
-    truth: Option<&std::path::Path>,
     out: Option<&std::path::Path>,
     repeat: u32,
-    use_truth: bool,
+    mut evaluate: Option<&mut dyn Evaluate>,
     progress: bool,
 ) -> anyhow::Result<(Report, Inspection)> {
     let t0 = Instant::now();
@@ -461,56 +386,26 @@ pub fn inspect_dir_shown(
         // Before any work: the output may not be (or hold) an input, and may replace only an
         // earlier inspection output.
         let mut inputs = vec![
-            crate::files::Input::Dir(board),
-            crate::files::Input::File(program_path),
-            crate::files::Input::File(&layer_path),
+            dpsa_formats::files::Input::Dir(board),
+            dpsa_formats::files::Input::File(program_path),
+            dpsa_formats::files::Input::File(&layer_path),
         ];
-        let truth_in = truth
-            .map(std::path::Path::to_path_buf)
-            .or_else(|| program.truth_path(program_path));
-        if let Some(t) = &truth_in {
-            inputs.push(crate::files::Input::File(t));
+        let evaluated = evaluate.as_ref().map(|e| e.inputs()).unwrap_or_default();
+        for t in &evaluated {
+            inputs.push(dpsa_formats::files::Input::File(t));
         }
         if let Some(c) = &components_path {
-            inputs.push(crate::files::Input::File(c));
+            inputs.push(dpsa_formats::files::Input::File(c));
         }
-        crate::files::refuse_overwrite_dir("--out", dir, &inputs)?;
-        super::report::check_destination(dir)?;
+        dpsa_formats::files::refuse_overwrite_dir("--out", dir, &inputs)?;
+        crate::report::check_destination(dir)?;
     }
     let (mut pads, layer_notes) = paste_layer_pads(&program, program_path)?;
     // Pad names (and package overrides) from the program's placement file, if it has one.
-    super::teach::apply_components(&mut program, program_path, &mut pads)?;
+    crate::teach::apply_components(&mut program, program_path, &mut pads)?;
     let pads = pads;
     let map = BoardMap::open(board)?;
     let load_s = t0.elapsed().as_secs_f64();
-    let truth_path = truth
-        .map(std::path::Path::to_path_buf)
-        .or_else(|| program.truth_path(program_path))
-        .filter(|_| use_truth);
-    let t_print = Instant::now();
-    let print = match &truth_path {
-        Some(p) => {
-            let t = super::simulated::PrintTruth::load(p, pads.len())?;
-            if let (Some(have), Some(want)) = (t.board_id, map.board_id) {
-                if have != want {
-                    anyhow::bail!(
-                        "the print truth {} is of board {have}, the map {} of board {want}: a truth of another board would judge this board's pads against another print",
-                        p.display(),
-                        board.display()
-                    );
-                }
-            }
-            Some(t)
-        }
-        None => None,
-    };
-    let print_s = t_print.elapsed().as_secs_f64();
-    let height = |q: Point| print.as_ref().map_or(0.0, |p| p.height(q));
-    let truth = print.as_ref().map(|p| Truth {
-        transform: p.transform,
-        defects: p.defects.clone(),
-        height: &height,
-    });
     let mut best: Option<Inspection> = None;
     for _ in 0..repeat.max(1) {
         let i = inspect(&map, &pads, &program)?;
@@ -518,24 +413,21 @@ pub fn inspect_dir_shown(
             best = Some(i);
         }
     }
-    let Some(mut i) = best else {
+    let Some(i) = best else {
         anyhow::bail!("no inspection ran");
     };
-    let mut truth_s = print_s;
-    if let Some(tr) = &truth {
-        let t1 = Instant::now();
-        attach_truth_shown(&mut i, &pads, &program, tr, progress);
-        truth_s += t1.elapsed().as_secs_f64();
-    }
     let mut report = Report::build(
         &board.display().to_string(),
         &program_path.display().to_string(),
         &i,
         &pads,
-        truth.as_ref(),
         load_s,
-        truth_s,
     );
+    if let Some(e) = evaluate.as_mut() {
+        let t1 = Instant::now();
+        report.evaluation = Some(e.evaluate(&map, &pads, &program, &i, progress)?);
+        report.timing.evaluation_s = t1.elapsed().as_secs_f64();
+    }
     report.paste_layer_notes = layer_notes;
     if let Some(dir) = out {
         let t2 = Instant::now();
@@ -556,14 +448,14 @@ pub fn inspect_dir_shown(
         });
         // report.json again with the write time, before the directory is swapped in.
         let report_ref = &mut report;
-        super::report::write(
+        crate::report::write(
             dir,
             &map,
             &pads,
             &i,
             &program,
             &value,
-            super::report::Names {
+            crate::report::Names {
                 unit: &unit,
                 recipe: &recipe,
             },

@@ -5,7 +5,7 @@
 //! is shrunk by half the widest line's width on every side. Without an outline the paste
 //! layer's box stands in (the corner then lies inside the board by the paste-free margin).
 
-use crate::inspection::gerber::PasteLayer;
+use dpsa_gerber::PasteLayer;
 
 /// `[xmin, ymin, xmax, ymax]` of the board edge, mm, from its outline layer; None when the
 /// layer draws nothing.

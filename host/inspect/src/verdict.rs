@@ -9,8 +9,8 @@
 //! "Not measurable" (the opening off the map, too few valid pixels, no bare board around it)
 //! is a failure of the inspection, never a pass.
 
-use super::measure::PadMeasurement;
-use super::program::{Upper, Window, Windows};
+use crate::measure::PadMeasurement;
+use crate::program::{Upper, Window, Windows};
 use serde::Serialize;
 
 /// What is wrong with a pad.
@@ -225,7 +225,7 @@ mod tests {
             (Box::new(|m| m.shape_pct = 50.0), Level::Fail, Class::Shape),
             (
                 Box::new(|m| {
-                    m.unmeasurable = Some(super::super::measure::Unmeasurable::LowCoverage)
+                    m.unmeasurable = Some(crate::measure::Unmeasurable::LowCoverage)
                 }),
                 Level::Fail,
                 Class::NotMeasurable,

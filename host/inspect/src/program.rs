@@ -39,7 +39,7 @@
 //! volume_pct = { warn = [60.0, 140.0], fail = [50.0, 150.0] }
 //! ```
 
-use super::pads::{Point, Rigid};
+use dpsa_gerber::pads::{Point, Rigid};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -280,7 +280,7 @@ pub struct Program {
     /// Pad names from a pick-and-place file (`dpsa program`): the nearest component and a
     /// pin for every pad the layer does not name itself.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub components: Option<super::teach::placement::ComponentsFile>,
+    pub components: Option<crate::teach::placement::ComponentsFile>,
     #[serde(default, rename = "override", skip_serializing_if = "Vec::is_empty")]
     pub overrides: Vec<Override>,
     /// Inspect a paste layer whose file has no end (`M02`): it may be cut short, so it is
@@ -413,7 +413,7 @@ impl Program {
     }
 
     pub fn load(path: &Path) -> Result<Program, ProgramError> {
-        let bytes = crate::files::read_capped(path, MAX_PROGRAM_BYTES, "program").map_err(|e| {
+        let bytes = dpsa_formats::files::read_capped(path, MAX_PROGRAM_BYTES, "program").map_err(|e| {
             ProgramError::Read {
                 path: path.to_path_buf(),
                 cause: format!("{e:#}"),
@@ -528,7 +528,7 @@ impl Program {
                 });
             }
             check_range("components.max_distance_mm", c.max_distance_mm, 0.1, 100.0)?;
-            if (c.format == super::teach::placement::Format::Csv) != c.columns.is_some() {
+            if (c.format == crate::teach::placement::Format::Csv) != c.columns.is_some() {
                 return Err(ProgramError::Invalid {
                     key: "components.columns".into(),
                     why: "given for a format other than csv, or missing for csv".into(),
@@ -583,7 +583,7 @@ impl Program {
     /// The windows of a pad: the first override that matches it, else the default. An
     /// override whose `package` was not resolved ([`Program::resolve_packages`]) matches
     /// nothing.
-    pub fn windows_for(&self, pad: &super::pads::Pad) -> Windows {
+    pub fn windows_for(&self, pad: &dpsa_gerber::pads::Pad) -> Windows {
         for o in &self.overrides {
             if o.package.is_some() && o.component.is_none() {
                 continue;
@@ -655,9 +655,9 @@ mod tests {
     fn overrides_match_first() {
         let text = "paste_layer = \"a\"\n[[override]]\ncomponent = \"U1\"\nvolume_pct = { warn = [60.0, 140.0], fail = [40.0, 160.0] }\n";
         let p = Program::from_toml_str(text, Path::new("p.toml")).unwrap();
-        let mut pad = super::super::pads::Pad {
+        let mut pad = dpsa_gerber::pads::Pad {
             index: 0,
-            outline: super::super::pads::Outline::Circle {
+            outline: dpsa_gerber::pads::Outline::Circle {
                 centre: [0.0, 0.0],
                 diameter: 1.0,
             },

@@ -12,7 +12,7 @@
 //!
 //! Candidates of the most common diameter are kept (a board's fiducials are all alike).
 
-use crate::inspection::pads::{Outline, Pad, Point};
+use dpsa_gerber::pads::{Outline, Pad, Point};
 
 pub const MIN_DIAMETER_MM: f64 = 0.5;
 pub const MAX_DIAMETER_MM: f64 = 3.0;

@@ -17,9 +17,9 @@ pub mod names;
 pub mod outline;
 pub mod placement;
 
-use super::gerber::{self, GerberError};
-use super::pads::Pad;
-use super::program::{Override, Program, ProgramError};
+use dpsa_gerber::{self as gerber, GerberError};
+use dpsa_gerber::pads::Pad;
+use crate::program::{Override, Program, ProgramError};
 use placement::{ComponentsFile, PlacementError, Side};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -232,7 +232,7 @@ pub fn teach(inp: &Inputs) -> Result<Taught, TeachError> {
         Some(path) => {
             let copper = layer("copper layer", path)?;
             // The reader is within its caps: the file was just read whole.
-            let text = crate::files::read_capped_io(path, gerber::MAX_FILE_BYTES)
+            let text = dpsa_formats::files::read_capped_io(path, gerber::MAX_FILE_BYTES)
                 .map(|b| String::from_utf8_lossy(&b).into_owned())
                 .unwrap_or_default();
             let x2 = fiducials::x2_fiducial_flashes(&text);

@@ -151,10 +151,10 @@ pub struct Component {
 
 /// Reads a placement file; top and bottom components both, in file order.
 pub fn read_file(path: &Path, cf: &ComponentsFile) -> Result<Vec<Component>, PlacementError> {
-    let bytes = crate::files::read_capped_io(path, MAX_PLACEMENT_BYTES).map_err(|e| {
+    let bytes = dpsa_formats::files::read_capped_io(path, MAX_PLACEMENT_BYTES).map_err(|e| {
         PlacementError::Read {
             path: path.display().to_string(),
-            cause: crate::files::io_cause(&e),
+            cause: dpsa_formats::files::io_cause(&e),
         }
     })?;
     // Altium writes Windows-1252: a non-UTF-8 file is read as Latin-1.

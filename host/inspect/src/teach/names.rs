@@ -17,7 +17,7 @@
 //!   row. The index is deterministic, not the datasheet pin number.
 
 use super::placement::{Component, Side};
-use crate::inspection::pads::Pad;
+use dpsa_gerber::pads::Pad;
 use std::collections::BTreeMap;
 
 /// How far a pad's mirror image may be from another pad's centroid, mm.
@@ -189,7 +189,7 @@ pub fn assign(pads: &mut [Pad], components: &[Component], max_distance_mm: f64) 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::inspection::pads::Outline;
+    use dpsa_gerber::pads::Outline;
 
     fn pad(index: usize, x: f64, y: f64) -> Pad {
         Pad {

@@ -3,7 +3,7 @@
 //! Each fiducial (a raised copper disc of the program's diameter) is searched within
 //! `fiducials.search_mm` of its nominal place (the program's placement). In that window the
 //! board is levelled by a robust quadratic surface (the warp curves over a few mm;
-//! [`super::measure::robust_surface`]), pixels above
+//! [`crate::measure::robust_surface`]), pixels above
 //! 6 um form candidates (4-connected), and of the candidates shaped like the disc (0.6 to
 //! 1.5 times its area, as wide as tall within 25 %, filling 0.6 to 0.9 of their box as a
 //! disc fills pi/4 and a rectangular deposit all of it) the one nearest the nominal place is
@@ -13,10 +13,10 @@
 //! no scale) is fitted to the found centres by least squares; the residual is the rms of
 //! the fit's misses.
 
-use super::map::BoardMap;
-use super::measure::{robust_surface, surface_at};
-use super::pads::{Point, Rigid};
-use super::program::Program;
+use crate::map::BoardMap;
+use crate::measure::{robust_surface, surface_at};
+use dpsa_gerber::pads::{Point, Rigid};
+use crate::program::Program;
 use serde::Serialize;
 
 #[derive(Debug, thiserror::Error)]
