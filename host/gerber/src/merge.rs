@@ -353,8 +353,8 @@ fn evaluate(
 
 #[cfg(test)]
 mod tests {
-    use crate::object::{Class, Flat, Geom, Object};
     use super::*;
+    use crate::object::{Class, Flat, Geom, Object};
     use geo::{Coord, LineString};
 
     /// The reference: every pair of objects tested, no copies shortcut, no index.
