@@ -433,7 +433,7 @@ pub fn is_inspection_dir(dir: &Path) -> bool {
 
 /// Refuses (before any work) a destination that an inspection output may not replace.
 pub fn check_destination(dir: &Path) -> Result<()> {
-    crate::files::check_output_dir(dir, DIR_KIND)
+    Ok(crate::files::check_output_dir(dir, DIR_KIND)?)
 }
 
 /// An inspection output directory, for [`crate::files::OutputDir`].
