@@ -420,7 +420,7 @@ fn write_camera(
                         .map_err(anyhow::Error::new),
                     FrameFormat::Zfr => frames::encode(rows, width, &data)
                         .map_err(anyhow::Error::new)
-                        .and_then(|b| crate::files::write_bytes(&path, &b)),
+                        .and_then(|b| Ok(crate::files::write_bytes(&path, &b)?)),
                 };
                 match res {
                     Ok(()) => {

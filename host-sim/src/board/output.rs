@@ -96,7 +96,7 @@ pub fn is_board_map(dir: &Path) -> bool {
 /// Refuses (before any work) a destination that a board map may not replace: a file, or a
 /// non-empty directory holding no earlier map (see [`crate::files::OutputDir`]).
 pub fn check_destination(dir: &Path) -> Result<()> {
-    crate::files::check_output_dir(dir, DIR_KIND)
+    Ok(crate::files::check_output_dir(dir, DIR_KIND)?)
 }
 
 /// A board map directory, for [`crate::files::OutputDir`].
@@ -196,15 +196,15 @@ fn write_files(
 
 /// Heights as a 32-bit float TIFF, um (NaN invalid).
 pub fn write_tiff(path: &Path, h: &Grid) -> Result<()> {
-    crate::files::write_atomic(path, |f| {
+    Ok(crate::files::write_atomic(path, |f| {
         let mut enc = tiff::encoder::TiffEncoder::new(f)?;
         enc.write_image::<tiff::encoder::colortype::Gray32Float>(
             h.width as u32,
             h.rows as u32,
             &h.data,
         )?;
-        Ok(())
-    })
+        Ok::<(), tiff::TiffError>(())
+    })?)
 }
 
 /// Rows of the scale bar under the false-colour map.
@@ -248,7 +248,7 @@ fn write_colour(path: &Path, h: &Grid) -> Result<()> {
         let x0 = x.saturating_sub(tw / 2).min(w.saturating_sub(tw));
         draw_text(&mut img, x0, rows + 15, &text);
     }
-    crate::images::save_png(&img, path)
+    Ok(crate::images::save_png(&img, path)?)
 }
 
 /// 3 x 5 pixel glyphs for digits, '-', '.', 'u' and 'm' (rows top to bottom, 3 bits each).

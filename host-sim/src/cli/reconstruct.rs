@@ -89,7 +89,7 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
     let Tee { inner, copy, .. } = tee;
     let file = inner
         .into_inner()
-        .map_err(|e| files::write_error(&a.out, anyhow::Error::new(e.into_error())))?;
+        .map_err(|e| files::write_error(&a.out, e.into_error()))?;
     file.commit()?;
     out!(
         "{} packets, {} bytes -> {}",

@@ -7,11 +7,11 @@
 
 use super::simulated::PrintTruth;
 use super::truth::{accuracy, detection, Accuracy, Detection, ErrStats, PadTruth};
+use dpsa_gerber::pads::{Pad, Point, Rigid};
 use dpsa_inspect::map::BoardMap;
 use dpsa_inspect::measure::Placed;
 use dpsa_inspect::program::Program;
 use dpsa_inspect::run::{Evaluate, Evaluation, Inspection, Report};
-use dpsa_gerber::pads::{Pad, Point, Rigid};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
@@ -131,9 +131,11 @@ pub fn evaluation(e: &Evaluated) -> Evaluation {
         ),
     ];
     let mut s = String::new();
-    if let (Some(v), Some(h), Some(o)) =
-        (&keys.volume_err_pct, &keys.height_err_um, &keys.offset_err_um)
-    {
+    if let (Some(v), Some(h), Some(o)) = (
+        &keys.volume_err_pct,
+        &keys.height_err_um,
+        &keys.offset_err_um,
+    ) {
         s += &format!(
             "  against the truth (openings >= 0.5 mm, {} pads): volume bias {:+.2} rms {:.2} %, height rms {:.2} um, offset rms {:.1} um\n",
             v.n, v.bias, v.rms, h.rms, o.rms
@@ -150,7 +152,10 @@ pub fn evaluation(e: &Evaluated) -> Evaluation {
         "  defects: {} injected, {} detected, {} missed, {} wrong class; {} false failures on {} good pads ({} next to an injected defect); smears {} of {}\n",
         d.injected, d.detected, d.missed, d.wrong_class, d.false_fail, d.defect_free, d.false_fail_next_to_defect, d.smear_detected, d.smear_injected
     );
-    Evaluation { keys: map, summary: s }
+    Evaluation {
+        keys: map,
+        summary: s,
+    }
 }
 
 /// A report with an evaluation's keys and lines, as `dpsa inspect` writes it for a simulated

@@ -9,10 +9,10 @@
 //! `grr_pct`. Only pads measured in every repeat count. The calibration is recorded and
 //! computed once, as on a machine.
 
-use dpsa_inspect::run::inspect_dir;
 use crate::array::{record, record::ArrayRecording, scene::ArrayScene};
 use crate::calibration;
 use anyhow::{bail, Context, Result};
+use dpsa_inspect::run::inspect_dir;
 use serde::Serialize;
 use std::path::Path;
 

@@ -1,8 +1,8 @@
 //! A simulated board's print (`print.json`, `array::print`) as the inspection's truth.
 
-use dpsa_gerber::pads::{Point, Rigid};
 use crate::array::print::{Defect, Deposit, DepositIndex, Material, Print};
 use anyhow::{bail, Context, Result};
+use dpsa_gerber::pads::{Point, Rigid};
 use std::path::Path;
 
 /// Largest print file read, bytes.

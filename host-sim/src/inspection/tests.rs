@@ -387,10 +387,8 @@ fn truth_comparison_and_report_files() {
         );
     }
     assert!((tp[5].offset_um[0] - 300.0).abs() < 2.0);
-    let r = super::evaluate::with_evaluation(
-        super::run::Report::build("b", "p", &i, &s.pads, 0.0),
-        &e,
-    );
+    let r =
+        super::evaluate::with_evaluation(super::run::Report::build("b", "p", &i, &s.pads, 0.0), &e);
     let d = &e.detection;
     assert_eq!(
         (
@@ -409,7 +407,12 @@ fn truth_comparison_and_report_files() {
     assert!(t.registration_error_um < 3.0);
     // The report carries them as `truth.*` and `detection`, where they were before the split.
     let json = serde_json::to_value(&r).unwrap();
-    let keys: Vec<&str> = json.as_object().unwrap().keys().map(|k| k.as_str()).collect();
+    let keys: Vec<&str> = json
+        .as_object()
+        .unwrap()
+        .keys()
+        .map(|k| k.as_str())
+        .collect();
     assert_eq!(json["truth"]["volume_err_pct"]["n"], 3);
     assert_eq!(json["detection"]["injected"], 6);
     let text = serde_json::to_string(&r).unwrap();

@@ -7,9 +7,9 @@
 //! optics and pixels, noise, the local surface, the registration.
 
 use super::measure::{cell_member, height_inset, per_pad, PadMeasurement, Placed, Reach};
-use dpsa_gerber::pads::{Pad, Point, Rigid};
 use super::program::Program;
 use super::verdict::{Call, Class, Level};
+use dpsa_gerber::pads::{Pad, Point, Rigid};
 use serde::Serialize;
 
 /// Truth integration step, mm.

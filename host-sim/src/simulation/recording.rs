@@ -697,11 +697,11 @@ pub fn write_f32(path: &Path, data: &[f32]) -> Result<(), RecordingError> {
         for v in data {
             w.write_all(&v.to_le_bytes())?;
         }
-        Ok(())
+        Ok::<(), std::io::Error>(())
     })
     .map_err(|e| RecordingError::Write {
         path: path.to_path_buf(),
-        message: format!("{e:#}"),
+        message: format!("{:#}", anyhow::Error::new(e)),
     })
 }
 
@@ -732,12 +732,12 @@ pub fn write_frame_png(
             width as u32,
             rows as u32,
             ExtendedColorType::L16,
-        )?;
-        Ok(())
+        )
     })
     .map_err(|e| RecordingError::Write {
         path: path.to_path_buf(),
-        message: format!("{e:#}"),
+        // Through anyhow for the whole `source()` chain of a non-I/O encoder error.
+        message: format!("{:#}", anyhow::Error::new(e)),
     })
 }
 

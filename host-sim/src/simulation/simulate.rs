@@ -539,7 +539,7 @@ pub const DIR_KIND: crate::files::DirKind = crate::files::DirKind {
 /// whole when the new one is complete, see [`crate::files::OutputDir`]); anything else is
 /// refused.
 pub fn prepare_out_dir(out: &Path) -> anyhow::Result<()> {
-    crate::files::check_output_dir(out, DIR_KIND)
+    Ok(crate::files::check_output_dir(out, DIR_KIND)?)
 }
 
 /// [`simulate`]; `force` lifts the [`MAX_OUTPUT_BYTES`] limit.

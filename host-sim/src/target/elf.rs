@@ -10,7 +10,11 @@ pub const MAX_ELF_BYTES: u64 = 64 << 20;
 /// Reads a firmware ELF: a regular file of at most [`MAX_ELF_BYTES`] (a FIFO or a device such
 /// as `/dev/zero` is refused before it is opened), the error one sentence naming the file.
 pub fn read_elf(path: &std::path::Path) -> Result<Vec<u8>> {
-    crate::files::read_capped(path, MAX_ELF_BYTES, "firmware ELF")
+    Ok(crate::files::read_capped(
+        path,
+        MAX_ELF_BYTES,
+        "firmware ELF",
+    )?)
 }
 
 /// Sizes of the firmware image, bytes.

@@ -27,10 +27,231 @@
 //! * **Temporary directories go on a signal.** [`TempDir`] is a scratch directory removed
 //!   when dropped and by the SIGINT/SIGTERM handler.
 
-use anyhow::{bail, Result};
+use std::ffi::OsString;
 use std::fs::File;
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
+
+/// Why a file or directory could not be read, written or chosen as an output. Its `Display`
+/// is one sentence naming the path; an I/O cause is stated in it once, in plain words (see
+/// [`io_cause`], [`write_cause`]), and kept as [`FileError::io`] rather than as the error's
+/// `source()`, so that a chain printed whole (`{:#}`) does not repeat the OS text.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum FileError {
+    /// An input (or an output directory being checked) could not be opened or read: missing,
+    /// not a regular file, too large, unreadable.
+    #[error("{what} {} {}", .path.display(), io_cause(.io))]
+    Read {
+        /// What the file is for the command, e.g. `recording manifest`.
+        what: String,
+        /// The file.
+        path: PathBuf,
+        /// The I/O error (for a file too large or not regular, one made up with kind
+        /// `InvalidData` / `InvalidInput` and the reason as its text).
+        io: std::io::Error,
+    },
+    /// Writing an output (or renaming it into place) failed.
+    #[error("{} {}", .path.display(), write_cause(.io))]
+    Write {
+        /// The destination.
+        path: PathBuf,
+        /// The I/O error.
+        io: std::io::Error,
+    },
+    /// A filler passed to [`write_atomic`] failed with an error that holds no I/O error: its
+    /// own message (and `source()` chain), unchanged.
+    #[error(transparent)]
+    Fill(Box<dyn std::error::Error + Send + Sync + 'static>),
+    /// The destination of a file is a directory.
+    #[error("cannot write {}: it is a directory", .path.display())]
+    IsDirectory {
+        /// The destination.
+        path: PathBuf,
+    },
+    /// The output is a FIFO or a socket: writing would wait for a reader.
+    #[error(
+        "cannot write {what} {}: it is a FIFO or socket (a write would wait for a reader); give a regular file",
+        .path.display()
+    )]
+    Fifo {
+        /// The output, for the message (an option such as `--out`, or `the output`).
+        what: String,
+        /// The FIFO or socket.
+        path: PathBuf,
+    },
+    /// The hidden temporary file or directory beside the destination could not be created.
+    #[error(
+        "cannot write {}: a temporary {} in {} {}",
+        .path.display(),
+        file_or_directory(*.directory),
+        .dir.display(),
+        write_cause(.io)
+    )]
+    Temporary {
+        /// The destination.
+        path: PathBuf,
+        /// The directory the temporary was to be made in (the destination's).
+        dir: PathBuf,
+        /// A temporary directory ([`OutputDir`]) rather than a file ([`AtomicFile`]).
+        directory: bool,
+        /// The I/O error.
+        io: std::io::Error,
+    },
+    /// The parent directory of an output directory could not be created.
+    #[error("cannot create {}: it {}", .path.display(), write_cause(.io))]
+    CreateDir {
+        /// The directory that could not be created.
+        path: PathBuf,
+        /// The I/O error.
+        io: std::io::Error,
+    },
+    /// A scratch directory ([`TempDir`]) could not be created.
+    #[error("cannot create a temporary directory in {}: it {}", .dir.display(), write_cause(.io))]
+    TempDir {
+        /// The system's temporary directory.
+        dir: PathBuf,
+        /// The I/O error.
+        io: std::io::Error,
+    },
+    /// A finished output directory could not be swapped in.
+    #[error("cannot replace {} with the new {noun}: {}", .path.display(), plain(.io))]
+    Replace {
+        /// The destination.
+        path: PathBuf,
+        /// The kind of output ([`DirKind::noun`]).
+        noun: &'static str,
+        /// The I/O error.
+        io: std::io::Error,
+    },
+    /// The output is one of the command's input files.
+    #[error("refusing to write {what} {}: it is the input {}", .path.display(), .input.display())]
+    IsInput {
+        /// The option naming the output, e.g. `--out`.
+        what: String,
+        /// The output as given.
+        path: PathBuf,
+        /// The input as given.
+        input: PathBuf,
+    },
+    /// The output lies inside an input directory.
+    #[error(
+        "refusing to write {what} {}: it is inside the input directory {} being read",
+        .path.display(),
+        .input.display()
+    )]
+    InsideInput {
+        /// The option naming the output, e.g. `--out`.
+        what: String,
+        /// The output as given.
+        path: PathBuf,
+        /// The input directory as given.
+        input: PathBuf,
+    },
+    /// The output directory holds an input (and would be replaced whole).
+    #[error(
+        "refusing to write {what} {}: it holds the input {} (it would be replaced)",
+        .path.display(),
+        .input.display()
+    )]
+    HoldsInput {
+        /// The option naming the output directory, e.g. `--out`.
+        what: String,
+        /// The output directory as given.
+        path: PathBuf,
+        /// The input as given.
+        input: PathBuf,
+    },
+    /// Two outputs of one command are the same file.
+    #[error("{first_what} {} and {second_what} {} are the same file", .first.display(), .second.display())]
+    SameFile {
+        /// The first output's option, e.g. `--out`.
+        first_what: String,
+        /// The first output as given.
+        first: PathBuf,
+        /// The second output's option.
+        second_what: String,
+        /// The second output as given.
+        second: PathBuf,
+    },
+    /// A PNG output whose name does not end in `.png`.
+    #[error("{what} {}: the file name must end in .png", .path.display())]
+    NotPng {
+        /// The option naming the output, e.g. `--png`.
+        what: String,
+        /// The output as given.
+        path: PathBuf,
+    },
+    /// An output directory named `.`, `..` or `/` (it cannot be swapped whole).
+    #[error(
+        "refusing to write the {noun} into {}: name the directory (it is replaced whole, so `.`, `..` and `/` cannot be)",
+        .path.display()
+    )]
+    UnnamedDir {
+        /// The kind of output ([`DirKind::noun`]).
+        noun: &'static str,
+        /// The destination as given.
+        path: PathBuf,
+    },
+    /// The destination of an output directory exists and is not a directory.
+    #[error("refusing to write the {noun} into {}: it exists and is not a directory", .path.display())]
+    NotADirectory {
+        /// The kind of output ([`DirKind::noun`]).
+        noun: &'static str,
+        /// The destination.
+        path: PathBuf,
+    },
+    /// The destination holds another kind of dpsa output.
+    #[error(
+        "refusing to write the {noun} into {}: it holds another dpsa output ({format}); choose another directory",
+        .path.display()
+    )]
+    OtherOutput {
+        /// The kind of output ([`DirKind::noun`]).
+        noun: &'static str,
+        /// The destination.
+        path: PathBuf,
+        /// The format recorded in the destination's [`MARKER`].
+        format: String,
+    },
+    /// The destination is a directory that is neither empty nor an earlier output of the kind.
+    #[error(
+        "refusing to write the {noun} into {}: it is not empty and holds no earlier {noun} (it has {:?}); choose a new or empty directory",
+        .path.display(),
+        .first
+    )]
+    NotEmpty {
+        /// The kind of output ([`DirKind::noun`]).
+        noun: &'static str,
+        /// The destination.
+        path: PathBuf,
+        /// The name of one entry found in it.
+        first: OsString,
+    },
+}
+
+fn file_or_directory(directory: bool) -> &'static str {
+    if directory {
+        "directory"
+    } else {
+        "file"
+    }
+}
+
+impl FileError {
+    /// The I/O error behind the failure, when there is one.
+    pub fn io(&self) -> Option<&std::io::Error> {
+        match self {
+            FileError::Read { io, .. }
+            | FileError::Write { io, .. }
+            | FileError::Temporary { io, .. }
+            | FileError::CreateDir { io, .. }
+            | FileError::TempDir { io, .. }
+            | FileError::Replace { io, .. } => Some(io),
+            _ => None,
+        }
+    }
+}
 
 /// Largest `manifest.json` read, bytes (64 MiB: a million frame entries).
 pub const MAX_MANIFEST_BYTES: u64 = 64 << 20;
@@ -62,17 +283,24 @@ pub fn check_regular(path: &Path) -> std::io::Result<std::fs::Metadata> {
 
 /// Opens a regular file for reading in pieces (a packet stream of any size): a directory, FIFO
 /// or device is refused with one sentence naming the file, before anything is read.
-pub fn open_regular(path: &Path, what: &str) -> Result<File> {
+pub fn open_regular(path: &Path, what: &str) -> Result<File, FileError> {
     check_regular(path)
         .and_then(|_| File::open(path))
-        .map_err(|e| anyhow::anyhow!("{what} {} {}", path.display(), io_cause(&e)))
+        .map_err(|io| read_error(what, path, io))
+}
+
+fn read_error(what: &str, path: &Path, io: std::io::Error) -> FileError {
+    FileError::Read {
+        what: what.to_string(),
+        path: path.to_path_buf(),
+        io,
+    }
 }
 
 /// Reads a regular file of at most `cap` bytes (see the module docs). The error is one
 /// sentence naming the file.
-pub fn read_capped(path: &Path, cap: u64, what: &str) -> Result<Vec<u8>> {
-    read_capped_io(path, cap)
-        .map_err(|e| anyhow::anyhow!("{what} {} {}", path.display(), io_cause(&e)))
+pub fn read_capped(path: &Path, cap: u64, what: &str) -> Result<Vec<u8>, FileError> {
+    read_capped_io(path, cap).map_err(|io| read_error(what, path, io))
 }
 
 /// [`read_capped`] with an `std::io::Error` (kind `NotFound` kept for callers that report a
@@ -256,10 +484,17 @@ impl Drop for AtomicFile {
 
 impl AtomicFile {
     /// Starts writing `path`. Refuses a directory; creates the temporary in `path`'s directory.
-    pub fn create(path: &Path) -> Result<AtomicFile> {
-        let fail = |e: std::io::Error| anyhow::anyhow!("{} {}", path.display(), write_cause(&e));
+    pub fn create(path: &Path) -> Result<AtomicFile, FileError> {
+        let fail = |io| FileError::Write {
+            path: path.to_path_buf(),
+            io,
+        };
         match std::fs::metadata(path) {
-            Ok(m) if m.is_dir() => bail!("cannot write {}: it is a directory", path.display()),
+            Ok(m) if m.is_dir() => {
+                return Err(FileError::IsDirectory {
+                    path: path.to_path_buf(),
+                })
+            }
             Ok(m) if is_fifo_or_socket(&m) => refuse_fifo_output("the output", path)?,
             Ok(m) if !m.is_file() => {
                 let f = std::fs::OpenOptions::new()
@@ -285,13 +520,11 @@ impl AtomicFile {
             .prefix(&format!(".{name}."))
             .permissions(file_mode())
             .tempfile_in(&dir)
-            .map_err(|e| {
-                anyhow::anyhow!(
-                    "cannot write {}: a temporary file in {} {}",
-                    path.display(),
-                    dir.display(),
-                    write_cause(&e)
-                )
+            .map_err(|io| FileError::Temporary {
+                path: path.to_path_buf(),
+                dir: dir.clone(),
+                directory: false,
+                io,
             })?;
         unfinished().push(tmp.path().to_path_buf());
         Ok(AtomicFile {
@@ -306,9 +539,12 @@ impl AtomicFile {
     }
 
     /// Flushes and renames the temporary into place (the destination appears whole or not at all).
-    pub fn commit(mut self) -> Result<()> {
+    pub fn commit(mut self) -> Result<(), FileError> {
         let path = std::mem::take(&mut self.path);
-        let fail = |e: std::io::Error| anyhow::anyhow!("{} {}", path.display(), write_cause(&e));
+        let fail = |io| FileError::Write {
+            path: path.clone(),
+            io,
+        };
         match std::mem::replace(&mut self.inner, Inner::Done) {
             Inner::Temp(mut t) => {
                 t.flush().map_err(fail)?;
@@ -349,29 +585,64 @@ impl Seek for AtomicFile {
     }
 }
 
-/// Writes `path` atomically through a buffered writer filled by `fill`.
-pub fn write_atomic(
+/// Writes `path` atomically through a buffered writer filled by `fill`. An error of `fill`
+/// that is or wraps an I/O error becomes [`FileError::Write`] (see [`write_error`]); any other
+/// is kept whole in [`FileError::Fill`].
+pub fn write_atomic<E>(
     path: &Path,
-    fill: impl FnOnce(&mut BufWriter<AtomicFile>) -> Result<()>,
-) -> Result<()> {
+    fill: impl FnOnce(&mut BufWriter<AtomicFile>) -> Result<(), E>,
+) -> Result<(), FileError>
+where
+    E: std::error::Error + Send + Sync + 'static,
+{
     let mut w = BufWriter::new(AtomicFile::create(path)?);
     fill(&mut w).map_err(|e| write_error(path, e))?;
     let f = w
         .into_inner()
-        .map_err(|e| write_error(path, anyhow::Error::new(e.into_error())))?;
+        .map_err(|e| write_error(path, e.into_error()))?;
     f.commit()
 }
 
 /// Writes `bytes` to `path` atomically.
-pub fn write_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
-    write_atomic(path, |w| Ok(w.write_all(bytes)?))
+pub fn write_bytes(path: &Path, bytes: &[u8]) -> Result<(), FileError> {
+    write_atomic(path, |w| w.write_all(bytes))
 }
 
-/// One sentence for a failed write to `path`: an I/O cause found in the chain is stated once.
-pub fn write_error(path: &Path, e: anyhow::Error) -> anyhow::Error {
-    match e.chain().find_map(|c| c.downcast_ref::<std::io::Error>()) {
-        Some(io) => anyhow::anyhow!("{} {}", path.display(), write_cause(io)),
-        None => e,
+/// One sentence for a failed write to `path`: the first I/O error in `e`'s `source()` chain
+/// (`e` itself included) gives [`FileError::Write`], its cause stated once; an error without
+/// one is kept whole as [`FileError::Fill`].
+pub fn write_error<E>(path: &Path, e: E) -> FileError
+where
+    E: std::error::Error + Send + Sync + 'static,
+{
+    let boxed: Box<dyn std::error::Error + Send + Sync + 'static> = Box::new(e);
+    let boxed = match boxed.downcast::<std::io::Error>() {
+        Ok(io) => {
+            return FileError::Write {
+                path: path.to_path_buf(),
+                io: *io,
+            }
+        }
+        Err(other) => other,
+    };
+    let mut cause = boxed.source();
+    while let Some(c) = cause {
+        if let Some(io) = c.downcast_ref::<std::io::Error>() {
+            return FileError::Write {
+                path: path.to_path_buf(),
+                io: copy_io(io),
+            };
+        }
+        cause = c.source();
+    }
+    FileError::Fill(boxed)
+}
+
+/// An owned copy of an I/O error: its OS code, or its kind and text.
+fn copy_io(e: &std::io::Error) -> std::io::Error {
+    match e.raw_os_error() {
+        Some(code) => std::io::Error::from_raw_os_error(code),
+        None => std::io::Error::new(e.kind(), e.to_string()),
     }
 }
 
@@ -379,12 +650,16 @@ pub fn write_error(path: &Path, e: anyhow::Error) -> anyhow::Error {
 /// e.g. "disk full", instead of the error as wrapped by the layers in between) and optionally
 /// keeps a copy of everything written.
 pub struct Tee<W: Write> {
+    /// The writer written through.
     pub inner: W,
+    /// Everything written so far, when asked for (`None`: no copy kept).
     pub copy: Option<Vec<u8>>,
+    /// The first I/O error of `inner` (an owned copy: its OS code, or its kind and text).
     pub error: Option<std::io::Error>,
 }
 
 impl<W: Write> Tee<W> {
+    /// Writes through `inner`, keeping a copy of the bytes when `keep_copy`.
     pub fn new(inner: W, keep_copy: bool) -> Self {
         Tee {
             inner,
@@ -396,10 +671,7 @@ impl<W: Write> Tee<W> {
     fn note<T>(&mut self, r: std::io::Result<T>) -> std::io::Result<T> {
         if let Err(e) = &r {
             if self.error.is_none() {
-                self.error = Some(match e.raw_os_error() {
-                    Some(code) => std::io::Error::from_raw_os_error(code),
-                    None => std::io::Error::new(e.kind(), e.to_string()),
-                });
+                self.error = Some(copy_io(e));
             }
         }
         r
@@ -456,59 +728,51 @@ fn marker_kind(dir: &Path) -> Option<String> {
 /// Checks (before any work) that `dest` may be replaced by an output of `kind`: it does not
 /// exist, is an empty directory, or holds an earlier output of this kind (its [`MARKER`] or
 /// `kind.ours`). A symbolic link is refused (the swap would replace the link).
-pub fn check_output_dir(dest: &Path, kind: DirKind) -> Result<()> {
+pub fn check_output_dir(dest: &Path, kind: DirKind) -> Result<(), FileError> {
     let noun = kind.noun;
+    let path = dest.to_path_buf();
     if dest.file_name().is_none() {
-        bail!(
-            "refusing to write the {noun} into {}: name the directory (it is replaced whole, so `.`, `..` and `/` cannot be)",
-            dest.display()
-        );
+        return Err(FileError::UnnamedDir { noun, path });
     }
     let meta = match std::fs::symlink_metadata(dest) {
         Ok(m) => m,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
-        Err(e) => bail!("output directory {} {}", dest.display(), io_cause(&e)),
+        Err(io) => return Err(read_error("output directory", dest, io)),
     };
     if !meta.is_dir() {
-        bail!(
-            "refusing to write the {noun} into {}: it exists and is not a directory",
-            dest.display()
-        );
+        return Err(FileError::NotADirectory { noun, path });
     }
     let first = std::fs::read_dir(dest)
         .and_then(|mut d| d.next().transpose())
-        .map_err(|e| anyhow::anyhow!("output directory {} {}", dest.display(), io_cause(&e)))?;
+        .map_err(|io| read_error("output directory", dest, io))?;
     let Some(first) = first else {
         return Ok(());
     };
     match marker_kind(dest) {
-        Some(k) if k == kind.format => return Ok(()),
-        Some(k) => bail!(
-            "refusing to write the {noun} into {}: it holds another dpsa output ({k}); choose another directory",
-            dest.display()
-        ),
-        None if (kind.ours)(dest) => return Ok(()),
-        None => {}
+        Some(k) if k == kind.format => Ok(()),
+        Some(format) => Err(FileError::OtherOutput { noun, path, format }),
+        None if (kind.ours)(dest) => Ok(()),
+        None => Err(FileError::NotEmpty {
+            noun,
+            path,
+            first: first.file_name(),
+        }),
     }
-    bail!(
-        "refusing to write the {noun} into {}: it is not empty and holds no earlier {noun} (it has {:?}); choose a new or empty directory",
-        dest.display(),
-        first.file_name()
-    )
 }
 
 impl OutputDir {
     /// Starts an output directory of `kind` for `dest`: checks the destination (see
     /// [`check_output_dir`]) and creates the hidden directory beside it, removed on an error,
     /// on drop and by the interrupt handler.
-    pub fn create(dest: &Path, kind: DirKind) -> Result<OutputDir> {
+    pub fn create(dest: &Path, kind: DirKind) -> Result<OutputDir, FileError> {
         check_output_dir(dest, kind)?;
         let parent = match dest.parent() {
             Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
             _ => PathBuf::from("."),
         };
-        std::fs::create_dir_all(&parent).map_err(|e| {
-            anyhow::anyhow!("cannot create {}: it {}", parent.display(), write_cause(&e))
+        std::fs::create_dir_all(&parent).map_err(|io| FileError::CreateDir {
+            path: parent.clone(),
+            io,
         })?;
         let name = dest
             .file_name()
@@ -520,13 +784,11 @@ impl OutputDir {
             .prefix(&format!(".{name}."))
             .permissions(dir_mode())
             .tempdir_in(&parent)
-            .map_err(|e| {
-                anyhow::anyhow!(
-                    "cannot write {}: a temporary directory in {} {}",
-                    dest.display(),
-                    parent.display(),
-                    write_cause(&e)
-                )
+            .map_err(|io| FileError::Temporary {
+                path: dest.to_path_buf(),
+                dir: parent.clone(),
+                directory: true,
+                io,
             })?
             .keep();
         list.push(tmp.clone());
@@ -551,18 +813,15 @@ impl OutputDir {
 
     /// Writes the marker and swaps the finished directory in whole; the earlier directory
     /// (if any) is removed.
-    pub fn commit(mut self) -> Result<()> {
+    pub fn commit(mut self) -> Result<(), FileError> {
         let marker = serde_json::json!({ "format": self.kind.format }).to_string();
         write_bytes(&self.tmp.join(MARKER), marker.as_bytes())?;
         // Re-checked: something else may have appeared at the destination meanwhile.
         check_output_dir(&self.dest, self.kind)?;
-        let fail = |e: std::io::Error| {
-            anyhow::anyhow!(
-                "cannot replace {} with the new {}: {}",
-                self.dest.display(),
-                self.kind.noun,
-                plain(&e)
-            )
+        let fail = |io| FileError::Replace {
+            path: self.dest.clone(),
+            noun: self.kind.noun,
+            io,
         };
         {
             // The interrupt handler waits for the swap: it then removes the hidden path,
@@ -705,23 +964,21 @@ pub struct TempDir {
 
 impl TempDir {
     /// A new scratch directory whose name starts with `prefix`.
-    pub fn new(prefix: &str) -> Result<TempDir> {
+    pub fn new(prefix: &str) -> Result<TempDir, FileError> {
         let mut list = unfinished();
         let path = tempfile::Builder::new()
             .prefix(prefix)
             .tempdir()
-            .map_err(|e| {
-                anyhow::anyhow!(
-                    "cannot create a temporary directory in {}: it {}",
-                    std::env::temp_dir().display(),
-                    write_cause(&e)
-                )
+            .map_err(|io| FileError::TempDir {
+                dir: std::env::temp_dir(),
+                io,
             })?
             .keep();
         list.push(path.clone());
         Ok(TempDir { path })
     }
 
+    /// The directory.
     pub fn path(&self) -> &Path {
         &self.path
     }
@@ -760,17 +1017,17 @@ fn resolve(path: &Path) -> PathBuf {
 
 /// Refuses (before any work) to write the file `output` when it is one of the `inputs` or lies
 /// inside an input directory. `what` names the option, e.g. `--out`.
-pub fn refuse_overwrite(what: &str, output: &Path, inputs: &[Input]) -> Result<()> {
+pub fn refuse_overwrite(what: &str, output: &Path, inputs: &[Input]) -> Result<(), FileError> {
     refuse(what, output, inputs, false)
 }
 
 /// [`refuse_overwrite`] for an output directory (replaced whole, see [`OutputDir`]): also
 /// refused when it holds an input (a program, a paste layer, a calibration inside it).
-pub fn refuse_overwrite_dir(what: &str, output: &Path, inputs: &[Input]) -> Result<()> {
+pub fn refuse_overwrite_dir(what: &str, output: &Path, inputs: &[Input]) -> Result<(), FileError> {
     refuse(what, output, inputs, true)
 }
 
-fn refuse(what: &str, output: &Path, inputs: &[Input], out_is_dir: bool) -> Result<()> {
+fn refuse(what: &str, output: &Path, inputs: &[Input], out_is_dir: bool) -> Result<(), FileError> {
     let out = resolve(output);
     for input in inputs {
         let (p, dir) = match input {
@@ -778,26 +1035,15 @@ fn refuse(what: &str, output: &Path, inputs: &[Input], out_is_dir: bool) -> Resu
             Input::Dir(d) => (*d, true),
         };
         let inp = resolve(p);
+        let (what, path, input) = (what.to_string(), output.to_path_buf(), p.to_path_buf());
         if inp == out {
-            bail!(
-                "refusing to write {what} {}: it is the input {}",
-                output.display(),
-                p.display()
-            );
+            return Err(FileError::IsInput { what, path, input });
         }
         if dir && out.starts_with(&inp) {
-            bail!(
-                "refusing to write {what} {}: it is inside the input directory {} being read",
-                output.display(),
-                p.display()
-            );
+            return Err(FileError::InsideInput { what, path, input });
         }
         if out_is_dir && inp.starts_with(&out) {
-            bail!(
-                "refusing to write {what} {}: it holds the input {} (it would be replaced)",
-                output.display(),
-                p.display()
-            );
+            return Err(FileError::HoldsInput { what, path, input });
         }
     }
     Ok(())
@@ -805,37 +1051,39 @@ fn refuse(what: &str, output: &Path, inputs: &[Input], out_is_dir: bool) -> Resu
 
 /// Refuses (before any work) an output path that is a FIFO or a socket: writing it would wait
 /// for a reader. Devices such as `/dev/null` stay allowed.
-pub fn refuse_fifo_output(what: &str, path: &Path) -> Result<()> {
+pub fn refuse_fifo_output(what: &str, path: &Path) -> Result<(), FileError> {
     match std::fs::metadata(path) {
-        Ok(m) if is_fifo_or_socket(&m) => bail!(
-            "cannot write {what} {}: it is a FIFO or socket (a write would wait for a reader); give a regular file",
-            path.display()
-        ),
+        Ok(m) if is_fifo_or_socket(&m) => Err(FileError::Fifo {
+            what: what.to_string(),
+            path: path.to_path_buf(),
+        }),
         _ => Ok(()),
     }
 }
 
 /// Refuses two outputs of one command that are the same file.
-pub fn refuse_same(a: (&str, &Path), b: (&str, &Path)) -> Result<()> {
+pub fn refuse_same(a: (&str, &Path), b: (&str, &Path)) -> Result<(), FileError> {
     if resolve(a.1) == resolve(b.1) {
-        bail!(
-            "{} {} and {} {} are the same file",
-            a.0,
-            a.1.display(),
-            b.0,
-            b.1.display()
-        );
+        return Err(FileError::SameFile {
+            first_what: a.0.to_string(),
+            first: a.1.to_path_buf(),
+            second_what: b.0.to_string(),
+            second: b.1.to_path_buf(),
+        });
     }
     Ok(())
 }
 
 /// Refuses a PNG output path without the `.png` extension.
-pub fn require_png(what: &str, path: &Path) -> Result<()> {
+pub fn require_png(what: &str, path: &Path) -> Result<(), FileError> {
     let ok = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("png"));
     if !ok {
-        bail!("{what} {}: the file name must end in .png", path.display());
+        return Err(FileError::NotPng {
+            what: what.to_string(),
+            path: path.to_path_buf(),
+        });
     }
     Ok(())
 }
@@ -857,11 +1105,111 @@ mod tests {
         // An error leaves the old file and no temporary.
         let err = write_atomic(&p, |w| {
             w.write_all(b"partial")?;
-            anyhow::bail!("boom")
+            Err(std::io::Error::other("boom"))
         });
         assert!(err.is_err());
         assert_eq!(std::fs::read(&p).unwrap(), b"new contents");
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    /// An error whose `source()` is an I/O error (as an encoder's error wrapping its writer's).
+    #[derive(Debug)]
+    struct Wrapped(std::io::Error);
+
+    impl std::fmt::Display for Wrapped {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.write_str("the encoder failed")
+        }
+    }
+
+    impl std::error::Error for Wrapped {
+        fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+            Some(&self.0)
+        }
+    }
+
+    /// The typed errors say the sentences the `anyhow` messages said, the I/O cause once and
+    /// not again as a `source()` (a chain printed whole, as the CLI does, would repeat it).
+    #[test]
+    fn file_errors_are_one_sentence() {
+        let dir = tempfile::tempdir().unwrap();
+        let missing = dir.path().join("none.json");
+        let e = read_capped(&missing, 10, "manifest").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!("manifest {} does not exist", missing.display())
+        );
+        assert!(std::error::Error::source(&e).is_none());
+        assert_eq!(
+            e.io().map(|io| io.kind()),
+            Some(std::io::ErrorKind::NotFound)
+        );
+        let e = open_regular(dir.path(), "stream").unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!("stream {} is a directory", dir.path().display())
+        );
+
+        // A filler's I/O error, bare or as the source of its own error: the path and the
+        // cause in plain words (ENOSPC is 28 on Linux).
+        let out = dir.path().join("out.bin");
+        let full = || std::io::Error::from_raw_os_error(28);
+        let want = format!(
+            "{} cannot be written: no space left on the device (disk full)",
+            out.display()
+        );
+        let e = write_atomic(&out, |_| Err(full())).unwrap_err();
+        assert_eq!(e.to_string(), want);
+        let e = write_atomic(&out, |_| Err(Wrapped(full()))).unwrap_err();
+        assert_eq!(e.to_string(), want);
+        assert!(std::error::Error::source(&e).is_none());
+        // Any other error is kept whole.
+        let e = write_atomic(&out, |_| Err(std::fmt::Error)).unwrap_err();
+        assert!(matches!(e, FileError::Fill(_)), "{e:?}");
+        assert_eq!(e.to_string(), std::fmt::Error.to_string());
+        assert!(!out.exists());
+        assert_eq!(
+            AtomicFile::create(dir.path()).err().map(|e| e.to_string()),
+            Some(format!(
+                "cannot write {}: it is a directory",
+                dir.path().display()
+            ))
+        );
+
+        let input = dir.path().join("in.txt");
+        std::fs::write(&input, b"x").unwrap();
+        let e = refuse_overwrite("--out", &input, &[Input::File(&input)]).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "refusing to write --out {0}: it is the input {0}",
+                input.display()
+            )
+        );
+        let e = refuse_same(("--out", &input), ("--png", &input)).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!("--out {0} and --png {0} are the same file", input.display())
+        );
+        let e = require_png("--png", Path::new("a.tif")).unwrap_err();
+        assert_eq!(e.to_string(), "--png a.tif: the file name must end in .png");
+        let e = check_output_dir(dir.path(), KIND).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "refusing to write the test output into {}: it is not empty and holds no \
+                 earlier test output (it has \"in.txt\"); choose a new or empty directory",
+                dir.path().display()
+            )
+        );
+        let e = check_output_dir(&input, KIND).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!(
+                "refusing to write the test output into {}: it exists and is not a directory",
+                input.display()
+            )
+        );
     }
 
     const KIND: DirKind = DirKind {

@@ -5,8 +5,12 @@
 /// column `c` across it (board `y`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Grid {
+    /// Columns, px.
     pub width: usize,
+    /// Rows, px.
     pub rows: usize,
+    /// `rows x width` heights, um, row after row (NaN: invalid); its length is
+    /// `rows * width`.
     pub data: Vec<f32>,
 }
 
@@ -44,10 +48,15 @@ impl Grid {
 /// pixels of `pitch_mm`. Pixel `(i, j)` is centred at `(x0 + (i + 1/2) p, y0 + (j + 1/2) p)`.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct BoardGrid {
+    /// Board `x` of the first row's edge, mm.
     pub x0_mm: f64,
+    /// Board `y` of the first column's edge, mm.
     pub y0_mm: f64,
+    /// Pixel size, mm (square pixels).
     pub pitch_mm: f64,
+    /// Rows, along the motion (board `x`).
     pub rows: usize,
+    /// Columns, across the motion (board `y`).
     pub width: usize,
 }
 

@@ -1,10 +1,34 @@
 //! Images out: 16-bit height PNGs, false-colour PNGs and wrapped-phase PNGs.
 
-use anyhow::Result;
 use image::{GrayImage, ImageBuffer, Luma, Rgb, RgbImage};
 use std::path::Path;
 
+use crate::files::FileError;
 use crate::heightmap::HeightMap;
+
+/// Why an image was not written.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum PngError {
+    /// The map's rows leave more than [`MAX_HOLE_ROWS`] board rows without a row (the image
+    /// would be mostly holes, and could be as tall as the `i64` rows allow).
+    #[error(
+        "the rows span {span} board rows ({first} to {last}) but only {present} are present: more than {MAX_HOLE_ROWS} missing rows (an encoder-fault gap?) cannot be drawn"
+    )]
+    TooManyMissingRows {
+        /// Board rows from the first to the last row present, both included.
+        span: u64,
+        /// The first board row present.
+        first: i64,
+        /// The last board row present.
+        last: i64,
+        /// Rows present.
+        present: usize,
+    },
+    /// The file could not be written.
+    #[error(transparent)]
+    File(#[from] FileError),
+}
 
 /// Largest number of board rows without a row (lost packets, encoder-fault gaps) an image
 /// may span beyond the rows it has.
@@ -13,16 +37,18 @@ pub const MAX_HOLE_ROWS: u64 = 1 << 16;
 /// Image rows of a map placed by board row: `(first board row, image height)`. Rows sit at
 /// their board row, so a missing row is an invalid image row, not a shift of the rows after
 /// it. Refuses a span of more than [`MAX_HOLE_ROWS`] board rows beyond the rows present.
-fn span(map: &HeightMap) -> Result<(i64, u32)> {
+fn span(map: &HeightMap) -> Result<(i64, u32), PngError> {
     let (Some(first), Some(last)) = (map.first_row(), map.last_row()) else {
         return Ok((0, 0));
     };
     let span = (last as i128 - first as i128 + 1) as u64;
     if span > map.rows.len() as u64 + MAX_HOLE_ROWS || span > u32::MAX as u64 {
-        anyhow::bail!(
-            "the rows span {span} board rows ({first} to {last}) but only {} are present: more than {MAX_HOLE_ROWS} missing rows (an encoder-fault gap?) cannot be drawn",
-            map.rows.len()
-        );
+        return Err(PngError::TooManyMissingRows {
+            span,
+            first,
+            last,
+            present: map.rows.len(),
+        });
     }
     Ok((first, span as u32))
 }
@@ -30,7 +56,7 @@ fn span(map: &HeightMap) -> Result<(i64, u32)> {
 /// Writes the height map as a 16-bit greyscale PNG: value `h + 32768` (h in LSB) for valid
 /// pixels, 0 for invalid ones. Image row `i` is board row `first_row + i` (missing rows are
 /// invalid).
-pub fn write_height_png(map: &HeightMap, path: &Path) -> Result<()> {
+pub fn write_height_png(map: &HeightMap, path: &Path) -> Result<(), PngError> {
     let (first, h) = span(map)?;
     let w = map.width as u32;
     let img: ImageBuffer<Luma<u16>, Vec<u16>> = ImageBuffer::from_fn(w, h, |x, y| {
@@ -44,11 +70,16 @@ pub fn write_height_png(map: &HeightMap, path: &Path) -> Result<()> {
             Luma([0])
         }
     });
-    save_png(&img, path)
+    Ok(save_png(&img, path)?)
 }
 
 /// Writes a false-colour PNG of the heights over `[lo_um, hi_um]`; invalid pixels are dark grey.
-pub fn write_false_colour_png(map: &HeightMap, lo_um: f64, hi_um: f64, path: &Path) -> Result<()> {
+pub fn write_false_colour_png(
+    map: &HeightMap,
+    lo_um: f64,
+    hi_um: f64,
+    path: &Path,
+) -> Result<(), PngError> {
     let (first, h) = span(map)?;
     let w = map.width as u32;
     let span = (hi_um - lo_um).max(1e-9);
@@ -64,11 +95,11 @@ pub fn write_false_colour_png(map: &HeightMap, lo_um: f64, hi_um: f64, path: &Pa
             Rgb([40, 40, 40])
         }
     });
-    save_png(&img, path)
+    Ok(save_png(&img, path)?)
 }
 
 /// Writes a wrapped phase map (`[-pi, pi)` -> 1..=255) as 8-bit grey; `None` (invalid) is 0.
-pub fn write_phase_png(phase: &[Option<f64>], width: usize, path: &Path) -> Result<()> {
+pub fn write_phase_png(phase: &[Option<f64>], width: usize, path: &Path) -> Result<(), FileError> {
     let h = phase.len() / width.max(1);
     let img: GrayImage = ImageBuffer::from_fn(width as u32, h as u32, |x, y| {
         match phase[y as usize * width + x as usize] {
@@ -83,16 +114,13 @@ pub fn write_phase_png(phase: &[Option<f64>], width: usize, path: &Path) -> Resu
 }
 
 /// Writes an image as PNG atomically (temporary file renamed into place when complete).
-pub fn save_png<P, C>(img: &ImageBuffer<P, C>, path: &Path) -> Result<()>
+pub fn save_png<P, C>(img: &ImageBuffer<P, C>, path: &Path) -> Result<(), FileError>
 where
     P: image::PixelWithColorType,
     [P::Subpixel]: image::EncodableLayout,
     C: std::ops::Deref<Target = [P::Subpixel]>,
 {
-    crate::files::write_atomic(path, |w| {
-        img.write_to(w, image::ImageFormat::Png)?;
-        Ok(())
-    })
+    crate::files::write_atomic(path, |w| img.write_to(w, image::ImageFormat::Png))
 }
 
 /// A perceptually ordered blue -> cyan -> green -> yellow -> red ramp, `t` in `[0, 1]`.
@@ -121,9 +149,55 @@ pub fn colour_path(png: &Path) -> std::path::PathBuf {
 }
 
 /// Writes `png` (16-bit heights) and `png` with `.colour.png` (false colour, -20..230 um).
-pub fn write_pngs(map: &HeightMap, png: &Path) -> Result<std::path::PathBuf> {
+pub fn write_pngs(map: &HeightMap, png: &Path) -> Result<std::path::PathBuf, PngError> {
     write_height_png(map, png)?;
     let colour = colour_path(png);
     write_false_colour_png(map, -20.0, 230.0, &colour)?;
     Ok(colour)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::heightmap::HeightRow;
+
+    fn row(row: i64) -> HeightRow {
+        HeightRow {
+            row,
+            latch: 0,
+            flags: 0,
+            heights: vec![10, 20],
+            valid: vec![true, false],
+        }
+    }
+
+    #[test]
+    fn a_map_of_mostly_holes_is_refused_in_one_sentence() {
+        let dir = tempfile::tempdir().unwrap();
+        let png = dir.path().join("h.png");
+        let mut map = HeightMap::new(2, 1.0);
+        map.rows = vec![row(0), row(MAX_HOLE_ROWS as i64 + 2)];
+        let e = write_pngs(&map, &png).unwrap_err();
+        assert!(matches!(e, PngError::TooManyMissingRows { .. }), "{e:?}");
+        assert_eq!(
+            e.to_string(),
+            "the rows span 65539 board rows (0 to 65538) but only 2 are present: more than \
+             65536 missing rows (an encoder-fault gap?) cannot be drawn"
+        );
+        assert!(std::fs::read_dir(dir.path()).unwrap().next().is_none());
+        // One hole fewer is drawn, the missing rows invalid (0).
+        map.rows[1].row -= 1;
+        write_pngs(&map, &png).unwrap();
+        let img = image::open(&png).unwrap().into_luma16();
+        assert_eq!(img.dimensions(), (2, MAX_HOLE_ROWS as u32 + 2));
+        assert_eq!(img.get_pixel(0, 0).0, [10 + 32768]);
+        assert_eq!(img.get_pixel(1, 0).0, [0]);
+        assert_eq!(img.get_pixel(0, 1).0, [0]);
+        // A file error passes through with its own sentence.
+        let e = write_pngs(&map, dir.path()).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            format!("cannot write {}: it is a directory", dir.path().display())
+        );
+    }
 }

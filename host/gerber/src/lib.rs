@@ -59,55 +59,134 @@ pub const MAX_COORD_MM: f64 = 10_000.0;
 /// problem has no single line, e.g. an empty file).
 #[derive(Debug, thiserror::Error)]
 pub enum GerberError {
+    /// The file could not be opened or read (missing, not a regular file, unreadable).
     #[error("{path}: {source}")]
     Io {
+        /// The file, as given.
         path: String,
+        /// The I/O error.
         #[source]
         source: std::io::Error,
     },
+    /// The file is larger than [`MAX_FILE_BYTES`].
     #[error("the file is {bytes} bytes, more than the {limit} bytes a paste layer may have")]
-    TooLarge { bytes: u64, limit: u64 },
+    TooLarge {
+        /// The file's size (or the bytes read before giving up), bytes.
+        bytes: u64,
+        /// The limit, bytes ([`MAX_FILE_BYTES`]).
+        limit: u64,
+    },
+    /// A control character (other than tab and line ends) or, in a file that is not UTF-8, a
+    /// non-ASCII byte outside comments and attributes.
     #[error("line {line}: binary data, not Gerber text")]
-    Binary { line: usize },
+    Binary {
+        /// 1-based line of the file.
+        line: usize,
+    },
+    /// A statement that does not parse, or that the parser refused.
     #[error("line {line}: {message}")]
-    Syntax { line: usize, message: String },
+    Syntax {
+        /// 1-based line of the file (0: the parser did not say).
+        line: usize,
+        /// What is wrong, with the start of the statement when known.
+        message: String,
+    },
+    /// A length is used before the file set its units (`%MOMM*%` or `%MOIN*%`).
     #[error("line {line}: no units: the file has no %MOMM*% or %MOIN*% before its first use of a length")]
-    NoUnits { line: usize },
+    NoUnits {
+        /// 1-based line of the first use.
+        line: usize,
+    },
+    /// A coordinate comes before the coordinate format (`%FS...*%`).
     #[error("line {line}: no coordinate format (%FS...*%) before the first coordinate")]
-    NoFormat { line: usize },
+    NoFormat {
+        /// 1-based line of the first coordinate.
+        line: usize,
+    },
+    /// A flash or stroke selects an aperture the file never defined.
     #[error("line {line}: aperture D{code} is used but never defined")]
-    UndefinedAperture { line: usize, code: i32 },
+    UndefinedAperture {
+        /// 1-based line of the use.
+        line: usize,
+        /// The aperture's D code.
+        code: i32,
+    },
+    /// An aperture macro definition runs to the end of the file.
     #[error("line {line}: aperture macro (%AM) is never closed by '%'")]
-    UnterminatedMacro { line: usize },
+    UnterminatedMacro {
+        /// 1-based line where the macro starts.
+        line: usize,
+    },
+    /// A region (`G36`) runs to the end of the file.
     #[error("line {line}: region (G36) is never closed by G37")]
-    UnclosedRegion { line: usize },
-    #[error("line {line}: region: {message}")]
-    BadRegion { line: usize, message: String },
+    UnclosedRegion {
+        /// 1-based line of the `G36`.
+        line: usize,
+    },
+    /// A number beyond [`MAX_COORD_MM`], not finite, or negative where a size must not be.
     #[error("line {line}: {what} is out of range (|value| <= 10 m, finite)")]
-    OutOfRange { line: usize, what: String },
+    OutOfRange {
+        /// 1-based line of the number.
+        line: usize,
+        /// The quantity and its value, e.g. `coordinate 12000.000 mm`.
+        what: String,
+    },
+    /// More than [`MAX_OBJECTS`] objects.
     #[error("line {line}: more than {limit} objects (step and repeat included)")]
-    TooManyObjects { line: usize, limit: usize },
+    TooManyObjects {
+        /// 1-based line where the count went over.
+        line: usize,
+        /// The limit ([`MAX_OBJECTS`]).
+        limit: usize,
+    },
+    /// More than [`MAX_VERTICES`] polygon vertices.
     #[error("line {line}: more than {limit} polygon vertices in the layer")]
-    TooComplex { line: usize, limit: usize },
+    TooComplex {
+        /// 1-based line where the count went over (0: in the merged pads).
+        line: usize,
+        /// The limit ([`MAX_VERTICES`]).
+        limit: usize,
+    },
+    /// The merging's exact tests would exceed [`MAX_PAIR_WORK`].
     #[error(
         "the layer's objects overlap too densely to merge in bounded time: the exact tests \
          of the objects whose boxes meet would compare more than {limit} pairs of edges"
     )]
-    TooEntangled { limit: u64 },
+    TooEntangled {
+        /// The limit ([`MAX_PAIR_WORK`]).
+        limit: u64,
+    },
+    /// One stroke would need more than [`MAX_STROKE_VERTICES`] vertices.
     #[error(
         "line {line}: this stroke of aperture {aperture} needs {vertices} polygon vertices, more \
          than the {limit} one stroke may have (an aperture far too large for its path)"
     )]
     StrokeTooComplex {
+        /// 1-based line of the stroke.
         line: usize,
+        /// The aperture's class, e.g. `C 0.25` or `R 0.60x0.30`.
         aperture: String,
+        /// Vertices the stroke's pieces would have.
         vertices: usize,
+        /// The limit ([`MAX_STROKE_VERTICES`]).
         limit: usize,
     },
+    /// A valid Gerber feature this reader does not handle.
     #[error("line {line}: not supported: {what}")]
-    Unsupported { line: usize, what: String },
+    Unsupported {
+        /// 1-based line of the statement.
+        line: usize,
+        /// The feature.
+        what: String,
+    },
+    /// The file ends inside something it opened (e.g. a step and repeat).
     #[error("line {line}: the file ends early: {what}")]
-    Truncated { line: usize, what: String },
+    Truncated {
+        /// 1-based line where the unclosed thing starts.
+        line: usize,
+        /// What was left open.
+        what: String,
+    },
 }
 
 impl GerberError {
@@ -124,7 +203,6 @@ impl GerberError {
             | GerberError::UndefinedAperture { line, .. }
             | GerberError::UnterminatedMacro { line }
             | GerberError::UnclosedRegion { line }
-            | GerberError::BadRegion { line, .. }
             | GerberError::OutOfRange { line, .. }
             | GerberError::TooManyObjects { line, .. }
             | GerberError::TooComplex { line, .. }
@@ -368,18 +446,24 @@ pub const AREA_EDGES_MM2: [f64; 13] = [
 /// takes smaller pads, the last larger ones).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct AreaBin {
+    /// Lower edge, mm^2 (included).
     pub from_mm2: f64,
+    /// Upper edge, mm^2 (excluded).
     pub to_mm2: f64,
+    /// Pads in the bin.
     pub count: usize,
 }
 
 /// The figures `dpsa pads` prints about a layer.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct PadSummary {
+    /// Pads in the layer.
     pub count: usize,
-    /// `[xmin, ymin, xmax, ymax]`, mm, in the file's frame.
+    /// `[xmin, ymin, xmax, ymax]`, mm, in the file's frame (zeros when no pads).
     pub bbox_mm: [f64; 4],
+    /// Sum of the pads' areas, mm^2.
     pub total_area_mm2: f64,
+    /// Pads by area: one bin per pair of neighbouring [`AREA_EDGES_MM2`], in increasing area.
     pub area_histogram: Vec<AreaBin>,
     /// Pads per aperture class, most common first (then by name).
     pub classes: Vec<(String, usize)>,

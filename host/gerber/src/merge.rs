@@ -270,7 +270,9 @@ fn group_pads(
 
 /// The dark objects of a group by the box of their first copy, to find the objects of a piece.
 struct ContributorIndex {
-    tree: rstar::RTree<rstar::primitives::GeomWithData<rstar::primitives::Rectangle<[f64; 2]>, usize>>,
+    tree: rstar::RTree<
+        rstar::primitives::GeomWithData<rstar::primitives::Rectangle<[f64; 2]>, usize>,
+    >,
     /// The group's dark objects per first copy: `(rep, object)` sorted.
     members: Vec<(usize, usize)>,
 }
@@ -308,7 +310,12 @@ impl ContributorIndex {
             let r = leaf.data;
             if boxes_meet(&layer.objects[r].bbox, &pb) && layer.shape(r).intersects(poly) {
                 let from = self.members.partition_point(|m| m.0 < r);
-                out.extend(self.members[from..].iter().take_while(|m| m.0 == r).map(|m| m.1));
+                out.extend(
+                    self.members[from..]
+                        .iter()
+                        .take_while(|m| m.0 == r)
+                        .map(|m| m.1),
+                );
             }
         }
         out.sort_unstable();
@@ -395,8 +402,8 @@ fn evaluate(
 
 #[cfg(test)]
 mod tests {
-    use crate::object::{Class, Flat, Geom, Object};
     use super::*;
+    use crate::object::{Class, Flat, Geom, Object};
     use geo::{Coord, LineString};
 
     /// The reference: every pair of objects tested, no copies shortcut, no index.

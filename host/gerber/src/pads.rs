@@ -23,20 +23,31 @@ pub type Point = [f64; 2];
 #[serde(tag = "kind", rename_all = "snake_case", try_from = "OutlineRepr")]
 pub enum Outline {
     /// A disc.
-    Circle { centre: Point, diameter: f64 },
+    Circle {
+        /// Centre, mm.
+        centre: Point,
+        /// Diameter, mm (positive in a sane outline).
+        diameter: f64,
+    },
     /// A `size[0]` x `size[1]` rectangle (before rotation) whose corners are rounded with
     /// `radius` (0 = sharp; `min(size) / 2` = obround), turned counter-clockwise by
     /// `rotation_deg` about its centre.
     RoundRect {
+        /// Centre, mm.
         centre: Point,
+        /// Width along the rectangle's own x and height along its y before the rotation, mm.
         size: [f64; 2],
+        /// Corner radius, mm; clamped to `0 ..= min(size) / 2` in every computation.
         radius: f64,
+        /// Counter-clockwise rotation about the centre, degrees.
         rotation_deg: f64,
     },
     /// An exterior ring and holes; rings are not closed (the last point joins the first) and
     /// may run either way round.
     Polygon {
+        /// The outer ring, mm (at least 3 points in a sane outline).
         exterior: Vec<Point>,
+        /// The holes' rings, mm, each inside the exterior.
         holes: Vec<Vec<Point>>,
     },
 }
@@ -202,6 +213,7 @@ fn round_rect_distance(
 /// as [`Outline::signed_distance`], for inner loops.
 #[derive(Clone, Debug)]
 pub struct Prepared {
+    /// The outline.
     pub outline: Outline,
     sin_cos: (f64, f64),
 }
@@ -215,6 +227,7 @@ impl std::ops::Deref for Prepared {
 }
 
 impl Prepared {
+    /// Works out the rotation of `outline` (a rounded rectangle's; none for the others).
     pub fn new(outline: Outline) -> Prepared {
         let sin_cos = match &outline {
             Outline::RoundRect { rotation_deg, .. } => rotation_deg.to_radians().sin_cos(),
@@ -223,6 +236,8 @@ impl Prepared {
         Prepared { outline, sin_cos }
     }
 
+    /// [`Outline::signed_distance`] of the outline, mm (negative inside), without a sine and
+    /// cosine per call.
     #[inline]
     pub fn signed_distance(&self, p: Point) -> f64 {
         match &self.outline {
@@ -477,6 +492,7 @@ impl Outline {
 pub struct Pad {
     /// Index in the layer (0-based, the order of the file).
     pub index: usize,
+    /// The opening's shape, mm, in the layer's frame.
     pub outline: Outline,
     /// Component reference (`%TO.C`, X2), e.g. `U3`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -484,7 +500,9 @@ pub struct Pad {
     /// Pin number or name (`%TO.P`, X2), e.g. `14`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pin: Option<String>,
-    /// The aperture or object that drew it, e.g. `D12` or `region` (for pad classes).
+    /// The class of what drew it, for pad classes: an aperture (`C 0.25`, `R 0.60x0.30`,
+    /// `O 1.20x0.60`, `P 1 n6`, a macro's name), `stroke` and an aperture, `region`, or
+    /// `merged` when objects of several classes make the pad.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub aperture: Option<String>,
 }
@@ -504,18 +522,23 @@ impl Pad {
 /// then translate by `[tx, ty]` (mm).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Rigid {
+    /// Counter-clockwise rotation about the origin, radians.
     pub rotation_rad: f64,
+    /// Translation along x after the rotation, mm.
     pub tx: f64,
+    /// Translation along y after the rotation, mm.
     pub ty: f64,
 }
 
 impl Rigid {
+    /// The transform that moves nothing.
     pub const IDENTITY: Rigid = Rigid {
         rotation_rad: 0.0,
         tx: 0.0,
         ty: 0.0,
     };
 
+    /// The image of the point `p`, mm.
     pub fn apply(&self, p: Point) -> Point {
         let (s, c) = self.rotation_rad.sin_cos();
         [c * p[0] - s * p[1] + self.tx, s * p[0] + c * p[1] + self.ty]

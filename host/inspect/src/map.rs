@@ -1,9 +1,9 @@
 //! The board map as the inspection reads it: `board.json` and `heights_um.tiff` of a
 //! `dpsa board --out DIR` (docs/board.md), heights in um on a grid in board mm.
 
+use anyhow::{bail, Context, Result};
 use dpsa_formats::grid::BoardGrid;
 use dpsa_formats::grid::Grid;
-use anyhow::{bail, Context, Result};
 use std::path::Path;
 
 /// Largest map read: 400 Mpx (a 220 x 168 mm board at 10 um).

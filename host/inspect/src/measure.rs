@@ -33,8 +33,8 @@
 //!   joins them (4-connected), searched in the two openings' joint box.
 
 use crate::map::BoardMap;
-use dpsa_gerber::pads::{norm, Outline, Pad, Point, Prepared, Rigid};
 use crate::program::Program;
+use dpsa_gerber::pads::{norm, Outline, Pad, Point, Prepared, Rigid};
 use serde::Serialize;
 
 /// Fewest bare-board pixels for the local surface.

@@ -413,12 +413,13 @@ impl Program {
     }
 
     pub fn load(path: &Path) -> Result<Program, ProgramError> {
-        let bytes = dpsa_formats::files::read_capped(path, MAX_PROGRAM_BYTES, "program").map_err(|e| {
-            ProgramError::Read {
-                path: path.to_path_buf(),
-                cause: format!("{e:#}"),
-            }
-        })?;
+        let bytes =
+            dpsa_formats::files::read_capped(path, MAX_PROGRAM_BYTES, "program").map_err(|e| {
+                ProgramError::Read {
+                    path: path.to_path_buf(),
+                    cause: format!("{e:#}"),
+                }
+            })?;
         let text = String::from_utf8(bytes).map_err(|_| ProgramError::Parse {
             path: path.to_path_buf(),
             cause: "not UTF-8 text".into(),

@@ -15,8 +15,8 @@
 
 use crate::map::BoardMap;
 use crate::measure::{robust_surface, surface_at};
-use dpsa_gerber::pads::{Point, Rigid};
 use crate::program::Program;
+use dpsa_gerber::pads::{Point, Rigid};
 use serde::Serialize;
 
 #[derive(Debug, thiserror::Error)]

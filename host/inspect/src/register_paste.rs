@@ -26,9 +26,9 @@
 //!    pads' misses: part placement, part print offset; the report says how many pads it used.
 
 use crate::map::BoardMap;
-use dpsa_gerber::pads::{Pad, Point, Rigid};
 use crate::program::Program;
 use crate::register::{fit_rigid, RegisterError, Registration};
+use dpsa_gerber::pads::{Pad, Point, Rigid};
 
 /// Largest departure from the nominal placement searched, mm (each way).
 pub const SEARCH_MM: f64 = 2.0;

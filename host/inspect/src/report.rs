@@ -10,11 +10,11 @@
 
 use crate::map::BoardMap;
 use crate::measure::PadMeasurement;
-use dpsa_gerber::pads::{Pad, Rigid};
 use crate::program::Program;
 use crate::run::Inspection;
 use crate::verdict::{Call, Level};
 use anyhow::Result;
+use dpsa_gerber::pads::{Pad, Rigid};
 use image::{ImageBuffer, Rgb, RgbImage};
 use serde_json::{json, Value};
 use std::fmt::Write as _;
@@ -433,7 +433,7 @@ pub fn is_inspection_dir(dir: &Path) -> bool {
 
 /// Refuses (before any work) a destination that an inspection output may not replace.
 pub fn check_destination(dir: &Path) -> Result<()> {
-    dpsa_formats::files::check_output_dir(dir, DIR_KIND)
+    Ok(dpsa_formats::files::check_output_dir(dir, DIR_KIND)?)
 }
 
 /// An inspection output directory, for [`dpsa_formats::files::OutputDir`].

@@ -6,10 +6,10 @@
 
 use crate::map::BoardMap;
 use crate::measure::{measure_all, PadMeasurement, Placed};
-use dpsa_gerber::pads::{Pad, Point};
 use crate::program::Program;
 use crate::register::{register, RegisterError, Registration};
 use crate::verdict::{judge, Call, Class, Level};
+use dpsa_gerber::pads::{Pad, Point};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::time::Instant;
@@ -216,13 +216,7 @@ pub struct Timing {
 }
 
 impl Report {
-    pub fn build(
-        board: &str,
-        program: &str,
-        i: &Inspection,
-        pads: &[Pad],
-        load_s: f64,
-    ) -> Report {
+    pub fn build(board: &str, program: &str, i: &Inspection, pads: &[Pad], load_s: f64) -> Report {
         let (c, calls) = counts(i);
         let failures = i
             .calls

@@ -224,9 +224,7 @@ mod tests {
             ),
             (Box::new(|m| m.shape_pct = 50.0), Level::Fail, Class::Shape),
             (
-                Box::new(|m| {
-                    m.unmeasurable = Some(crate::measure::Unmeasurable::LowCoverage)
-                }),
+                Box::new(|m| m.unmeasurable = Some(crate::measure::Unmeasurable::LowCoverage)),
                 Level::Fail,
                 Class::NotMeasurable,
             ),

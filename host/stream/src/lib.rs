@@ -7,11 +7,11 @@
 //! and at most [`MAX_DAMAGE_ENTRIES`] damage entries and [`MAX_GAP_ENTRIES`] gap entries (the
 //! counts are always complete); time is linear in the input (`dpsa_core::packets::Walk`).
 
-use dpsa_formats::heightmap::{HeightMap, HeightRow};
 use dpsa_core::packets::{
     self, codec, Item, Kind, Packet, PacketError, Summary, Totals, Tracker, Verdict, Walk,
     MAX_PACKET_LEN,
 };
+use dpsa_formats::heightmap::{HeightMap, HeightRow};
 use serde::Serialize;
 use std::io::Read;
 
@@ -27,14 +27,18 @@ const CHUNK: usize = 1 << 16;
 pub struct Damage {
     /// Byte offset of the damaged packet (or of the garbage) in the stream.
     pub offset: usize,
+    /// What was wrong with it, one sentence.
     pub error: String,
 }
 
 /// A gap record: board rows `first .. first + count` never imaged (encoder fault).
 #[derive(Clone, Copy, Debug, Serialize)]
 pub struct GapEntry {
+    /// First board row of the gap.
     pub first: i64,
+    /// Board rows in the gap (at least 1).
     pub count: u64,
+    /// Row flags of every row in the gap (`dpsa_formats::heightmap::flags`).
     pub flags: u16,
 }
 
@@ -43,14 +47,23 @@ pub struct GapEntry {
 pub struct StreamReport {
     /// Format version of the first packet (0: none).
     pub version: u8,
+    /// Camera id from the stream header (`None`: no header arrived, e.g. version 1).
     pub camera: Option<u8>,
+    /// Columns per row from the stream header, px (`None`: no header).
     pub width: Option<u16>,
+    /// Run identity from the stream header (`None`: no header; 0: the producer gave none).
     pub run_id: Option<u64>,
+    /// The configuration's hash from the stream header as 16 lowercase hex digits (`None`:
+    /// no header).
     pub config_hash: Option<String>,
+    /// Codec intra period from the stream header, rows (`None`: no header).
     pub intra_period: Option<u32>,
     /// Packets lost (sequence numbers never seen, and packets the end's total says exist).
     pub missing: u64,
+    /// Packets whose sequence number was seen already (version 1, which has none: board rows
+    /// that arrived more than once).
     pub duplicated: u64,
+    /// Packets that arrived after a packet with a higher sequence number.
     pub reordered: u64,
     /// Rows or gaps that arrived below a board row already seen.
     pub row_order: u64,
@@ -65,10 +78,13 @@ pub struct StreamReport {
     pub before_header: u64,
     /// Version 2: no end packet, or totals that disagree with what arrived.
     pub truncated: bool,
+    /// The end packet's totals (`None`: no end packet arrived).
     pub end_totals: Option<TotalsReport>,
-    /// Gap records (first [`MAX_GAP_ENTRIES`]), and their counts.
+    /// The first [`MAX_GAP_ENTRIES`] gap records, in arrival order.
     pub gaps: Vec<GapEntry>,
+    /// Gap records accepted (all of them, also those not listed in `gaps`).
     pub gap_records: u64,
+    /// Board rows in the accepted gap records.
     pub gap_rows: u64,
     /// Board rows between the first and the last row or gap that no packet covers.
     pub rows_missing: u64,
@@ -77,10 +93,15 @@ pub struct StreamReport {
 /// The end packet's totals.
 #[derive(Clone, Copy, Debug, Serialize)]
 pub struct TotalsReport {
+    /// Packets of the stream, the stream header and the end packet included.
     pub packets: u64,
+    /// Row packets.
     pub rows: u64,
+    /// Board rows inside gap records.
     pub gap_rows: u64,
+    /// First board row covered by a row or gap (0 when none).
     pub first_row: i64,
+    /// Last board row covered by a row or gap (-1 when none).
     pub last_row: i64,
 }
 
@@ -106,9 +127,11 @@ pub struct DecodeReport {
     pub corrupt: usize,
     /// Times the decoder had to search for the next sync word.
     pub resynced: usize,
+    /// The first [`MAX_DAMAGE_ENTRIES`] damage reports, sorted by offset.
     pub damage: Vec<Damage>,
     /// Bytes read.
     pub bytes: u64,
+    /// What the stream said about itself.
     pub stream: StreamReport,
 }
 
@@ -205,6 +228,7 @@ pub struct Decoded {
     pub rows: RowCounts,
     /// The map would have exceeded [`Keep::max_pixels`].
     pub over_limit: bool,
+    /// The damage and stream report.
     pub report: DecodeReport,
 }
 

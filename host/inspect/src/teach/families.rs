@@ -17,8 +17,8 @@
 //! almost all their paste, so their windows are tighter. `standard` and `chip-0603`,
 //! `chip-0805+`, `pitch-0.65` keep the program's default windows.
 
-use dpsa_gerber::pads::Pad;
 use crate::program::{Override, Window};
+use dpsa_gerber::pads::Pad;
 use std::collections::BTreeMap;
 
 /// The family of every pad (see the module's table). `packages` maps a component to its

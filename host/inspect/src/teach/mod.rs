@@ -17,9 +17,9 @@ pub mod names;
 pub mod outline;
 pub mod placement;
 
-use dpsa_gerber::{self as gerber, GerberError};
-use dpsa_gerber::pads::Pad;
 use crate::program::{Override, Program, ProgramError};
+use dpsa_gerber::pads::Pad;
+use dpsa_gerber::{self as gerber, GerberError};
 use placement::{ComponentsFile, PlacementError, Side};
 use serde::Serialize;
 use std::collections::BTreeMap;
