@@ -9,7 +9,7 @@ here=$(cd "$(dirname "$0")" && pwd)
 elf=$(cd "$(dirname "$1")" && pwd)/$(basename "$1")   # absolute: we change directory below
 shift
 cd "$here/.."   # the host workspace, away from this directory's cross-compiling config
-dpsa() { cargo run --release --quiet -p dpsa-sim -- "$@"; }
+dpsa() { cargo run --release --quiet -p dpsa -- "$@"; }
 if [ $# -eq 0 ]; then
     rec=out/target/default-scene
     [ -f "$rec/manifest.json" ] || dpsa simulate --scene default --seed 1 --out "$rec"

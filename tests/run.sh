@@ -31,6 +31,17 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 bash firmware/build.sh --install --clippy
 (cd fuzz && cargo fmt --check && cargo check --quiet)   # the fuzz target builds on dpsa-core alone
 
+echo "== the production binary: dpsa without the simulator (program, pads, inspect, decode)"
+cargo build -p dpsa --no-default-features --locked --quiet
+prod=$(cargo tree -p dpsa --no-default-features -e normal,build --prefix none --locked | sed 's/ (\*)//' | sort -u)
+echo "   $(echo "$prod" | wc -l) crates (the full binary: $(cargo tree -p dpsa -e normal,build --prefix none --locked | sed 's/ (\*)//' | sort -u | wc -l))"
+for c in dpsa-sim zstd defmt-decoder lz4_flex heatshrink-lib rand_distr; do
+    if echo "$prod" | grep -q "^$c v"; then
+        echo "error: the production binary pulls $c" >&2
+        exit 1
+    fi
+done
+
 echo "== documentation (rustdoc warnings, e.g. broken intra-doc links, are errors)"
 RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --workspace --locked --quiet
 

@@ -17,9 +17,9 @@ use std::sync::Mutex;
 use std::time::Instant;
 
 /// Name of the array manifest.
-pub const ARRAY_FILE: &str = "array.json";
+pub const ARRAY_FILE: &str = dpsa_formats::kind::markers::ARRAY_FILE;
 /// Format tag of `array.json`.
-pub const ARRAY_FORMAT: &str = "dpsa-array-recording";
+pub const ARRAY_FORMAT: &str = dpsa_formats::kind::markers::ARRAY_FORMAT;
 /// Version of `array.json` this build reads and writes.
 pub const ARRAY_VERSION: u32 = 1;
 /// The array truth (simulated recordings only).

@@ -9,7 +9,7 @@ use std::f64::consts::TAU;
 use std::path::Path;
 
 /// Format tag of a calibration file.
-pub const CAL_FORMAT: &str = "dpsa-calibration";
+pub const CAL_FORMAT: &str = dpsa_formats::kind::markers::CALIBRATION_FORMAT;
 /// Version this build reads and writes.
 pub const CAL_VERSION: u32 = 1;
 

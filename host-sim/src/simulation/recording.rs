@@ -8,7 +8,7 @@ use std::io::{Cursor, Write};
 use std::path::{Path, PathBuf};
 
 /// Format tag in every manifest.
-pub const FORMAT: &str = "dpsa-recording";
+pub const FORMAT: &str = dpsa_formats::kind::markers::RECORDING_FORMAT;
 /// Manifest version this build reads and writes.
 pub const VERSION: u32 = 1;
 
@@ -172,7 +172,7 @@ pub struct Truth {
 }
 
 /// Name of the manifest inside a recording directory.
-pub const MANIFEST_FILE: &str = "manifest.json";
+pub const MANIFEST_FILE: &str = dpsa_formats::kind::markers::RECORDING_MANIFEST;
 /// Truth file: height per board pixel, um.
 pub const TRUTH_HEIGHT_FILE: &str = "truth/height_um.f32";
 /// Truth file: background `B` per board pixel, DN.

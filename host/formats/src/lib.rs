@@ -9,6 +9,7 @@
 //! | [`grid`] | the board map's grids: heights in board millimetres and their placement |
 //! | [`board_map`] | the board map directory's format name and colour scale |
 //! | [`board_id`] | the board identity shared by a board's recordings, streams and maps |
+//! | [`kind`] | what kind of file or directory a path is (from its first bytes or marker), to name a wrong input for what it is |
 //! | [`images`] | 16-bit and false-colour PNGs |
 //! | [`progress`] | progress bars on stderr |
 
@@ -18,6 +19,7 @@ pub mod files;
 pub mod grid;
 pub mod heightmap;
 pub mod images;
+pub mod kind;
 pub mod progress;
 
 pub use board_id::BoardId;

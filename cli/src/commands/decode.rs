@@ -2,8 +2,9 @@
 
 use super::out;
 use anyhow::{bail, Context, Result};
-use dpsa_sim::stream::Verdict2;
-use dpsa_sim::{images, stream};
+use dpsa_formats::images;
+use dpsa_stream as stream;
+use dpsa_stream::Verdict2;
 use std::path::PathBuf;
 
 /// Exit status: 0 clean; 2 damage, missing / duplicated / reordered packets or a truncated
@@ -30,14 +31,14 @@ pub struct Args {
 
 /// Decodes; returns the exit status.
 pub fn run(a: Args) -> Result<i32> {
-    dpsa_sim::kind::expect(&a.stream, "STREAM", dpsa_sim::kind::Kind::Stream, &[])?;
+    dpsa_formats::kind::expect(&a.stream, "STREAM", dpsa_formats::kind::Kind::Stream, &[])?;
     if let Some(png) = &a.png {
-        dpsa_sim::files::require_png("--png", png)?;
-        let inputs = [dpsa_sim::files::Input::File(&a.stream)];
-        dpsa_sim::files::refuse_overwrite("--png", png, &inputs)?;
-        dpsa_sim::files::refuse_overwrite("--png", &images::colour_path(png), &inputs)?;
+        dpsa_formats::files::require_png("--png", png)?;
+        let inputs = [dpsa_formats::files::Input::File(&a.stream)];
+        dpsa_formats::files::refuse_overwrite("--png", png, &inputs)?;
+        dpsa_formats::files::refuse_overwrite("--png", &images::colour_path(png), &inputs)?;
     }
-    let file = dpsa_sim::files::open_regular(&a.stream, "packet stream")?;
+    let file = dpsa_formats::files::open_regular(&a.stream, "packet stream")?;
     // Heights are kept only for the PNG; otherwise each row leaves only its counts behind.
     let keep = stream::Keep {
         rows: a.png.is_some(),

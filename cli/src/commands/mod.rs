@@ -1,38 +1,73 @@
 //! The `dpsa` command line: one file per subcommand, each with its arguments (clap) and its
-//! printing. The work itself is in the `dpsa_sim` library; nothing here computes a figure.
+//! printing. The work itself is in the library crates; nothing here computes a figure.
+//!
+//! The production commands (`program`, `pads`, `inspect`, `decode`) need the production crates
+//! only (`dpsa-formats`, `dpsa-gerber`, `dpsa-inspect`, `dpsa-stream`); the others come with the
+//! feature `sim` (on by default): the simulator, the reference, calibration, the board map,
+//! benches and the firmware tooling, all still in `dpsa-sim`.
 
+#[cfg(feature = "sim")]
 pub mod board;
+#[cfg(feature = "sim")]
 pub mod board_bench;
+#[cfg(feature = "sim")]
 pub mod calibrate;
+#[cfg(feature = "sim")]
 pub mod codec_bench;
+#[cfg(feature = "sim")]
 pub mod compare;
 pub mod decode;
+#[cfg(feature = "sim")]
 pub mod demo;
+#[cfg(feature = "sim")]
 pub mod frame_bench;
+#[cfg(feature = "sim")]
 pub mod grr;
 pub mod inspect;
+#[cfg(feature = "sim")]
 pub mod layout;
 pub mod pads;
+#[cfg(feature = "sim")]
 pub mod pads_bench;
+#[cfg(feature = "sim")]
 pub mod phase;
 pub mod program;
+#[cfg(feature = "sim")]
 pub mod reconstruct;
+#[cfg(feature = "sim")]
 pub mod simulate;
+#[cfg(feature = "sim")]
 pub mod target_run;
 
+#[cfg(feature = "sim")]
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
+#[cfg(feature = "sim")]
 use dpsa_sim::simulation::{recording::Recording, scene::Scene};
+#[cfg(feature = "sim")]
 use std::path::Path;
 
 #[derive(Parser)]
 #[command(
     name = "dpsa",
     version,
-    about = "3D solder-paste measurement with the dynamic phase-shift algorithm (D-PSA)",
-    long_about = "Simulates conveyor recordings with ground truth, runs the same fixed-point core as the \
+    about = "3D solder-paste measurement with the dynamic phase-shift algorithm (D-PSA)"
+)]
+#[cfg_attr(
+    feature = "sim",
+    command(
+        long_about = "Simulates conveyor recordings with ground truth, runs the same fixed-point core as the \
 frame-grabber firmware on them, and compares it with an independent f64 reference, a conventional \
 4-step PSP baseline and the Cramer-Rao bound.\n\nStart with `dpsa demo`."
+    )
+)]
+#[cfg_attr(
+    not(feature = "sim"),
+    command(
+        long_about = "The production host (built without the simulator): the inspection program \
+from a board's design files (`program`), its paste layer as pads (`pads`), a board map judged pad by \
+pad (`inspect`) and the frame grabbers' packet streams decoded (`decode`)."
+    )
 )]
 pub struct Cli {
     /// Hide progress bars.
@@ -45,16 +80,22 @@ pub struct Cli {
 #[derive(Subcommand)]
 pub enum Cmd {
     /// Simulate a recording (frames, manifest, ground truth) of a scene.
+    #[cfg(feature = "sim")]
     Simulate(simulate::Args),
     /// Calibrate a camera array from its calibration recording; write the calibration file.
+    #[cfg(feature = "sim")]
     Calibrate(calibrate::Args),
     /// One board height map in mm from an array recording and its calibration.
+    #[cfg(feature = "sim")]
     Board(board::Args),
     /// Write a generated paste layer (Gerber X2): the paper's board or the small test board.
+    #[cfg(feature = "sim")]
     Layout(layout::Args),
     /// Run the fixed-point core on a recording through its streaming API; write the packet stream.
+    #[cfg(feature = "sim")]
     Reconstruct(reconstruct::Args),
     /// Compare the fixed-point core with the f64 reference, the PSP baseline, the CRB and the truth.
+    #[cfg(feature = "sim")]
     Compare(compare::Args),
     /// A board's top paste layer (Gerber RS-274X / X2) as pads: count, bounding box, area
     /// histogram, aperture classes, X2 names.
@@ -70,30 +111,38 @@ pub enum Cmd {
     Program(Box<program::Args>),
     /// Gauge repeatability (GR&R) of the inspection: the same printed board N times through
     /// the simulated array with fresh noise and placement, inspected each time.
+    #[cfg(feature = "sim")]
     Grr(grr::Args),
     /// Phase of an ordinary phase-shifting image stack (PNG, JPEG, TIFF; 8 or 16 bit), fixed-point
     /// core and f64 reference side by side.
+    #[cfg(feature = "sim")]
     Phase(phase::Args),
     /// Decode a packet stream: report good/corrupt packets and optionally write images.
     Decode(decode::Args),
     /// Benchmark the row codec against lz4, zstd, heatshrink and PNG on the same height rows,
     /// with the entropy of its predictor's residuals and the noise floor.
+    #[cfg(feature = "sim")]
     CodecBench(codec_bench::Args),
     /// Benchmark the recording frame formats (16-bit PNG, compressed .zfr) on a recording's
     /// frames: size and encode/decode speed, as JSON.
+    #[cfg(feature = "sim")]
     FrameBench(frame_bench::Args),
     /// Benchmark the whole board: every camera's frames in memory, the core on every camera,
     /// provenance, unwrap, resampling and blending timed per stage, beside a numpy float64
     /// least-squares phase of the same frames; as JSON.
+    #[cfg(feature = "sim")]
     BoardBench(board_bench::Args),
     /// Benchmark the paste-layer reader on synthetic layers of up to 10^6 objects (flashes,
     /// apertures, arcs, strokes, regions), each read in a child process: time, peak memory,
     /// pads or the refusal; as JSON.
+    #[cfg(feature = "sim")]
     PadsBench(pads_bench::Args),
     /// Run the firmware under QEMU (Cortex-M7, mps2-an500) on a recording: the same core on the
     /// target, writing the packet stream it emitted; `--bench` adds its measured figures.
+    #[cfg(feature = "sim")]
     TargetRun(target_run::Args),
     /// The main job: simulate the default scene, reconstruct, compare, write images, summarise.
+    #[cfg(feature = "sim")]
     Demo(demo::Args),
 }
 
@@ -113,6 +162,7 @@ macro_rules! out {
 }
 pub(crate) use out;
 
+#[cfg(feature = "sim")]
 /// `default` for the built-in scene, or a scene TOML file. Prints the scene's warnings.
 pub fn load_scene(spec: &str) -> Result<Scene> {
     let scene = if spec == "default" {
@@ -124,6 +174,7 @@ pub fn load_scene(spec: &str) -> Result<Scene> {
     Ok(scene)
 }
 
+#[cfg(feature = "sim")]
 /// Opens a recording directory, naming it in the error. Prints the manifest's warnings.
 pub fn open(dir: &Path) -> Result<Recording> {
     let rec = Recording::open(dir).with_context(|| format!("recording {}", dir.display()))?;
@@ -131,6 +182,7 @@ pub fn open(dir: &Path) -> Result<Recording> {
     Ok(rec)
 }
 
+#[cfg(feature = "sim")]
 /// Puts camera `camera`'s calibration from the array calibration file `path` into `rec`'s
 /// manifest (`reconstruct --cal`, `target-run --cal`: what one frame grabber of the array runs
 /// with); `camera` defaults to the manifest's camera id. A missing camera or a calibration of
@@ -171,6 +223,7 @@ pub fn finite(s: &str) -> Result<f64, String> {
     }
 }
 
+#[cfg(feature = "sim")]
 /// clap value parser: a finite number >= 0.
 pub fn non_negative(s: &str) -> Result<f64, String> {
     let v = finite(s)?;
@@ -191,9 +244,11 @@ pub fn positive(s: &str) -> Result<f64, String> {
     }
 }
 
+#[cfg(feature = "sim")]
 /// Largest phase step `dpsa phase` takes, degrees (either sign): 100 turns.
 pub const MAX_STEP_DEG: f64 = 36_000.0;
 
+#[cfg(feature = "sim")]
 /// clap value parser: a phase step in degrees, finite and within +/- [`MAX_STEP_DEG`].
 pub fn step_deg(s: &str) -> Result<f64, String> {
     let v = finite(s)?;

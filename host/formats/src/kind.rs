@@ -12,6 +12,21 @@
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
+/// The marker names and format strings by which files and directories are told apart, each
+/// defined once here and used by the crates that write them.
+pub mod markers {
+    /// The `format` of an array calibration file.
+    pub const CALIBRATION_FORMAT: &str = "dpsa-calibration";
+    /// The marker file of an array recording directory.
+    pub const ARRAY_FILE: &str = "array.json";
+    /// The `format` in an array recording's marker file.
+    pub const ARRAY_FORMAT: &str = "dpsa-array-recording";
+    /// The manifest of a single-camera recording directory.
+    pub const RECORDING_MANIFEST: &str = "manifest.json";
+    /// The `format` in a single-camera recording's manifest.
+    pub const RECORDING_FORMAT: &str = "dpsa-recording";
+}
+
 /// Most bytes read from a file to tell its kind.
 pub const SNIFF_BYTES: usize = 64 * 1024;
 
@@ -114,10 +129,13 @@ impl Kind {
 /// An input of the wrong kind.
 #[derive(Debug)]
 pub struct WrongKind {
+    /// The input.
     pub path: PathBuf,
     /// The option or argument it was given as (`--program`, `MAPDIR`).
     pub given_as: String,
+    /// What it is.
     pub found: Kind,
+    /// What the command takes there.
     pub wanted: Kind,
 }
 
@@ -222,7 +240,7 @@ pub fn sniff_bytes(bytes: &[u8]) -> Kind {
             Kind::Other
         };
     }
-    let cal_format = format!("\"{}\"", crate::calibration::file::CAL_FORMAT);
+    let cal_format = format!("\"{}\"", markers::CALIBRATION_FORMAT);
     let is_cal = t.lines().any(|l| {
         l.trim_start()
             .strip_prefix("format")
@@ -255,9 +273,9 @@ pub fn sniff(path: &Path) -> Kind {
     };
     if meta.is_dir() {
         let format = |name: &str| head(&path.join(name)).and_then(|b| json_format(&b));
-        if let Some(f) = format(crate::array::record::ARRAY_FILE) {
-            if f == crate::array::record::ARRAY_FORMAT {
-                let b = head(&path.join(crate::array::record::ARRAY_FILE)).unwrap_or_default();
+        if let Some(f) = format(markers::ARRAY_FILE) {
+            if f == markers::ARRAY_FORMAT {
+                let b = head(&path.join(markers::ARRAY_FILE)).unwrap_or_default();
                 let text = String::from_utf8_lossy(&b);
                 return if text.contains("\"kind\": \"calibration\"")
                     || text.contains("\"kind\":\"calibration\"")
@@ -268,12 +286,10 @@ pub fn sniff(path: &Path) -> Kind {
                 };
             }
         }
-        if format(crate::simulation::recording::MANIFEST_FILE).as_deref()
-            == Some(crate::simulation::recording::FORMAT)
-        {
+        if format(markers::RECORDING_MANIFEST).as_deref() == Some(markers::RECORDING_FORMAT) {
             return Kind::Recording;
         }
-        if format("board.json").as_deref() == Some(crate::board::output::FORMAT) {
+        if format("board.json").as_deref() == Some(crate::board_map::FORMAT) {
             return Kind::BoardMap;
         }
         if path.join("pads.csv").is_file() && path.join("report.json").is_file() {
@@ -308,7 +324,7 @@ mod tests {
 
     #[test]
     fn tells_the_shipped_files_apart() {
-        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
         let k = |p: &str| sniff(&root.join(p));
         assert_eq!(k("scenes/array-small.paste.gbr"), Kind::Gerber);
         assert_eq!(k("scenes/array-small.toml"), Kind::ArrayScene);

@@ -2,7 +2,7 @@
 
 use super::{out, warn};
 use anyhow::Result;
-use dpsa_sim::inspection::teach::{self, placement};
+use dpsa_inspect::teach::{self, placement};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -46,8 +46,8 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    use dpsa_sim::files::Input;
-    use dpsa_sim::kind::{expect, Kind};
+    use dpsa_formats::files::Input;
+    use dpsa_formats::kind::{expect, Kind};
     expect(&a.paste, "--paste", Kind::Gerber, &[])?;
     for (p, what) in [(&a.copper, "--copper"), (&a.outline, "--outline")] {
         if let Some(p) = p {
@@ -58,8 +58,8 @@ pub fn run(a: Args) -> Result<()> {
     for p in [&a.copper, &a.outline, &a.placement].into_iter().flatten() {
         inputs.push(Input::File(p));
     }
-    dpsa_sim::files::refuse_overwrite("--out", &a.out, &inputs)?;
-    dpsa_sim::files::refuse_fifo_output("--out", &a.out)?;
+    dpsa_formats::files::refuse_overwrite("--out", &a.out, &inputs)?;
+    dpsa_formats::files::refuse_fifo_output("--out", &a.out)?;
     if a.placement_format == placement::Format::Csv && a.columns.is_none() {
         anyhow::bail!("--placement-format csv needs --columns ref=..,x=..,y=..");
     }
@@ -89,7 +89,7 @@ pub fn run(a: Args) -> Result<()> {
         out: a.out.clone(),
     };
     let t = teach::teach(&inp)?;
-    dpsa_sim::files::write_bytes(&a.out, teach::program_text(&t).as_bytes())?;
+    dpsa_formats::files::write_bytes(&a.out, teach::program_text(&t).as_bytes())?;
     let s = &t.summary;
     if a.json {
         out!("{}", serde_json::to_string_pretty(s)?);

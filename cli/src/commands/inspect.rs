@@ -20,7 +20,8 @@ pub struct Args {
     #[arg(long)]
     json: bool,
     /// The simulator's print truth (`print.json` of the board recording) when the program
-    /// does not name it; compares every figure with it.
+    /// does not name it; compares every figure with it (a build with the simulator only).
+    #[cfg(feature = "sim")]
     #[arg(long)]
     truth: Option<PathBuf>,
     /// Inspect this many times and report the fastest (a benchmark of the inspection alone).
@@ -30,21 +31,39 @@ pub struct Args {
 
 /// Exit status 0 whatever the verdict (it is in the report), 1 on an error.
 pub fn run(a: Args, progress: bool) -> Result<()> {
-    dpsa_sim::kind::expect(&a.board, "MAPDIR", dpsa_sim::kind::Kind::BoardMap, &[])?;
-    dpsa_sim::kind::expect(&a.program, "--program", dpsa_sim::kind::Kind::Program, &[])?;
-    if let Some(t) = &a.truth {
-        dpsa_sim::kind::expect(t, "--truth", dpsa_sim::kind::Kind::PrintTruth, &[])?;
-    }
-    // `inspect_dir_shown` refuses an `--out` that is, holds or lies inside an input (the board
+    dpsa_formats::kind::expect(&a.board, "MAPDIR", dpsa_formats::kind::Kind::BoardMap, &[])?;
+    dpsa_formats::kind::expect(
+        &a.program,
+        "--program",
+        dpsa_formats::kind::Kind::Program,
+        &[],
+    )?;
+    // The inspection refuses an `--out` that is, holds or lies inside an input (the board
     // map, the program, its paste layer, the truth) and one that is not new, empty or an
-    // earlier inspection output, before the inspection runs.
-    let (r, _) = dpsa_sim::inspection::evaluate::inspect_dir_shown(
+    // earlier inspection output, before it runs.
+    #[cfg(feature = "sim")]
+    let (r, _) = {
+        if let Some(t) = &a.truth {
+            dpsa_formats::kind::expect(t, "--truth", dpsa_formats::kind::Kind::PrintTruth, &[])?;
+        }
+        // With the simulator: the print truth the program names (or `--truth`) is evaluated.
+        dpsa_sim::inspection::evaluate::inspect_dir_shown(
+            &a.board,
+            &a.program,
+            a.truth.as_deref(),
+            Some(&a.out),
+            a.repeat,
+            true,
+            progress,
+        )?
+    };
+    #[cfg(not(feature = "sim"))]
+    let (r, _) = dpsa_inspect::run::inspect_dir_with(
         &a.board,
         &a.program,
-        a.truth.as_deref(),
         Some(&a.out),
         a.repeat,
-        true,
+        None,
         progress,
     )?;
     if a.json {

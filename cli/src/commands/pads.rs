@@ -2,7 +2,7 @@
 
 use super::{out, warn};
 use anyhow::Result;
-use dpsa_sim::inspection::gerber::{read_file, PadSummary, PasteLayer};
+use dpsa_gerber::{read_file, PadSummary, PasteLayer};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
@@ -15,7 +15,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    dpsa_sim::kind::expect(&a.file, "FILE", dpsa_sim::kind::Kind::Gerber, &[])?;
+    dpsa_formats::kind::expect(&a.file, "FILE", dpsa_formats::kind::Kind::Gerber, &[])?;
     let layer = read_file(&a.file).map_err(|e| anyhow::anyhow!("{}: {e}", a.file.display()))?;
     let s = layer.summary();
     if a.json {
