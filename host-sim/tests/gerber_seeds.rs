@@ -2,7 +2,8 @@
 //! through the same oracle: a layer that reads has at most `MAX_OBJECTS` pads, in order, each with finite
 //! geometry and positive area. The seeds are crafted to read: flashes, a region with a clear
 //! dot, strokes with an arc, a macro in a step and repeat, copies on one point with X2
-//! attributes in inches, touching pads without M02.
+//! attributes in inches, touching pads without M02, and a fuzzer's timeout (a macro stepped
+//! 4 x 2230 times).
 
 use dpsa_sim::inspection::gerber::{read_str, MAX_OBJECTS};
 use std::path::Path;
@@ -28,7 +29,7 @@ fn load_gerber_seeds_replay() {
         }
         seen += 1;
     }
-    assert_eq!(seen, 6, "the six committed seeds");
+    assert_eq!(seen, 7, "the seven committed seeds");
 }
 
 /// The seeds' pad counts, checked by hand from their geometry.
@@ -45,4 +46,10 @@ fn load_gerber_seed_pad_counts() {
     assert_eq!(count("04-macro-step-repeat.gbr"), 6); // 3 x 2, 1 mm apart
     assert_eq!(count("05-copies-x2-inch.gbr"), 1); // three copies on one point
     assert_eq!(count("06-touching-no-m02.gbr"), 2); // two squares share an edge; one apart
+
+    // A fuzzer's timeout (the R-tree of a group's pieces, `merge.rs`): a macro of a 0.5 mm
+    // wide centre line and a 0.2 mm dot 8 mm beside it, stepped 4 x 2230 times 1 mm apart
+    // along y with the 4 columns on one point: the lines touch into one strip, the dots stay
+    // apart: 1 + 2230 pads.
+    assert_eq!(count("07-stepped-entangled-macro.gbr"), 2231);
 }
