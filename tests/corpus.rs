@@ -1320,7 +1320,7 @@ fn v2_streams_decode_and_report() {
         (1, 1_000_000_000_000, 0)
     );
     assert!(!s.truncated && s.missing == 0);
-    assert_eq!(rep.verdict(&map), dpsa_sim::stream::Verdict2::Clean);
+    assert_eq!(rep.verdict(&map), dpsa_sim::stream::DecodeOutcome::Clean);
     for (got, want) in map.rows.iter().zip(&rows) {
         assert_eq!(got.row, want.header.row);
         assert_eq!(got.heights, want.heights);
@@ -1346,7 +1346,7 @@ fn v2_streams_decode_and_report() {
     let (map, rep) = decode("v2-dup-reorder", &dr.concat());
     assert_eq!((rep.stream.duplicated, rep.stream.reordered), (1, 1));
     assert_eq!(map.rows.len(), rows.len());
-    assert_eq!(rep.verdict(&map), dpsa_sim::stream::Verdict2::Damaged);
+    assert_eq!(rep.verdict(&map), dpsa_sim::stream::DecodeOutcome::Damaged);
 
     // Truncated: no end packet.
     let (_, rep) = decode("v2-cut", &pk[..pk.len() - 1].concat());

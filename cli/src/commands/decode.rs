@@ -4,7 +4,7 @@ use super::out;
 use anyhow::{bail, Context, Result};
 use dpsa_formats::images;
 use dpsa_stream as stream;
-use dpsa_stream::Verdict2;
+use dpsa_stream::DecodeOutcome;
 use std::path::PathBuf;
 
 /// Exit status: 0 clean; 2 damage, missing / duplicated / reordered packets or a truncated
@@ -104,9 +104,9 @@ pub fn run(a: Args) -> Result<i32> {
             );
         }
         match verdict {
-            Verdict2::Clean => {}
-            Verdict2::Damaged => out!("the stream is damaged or incomplete (exit status 2)"),
-            Verdict2::Nothing => out!("nothing decodable (exit status 3)"),
+            DecodeOutcome::Clean => {}
+            DecodeOutcome::Damaged => out!("the stream is damaged or incomplete (exit status 2)"),
+            DecodeOutcome::Nothing => out!("nothing decodable (exit status 3)"),
         }
     }
     Ok(verdict as i32)

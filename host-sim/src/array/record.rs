@@ -47,8 +47,7 @@ pub fn inspection_program(scene: &ArrayScene) -> crate::inspection::program::Pro
         f.strip_suffix(".paste").unwrap_or(f).to_string()
     });
     p.stencil_um = scene.print.stencil_um;
-    p.placement.design_origin_mm = scene.placement.design_origin_mm;
-    p.placement.orientation_deg = scene.placement.orientation_deg;
+    p.placement = scene.placement.design();
     p.fiducials.points_mm = scene.fiducials.clone();
     p.fiducials.diameter_mm = scene.fiducial_diameter_mm;
     // The search covers the placement error (3 sigma of offset plus the rotation's reach

@@ -118,14 +118,16 @@ impl Default for CalibrationPlan {
     }
 }
 
-/// Where the paste layer's design frame lands on the board (scene table `[placement]`).
+/// Where the paste layer's design frame lands on the board (scene table `[placement]`): the
+/// program's nominal [`Placement`](dpsa_inspect::program::Placement) ([`ScenePlacement::design`])
+/// and the spread of the simulated board's placement error around it.
 ///
 /// The nominal placement turns the design by `orientation_deg` and puts `design_origin_mm` at
 /// the board corner (0, 0); the board then arrives with a small unknown error, drawn from the
 /// seed: a rotation about the board centre and an offset (Gaussians truncated at 3 sigma).
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 #[serde(default, deny_unknown_fields)]
-pub struct Placement {
+pub struct ScenePlacement {
     /// The design point that lands at the board corner (0, 0), mm.
     pub design_origin_mm: [f64; 2],
     /// The board turned on the conveyor, counter-clockwise: 0, 90, 180 or 270 degrees.
@@ -136,9 +138,9 @@ pub struct Placement {
     pub rotation_sigma_deg: f64,
 }
 
-impl Default for Placement {
+impl Default for ScenePlacement {
     fn default() -> Self {
-        Placement {
+        ScenePlacement {
             design_origin_mm: [0.0, 0.0],
             orientation_deg: 0.0,
             offset_sigma_mm: 0.1,
@@ -147,20 +149,18 @@ impl Default for Placement {
     }
 }
 
-impl Placement {
-    /// The nominal design-to-board transform (no placement error).
-    pub fn nominal(&self) -> Rigid {
-        let turn = Rigid {
-            rotation_rad: self.orientation_deg.to_radians(),
-            tx: 0.0,
-            ty: 0.0,
-        };
-        let o = turn.apply(self.design_origin_mm);
-        Rigid {
-            tx: -o[0],
-            ty: -o[1],
-            ..turn
+impl ScenePlacement {
+    /// The nominal placement, as the board's inspection program states it.
+    pub fn design(&self) -> dpsa_inspect::program::Placement {
+        dpsa_inspect::program::Placement {
+            design_origin_mm: self.design_origin_mm,
+            orientation_deg: self.orientation_deg,
         }
+    }
+
+    /// The nominal design-to-board transform (no placement error): the program's.
+    pub fn nominal(&self) -> Rigid {
+        self.design().nominal()
     }
 
     /// The design-to-board transform of a board of `length x width` mm: the nominal one
@@ -273,7 +273,7 @@ pub struct ArrayScene {
     /// The print (stencil, slump, wall, dog-ears, offsets, scatter, defects).
     pub print: PrintParams,
     /// Where the design lands on the board, and its random placement error.
-    pub placement: Placement,
+    pub placement: ScenePlacement,
     /// Directory of the scene file (`paste_layer` is relative to it); set by [`Self::load`].
     #[serde(skip)]
     pub scene_dir: Option<PathBuf>,
@@ -339,7 +339,7 @@ impl Default for ArrayScene {
             fiducials: Vec::new(),
             fiducial_diameter_mm: 1.0,
             print: PrintParams::default(),
-            placement: Placement::default(),
+            placement: ScenePlacement::default(),
             scene_dir: None,
         }
     }
@@ -979,7 +979,7 @@ mod tests {
             (180.0, [20.0, 13.9], [20.0, 13.9]),
             (270.0, [13.9, 0.0], [13.9, 0.0]),
         ] {
-            let p = Placement {
+            let p = ScenePlacement {
                 design_origin_mm: origin,
                 orientation_deg: deg,
                 offset_sigma_mm: 0.0,
@@ -991,7 +991,7 @@ mod tests {
             assert_eq!(t, p.design_to_board(20.0, 13.9, 3));
         }
         // The placement error: small, from the seed, within 3 sigma.
-        let p = Placement::default();
+        let p = ScenePlacement::default();
         let (a, b) = (
             p.design_to_board(220.0, 168.0, 1),
             p.design_to_board(220.0, 168.0, 2),

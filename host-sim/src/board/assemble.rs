@@ -3,7 +3,7 @@
 //! of every stage.
 
 use super::blend::{blend, Blended};
-use super::resample::{resample, BoardGrid, Layer, Placement, Source};
+use super::resample::{resample, BoardGrid, CameraPlacement, Layer, Source};
 use super::unwrap::{unwrap, BLOCK};
 use super::Grid;
 use std::time::Instant;
@@ -24,7 +24,7 @@ pub struct CameraRows {
     pub first_row: i64,
     /// Height per turn of each column, um.
     pub period_um: Vec<f32>,
-    pub placement: Placement,
+    pub placement: CameraPlacement,
     /// Rows of `heights` that never arrived (a stream's missing or damaged packets, its
     /// truncated end): their board pixels stay invalid. Empty when none was lost.
     pub lost: Vec<bool>,
@@ -289,7 +289,7 @@ mod tests {
         };
         let mut cams = Vec::new();
         for (k, y0) in [0.0, 4.3].into_iter().enumerate() {
-            let place = Placement {
+            let place = CameraPlacement {
                 x0_mm: 0.0,
                 y0_mm: y0,
                 row_mm: 0.03,

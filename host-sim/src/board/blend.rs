@@ -314,7 +314,7 @@ fn best_shift(a: &Layer, b: &Layer, dr: i64, dc: i64) -> Option<f64> {
 
 #[cfg(test)]
 mod tests {
-    use super::super::resample::{resample, Placement, Source};
+    use super::super::resample::{resample, CameraPlacement, Source};
     use super::*;
 
     /// Truth on the board: a bow (0 at the edges) and paste boxes whose walls slope over
@@ -344,14 +344,14 @@ mod tests {
         // Three cameras of 120 columns, 0.5 mm overlaps; the middle one misplaced by 6 um
         // across (its placement says y0 + 0.006 mm, the pixels sit at y0).
         for (k, y0) in [0.0, 3.1, 6.2].into_iter().enumerate() {
-            let place = Placement {
+            let place = CameraPlacement {
                 x0_mm: 0.0,
                 y0_mm: y0,
                 row_mm: 0.03,
                 pitch_mm: 0.03,
                 rotation_rad: 0.0,
             };
-            let real = Placement {
+            let real = CameraPlacement {
                 y0_mm: y0 - if k == 1 { 0.006 } else { 0.0 },
                 ..place
             };

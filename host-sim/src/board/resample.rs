@@ -8,7 +8,7 @@
 //! y = y0 +              c * pitch * cos(rot)      (across)
 //! ```
 //!
-//! with the camera's [`Placement`] from the calibration: `row_mm` the travel per board row
+//! with the camera's [`CameraPlacement`] from the calibration: `row_mm` the travel per board row
 //! (encoder scale), `pitch` the column pitch on the board (magnification), `rot` the rotation
 //! of the image rows against the board's `y` axis, `(x0, y0)` where row 0, column 0 lies.
 //! Resampling inverts that map at every board pixel and interpolates bilinearly over the valid
@@ -21,7 +21,7 @@ use super::Grid;
 
 /// Where a camera's pixels lie on the board (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Placement {
+pub struct CameraPlacement {
     /// Board `x` of row 0, column 0, mm.
     pub x0_mm: f64,
     /// Board `y` of row 0, column 0, mm.
@@ -34,7 +34,7 @@ pub struct Placement {
     pub rotation_rad: f64,
 }
 
-impl Placement {
+impl CameraPlacement {
     /// Board `(x, y)` of camera row `b` (fractional), column `c`, mm.
     pub fn to_board(&self, b: f64, c: f64) -> (f64, f64) {
         let (s, co) = self.rotation_rad.sin_cos();
@@ -111,7 +111,7 @@ fn row_at(pos: &[f64], t: f64) -> Option<f64> {
 }
 
 /// Resamples a camera's heights onto `grid` through its placement.
-pub fn resample(src: &Source, place: &Placement, grid: &BoardGrid, feather_px: f64) -> Layer {
+pub fn resample(src: &Source, place: &CameraPlacement, grid: &BoardGrid, feather_px: f64) -> Layer {
     let (heights, variance, period_um) = (src.heights, src.variance, src.period_um);
     let lost_rows = src.lost_rows;
     let (w, rows) = (heights.width, heights.rows);
@@ -157,7 +157,7 @@ pub fn resample(src: &Source, place: &Placement, grid: &BoardGrid, feather_px: f
         span(corners.map(|p| p.0), grid.x0_mm, grid.rows),
         span(corners.map(|p| p.1), grid.y0_mm, grid.width),
     );
-    // `Placement::to_camera` with its trigonometry once: `c` depends on the grid column only.
+    // `CameraPlacement::to_camera` with its trigonometry once: `c` depends on the grid column only.
     let (sin, cos) = place.rotation_rad.sin_cos();
     let cols: Vec<f64> = js
         .clone()
@@ -253,7 +253,7 @@ mod tests {
 
     #[test]
     fn placement_round_trips() {
-        let p = Placement {
+        let p = CameraPlacement {
             x0_mm: 3.0,
             y0_mm: 50.0,
             row_mm: 0.0277,
@@ -270,7 +270,7 @@ mod tests {
     #[test]
     fn a_plane_resamples_exactly_and_the_footprint_is_where_the_placement_says() {
         // Heights a linear function of board (x, y): bilinear resampling reproduces it.
-        let p = Placement {
+        let p = CameraPlacement {
             x0_mm: 0.0,
             y0_mm: 1.0,
             row_mm: 0.03,

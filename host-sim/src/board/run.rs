@@ -15,7 +15,7 @@
 //! `X = x0 + (p / cos a) b - p sin a (c + r_w tan a)`, `Y = y0 + p (c cos a + r_w sin a)`.
 
 use super::assemble::{against_truth, assemble, CameraRows, Timing, TruthRaster, TruthStats};
-use super::resample::{BoardGrid, Placement};
+use super::resample::{BoardGrid, CameraPlacement};
 use super::streams::{self, StreamsReport};
 use super::Grid;
 use crate::array::record::{ArrayRecording, Kind};
@@ -162,12 +162,12 @@ fn entry_row(cal: &CameraCal, max_step_rows: u32) -> f64 {
     f64::from(cal.rows) - f64::from(max_step_rows + 1) / 2.0
 }
 
-/// A camera's [`Placement`] from its lateral calibration.
-pub fn placement(cal: &CameraCal, max_step_rows: u32) -> Placement {
+/// A camera's [`CameraPlacement`] from its lateral calibration.
+pub fn placement(cal: &CameraCal, max_step_rows: u32) -> CameraPlacement {
     let l = &cal.lateral;
     let (s, c) = l.rotation_rad.sin_cos();
     let r_w = entry_row(cal, max_step_rows);
-    Placement {
+    CameraPlacement {
         x0_mm: l.x0_mm - l.pitch_mm * s * r_w * s / c,
         y0_mm: l.y0_mm + l.pitch_mm * r_w * s,
         row_mm: l.pitch_mm / c,

@@ -15,11 +15,11 @@
 //! board) that no row packet and no gap record covers; the map keeps their board pixels
 //! invalid (never interpolated across, see [`super::resample`]) and the report lists them.
 
-use super::resample::{BoardGrid, Placement};
+use super::resample::{BoardGrid, CameraPlacement};
 use crate::calibration::file::{CalFile, CameraCal};
 use crate::heightmap::HeightMap;
 use crate::simulation::recording::{BoardId, Recording};
-use crate::stream::{self, Damage, DecodeReport, Keep, Verdict2};
+use crate::stream::{self, Damage, DecodeOutcome, DecodeReport, Keep};
 use anyhow::{bail, Context, Result};
 use serde::Serialize;
 use std::io::{BufReader, Read};
@@ -97,7 +97,7 @@ pub fn max_stream_bytes(cal: &CalFile) -> u64 {
 
 /// The camera rows (inclusive) whose pixels can land on the board grid: the camera's columns
 /// over the board's length, one row of margin.
-pub fn board_extent(p: &Placement, grid: &BoardGrid, width: u32) -> (i64, i64) {
+pub fn board_extent(p: &CameraPlacement, grid: &BoardGrid, width: u32) -> (i64, i64) {
     let x_end = grid.x0_mm + grid.rows as f64 * grid.pitch_mm;
     let s = p.rotation_rad.sin();
     let mut lo = f64::INFINITY;
@@ -431,10 +431,10 @@ fn camera_stream(
 ) -> (CameraStream, Arrived) {
     let (lost, missing, listed) = lost_rows(&map, &rep, extent);
     let verdict = rep.verdict(&map);
-    let status = if verdict == Verdict2::Clean && missing == 0 {
+    let status = if verdict == DecodeOutcome::Clean && missing == 0 {
         0
     } else {
-        Verdict2::Damaged as i32
+        DecodeOutcome::Damaged as i32
     };
     let st = &rep.stream;
     let camera = CameraStream {

@@ -137,7 +137,7 @@ pub struct DecodeReport {
 
 /// How `dpsa decode` ends (its exit status).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Verdict2 {
+pub enum DecodeOutcome {
     /// Everything decoded; a version 2 stream ended with matching totals.
     Clean = 0,
     /// Rows decoded, but damage, missing / duplicated / reordered packets or a truncated stream.
@@ -148,15 +148,15 @@ pub enum Verdict2 {
 
 impl DecodeReport {
     /// The exit status class of a decode that gave `map`.
-    pub fn verdict(&self, map: &HeightMap) -> Verdict2 {
+    pub fn verdict(&self, map: &HeightMap) -> DecodeOutcome {
         self.verdict_rows(map.rows.len() as u64)
     }
 
     /// The exit status class of a decode that gave `rows` decoded rows.
-    pub fn verdict_rows(&self, rows: u64) -> Verdict2 {
+    pub fn verdict_rows(&self, rows: u64) -> DecodeOutcome {
         let s = &self.stream;
         if rows == 0 && s.gap_records == 0 {
-            Verdict2::Nothing
+            DecodeOutcome::Nothing
         } else if self.corrupt > 0
             || s.missing > 0
             || s.duplicated > 0
@@ -169,9 +169,9 @@ impl DecodeReport {
             || s.truncated
             || s.rows_missing > 0
         {
-            Verdict2::Damaged
+            DecodeOutcome::Damaged
         } else {
-            Verdict2::Clean
+            DecodeOutcome::Clean
         }
     }
 
