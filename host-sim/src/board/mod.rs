@@ -1,7 +1,9 @@
 //! The board height map: every camera's rows placed in board millimetres, unwrapped into
 //! absolute heights and blended where cameras overlap (issue 10, "The board map").
 //!
-//! The data flow, one file per step:
+//! The steps are the crate `dpsa-board`, re-exported here; what stays here feeds them from a
+//! recording or the cameras' streams ([`run`], [`streams`], [`provenance`]) and compares a map
+//! with a simulated board's truth ([`truth`]). The data flow:
 //!
 //! - [`unwrap`]: a camera's wrapped heights (known modulo one fringe turn `T_z`) into absolute
 //!   heights, referenced to the smooth local board surface (paste stays within half a turn of
@@ -17,13 +19,11 @@
 //!
 //! Heights are `f32` micrometres; NaN marks an invalid pixel everywhere in this module.
 
-pub mod assemble;
-pub mod blend;
-pub mod output;
 pub mod provenance;
-pub mod resample;
 pub mod run;
 pub mod streams;
-pub mod unwrap;
+pub mod truth;
 
+// The board map's steps (crate `dpsa-board`), at their old paths.
+pub use dpsa_board::{assemble, blend, output, resample, unwrap};
 pub use dpsa_formats::grid::Grid;

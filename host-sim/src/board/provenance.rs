@@ -88,16 +88,7 @@ pub fn row_places(
     RowPlaces { along, across }
 }
 
-/// Where a camera's rows were seen (see [`row_places`]).
-#[derive(Clone, Debug, PartialEq)]
-pub struct RowPlaces {
-    /// Position of row `i` along the motion, in rows (increasing: neighbours differ by
-    /// `1 +- (less than 1)`).
-    pub along: Vec<f64>,
-    /// How far the board point of column `c` of row `i` lies from the nominal column, px:
-    /// the point the placement puts at column `c` is at column `c - across[i]`.
-    pub across: Vec<f64>,
-}
+pub use dpsa_board::places::RowPlaces;
 
 /// Masks (sets to NaN) every pixel of `g` (row `i` is board row `first_row + i`) that a dead
 /// image pixel `[r, c]` of `dead` fed; returns how many valid pixels it masked.

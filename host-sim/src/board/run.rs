@@ -14,9 +14,10 @@
 //! at image row `r_w = H - (max_step_rows + 1) / 2`, so column `c` lies at
 //! `X = x0 + (p / cos a) b - p sin a (c + r_w tan a)`, `Y = y0 + p (c cos a + r_w sin a)`.
 
-use super::assemble::{against_truth, assemble, CameraRows, Timing, TruthRaster, TruthStats};
+use super::assemble::{assemble, CameraRows, Timing};
 use super::resample::{BoardGrid, CameraPlacement};
 use super::streams::{self, StreamsReport};
+use super::truth::{against_truth, TruthRaster, TruthStats};
 use super::Grid;
 use crate::array::record::{ArrayRecording, Kind};
 use crate::calibration::file::{CalFile, CameraCal};

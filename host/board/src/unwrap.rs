@@ -27,7 +27,7 @@
 //! whole turns; the board map chooses the turn from the cameras' overlaps and the board's
 //! clamped edges (`super::blend`).
 
-use super::Grid;
+use crate::Grid;
 use std::collections::{BinaryHeap, VecDeque};
 
 /// Default block size, px.

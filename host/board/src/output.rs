@@ -11,9 +11,9 @@
 //! Image row `i` is board `x = x0 + (i + 1/2) pitch` (along the motion), column `j` is
 //! `y = y0 + (j + 1/2) pitch`.
 
-use super::blend::{Blended, NO_CAMERA};
-use super::resample::BoardGrid;
-use super::Grid;
+use crate::blend::{Blended, NO_CAMERA};
+use crate::resample::BoardGrid;
+use crate::Grid;
 use anyhow::Result;
 use image::{GrayImage, ImageBuffer, Luma, Rgb, RgbImage};
 use serde::Serialize;
@@ -31,7 +31,7 @@ pub struct Metadata {
     /// one: `dpsa inspect` refuses a print truth of another board with it and reports it as the
     /// CFX `UnitIdentifier`.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub board_id: Option<crate::simulation::recording::BoardId>,
+    pub board_id: Option<dpsa_formats::BoardId>,
     pub grid: BoardGrid,
     /// Units of every height file.
     pub units: Units,
@@ -87,27 +87,27 @@ pub const FILE_NAMES: [&str; 5] = [
 /// Whether `dir` holds a board map (its `board.json` of format [`FORMAT`]): an earlier map,
 /// which a new one may replace.
 pub fn is_board_map(dir: &Path) -> bool {
-    crate::files::read_capped_io(&dir.join("board.json"), 1 << 20)
+    dpsa_formats::files::read_capped_io(&dir.join("board.json"), 1 << 20)
         .ok()
         .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
         .is_some_and(|v| v.get("format").and_then(|f| f.as_str()) == Some(FORMAT))
 }
 
 /// Refuses (before any work) a destination that a board map may not replace: a file, or a
-/// non-empty directory holding no earlier map (see [`crate::files::OutputDir`]).
+/// non-empty directory holding no earlier map (see [`dpsa_formats::files::OutputDir`]).
 pub fn check_destination(dir: &Path) -> Result<()> {
-    Ok(crate::files::check_output_dir(dir, DIR_KIND)?)
+    Ok(dpsa_formats::files::check_output_dir(dir, DIR_KIND)?)
 }
 
-/// A board map directory, for [`crate::files::OutputDir`].
-pub const DIR_KIND: crate::files::DirKind = crate::files::DirKind {
+/// A board map directory, for [`dpsa_formats::files::OutputDir`].
+pub const DIR_KIND: dpsa_formats::files::DirKind = dpsa_formats::files::DirKind {
     format: FORMAT,
     noun: "board map",
     ours: is_board_map,
 };
 
 /// Writes the map into `dir`, whole or not at all: built in a hidden directory beside it and
-/// swapped in at the end (an earlier map there is replaced, see [`crate::files::OutputDir`]);
+/// swapped in at the end (an earlier map there is replaced, see [`dpsa_formats::files::OutputDir`]);
 /// returns the metadata.
 pub fn write(
     dir: &Path,
@@ -115,9 +115,9 @@ pub fn write(
     b: &Blended,
     cameras: usize,
     missing_rows: &[u64],
-    board_id: Option<crate::simulation::recording::BoardId>,
+    board_id: Option<dpsa_formats::BoardId>,
 ) -> Result<Metadata> {
-    let staging = crate::files::OutputDir::create(dir, DIR_KIND)?;
+    let staging = dpsa_formats::files::OutputDir::create(dir, DIR_KIND)?;
     let meta = write_files(staging.path(), grid, b, cameras, missing_rows, board_id)?;
     staging.commit()?;
     Ok(meta)
@@ -129,7 +129,7 @@ fn write_files(
     b: &Blended,
     cameras: usize,
     missing_rows: &[u64],
-    board_id: Option<crate::simulation::recording::BoardId>,
+    board_id: Option<dpsa_formats::BoardId>,
 ) -> Result<Metadata> {
     let files = Files {
         heights_png: "heights.png",
@@ -147,12 +147,12 @@ fn write_files(
             Luma([0])
         }
     });
-    crate::images::save_png(&png, &dir.join(files.heights_png))?;
+    dpsa_formats::images::save_png(&png, &dir.join(files.heights_png))?;
     write_tiff(&dir.join(files.heights_tiff), h)?;
     write_colour(&dir.join(files.colour_png), h)?;
     let cam: GrayImage =
         ImageBuffer::from_fn(w, rows, |x, y| Luma([b.camera[(y * w + x) as usize]]));
-    crate::images::save_png(&cam, &dir.join(files.camera_png))?;
+    dpsa_formats::images::save_png(&cam, &dir.join(files.camera_png))?;
 
     let mut per_camera = vec![0u64; cameras];
     for &c in &b.camera {
@@ -190,13 +190,13 @@ fn write_files(
         files,
     };
     let json = serde_json::to_string_pretty(&meta)?;
-    crate::files::write_bytes(&dir.join("board.json"), json.as_bytes())?;
+    dpsa_formats::files::write_bytes(&dir.join("board.json"), json.as_bytes())?;
     Ok(meta)
 }
 
 /// Heights as a 32-bit float TIFF, um (NaN invalid).
 pub fn write_tiff(path: &Path, h: &Grid) -> Result<()> {
-    Ok(crate::files::write_atomic(path, |f| {
+    Ok(dpsa_formats::files::write_atomic(path, |f| {
         let mut enc = tiff::encoder::TiffEncoder::new(f)?;
         enc.write_image::<tiff::encoder::colortype::Gray32Float>(
             h.width as u32,
@@ -219,7 +219,7 @@ fn write_colour(path: &Path, h: &Grid) -> Result<()> {
         for x in 0..w {
             let v = h.at(y as usize, x as usize);
             let px = if v.is_finite() {
-                Rgb(crate::images::colour(
+                Rgb(dpsa_formats::images::colour(
                     f64::from((v - lo) / (hi - lo)).clamp(0.0, 1.0),
                 ))
             } else {
@@ -232,7 +232,7 @@ fn write_colour(path: &Path, h: &Grid) -> Result<()> {
     for x in 0..w {
         let t = f64::from(x) / f64::from(w.saturating_sub(1).max(1));
         for y in rows + 2..rows + 10 {
-            img.put_pixel(x, y, Rgb(crate::images::colour(t)));
+            img.put_pixel(x, y, Rgb(dpsa_formats::images::colour(t)));
         }
     }
     // Ticks and labels.
@@ -248,7 +248,7 @@ fn write_colour(path: &Path, h: &Grid) -> Result<()> {
         let x0 = x.saturating_sub(tw / 2).min(w.saturating_sub(tw));
         draw_text(&mut img, x0, rows + 15, &text);
     }
-    Ok(crate::images::save_png(&img, path)?)
+    Ok(dpsa_formats::images::save_png(&img, path)?)
 }
 
 /// 3 x 5 pixel glyphs for digits, '-', '.', 'u' and 'm' (rows top to bottom, 3 bits each).
@@ -327,7 +327,7 @@ mod tests {
             edge_median_um: Some(0.0),
             seams: Vec::new(),
         };
-        let id = crate::simulation::recording::BoardId(0x0123_4567_89ab_cdef);
+        let id = dpsa_formats::BoardId(0x0123_4567_89ab_cdef);
         let meta = write(dir.path(), &grid, &b, 2, &[0, 0], Some(id)).unwrap();
         assert_eq!(meta.pixels.valid, h.valid() as u64);
         assert_eq!(

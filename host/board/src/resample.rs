@@ -17,7 +17,7 @@
 //! to interpolate around: every board pixel whose footprint touches it stays invalid and is
 //! marked in [`Layer::lost`].
 
-use super::Grid;
+use crate::Grid;
 
 /// Where a camera's pixels lie on the board (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -85,7 +85,7 @@ pub struct Source<'a> {
     pub first_row: i64,
     /// Where each row was seen (`None`: row `i` at its nominal place), see
     /// `super::provenance::row_places`.
-    pub places: Option<&'a super::provenance::RowPlaces>,
+    pub places: Option<&'a crate::places::RowPlaces>,
     /// Rows that never arrived (empty, or one per row of `heights`; `dpsa board --streams`).
     pub lost_rows: &'a [bool],
 }

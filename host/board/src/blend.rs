@@ -19,8 +19,8 @@
 //!    deposit-wall pixels (a step above [`WALL_UM`] between neighbours along the shift) in the
 //!    overlap; otherwise it is not reported (null).
 
-use super::resample::{BoardGrid, Layer};
-use super::Grid;
+use crate::resample::{BoardGrid, Layer};
+use crate::Grid;
 
 /// A pixel counts as flat board when the 3 x 3 range of the blended map is below this, um.
 pub const FLAT_RANGE_UM: f32 = 25.0;
@@ -314,8 +314,8 @@ fn best_shift(a: &Layer, b: &Layer, dr: i64, dc: i64) -> Option<f64> {
 
 #[cfg(test)]
 mod tests {
-    use super::super::resample::{resample, CameraPlacement, Source};
     use super::*;
+    use crate::resample::{resample, CameraPlacement, Source};
 
     /// Truth on the board: a bow (0 at the edges) and paste boxes whose walls slope over
     /// 0.1 mm (as a camera's pixel integration and blur make them; a point-sampled step

@@ -1,0 +1,32 @@
+//! # dpsa-board: the board height map
+//!
+//! Every camera's rows placed in board millimetres, unwrapped into absolute heights and
+//! blended where cameras overlap (`docs/board.md`). The data flow, one file per step:
+//!
+//! - [`unwrap`]: a camera's wrapped heights (known modulo one fringe turn `T_z`) into absolute
+//!   heights, referenced to the smooth local board surface (paste stays within half a turn of
+//!   it; the board's bow does not), and anchored by the board's clamped edges.
+//! - [`resample`]: a camera's pixel grid (board row along the motion, column across) into the
+//!   board grid in millimetres through its [`resample::CameraPlacement`], or the row
+//!   [`places`] its frames were seen at.
+//! - [`blend`]: the cameras' board grids into one, feathered across the overlaps, with the
+//!   camera each pixel came from and the seam statistics.
+//! - [`assemble`]: the three for every camera, each in its own thread, timed.
+//! - [`output`]: the 16-bit PNG, the float TIFF in micrometres, the false-colour PNG with its
+//!   scale bar, and the JSON metadata.
+//!
+//! On the bottom layer (`dpsa-formats`) only. What feeds it (the core on a recording or the
+//! cameras' streams, the calibration, the provenance of each row) and the comparison with a
+//! simulated board's truth are still in `dpsa-sim` (`board::run`, `board::streams`,
+//! `board::provenance`, `board::truth`).
+//!
+//! Heights are `f32` micrometres; NaN marks an invalid pixel everywhere in this crate.
+
+pub mod assemble;
+pub mod blend;
+pub mod output;
+pub mod places;
+pub mod resample;
+pub mod unwrap;
+
+pub use dpsa_formats::grid::{BoardGrid, Grid};
