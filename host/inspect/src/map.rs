@@ -14,7 +14,10 @@ pub const MAX_PIXELS: u64 = 400_000_000;
 pub struct BoardMap {
     /// The board's identity from `board.json` (None in maps written without one).
     pub board_id: Option<dpsa_formats::BoardId>,
+    /// Where the pixels lie: row `i` along x, column `j` along y, board mm.
     pub grid: BoardGrid,
+    /// Heights above the board's datum, um, row-major (`grid.rows` x `grid.width`); NaN
+    /// where the map has no valid height.
     pub heights: Grid,
 }
 
@@ -37,10 +40,11 @@ struct UnitsIn {
 }
 
 /// The `board.json` version this build reads.
-pub const MAP_VERSION: u32 = 1;
+pub(crate) const MAP_VERSION: u32 = 1;
 
 impl BoardMap {
-    /// Reads a map directory.
+    /// Reads a map directory (`board.json`, `heights_um.tiff`), checking its format, version,
+    /// units and grid (at most [`MAX_PIXELS`]) against each other.
     pub fn open(dir: &Path) -> Result<BoardMap> {
         let json_path = dir.join("board.json");
         let bytes = dpsa_formats::files::read_capped(&json_path, 1 << 20, "board map metadata")?;
@@ -147,7 +151,7 @@ impl BoardMap {
 
     /// Pixel `(i, j)` (row along x, column along y) nearest to board point `p` (may be
     /// outside the grid).
-    pub fn pixel_of(&self, p: [f64; 2]) -> (i64, i64) {
+    pub(crate) fn pixel_of(&self, p: [f64; 2]) -> (i64, i64) {
         let g = &self.grid;
         (
             ((p[0] - g.x0_mm) / g.pitch_mm - 0.5).round() as i64,
@@ -170,7 +174,7 @@ impl BoardMap {
     }
 
     /// Whether `bbox` (board mm) lies inside the grid.
-    pub fn covers(&self, b: [f64; 4]) -> bool {
+    pub(crate) fn covers(&self, b: [f64; 4]) -> bool {
         let g = &self.grid;
         b[0] >= g.x0_mm
             && b[1] >= g.y0_mm

@@ -28,7 +28,7 @@
 //! - **Shape**: paste above `shape_threshold_um` in the cell but outside the opening grown by
 //!   `wall_mm`, % of the opening area (smears).
 //! - **Coverage**: valid pixels of the opening / all its pixels.
-//! - **Bridges** ([`bridges`]): for neighbouring openings less than `bridge_reach_mm` apart,
+//! - **Bridges**: for neighbouring openings less than `bridge_reach_mm` apart,
 //!   whether paste above `bridge_height_pct` of the stencil (over the mean of the two planes)
 //!   joins them (4-connected), searched in the two openings' joint box.
 
@@ -38,14 +38,16 @@ use dpsa_gerber::pads::{norm, Outline, Pad, Point, Prepared, Rigid};
 use serde::Serialize;
 
 /// Fewest bare-board pixels for the local surface.
-pub const MIN_SURFACE_PIXELS: usize = 24;
+pub(crate) const MIN_SURFACE_PIXELS: usize = 24;
 
 /// About this many pixels of the surface window are looked at (a stride over larger ones).
 pub const SURFACE_SCAN: usize = 1000;
 
 /// The openings on the board (board frame) with a bin index for neighbour queries.
 pub struct Placed {
+    /// Each opening's outline on the board (board mm), in the pads' order.
     pub outlines: Vec<Prepared>,
+    /// Each outline's box `[xmin, ymin, xmax, ymax]`, board mm.
     pub bboxes: Vec<[f64; 4]>,
     /// Smaller size of each opening (its width), mm.
     pub min_size: Vec<f64>,
@@ -61,6 +63,8 @@ pub struct Placed {
 }
 
 impl Placed {
+    /// The `pads` (design frame) put on the board by `t`, with the `fiducials` (design mm)
+    /// of diameter `fid_diameter` (mm) that the local surface keeps clear of.
     pub fn new(pads: &[Pad], t: &Rigid, fiducials: &[Point], fid_diameter: f64) -> Placed {
         let outlines: Vec<Prepared> = pads
             .iter()
@@ -172,9 +176,11 @@ pub enum Unmeasurable {
     NoSurface,
 }
 
-/// What was measured on one pad.
+/// What was measured on one pad. A pad that is not measurable keeps the figures it reached
+/// before the reason was found (0 where none was taken).
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct PadMeasurement {
+    /// The pad's index in the paste layer.
     pub pad: usize,
     /// `None` when judged; else why not.
     pub unmeasurable: Option<Unmeasurable>,
@@ -182,35 +188,42 @@ pub struct PadMeasurement {
     pub coverage: f64,
     /// Opening area, mm^2 (design).
     pub opening_mm2: f64,
+    /// Paste volume over the cell above the local surface, um^3.
     pub volume_um3: f64,
+    /// The volume, % of opening area x stencil thickness.
     pub volume_pct: f64,
+    /// Cell area above `area_threshold_pct` of the stencil, mm^2.
     pub area_mm2: f64,
+    /// The area, % of the opening's.
     pub area_pct: f64,
+    /// Mean height over the opening's interior (shrunk by the wall), um; NaN when no valid
+    /// pixel lies there.
     pub height_um: f64,
+    /// The height, % of the stencil thickness (NaN with it).
     pub height_pct: f64,
+    /// Largest 3 x 3 mean over the interior, um (the mean height when none has 5 valid
+    /// pixels).
     pub height_max_um: f64,
     /// Deposit centre minus opening centre, design-frame axes, um (NaN: no paste).
     pub offset_um: [f64; 2],
     /// The larger of `|offset| / size` over the two axes, %.
     pub offset_pct: f64,
+    /// Paste above `shape_threshold_um` beyond the opening grown by the wall, % of the
+    /// opening area.
     pub shape_pct: f64,
-    /// Board pixels of the local surface, and their rms about the plane, um.
+    /// Board pixels kept by the local surface's fit.
     pub surface_pixels: usize,
+    /// Their rms about the surface, um.
     pub surface_rms_um: f64,
-    /// Local surface about the opening's centroid (board mm): [`surface_at`] coefficients of
-    /// a quadratic (or a plane where the bare board does not pin the curvature).
+    /// Local surface about the opening's centroid (board mm, heights um): the coefficients of
+    /// `1, dx, dy, dx^2, dx dy, dy^2` of a quadratic (only the first three for a plane, the
+    /// first for a level, where the bare board does not pin the curvature); empty when none
+    /// was fitted.
     #[serde(skip)]
     pub surface: Vec<f64>,
-    /// Openings this pad's paste is joined to (filled by [`bridges`]).
+    /// Openings (pad indices) this pad's paste is joined to; filled after every pad is
+    /// measured ([`measure_all`]).
     pub bridged_to: Vec<usize>,
-}
-
-/// Robust plane `z = a + b dx + c dy` through `(dx, dy, z)` samples: least squares,
-/// iteratively trimmed at `max(3 robust sigma, 3 um)`. Returns the plane and the rms of the
-/// kept samples' residuals.
-pub fn robust_plane(s: &[[f64; 3]]) -> Option<([f64; 3], f64, usize)> {
-    let (c, rms, kept) = robust_surface(s, false)?;
-    Some(([c[0], c[1], c[2]], rms, kept))
 }
 
 /// The terms of a surface at `(dx, dy)`: `1, dx, dy` and, for a quadratic, `dx^2, dx dy, dy^2`.
@@ -223,7 +236,7 @@ fn terms(dx: f64, dy: f64) -> [f64; 6] {
 /// iteratively trimmed at `max(3 robust sigma, 3 um)`; its value at `(dx, dy)` is
 /// [`surface_at`]. A quadratic whose samples do not pin its curvature (a thin or one-sided
 /// region) falls back to a plane, and a plane to the level alone.
-pub fn robust_surface(s: &[[f64; 3]], quadratic: bool) -> Option<(Vec<f64>, f64, usize)> {
+pub(crate) fn robust_surface(s: &[[f64; 3]], quadratic: bool) -> Option<(Vec<f64>, f64, usize)> {
     // Paste lies above the board, never below: start from the lower half (a plane through
     // the samples below their median) and keep what lies within START_BAND_UM above it, so
     // that paste covering much of the region (an offset deposit, a smear) cannot lift the
@@ -246,7 +259,7 @@ pub fn robust_surface(s: &[[f64; 3]], quadratic: bool) -> Option<(Vec<f64>, f64,
 }
 
 /// Above the lower half's plane, samples within this are the board's at the start, um.
-pub const START_BAND_UM: f64 = 15.0;
+pub(crate) const START_BAND_UM: f64 = 15.0;
 
 /// [`robust_surface`] from a given first selection.
 fn robust_surface_from(
@@ -334,7 +347,7 @@ fn robust_surface_from(
 }
 
 /// A [`robust_surface`]'s value at `(dx, dy)`.
-pub fn surface_at(c: &[f64], dx: f64, dy: f64) -> f64 {
+pub(crate) fn surface_at(c: &[f64], dx: f64, dy: f64) -> f64 {
     let t = terms(dx, dy);
     c.iter().zip(t).map(|(a, b)| a * b).sum()
 }
@@ -397,7 +410,8 @@ pub fn measure_all(
     out
 }
 
-/// Wall width inset for the height, mm.
+/// How far inside the opening's edge its height is taken, mm: the wall width, at most a
+/// quarter of the opening's smaller size `min_size` (mm).
 pub fn height_inset(program: &Program, min_size: f64) -> f64 {
     program.measure.wall_mm.min(0.25 * min_size)
 }
@@ -416,6 +430,7 @@ pub struct Reach {
 }
 
 impl Reach {
+    /// Pad `k`'s reach, by the program's `cell_margin_share`, `wall_mm` and `cell_margin_mm`.
     pub fn new(placed: &Placed, k: usize, program: &Program) -> Reach {
         let m = &program.measure;
         let grow = |size: f64| {
@@ -457,7 +472,8 @@ impl Reach {
         }
     }
 
-    /// Whether `q`, at signed distance `d` from the opening, is within reach.
+    /// Whether board point `q` (mm), at signed distance `d` (mm, negative inside) from the
+    /// opening, is within reach.
     #[inline]
     pub fn contains(&self, q: Point, d: f64) -> bool {
         if d > self.max {
@@ -507,7 +523,7 @@ pub fn cell_member(
 }
 
 /// Measures pad `k`.
-pub fn measure_pad(
+pub(crate) fn measure_pad(
     map: &BoardMap,
     pads: &[Pad],
     placed: &Placed,
@@ -707,7 +723,12 @@ pub fn measure_pad(
 /// the bridge height (over its local surface), within its box grown by `bridge_reach_mm`;
 /// a pixel inside another opening is a bridge to it. Each flood visits about the pad's own
 /// deposit, so the search costs little more than the deposit's area.
-pub fn bridges(map: &BoardMap, placed: &Placed, program: &Program, pm: &mut [PadMeasurement]) {
+pub(crate) fn bridges(
+    map: &BoardMap,
+    placed: &Placed,
+    program: &Program,
+    pm: &mut [PadMeasurement],
+) {
     let reach = program.measure.bridge_reach_mm;
     let thr = program.stencil_um * program.windows.bridge_height_pct / 100.0;
     let pm_ref: &[PadMeasurement] = pm;

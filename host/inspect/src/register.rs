@@ -3,7 +3,7 @@
 //! Each fiducial (a raised copper disc of the program's diameter) is searched within
 //! `fiducials.search_mm` of its nominal place (the program's placement). In that window the
 //! board is levelled by a robust quadratic surface (the warp curves over a few mm;
-//! [`crate::measure::robust_surface`]), pixels above
+//! `measure::robust_surface`), pixels above
 //! 6 um form candidates (4-connected), and of the candidates shaped like the disc (0.6 to
 //! 1.5 times its area, as wide as tall within 25 %, filling 0.6 to 0.9 of their box as a
 //! disc fills pi/4 and a rectangular deposit all of it) the one nearest the nominal place is
@@ -19,16 +19,26 @@ use crate::program::Program;
 use dpsa_gerber::pads::{Point, Rigid};
 use serde::Serialize;
 
+/// Why the design could not be registered on the map.
 #[derive(Debug, thiserror::Error)]
 pub enum RegisterError {
+    /// [`register`] called for a program without fiducials.
     #[error("the program lists no fiducials: the design cannot be registered to the board")]
     NoFiducials,
+    /// The paste pattern did not give a transform ([`crate::register_paste`]).
     #[error("registration by the paste pattern (the program has no fiducials): {why}")]
-    NoPattern { why: String },
+    NoPattern {
+        /// What was wrong (too few pads, no clear match, ...).
+        why: String,
+    },
+    /// Fewer than two fiducials found.
     #[error("found {found} of {listed} fiducials (need at least 2): {missing}")]
     TooFew {
+        /// Fiducials found.
         found: usize,
+        /// Fiducials the program lists.
         listed: usize,
+        /// The missing ones, `(x, y): why`, separated by `; `.
         missing: String,
     },
 }
@@ -36,28 +46,33 @@ pub enum RegisterError {
 /// One fiducial's search.
 #[derive(Clone, Debug, Serialize)]
 pub struct FiducialHit {
+    /// The program's centre, design mm.
     pub design_mm: Point,
     /// Where the nominal placement put it, board mm.
     pub nominal_mm: Point,
     /// Where it was found, board mm (None: not found).
     pub found_mm: Option<Point>,
-    /// Disc height above the board, um.
+    /// Disc height above the board (the plateau's median), um; 0 when not found.
     pub height_um: f64,
-    /// Distance from the fitted transform's prediction, um.
+    /// Distance from the fitted transform's prediction, um; NaN when not found.
     pub residual_um: f64,
     /// Why it was not found.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub why: Option<String>,
 }
 
+/// Where the design lies on the board map.
 #[derive(Clone, Debug, Serialize)]
 pub struct Registration {
+    /// `fiducials` or `paste pattern`.
     pub method: &'static str,
     /// Design to board transform.
     pub transform: Rigid,
     /// Its departure from the nominal placement: shift (mm) and rotation (deg).
     pub shift_mm: Point,
+    /// The departure's rotation, degrees counter-clockwise.
     pub rotation_deg: f64,
+    /// Every fiducial's search, in the program's order (empty for the paste pattern).
     pub fiducials: Vec<FiducialHit>,
     /// Rms of the fit's misses over the found fiducials, um (0 for two: exact), or over the
     /// deposits the paste pattern was fitted to.
@@ -70,10 +85,11 @@ pub struct Registration {
 
 /// Lowest fiducial disc height found, um (copper is about 35 um; the candidates are cut at
 /// half of this, about 5 noise sigma).
-pub const MIN_DISC_UM: f64 = 12.0;
+pub(crate) const MIN_DISC_UM: f64 = 12.0;
 
-/// Finds one disc near `q0`.
-pub fn find_disc(
+/// Finds one disc of `diameter` (mm) within `search` (mm) of board point `q0`: its centre
+/// (board mm) and height (um), or why not.
+pub(crate) fn find_disc(
     map: &BoardMap,
     q0: Point,
     diameter: f64,
@@ -252,7 +268,7 @@ pub fn find_disc(
 }
 
 /// Least-squares rotation and shift taking `design` onto `board` (at least two points).
-pub fn fit_rigid(design: &[Point], board: &[Point]) -> Rigid {
+pub(crate) fn fit_rigid(design: &[Point], board: &[Point]) -> Rigid {
     let n = design.len() as f64;
     let md = design
         .iter()

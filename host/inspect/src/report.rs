@@ -53,7 +53,8 @@ fn num(v: f64, digits: usize) -> String {
     }
 }
 
-/// `pads.csv`.
+/// `pads.csv`: a header and one row per pad, in the layer's order (an empty field where a
+/// figure is NaN).
 pub fn csv(pads: &[Pad], i: &Inspection) -> String {
     let mut s = String::from(
         "ComponentPad,Component,Pin,PadClass,X_mm,Y_mm,Result,Level,Class,PasteVolume_um3,VolumePct,PasteHeight_um,HeightPct,HeightMax_um,Area_mm2,AreaPct,PasteXOffset_um,PasteYOffset_um,OffsetPct,ShapePct,Coverage,BridgedTo,Findings\n",
@@ -119,7 +120,7 @@ fn uuid(seed: u64, n: u64) -> String {
 }
 
 /// UTC time as ISO 8601 (civil date from days since 1970).
-pub fn iso_now() -> String {
+pub(crate) fn iso_now() -> String {
     let secs = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_secs())
@@ -182,7 +183,8 @@ fn numeric(value: f64, units: &str, expected: f64, lo: f64, hi: f64) -> Value {
     })
 }
 
-/// The IPC-CFX `UnitsInspected` message of one board.
+/// The IPC-CFX `UnitsInspected` message of one board: `unit` is its identifier, `recipe` the
+/// program's name.
 pub fn cfx(pads: &[Pad], i: &Inspection, program: &Program, unit: &str, recipe: &str) -> Value {
     let seed = dpsa_core::frames::fnv1a64(unit.as_bytes());
     let mut measurements = Vec::with_capacity(pads.len());
@@ -267,7 +269,8 @@ fn level_colour(c: &Call, m: &PadMeasurement) -> [u8; 3] {
     }
 }
 
-/// `overview.png`: at most `max_px` on the longer side.
+/// `overview.png`: at most `max_px` pixels on the longer side (the map decimated by a whole
+/// factor), the openings put on the board by `t`.
 pub fn overview(
     map: &BoardMap,
     pads: &[Pad],
@@ -315,7 +318,7 @@ pub fn overview(
 }
 
 /// One defect picture: the crop over the profile.
-pub fn defect_picture(
+pub(crate) fn defect_picture(
     map: &BoardMap,
     p: &Pad,
     m: &PadMeasurement,
@@ -420,7 +423,7 @@ pub const FILE_NAMES: [&str; 5] = [
 
 /// Whether `dir` holds an earlier inspection output written before the marker existed: a
 /// `report.json` and nothing but the files [`write`](fn@write) writes.
-pub fn is_inspection_dir(dir: &Path) -> bool {
+pub(crate) fn is_inspection_dir(dir: &Path) -> bool {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return false;
     };
@@ -432,7 +435,7 @@ pub fn is_inspection_dir(dir: &Path) -> bool {
 }
 
 /// Refuses (before any work) a destination that an inspection output may not replace.
-pub fn check_destination(dir: &Path) -> Result<()> {
+pub(crate) fn check_destination(dir: &Path) -> Result<()> {
     Ok(dpsa_formats::files::check_output_dir(dir, DIR_KIND)?)
 }
 

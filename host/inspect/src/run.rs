@@ -16,8 +16,11 @@ use std::time::Instant;
 
 /// Everything one inspection found.
 pub struct Inspection {
+    /// Where the design lies on the map.
     pub registration: Registration,
+    /// One per pad, in the layer's order.
     pub measurements: Vec<PadMeasurement>,
+    /// One per pad, in the layer's order.
     pub calls: Vec<Call>,
     /// Register + measure + judge, s (not reading or writing).
     pub inspect_s: f64,
@@ -25,6 +28,8 @@ pub struct Inspection {
     pub register_s: f64,
 }
 
+/// Registers the design on `map` (by the program's fiducials, else by the paste pattern),
+/// measures every pad and judges it.
 pub fn inspect(
     map: &BoardMap,
     pads: &[Pad],
@@ -64,24 +69,33 @@ pub fn inspect(
 /// Pad counts and calls.
 #[derive(Clone, Debug, Serialize)]
 pub struct Counts {
+    /// Pads of the layer.
     pub total: usize,
     /// Judged (not "not measurable").
     pub measured: usize,
+    /// Pads that could not be measured (counted as failures in [`Calls`]).
     pub not_measurable: usize,
 }
 
+/// Pads per verdict.
 #[derive(Clone, Debug, Serialize)]
 pub struct Calls {
+    /// Pads that passed.
     pub pass: usize,
+    /// Pads with a warning.
     pub warn: usize,
+    /// Pads that failed.
     pub fail: usize,
     /// Failures per class.
     pub fail_by_class: BTreeMap<String, usize>,
+    /// Warnings per class.
     pub warn_by_class: BTreeMap<String, usize>,
-    /// The board's verdict: `fail` if any pad failed (not measurable included).
+    /// The board's verdict: `fail` if any pad failed (not measurable included), else `warn`
+    /// if any pad has a warning, else `pass`.
     pub board: &'static str,
 }
 
+/// The pad counts and calls of an inspection.
 pub fn counts(i: &Inspection) -> (Counts, Calls) {
     let nm = i
         .measurements
@@ -132,14 +146,20 @@ pub fn counts(i: &Inspection) -> (Counts, Calls) {
 /// The JSON report of `dpsa inspect` (`--json`, `report.json`).
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
+    /// The board map's directory, as given.
     pub board: String,
+    /// The program file, as given.
     pub program: String,
+    /// Pad counts.
     pub pads: Counts,
+    /// Pads per verdict and the board's.
     pub calls: Calls,
+    /// How the design was registered.
     pub registration: RegistrationReport,
     /// An evaluation's keys (the simulator's `truth` and `detection`), in their place.
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     pub evaluation: Option<Evaluation>,
+    /// Where the time went.
     pub timing: Timing,
     /// The failed pads, `name: class` (at most 200).
     pub failures: Vec<String>,
@@ -148,12 +168,18 @@ pub struct Report {
     pub paste_layer_notes: Vec<String>,
 }
 
+/// The registration as the report gives it ([`Registration`] without the transform).
 #[derive(Clone, Debug, Serialize)]
 pub struct RegistrationReport {
+    /// `fiducials` or `paste pattern`.
     pub method: &'static str,
+    /// Rms of the fit's misses, um.
     pub residual_um: f64,
+    /// The board's shift from the nominal placement, mm.
     pub shift_mm: Point,
+    /// The board's turn from the nominal placement, degrees counter-clockwise.
     pub rotation_deg: f64,
+    /// Every fiducial's search (empty for the paste pattern).
     pub fiducials: Vec<crate::register::FiducialHit>,
     /// Registration by the paste pattern: the pads fitted.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -198,17 +224,20 @@ pub trait Evaluate {
     ) -> anyhow::Result<Evaluation>;
 }
 
+/// Where an inspection's time went, s (wall clock).
 #[derive(Clone, Debug, Serialize)]
 pub struct Timing {
     /// Register, measure and judge (the map in memory), s.
     pub inspect_s: f64,
     /// Of which the registration, s.
     pub register_s: f64,
+    /// Reading the program, its paste layer and the map, s.
     pub load_s: f64,
     /// The evaluation, s (reading and integrating the print truth of a simulated board; 0
     /// without one).
     #[serde(rename = "truth_s")]
     pub evaluation_s: f64,
+    /// Writing the report files (`--out`), s; 0 without.
     pub write_s: f64,
     /// The whole `dpsa inspect`, s: load + the inspections (`--repeat`) + truth + write and
     /// what lies between them.
@@ -216,6 +245,8 @@ pub struct Timing {
 }
 
 impl Report {
+    /// The report of inspection `i` of `pads`, without an evaluation; `board` and `program`
+    /// name the inputs, `load_s` is the time reading them took (write and total times 0).
     pub fn build(board: &str, program: &str, i: &Inspection, pads: &[Pad], load_s: f64) -> Report {
         let (c, calls) = counts(i);
         let failures = i
