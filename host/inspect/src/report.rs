@@ -8,12 +8,13 @@
 //! | `overview.png` | the board's heights in grey with every opening outlined in its verdict's colour: green pass, amber warning, red failure, magenta not measurable |
 //! | `gallery/NNN_class_pad.png` | every failure (at most [`MAX_GALLERY`]): the heights above the pad's local surface around it (false colour, 0 to 1.6 x stencil, the opening outlined in white) over a profile through the opening's centre along the board's x (the stencil thickness dashed) |
 
+use crate::error::InspectError;
 use crate::map::BoardMap;
 use crate::measure::PadMeasurement;
 use crate::program::Program;
 use crate::run::Inspection;
 use crate::verdict::{Call, Level};
-use anyhow::Result;
+use dpsa_formats::files::FileError;
 use dpsa_gerber::pads::{Pad, Rigid};
 use image::{ImageBuffer, Rgb, RgbImage};
 use serde_json::{json, Value};
@@ -435,8 +436,8 @@ pub(crate) fn is_inspection_dir(dir: &Path) -> bool {
 }
 
 /// Refuses (before any work) a destination that an inspection output may not replace.
-pub(crate) fn check_destination(dir: &Path) -> Result<()> {
-    Ok(dpsa_formats::files::check_output_dir(dir, DIR_KIND)?)
+pub(crate) fn check_destination(dir: &Path) -> Result<(), FileError> {
+    dpsa_formats::files::check_output_dir(dir, DIR_KIND)
 }
 
 /// An inspection output directory, for [`dpsa_formats::files::OutputDir`].
@@ -459,8 +460,8 @@ pub fn write(
     program: &Program,
     report: &Value,
     names: Names,
-    report_again: impl FnOnce() -> Result<Value>,
-) -> Result<usize> {
+    report_again: impl FnOnce() -> Result<Value, InspectError>,
+) -> Result<usize, InspectError> {
     let staging = dpsa_formats::files::OutputDir::create(dir, DIR_KIND)?;
     let n = write_files(staging.path(), map, pads, i, program, report, names)?;
     dpsa_formats::files::write_bytes(
@@ -479,7 +480,7 @@ fn write_files(
     program: &Program,
     report: &Value,
     names: Names,
-) -> Result<usize> {
+) -> Result<usize, InspectError> {
     let Names { unit, recipe } = names;
     dpsa_formats::files::write_bytes(&dir.join("pads.csv"), csv(pads, i).as_bytes())?;
     dpsa_formats::files::write_bytes(
@@ -494,8 +495,10 @@ fn write_files(
     let t = i.registration.transform;
     dpsa_formats::images::save_png(&overview(map, pads, &t, i, 2400), &dir.join("overview.png"))?;
     let gal = dir.join("gallery");
-    std::fs::create_dir_all(&gal)
-        .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", gal.display()))?;
+    std::fs::create_dir_all(&gal).map_err(|error| InspectError::CreateDir {
+        path: gal.clone(),
+        error,
+    })?;
     let mut fails: Vec<usize> = (0..pads.len())
         .filter(|&k| i.calls[k].level == Level::Fail)
         .collect();

@@ -4,6 +4,7 @@
 //! An inspection can be handed to an [`Evaluate`] (the simulator's comparison with the print it
 //! made, in `dpsa-sim`), whose keys and lines the report carries; the production path has none.
 
+use crate::error::InspectError;
 use crate::map::BoardMap;
 use crate::measure::{measure_all, PadMeasurement, Placed};
 use crate::program::Program;
@@ -213,7 +214,8 @@ pub trait Evaluate {
     /// The files it reads, which an `--out` must not overwrite.
     fn inputs(&self) -> Vec<std::path::PathBuf>;
     /// Its keys and lines for `inspection` of `pads` on `map`; `progress` shows a bar on
-    /// stderr.
+    /// stderr. Its error, whatever its type, reaches the caller as
+    /// [`InspectError::Evaluation`] with its message and `source()` chain unchanged.
     fn evaluate(
         &mut self,
         map: &BoardMap,
@@ -221,7 +223,7 @@ pub trait Evaluate {
         program: &Program,
         inspection: &Inspection,
         progress: bool,
-    ) -> anyhow::Result<Evaluation>;
+    ) -> Result<Evaluation, Box<dyn std::error::Error + Send + Sync + 'static>>;
 }
 
 /// Where an inspection's time went, s (wall clock).
@@ -354,20 +356,20 @@ impl Report {
 pub fn paste_layer_pads(
     program: &Program,
     program_path: &std::path::Path,
-) -> anyhow::Result<(Vec<Pad>, Vec<String>)> {
+) -> Result<(Vec<Pad>, Vec<String>), InspectError> {
     let layer_path = program.paste_layer_path(program_path);
-    let layer = dpsa_gerber::read_file(&layer_path)
-        .map_err(|e| anyhow::anyhow!("paste layer {}: {e}", layer_path.display()))?;
+    let layer = dpsa_gerber::read_file(&layer_path).map_err(|error| InspectError::PasteLayer {
+        path: layer_path.clone(),
+        error,
+    })?;
     let mut notes = Vec::new();
     if !layer.complete {
         if !program.allow_truncated_layer {
-            anyhow::bail!(
-                "paste layer {}: the file has no end (M02) and may be truncated; set \
-                 allow_truncated_layer = true in {} to inspect the {} pads it has",
-                layer_path.display(),
-                program_path.display(),
-                layer.pads.len()
-            );
+            return Err(InspectError::TruncatedLayer {
+                path: layer_path,
+                program: program_path.to_path_buf(),
+                pads: layer.pads.len(),
+            });
         }
         notes.push(format!(
             "paste layer {} has no end (M02) and may be truncated: {} pads inspected \
@@ -377,7 +379,7 @@ pub fn paste_layer_pads(
         ));
     }
     if layer.pads.is_empty() {
-        anyhow::bail!("paste layer {}: no pads", layer_path.display());
+        return Err(InspectError::NoPads { path: layer_path });
     }
     Ok((layer.pads, notes))
 }
@@ -389,7 +391,7 @@ pub fn inspect_dir(
     program_path: &std::path::Path,
     out: Option<&std::path::Path>,
     repeat: u32,
-) -> anyhow::Result<(Report, Inspection)> {
+) -> Result<(Report, Inspection), InspectError> {
     inspect_dir_with(board, program_path, out, repeat, None, false)
 }
 
@@ -402,7 +404,7 @@ pub fn inspect_dir_with(
     repeat: u32,
     mut evaluate: Option<&mut dyn Evaluate>,
     progress: bool,
-) -> anyhow::Result<(Report, Inspection)> {
+) -> Result<(Report, Inspection), InspectError> {
     let t0 = Instant::now();
     let mut program = Program::load(program_path)?;
     let layer_path = program.paste_layer_path(program_path);
@@ -439,7 +441,7 @@ pub fn inspect_dir_with(
         }
     }
     let Some(i) = best else {
-        anyhow::bail!("no inspection ran");
+        return Err(InspectError::NoInspection);
     };
     let mut report = Report::build(
         &board.display().to_string(),
@@ -450,7 +452,10 @@ pub fn inspect_dir_with(
     );
     if let Some(e) = evaluate.as_mut() {
         let t1 = Instant::now();
-        report.evaluation = Some(e.evaluate(&map, &pads, &program, &i, progress)?);
+        report.evaluation = Some(
+            e.evaluate(&map, &pads, &program, &i, progress)
+                .map_err(InspectError::Evaluation)?,
+        );
         report.timing.evaluation_s = t1.elapsed().as_secs_f64();
     }
     report.paste_layer_notes = layer_notes;
