@@ -531,9 +531,7 @@ pub(crate) fn measure_pad(
     program: &Program,
     k: usize,
 ) -> PadMeasurement {
-    let o = &placed.outlines[k];
     let bb = placed.bboxes[k];
-    let ms = placed.min_size[k];
     let stencil = program.stencil_um;
     let m = &program.measure;
     let opening_mm2 = pads[k].outline.area();
@@ -547,15 +545,72 @@ pub(crate) fn measure_pad(
         pm.unmeasurable = Some(Unmeasurable::OutsideMap);
         return pm;
     }
-    let c = o.centroid();
+    let c = placed.outlines[k].centroid();
     let p = map.grid.pitch_mm;
     let px_area = p * p;
     let reach = Reach::new(placed, k, program);
-    let margin = reach.max;
-    let inset = height_inset(program, ms);
+    let inset = height_inset(program, placed.min_size[k]);
+    let Some((plane, rms, kept)) = local_surface(map, placed, program, k, c) else {
+        pm.unmeasurable = Some(Unmeasurable::NoSurface);
+        return pm;
+    };
+    pm.surface = plane.clone();
+    pm.surface_rms_um = rms;
+    pm.surface_pixels = kept;
+    let cell = Cell::new(map, placed, k, &reach, &plane, c);
+    let thr_area = stencil * m.area_threshold_pct / 100.0;
+    let s = cell.sums(map, thr_area, m.shape_threshold_um, m.wall_mm, inset);
+    pm.coverage = if s.open_n > 0 {
+        s.open_valid as f64 / s.open_n as f64
+    } else {
+        0.0
+    };
+    let opening_volume = opening_mm2 * stencil; // um * mm^2
+    pm.volume_um3 = s.vol * px_area * 1e6;
+    pm.volume_pct = 100.0 * s.vol * px_area / opening_volume;
+    pm.area_mm2 = s.area_n as f64 * px_area;
+    pm.area_pct = 100.0 * pm.area_mm2 / opening_mm2;
+    pm.height_um = if s.hn > 0 {
+        s.hsum / s.hn as f64
+    } else {
+        f64::NAN
+    };
+    pm.height_pct = 100.0 * pm.height_um / stencil;
+    pm.height_max_um = if s.hmax.is_finite() {
+        s.hmax
+    } else {
+        pm.height_um
+    };
+    pm.shape_pct = 100.0 * s.shape_n as f64 * px_area / opening_mm2;
+    if s.sw > 0.0 {
+        let (dx, dy) = (s.sx / s.sw - c[0], s.sy / s.sw - c[1]);
+        // Into the design frame's axes.
+        let (sn, co) = t.rotation_rad.sin_cos();
+        let (ux, uy) = (co * dx + sn * dy, -sn * dx + co * dy);
+        pm.offset_um = [ux * 1000.0, uy * 1000.0];
+        // Against the opening's width (its smaller size), along either axis.
+        pm.offset_pct = 100.0 * ux.abs().max(uy.abs()) / placed.min_size[k];
+    }
+    if s.open_n == 0 || pm.coverage < m.min_coverage {
+        pm.unmeasurable = Some(Unmeasurable::LowCoverage);
+    }
+    pm
+}
 
-    // Local surface, growing the reach until enough bare board qualifies.
-    let mut surface = None;
+/// Pad `k`'s local surface about its centroid `c` (board mm): a robust quadratic through the
+/// bare board around it (at least `surface_guard_mm` from every opening and fiducial, within
+/// `surface_reach_mm` of this one, grown to 2, 4 and 8 times that until at least
+/// [`MIN_SURFACE_PIXELS`] qualify); coefficients, rms (um) and pixels kept, or None.
+fn local_surface(
+    map: &BoardMap,
+    placed: &Placed,
+    program: &Program,
+    k: usize,
+    c: Point,
+) -> Option<(Vec<f64>, f64, usize)> {
+    let m = &program.measure;
+    let o = &placed.outlines[k];
+    let bb = placed.bboxes[k];
     for grow in [1.0, 2.0, 4.0, 8.0] {
         let reach = m.surface_reach_mm * grow;
         let near = placed.near(bb, reach + m.surface_guard_mm, k);
@@ -581,140 +636,175 @@ pub(crate) fn measure_pad(
                 if d < m.surface_guard_mm || d > reach {
                     continue;
                 }
-                let clear = near.iter().all(|&n| {
-                    let b = &placed.bboxes[n];
-                    let bx = (b[0] - x).max(x - b[2]).max(0.0);
-                    let by = (b[1] - y).max(y - b[3]).max(0.0);
-                    norm(bx, by) >= m.surface_guard_mm
-                        || placed.outlines[n].signed_distance(q) >= m.surface_guard_mm
-                }) && placed
-                    .fiducials
-                    .iter()
-                    .all(|(f, r)| norm(x - f[0], y - f[1]) >= r + m.surface_guard_mm);
-                if clear {
+                if bare(placed, &near, q, m.surface_guard_mm) {
                     samples.push([x - c[0], y - c[1], f64::from(h)]);
                 }
             }
         }
         if samples.len() >= MIN_SURFACE_PIXELS {
-            surface = robust_surface(&samples, true);
+            let surface = robust_surface(&samples, true);
             if surface.is_some() {
-                break;
+                return surface;
             }
         }
     }
-    let Some((plane, rms, kept)) = surface else {
-        pm.unmeasurable = Some(Unmeasurable::NoSurface);
-        return pm;
-    };
-    pm.surface = plane.clone();
-    pm.surface_rms_um = rms;
-    pm.surface_pixels = kept;
-    let base = |x: f64, y: f64| surface_at(&plane, x - c[0], y - c[1]);
+    None
+}
 
-    // The cell.
-    let near = placed.near(bb, 2.0 * margin, k);
-    let (ri, rj) = map.window(reach.bbox);
-    let (h_w, w_w) = (ri.len(), rj.len());
-    // Residual heights over the window, NaN outside the cell or invalid.
-    let mut r = vec![f64::NAN; h_w * w_w];
-    let mut in_cell = vec![false; h_w * w_w];
-    let mut dist = vec![f64::INFINITY; h_w * w_w];
-    for (a, i) in ri.clone().enumerate() {
-        for (b, j) in rj.clone().enumerate() {
-            let (x, y) = map.grid.centre(i, j);
-            let (inside, d) = cell_member(placed, k, &near, &reach, [x, y]);
-            if !inside {
-                continue;
-            }
-            in_cell[a * w_w + b] = true;
-            dist[a * w_w + b] = d;
-            let h = map.heights.data[i * map.grid.width + j];
-            if h.is_finite() {
-                r[a * w_w + b] = f64::from(h) - base(x, y);
-            }
-        }
-    }
-    let (mut open_n, mut open_valid) = (0usize, 0usize);
-    let thr_area = stencil * m.area_threshold_pct / 100.0;
-    let (mut vol, mut area_n, mut shape_n) = (0.0, 0usize, 0usize);
-    let (mut sw, mut sx, mut sy) = (0.0, 0.0, 0.0);
-    let (mut hsum, mut hn) = (0.0, 0usize);
-    let mut hmax = f64::NEG_INFINITY;
-    for a in 0..h_w {
-        for b in 0..w_w {
-            let idx = a * w_w + b;
-            if !in_cell[idx] {
-                continue;
-            }
-            let d = dist[idx];
-            if d <= 0.0 {
-                open_n += 1;
-                if r[idx].is_finite() {
-                    open_valid += 1;
+/// Whether board point `q` (mm) is at least `guard` (mm) from the openings `near` and from
+/// every fiducial.
+fn bare(placed: &Placed, near: &[usize], q: Point, guard: f64) -> bool {
+    let [x, y] = q;
+    near.iter().all(|&n| {
+        let b = &placed.bboxes[n];
+        let bx = (b[0] - x).max(x - b[2]).max(0.0);
+        let by = (b[1] - y).max(y - b[3]).max(0.0);
+        norm(bx, by) >= guard || placed.outlines[n].signed_distance(q) >= guard
+    }) && placed
+        .fiducials
+        .iter()
+        .all(|(f, r)| norm(x - f[0], y - f[1]) >= r + guard)
+}
+
+/// Pad `k`'s cell over the window of its reach: per pixel (row-major, `cols` wide) whether
+/// it is in the cell, its signed distance to the opening (mm) and its height above the
+/// local surface (um; NaN outside the cell or invalid).
+struct Cell {
+    ri: std::ops::Range<usize>,
+    rj: std::ops::Range<usize>,
+    cols: usize,
+    r: Vec<f64>,
+    in_cell: Vec<bool>,
+    dist: Vec<f64>,
+}
+
+/// What the cell's pixels add up to.
+struct Sums {
+    /// Pixels of the opening, and of those the valid ones.
+    open_n: usize,
+    open_valid: usize,
+    /// Heights summed over the cell (invalid pixels filled), um per pixel.
+    vol: f64,
+    /// Pixels above the area threshold, and above the shape threshold beyond the wall.
+    area_n: usize,
+    shape_n: usize,
+    /// Height-weighted sums of the paste above the area threshold: weight, x, y.
+    sw: f64,
+    sx: f64,
+    sy: f64,
+    /// Heights over the opening's interior: sum, count and the largest 3 x 3 mean.
+    hsum: f64,
+    hn: usize,
+    hmax: f64,
+}
+
+impl Cell {
+    /// The cell of pad `k` with its `reach`, heights above `plane` (about `c`, board mm).
+    fn new(
+        map: &BoardMap,
+        placed: &Placed,
+        k: usize,
+        reach: &Reach,
+        plane: &[f64],
+        c: Point,
+    ) -> Cell {
+        let near = placed.near(placed.bboxes[k], 2.0 * reach.max, k);
+        let (ri, rj) = map.window(reach.bbox);
+        let (h_w, w_w) = (ri.len(), rj.len());
+        let mut cell = Cell {
+            ri: ri.clone(),
+            rj: rj.clone(),
+            cols: w_w,
+            r: vec![f64::NAN; h_w * w_w],
+            in_cell: vec![false; h_w * w_w],
+            dist: vec![f64::INFINITY; h_w * w_w],
+        };
+        for (a, i) in ri.enumerate() {
+            for (b, j) in rj.clone().enumerate() {
+                let (x, y) = map.grid.centre(i, j);
+                let (inside, d) = cell_member(placed, k, &near, reach, [x, y]);
+                if !inside {
+                    continue;
+                }
+                cell.in_cell[a * w_w + b] = true;
+                cell.dist[a * w_w + b] = d;
+                let h = map.heights.data[i * map.grid.width + j];
+                if h.is_finite() {
+                    cell.r[a * w_w + b] = f64::from(h) - surface_at(plane, x - c[0], y - c[1]);
                 }
             }
-            let v = if r[idx].is_finite() {
-                r[idx]
-            } else {
-                // The mean of the valid 3 x 3 neighbours; none: 0 (counted as bare board,
-                // and the coverage says how much of the opening was seen).
-                let (s, n) = mean3x3(&r, w_w, a, b);
-                if n > 0 {
-                    s / f64::from(n)
+        }
+        cell
+    }
+
+    /// The sums over the cell: paste above `thr_area` (um) for area and offset, above
+    /// `thr_shape` (um) beyond `wall` (mm) for the shape, the interior `inset` (mm) inside
+    /// the edge for the height.
+    fn sums(&self, map: &BoardMap, thr_area: f64, thr_shape: f64, wall: f64, inset: f64) -> Sums {
+        let (h_w, w_w) = (self.ri.len(), self.cols);
+        let r = &self.r;
+        let mut s = Sums {
+            open_n: 0,
+            open_valid: 0,
+            vol: 0.0,
+            area_n: 0,
+            shape_n: 0,
+            sw: 0.0,
+            sx: 0.0,
+            sy: 0.0,
+            hsum: 0.0,
+            hn: 0,
+            hmax: f64::NEG_INFINITY,
+        };
+        for a in 0..h_w {
+            for b in 0..w_w {
+                let idx = a * w_w + b;
+                if !self.in_cell[idx] {
+                    continue;
+                }
+                let d = self.dist[idx];
+                if d <= 0.0 {
+                    s.open_n += 1;
+                    if r[idx].is_finite() {
+                        s.open_valid += 1;
+                    }
+                }
+                let v = if r[idx].is_finite() {
+                    r[idx]
                 } else {
-                    0.0
+                    // The mean of the valid 3 x 3 neighbours; none: 0 (counted as bare board,
+                    // and the coverage says how much of the opening was seen).
+                    let (sum, n) = mean3x3(r, w_w, a, b);
+                    if n > 0 {
+                        sum / f64::from(n)
+                    } else {
+                        0.0
+                    }
+                };
+                s.vol += v;
+                let (x, y) = map.grid.centre(self.ri.start + a, self.rj.start + b);
+                if v > thr_area {
+                    s.area_n += 1;
+                    s.sw += v;
+                    s.sx += v * x;
+                    s.sy += v * y;
                 }
-            };
-            vol += v;
-            let (x, y) = map.grid.centre(ri.start + a, rj.start + b);
-            if v > thr_area {
-                area_n += 1;
-                sw += v;
-                sx += v * x;
-                sy += v * y;
-            }
-            if v > m.shape_threshold_um && d > m.wall_mm {
-                shape_n += 1;
-            }
-            if d <= -inset && r[idx].is_finite() {
-                hsum += r[idx];
-                hn += 1;
-                // 3 x 3 mean for the maximum.
-                let (s, n) = mean3x3(&r, w_w, a, b);
-                if n >= 5 {
-                    hmax = hmax.max(s / f64::from(n));
+                if v > thr_shape && d > wall {
+                    s.shape_n += 1;
+                }
+                if d <= -inset && r[idx].is_finite() {
+                    s.hsum += r[idx];
+                    s.hn += 1;
+                    // 3 x 3 mean for the maximum.
+                    let (sum, n) = mean3x3(r, w_w, a, b);
+                    if n >= 5 {
+                        s.hmax = s.hmax.max(sum / f64::from(n));
+                    }
                 }
             }
         }
+        s
     }
-    pm.coverage = if open_n > 0 {
-        open_valid as f64 / open_n as f64
-    } else {
-        0.0
-    };
-    let opening_volume = opening_mm2 * stencil; // um * mm^2
-    pm.volume_um3 = vol * px_area * 1e6;
-    pm.volume_pct = 100.0 * vol * px_area / opening_volume;
-    pm.area_mm2 = area_n as f64 * px_area;
-    pm.area_pct = 100.0 * pm.area_mm2 / opening_mm2;
-    pm.height_um = if hn > 0 { hsum / hn as f64 } else { f64::NAN };
-    pm.height_pct = 100.0 * pm.height_um / stencil;
-    pm.height_max_um = if hmax.is_finite() { hmax } else { pm.height_um };
-    pm.shape_pct = 100.0 * shape_n as f64 * px_area / opening_mm2;
-    if sw > 0.0 {
-        let (dx, dy) = (sx / sw - c[0], sy / sw - c[1]);
-        // Into the design frame's axes.
-        let (s, co) = t.rotation_rad.sin_cos();
-        let (ux, uy) = (co * dx + s * dy, -s * dx + co * dy);
-        pm.offset_um = [ux * 1000.0, uy * 1000.0];
-        // Against the opening's width (its smaller size), along either axis.
-        pm.offset_pct = 100.0 * ux.abs().max(uy.abs()) / placed.min_size[k];
-    }
-    if open_n == 0 || pm.coverage < m.min_coverage {
-        pm.unmeasurable = Some(Unmeasurable::LowCoverage);
-    }
-    pm
 }
 
 /// Finds paste joining neighbouring openings; fills `bridged_to` of both pads.
