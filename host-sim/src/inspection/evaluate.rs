@@ -197,6 +197,20 @@ impl Evaluate for PrintEvaluation {
         program: &Program,
         inspection: &Inspection,
         progress: bool,
+    ) -> Result<Evaluation, Box<dyn std::error::Error + Send + Sync + 'static>> {
+        // The print truth's errors keep their message and chain (`anyhow` into the box).
+        Ok(self.evaluate_truth(map, pads, program, inspection, progress)?)
+    }
+}
+
+impl PrintEvaluation {
+    fn evaluate_truth(
+        &mut self,
+        map: &BoardMap,
+        pads: &[Pad],
+        program: &Program,
+        inspection: &Inspection,
+        progress: bool,
     ) -> anyhow::Result<Evaluation> {
         let p = PrintTruth::load(&self.path, pads.len())?;
         if let (Some(have), Some(want)) = (p.board_id, map.board_id) {
@@ -241,12 +255,12 @@ pub fn inspect_dir_shown(
         .as_deref()
         .filter(|_| use_truth)
         .map(|t| PrintEvaluation::new(t, board));
-    dpsa_inspect::run::inspect_dir_with(
+    Ok(dpsa_inspect::run::inspect_dir_with(
         board,
         program_path,
         out,
         repeat,
         eval.as_mut().map(|e| e as &mut dyn Evaluate),
         progress,
-    )
+    )?)
 }

@@ -627,3 +627,25 @@ fn registration_by_the_paste_pattern_refuses_what_it_cannot_tell() {
         .to_string();
     assert!(e.contains("repeats"), "{e}");
 }
+
+#[test]
+fn an_evaluation_error_reaches_the_caller_with_its_whole_chain() {
+    // A print truth that is not one: the evaluation's error, through `InspectError`, prints
+    // as the print truth's own error does (its sentence, then the parser's), as it did when
+    // the inspection returned `anyhow`.
+    let s = scene(5);
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("print.json");
+    std::fs::write(&bad, b"{nope").unwrap();
+    let Err(direct) = super::simulated::PrintTruth::load(&bad, s.pads.len()) else {
+        panic!("{{nope is not a print truth");
+    };
+    let direct = format!("{direct:#}");
+    assert!(direct.contains("is not a dpsa print truth: "), "{direct}");
+    let i = super::run::inspect(&s.map, &s.pads, &s.program).unwrap();
+    let mut ev = super::evaluate::PrintEvaluation::new(&bad, dir.path());
+    let e = super::run::Evaluate::evaluate(&mut ev, &s.map, &s.pads, &s.program, &i, false)
+        .unwrap_err();
+    let through = anyhow::Error::from(dpsa_inspect::InspectError::Evaluation(e));
+    assert_eq!(format!("{through:#}"), direct);
+}

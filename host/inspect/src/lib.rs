@@ -17,7 +17,9 @@
 //! | [`verdict`] | pass / warning / fail with the defect class |
 //! | [`run`] | `dpsa inspect` end to end, its JSON report |
 //! | [`report`] | the files: pads.csv, IPC-CFX UnitsInspected, overview, defect gallery |
+//! | [`error`] | [`InspectError`]: why an inspection failed |
 
+pub mod error;
 pub mod map;
 pub mod measure;
 pub mod program;
@@ -27,3 +29,5 @@ pub mod report;
 pub mod run;
 pub mod teach;
 pub mod verdict;
+
+pub use error::InspectError;

@@ -1,7 +1,7 @@
 //! The board map as the inspection reads it: `board.json` and `heights_um.tiff` of a
 //! `dpsa board --out DIR` (docs/board.md), heights in um on a grid in board mm.
 
-use anyhow::{bail, Context, Result};
+use crate::error::InspectError;
 use dpsa_formats::grid::BoardGrid;
 use dpsa_formats::grid::Grid;
 use std::path::Path;
@@ -14,7 +14,10 @@ pub const MAX_PIXELS: u64 = 400_000_000;
 pub struct BoardMap {
     /// The board's identity from `board.json` (None in maps written without one).
     pub board_id: Option<dpsa_formats::BoardId>,
+    /// Where the pixels lie: row `i` along x, column `j` along y, board mm.
     pub grid: BoardGrid,
+    /// Heights above the board's datum, um, row-major (`grid.rows` x `grid.width`); NaN
+    /// where the map has no valid height.
     pub heights: Grid,
 }
 
@@ -37,56 +40,55 @@ struct UnitsIn {
 }
 
 /// The `board.json` version this build reads.
-pub const MAP_VERSION: u32 = 1;
+pub(crate) const MAP_VERSION: u32 = 1;
 
 impl BoardMap {
-    /// Reads a map directory.
-    pub fn open(dir: &Path) -> Result<BoardMap> {
+    /// Reads a map directory (`board.json`, `heights_um.tiff`), checking its format, version,
+    /// units and grid (at most [`MAX_PIXELS`]) against each other.
+    pub fn open(dir: &Path) -> Result<BoardMap, InspectError> {
         let json_path = dir.join("board.json");
+        let bad = |why: String| InspectError::Map {
+            path: json_path.clone(),
+            why,
+        };
         let bytes = dpsa_formats::files::read_capped(&json_path, 1 << 20, "board map metadata")?;
-        let meta: MetaIn = serde_json::from_slice(&bytes)
-            .with_context(|| format!("{} is not a board map's board.json", json_path.display()))?;
+        let meta: MetaIn =
+            serde_json::from_slice(&bytes).map_err(|source| InspectError::MapJson {
+                path: json_path.clone(),
+                source,
+            })?;
         if meta.format != dpsa_formats::board_map::FORMAT {
-            bail!(
-                "{}: format {:?}, expected {:?}",
-                json_path.display(),
+            return Err(bad(format!(
+                "format {:?}, expected {:?}",
                 meta.format,
                 dpsa_formats::board_map::FORMAT
-            );
+            )));
         }
         if meta.version != MAP_VERSION {
-            bail!(
-                "{}: version {}, this build reads version {MAP_VERSION} of {:?}",
-                json_path.display(),
+            return Err(bad(format!(
+                "version {}, this build reads version {MAP_VERSION} of {:?}",
                 meta.version,
                 dpsa_formats::board_map::FORMAT
-            );
+            )));
         }
         let u = &meta.units;
         if u.lengths != "mm" || u.heights != "um" {
-            bail!(
-                "{}: units lengths {:?} and heights {:?}, this build reads \"mm\" and \"um\" (the TIFF's heights and the grid would be misread)",
-                json_path.display(),
+            return Err(bad(format!(
+                "units lengths {:?} and heights {:?}, this build reads \"mm\" and \"um\" (the TIFF's heights and the grid would be misread)",
                 u.lengths,
                 u.heights
-            );
+            )));
         }
         if !(u.png_lsb_um.is_finite() && u.png_lsb_um > 0.0) {
-            bail!(
-                "{}: units.png_lsb_um = {}, expected a finite value > 0 (the height of one heights.png step)",
-                json_path.display(),
+            return Err(bad(format!(
+                "units.png_lsb_um = {}, expected a finite value > 0 (the height of one heights.png step)",
                 u.png_lsb_um
-            );
+            )));
         }
         let g = meta.grid;
         let px = (g.rows as u64).saturating_mul(g.width as u64);
         if g.rows == 0 || g.width == 0 || px > MAX_PIXELS {
-            bail!(
-                "{}: a {} x {} grid is absurd",
-                json_path.display(),
-                g.rows,
-                g.width
-            );
+            return Err(bad(format!("a {} x {} grid is absurd", g.rows, g.width)));
         }
         let sane = g.pitch_mm.is_finite()
             && g.pitch_mm > 1e-4
@@ -94,27 +96,34 @@ impl BoardMap {
             && g.x0_mm.is_finite()
             && g.y0_mm.is_finite();
         if !sane {
-            bail!(
-                "{}: grid origin or pitch not sane: {g:?}",
-                json_path.display()
-            );
+            return Err(bad(format!("grid origin or pitch not sane: {g:?}")));
         }
         let tiff_path = dir.join("heights_um.tiff");
+        let bad_tiff = |why: String| InspectError::Map {
+            path: tiff_path.clone(),
+            why,
+        };
+        let tiff_error = |what: &'static str, source| InspectError::Tiff {
+            path: tiff_path.clone(),
+            what,
+            source,
+        };
         let f = dpsa_formats::files::open_regular(&tiff_path, "board heights")?;
-        let mut dec = tiff::decoder::Decoder::new(std::io::BufReader::new(f))
-            .with_context(|| format!("{} is not a TIFF", tiff_path.display()))?;
+        let mut dec =
+            tiff::decoder::Decoder::new(std::io::BufReader::new(f)).map_err(|source| {
+                InspectError::NotTiff {
+                    path: tiff_path.clone(),
+                    source,
+                }
+            })?;
         let (w, h) = dec
             .dimensions()
-            .with_context(|| format!("{}: no image size", tiff_path.display()))?;
+            .map_err(|e| tiff_error("no image size", e))?;
         if w as usize != g.width || h as usize != g.rows {
-            bail!(
-                "{}: {} x {} pixels, but board.json says {} x {}",
-                tiff_path.display(),
-                w,
-                h,
-                g.width,
-                g.rows
-            );
+            return Err(bad_tiff(format!(
+                "{} x {} pixels, but board.json says {} x {}",
+                w, h, g.width, g.rows
+            )));
         }
         let mut limits = tiff::decoder::Limits::default();
         limits.decoding_buffer_size = (px * 4 + 1024) as usize;
@@ -122,17 +131,16 @@ impl BoardMap {
         dec = dec.with_limits(limits);
         let data = match dec
             .read_image()
-            .with_context(|| format!("{}: cannot decode", tiff_path.display()))?
+            .map_err(|e| tiff_error("cannot decode", e))?
         {
             tiff::decoder::DecodingResult::F32(v) => v,
-            _ => bail!("{}: not 32-bit float heights", tiff_path.display()),
+            _ => return Err(bad_tiff("not 32-bit float heights".into())),
         };
         if data.len() as u64 != px {
-            bail!(
-                "{}: truncated ({} of {px} pixels)",
-                tiff_path.display(),
+            return Err(bad_tiff(format!(
+                "truncated ({} of {px} pixels)",
                 data.len()
-            );
+            )));
         }
         Ok(BoardMap {
             board_id: meta.board_id,
@@ -147,7 +155,7 @@ impl BoardMap {
 
     /// Pixel `(i, j)` (row along x, column along y) nearest to board point `p` (may be
     /// outside the grid).
-    pub fn pixel_of(&self, p: [f64; 2]) -> (i64, i64) {
+    pub(crate) fn pixel_of(&self, p: [f64; 2]) -> (i64, i64) {
         let g = &self.grid;
         (
             ((p[0] - g.x0_mm) / g.pitch_mm - 0.5).round() as i64,
@@ -170,11 +178,121 @@ impl BoardMap {
     }
 
     /// Whether `bbox` (board mm) lies inside the grid.
-    pub fn covers(&self, b: [f64; 4]) -> bool {
+    pub(crate) fn covers(&self, b: [f64; 4]) -> bool {
         let g = &self.grid;
         b[0] >= g.x0_mm
             && b[1] >= g.y0_mm
             && b[2] <= g.x0_mm + g.rows as f64 * g.pitch_mm
             && b[3] <= g.y0_mm + g.width as f64 * g.pitch_mm
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::PathBuf;
+    use tiff::encoder::{colortype, TiffEncoder};
+
+    /// The message as `dpsa` prints it (`{e:#}`): each error of the chain, `: ` between.
+    fn chain(e: &dyn std::error::Error) -> String {
+        let mut s = e.to_string();
+        let mut c = e.source();
+        while let Some(x) = c {
+            s += &format!(": {x}");
+            c = x.source();
+        }
+        s
+    }
+
+    /// A map directory: `board.json` (a 3 x 2 grid, `edit` applied) and `heights` as the
+    /// TIFF (`rows` x `width`, f32 or u8).
+    fn map_dir(
+        edit: impl Fn(&mut serde_json::Value),
+        rows: u32,
+        width: u32,
+        float: bool,
+    ) -> (tempfile::TempDir, PathBuf, PathBuf) {
+        let d = tempfile::tempdir().unwrap();
+        let mut j = serde_json::json!({
+            "format": dpsa_formats::board_map::FORMAT,
+            "version": MAP_VERSION,
+            "grid": { "x0_mm": 0.0, "y0_mm": 0.0, "pitch_mm": 0.01, "rows": 3, "width": 2 },
+            "units": { "lengths": "mm", "heights": "um", "png_lsb_um": 0.25 },
+        });
+        edit(&mut j);
+        let json = d.path().join("board.json");
+        std::fs::write(&json, serde_json::to_vec(&j).unwrap()).unwrap();
+        let tiff = d.path().join("heights_um.tiff");
+        let mut f = std::fs::File::create(&tiff).unwrap();
+        let mut enc = TiffEncoder::new(&mut f).unwrap();
+        let n = (rows * width) as usize;
+        if float {
+            enc.write_image::<colortype::Gray32Float>(width, rows, &vec![1.5f32; n])
+                .unwrap();
+        } else {
+            enc.write_image::<colortype::Gray8>(width, rows, &vec![7u8; n])
+                .unwrap();
+        }
+        (d, json, tiff)
+    }
+
+    #[test]
+    fn a_map_is_read_and_each_refusal_is_its_sentence() {
+        let (d, _, _) = map_dir(|_| {}, 3, 2, true);
+        let m = BoardMap::open(d.path()).unwrap();
+        assert_eq!((m.heights.rows, m.heights.width), (3, 2));
+        assert!(m.heights.data.iter().all(|&h| h == 1.5));
+
+        let refused = |d: &tempfile::TempDir| chain(&BoardMap::open(d.path()).unwrap_err());
+        let (d, json, _) = map_dir(|j| j["version"] = 9.into(), 3, 2, true);
+        assert_eq!(
+            refused(&d),
+            format!(
+                "{}: version 9, this build reads version 1 of \"dpsa-board-map\"",
+                json.display()
+            )
+        );
+        let (d, json, _) = map_dir(|j| j["units"]["lengths"] = "inch".into(), 3, 2, true);
+        assert_eq!(
+            refused(&d),
+            format!(
+                "{}: units lengths \"inch\" and heights \"um\", this build reads \"mm\" and \"um\" (the TIFF's heights and the grid would be misread)",
+                json.display()
+            )
+        );
+        let (d, json, _) = map_dir(|j| j["grid"]["rows"] = 0.into(), 3, 2, true);
+        assert_eq!(
+            refused(&d),
+            format!("{}: a 0 x 2 grid is absurd", json.display())
+        );
+        let (d, _, tiff) = map_dir(|_| {}, 4, 2, true);
+        assert_eq!(
+            refused(&d),
+            format!(
+                "{}: 2 x 4 pixels, but board.json says 2 x 3",
+                tiff.display()
+            )
+        );
+        let (d, _, tiff) = map_dir(|_| {}, 3, 2, false);
+        assert_eq!(
+            refused(&d),
+            format!("{}: not 32-bit float heights", tiff.display())
+        );
+        // Not JSON / not a TIFF: the sentence, then the parser's own error.
+        let (d, json, _) = map_dir(|_| {}, 3, 2, true);
+        std::fs::write(&json, b"{nope").unwrap();
+        let parser = serde_json::from_slice::<serde_json::Value>(b"{nope").unwrap_err();
+        assert_eq!(
+            refused(&d),
+            format!(
+                "{} is not a board map's board.json: {parser}",
+                json.display()
+            )
+        );
+        let (d, _, tiff) = map_dir(|_| {}, 3, 2, true);
+        std::fs::write(&tiff, b"not a tiff at all").unwrap();
+        let e = refused(&d);
+        let head = format!("{} is not a TIFF: ", tiff.display());
+        assert!(e.starts_with(&head) && e.len() > head.len(), "{e}");
     }
 }

@@ -28,7 +28,7 @@
 //! - **Shape**: paste above `shape_threshold_um` in the cell but outside the opening grown by
 //!   `wall_mm`, % of the opening area (smears).
 //! - **Coverage**: valid pixels of the opening / all its pixels.
-//! - **Bridges** ([`bridges`]): for neighbouring openings less than `bridge_reach_mm` apart,
+//! - **Bridges**: for neighbouring openings less than `bridge_reach_mm` apart,
 //!   whether paste above `bridge_height_pct` of the stencil (over the mean of the two planes)
 //!   joins them (4-connected), searched in the two openings' joint box.
 
@@ -38,14 +38,16 @@ use dpsa_gerber::pads::{norm, Outline, Pad, Point, Prepared, Rigid};
 use serde::Serialize;
 
 /// Fewest bare-board pixels for the local surface.
-pub const MIN_SURFACE_PIXELS: usize = 24;
+pub(crate) const MIN_SURFACE_PIXELS: usize = 24;
 
 /// About this many pixels of the surface window are looked at (a stride over larger ones).
 pub const SURFACE_SCAN: usize = 1000;
 
 /// The openings on the board (board frame) with a bin index for neighbour queries.
 pub struct Placed {
+    /// Each opening's outline on the board (board mm), in the pads' order.
     pub outlines: Vec<Prepared>,
+    /// Each outline's box `[xmin, ymin, xmax, ymax]`, board mm.
     pub bboxes: Vec<[f64; 4]>,
     /// Smaller size of each opening (its width), mm.
     pub min_size: Vec<f64>,
@@ -61,6 +63,8 @@ pub struct Placed {
 }
 
 impl Placed {
+    /// The `pads` (design frame) put on the board by `t`, with the `fiducials` (design mm)
+    /// of diameter `fid_diameter` (mm) that the local surface keeps clear of.
     pub fn new(pads: &[Pad], t: &Rigid, fiducials: &[Point], fid_diameter: f64) -> Placed {
         let outlines: Vec<Prepared> = pads
             .iter()
@@ -172,9 +176,11 @@ pub enum Unmeasurable {
     NoSurface,
 }
 
-/// What was measured on one pad.
+/// What was measured on one pad. A pad that is not measurable keeps the figures it reached
+/// before the reason was found (0 where none was taken).
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct PadMeasurement {
+    /// The pad's index in the paste layer.
     pub pad: usize,
     /// `None` when judged; else why not.
     pub unmeasurable: Option<Unmeasurable>,
@@ -182,35 +188,42 @@ pub struct PadMeasurement {
     pub coverage: f64,
     /// Opening area, mm^2 (design).
     pub opening_mm2: f64,
+    /// Paste volume over the cell above the local surface, um^3.
     pub volume_um3: f64,
+    /// The volume, % of opening area x stencil thickness.
     pub volume_pct: f64,
+    /// Cell area above `area_threshold_pct` of the stencil, mm^2.
     pub area_mm2: f64,
+    /// The area, % of the opening's.
     pub area_pct: f64,
+    /// Mean height over the opening's interior (shrunk by the wall), um; NaN when no valid
+    /// pixel lies there.
     pub height_um: f64,
+    /// The height, % of the stencil thickness (NaN with it).
     pub height_pct: f64,
+    /// Largest 3 x 3 mean over the interior, um (the mean height when none has 5 valid
+    /// pixels).
     pub height_max_um: f64,
     /// Deposit centre minus opening centre, design-frame axes, um (NaN: no paste).
     pub offset_um: [f64; 2],
     /// The larger of `|offset| / size` over the two axes, %.
     pub offset_pct: f64,
+    /// Paste above `shape_threshold_um` beyond the opening grown by the wall, % of the
+    /// opening area.
     pub shape_pct: f64,
-    /// Board pixels of the local surface, and their rms about the plane, um.
+    /// Board pixels kept by the local surface's fit.
     pub surface_pixels: usize,
+    /// Their rms about the surface, um.
     pub surface_rms_um: f64,
-    /// Local surface about the opening's centroid (board mm): [`surface_at`] coefficients of
-    /// a quadratic (or a plane where the bare board does not pin the curvature).
+    /// Local surface about the opening's centroid (board mm, heights um): the coefficients of
+    /// `1, dx, dy, dx^2, dx dy, dy^2` of a quadratic (only the first three for a plane, the
+    /// first for a level, where the bare board does not pin the curvature); empty when none
+    /// was fitted.
     #[serde(skip)]
     pub surface: Vec<f64>,
-    /// Openings this pad's paste is joined to (filled by [`bridges`]).
+    /// Openings (pad indices) this pad's paste is joined to; filled after every pad is
+    /// measured ([`measure_all`]).
     pub bridged_to: Vec<usize>,
-}
-
-/// Robust plane `z = a + b dx + c dy` through `(dx, dy, z)` samples: least squares,
-/// iteratively trimmed at `max(3 robust sigma, 3 um)`. Returns the plane and the rms of the
-/// kept samples' residuals.
-pub fn robust_plane(s: &[[f64; 3]]) -> Option<([f64; 3], f64, usize)> {
-    let (c, rms, kept) = robust_surface(s, false)?;
-    Some(([c[0], c[1], c[2]], rms, kept))
 }
 
 /// The terms of a surface at `(dx, dy)`: `1, dx, dy` and, for a quadratic, `dx^2, dx dy, dy^2`.
@@ -223,7 +236,7 @@ fn terms(dx: f64, dy: f64) -> [f64; 6] {
 /// iteratively trimmed at `max(3 robust sigma, 3 um)`; its value at `(dx, dy)` is
 /// [`surface_at`]. A quadratic whose samples do not pin its curvature (a thin or one-sided
 /// region) falls back to a plane, and a plane to the level alone.
-pub fn robust_surface(s: &[[f64; 3]], quadratic: bool) -> Option<(Vec<f64>, f64, usize)> {
+pub(crate) fn robust_surface(s: &[[f64; 3]], quadratic: bool) -> Option<(Vec<f64>, f64, usize)> {
     // Paste lies above the board, never below: start from the lower half (a plane through
     // the samples below their median) and keep what lies within START_BAND_UM above it, so
     // that paste covering much of the region (an offset deposit, a smear) cannot lift the
@@ -246,7 +259,7 @@ pub fn robust_surface(s: &[[f64; 3]], quadratic: bool) -> Option<(Vec<f64>, f64,
 }
 
 /// Above the lower half's plane, samples within this are the board's at the start, um.
-pub const START_BAND_UM: f64 = 15.0;
+pub(crate) const START_BAND_UM: f64 = 15.0;
 
 /// [`robust_surface`] from a given first selection.
 fn robust_surface_from(
@@ -334,7 +347,7 @@ fn robust_surface_from(
 }
 
 /// A [`robust_surface`]'s value at `(dx, dy)`.
-pub fn surface_at(c: &[f64], dx: f64, dy: f64) -> f64 {
+pub(crate) fn surface_at(c: &[f64], dx: f64, dy: f64) -> f64 {
     let t = terms(dx, dy);
     c.iter().zip(t).map(|(a, b)| a * b).sum()
 }
@@ -397,7 +410,8 @@ pub fn measure_all(
     out
 }
 
-/// Wall width inset for the height, mm.
+/// How far inside the opening's edge its height is taken, mm: the wall width, at most a
+/// quarter of the opening's smaller size `min_size` (mm).
 pub fn height_inset(program: &Program, min_size: f64) -> f64 {
     program.measure.wall_mm.min(0.25 * min_size)
 }
@@ -416,6 +430,7 @@ pub struct Reach {
 }
 
 impl Reach {
+    /// Pad `k`'s reach, by the program's `cell_margin_share`, `wall_mm` and `cell_margin_mm`.
     pub fn new(placed: &Placed, k: usize, program: &Program) -> Reach {
         let m = &program.measure;
         let grow = |size: f64| {
@@ -457,7 +472,8 @@ impl Reach {
         }
     }
 
-    /// Whether `q`, at signed distance `d` from the opening, is within reach.
+    /// Whether board point `q` (mm), at signed distance `d` (mm, negative inside) from the
+    /// opening, is within reach.
     #[inline]
     pub fn contains(&self, q: Point, d: f64) -> bool {
         if d > self.max {
@@ -507,7 +523,7 @@ pub fn cell_member(
 }
 
 /// Measures pad `k`.
-pub fn measure_pad(
+pub(crate) fn measure_pad(
     map: &BoardMap,
     pads: &[Pad],
     placed: &Placed,
@@ -515,9 +531,7 @@ pub fn measure_pad(
     program: &Program,
     k: usize,
 ) -> PadMeasurement {
-    let o = &placed.outlines[k];
     let bb = placed.bboxes[k];
-    let ms = placed.min_size[k];
     let stencil = program.stencil_um;
     let m = &program.measure;
     let opening_mm2 = pads[k].outline.area();
@@ -531,15 +545,72 @@ pub fn measure_pad(
         pm.unmeasurable = Some(Unmeasurable::OutsideMap);
         return pm;
     }
-    let c = o.centroid();
+    let c = placed.outlines[k].centroid();
     let p = map.grid.pitch_mm;
     let px_area = p * p;
     let reach = Reach::new(placed, k, program);
-    let margin = reach.max;
-    let inset = height_inset(program, ms);
+    let inset = height_inset(program, placed.min_size[k]);
+    let Some((plane, rms, kept)) = local_surface(map, placed, program, k, c) else {
+        pm.unmeasurable = Some(Unmeasurable::NoSurface);
+        return pm;
+    };
+    pm.surface = plane.clone();
+    pm.surface_rms_um = rms;
+    pm.surface_pixels = kept;
+    let cell = Cell::new(map, placed, k, &reach, &plane, c);
+    let thr_area = stencil * m.area_threshold_pct / 100.0;
+    let s = cell.sums(map, thr_area, m.shape_threshold_um, m.wall_mm, inset);
+    pm.coverage = if s.open_n > 0 {
+        s.open_valid as f64 / s.open_n as f64
+    } else {
+        0.0
+    };
+    let opening_volume = opening_mm2 * stencil; // um * mm^2
+    pm.volume_um3 = s.vol * px_area * 1e6;
+    pm.volume_pct = 100.0 * s.vol * px_area / opening_volume;
+    pm.area_mm2 = s.area_n as f64 * px_area;
+    pm.area_pct = 100.0 * pm.area_mm2 / opening_mm2;
+    pm.height_um = if s.hn > 0 {
+        s.hsum / s.hn as f64
+    } else {
+        f64::NAN
+    };
+    pm.height_pct = 100.0 * pm.height_um / stencil;
+    pm.height_max_um = if s.hmax.is_finite() {
+        s.hmax
+    } else {
+        pm.height_um
+    };
+    pm.shape_pct = 100.0 * s.shape_n as f64 * px_area / opening_mm2;
+    if s.sw > 0.0 {
+        let (dx, dy) = (s.sx / s.sw - c[0], s.sy / s.sw - c[1]);
+        // Into the design frame's axes.
+        let (sn, co) = t.rotation_rad.sin_cos();
+        let (ux, uy) = (co * dx + sn * dy, -sn * dx + co * dy);
+        pm.offset_um = [ux * 1000.0, uy * 1000.0];
+        // Against the opening's width (its smaller size), along either axis.
+        pm.offset_pct = 100.0 * ux.abs().max(uy.abs()) / placed.min_size[k];
+    }
+    if s.open_n == 0 || pm.coverage < m.min_coverage {
+        pm.unmeasurable = Some(Unmeasurable::LowCoverage);
+    }
+    pm
+}
 
-    // Local surface, growing the reach until enough bare board qualifies.
-    let mut surface = None;
+/// Pad `k`'s local surface about its centroid `c` (board mm): a robust quadratic through the
+/// bare board around it (at least `surface_guard_mm` from every opening and fiducial, within
+/// `surface_reach_mm` of this one, grown to 2, 4 and 8 times that until at least
+/// [`MIN_SURFACE_PIXELS`] qualify); coefficients, rms (um) and pixels kept, or None.
+fn local_surface(
+    map: &BoardMap,
+    placed: &Placed,
+    program: &Program,
+    k: usize,
+    c: Point,
+) -> Option<(Vec<f64>, f64, usize)> {
+    let m = &program.measure;
+    let o = &placed.outlines[k];
+    let bb = placed.bboxes[k];
     for grow in [1.0, 2.0, 4.0, 8.0] {
         let reach = m.surface_reach_mm * grow;
         let near = placed.near(bb, reach + m.surface_guard_mm, k);
@@ -565,140 +636,175 @@ pub fn measure_pad(
                 if d < m.surface_guard_mm || d > reach {
                     continue;
                 }
-                let clear = near.iter().all(|&n| {
-                    let b = &placed.bboxes[n];
-                    let bx = (b[0] - x).max(x - b[2]).max(0.0);
-                    let by = (b[1] - y).max(y - b[3]).max(0.0);
-                    norm(bx, by) >= m.surface_guard_mm
-                        || placed.outlines[n].signed_distance(q) >= m.surface_guard_mm
-                }) && placed
-                    .fiducials
-                    .iter()
-                    .all(|(f, r)| norm(x - f[0], y - f[1]) >= r + m.surface_guard_mm);
-                if clear {
+                if bare(placed, &near, q, m.surface_guard_mm) {
                     samples.push([x - c[0], y - c[1], f64::from(h)]);
                 }
             }
         }
         if samples.len() >= MIN_SURFACE_PIXELS {
-            surface = robust_surface(&samples, true);
+            let surface = robust_surface(&samples, true);
             if surface.is_some() {
-                break;
+                return surface;
             }
         }
     }
-    let Some((plane, rms, kept)) = surface else {
-        pm.unmeasurable = Some(Unmeasurable::NoSurface);
-        return pm;
-    };
-    pm.surface = plane.clone();
-    pm.surface_rms_um = rms;
-    pm.surface_pixels = kept;
-    let base = |x: f64, y: f64| surface_at(&plane, x - c[0], y - c[1]);
+    None
+}
 
-    // The cell.
-    let near = placed.near(bb, 2.0 * margin, k);
-    let (ri, rj) = map.window(reach.bbox);
-    let (h_w, w_w) = (ri.len(), rj.len());
-    // Residual heights over the window, NaN outside the cell or invalid.
-    let mut r = vec![f64::NAN; h_w * w_w];
-    let mut in_cell = vec![false; h_w * w_w];
-    let mut dist = vec![f64::INFINITY; h_w * w_w];
-    for (a, i) in ri.clone().enumerate() {
-        for (b, j) in rj.clone().enumerate() {
-            let (x, y) = map.grid.centre(i, j);
-            let (inside, d) = cell_member(placed, k, &near, &reach, [x, y]);
-            if !inside {
-                continue;
-            }
-            in_cell[a * w_w + b] = true;
-            dist[a * w_w + b] = d;
-            let h = map.heights.data[i * map.grid.width + j];
-            if h.is_finite() {
-                r[a * w_w + b] = f64::from(h) - base(x, y);
-            }
-        }
-    }
-    let (mut open_n, mut open_valid) = (0usize, 0usize);
-    let thr_area = stencil * m.area_threshold_pct / 100.0;
-    let (mut vol, mut area_n, mut shape_n) = (0.0, 0usize, 0usize);
-    let (mut sw, mut sx, mut sy) = (0.0, 0.0, 0.0);
-    let (mut hsum, mut hn) = (0.0, 0usize);
-    let mut hmax = f64::NEG_INFINITY;
-    for a in 0..h_w {
-        for b in 0..w_w {
-            let idx = a * w_w + b;
-            if !in_cell[idx] {
-                continue;
-            }
-            let d = dist[idx];
-            if d <= 0.0 {
-                open_n += 1;
-                if r[idx].is_finite() {
-                    open_valid += 1;
+/// Whether board point `q` (mm) is at least `guard` (mm) from the openings `near` and from
+/// every fiducial.
+fn bare(placed: &Placed, near: &[usize], q: Point, guard: f64) -> bool {
+    let [x, y] = q;
+    near.iter().all(|&n| {
+        let b = &placed.bboxes[n];
+        let bx = (b[0] - x).max(x - b[2]).max(0.0);
+        let by = (b[1] - y).max(y - b[3]).max(0.0);
+        norm(bx, by) >= guard || placed.outlines[n].signed_distance(q) >= guard
+    }) && placed
+        .fiducials
+        .iter()
+        .all(|(f, r)| norm(x - f[0], y - f[1]) >= r + guard)
+}
+
+/// Pad `k`'s cell over the window of its reach: per pixel (row-major, `cols` wide) whether
+/// it is in the cell, its signed distance to the opening (mm) and its height above the
+/// local surface (um; NaN outside the cell or invalid).
+struct Cell {
+    ri: std::ops::Range<usize>,
+    rj: std::ops::Range<usize>,
+    cols: usize,
+    r: Vec<f64>,
+    in_cell: Vec<bool>,
+    dist: Vec<f64>,
+}
+
+/// What the cell's pixels add up to.
+struct Sums {
+    /// Pixels of the opening, and of those the valid ones.
+    open_n: usize,
+    open_valid: usize,
+    /// Heights summed over the cell (invalid pixels filled), um per pixel.
+    vol: f64,
+    /// Pixels above the area threshold, and above the shape threshold beyond the wall.
+    area_n: usize,
+    shape_n: usize,
+    /// Height-weighted sums of the paste above the area threshold: weight, x, y.
+    sw: f64,
+    sx: f64,
+    sy: f64,
+    /// Heights over the opening's interior: sum, count and the largest 3 x 3 mean.
+    hsum: f64,
+    hn: usize,
+    hmax: f64,
+}
+
+impl Cell {
+    /// The cell of pad `k` with its `reach`, heights above `plane` (about `c`, board mm).
+    fn new(
+        map: &BoardMap,
+        placed: &Placed,
+        k: usize,
+        reach: &Reach,
+        plane: &[f64],
+        c: Point,
+    ) -> Cell {
+        let near = placed.near(placed.bboxes[k], 2.0 * reach.max, k);
+        let (ri, rj) = map.window(reach.bbox);
+        let (h_w, w_w) = (ri.len(), rj.len());
+        let mut cell = Cell {
+            ri: ri.clone(),
+            rj: rj.clone(),
+            cols: w_w,
+            r: vec![f64::NAN; h_w * w_w],
+            in_cell: vec![false; h_w * w_w],
+            dist: vec![f64::INFINITY; h_w * w_w],
+        };
+        for (a, i) in ri.enumerate() {
+            for (b, j) in rj.clone().enumerate() {
+                let (x, y) = map.grid.centre(i, j);
+                let (inside, d) = cell_member(placed, k, &near, reach, [x, y]);
+                if !inside {
+                    continue;
+                }
+                cell.in_cell[a * w_w + b] = true;
+                cell.dist[a * w_w + b] = d;
+                let h = map.heights.data[i * map.grid.width + j];
+                if h.is_finite() {
+                    cell.r[a * w_w + b] = f64::from(h) - surface_at(plane, x - c[0], y - c[1]);
                 }
             }
-            let v = if r[idx].is_finite() {
-                r[idx]
-            } else {
-                // The mean of the valid 3 x 3 neighbours; none: 0 (counted as bare board,
-                // and the coverage says how much of the opening was seen).
-                let (s, n) = mean3x3(&r, w_w, a, b);
-                if n > 0 {
-                    s / f64::from(n)
+        }
+        cell
+    }
+
+    /// The sums over the cell: paste above `thr_area` (um) for area and offset, above
+    /// `thr_shape` (um) beyond `wall` (mm) for the shape, the interior `inset` (mm) inside
+    /// the edge for the height.
+    fn sums(&self, map: &BoardMap, thr_area: f64, thr_shape: f64, wall: f64, inset: f64) -> Sums {
+        let (h_w, w_w) = (self.ri.len(), self.cols);
+        let r = &self.r;
+        let mut s = Sums {
+            open_n: 0,
+            open_valid: 0,
+            vol: 0.0,
+            area_n: 0,
+            shape_n: 0,
+            sw: 0.0,
+            sx: 0.0,
+            sy: 0.0,
+            hsum: 0.0,
+            hn: 0,
+            hmax: f64::NEG_INFINITY,
+        };
+        for a in 0..h_w {
+            for b in 0..w_w {
+                let idx = a * w_w + b;
+                if !self.in_cell[idx] {
+                    continue;
+                }
+                let d = self.dist[idx];
+                if d <= 0.0 {
+                    s.open_n += 1;
+                    if r[idx].is_finite() {
+                        s.open_valid += 1;
+                    }
+                }
+                let v = if r[idx].is_finite() {
+                    r[idx]
                 } else {
-                    0.0
+                    // The mean of the valid 3 x 3 neighbours; none: 0 (counted as bare board,
+                    // and the coverage says how much of the opening was seen).
+                    let (sum, n) = mean3x3(r, w_w, a, b);
+                    if n > 0 {
+                        sum / f64::from(n)
+                    } else {
+                        0.0
+                    }
+                };
+                s.vol += v;
+                let (x, y) = map.grid.centre(self.ri.start + a, self.rj.start + b);
+                if v > thr_area {
+                    s.area_n += 1;
+                    s.sw += v;
+                    s.sx += v * x;
+                    s.sy += v * y;
                 }
-            };
-            vol += v;
-            let (x, y) = map.grid.centre(ri.start + a, rj.start + b);
-            if v > thr_area {
-                area_n += 1;
-                sw += v;
-                sx += v * x;
-                sy += v * y;
-            }
-            if v > m.shape_threshold_um && d > m.wall_mm {
-                shape_n += 1;
-            }
-            if d <= -inset && r[idx].is_finite() {
-                hsum += r[idx];
-                hn += 1;
-                // 3 x 3 mean for the maximum.
-                let (s, n) = mean3x3(&r, w_w, a, b);
-                if n >= 5 {
-                    hmax = hmax.max(s / f64::from(n));
+                if v > thr_shape && d > wall {
+                    s.shape_n += 1;
+                }
+                if d <= -inset && r[idx].is_finite() {
+                    s.hsum += r[idx];
+                    s.hn += 1;
+                    // 3 x 3 mean for the maximum.
+                    let (sum, n) = mean3x3(r, w_w, a, b);
+                    if n >= 5 {
+                        s.hmax = s.hmax.max(sum / f64::from(n));
+                    }
                 }
             }
         }
+        s
     }
-    pm.coverage = if open_n > 0 {
-        open_valid as f64 / open_n as f64
-    } else {
-        0.0
-    };
-    let opening_volume = opening_mm2 * stencil; // um * mm^2
-    pm.volume_um3 = vol * px_area * 1e6;
-    pm.volume_pct = 100.0 * vol * px_area / opening_volume;
-    pm.area_mm2 = area_n as f64 * px_area;
-    pm.area_pct = 100.0 * pm.area_mm2 / opening_mm2;
-    pm.height_um = if hn > 0 { hsum / hn as f64 } else { f64::NAN };
-    pm.height_pct = 100.0 * pm.height_um / stencil;
-    pm.height_max_um = if hmax.is_finite() { hmax } else { pm.height_um };
-    pm.shape_pct = 100.0 * shape_n as f64 * px_area / opening_mm2;
-    if sw > 0.0 {
-        let (dx, dy) = (sx / sw - c[0], sy / sw - c[1]);
-        // Into the design frame's axes.
-        let (s, co) = t.rotation_rad.sin_cos();
-        let (ux, uy) = (co * dx + s * dy, -s * dx + co * dy);
-        pm.offset_um = [ux * 1000.0, uy * 1000.0];
-        // Against the opening's width (its smaller size), along either axis.
-        pm.offset_pct = 100.0 * ux.abs().max(uy.abs()) / placed.min_size[k];
-    }
-    if open_n == 0 || pm.coverage < m.min_coverage {
-        pm.unmeasurable = Some(Unmeasurable::LowCoverage);
-    }
-    pm
 }
 
 /// Finds paste joining neighbouring openings; fills `bridged_to` of both pads.
@@ -707,7 +813,12 @@ pub fn measure_pad(
 /// the bridge height (over its local surface), within its box grown by `bridge_reach_mm`;
 /// a pixel inside another opening is a bridge to it. Each flood visits about the pad's own
 /// deposit, so the search costs little more than the deposit's area.
-pub fn bridges(map: &BoardMap, placed: &Placed, program: &Program, pm: &mut [PadMeasurement]) {
+pub(crate) fn bridges(
+    map: &BoardMap,
+    placed: &Placed,
+    program: &Program,
+    pm: &mut [PadMeasurement],
+) {
     let reach = program.measure.bridge_reach_mm;
     let thr = program.stencil_um * program.windows.bridge_height_pct / 100.0;
     let pm_ref: &[PadMeasurement] = pm;

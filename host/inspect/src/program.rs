@@ -46,14 +46,34 @@ use std::path::{Path, PathBuf};
 /// Largest program file read, bytes.
 pub const MAX_PROGRAM_BYTES: u64 = 4 << 20;
 
+/// Why a program could not be read or is refused.
 #[derive(Debug, thiserror::Error)]
 pub enum ProgramError {
+    /// The file could not be read (missing, not a regular file, larger than
+    /// [`MAX_PROGRAM_BYTES`]).
     #[error("cannot read the program {path}: {cause}")]
-    Read { path: PathBuf, cause: String },
+    Read {
+        /// The program file.
+        path: PathBuf,
+        /// The reading error's text.
+        cause: String,
+    },
+    /// The file is not UTF-8, not TOML, or has a key the program does not know.
     #[error("the program {path} is not valid TOML or has unknown keys: {cause}")]
-    Parse { path: PathBuf, cause: String },
+    Parse {
+        /// The program file.
+        path: PathBuf,
+        /// The parser's text.
+        cause: String,
+    },
+    /// A value out of its range ([`Program::validate`]).
     #[error("the program's {key} is {why}")]
-    Invalid { key: String, why: String },
+    Invalid {
+        /// The key, dotted (`windows.volume_pct`, `override[2].area_pct`).
+        key: String,
+        /// What is wrong with it, with the value.
+        why: String,
+    },
 }
 
 /// A lower and an upper limit, `[lo, hi]`.
@@ -63,7 +83,9 @@ pub type Limits = [f64; 2];
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Window {
+    /// Inside `[lo, hi]` passes; outside is at least a warning.
     pub warn: Limits,
+    /// Outside `[lo, hi]` fails; contains `warn`.
     pub fail: Limits,
 }
 
@@ -71,7 +93,9 @@ pub struct Window {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Upper {
+    /// Above this, a warning (> 0).
     pub warn: f64,
+    /// Above this, a failure (>= `warn`, at most 1000).
     pub fail: f64,
 }
 
@@ -146,14 +170,19 @@ pub struct Override {
     /// component of the package, in the file's order.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub package: Option<String>,
+    /// Replaces [`Windows::volume_pct`] (None: the default's stays).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub volume_pct: Option<Window>,
+    /// Replaces [`Windows::area_pct`] (None: the default's stays).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub area_pct: Option<Window>,
+    /// Replaces [`Windows::height_pct`] (None: the default's stays).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub height_pct: Option<Window>,
+    /// Replaces [`Windows::offset_pct`] (None: the default's stays).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub offset_pct: Option<Upper>,
+    /// Replaces [`Windows::shape_pct`] (None: the default's stays).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shape_pct: Option<Upper>,
 }
@@ -192,11 +221,13 @@ impl Placement {
     }
 }
 
+/// The board's fiducials (`[fiducials]`); none listed: registration by the paste pattern.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct Fiducials {
     /// Design-frame centres, mm.
     pub points_mm: Vec<Point>,
+    /// Diameter of the copper disc, mm.
     pub diameter_mm: f64,
     /// Search radius around the nominal place, mm.
     pub search_mm: f64,
@@ -269,18 +300,23 @@ pub struct Program {
     /// Stencil thickness, um.
     #[serde(default = "default_stencil")]
     pub stencil_um: f64,
+    /// Where the design sits on the conveyor (`[placement]`).
     #[serde(default)]
     pub placement: Placement,
+    /// The fiducials (`[fiducials]`).
     #[serde(default)]
     pub fiducials: Fiducials,
+    /// How pads are measured (`[measure]`).
     #[serde(default)]
     pub measure: Measure,
+    /// Every pad's windows unless an override matches (`[windows]`).
     #[serde(default)]
     pub windows: Windows,
     /// Pad names from a pick-and-place file (`dpsa program`): the nearest component and a
     /// pin for every pad the layer does not name itself.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub components: Option<crate::teach::placement::ComponentsFile>,
+    /// Windows for some pads (`[[override]]`), first match wins ([`Program::windows_for`]).
     #[serde(default, rename = "override", skip_serializing_if = "Vec::is_empty")]
     pub overrides: Vec<Override>,
     /// Inspect a paste layer whose file has no end (`M02`): it may be cut short, so it is
@@ -403,6 +439,7 @@ impl Program {
         }
     }
 
+    /// Parses and validates a program's text; `path` only names it in errors.
     pub fn from_toml_str(text: &str, path: &Path) -> Result<Program, ProgramError> {
         let p: Program = toml::from_str(text).map_err(|e| ProgramError::Parse {
             path: path.to_path_buf(),
@@ -412,6 +449,7 @@ impl Program {
         Ok(p)
     }
 
+    /// Reads (at most [`MAX_PROGRAM_BYTES`]), parses and validates a program file.
     pub fn load(path: &Path) -> Result<Program, ProgramError> {
         let bytes =
             dpsa_formats::files::read_capped(path, MAX_PROGRAM_BYTES, "program").map_err(|e| {
@@ -427,6 +465,7 @@ impl Program {
         Program::from_toml_str(&text, path)
     }
 
+    /// The program as TOML (every key, defaults included); empty if it cannot be written.
     pub fn to_toml_string(&self) -> String {
         toml::to_string(self).unwrap_or_default()
     }
@@ -448,6 +487,8 @@ impl Program {
         self.truth.as_ref().map(|t| resolve(program_path, t))
     }
 
+    /// Checks every value against its range (windows ordered and within 0..=1000 %, stencil
+    /// 20..=500 um, ...); the first one out is the error.
     pub fn validate(&self) -> Result<(), ProgramError> {
         if self.paste_layer.trim().is_empty() {
             return Err(ProgramError::Invalid {

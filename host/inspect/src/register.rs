@@ -3,7 +3,7 @@
 //! Each fiducial (a raised copper disc of the program's diameter) is searched within
 //! `fiducials.search_mm` of its nominal place (the program's placement). In that window the
 //! board is levelled by a robust quadratic surface (the warp curves over a few mm;
-//! [`crate::measure::robust_surface`]), pixels above
+//! `measure::robust_surface`), pixels above
 //! 6 um form candidates (4-connected), and of the candidates shaped like the disc (0.6 to
 //! 1.5 times its area, as wide as tall within 25 %, filling 0.6 to 0.9 of their box as a
 //! disc fills pi/4 and a rectangular deposit all of it) the one nearest the nominal place is
@@ -19,16 +19,26 @@ use crate::program::Program;
 use dpsa_gerber::pads::{Point, Rigid};
 use serde::Serialize;
 
+/// Why the design could not be registered on the map.
 #[derive(Debug, thiserror::Error)]
 pub enum RegisterError {
+    /// [`register`] called for a program without fiducials.
     #[error("the program lists no fiducials: the design cannot be registered to the board")]
     NoFiducials,
+    /// The paste pattern did not give a transform ([`crate::register_paste`]).
     #[error("registration by the paste pattern (the program has no fiducials): {why}")]
-    NoPattern { why: String },
+    NoPattern {
+        /// What was wrong (too few pads, no clear match, ...).
+        why: String,
+    },
+    /// Fewer than two fiducials found.
     #[error("found {found} of {listed} fiducials (need at least 2): {missing}")]
     TooFew {
+        /// Fiducials found.
         found: usize,
+        /// Fiducials the program lists.
         listed: usize,
+        /// The missing ones, `(x, y): why`, separated by `; `.
         missing: String,
     },
 }
@@ -36,28 +46,33 @@ pub enum RegisterError {
 /// One fiducial's search.
 #[derive(Clone, Debug, Serialize)]
 pub struct FiducialHit {
+    /// The program's centre, design mm.
     pub design_mm: Point,
     /// Where the nominal placement put it, board mm.
     pub nominal_mm: Point,
     /// Where it was found, board mm (None: not found).
     pub found_mm: Option<Point>,
-    /// Disc height above the board, um.
+    /// Disc height above the board (the plateau's median), um; 0 when not found.
     pub height_um: f64,
-    /// Distance from the fitted transform's prediction, um.
+    /// Distance from the fitted transform's prediction, um; NaN when not found.
     pub residual_um: f64,
     /// Why it was not found.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub why: Option<String>,
 }
 
+/// Where the design lies on the board map.
 #[derive(Clone, Debug, Serialize)]
 pub struct Registration {
+    /// `fiducials` or `paste pattern`.
     pub method: &'static str,
     /// Design to board transform.
     pub transform: Rigid,
     /// Its departure from the nominal placement: shift (mm) and rotation (deg).
     pub shift_mm: Point,
+    /// The departure's rotation, degrees counter-clockwise.
     pub rotation_deg: f64,
+    /// Every fiducial's search, in the program's order (empty for the paste pattern).
     pub fiducials: Vec<FiducialHit>,
     /// Rms of the fit's misses over the found fiducials, um (0 for two: exact), or over the
     /// deposits the paste pattern was fitted to.
@@ -70,10 +85,11 @@ pub struct Registration {
 
 /// Lowest fiducial disc height found, um (copper is about 35 um; the candidates are cut at
 /// half of this, about 5 noise sigma).
-pub const MIN_DISC_UM: f64 = 12.0;
+pub(crate) const MIN_DISC_UM: f64 = 12.0;
 
-/// Finds one disc near `q0`.
-pub fn find_disc(
+/// Finds one disc of `diameter` (mm) within `search` (mm) of board point `q0`: its centre
+/// (board mm) and height (um), or why not.
+pub(crate) fn find_disc(
     map: &BoardMap,
     q0: Point,
     diameter: f64,
@@ -81,16 +97,65 @@ pub fn find_disc(
 ) -> Result<(Point, f64), String> {
     let reach = search + diameter;
     let (ri, rj) = map.window([q0[0] - reach, q0[1] - reach, q0[0] + reach, q0[1] + reach]);
-    let (hw, ww) = (ri.len(), rj.len());
-    if hw < 3 || ww < 3 {
+    let win = Window { ri, rj };
+    if win.rows() < 3 || win.cols() < 3 {
         return Err("its search window is off the map".into());
     }
-    // The window's surface from about 4,000 of its pixels.
+    let surface = window_surface(map, &win, q0)?;
+    let mut r = vec![f64::NAN; win.rows() * win.cols()];
+    level(map, &win, &surface, q0, &mut r);
+    let thr = MIN_DISC_UM / 2.0;
+    let Some(mut c) = nearest_disc(map, &win, &r, thr, diameter, q0) else {
+        return Err(format!(
+            "no disc of {diameter} mm within {search} mm of the nominal place (threshold {thr:.1} um)"
+        ));
+    };
+    // The board right around the disc, levelled again on a ring (the window's plane does
+    // not follow the warp's curvature over the whole window).
+    if let Some(ring) = ring_surface(map, &win, c, diameter) {
+        level(map, &win, &ring, c, &mut r);
+    }
+    let plateau = refine_centre(map, &win, &r, diameter, &mut c);
+    Ok((c, plateau))
+}
+
+/// A fiducial's search window: pixel rows `ri` and columns `rj` of the map.
+struct Window {
+    ri: std::ops::Range<usize>,
+    rj: std::ops::Range<usize>,
+}
+
+impl Window {
+    fn rows(&self) -> usize {
+        self.ri.len()
+    }
+
+    fn cols(&self) -> usize {
+        self.rj.len()
+    }
+
+    /// Every pixel, row by row: `(index in the window, map row, map column)`.
+    fn pixels(&self) -> impl Iterator<Item = (usize, usize, usize)> + '_ {
+        let ww = self.cols();
+        self.ri.clone().enumerate().flat_map(move |(a, i)| {
+            self.rj
+                .clone()
+                .enumerate()
+                .map(move |(b, j)| (a * ww + b, i, j))
+        })
+    }
+}
+
+/// The window's board surface (a robust quadratic about `q0`: the warp curves over a window
+/// of a few mm) from about 4,000 of its pixels; an error when most of them are invalid or no
+/// surface fits.
+fn window_surface(map: &BoardMap, win: &Window, q0: Point) -> Result<Vec<f64>, String> {
+    let (hw, ww) = (win.rows(), win.cols());
     let stride = ((hw * ww) as f64 / 4000.0).sqrt().ceil().max(1.0) as usize;
     let mut samples = Vec::with_capacity(hw * ww);
     let mut looked = 0usize;
-    for i in ri.clone().step_by(stride) {
-        for j in rj.clone().step_by(stride) {
+    for i in win.ri.clone().step_by(stride) {
+        for j in win.rj.clone().step_by(stride) {
             looked += 1;
             let h = map.heights.data[i * map.grid.width + j];
             if h.is_finite() {
@@ -105,93 +170,139 @@ pub fn find_disc(
             samples.len()
         ));
     }
-    // A quadratic: the warp curves over a window of a few mm.
-    let Some((plane, _, _)) = robust_surface(&samples, true) else {
-        return Err("no board surface in its window".into());
-    };
-    let mut r = vec![f64::NAN; hw * ww];
-    for (a, i) in ri.clone().enumerate() {
-        for (b, j) in rj.clone().enumerate() {
-            let h = map.heights.data[i * map.grid.width + j];
-            if h.is_finite() {
-                let (x, y) = map.grid.centre(i, j);
-                r[a * ww + b] = f64::from(h) - surface_at(&plane, x - q0[0], y - q0[1]);
-            }
+    match robust_surface(&samples, true) {
+        Some((surface, _, _)) => Ok(surface),
+        None => Err("no board surface in its window".into()),
+    }
+}
+
+/// Heights above `surface` (about `origin`, board mm) into `r` (row-major over the window),
+/// um, at the valid pixels; the others keep their value.
+fn level(map: &BoardMap, win: &Window, surface: &[f64], origin: Point, r: &mut [f64]) {
+    for (idx, i, j) in win.pixels() {
+        let h = map.heights.data[i * map.grid.width + j];
+        if h.is_finite() {
+            let (x, y) = map.grid.centre(i, j);
+            r[idx] = f64::from(h) - surface_at(surface, x - origin[0], y - origin[1]);
         }
     }
-    let thr = MIN_DISC_UM / 2.0;
-    // Components above the threshold.
+}
+
+/// A 4-connected group of pixels above the threshold: its pixel count, the sum of their
+/// centres (board mm) and its box in window rows and columns (inclusive).
+struct Blob {
+    n: usize,
+    sum: Point,
+    rows: (usize, usize),
+    cols: (usize, usize),
+}
+
+impl Blob {
+    /// Shaped like a disc of `disc_px` pixels: 0.6 to 1.5 times its area, as wide as tall
+    /// within 25 %, filling 0.6 to 0.9 of its box (a disc fills pi/4 of it, a rectangle all).
+    fn is_disc(&self, disc_px: f64) -> bool {
+        let ext_a = (self.rows.1 - self.rows.0 + 1) as f64;
+        let ext_b = (self.cols.1 - self.cols.0 + 1) as f64;
+        let ratio = self.n as f64 / disc_px;
+        let fill = self.n as f64 / (ext_a * ext_b);
+        (0.6..=1.5).contains(&ratio)
+            && ext_a / ext_b <= 1.25
+            && ext_b / ext_a <= 1.25
+            && (0.6..=0.9).contains(&fill)
+    }
+}
+
+/// The group of `start` (unlabelled, above `thr`): labels it `id` in `label`.
+fn flood(
+    map: &BoardMap,
+    win: &Window,
+    r: &[f64],
+    thr: f64,
+    label: &mut [u32],
+    id: u32,
+    start: usize,
+) -> Blob {
+    let (hw, ww) = (win.rows(), win.cols());
+    let mut stack = vec![start];
+    label[start] = id;
+    let (mut n, mut sx, mut sy) = (0usize, 0.0, 0.0);
+    let (mut amin, mut amax, mut bmin, mut bmax) = (usize::MAX, 0, usize::MAX, 0);
+    while let Some(idx) = stack.pop() {
+        let (a, b) = (idx / ww, idx % ww);
+        n += 1;
+        let (x, y) = map.grid.centre(win.ri.start + a, win.rj.start + b);
+        sx += x;
+        sy += y;
+        amin = amin.min(a);
+        amax = amax.max(a);
+        bmin = bmin.min(b);
+        bmax = bmax.max(b);
+        let mut visit = |m: usize| {
+            if label[m] == 0 && r[m] > thr {
+                label[m] = id;
+                stack.push(m);
+            }
+        };
+        if a > 0 {
+            visit(idx - ww);
+        }
+        if a + 1 < hw {
+            visit(idx + ww);
+        }
+        if b > 0 {
+            visit(idx - 1);
+        }
+        if b + 1 < ww {
+            visit(idx + 1);
+        }
+    }
+    Blob {
+        n,
+        sum: [sx, sy],
+        rows: (amin, amax),
+        cols: (bmin, bmax),
+    }
+}
+
+/// Of the groups of pixels above `thr` (um over the levelled heights `r`) shaped like a disc
+/// of `diameter` (mm), the centre (board mm) of the one nearest `q0`.
+fn nearest_disc(
+    map: &BoardMap,
+    win: &Window,
+    r: &[f64],
+    thr: f64,
+    diameter: f64,
+    q0: Point,
+) -> Option<Point> {
     let p = map.grid.pitch_mm;
     let disc_px = std::f64::consts::PI * diameter * diameter / 4.0 / (p * p);
-    let mut label = vec![0u32; hw * ww];
+    let mut label = vec![0u32; r.len()];
     let mut best: Option<(f64, Point)> = None;
     let mut next = 0u32;
-    for start in 0..hw * ww {
+    for start in 0..r.len() {
         if label[start] != 0 || r[start].is_nan() || r[start] <= thr {
             continue;
         }
         next += 1;
-        let mut stack = vec![start];
-        label[start] = next;
-        let (mut n, mut sx, mut sy) = (0usize, 0.0, 0.0);
-        let (mut amin, mut amax, mut bmin, mut bmax) = (usize::MAX, 0, usize::MAX, 0);
-        while let Some(idx) = stack.pop() {
-            let (a, b) = (idx / ww, idx % ww);
-            n += 1;
-            let (x, y) = map.grid.centre(ri.start + a, rj.start + b);
-            sx += x;
-            sy += y;
-            amin = amin.min(a);
-            amax = amax.max(a);
-            bmin = bmin.min(b);
-            bmax = bmax.max(b);
-            let mut visit = |m: usize| {
-                if label[m] == 0 && r[m] > thr {
-                    label[m] = next;
-                    stack.push(m);
-                }
-            };
-            if a > 0 {
-                visit(idx - ww);
-            }
-            if a + 1 < hw {
-                visit(idx + ww);
-            }
-            if b > 0 {
-                visit(idx - 1);
-            }
-            if b + 1 < ww {
-                visit(idx + 1);
-            }
-        }
-        let (ext_a, ext_b) = ((amax - amin + 1) as f64, (bmax - bmin + 1) as f64);
-        let ratio = n as f64 / disc_px;
-        // A disc fills pi/4 of its box; a rectangle fills all of it.
-        let fill = n as f64 / (ext_a * ext_b);
-        if !(0.6..=1.5).contains(&ratio)
-            || ext_a / ext_b > 1.25
-            || ext_b / ext_a > 1.25
-            || !(0.6..=0.9).contains(&fill)
-        {
+        let blob = flood(map, win, r, thr, &mut label, next, start);
+        if !blob.is_disc(disc_px) {
             continue;
         }
-        let c = [sx / n as f64, sy / n as f64];
+        let c = [blob.sum[0] / blob.n as f64, blob.sum[1] / blob.n as f64];
         let d = (c[0] - q0[0]).hypot(c[1] - q0[1]);
         if best.is_none_or(|(bd, _)| d < bd) {
             best = Some((d, c));
         }
     }
-    let Some((_, mut c)) = best else {
-        return Err(format!(
-            "no disc of {diameter} mm within {search} mm of the nominal place (threshold {thr:.1} um)"
-        ));
-    };
-    // The board right around the disc, levelled again on a ring (the window's plane does
-    // not follow the warp's curvature over the whole window).
+    best.map(|(_, c)| c)
+}
+
+/// The board on a ring around a disc of `diameter` (mm) at `c` (0.15 to 0.6 mm beyond its
+/// edge): a robust quadratic about `c`, or None.
+fn ring_surface(map: &BoardMap, win: &Window, c: Point, diameter: f64) -> Option<Vec<f64>> {
     let ring: Vec<[f64; 3]> =
-        ri.clone()
-            .flat_map(|i| rj.clone().map(move |j| (i, j)))
-            .filter_map(|(i, j)| {
+        win.pixels()
+            .filter_map(|(_, i, j)| {
                 let h = map.heights.data[i * map.grid.width + j];
                 let (x, y) = map.grid.centre(i, j);
                 let d = (x - c[0]).hypot(y - c[1]);
@@ -199,27 +310,20 @@ pub fn find_disc(
                     .then_some([x - c[0], y - c[1], f64::from(h)])
             })
             .collect();
-    if let Some((pl, _, _)) = robust_surface(&ring, true) {
-        for (a, i) in ri.clone().enumerate() {
-            for (b, j) in rj.clone().enumerate() {
-                let h = map.heights.data[i * map.grid.width + j];
-                if h.is_finite() {
-                    let (x, y) = map.grid.centre(i, j);
-                    r[a * ww + b] = f64::from(h) - surface_at(&pl, x - c[0], y - c[1]);
-                }
-            }
-        }
-    }
-    // Sub-pixel: partial-pixel weights against the plateau.
+    robust_surface(&ring, true).map(|(surface, _, _)| surface)
+}
+
+/// The disc's centre `c` made sub-pixel (three rounds of partial-pixel weights
+/// `clamp(h / plateau, 0, 1)` within 0.75 diameters); returns the plateau, the median height
+/// within 0.3 diameters (um; 0 when no pixel lies there).
+fn refine_centre(map: &BoardMap, win: &Window, r: &[f64], diameter: f64, c: &mut Point) -> f64 {
     let mut plateau = 0.0;
     for _ in 0..3 {
         let mut core: Vec<f64> = Vec::new();
-        for (a, i) in ri.clone().enumerate() {
-            for (b, j) in rj.clone().enumerate() {
-                let (x, y) = map.grid.centre(i, j);
-                if (x - c[0]).hypot(y - c[1]) < 0.3 * diameter && r[a * ww + b].is_finite() {
-                    core.push(r[a * ww + b]);
-                }
+        for (idx, i, j) in win.pixels() {
+            let (x, y) = map.grid.centre(i, j);
+            if (x - c[0]).hypot(y - c[1]) < 0.3 * diameter && r[idx].is_finite() {
+                core.push(r[idx]);
             }
         }
         if core.is_empty() {
@@ -232,27 +336,25 @@ pub fn find_disc(
             break;
         }
         let (mut sw, mut sx, mut sy) = (0.0, 0.0, 0.0);
-        for (a, i) in ri.clone().enumerate() {
-            for (b, j) in rj.clone().enumerate() {
-                let (x, y) = map.grid.centre(i, j);
-                let v = r[a * ww + b];
-                if (x - c[0]).hypot(y - c[1]) < 0.75 * diameter && v.is_finite() {
-                    let w = (v / plateau).clamp(0.0, 1.0);
-                    sw += w;
-                    sx += w * x;
-                    sy += w * y;
-                }
+        for (idx, i, j) in win.pixels() {
+            let (x, y) = map.grid.centre(i, j);
+            let v = r[idx];
+            if (x - c[0]).hypot(y - c[1]) < 0.75 * diameter && v.is_finite() {
+                let w = (v / plateau).clamp(0.0, 1.0);
+                sw += w;
+                sx += w * x;
+                sy += w * y;
             }
         }
         if sw > 0.0 {
-            c = [sx / sw, sy / sw];
+            *c = [sx / sw, sy / sw];
         }
     }
-    Ok((c, plateau))
+    plateau
 }
 
 /// Least-squares rotation and shift taking `design` onto `board` (at least two points).
-pub fn fit_rigid(design: &[Point], board: &[Point]) -> Rigid {
+pub(crate) fn fit_rigid(design: &[Point], board: &[Point]) -> Rigid {
     let n = design.len() as f64;
     let md = design
         .iter()

@@ -20,7 +20,7 @@
 //!    around its registered place above the plane through its ring points, weights rising
 //!    from 0 at 20 % of the stencil to 1 at 50 %) is
 //!    paired with the pad's design centre, and a rotation and shift is fitted by least
-//!    squares ([`crate::register::fit_rigid`]); pads whose deposits miss by more than three
+//!    squares (`register::fit_rigid`); pads whose deposits miss by more than three
 //!    times the median miss (and 50 um) are left out (an offset or bridged print is a defect
 //!    to find, not a placement) and the fit repeated. The residual is the rms of the kept
 //!    pads' misses: part placement, part print offset; the report says how many pads it used.
@@ -34,11 +34,13 @@ use dpsa_gerber::pads::{Pad, Point, Rigid};
 pub const SEARCH_MM: f64 = 2.0;
 /// Largest turn from the nominal placement searched, degrees (each way).
 pub const SEARCH_DEG: f64 = 0.5;
-/// Coarse search step, mm and degrees.
+/// Coarse search step in shift, mm.
 pub const COARSE_MM: f64 = 0.1;
+/// Coarse search step in turn, degrees.
 pub const COARSE_DEG: f64 = 0.25;
-/// Fine search step, mm and degrees.
+/// Fine search step in shift, mm.
 pub const FINE_MM: f64 = 0.02;
+/// Fine search step in turn, degrees.
 pub const FINE_DEG: f64 = 0.05;
 /// Lowest best score (about 1 for a good print in place) taken as the paste pattern.
 pub const MIN_SCORE: f64 = 0.25;

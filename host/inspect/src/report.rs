@@ -8,12 +8,13 @@
 //! | `overview.png` | the board's heights in grey with every opening outlined in its verdict's colour: green pass, amber warning, red failure, magenta not measurable |
 //! | `gallery/NNN_class_pad.png` | every failure (at most [`MAX_GALLERY`]): the heights above the pad's local surface around it (false colour, 0 to 1.6 x stencil, the opening outlined in white) over a profile through the opening's centre along the board's x (the stencil thickness dashed) |
 
+use crate::error::InspectError;
 use crate::map::BoardMap;
 use crate::measure::PadMeasurement;
 use crate::program::Program;
 use crate::run::Inspection;
 use crate::verdict::{Call, Level};
-use anyhow::Result;
+use dpsa_formats::files::FileError;
 use dpsa_gerber::pads::{Pad, Rigid};
 use image::{ImageBuffer, Rgb, RgbImage};
 use serde_json::{json, Value};
@@ -53,7 +54,8 @@ fn num(v: f64, digits: usize) -> String {
     }
 }
 
-/// `pads.csv`.
+/// `pads.csv`: a header and one row per pad, in the layer's order (an empty field where a
+/// figure is NaN).
 pub fn csv(pads: &[Pad], i: &Inspection) -> String {
     let mut s = String::from(
         "ComponentPad,Component,Pin,PadClass,X_mm,Y_mm,Result,Level,Class,PasteVolume_um3,VolumePct,PasteHeight_um,HeightPct,HeightMax_um,Area_mm2,AreaPct,PasteXOffset_um,PasteYOffset_um,OffsetPct,ShapePct,Coverage,BridgedTo,Findings\n",
@@ -119,7 +121,7 @@ fn uuid(seed: u64, n: u64) -> String {
 }
 
 /// UTC time as ISO 8601 (civil date from days since 1970).
-pub fn iso_now() -> String {
+pub(crate) fn iso_now() -> String {
     let secs = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_secs())
@@ -182,7 +184,8 @@ fn numeric(value: f64, units: &str, expected: f64, lo: f64, hi: f64) -> Value {
     })
 }
 
-/// The IPC-CFX `UnitsInspected` message of one board.
+/// The IPC-CFX `UnitsInspected` message of one board: `unit` is its identifier, `recipe` the
+/// program's name.
 pub fn cfx(pads: &[Pad], i: &Inspection, program: &Program, unit: &str, recipe: &str) -> Value {
     let seed = dpsa_core::frames::fnv1a64(unit.as_bytes());
     let mut measurements = Vec::with_capacity(pads.len());
@@ -267,7 +270,8 @@ fn level_colour(c: &Call, m: &PadMeasurement) -> [u8; 3] {
     }
 }
 
-/// `overview.png`: at most `max_px` on the longer side.
+/// `overview.png`: at most `max_px` pixels on the longer side (the map decimated by a whole
+/// factor), the openings put on the board by `t`.
 pub fn overview(
     map: &BoardMap,
     pads: &[Pad],
@@ -315,7 +319,7 @@ pub fn overview(
 }
 
 /// One defect picture: the crop over the profile.
-pub fn defect_picture(
+pub(crate) fn defect_picture(
     map: &BoardMap,
     p: &Pad,
     m: &PadMeasurement,
@@ -420,7 +424,7 @@ pub const FILE_NAMES: [&str; 5] = [
 
 /// Whether `dir` holds an earlier inspection output written before the marker existed: a
 /// `report.json` and nothing but the files [`write`](fn@write) writes.
-pub fn is_inspection_dir(dir: &Path) -> bool {
+pub(crate) fn is_inspection_dir(dir: &Path) -> bool {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return false;
     };
@@ -432,8 +436,8 @@ pub fn is_inspection_dir(dir: &Path) -> bool {
 }
 
 /// Refuses (before any work) a destination that an inspection output may not replace.
-pub fn check_destination(dir: &Path) -> Result<()> {
-    Ok(dpsa_formats::files::check_output_dir(dir, DIR_KIND)?)
+pub(crate) fn check_destination(dir: &Path) -> Result<(), FileError> {
+    dpsa_formats::files::check_output_dir(dir, DIR_KIND)
 }
 
 /// An inspection output directory, for [`dpsa_formats::files::OutputDir`].
@@ -456,8 +460,8 @@ pub fn write(
     program: &Program,
     report: &Value,
     names: Names,
-    report_again: impl FnOnce() -> Result<Value>,
-) -> Result<usize> {
+    report_again: impl FnOnce() -> Result<Value, InspectError>,
+) -> Result<usize, InspectError> {
     let staging = dpsa_formats::files::OutputDir::create(dir, DIR_KIND)?;
     let n = write_files(staging.path(), map, pads, i, program, report, names)?;
     dpsa_formats::files::write_bytes(
@@ -476,7 +480,7 @@ fn write_files(
     program: &Program,
     report: &Value,
     names: Names,
-) -> Result<usize> {
+) -> Result<usize, InspectError> {
     let Names { unit, recipe } = names;
     dpsa_formats::files::write_bytes(&dir.join("pads.csv"), csv(pads, i).as_bytes())?;
     dpsa_formats::files::write_bytes(
@@ -491,8 +495,10 @@ fn write_files(
     let t = i.registration.transform;
     dpsa_formats::images::save_png(&overview(map, pads, &t, i, 2400), &dir.join("overview.png"))?;
     let gal = dir.join("gallery");
-    std::fs::create_dir_all(&gal)
-        .map_err(|e| anyhow::anyhow!("cannot create {}: {e}", gal.display()))?;
+    std::fs::create_dir_all(&gal).map_err(|error| InspectError::CreateDir {
+        path: gal.clone(),
+        error,
+    })?;
     let mut fails: Vec<usize> = (0..pads.len())
         .filter(|&k| i.calls[k].level == Level::Fail)
         .collect();

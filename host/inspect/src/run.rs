@@ -4,6 +4,7 @@
 //! An inspection can be handed to an [`Evaluate`] (the simulator's comparison with the print it
 //! made, in `dpsa-sim`), whose keys and lines the report carries; the production path has none.
 
+use crate::error::InspectError;
 use crate::map::BoardMap;
 use crate::measure::{measure_all, PadMeasurement, Placed};
 use crate::program::Program;
@@ -16,8 +17,11 @@ use std::time::Instant;
 
 /// Everything one inspection found.
 pub struct Inspection {
+    /// Where the design lies on the map.
     pub registration: Registration,
+    /// One per pad, in the layer's order.
     pub measurements: Vec<PadMeasurement>,
+    /// One per pad, in the layer's order.
     pub calls: Vec<Call>,
     /// Register + measure + judge, s (not reading or writing).
     pub inspect_s: f64,
@@ -25,6 +29,8 @@ pub struct Inspection {
     pub register_s: f64,
 }
 
+/// Registers the design on `map` (by the program's fiducials, else by the paste pattern),
+/// measures every pad and judges it.
 pub fn inspect(
     map: &BoardMap,
     pads: &[Pad],
@@ -64,24 +70,33 @@ pub fn inspect(
 /// Pad counts and calls.
 #[derive(Clone, Debug, Serialize)]
 pub struct Counts {
+    /// Pads of the layer.
     pub total: usize,
     /// Judged (not "not measurable").
     pub measured: usize,
+    /// Pads that could not be measured (counted as failures in [`Calls`]).
     pub not_measurable: usize,
 }
 
+/// Pads per verdict.
 #[derive(Clone, Debug, Serialize)]
 pub struct Calls {
+    /// Pads that passed.
     pub pass: usize,
+    /// Pads with a warning.
     pub warn: usize,
+    /// Pads that failed.
     pub fail: usize,
     /// Failures per class.
     pub fail_by_class: BTreeMap<String, usize>,
+    /// Warnings per class.
     pub warn_by_class: BTreeMap<String, usize>,
-    /// The board's verdict: `fail` if any pad failed (not measurable included).
+    /// The board's verdict: `fail` if any pad failed (not measurable included), else `warn`
+    /// if any pad has a warning, else `pass`.
     pub board: &'static str,
 }
 
+/// The pad counts and calls of an inspection.
 pub fn counts(i: &Inspection) -> (Counts, Calls) {
     let nm = i
         .measurements
@@ -132,14 +147,20 @@ pub fn counts(i: &Inspection) -> (Counts, Calls) {
 /// The JSON report of `dpsa inspect` (`--json`, `report.json`).
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
+    /// The board map's directory, as given.
     pub board: String,
+    /// The program file, as given.
     pub program: String,
+    /// Pad counts.
     pub pads: Counts,
+    /// Pads per verdict and the board's.
     pub calls: Calls,
+    /// How the design was registered.
     pub registration: RegistrationReport,
     /// An evaluation's keys (the simulator's `truth` and `detection`), in their place.
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     pub evaluation: Option<Evaluation>,
+    /// Where the time went.
     pub timing: Timing,
     /// The failed pads, `name: class` (at most 200).
     pub failures: Vec<String>,
@@ -148,12 +169,18 @@ pub struct Report {
     pub paste_layer_notes: Vec<String>,
 }
 
+/// The registration as the report gives it ([`Registration`] without the transform).
 #[derive(Clone, Debug, Serialize)]
 pub struct RegistrationReport {
+    /// `fiducials` or `paste pattern`.
     pub method: &'static str,
+    /// Rms of the fit's misses, um.
     pub residual_um: f64,
+    /// The board's shift from the nominal placement, mm.
     pub shift_mm: Point,
+    /// The board's turn from the nominal placement, degrees counter-clockwise.
     pub rotation_deg: f64,
+    /// Every fiducial's search (empty for the paste pattern).
     pub fiducials: Vec<crate::register::FiducialHit>,
     /// Registration by the paste pattern: the pads fitted.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -187,7 +214,8 @@ pub trait Evaluate {
     /// The files it reads, which an `--out` must not overwrite.
     fn inputs(&self) -> Vec<std::path::PathBuf>;
     /// Its keys and lines for `inspection` of `pads` on `map`; `progress` shows a bar on
-    /// stderr.
+    /// stderr. Its error, whatever its type, reaches the caller as
+    /// [`InspectError::Evaluation`] with its message and `source()` chain unchanged.
     fn evaluate(
         &mut self,
         map: &BoardMap,
@@ -195,20 +223,23 @@ pub trait Evaluate {
         program: &Program,
         inspection: &Inspection,
         progress: bool,
-    ) -> anyhow::Result<Evaluation>;
+    ) -> Result<Evaluation, Box<dyn std::error::Error + Send + Sync + 'static>>;
 }
 
+/// Where an inspection's time went, s (wall clock).
 #[derive(Clone, Debug, Serialize)]
 pub struct Timing {
     /// Register, measure and judge (the map in memory), s.
     pub inspect_s: f64,
     /// Of which the registration, s.
     pub register_s: f64,
+    /// Reading the program, its paste layer and the map, s.
     pub load_s: f64,
     /// The evaluation, s (reading and integrating the print truth of a simulated board; 0
     /// without one).
     #[serde(rename = "truth_s")]
     pub evaluation_s: f64,
+    /// Writing the report files (`--out`), s; 0 without.
     pub write_s: f64,
     /// The whole `dpsa inspect`, s: load + the inspections (`--repeat`) + truth + write and
     /// what lies between them.
@@ -216,6 +247,8 @@ pub struct Timing {
 }
 
 impl Report {
+    /// The report of inspection `i` of `pads`, without an evaluation; `board` and `program`
+    /// name the inputs, `load_s` is the time reading them took (write and total times 0).
     pub fn build(board: &str, program: &str, i: &Inspection, pads: &[Pad], load_s: f64) -> Report {
         let (c, calls) = counts(i);
         let failures = i
@@ -323,20 +356,20 @@ impl Report {
 pub fn paste_layer_pads(
     program: &Program,
     program_path: &std::path::Path,
-) -> anyhow::Result<(Vec<Pad>, Vec<String>)> {
+) -> Result<(Vec<Pad>, Vec<String>), InspectError> {
     let layer_path = program.paste_layer_path(program_path);
-    let layer = dpsa_gerber::read_file(&layer_path)
-        .map_err(|e| anyhow::anyhow!("paste layer {}: {e}", layer_path.display()))?;
+    let layer = dpsa_gerber::read_file(&layer_path).map_err(|error| InspectError::PasteLayer {
+        path: layer_path.clone(),
+        error,
+    })?;
     let mut notes = Vec::new();
     if !layer.complete {
         if !program.allow_truncated_layer {
-            anyhow::bail!(
-                "paste layer {}: the file has no end (M02) and may be truncated; set \
-                 allow_truncated_layer = true in {} to inspect the {} pads it has",
-                layer_path.display(),
-                program_path.display(),
-                layer.pads.len()
-            );
+            return Err(InspectError::TruncatedLayer {
+                path: layer_path,
+                program: program_path.to_path_buf(),
+                pads: layer.pads.len(),
+            });
         }
         notes.push(format!(
             "paste layer {} has no end (M02) and may be truncated: {} pads inspected \
@@ -346,7 +379,7 @@ pub fn paste_layer_pads(
         ));
     }
     if layer.pads.is_empty() {
-        anyhow::bail!("paste layer {}: no pads", layer_path.display());
+        return Err(InspectError::NoPads { path: layer_path });
     }
     Ok((layer.pads, notes))
 }
@@ -358,7 +391,7 @@ pub fn inspect_dir(
     program_path: &std::path::Path,
     out: Option<&std::path::Path>,
     repeat: u32,
-) -> anyhow::Result<(Report, Inspection)> {
+) -> Result<(Report, Inspection), InspectError> {
     inspect_dir_with(board, program_path, out, repeat, None, false)
 }
 
@@ -371,7 +404,7 @@ pub fn inspect_dir_with(
     repeat: u32,
     mut evaluate: Option<&mut dyn Evaluate>,
     progress: bool,
-) -> anyhow::Result<(Report, Inspection)> {
+) -> Result<(Report, Inspection), InspectError> {
     let t0 = Instant::now();
     let mut program = Program::load(program_path)?;
     let layer_path = program.paste_layer_path(program_path);
@@ -408,7 +441,7 @@ pub fn inspect_dir_with(
         }
     }
     let Some(i) = best else {
-        anyhow::bail!("no inspection ran");
+        return Err(InspectError::NoInspection);
     };
     let mut report = Report::build(
         &board.display().to_string(),
@@ -419,7 +452,10 @@ pub fn inspect_dir_with(
     );
     if let Some(e) = evaluate.as_mut() {
         let t1 = Instant::now();
-        report.evaluation = Some(e.evaluate(&map, &pads, &program, &i, progress)?);
+        report.evaluation = Some(
+            e.evaluate(&map, &pads, &program, &i, progress)
+                .map_err(InspectError::Evaluation)?,
+        );
         report.timing.evaluation_s = t1.elapsed().as_secs_f64();
     }
     report.paste_layer_notes = layer_notes;

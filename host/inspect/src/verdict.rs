@@ -17,16 +17,24 @@ use serde::Serialize;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Class {
+    /// The pad could not be measured ([`crate::measure::Unmeasurable`]).
     NotMeasurable,
+    /// Volume below the windows' `missing_pct`.
     Missing,
+    /// Paste joins the opening to another one.
     Bridge,
+    /// The deposit's centre off the opening's beyond `offset_pct`.
     Offset,
+    /// Volume, height or area below its window.
     Insufficient,
+    /// Volume, height or area above its window.
     Excess,
+    /// Paste outside the grown opening beyond `shape_pct` (smear, misshapen deposit).
     Shape,
 }
 
 impl Class {
+    /// Every class, in the order of [`Class`]'s declaration.
     pub const ALL: [Class; 7] = [
         Class::NotMeasurable,
         Class::Missing,
@@ -37,6 +45,7 @@ impl Class {
         Class::Shape,
     ];
 
+    /// The class as the reports write it (snake case, as serialized).
     pub fn name(self) -> &'static str {
         match self {
             Class::NotMeasurable => "not_measurable",
@@ -54,12 +63,16 @@ impl Class {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Level {
+    /// Inside every window.
     Pass,
+    /// Outside a warning window, inside every failure window.
     Warn,
+    /// Outside a failure window, or not measurable.
     Fail,
 }
 
 impl Level {
+    /// The level as the reports write it (`pass`, `warn`, `fail`).
     pub fn name(self) -> &'static str {
         match self {
             Level::Pass => "pass",
@@ -72,6 +85,7 @@ impl Level {
 /// A pad's verdict.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Call {
+    /// The most severe finding's level (pass without findings).
     pub level: Level,
     /// The deciding class (None for a pass).
     pub class: Option<Class>,
@@ -106,7 +120,8 @@ fn upper(v: f64, u: &Upper) -> Level {
     }
 }
 
-/// Judges one pad.
+/// Judges one pad's measurement against its windows. A non-finite volume, height or area
+/// fails as insufficient.
 pub fn judge(m: &PadMeasurement, w: &Windows) -> Call {
     // Findings in the order that decides the class at a level: a volume outside its window
     // decides before an offset (an offset deposit keeps its volume in its cell), the height and

@@ -14,7 +14,9 @@
 
 use dpsa_gerber::pads::{Outline, Pad, Point};
 
+/// Smallest fiducial diameter taken, mm.
 pub const MIN_DIAMETER_MM: f64 = 0.5;
+/// Largest fiducial diameter taken, mm.
 pub const MAX_DIAMETER_MM: f64 = 3.0;
 /// Nearest other copper to a fiducial's centre, in radii.
 pub const CLEAR_RING: f64 = 2.0;
@@ -24,6 +26,7 @@ pub const CLEAR_RING: f64 = 2.0;
 pub struct Found {
     /// Centres, design frame, mm (in the copper layer's order).
     pub points_mm: Vec<Point>,
+    /// Their (common) diameter, mm; 0 when none was found.
     pub diameter_mm: f64,
     /// How each was recognised: `x2` or `clear ring`.
     pub how: Vec<&'static str>,
@@ -36,7 +39,7 @@ pub struct Found {
 /// before a `%ADDnn...*%` marks aperture `nn` until the attribute is changed or deleted; then
 /// every `D03` (flash) of a marked aperture at the modal coordinates. Absolute coordinates
 /// only; flashes inside step-and-repeat blocks are not expanded (their first copy counts).
-pub fn x2_fiducial_flashes(text: &str) -> Vec<Point> {
+pub(crate) fn x2_fiducial_flashes(text: &str) -> Vec<Point> {
     let mut scale = 1.0; // mm per unit
     let mut fs: Option<(bool, u32, u32, u32, u32)> = None; // trailing, xi, xd, yi, yd
     let mut fiducial = false;
@@ -191,7 +194,7 @@ impl BoxIndex {
 
 /// Finds the fiducials among the copper pads (see the module's rule). `x2` holds the places
 /// of the file's X2 fiducial flashes ([`x2_fiducial_flashes`]).
-pub fn find(copper: &[Pad], paste: &[Pad], x2: &[Point]) -> Found {
+pub(crate) fn find(copper: &[Pad], paste: &[Pad], x2: &[Point]) -> Found {
     let mut found = Found::default();
     let mut cands: Vec<(Point, f64, &'static str)> = Vec::new();
     let paste_boxes: Vec<[f64; 4]> = paste.iter().map(|p| p.outline.bbox()).collect();

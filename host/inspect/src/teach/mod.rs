@@ -5,16 +5,16 @@
 //! | [`placement`] | pick-and-place files (KiCad `.pos` and CSV, Altium Pick Place, generic CSV) |
 //! | [`names`] | every pad's component (nearest centre) and pin (X2, else reading order) |
 //! | [`fiducials`] | round bare copper pads in a clear ring (or X2 `FiducialPad`) |
-//! | [`outline`] | the board outline's box: the board corner |
-//! | [`families`] | package families and their default windows, written as `[[override]]` |
+//! | `outline` | the board outline's box: the board corner |
+//! | `families` | package families and their default windows, written as `[[override]]` |
 //!
 //! Nothing here needs the simulator. `docs/inspection.md`, "Teach: dpsa program", explains
 //! each rule.
 
-pub mod families;
+pub(crate) mod families;
 pub mod fiducials;
 pub mod names;
-pub mod outline;
+pub(crate) mod outline;
 pub mod placement;
 
 use crate::program::{Override, Program, ProgramError};
@@ -25,23 +25,34 @@ use serde::Serialize;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+/// Why the teach step (or naming the pads at inspection) failed.
 #[derive(Debug, thiserror::Error)]
 pub enum TeachError {
+    /// A Gerber layer could not be read.
     #[error("{what} {path}: {source}")]
     Layer {
+        /// `paste layer`, `copper layer` or `outline`.
         what: &'static str,
+        /// The layer's file.
         path: String,
+        /// The reader's error.
         #[source]
         source: GerberError,
     },
+    /// The placement file could not be read.
     #[error("{path}: {source}")]
     Placement {
+        /// The placement file.
         path: String,
+        /// The reader's error.
         #[source]
         source: PlacementError,
     },
+    /// Inputs that cannot make a program (a truncated or empty paste layer, an outline
+    /// without a board edge, a path that is not UTF-8...), as one sentence.
     #[error("{0}")]
     Invalid(String),
+    /// The program made does not validate.
     #[error(transparent)]
     Program(#[from] ProgramError),
 }
@@ -49,12 +60,18 @@ pub enum TeachError {
 /// What `dpsa program` is given.
 #[derive(Clone, Debug)]
 pub struct Inputs {
+    /// The top paste layer (Gerber).
     pub paste: PathBuf,
+    /// The top copper layer, where the fiducials are looked for (None: no fiducials, the
+    /// program registers by the paste pattern).
     pub copper: Option<PathBuf>,
+    /// The board outline (None: the paste layer's box stands for the board, with a warning).
     pub outline: Option<PathBuf>,
     /// The placement file and how to read it (`file` as given on the command line).
     pub components: Option<ComponentsFile>,
+    /// Stencil thickness, um.
     pub stencil_um: f64,
+    /// The program's (recipe's) name, if given.
     pub name: Option<String>,
     /// Where the program is written: the paths in it are relative to its directory.
     pub out: PathBuf,
@@ -63,9 +80,11 @@ pub struct Inputs {
 /// What the teach step found, printed by `dpsa program`.
 #[derive(Clone, Debug, Serialize)]
 pub struct Summary {
+    /// Pads of the paste layer.
     pub pads: usize,
-    /// Pads per family ([`families`]).
+    /// Pads per package family (`chip`, `qfn`, ...).
     pub families: BTreeMap<String, usize>,
+    /// The fiducials found on the copper layer (none without one).
     pub fiducials: fiducials::Found,
     /// Whether a copper layer was given (no copper: no fiducials looked for).
     pub copper_given: bool,
@@ -73,22 +92,30 @@ pub struct Summary {
     pub named: usize,
     /// Pads without a component: their names (`#index`) and centres, at most 50.
     pub unnamed: Vec<String>,
+    /// Pads without a component, all of them.
     pub unnamed_count: usize,
+    /// How the placement file named the pads (None without one).
     pub naming: Option<names::Naming>,
     /// `outline FILE` or `paste layer box (no outline)`.
     pub outline: String,
     /// The board edge's box, mm, design frame.
     pub board_box_mm: [f64; 4],
+    /// The board corner (the box's low corner), design mm: the program's
+    /// `placement.design_origin_mm`.
     pub design_origin_mm: [f64; 2],
     /// `[[override]]` entries written for the families.
     pub overrides: usize,
+    /// What the program may lack (no outline, a paste layer outside the outline), one
+    /// sentence each.
     pub warnings: Vec<String>,
 }
 
 /// The program and its summary.
 #[derive(Clone, Debug)]
 pub struct Taught {
+    /// The program, validated.
     pub program: Program,
+    /// What was found.
     pub summary: Summary,
 }
 

@@ -37,7 +37,7 @@ pub struct Naming {
 }
 
 /// Names `pads` from the placement file's top-side components (see the module's rule).
-pub fn assign(pads: &mut [Pad], components: &[Component], max_distance_mm: f64) -> Naming {
+pub(crate) fn assign(pads: &mut [Pad], components: &[Component], max_distance_mm: f64) -> Naming {
     let top: Vec<&Component> = components.iter().filter(|c| c.side == Side::Top).collect();
     let mut n = Naming::default();
     // Grid of component centres for the nearest search (cells of max_distance).

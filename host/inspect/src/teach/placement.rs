@@ -19,12 +19,27 @@ pub const MAX_PLACEMENT_BYTES: u64 = 16 << 20;
 /// Most components in one file.
 pub const MAX_COMPONENTS: usize = 200_000;
 
+/// Why a placement file could not be read.
 #[derive(Debug, thiserror::Error)]
 pub enum PlacementError {
+    /// The file could not be read (missing, not a regular file, larger than
+    /// [`MAX_PLACEMENT_BYTES`]).
     #[error("cannot read the placement file {path}: {cause}")]
-    Read { path: String, cause: String },
+    Read {
+        /// The placement file.
+        path: String,
+        /// The reading error's text.
+        cause: String,
+    },
+    /// A line that does not read.
     #[error("placement file, line {line}: {message}")]
-    Line { line: usize, message: String },
+    Line {
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// The file as a whole (no header, no components, one listed twice, an unknown unit...).
     #[error("placement file: {0}")]
     Format(String),
 }
@@ -40,9 +55,13 @@ fn at(line: usize, message: impl Into<String>) -> PlacementError {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Format {
+    /// KiCad's ASCII `.pos`.
     Kicad,
+    /// KiCad's CSV.
     KicadCsv,
+    /// Altium's Pick Place.
     Altium,
+    /// Any CSV, through [`Columns`].
     Csv,
 }
 
@@ -65,14 +84,20 @@ impl std::str::FromStr for Format {
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Columns {
+    /// The component reference's column (`ref`).
     #[serde(rename = "ref")]
     pub reference: String,
+    /// The centre's x column.
     pub x: String,
+    /// The centre's y column.
     pub y: String,
+    /// The rotation's column, degrees (None: every rotation 0).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rot: Option<String>,
+    /// The side's column (None: every component on top).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub side: Option<String>,
+    /// The package's column (None: no packages).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub package: Option<String>,
 }
@@ -114,6 +139,7 @@ impl std::str::FromStr for Columns {
 pub struct ComponentsFile {
     /// The placement file, relative to the program.
     pub file: String,
+    /// How the file is written.
     pub format: Format,
     /// Generic CSV only: which column is what.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -126,6 +152,7 @@ pub struct ComponentsFile {
     pub max_distance_mm: f64,
 }
 
+/// The default of [`ComponentsFile::max_distance_mm`]: 8 mm.
 pub fn default_max_distance() -> f64 {
     8.0
 }
@@ -133,14 +160,14 @@ pub fn default_max_distance() -> f64 {
 /// The side a component is placed on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
-pub enum Side {
+pub(crate) enum Side {
     Top,
     Bottom,
 }
 
 /// One component of a placement file.
 #[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct Component {
+pub(crate) struct Component {
     pub reference: String,
     /// Centre (the file's position), mm, in the design (Gerber) frame.
     pub at_mm: [f64; 2],
@@ -150,7 +177,10 @@ pub struct Component {
 }
 
 /// Reads a placement file; top and bottom components both, in file order.
-pub fn read_file(path: &Path, cf: &ComponentsFile) -> Result<Vec<Component>, PlacementError> {
+pub(crate) fn read_file(
+    path: &Path,
+    cf: &ComponentsFile,
+) -> Result<Vec<Component>, PlacementError> {
     let bytes = dpsa_formats::files::read_capped_io(path, MAX_PLACEMENT_BYTES).map_err(|e| {
         PlacementError::Read {
             path: path.display().to_string(),
@@ -166,7 +196,7 @@ pub fn read_file(path: &Path, cf: &ComponentsFile) -> Result<Vec<Component>, Pla
 }
 
 /// Parses a placement file's text.
-pub fn parse(text: &str, cf: &ComponentsFile) -> Result<Vec<Component>, PlacementError> {
+pub(crate) fn parse(text: &str, cf: &ComponentsFile) -> Result<Vec<Component>, PlacementError> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let out = match cf.format {
         Format::Kicad => parse_kicad(text)?,
