@@ -17,13 +17,15 @@ pub struct CameraRows {
     /// Cramer-Rao bound of each height's variance, um^2 (same layout; None without a truth
     /// and noise model).
     pub variance: Option<Grid>,
-    /// Pixels masked for the calibration's dead image pixels (see `super::provenance`).
+    /// Pixels masked for the calibration's dead image pixels (`dpsa_sim::board::provenance`).
     pub dead_masked: u64,
-    /// Where each row was seen (`super::provenance::row_places`; `None`: nominal).
+    /// Where each row was seen (`dpsa_sim::board::provenance::row_places`; `None`: nominal).
     pub places: Option<crate::places::RowPlaces>,
+    /// The board row of `heights`' row 0 (the core's board-row numbering).
     pub first_row: i64,
     /// Height per turn of each column, um.
     pub period_um: Vec<f32>,
+    /// Where the camera's pixels lie on the board (its lateral calibration).
     pub placement: CameraPlacement,
     /// Rows of `heights` that never arrived (a stream's missing or damaged packets, its
     /// truncated end): their board pixels stay invalid. Empty when none was lost.
@@ -44,12 +46,14 @@ pub struct Timing {
 /// The assembled map and what it took.
 #[derive(Clone, Debug)]
 pub struct Assembled {
+    /// The board map, the camera of each pixel, the turns and seams.
     pub blended: Blended,
     /// Valid pixels that the unwrapping placed from an extrapolated surface, per camera.
     pub unreached: Vec<usize>,
     /// Board pixels left invalid because a camera lost the rows that would have covered them
     /// (no other camera did).
     pub lost_pixels: u64,
+    /// Seconds per stage.
     pub timing: Timing,
 }
 

@@ -14,10 +14,22 @@
 use crate::blend::{Blended, NO_CAMERA};
 use crate::resample::BoardGrid;
 use crate::Grid;
-use anyhow::Result;
 use image::{GrayImage, ImageBuffer, Luma, Rgb, RgbImage};
 use serde::Serialize;
 use std::path::Path;
+
+/// Why a board map could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum BoardError {
+    /// A file or the directory could not be written (the sentence names it).
+    #[error(transparent)]
+    File(#[from] dpsa_formats::files::FileError),
+    /// `board.json` could not be serialised.
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+}
+
+type Result<T> = std::result::Result<T, BoardError>;
 
 /// LSB of `heights.png`, um: 0.25 um over +-8.19 mm.
 pub const PNG_LSB_UM: f64 = 0.25;
@@ -25,16 +37,20 @@ pub const PNG_LSB_UM: f64 = 0.25;
 /// What `board.json` says about the map.
 #[derive(Clone, Debug, Serialize)]
 pub struct Metadata {
+    /// [`FORMAT`].
     pub format: &'static str,
+    /// The layout's version (1).
     pub version: u32,
     /// The board's identity (`array.json`'s `board_id`, 16 hex digits), when the recording has
     /// one: `dpsa inspect` refuses a print truth of another board with it and reports it as the
     /// CFX `UnitIdentifier`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub board_id: Option<dpsa_formats::BoardId>,
+    /// Where the map's pixels lie on the board, mm.
     pub grid: BoardGrid,
     /// Units of every height file.
     pub units: Units,
+    /// Pixel counts.
     pub pixels: Pixels,
     /// Whole turns each camera's layer was moved by, in camera order.
     pub turns: Vec<i32>,
@@ -47,29 +63,42 @@ pub struct Metadata {
     pub files: Files,
 }
 
+/// The units of `board.json` and the height files.
 #[derive(Clone, Debug, Serialize)]
 pub struct Units {
+    /// Of lengths (`mm`).
     pub lengths: &'static str,
+    /// Of heights (`um`).
     pub heights: &'static str,
     /// `heights.png`: height = (value - 32768) * lsb_um; value 0 is invalid.
     pub png_lsb_um: f64,
+    /// The value of height 0 in `heights.png` (32768).
     pub png_zero: u16,
 }
 
+/// The map's pixel counts.
 #[derive(Clone, Debug, Serialize)]
 pub struct Pixels {
+    /// Board grid pixels.
     pub total: u64,
+    /// Of which valid (a finite height).
     pub valid: u64,
+    /// `valid / total` (0 for an empty grid).
     pub valid_fraction: f64,
     /// Valid pixels per camera (the camera each came from).
     pub per_camera: Vec<u64>,
 }
 
+/// The files of the map directory, by role.
 #[derive(Clone, Debug, Serialize)]
 pub struct Files {
+    /// 16-bit heights ([`Units::png_lsb_um`], 0 invalid).
     pub heights_png: &'static str,
+    /// 32-bit float heights, um (NaN invalid).
     pub heights_tiff: &'static str,
+    /// False colour with a scale bar.
     pub colour_png: &'static str,
+    /// The camera each pixel came from.
     pub camera_png: &'static str,
 }
 

@@ -82,9 +82,10 @@ pub struct Source<'a> {
     pub variance: Option<&'a Grid>,
     /// Height per turn of each column, um.
     pub period_um: &'a [f32],
+    /// The board row of `heights`' row 0.
     pub first_row: i64,
     /// Where each row was seen (`None`: row `i` at its nominal place), see
-    /// `super::provenance::row_places`.
+    /// `dpsa_sim::board::provenance::row_places`.
     pub places: Option<&'a crate::places::RowPlaces>,
     /// Rows that never arrived (empty, or one per row of `heights`; `dpsa board --streams`).
     pub lost_rows: &'a [bool],
