@@ -16,7 +16,7 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<()> {
     dpsa_formats::kind::expect(&a.file, "FILE", dpsa_formats::kind::Kind::Gerber, &[])?;
-    let layer = read_file(&a.file).map_err(|e| anyhow::anyhow!("{}: {e}", a.file.display()))?;
+    let layer = read_file(&a.file).map_err(|e| anyhow::anyhow!("{}", e.in_file(&a.file)))?;
     let s = layer.summary();
     if a.json {
         out!("{}", serde_json::to_string_pretty(&json(&a, &layer, &s))?);

@@ -8,11 +8,11 @@ use super::object::{
 };
 use super::shapes::{
     arc_band, arc_points, arc_segments, capsule, circle_points, dedup, eval_expr, polygon,
-    recognise, rect_points, swept_rect, union_all, Exact, Prim,
+    recognise, rect_points, swept_rect, union_all, union_on, Exact, Prim,
 };
-use super::{GerberError, MAX_COORD_MM, MAX_OBJECTS, MAX_STROKE_VERTICES, MAX_VERTICES};
+use super::{GerberError, Limits, MAX_COORD_MM};
 use crate::pads::Point;
-use geo::{BooleanOps, MultiPolygon, Polygon};
+use geo::{MultiPolygon, Polygon};
 use gerber_parser::gerber_types::{
     Aperture, ApertureBlock, ApertureMacro, AttributeDeletionCriterion, AxisSelect, Command,
     CommentContent, CoordinateMode, CoordinateNumber, DCode, ExtendedCode, FileAttribute,
@@ -51,6 +51,8 @@ struct Region {
 }
 
 struct State {
+    /// How much the layer may hold.
+    limits: Limits,
     line: usize,
     /// mm per file unit.
     scale: Option<f64>,
@@ -117,8 +119,9 @@ fn bbox_of(mp: &MultiPolygon<f64>) -> [f64; 4] {
 }
 
 impl State {
-    fn new() -> State {
+    fn new(limits: Limits) -> State {
         State {
+            limits,
             line: 0,
             scale: None,
             units: None,
@@ -243,10 +246,10 @@ impl State {
     /// Counts `n` more polygon vertices held by the layer.
     fn count_vertices(&mut self, n: usize, line: usize) -> Result<(), GerberError> {
         self.vertices = self.vertices.saturating_add(n);
-        if self.vertices > MAX_VERTICES {
+        if self.vertices > self.limits.vertices {
             return Err(GerberError::TooComplex {
                 line,
-                limit: MAX_VERTICES,
+                limit: self.limits.vertices,
             });
         }
         Ok(())
@@ -267,10 +270,10 @@ impl State {
 
     /// Adds an object with the current polarity and attributes.
     fn push(&mut self, geom: Geom) -> Result<(), GerberError> {
-        if self.layer.objects.len() >= MAX_OBJECTS {
+        if self.layer.objects.len() >= self.limits.objects {
             return Err(GerberError::TooManyObjects {
                 line: self.line,
-                limit: MAX_OBJECTS,
+                limit: self.limits.objects,
             });
         }
         let attributes = match self.attributes_entry {
@@ -534,10 +537,10 @@ impl State {
                 return Err(err(self.line, "step and repeat with 0 repeats"));
             }
             let copies = u64::from(repeat_x) * u64::from(repeat_y);
-            if copies > MAX_OBJECTS as u64 {
+            if copies > self.limits.objects as u64 {
                 return Err(GerberError::TooManyObjects {
                     line: self.line,
-                    limit: MAX_OBJECTS,
+                    limit: self.limits.objects,
                 });
             }
             let (dx, dy) = (
@@ -562,10 +565,10 @@ impl State {
         let block: Vec<Object> = self.layer.objects[sr.first..].to_vec();
         let copies = (sr.nx as usize) * (sr.ny as usize);
         let total = sr.first + block.len() * copies;
-        if total > MAX_OBJECTS {
+        if total > self.limits.objects {
             return Err(GerberError::TooManyObjects {
                 line: sr.line,
-                limit: MAX_OBJECTS,
+                limit: self.limits.objects,
             });
         }
         let verts: usize = block.iter().map(Self::held_vertices).sum();
@@ -860,12 +863,12 @@ impl State {
             _ => 8,
         };
         let pieces_vertices = per_piece.saturating_mul(path.len());
-        if pieces_vertices > MAX_STROKE_VERTICES {
+        if pieces_vertices > self.limits.stroke_vertices {
             return Err(GerberError::StrokeTooComplex {
                 line: self.line,
                 aperture: ap.class(),
                 vertices: pieces_vertices,
-                limit: MAX_STROKE_VERTICES,
+                limit: self.limits.stroke_vertices,
             });
         }
         if let ([b], Stroke::Circle(_) | Stroke::Rect(..)) = (path, stroke) {
@@ -982,8 +985,10 @@ pub(super) struct Interpreter {
 }
 
 impl Interpreter {
-    pub fn new() -> Interpreter {
-        Interpreter { st: State::new() }
+    pub fn new(limits: Limits) -> Interpreter {
+        Interpreter {
+            st: State::new(limits),
+        }
     }
 
     /// Runs a chunk of commands (those after `M02` are ignored).
@@ -1300,7 +1305,7 @@ impl MacroEval<'_> {
             polygon(&rect_points(c, od * 2.0, gap, 0.0), &[]),
             polygon(&rect_points(c, gap, od * 2.0, 0.0), &[]),
         ]);
-        let pieces = ring.difference(&cross);
+        let pieces = crate::overlay::difference(&MultiPolygon::new(vec![ring]), &cross, None);
         Ok(pieces
             .iter()
             .map(|piece| {
@@ -1320,24 +1325,30 @@ impl MacroEval<'_> {
 
 /// Sequential exposure of a macro's primitives: dark runs are unioned at once, clear ones cut.
 fn expose(prims: &[(bool, Prim)]) -> MultiPolygon<f64> {
+    let polys: Vec<Polygon<f64>> = prims
+        .iter()
+        .map(|(_, p)| polygon(&p.points(), &[]))
+        .collect();
+    // One grid for every step: the cuts and unions meet on it.
+    let grid = crate::overlay::Grid::of(&polys);
+    let grid = grid.as_ref();
     let mut shape = MultiPolygon::<f64>::new(vec![]);
     let mut run: Vec<Polygon<f64>> = Vec::new();
-    for (on, p) in prims {
-        let poly = polygon(&p.points(), &[]);
+    for ((on, _), poly) in prims.iter().zip(polys) {
         if *on {
             run.push(poly);
         } else {
             if !run.is_empty() {
                 run.append(&mut shape.0);
-                shape = union_all(&run);
+                shape = union_on(&run, grid);
                 run.clear();
             }
-            shape = shape.difference(&poly);
+            shape = crate::overlay::difference(&shape, &MultiPolygon::new(vec![poly]), grid);
         }
     }
     if !run.is_empty() {
         run.append(&mut shape.0);
-        shape = union_all(&run);
+        shape = union_on(&run, grid);
     }
     shape
 }

@@ -25,6 +25,7 @@ mod interp;
 mod lex;
 mod merge;
 mod object;
+mod overlay;
 mod shapes;
 
 pub mod pads;
@@ -47,9 +48,50 @@ pub const MAX_VERTICES: usize = 8_000_000;
 /// chords of an arc).
 pub const MAX_STROKE_VERTICES: usize = 200_000;
 /// Most work of the exact tests between objects whose bounding boxes meet: the sum over the
-/// tested pairs of the product of their vertex counts (about 16 ns each on this project's
-/// machine, so at most about 20 s).
-pub const MAX_PAIR_WORK: u64 = 1_000_000_000;
+/// tested pairs of pieces of their two vertex counts and of the product of their edges near
+/// each other (about 2 ns each on this project's machine, so at most about 0.4 s; the largest
+/// real layer of `tests/data/gerber` needs 1.6 x 10^6, 1/125 of it).
+pub const MAX_PAIR_WORK: u64 = 200_000_000;
+/// How much one layer may hold: what [`read_bytes_with`] refuses beyond. The reader's own
+/// are [`Limits::READER`] (the constants above); smaller ones run the same checks sooner (the
+/// fuzz target reads with [`Limits::FUZZ`], so that each input takes milliseconds, not the
+/// second a layer at the reader's limits may take).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Limits {
+    /// Most objects ([`MAX_OBJECTS`] for the reader).
+    pub objects: usize,
+    /// Most polygon vertices held ([`MAX_VERTICES`]).
+    pub vertices: usize,
+    /// Most vertices of one stroke's pieces ([`MAX_STROKE_VERTICES`]).
+    pub stroke_vertices: usize,
+    /// Most work of the merging's exact tests ([`MAX_PAIR_WORK`]).
+    pub pair_work: u64,
+}
+
+impl Limits {
+    /// The reader's limits: those of [`read_file`], [`read_bytes`] and [`read_str`].
+    pub const READER: Limits = Limits {
+        objects: MAX_OBJECTS,
+        vertices: MAX_VERTICES,
+        stroke_vertices: MAX_STROKE_VERTICES,
+        pair_work: MAX_PAIR_WORK,
+    };
+    /// For fuzzing: a few thousand objects and vertices, so that the reader's every path is
+    /// met within milliseconds (instrumented), the overlays included.
+    pub const FUZZ: Limits = Limits {
+        objects: 2_000,
+        vertices: 10_000,
+        stroke_vertices: 2_000,
+        pair_work: 100_000,
+    };
+}
+
+impl Default for Limits {
+    fn default() -> Limits {
+        Limits::READER
+    }
+}
+
 /// Statements pre-processed, parsed and interpreted at a time.
 pub const CHUNK_STATEMENTS: usize = 16_384;
 /// Largest coordinate or size, mm (10 m): beyond it a file is corrupt, not a board.
@@ -59,14 +101,15 @@ pub const MAX_COORD_MM: f64 = 10_000.0;
 /// problem has no single line, e.g. an empty file).
 #[derive(Debug, thiserror::Error)]
 pub enum GerberError {
-    /// The file could not be opened or read (missing, not a regular file, unreadable).
-    #[error("{path}: {source}")]
+    /// The file could not be opened or read (missing, not a regular file, unreadable). The
+    /// message names the file and holds the I/O error's (not a `source()` as well: a chain
+    /// printed in full would say it twice).
+    #[error("{path}: {error}")]
     Io {
         /// The file, as given.
         path: String,
         /// The I/O error.
-        #[source]
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// The file is larger than [`MAX_FILE_BYTES`].
     #[error("the file is {bytes} bytes, more than the {limit} bytes a paste layer may have")]
@@ -190,6 +233,15 @@ pub enum GerberError {
 }
 
 impl GerberError {
+    /// The message as said of the file at `path`: the file's name first, once (an I/O error
+    /// names it already).
+    pub fn in_file(&self, path: &Path) -> String {
+        match self {
+            GerberError::Io { .. } => self.to_string(),
+            _ => format!("{}: {self}", path.display()),
+        }
+    }
+
     /// The 1-based line of the file the error was found on (0: none).
     pub fn line(&self) -> usize {
         match self {
@@ -234,9 +286,9 @@ pub struct PasteLayer {
 
 /// Reads a paste layer file (at most [`MAX_FILE_BYTES`]).
 pub fn read_file(path: &Path) -> Result<PasteLayer, GerberError> {
-    let io = |source| GerberError::Io {
+    let io = |error| GerberError::Io {
         path: path.display().to_string(),
-        source,
+        error,
     };
     // A FIFO or device is refused before it is opened (opening a FIFO waits for a writer).
     let file = dpsa_formats::files::check_regular(path)
@@ -266,6 +318,11 @@ pub fn read_file(path: &Path) -> Result<PasteLayer, GerberError> {
 /// Reads a paste layer from the bytes of its file: UTF-8, or else Latin-1 (old exporters'
 /// comments), where non-ASCII characters outside comments and attributes are binary data.
 pub fn read_bytes(bytes: Vec<u8>) -> Result<PasteLayer, GerberError> {
+    read_bytes_with(bytes, &Limits::READER)
+}
+
+/// [`read_bytes`] within `limits`.
+pub fn read_bytes_with(bytes: Vec<u8>, limits: &Limits) -> Result<PasteLayer, GerberError> {
     if bytes.len() as u64 > MAX_FILE_BYTES {
         return Err(GerberError::TooLarge {
             bytes: bytes.len() as u64,
@@ -273,12 +330,12 @@ pub fn read_bytes(bytes: Vec<u8>) -> Result<PasteLayer, GerberError> {
         });
     }
     match String::from_utf8(bytes) {
-        Ok(text) => read_text(text, false),
+        Ok(text) => read_text(text, false, limits),
         Err(e) => {
             // Not UTF-8: Latin-1 (every byte one character), as old exporters wrote their
             // comments; the pre-pass refuses non-ASCII outside comments as binary data.
             let text: String = e.into_bytes().into_iter().map(char::from).collect();
-            read_text(text, true)
+            read_text(text, true, limits)
         }
     }
 }
@@ -292,16 +349,16 @@ pub fn read_str(text: &str) -> Result<PasteLayer, GerberError> {
         });
     }
     let mut warnings = Vec::new();
-    let interpreted = interpret(text, false, &mut warnings)?;
-    layer_of(interpreted, warnings)
+    let interpreted = interpret(text, false, &mut warnings, &Limits::READER)?;
+    layer_of(interpreted, warnings, &Limits::READER)
 }
 
 /// [`read_str`] of an owned text, dropped before the pads are made.
-fn read_text(text: String, latin1: bool) -> Result<PasteLayer, GerberError> {
+fn read_text(text: String, latin1: bool, limits: &Limits) -> Result<PasteLayer, GerberError> {
     let mut warnings = Vec::new();
-    let interpreted = interpret(&text, latin1, &mut warnings)?;
+    let interpreted = interpret(&text, latin1, &mut warnings, limits)?;
     drop(text);
-    layer_of(interpreted, warnings)
+    layer_of(interpreted, warnings, limits)
 }
 
 /// Pre-processing, parsing and interpretation, a chunk of statements at a time.
@@ -309,9 +366,10 @@ fn interpret(
     text: &str,
     latin1: bool,
     warnings: &mut Vec<String>,
+    limits: &Limits,
 ) -> Result<interp::Interpreted, GerberError> {
     let mut lexer = lex::Lexer::new(text, latin1);
-    let mut state = interp::Interpreter::new();
+    let mut state = interp::Interpreter::new(*limits);
     while let Some(chunk) = lexer.next_chunk(CHUNK_STATEMENTS)? {
         state.warn(chunk.warnings.iter().cloned());
         let commands = parse(&chunk, warnings)?;
@@ -324,6 +382,7 @@ fn interpret(
 fn layer_of(
     interpreted: interp::Interpreted,
     mut warnings: Vec<String>,
+    limits: &Limits,
 ) -> Result<PasteLayer, GerberError> {
     let interp::Interpreted {
         layer,
@@ -333,7 +392,7 @@ fn layer_of(
         complete,
     } = interpreted;
     warnings.extend(w);
-    let pads = merge::pads(layer, &mut warnings)?;
+    let pads = merge::pads(layer, &mut warnings, limits)?;
     let bbox_mm = if pads.is_empty() {
         warnings.push("the layer has no pads".into());
         [0.0; 4]

@@ -6,10 +6,10 @@
 //! of the result is one pad. A group of a single plain flash keeps its exact outline.
 
 use super::object::{vertex_count, Geom, Layer};
-use super::shapes::{outline_of, union_all};
-use super::{GerberError, MAX_PAIR_WORK, MAX_VERTICES};
+use super::shapes::{outline_of, union_on};
+use super::{GerberError, Limits};
 use crate::pads::Pad;
-use geo::{BooleanOps, Intersects, MultiPolygon, Polygon};
+use geo::{Intersects, MultiPolygon, Polygon};
 use std::sync::Arc;
 
 /// Smallest pad kept, mm^2: boolean slivers below it are dropped (with a warning).
@@ -102,16 +102,19 @@ fn first_copies(layer: &Layer) -> Vec<usize> {
 /// objects are found through an R-tree of their boxes, so a layer costs n log n plus the
 /// pairs whose boxes meet, not n^2 for objects sharing an x range.
 ///
-/// The exact tests cost about the product of the two polygons' vertex counts each; their sum
-/// is bounded by [`MAX_PAIR_WORK`] (objects whose boxes meet but whose shapes do not, e.g. a
-/// step and repeat of long diagonal lines 0.02 mm apart, are not joined by any earlier test,
-/// so their count grows with the square of the copies): beyond it the layer is refused.
+/// The exact tests go piece by piece (the polygons of a macro's shape can lie far apart: only
+/// pieces whose boxes meet are tested, [`pieces_meet`]) and cost the sum of the two pieces'
+/// vertex counts plus the product of their edges near the other; the total is bounded by
+/// [`MAX_PAIR_WORK`] (objects whose pieces' boxes meet but whose shapes do not, e.g. a step
+/// and repeat of long diagonal lines 0.02 mm apart, are not joined by any earlier test, so
+/// their count grows with the square of the copies): beyond it the layer is refused. Returns
+/// the work done.
 fn join_touching(
     layer: &Layer,
     rep: &[usize],
     groups: &mut Groups,
     budget: u64,
-) -> Result<(), GerberError> {
+) -> Result<u64, GerberError> {
     use rstar::primitives::{GeomWithData, Rectangle};
     use rstar::{RTree, AABB};
     const EPS: f64 = 1e-9;
@@ -145,34 +148,142 @@ fn join_touching(
                 continue;
             }
             if boxes_meet(&b, &objects[j].bbox) && groups.find(i) != groups.find(j) {
-                let (si, ni) = shape_i.get_or_insert_with(|| {
-                    let s = layer.shape(i);
-                    let n = vertex_count(&s) as u64;
-                    (s, n)
-                });
-                let sj = layer.shape(j);
-                work = work.saturating_add(*ni * vertex_count(&sj) as u64);
-                if work > budget {
-                    return Err(GerberError::TooEntangled { limit: budget });
-                }
-                if si.intersects(&*sj) {
+                let pieces_i = shape_i.get_or_insert_with(|| Pieces::of(&layer.shape(i)));
+                if pieces_i.meet(&Pieces::of(&layer.shape(j)), &mut work, budget)? {
                     groups.join(i, j);
                 }
             }
         }
     }
-    Ok(())
+    Ok(work)
+}
+
+/// The polygons of an object's shape with their boxes and vertex counts, for the exact test.
+struct Pieces(Vec<(Polygon<f64>, [f64; 4], u64)>);
+
+impl Pieces {
+    fn of(shape: &MultiPolygon<f64>) -> Pieces {
+        Pieces(
+            shape
+                .iter()
+                .map(|p| {
+                    let n = vertex_count(&MultiPolygon::new(vec![p.clone()])) as u64;
+                    (p.clone(), bbox(p), n)
+                })
+                .collect(),
+        )
+    }
+
+    /// Whether any piece of `self` intersects (overlaps or touches) any piece of `other`
+    /// ([`pieces_meet`] for each pair of pieces whose boxes meet), adding the tests' cost to
+    /// `work`, refused beyond `budget`.
+    fn meet(&self, other: &Pieces, work: &mut u64, budget: u64) -> Result<bool, GerberError> {
+        for (a, ba, na) in &self.0 {
+            for (b, bb, nb) in &other.0 {
+                if boxes_meet(ba, bb) && pieces_meet((a, ba, *na), (b, bb, *nb), work, budget)? {
+                    return Ok(true);
+                }
+            }
+        }
+        Ok(false)
+    }
+}
+
+/// The rings of a polygon as segments.
+fn edges(p: &Polygon<f64>) -> impl Iterator<Item = geo::Line<f64>> + '_ {
+    std::iter::once(p.exterior())
+        .chain(p.interiors())
+        .flat_map(|r| r.lines())
+}
+
+/// Whether two polygons (closed: boundary included) whose boxes meet intersect. Exact: they
+/// do if and only if an edge of one meets an edge of the other or, failing that, the exterior
+/// of one lies inside the other (the boundary of the intersection is then made of whole rings,
+/// and a hole of one inside the other without its exterior would leave them apart), and then
+/// every vertex of that exterior is inside: the first test takes the vertex of each nearest
+/// the other's box centre, which also ends most overlapping pairs at once. Only edges whose
+/// boxes meet the common part of the two polygons' boxes can meet the other polygon, so only
+/// those are paired: two discs whose boxes merely overlap at a corner compare a few edges,
+/// not all 276 x 276.
+///
+/// Cost added to `work`: the two vertex counts (the vertex tests and the filters), then the
+/// product of the edges kept; refused beyond `budget`.
+fn pieces_meet(
+    (a, ba, na): (&Polygon<f64>, &[f64; 4], u64),
+    (b, bb, nb): (&Polygon<f64>, &[f64; 4], u64),
+    work: &mut u64,
+    budget: u64,
+) -> Result<bool, GerberError> {
+    const EPS: f64 = 1e-9;
+    let over = |w: &mut u64, add: u64| {
+        *w = w.saturating_add(add);
+        if *w > budget {
+            Err(GerberError::TooEntangled { limit: budget })
+        } else {
+            Ok(())
+        }
+    };
+    over(work, na.saturating_add(nb))?;
+    // The vertex of each nearest the other's box centre, in the other: overlapping pieces,
+    // the usual case, end here (two overlapping discs always do).
+    let nearest_inside = |p: &Polygon<f64>, q: &Polygon<f64>, qb: &[f64; 4]| {
+        let (cx, cy) = ((qb[0] + qb[2]) / 2.0, (qb[1] + qb[3]) / 2.0);
+        p.exterior()
+            .0
+            .iter()
+            .min_by(|u, v| {
+                let du = (u.x - cx).powi(2) + (u.y - cy).powi(2);
+                let dv = (v.x - cx).powi(2) + (v.y - cy).powi(2);
+                du.total_cmp(&dv)
+            })
+            .is_some_and(|c| q.intersects(c))
+    };
+    if nearest_inside(a, b, bb) || nearest_inside(b, a, ba) {
+        return Ok(true);
+    }
+    let common = [
+        ba[0].max(bb[0]) - EPS,
+        ba[1].max(bb[1]) - EPS,
+        ba[2].min(bb[2]) + EPS,
+        ba[3].min(bb[3]) + EPS,
+    ];
+    // The edges near the common box, each with its own box: a pair whose boxes do not meet
+    // is settled without the robust predicates.
+    let near = |p: &Polygon<f64>| -> Vec<(geo::Line<f64>, [f64; 4])> {
+        edges(p)
+            .map(|l| {
+                let b = [
+                    l.start.x.min(l.end.x),
+                    l.start.y.min(l.end.y),
+                    l.start.x.max(l.end.x),
+                    l.start.y.max(l.end.y),
+                ];
+                (l, b)
+            })
+            .filter(|(_, b)| boxes_meet(b, &common))
+            .collect()
+    };
+    let (ea, eb) = (near(a), near(b));
+    over(work, (ea.len() as u64).saturating_mul(eb.len() as u64))?;
+    Ok(ea.iter().any(|(u, ub)| {
+        eb.iter()
+            .any(|(v, vb)| boxes_meet(ub, vb) && u.intersects(v))
+    }))
 }
 
 /// The pads of a layer's objects, in the order of the file. Errors when the merged pads'
 /// outlines need more than [`MAX_VERTICES`] vertices. The layer's geometry is freed as its
 /// pads are made.
-pub(super) fn pads(mut layer: Layer, warnings: &mut Vec<String>) -> Result<Vec<Pad>, GerberError> {
+pub(super) fn pads(
+    mut layer: Layer,
+    warnings: &mut Vec<String>,
+    limits: &Limits,
+) -> Result<Vec<Pad>, GerberError> {
     let n = layer.objects.len();
     let rep = first_copies(&layer);
     let mut groups = Groups::new(n);
-    join_touching(&layer, &rep, &mut groups, MAX_PAIR_WORK)?;
-    pads_of_groups(&mut layer, &rep, groups, warnings)
+    join_touching(&layer, &rep, &mut groups, limits.pair_work)?;
+    pads_of_groups(&mut layer, &rep, groups, warnings, limits.vertices)
 }
 
 fn pads_of_groups(
@@ -180,6 +291,7 @@ fn pads_of_groups(
     rep: &[usize],
     mut groups: Groups,
     warnings: &mut Vec<String>,
+    max_vertices: usize,
 ) -> Result<Vec<Pad>, GerberError> {
     let n = layer.objects.len();
     // The members of every group, in file order, groups in the order of their first member
@@ -192,7 +304,15 @@ fn pads_of_groups(
     let mut vertices = 0usize;
     for run in members.chunk_by(|a, b| a.0 == b.0) {
         let group: Vec<usize> = run.iter().map(|m| m.1).collect();
-        group_pads(layer, rep, &group, &mut pads, &mut slivers, &mut vertices)?;
+        group_pads(
+            layer,
+            rep,
+            &group,
+            &mut pads,
+            &mut slivers,
+            &mut vertices,
+            max_vertices,
+        )?;
         for &i in &group {
             layer.objects[i].geom = Geom::Done;
         }
@@ -216,6 +336,7 @@ fn group_pads(
     pads: &mut Vec<Pad>,
     slivers: &mut usize,
     vertices: &mut usize,
+    max_vertices: usize,
 ) -> Result<(), GerberError> {
     let objects = &layer.objects;
     let any_clear = group.iter().any(|&i| !objects[i].dark);
@@ -229,12 +350,12 @@ fn group_pads(
             return Ok(());
         }
     }
-    let result = evaluate(group, layer, rep)?;
+    let result = evaluate(group, layer, rep, max_vertices)?;
     *vertices = vertices.saturating_add(vertex_count(&result));
-    if *vertices > MAX_VERTICES {
+    if *vertices > max_vertices {
         return Err(GerberError::TooComplex {
             line: 0,
-            limit: MAX_VERTICES,
+            limit: max_vertices,
         });
     }
     // One piece and nothing clear: every dark object is in it (no test needed; a step and
@@ -363,7 +484,26 @@ fn evaluate(
     group: &[usize],
     layer: &Layer,
     rep: &[usize],
+    max_vertices: usize,
 ) -> Result<MultiPolygon<f64>, GerberError> {
+    // One grid for the whole group, over its objects' boxes: the unions and cuts meet on it.
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for &i in group {
+        let o = layer.objects[i].bbox;
+        b = [
+            b[0].min(o[0]),
+            b[1].min(o[1]),
+            b[2].max(o[2]),
+            b[3].max(o[3]),
+        ];
+    }
+    let grid = crate::overlay::Grid::around(b);
+    let grid = grid.as_ref();
     let mut acc = MultiPolygon::<f64>::new(vec![]);
     let mut run: Vec<Polygon<f64>> = Vec::new();
     let mut run_vertices = 0usize;
@@ -374,10 +514,10 @@ fn evaluate(
             if in_run.insert(rep[i]) {
                 let shape = layer.shape(i).into_owned();
                 run_vertices = run_vertices.saturating_add(vertex_count(&shape));
-                if run_vertices > MAX_VERTICES {
+                if run_vertices > max_vertices {
                     return Err(GerberError::TooComplex {
                         line: 0,
-                        limit: MAX_VERTICES,
+                        limit: max_vertices,
                     });
                 }
                 run.extend(shape.0);
@@ -386,16 +526,16 @@ fn evaluate(
             in_run.clear();
             if !run.is_empty() {
                 run.append(&mut acc.0);
-                acc = union_all(&run);
+                acc = union_on(&run, grid);
                 run.clear();
                 run_vertices = 0;
             }
-            acc = acc.difference(&*layer.shape(i));
+            acc = crate::overlay::difference(&acc, &layer.shape(i), grid);
         }
     }
     if !run.is_empty() {
         run.append(&mut acc.0);
-        acc = union_all(&run);
+        acc = union_on(&run, grid);
     }
     Ok(acc)
 }
@@ -517,7 +657,8 @@ mod tests {
             let objects = layout(&mut rng, n);
             let rep = first_copies(&objects);
             let mut fast = Groups::new(n);
-            join_touching(&objects, &rep, &mut fast, MAX_PAIR_WORK).expect("within the limits");
+            join_touching(&objects, &rep, &mut fast, Limits::READER.pair_work)
+                .expect("within the limits");
             let slow = brute_groups(&objects);
             assert_eq!(partition(fast), partition(slow), "round {round}");
 
@@ -528,10 +669,16 @@ mod tests {
                 objects: objects.objects.clone(),
                 ..Layer::default()
             };
-            let got = pads(objects, &mut w1).expect("within the limits");
+            let got = pads(objects, &mut w1, &Limits::READER).expect("within the limits");
             let identity: Vec<usize> = (0..n).collect();
-            let want =
-                pads_of_groups(&mut copy, &identity, brute, &mut w2).expect("within the limits");
+            let want = pads_of_groups(
+                &mut copy,
+                &identity,
+                brute,
+                &mut w2,
+                Limits::READER.vertices,
+            )
+            .expect("within the limits");
             assert_eq!(got.len(), want.len(), "round {round}");
             assert_eq!(w1, w2, "round {round}");
             for (a, b) in got.iter().zip(&want) {
@@ -567,7 +714,7 @@ mod tests {
             ..Layer::default()
         };
         let mut w = Vec::new();
-        let got = pads(objects, &mut w).expect("within the limits");
+        let got = pads(objects, &mut w, &Limits::READER).expect("within the limits");
         assert_eq!(got.len(), 1);
         assert!((got[0].outline.area() - 0.25).abs() < 1e-12);
         assert_eq!(got[0].aperture.as_deref(), Some("R 0.50x0.50"));
@@ -599,14 +746,85 @@ mod tests {
             ..Layer::default()
         };
         let rep = first_copies(&layer);
-        // 780 pairs of 5 x 5 vertices.
+        // 780 pairs of 5-vertex rings (closed): each costs 5 + 5 (the filters and the vertex
+        // tests) and at most 4 x 4 (their edges): the work done is counted, and one unit less
+        // than it is refused.
+        let mut g = Groups::new(40);
+        let need = join_touching(&layer, &rep, &mut g, u64::MAX).expect("no budget");
+        assert!((780 * 10..=780 * (10 + 16)).contains(&need), "{need}");
         let mut g = Groups::new(40);
         assert!(matches!(
-            join_touching(&layer, &rep, &mut g, 10_000),
-            Err(GerberError::TooEntangled { limit: 10_000 })
+            join_touching(&layer, &rep, &mut g, need - 1),
+            Err(GerberError::TooEntangled { limit }) if limit == need - 1
         ));
         let mut g = Groups::new(40);
-        join_touching(&layer, &rep, &mut g, 780 * 25).expect("within the budget");
+        join_touching(&layer, &rep, &mut g, need).expect("within the budget");
         assert_eq!(partition(g), (0..40).collect::<Vec<_>>());
+    }
+
+    /// The exact test of two pieces against geo's `Intersects` (all edge pairs, its own point
+    /// in polygon), on random rectangles, discs, rings and thin strips, and on the cases the
+    /// shortcuts could miss: shared edges, a touching corner, a piece in another's hole.
+    mod exact {
+        use super::super::*;
+        use crate::shapes::{circle_points, polygon, rect_points};
+        use proptest::prelude::*;
+
+        fn piece(kind: u8, v: [f64; 5]) -> Polygon<f64> {
+            let c = [v[0] * 6.0, v[1] * 6.0];
+            let (w, h) = (0.05 + v[2] * 3.0, 0.05 + v[3] * 3.0);
+            match kind % 4 {
+                0 => polygon(&rect_points(c, w, h, v[4] * 180.0), &[]),
+                1 => polygon(&circle_points(c, w), &[]),
+                2 => polygon(&circle_points(c, w + h), &[circle_points(c, w)]),
+                _ => polygon(&rect_points(c, 8.0 * w, 0.02, v[4] * 180.0), &[]),
+            }
+        }
+
+        fn ours(a: &Polygon<f64>, b: &Polygon<f64>) -> bool {
+            let (ba, bb) = (bbox(a), bbox(b));
+            let n = |p: &Polygon<f64>| vertex_count(&MultiPolygon::new(vec![p.clone()])) as u64;
+            let mut work = 0;
+            boxes_meet(&ba, &bb)
+                && pieces_meet((a, &ba, n(a)), (b, &bb, n(b)), &mut work, u64::MAX).unwrap()
+        }
+
+        proptest! {
+            #![proptest_config(ProptestConfig::with_cases(2000))]
+            #[test]
+            fn pieces_meet_as_geo_says(
+                ka in any::<u8>(), va in prop::array::uniform5(0.0..1.0f64),
+                kb in any::<u8>(), vb in prop::array::uniform5(0.0..1.0f64),
+            ) {
+                let (a, b) = (piece(ka, va), piece(kb, vb));
+                prop_assert_eq!(ours(&a, &b), a.intersects(&b));
+                prop_assert_eq!(ours(&b, &a), a.intersects(&b));
+            }
+        }
+
+        #[test]
+        fn touching_and_nested_cases() {
+            let sq = |x: f64, y: f64, s: f64| polygon(&rect_points([x, y], s, s, 0.0), &[]);
+            // A shared edge, a shared corner, a gap of 1 um.
+            assert!(ours(&sq(0.0, 0.0, 1.0), &sq(1.0, 0.0, 1.0)));
+            assert!(ours(&sq(0.0, 0.0, 1.0), &sq(1.0, 1.0, 1.0)));
+            assert!(!ours(&sq(0.0, 0.0, 1.0), &sq(1.001, 0.0, 1.0)));
+            // A disc in a ring's hole does not meet it; one across the hole's edge does; a
+            // ring around a whole square does not meet it, a disc over all of it does.
+            let ring = polygon(
+                &circle_points([0.0, 0.0], 4.0),
+                &[circle_points([0.0, 0.0], 2.0)],
+            );
+            assert!(!ours(&ring, &polygon(&circle_points([0.0, 0.0], 1.0), &[])));
+            assert!(ours(&ring, &polygon(&circle_points([0.9, 0.0], 1.0), &[])));
+            assert!(ours(
+                &polygon(&circle_points([0.0, 0.0], 10.0), &[]),
+                &sq(0.0, 0.0, 1.0)
+            ));
+            assert!(ours(
+                &sq(0.0, 0.0, 1.0),
+                &polygon(&circle_points([0.0, 0.0], 10.0), &[])
+            ));
+        }
     }
 }

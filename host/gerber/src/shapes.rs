@@ -2,11 +2,11 @@
 //! arcs and regions, and the exact outline of plain flashes (circle, rounded rectangle).
 //!
 //! Curves become polygons whose chords stay within [`CHORD_MM`] of the true curve; unions and
-//! differences use geo's `BooleanOps`.
+//! differences go through `overlay` (i_overlay 9 on geo's polygon types).
 
+use crate::overlay;
 use crate::pads::{Outline, Point};
-use geo::orient::{Direction, Orient};
-use geo::{unary_union, BooleanOps, Coord, LineString, MultiPolygon, Polygon};
+use geo::{Coord, LineString, MultiPolygon, Polygon};
 use std::collections::HashMap;
 use std::f64::consts::{PI, TAU};
 
@@ -34,7 +34,29 @@ pub(super) fn polygon(exterior: &[Point], holes: &[Vec<Point>]) -> Polygon<f64> 
                 .collect::<Vec<_>>(),
         )
     };
-    Polygon::new(ring(exterior), holes.iter().map(|h| ring(h)).collect()).orient(Direction::Default)
+    oriented(Polygon::new(
+        ring(exterior),
+        holes.iter().map(|h| ring(h)).collect(),
+    ))
+}
+
+/// `p` with its exterior counter-clockwise and its holes clockwise (geo's default
+/// orientation), reversing rings in place: no copy when they already are.
+pub(super) fn oriented(mut p: Polygon<f64>) -> Polygon<f64> {
+    use geo::Winding;
+    p.exterior_mut(|r| {
+        if r.is_cw() {
+            r.0.reverse();
+        }
+    });
+    p.interiors_mut(|holes| {
+        for r in holes {
+            if r.is_ccw() {
+                r.0.reverse();
+            }
+        }
+    });
+    p
 }
 
 /// Points of a circle of diameter `d` about `c`.
@@ -245,15 +267,21 @@ const CASCADE: usize = 32;
 /// (a step and repeat of a long line, 0.02 mm apart) costs the square of their count, while
 /// the halves' unions stay as small as the result (880 such copies: 3.5 s in one overlay).
 pub(super) fn union_all(polys: &[Polygon<f64>]) -> MultiPolygon<f64> {
-    if polys.len() == 1 {
-        // Through the overlay too: resolves self-touching contours (cut-ins) into holes.
-        return polys[0].union(&MultiPolygon::<f64>::new(vec![]));
-    }
+    union_on(polys, overlay::Grid::of(polys).as_ref())
+}
+
+/// [`union_all`] on `grid` (every level of the cascade on the same one: the halves meet on it).
+pub(super) fn union_on(polys: &[Polygon<f64>], grid: Option<&overlay::Grid>) -> MultiPolygon<f64> {
     if polys.len() <= CASCADE {
-        return unary_union(polys.iter());
+        // A single polygon goes through the overlay too: resolves self-touching contours
+        // (cut-ins) into holes.
+        return overlay::union(polys, grid);
     }
     let (a, b) = polys.split_at(polys.len() / 2);
-    union_all(a).union(&union_all(b))
+    overlay::union(
+        union_on(a, grid).iter().chain(union_on(b, grid).iter()),
+        grid,
+    )
 }
 
 /// An affine map of the plane: `p -> [a p.x + b p.y + tx, c p.x + d p.y + ty]`.
@@ -272,21 +300,34 @@ impl Affine {
     }
 }
 
-/// `mp` mapped by `f` (re-oriented: a mirroring reverses the rings).
+/// `mp` mapped by `f`. The polygons of the layer are oriented (exteriors counter-clockwise,
+/// holes clockwise: `polygon`, and the overlay's output): a map that keeps orientation keeps
+/// theirs, a mirroring reverses every ring, and only a degenerate map is re-oriented ring by
+/// ring (flashes are mapped each time their shape is needed: no winding sums on that path).
 pub(super) fn map_multi(mp: &MultiPolygon<f64>, f: &Affine) -> MultiPolygon<f64> {
+    let det = f.m[0] * f.m[3] - f.m[1] * f.m[2];
     let ring = |ls: &LineString<f64>| -> LineString<f64> {
-        ls.coords()
+        let mut r: LineString<f64> = ls
+            .coords()
             .map(|c| {
                 let q = f.apply([c.x, c.y]);
                 Coord { x: q[0], y: q[1] }
             })
-            .collect()
+            .collect();
+        if det < 0.0 {
+            r.0.reverse();
+        }
+        r
     };
     MultiPolygon::new(
         mp.iter()
             .map(|p| {
-                Polygon::new(ring(p.exterior()), p.interiors().iter().map(ring).collect())
-                    .orient(Direction::Default)
+                let q = Polygon::new(ring(p.exterior()), p.interiors().iter().map(ring).collect());
+                if det.is_normal() {
+                    q
+                } else {
+                    oriented(q)
+                }
             })
             .collect(),
     )
@@ -631,6 +672,8 @@ pub(super) fn area(mp: &MultiPolygon<f64>) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    // geo's own overlay (i_overlay 4) as the reference for the symmetric differences.
+    use geo::BooleanOps;
 
     #[test]
     fn chords_stay_within_a_micron() {
@@ -742,5 +785,30 @@ mod tests {
         // A disc that covers the centre, a spiral: the caller's capsules.
         assert!(arc_band([0.1, 0.0], [0.0, 0.1], [0.0, 0.0], false, 0.3).is_none());
         assert!(arc_band([1.0, 0.0], [0.0, 2.0], [0.0, 0.0], false, 0.3).is_none());
+    }
+
+    /// Mapped shapes keep geo's default orientation under rotations, mirrorings and scalings.
+    #[test]
+    fn mapped_shapes_stay_oriented() {
+        use geo::Winding;
+        let ring = MultiPolygon::new(vec![polygon(
+            &round_rect_points([0.3, 0.1], 2.0, 1.0, 0.2, 0.0),
+            &[circle_points([0.3, 0.1], 0.5)],
+        )]);
+        for m in [
+            [1.0, 0.0, 0.0, 1.0],
+            [-1.0, 0.0, 0.0, 1.0],
+            [1.0, 0.0, 0.0, -1.0],
+            [0.0, -1.0, 1.0, 0.0],
+            [0.0, 1.0, 1.0, 0.0],
+            [2.0, 0.3, -0.1, 0.5],
+        ] {
+            let out = map_multi(&ring, &Affine { m, t: [5.0, -2.0] });
+            for p in &out {
+                assert!(p.exterior().is_ccw(), "{m:?}");
+                assert!(p.interiors().iter().all(|r| r.is_cw()), "{m:?}");
+            }
+            assert!((area(&out) - area(&ring) * (m[0] * m[3] - m[1] * m[2]).abs()).abs() < 1e-9);
+        }
     }
 }

@@ -33,7 +33,7 @@ pub enum InspectError {
     Evaluation(Box<dyn std::error::Error + Send + Sync + 'static>),
     /// The program's paste layer could not be read. The reader's error is part of the
     /// message, not a `source()`.
-    #[error("paste layer {}: {error}", .path.display())]
+    #[error("paste layer {}", .error.in_file(.path))]
     PasteLayer {
         /// The layer's file.
         path: PathBuf,

@@ -28,25 +28,25 @@ use std::path::{Path, PathBuf};
 /// Why the teach step (or naming the pads at inspection) failed.
 #[derive(Debug, thiserror::Error)]
 pub enum TeachError {
-    /// A Gerber layer could not be read.
-    #[error("{what} {path}: {source}")]
+    /// A Gerber layer could not be read. The reader's error is part of the message, not a
+    /// `source()` (a chain printed in full would say it twice), and the file is named once.
+    #[error("{what} {}", .error.in_file(std::path::Path::new(.path)))]
     Layer {
         /// `paste layer`, `copper layer` or `outline`.
         what: &'static str,
         /// The layer's file.
         path: String,
         /// The reader's error.
-        #[source]
-        source: GerberError,
+        error: GerberError,
     },
-    /// The placement file could not be read.
-    #[error("{path}: {source}")]
+    /// The placement file could not be read (the reader's error in the message, the file
+    /// named once).
+    #[error("{}", placement_message(.path, .error))]
     Placement {
         /// The placement file.
         path: String,
         /// The reader's error.
-        #[source]
-        source: PlacementError,
+        error: PlacementError,
     },
     /// Inputs that cannot make a program (a truncated or empty paste layer, an outline
     /// without a board edge, a path that is not UTF-8...), as one sentence.
@@ -119,11 +119,19 @@ pub struct Taught {
     pub summary: Summary,
 }
 
+/// A placement error as said of the file at `path`: named once (a reading error names it).
+fn placement_message(path: &str, error: &PlacementError) -> String {
+    match error {
+        PlacementError::Read { .. } => error.to_string(),
+        _ => format!("{path}: {error}"),
+    }
+}
+
 fn layer(what: &'static str, path: &Path) -> Result<gerber::PasteLayer, TeachError> {
-    gerber::read_file(path).map_err(|source| TeachError::Layer {
+    gerber::read_file(path).map_err(|error| TeachError::Layer {
         what,
         path: path.display().to_string(),
-        source,
+        error,
     })
 }
 
@@ -152,9 +160,9 @@ fn name_pads(
     path: &Path,
     pads: &mut [Pad],
 ) -> Result<(names::Naming, Vec<(String, String)>), TeachError> {
-    let comps = placement::read_file(path, cf).map_err(|source| TeachError::Placement {
+    let comps = placement::read_file(path, cf).map_err(|error| TeachError::Placement {
         path: path.display().to_string(),
-        source,
+        error,
     })?;
     let naming = names::assign(pads, &comps, cf.max_distance_mm);
     let packages = comps
