@@ -115,28 +115,19 @@ fn join_touching(
     groups: &mut Groups,
     budget: u64,
 ) -> Result<u64, GerberError> {
-    use rstar::primitives::{GeomWithData, Rectangle};
-    use rstar::{RTree, AABB};
+    use rstar::AABB;
     const EPS: f64 = 1e-9;
     let objects = &layer.objects;
-    let finite = |b: &[f64; 4]| b.iter().all(|v| v.is_finite()) && b[0] <= b[2] && b[1] <= b[3];
-    let mut leaves = Vec::new();
-    for (i, o) in objects.iter().enumerate() {
-        if rep[i] != i {
-            groups.join(i, rep[i]);
-        } else if finite(&o.bbox) {
-            let b = o.bbox;
-            leaves.push(GeomWithData::new(
-                Rectangle::from_corners([b[0], b[1]], [b[2], b[3]]),
-                i,
-            ));
+    for (i, &r) in rep.iter().enumerate() {
+        if r != i {
+            groups.join(i, r);
         }
     }
-    let tree = RTree::bulk_load(leaves);
+    let tree = box_index(layer, (0..objects.len()).filter(|&i| rep[i] == i));
     let mut work = 0u64;
     for i in 0..objects.len() {
         let b = objects[i].bbox;
-        if rep[i] != i || !finite(&b) {
+        if rep[i] != i || !finite_box(&b) {
             continue;
         }
         let query = AABB::from_corners([b[0] - EPS, b[1] - EPS], [b[2] + EPS, b[3] + EPS]);
@@ -389,33 +380,42 @@ fn group_pads(
     Ok(())
 }
 
+/// An R-tree of objects' boxes, each leaf holding its object's index.
+type BoxIndex =
+    rstar::RTree<rstar::primitives::GeomWithData<rstar::primitives::Rectangle<[f64; 2]>, usize>>;
+
+/// Whether `b` is a box (finite, not inverted): only those go into a [`BoxIndex`].
+fn finite_box(b: &[f64; 4]) -> bool {
+    b.iter().all(|v| v.is_finite()) && b[0] <= b[2] && b[1] <= b[3]
+}
+
+/// The index of the boxes of `objects` (those with a [`finite_box`]).
+fn box_index(layer: &Layer, objects: impl Iterator<Item = usize>) -> BoxIndex {
+    use rstar::primitives::{GeomWithData, Rectangle};
+    let leaves = objects
+        .filter(|&i| finite_box(&layer.objects[i].bbox))
+        .map(|i| {
+            let b = layer.objects[i].bbox;
+            GeomWithData::new(Rectangle::from_corners([b[0], b[1]], [b[2], b[3]]), i)
+        })
+        .collect();
+    rstar::RTree::bulk_load(leaves)
+}
+
 /// The dark objects of a group by the box of their first copy, to find the objects of a piece.
 struct ContributorIndex {
-    tree: rstar::RTree<
-        rstar::primitives::GeomWithData<rstar::primitives::Rectangle<[f64; 2]>, usize>,
-    >,
+    tree: BoxIndex,
     /// The group's dark objects per first copy: `(rep, object)` sorted.
     members: Vec<(usize, usize)>,
 }
 
 impl ContributorIndex {
     fn new(layer: &Layer, rep: &[usize], darks: &[usize]) -> ContributorIndex {
-        use rstar::primitives::{GeomWithData, Rectangle};
         let mut members: Vec<(usize, usize)> = darks.iter().map(|&i| (rep[i], i)).collect();
         members.sort_unstable();
-        let mut leaves = Vec::new();
-        for run in members.chunk_by(|a, b| a.0 == b.0) {
-            let r = run[0].0;
-            let b = layer.objects[r].bbox;
-            if b.iter().all(|v| v.is_finite()) && b[0] <= b[2] && b[1] <= b[3] {
-                leaves.push(GeomWithData::new(
-                    Rectangle::from_corners([b[0], b[1]], [b[2], b[3]]),
-                    r,
-                ));
-            }
-        }
+        let firsts = members.chunk_by(|a, b| a.0 == b.0).map(|run| run[0].0);
         ContributorIndex {
-            tree: rstar::RTree::bulk_load(leaves),
+            tree: box_index(layer, firsts),
             members,
         }
     }
