@@ -158,7 +158,10 @@ impl Pieces {
             shape
                 .iter()
                 .map(|p| {
-                    let n = vertex_count(&MultiPolygon::new(vec![p.clone()])) as u64;
+                    let n = std::iter::once(p.exterior())
+                        .chain(p.interiors())
+                        .map(|r| r.0.len() as u64)
+                        .sum();
                     (p.clone(), bbox(p), n)
                 })
                 .collect(),
