@@ -321,14 +321,22 @@ fn corrupt_packet_stream() {
     assert_eq!((rep.corrupt, rep.resynced), (0, 0));
     let offsets = packet_offsets(&bytes);
     assert_eq!(rep.ok, offsets.len());
-    // The stream header first and the end packet last; rows in between.
-    assert_eq!(clean.rows.len(), offsets.len() - 2);
+    // The stream header first and the end packet last; rows and the frames' trigger records
+    // (kind 5, one per frame) in between.
+    let rows: Vec<usize> = (0..offsets.len())
+        .filter(|&i| bytes[offsets[i] + 5] <= 1)
+        .collect();
+    assert_eq!(clean.rows.len(), rows.len());
+    let triggers = (0..offsets.len()).filter(|&i| bytes[offsets[i] + 5] == 5);
+    assert_eq!(triggers.count(), s.rec.manifest.frames.len());
+    assert_eq!(rows.len() + s.rec.manifest.frames.len() + 2, offsets.len());
     assert!(!rep.stream.truncated && rep.stream.missing == 0);
-    let m = offsets.len() / 2;
+    let m = rows.len() / 2;
 
-    // Damage four packets in the middle of the stream, each in a different place.
+    // Damage four row packets in the middle of the stream, each in a different place.
     let mut bad = bytes.clone();
-    let damaged = [m - 20, m - 7, m, m + 13];
+    let which = [m - 20, m - 7, m, m + 13];
+    let damaged = which.map(|k| rows[k]);
     bad[offsets[damaged[0]]] ^= 0xff; // sync word
     bad[offsets[damaged[1]] + 32] ^= 0x40; // payload length
     bad[offsets[damaged[2]] + 40 + 17] ^= 0x01; // payload (one bit)
@@ -346,7 +354,7 @@ fn corrupt_packet_stream() {
     assert!(rep.stream.truncated);
     assert_eq!(rep.stream.rows_missing, 4);
     // Every other row decodes exactly as before.
-    let lost: Vec<i64> = damaged.iter().map(|&i| clean.rows[i - 1].row).collect();
+    let lost: Vec<i64> = which.iter().map(|&k| clean.rows[k].row).collect();
     let expected: Vec<_> = clean
         .rows
         .iter()

@@ -583,6 +583,149 @@ fn board_from_the_host_streams_is_the_core_map_byte_for_byte() {
     }
 }
 
+/// Copies directory `from` to `to` (files and subdirectories).
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap().flatten() {
+        let dst = to.join(e.file_name());
+        if e.file_type().unwrap().is_dir() {
+            copy_dir(&e.path(), &dst);
+        } else {
+            std::fs::copy(e.path(), dst).unwrap();
+        }
+    }
+}
+
+/// `board --streams` takes where each row came from (dead-pixel masks, row places) from the
+/// trigger log inside the streams: with every camera's frames deleted and the latches of the
+/// recording's manifests scrambled, the map is the core's byte for byte; the core itself can
+/// no longer run on that recording.
+#[test]
+fn board_streams_need_no_frames_only_their_trigger_logs() {
+    let b = short_boards();
+    let tmp = tempfile::tempdir().unwrap();
+    let board = tmp.path().join("board");
+    copy_dir(&b.boards[0], &board);
+    for cam in 0..3 {
+        let dir = board.join(format!("cam{cam}"));
+        let path = dir.join("manifest.json");
+        let mut m: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+        let frames = m["frames"].as_array_mut().unwrap();
+        assert!(frames.len() > 20);
+        for f in frames.iter_mut() {
+            // Deleted, and its latch no longer the one the frame grabber latched.
+            std::fs::remove_file(dir.join(f["file"].as_str().unwrap())).unwrap();
+            let l = f["latch"].as_i64().unwrap();
+            f["latch"] = serde_json::json!(l * 3 + 17);
+        }
+        std::fs::write(&path, serde_json::to_vec_pretty(&m).unwrap()).unwrap();
+    }
+    let s = &b.streams[0];
+    let out = tmp.path().join("map");
+    let o = board_cmd(&board, &out, &[&s[0], &s[1], &s[2]]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v = json_of(&o);
+    assert_eq!(
+        v["pixels"]["unplaced_rows"],
+        serde_json::json!([0, 0, 0]),
+        "{v}"
+    );
+    let dead: u64 = v["pixels"]["dead_masked"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|d| d.as_u64().unwrap())
+        .sum();
+    assert!(
+        dead > 0,
+        "the calibration's dead pixels masked nothing: {v}"
+    );
+    let core = core_map(0);
+    for f in [
+        "heights.png",
+        "heights_um.tiff",
+        "heights.colour.png",
+        "camera.png",
+        "board.json",
+    ] {
+        let same = std::fs::read(core.join(f)).unwrap() == std::fs::read(out.join(f)).unwrap();
+        assert!(same, "{f} differs from the core's map without the frames");
+    }
+    // The core needs the frames: on this recording it is refused.
+    let o = board_cmd(&board, &tmp.path().join("core"), &[]);
+    assert!(!o.status.success());
+}
+
+/// A trigger record lost from a stream: the rows whose window the replay can no longer
+/// confirm are left invalid and reported, never masked or placed from the wrong frames; the
+/// rest of the map is the complete one.
+#[test]
+fn a_lost_trigger_record_leaves_its_rows_invalid_and_reported() {
+    let b = short_boards();
+    let tmp = tempfile::tempdir().unwrap();
+    let core = core_map(0);
+    let (width, clean) = png16(&core.join("heights.png"));
+    let n = clean.len();
+    let s = &b.streams[0];
+    let bytes = std::fs::read(&s[1]).unwrap();
+    let pk = packets_of(&bytes);
+    let triggers: Vec<usize> = (0..pk.len())
+        .filter(|&i| pk[i].2 == dpsa_core::packets::Kind::Trigger)
+        .collect();
+    let frames = Recording::open(b.boards[0].join("cam1"))
+        .unwrap()
+        .manifest
+        .frames
+        .len();
+    assert_eq!(triggers.len(), frames, "one trigger record per frame");
+    // Drop the middle frame's record.
+    let k = triggers[triggers.len() / 2];
+    let (start, len, _, latch) = pk[k];
+    let mut cut = bytes[..start].to_vec();
+    cut.extend_from_slice(&bytes[start + len..]);
+    let path = tmp.path().join("no_trigger.dpsa");
+    std::fs::write(&path, &cut).unwrap();
+    let out = tmp.path().join("map");
+    let o = board_cmd(&b.boards[0], &out, &[&s[0], &path, &s[2]]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("trigger record lost"), "{stderr}");
+    let v = json_of(&o);
+    assert_eq!(v["streams"]["cameras"][1]["missing_packets"], 1, "{v}");
+    let unplaced = &v["pixels"]["unplaced_rows"];
+    assert_eq!(
+        (unplaced[0].as_u64(), unplaced[2].as_u64()),
+        (Some(0), Some(0))
+    );
+    // The rows whose window held the lost frame: up to n windows of max_step_rows rows each.
+    let (_, rep) = dpsa_sim::stream::decode_stream(&bytes, 0.25);
+    let (nn, step) = (
+        u64::from(rep.stream.n.unwrap()),
+        u64::from(rep.stream.max_step_rows.unwrap()),
+    );
+    let u = unplaced[1].as_u64().unwrap();
+    assert!(
+        u > 0 && u <= (nn + 1) * step,
+        "{u} rows unplaced (n {nn}, step {step})"
+    );
+    // Only near the lost frame does the map change.
+    let cal = CalFile::load(calibration_file()).unwrap();
+    let o_k = (latch as f64 / cal.camera[1].counts_per_pixel).round();
+    let h = f64::from(cal.camera[1].rows);
+    let (_, map) = png16(&out.join("heights.png"));
+    let coords1 = camera_coords(1, width, n);
+    let changed: Vec<usize> = (0..n).filter(|&i| map[i] != clean[i]).collect();
+    assert!(!changed.is_empty());
+    for &i in &changed {
+        let r = coords1[i].0;
+        assert!(
+            r > o_k - 2.0 && r < o_k + h + 2.0 + (nn * step) as f64,
+            "pixel {i} (camera 1 row {r:.1}) changed far from the lost frame (rows {o_k}..)"
+        );
+    }
+}
+
 /// `board --streams` with predicted-row streams (`reconstruct --intra-period K`, every K > 1
 /// the docs name) gives the core's map byte for byte, as the intra-period-1 streams do (issue
 /// 19: such streams lost their predicted rows, 24 % of the map).

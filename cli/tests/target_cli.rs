@@ -4,6 +4,7 @@
 //! without them it fails with that advice unless `DPSA_SKIP_FIRMWARE=1` is set. The figures
 //! are checked for presence and sanity only: this is not a test that fails on time.
 
+use dpsa_sim::simulation::recording::Recording;
 use serde_json::Value;
 use std::path::Path;
 use std::process::{Command, Output};
@@ -125,8 +126,13 @@ fn bench_json_has_every_figure() {
     // Geometry as recorded, and figures that add up.
     assert_eq!((num(&v, "width"), num(&v, "n")), (96.0, 4.0));
     assert_eq!(num(&v, "pixels_out"), num(&v, "rows_out") * 96.0);
-    // Rows plus the stream header and end packets.
-    assert_eq!(num(&v, "stream.packets"), num(&v, "rows_out") + 2.0);
+    // Rows, a trigger record per frame, the stream header and end packets.
+    let frames = Recording::open(&rec).unwrap().manifest.frames.len() as f64;
+    assert_eq!(num(&v, "stream.triggers"), frames);
+    assert_eq!(
+        num(&v, "stream.packets"),
+        num(&v, "rows_out") + frames + 2.0
+    );
     assert_eq!(num(&v, "stream.corrupt"), 0.0);
     let p = |k: &str| num(&v, &format!("instructions_per_pixel.{k}"));
     assert!(p("total") > p("encode"), "{v}");

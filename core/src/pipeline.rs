@@ -348,6 +348,8 @@ impl<'a> Pipeline<'a> {
             return Err(Error::Finished);
         }
         self.start(sink)?;
+        // The stream's trigger log: every frame taken, before anything it completes.
+        sink.trigger(&trigger).map_err(Error::Sink)?;
         let Trigger { seq, latch } = trigger;
         let f = self.reg.begun();
         let o = self.cfg.offset(latch);
@@ -1229,11 +1231,18 @@ mod tests {
     struct Items {
         /// (first board row, rows covered, flags)
         items: Vec<(i64, u64, u16)>,
+        /// Each trigger record with the number of items before it.
+        triggers: Vec<(usize, Trigger)>,
         starts: usize,
         ends: usize,
     }
     impl Sink for Items {
         type Error = ();
+        fn trigger(&mut self, t: &Trigger) -> Result<(), ()> {
+            assert_eq!(self.starts, 1, "a trigger record before the stream header");
+            self.triggers.push((self.items.len(), *t));
+            Ok(())
+        }
         fn row(&mut self, r: &Row<'_>) -> Result<(), ()> {
             self.items.push((r.header.row, 1, r.header.flags));
             Ok(())
@@ -1279,6 +1288,18 @@ mod tests {
             p.end_frame(&mut sink).unwrap();
             let out = sink.items.len() - before;
             assert!(out <= k, "frame {i}: {out} items > K = {k}");
+            // The trigger log: this frame's trigger, once, before anything it completed.
+            assert_eq!(sink.triggers.len(), i + 1);
+            assert_eq!(
+                sink.triggers[i],
+                (
+                    before,
+                    Trigger {
+                        seq: i as u32,
+                        latch: e
+                    }
+                )
+            );
         }
         let before = sink.items.len();
         p.finish(&mut sink).unwrap();

@@ -2,6 +2,7 @@
 //! packet ([`crate::packets`]) and sends it over a [`Link`]: a file or pipe on the host, the
 //! frame grabber's output link on the target.
 
+use crate::frames::Trigger;
 use crate::packets::{self, codec, PacketError};
 use crate::row::{Gap, Row, StreamInfo};
 
@@ -15,6 +16,11 @@ pub trait Sink {
     fn row(&mut self, row: &Row<'_>) -> Result<(), Self::Error>;
     /// The stream starts (once, before the first row or gap). Default: nothing.
     fn start(&mut self, _info: &StreamInfo) -> Result<(), Self::Error> {
+        Ok(())
+    }
+    /// A frame's trigger, once per frame the pipeline takes, before the rows and the gap that
+    /// frame completes (the stream's trigger log). Default: nothing.
+    fn trigger(&mut self, _trigger: &Trigger) -> Result<(), Self::Error> {
         Ok(())
     }
     /// Board rows that no frame showed (encoder jump), as one record instead of one row each.
@@ -49,8 +55,8 @@ pub enum SinkError<E> {
 
 /// A [`Sink`] that frames the pipeline's output into a version 2 packet stream over `L`: the
 /// stream header at [`Sink::start`] (with the run id of [`PacketSink::set_run_id`] and the
-/// encoder's intra period), one compressed row packet (codec 1) per row, one gap packet per
-/// gap record, the end-of-stream packet with the totals at [`Sink::end`]; sequence numbers
+/// encoder's intra period), one trigger record per frame, one compressed row packet (codec 1)
+/// per row, one gap packet per gap record, the end-of-stream packet with the totals at [`Sink::end`]; sequence numbers
 /// count every packet from 0.
 ///
 /// `buf` must hold [`packets::max_packet_len`]`(W)` bytes; the encoder's reference row and
@@ -162,6 +168,13 @@ impl<L: Link> Sink for PacketSink<'_, L> {
         };
         let n = packets::encode_stream_header(&self.info, self.buf).map_err(SinkError::Encode)?;
         self.send(n)
+    }
+
+    fn trigger(&mut self, trigger: &Trigger) -> Result<(), Self::Error> {
+        let (camera, n, width, seq) = (self.info.camera, self.info.n, self.info.width, self.seq());
+        let len = packets::encode_trigger(trigger, camera, n, width, seq, self.buf)
+            .map_err(SinkError::Encode)?;
+        self.send(len)
     }
 
     fn gap(&mut self, gap: &Gap) -> Result<(), Self::Error> {

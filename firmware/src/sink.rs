@@ -5,7 +5,7 @@
 use crate::board::Clock;
 use dpsa_core::row::{Gap, StreamInfo};
 use dpsa_core::sink::{Link, PacketSink, SinkError};
-use dpsa_core::{Row, Sink};
+use dpsa_core::{Row, Sink, Trigger};
 
 /// Ticks spent in the sink, split into encoding and sending (benchmark only).
 #[derive(Clone, Copy, Debug, Default)]
@@ -102,6 +102,10 @@ impl<L: Link, C: Clock> Sink for TimedSink<'_, L, C> {
 
     fn start(&mut self, info: &StreamInfo) -> Result<(), Self::Error> {
         self.sink.start(info)
+    }
+
+    fn trigger(&mut self, trigger: &Trigger) -> Result<(), Self::Error> {
+        self.sink.trigger(trigger)
     }
 
     fn gap(&mut self, gap: &Gap) -> Result<(), Self::Error> {

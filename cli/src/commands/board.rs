@@ -58,6 +58,14 @@ pub fn run(a: Args, progress: bool) -> Result<i32> {
     };
     let r = dpsa_sim::board::run::run_shown(&a.dir, &cal, &a.out, source, progress)?;
     let mut status = r.streams.as_ref().map_or(0, |s| s.status);
+    for (i, &u) in r.pixels.unplaced_rows.iter().enumerate() {
+        if u > 0 {
+            eprintln!(
+                "warning: camera {i}: {u} rows arrived whose frames the trigger log does not confirm (a trigger record lost); they stay invalid in the map (exit status 2)"
+            );
+            status = 2;
+        }
+    }
     for w in &r.warnings {
         eprintln!("warning: {w} (the map is written; exit status 2)");
         status = 2;

@@ -102,6 +102,7 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
             "packets": rep.ok,
             "corrupt": rep.corrupt,
             "rows": map.rows.len(),
+            "triggers": rep.stream.triggers,
             "file": a.out.as_ref().map(|p| p.display().to_string()),
         });
         v["elf"] = serde_json::json!(elf.display().to_string());

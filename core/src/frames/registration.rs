@@ -30,8 +30,8 @@ use crate::solve::MAX_N;
 /// Largest number of sink items (rows and gap records) the pipeline emits between the start of
 /// one `begin_frame` and the start of the next: `K = n * H + 1`. The rows still pending after
 /// a frame entered in its last `n - 1` frames (at most `H` each), the frame enters at most `H`
-/// more, and a jump adds one gap record. The stream header and end-of-stream records come on
-/// top, once per stream.
+/// more, and a jump adds one gap record. The frame's trigger record comes on top (one per
+/// frame), and the stream header and end-of-stream records once per stream.
 pub const fn max_output_per_frame(n: u8, rows: u16) -> u64 {
     n as u64 * rows as u64 + 1
 }

@@ -10,15 +10,15 @@
 //! | --- | --- | --- |
 //! | 0 | 4 | sync word `"DPSA"` (`44 50 53 41`) |
 //! | 4 | 1 | format version `2` |
-//! | 5 | 1 | kind: `0` row (raw payload), `1` row (compressed payload), `2` stream header, `3` gap, `4` end of stream |
+//! | 5 | 1 | kind: `0` row (raw payload), `1` row (compressed payload), `2` stream header, `3` gap, `4` end of stream, `5` frame trigger |
 //! | 6 | 1 | camera id |
 //! | 7 | 1 | `n` |
 //! | 8 | 4 | sequence number (u32): 0 for the stream header, then +1 per packet of any kind |
-//! | 12 | 8 | `A` (i64): row: board row; header: run id (u64); gap: first board row; end: first board row |
-//! | 20 | 8 | `B` (i64): row: latch of the window's first frame; header: config hash (u64); gap: row count (u64); end: last board row |
-//! | 28 | 2 | flags (u16): row flags; gap: the rows' flags; header, end: 0 |
+//! | 12 | 8 | `A` (i64): row: board row; header: run id (u64); gap: first board row; end: first board row; trigger: the frame's encoder latch |
+//! | 20 | 8 | `B` (i64): row: latch of the window's first frame; header: config hash (u64); gap: row count (u64); end: last board row; trigger: the frame's counter (u32, zero-extended) |
+//! | 28 | 2 | flags (u16): row flags; gap: the rows' flags; header, end, trigger: 0 |
 //! | 30 | 2 | width `W` (u16, `1 ..= 8192`) |
-//! | 32 | 4 | payload length `L` (u32): row `<= codec::max_len(W)`; header 8; gap 0; end 24 |
+//! | 32 | 4 | payload length `L` (u32): row `<= codec::max_len(W)`; header 8; gap 0; end 24; trigger 0 |
 //! | 36 | 4 | header CRC-32 of bytes `4 .. 36` |
 //! | 40 | L | payload: row: the row payload (codec = kind); header: intra period u32, `H` u16, `max_step_rows` u16; end: packets u64, rows u64, gap rows u64 |
 //! | 40+L | 4 | CRC-32 (ISO-HDLC, as zlib) of bytes `4 .. 40+L` |
@@ -28,7 +28,11 @@
 //! CRC does not is skipped whole (its extent is known), so no byte is CRC'd twice.
 //!
 //! A stream: one stream header (seq 0), then rows and gap records in increasing board-row
-//! order, then one end-of-stream packet with totals. [`Tracker`] follows a stream and reports
+//! order, each frame's trigger record before the rows and gap its frame completes, then one
+//! end-of-stream packet with totals. The trigger records are the stream's trigger log: with
+//! the stream header's `H`, `n` and `max_step_rows` and the calibration's counts per pixel a
+//! receiver replays the registration (which frames fed each row, at which image rows) without
+//! the frames; each row packet's latch (its window's first frame) checks the replay. [`Tracker`] follows a stream and reports
 //! missing, duplicated, reordered packets, a truncated stream and packets of another width.
 //!
 //! ## Version 1 (still decoded)
@@ -61,6 +65,7 @@ mod track;
 pub use track::{Summary, Tracker, Verdict};
 
 use crate::crc32;
+use crate::frames::Trigger;
 use crate::row::{Gap, Row, RowHeader, StreamInfo};
 
 /// Sync word at the start of every packet.
@@ -85,6 +90,8 @@ pub const KIND_STREAM_HEADER: u8 = 2;
 pub const KIND_GAP: u8 = 3;
 /// Kind byte of an end-of-stream packet.
 pub const KIND_END: u8 = 4;
+/// Kind byte of a frame trigger record (the stream's trigger log).
+pub const KIND_TRIGGER: u8 = 5;
 /// Payload bytes of a stream header packet.
 pub const STREAM_HEADER_PAYLOAD_LEN: usize = 8;
 /// Payload bytes of an end-of-stream packet.
@@ -157,6 +164,8 @@ pub enum Kind {
     Gap,
     /// The end of the stream.
     End,
+    /// A frame's trigger (frame counter and encoder latch), one per frame the pipeline took.
+    Trigger,
 }
 
 /// Totals of a stream, carried by its end-of-stream packet.
@@ -282,6 +291,29 @@ pub fn encode_gap(
         a: gap.first,
         b: gap.count as i64,
         flags: gap.flags,
+        width,
+    };
+    frame_with(&f, &[], buf)
+}
+
+/// Frames a frame's trigger record (`camera`, `n`, `width` as in the stream header); returns
+/// its length (44 bytes).
+pub fn encode_trigger(
+    trigger: &Trigger,
+    camera: u8,
+    n: u8,
+    width: u16,
+    seq: u32,
+    buf: &mut [u8],
+) -> Result<usize, PacketError> {
+    let f = Fields {
+        kind: KIND_TRIGGER,
+        camera,
+        n,
+        seq,
+        a: trigger.latch,
+        b: i64::from(trigger.seq),
+        flags: 0,
         width,
     };
     frame_with(&f, &[], buf)
@@ -433,6 +465,18 @@ impl Packet<'_> {
             first: self.header.row,
             count: self.header.latch as u64,
             flags: self.header.flags,
+        })
+    }
+
+    /// The trigger record's frame trigger (`None` for other kinds; a counter field above
+    /// `u32::MAX` is not a trigger either).
+    pub fn trigger(&self) -> Option<Trigger> {
+        if self.kind != Kind::Trigger {
+            return None;
+        }
+        Some(Trigger {
+            seq: u32::try_from(self.header.latch).ok()?,
+            latch: self.header.row,
         })
     }
 
@@ -604,6 +648,7 @@ fn decode_v2(buf: &[u8]) -> Result<(Packet<'_>, usize), (PacketError, Option<usi
         KIND_STREAM_HEADER => (Kind::StreamHeader, plen == STREAM_HEADER_PAYLOAD_LEN),
         KIND_GAP => (Kind::Gap, plen == 0),
         KIND_END => (Kind::End, plen == END_PAYLOAD_LEN),
+        KIND_TRIGGER => (Kind::Trigger, plen == 0),
         _ => return Err((PacketError::BadKind(k), None)),
     };
     if width == 0 || width as usize > codec::MAX_WIDTH {
@@ -1091,6 +1136,56 @@ mod tests {
         assert!(s.clean(), "{s:?}");
         assert!(s.totals_agree);
         assert_eq!((s.packets, s.rows, s.gaps, s.gap_rows), (7, 4, 1, 1000));
+    }
+
+    #[test]
+    fn trigger_records_round_trip_and_count_in_the_totals() {
+        let mut pk = v2_stream(&[10, 11], None);
+        let end = pk.pop().unwrap();
+        let mut buf = vec![0u8; max_packet_len(16)];
+        // The widest values the fields carry: a negative latch, the counter's top value.
+        let triggers = [
+            Trigger {
+                seq: u32::MAX,
+                latch: -7,
+            },
+            Trigger {
+                seq: 0,
+                latch: i64::MAX,
+            },
+        ];
+        for t in &triggers {
+            let n = encode_trigger(t, 2, 4, 16, pk.len() as u32, &mut buf).unwrap();
+            assert_eq!(n, HEADER_LEN + TRAILER_LEN);
+            pk.push(buf[..n].to_vec());
+        }
+        let (p, _) = decode(&pk[3]).unwrap();
+        assert_eq!(p.kind, Kind::Trigger);
+        assert_eq!(p.trigger(), Some(triggers[0]));
+        assert_eq!(decode(&pk[4]).unwrap().0.trigger(), Some(triggers[1]));
+        // Other kinds are not triggers, and a trigger is no row.
+        assert_eq!(decode(&pk[0]).unwrap().0.trigger(), None);
+        let mut h = [0i16; 16];
+        let mut v = [0u8; 2];
+        let mut r = codec::ReferenceRow::new(16);
+        let mut d = r.decoder().unwrap();
+        assert_eq!(
+            p.unpack(&mut d, &mut h, &mut v),
+            Err(PacketError::BadKind(KIND_TRIGGER))
+        );
+        // A trigger record with a payload is refused before its CRC.
+        let mut long = pk[3].clone();
+        long[32] = 1;
+        assert_eq!(decode(&long).unwrap_err(), PacketError::BadLength);
+        // The end packet's total counts them: re-frame it after them.
+        let (e, _) = decode(&end).unwrap();
+        let mut t = e.totals().unwrap();
+        t.packets += 2;
+        let n = encode_end(&t, 2, 4, 16, pk.len() as u32, &mut buf).unwrap();
+        pk.push(buf[..n].to_vec());
+        let s = track(&pk.concat());
+        assert!(s.clean(), "{s:?}");
+        assert_eq!((s.packets, s.rows, s.triggers), (6, 2, 2));
     }
 
     #[test]

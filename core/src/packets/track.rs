@@ -39,6 +39,8 @@ pub struct Summary {
     pub gaps: u64,
     /// Board rows in the accepted gap records.
     pub gap_rows: u64,
+    /// Frame trigger records accepted.
+    pub triggers: u64,
     /// Lowest board row covered by accepted rows and gaps (`first_row > last_row`: none).
     pub first_row: i64,
     /// Highest board row covered by accepted rows and gaps.
@@ -219,6 +221,7 @@ impl Tracker {
                 self.s.gap_rows = self.s.gap_rows.saturating_add(g.count);
                 self.cover(g.first, g.count.max(1));
             }
+            Kind::Trigger => self.s.triggers += 1,
             Kind::StreamHeader => {
                 if self.s.info.is_none() {
                     self.s.info = p.stream_info();

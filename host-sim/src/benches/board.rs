@@ -90,7 +90,11 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
     let t2 = Instant::now();
     let cams: Vec<CameraRows> = per_camera(
         collected.into_iter().zip(loaded.iter().zip(&cal.camera)),
-        |(col, ((r, _), c))| col.finish(r, c, r.manifest.processing.max_step_rows, &[], false),
+        |(col, ((r, _), c))| {
+            let prov = crate::board::provenance::Provenance::of_recording(r);
+            let max_step = r.manifest.processing.max_step_rows;
+            Ok(col.finish(&prov, None, c, max_step, &[])?.0)
+        },
     )?;
     let provenance = t2.elapsed().as_secs_f64();
     let a = assemble(&cams, &grid);

@@ -9,7 +9,7 @@
 //! | method | what is compressed |
 //! | --- | --- |
 //! | `ours` | codec payloads with intra period 1: every row decodable alone (the stream default: one lost packet loses only itself); payloads only |
-//! | `ours_framed` | the same plus 44 bytes of packet framing per row (header 40 + CRC 4) and the stream's header and end packets (`STREAM_FRAMING_BYTES`) |
+//! | `ours_framed` | the same plus 44 bytes of packet framing per row (header 40 + CRC 4) and the stream's header and end packets (`STREAM_FRAMING_BYTES`); a stream also carries a 44-byte trigger record per frame, which does not depend on the codec and is not counted here |
 //! | `ours_predicted` | codec payloads with intra period 32 (rows predicted from the previous row; a lost packet costs up to 31 more rows) |
 //! | `lz4` | `lz4_flex` block compression of each row's raw payload, row by row |
 //! | `lz4_stream` | `lz4_flex` block compression of all raw payloads concatenated |
@@ -66,7 +66,7 @@ use std::path::Path;
 use std::sync::{mpsc, Arc, Mutex};
 use std::time::{Duration, Instant};
 
-/// Bytes of packet framing per row: header 32 + CRC 4.
+/// Bytes of packet framing per row: header 40 + CRC 4.
 pub const FRAMING_BYTES: usize = dpsa_core::packets::HEADER_LEN + dpsa_core::packets::TRAILER_LEN;
 /// Bytes of a stream's own packets: the stream header (52) and the end packet (68).
 pub const STREAM_FRAMING_BYTES: usize = 2 * FRAMING_BYTES

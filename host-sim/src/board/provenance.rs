@@ -1,7 +1,9 @@
 //! Where a camera's board rows came from: for every board row the core emitted, the frames of
 //! its window and the image row each frame saw it at (the registration of `docs/model.md`,
-//! replayed from the manifest's latches by [`crate::reference::dpsa::plan`], which the core
-//! matches row for row).
+//! replayed on the frames' triggers by [`crate::reference::dpsa::plan_triggers`], which the
+//! core matches row for row): the triggers of a recording's manifest, or the trigger log a
+//! camera's packet stream carries (`docs/stream.md`), so that `board --streams` needs no
+//! frames. Each row packet's latch confirms its window ([`Provenance::confirms`]).
 //!
 //! Two things need it:
 //! - **Dead pixels.** A dead or weak image pixel `(r, c)` of the calibration feeds board row
@@ -17,35 +19,85 @@
 
 use super::Grid;
 use crate::reference::crb::phase_variance;
-use crate::reference::dpsa::{offsets, plan};
+use crate::reference::dpsa::{plan_triggers, trigger_offsets, Registration};
 use crate::reference::truth::TruthReader;
 use crate::simulation::recording::Recording;
 use anyhow::{Context, Result};
+use dpsa_core::Trigger;
 use std::collections::HashMap;
 use std::f64::consts::TAU;
 
-/// The window of every board row with a complete one: `b -> (o_w, ..., o_{w+n-1})` and the
-/// sub-row travel of each of those frames, `latch_k / cpp - o_k` in `[-1/2, 1/2)` rows (the core
-/// registers whole rows, `o_k = round(latch_k / cpp)`).
-fn windows(rec: &Recording) -> HashMap<i64, (Vec<i64>, Vec<f64>)> {
-    let m = &rec.manifest;
-    let n = usize::from(m.processing.n);
-    let cpp = m.calibration.counts_per_pixel;
-    let Some(o) = offsets(m) else {
-        return HashMap::new();
-    };
-    plan(m)
-        .into_iter()
-        .filter_map(|p| {
-            let w = p.first_frame?;
-            (p.flags == 0 && w + n <= o.len()).then(|| {
-                let frac = (w..w + n)
-                    .map(|k| m.frames[k].latch as f64 / cpp - o[k] as f64)
-                    .collect();
-                (p.row, (o[w..w + n].to_vec(), frac))
+/// One board row's window in the registration replay.
+#[derive(Clone, Debug, PartialEq)]
+struct RowWindow {
+    /// Latch of the window's first frame (what the row's packet carries).
+    first_latch: i64,
+    /// Row offsets `o_w .. o_{w+n-1}` of the window's frames.
+    offsets: Vec<i64>,
+    /// Each window frame's sub-row travel `latch_k / cpp - o_k`, in `[-1/2, 1/2)` rows.
+    frac: Vec<f64>,
+}
+
+/// The registration of a camera's frames replayed on their triggers: for every board row with
+/// a complete, unflagged window, the window (the core registers whole rows, `o_k =
+/// round(latch_k / cpp)`). From a recording's manifest ([`Provenance::of_recording`]) or a
+/// stream's trigger log ([`Provenance::replay`]): the same triggers give the same windows.
+#[derive(Clone, Debug, Default)]
+pub struct Provenance {
+    windows: HashMap<i64, RowWindow>,
+}
+
+impl Provenance {
+    /// Replays the registration on `triggers` (frame order) with `reg`.
+    pub fn replay(triggers: &[Trigger], reg: &Registration) -> Provenance {
+        let n = usize::from(reg.n);
+        let cpp = reg.counts_per_pixel;
+        let Some(o) = trigger_offsets(triggers, cpp) else {
+            return Provenance::default();
+        };
+        let windows = plan_triggers(triggers, reg)
+            .into_iter()
+            .filter_map(|p| {
+                let w = p.first_frame?;
+                (p.flags == 0 && w + n <= o.len()).then(|| {
+                    let frac = (w..w + n)
+                        .map(|k| triggers[k].latch as f64 / cpp - o[k] as f64)
+                        .collect();
+                    let win = RowWindow {
+                        first_latch: triggers[w].latch,
+                        offsets: o[w..w + n].to_vec(),
+                        frac,
+                    };
+                    (p.row, win)
+                })
             })
-        })
-        .collect()
+            .collect();
+        Provenance { windows }
+    }
+
+    /// The registration of a recording's frames (its manifest's triggers, processing and
+    /// counts per pixel: calibrate the recording first).
+    pub fn of_recording(rec: &Recording) -> Provenance {
+        let m = &rec.manifest;
+        let triggers: Vec<Trigger> = m.frames.iter().map(|f| f.trigger()).collect();
+        Provenance::replay(
+            &triggers,
+            &Registration {
+                rows: m.camera.rows,
+                n: m.processing.n,
+                max_step_rows: m.processing.max_step_rows,
+                counts_per_pixel: m.calibration.counts_per_pixel,
+            },
+        )
+    }
+
+    /// Whether board row `row`, emitted with its window's first latch `latch`, has that window
+    /// in the replay: only then are its dead-pixel mask and its place known.
+    pub fn confirms(&self, row: i64, latch: i64) -> bool {
+        self.windows
+            .get(&row)
+            .is_some_and(|w| w.first_latch == latch)
+    }
 }
 
 /// Where each row of a camera's grid (row `i` is board row `first_row + i`) was seen, as
@@ -58,13 +110,12 @@ fn windows(rec: &Recording) -> HashMap<i64, (Vec<i64>, Vec<f64>)> {
 /// rows moves it across by `p sin a` per image row. The row's height is the least-squares blend
 /// of those points, centred on their mean. Rows without a window keep the nominal place.
 pub fn row_places(
-    rec: &Recording,
+    prov: &Provenance,
     first_row: i64,
     rows: usize,
     r_w: f64,
     rotation_rad: f64,
 ) -> RowPlaces {
-    let win = windows(rec);
     let mean = |v: &mut dyn Iterator<Item = f64>| {
         let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
         s / n.max(1) as f64
@@ -73,10 +124,10 @@ pub fn row_places(
     let mut across = Vec::with_capacity(rows);
     for i in 0..rows {
         let b = first_row + i as i64;
-        match win.get(&b) {
-            Some((o, f)) => {
-                along.push(i as f64 + mean(&mut f.iter().copied()));
-                let r_mean = mean(&mut o.iter().map(|&ok| (b - ok) as f64));
+        match prov.windows.get(&b) {
+            Some(w) => {
+                along.push(i as f64 + mean(&mut w.frac.iter().copied()));
+                let r_mean = mean(&mut w.offsets.iter().map(|&ok| (b - ok) as f64));
                 across.push((r_mean - r_w) * rotation_rad.tan());
             }
             None => {
@@ -92,7 +143,7 @@ pub use dpsa_board::places::RowPlaces;
 
 /// Masks (sets to NaN) every pixel of `g` (row `i` is board row `first_row + i`) that a dead
 /// image pixel `[r, c]` of `dead` fed; returns how many valid pixels it masked.
-pub fn mask_dead_pixels(rec: &Recording, dead: &[[u32; 2]], first_row: i64, g: &mut Grid) -> u64 {
+pub fn mask_dead_pixels(prov: &Provenance, dead: &[[u32; 2]], first_row: i64, g: &mut Grid) -> u64 {
     if dead.is_empty() {
         return 0;
     }
@@ -101,14 +152,15 @@ pub fn mask_dead_pixels(rec: &Recording, dead: &[[u32; 2]], first_row: i64, g: &
         by_row.entry(i64::from(r)).or_default().push(c as usize);
     }
     let mut masked = 0;
-    for (b, (offs, _)) in windows(rec) {
+    for (&b, w) in &prov.windows {
+        let offs = &w.offsets;
         let Some(i) = b
             .checked_sub(first_row)
             .filter(|&i| i >= 0 && (i as usize) < g.rows)
         else {
             continue;
         };
-        for &ok in &offs {
+        for &ok in offs {
             if let Some(cols) = by_row.get(&(b - ok)) {
                 for &c in cols {
                     if c < g.width {
@@ -133,6 +185,7 @@ pub fn mask_dead_pixels(rec: &Recording, dead: &[[u32; 2]], first_row: i64, g: &
 /// `(B, C, Phi)` from Jacobian rows `[1, cos, -C sin]`; `var_h = (F^-1)_Phi (T_z / 2 pi)^2`.
 pub fn crb_variance(
     rec: &Recording,
+    prov: &Provenance,
     height_per_turn_um: &[f64],
     first_row: i64,
     g: &Grid,
@@ -145,11 +198,10 @@ pub fn crb_variance(
         return Ok(None);
     };
     let f_x = 1.0 / m.calibration.fringe_period_px;
-    let win = windows(rec);
     let mut var = Grid::invalid(g.width, g.rows);
     for i in 0..g.rows {
         let b = first_row + i as i64;
-        let Some((offs, _)) = win.get(&b) else {
+        let Some(RowWindow { offsets: offs, .. }) = prov.windows.get(&b) else {
             continue;
         };
         let Some(t) = truth.row(b).context("reading the camera truth")? else {

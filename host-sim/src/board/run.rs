@@ -15,6 +15,7 @@
 //! `X = x0 + (p / cos a) b - p sin a (c + r_w tan a)`, `Y = y0 + p (c cos a + r_w sin a)`.
 
 use super::assemble::{assemble, CameraRows, Timing};
+use super::provenance::Provenance;
 use super::resample::{BoardGrid, CameraPlacement};
 use super::streams::{self, StreamsReport};
 use super::truth::{against_truth, TruthRaster, TruthStats};
@@ -75,6 +76,10 @@ pub struct PixelCounts {
     /// Camera pixels masked because a dead or weak image pixel of the calibration fed them,
     /// per camera (before resampling).
     pub dead_masked: Vec<u64>,
+    /// Valid rows whose window the registration replay on the trigger log did not confirm (a
+    /// lost trigger record), per camera: without it their dead-pixel mask and place are
+    /// unknown, so they are left invalid ([`super::provenance::Provenance::confirms`]).
+    pub unplaced_rows: Vec<u64>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -184,6 +189,9 @@ pub(crate) struct Collector {
     pub(crate) width: usize,
     lsb_um: f32,
     pub(crate) rows: Vec<(i64, Vec<f32>)>,
+    /// Per row of `rows`: the window's first latch when the row is valid (to be confirmed by
+    /// the registration replay), `None` for an invalid row.
+    latches: Vec<Option<i64>>,
 }
 
 impl Collector {
@@ -194,6 +202,7 @@ impl Collector {
             width,
             lsb_um: lsb_um as f32,
             rows: Vec::new(),
+            latches: Vec::new(),
         }
     }
 
@@ -207,21 +216,37 @@ impl Collector {
             })
             .collect();
         self.rows.push((r.row, h));
+        self.latches.push(r.is_valid().then_some(r.latch));
     }
 
     /// The rows (sorted by board row) as a grid from the first to the last row, with the
-    /// `lost` board rows (inclusive ranges) inside it marked.
-    /// `rec` is the camera's recording with its calibration applied (its registration says
-    /// which frames fed each row, see [`super::provenance`]); `crb`: compute each pixel's
-    /// Cramer-Rao bound when the recording has a truth and a noise model.
+    /// `lost` board rows (inclusive ranges) inside it marked; returns it and the valid rows
+    /// `prov` did not confirm (left invalid, marked lost).
+    /// `prov` is the registration of the camera's frames (which frames fed each row, see
+    /// [`super::provenance`]); `truth`: the camera's calibrated recording, to compute each
+    /// pixel's Cramer-Rao bound when it has a truth and a noise model.
     pub(crate) fn finish(
-        self,
-        rec: &Recording,
+        mut self,
+        prov: &Provenance,
+        truth: Option<&Recording>,
         cal: &CameraCal,
         max_step: u32,
         lost: &[(i64, i64)],
-        crb: bool,
-    ) -> Result<CameraRows> {
+    ) -> Result<(CameraRows, u64)> {
+        // A valid row whose window the replay does not confirm: its mask and place are
+        // unknown, so it is not used (lost, never interpolated across).
+        let mut lost = lost.to_vec();
+        let mut unplaced = 0u64;
+        for ((b, h), latch) in self.rows.iter_mut().zip(&self.latches) {
+            if let Some(l) = *latch {
+                if !prov.confirms(*b, l) {
+                    h.fill(f32::NAN);
+                    lost.push((*b, *b));
+                    unplaced += 1;
+                }
+            }
+        }
+        let lost = &lost[..];
         let w = self.width;
         let ends = self
             .rows
@@ -259,30 +284,35 @@ impl Collector {
                 mask[(a - first) as usize..=(b - first) as usize].fill(true);
             }
         }
-        let dead_masked = super::provenance::mask_dead_pixels(rec, &cal.dead_pixels, first, &mut g);
-        let variance = if crb {
-            super::provenance::crb_variance(rec, &cal.height_per_turn_um, first, &g)
-                .with_context(|| format!("camera {}", cal.id))?
-        } else {
-            None
+        let dead_masked =
+            super::provenance::mask_dead_pixels(prov, &cal.dead_pixels, first, &mut g);
+        let variance = match truth {
+            Some(rec) => {
+                super::provenance::crb_variance(rec, prov, &cal.height_per_turn_um, first, &g)
+                    .with_context(|| format!("camera {}", cal.id))?
+            }
+            None => None,
         };
         let places = super::provenance::row_places(
-            rec,
+            prov,
             first,
             g.rows,
             entry_row(cal, max_step),
             cal.lateral.rotation_rad,
         );
-        Ok(CameraRows {
-            heights: g,
-            variance,
-            dead_masked,
-            places: Some(places),
-            first_row: first,
-            period_um: cal.height_per_turn_um.iter().map(|&t| t as f32).collect(),
-            placement: placement(cal, max_step),
-            lost: mask,
-        })
+        Ok((
+            CameraRows {
+                heights: g,
+                variance,
+                dead_masked,
+                places: Some(places),
+                first_row: first,
+                period_um: cal.height_per_turn_um.iter().map(|&t| t as f32).collect(),
+                placement: placement(cal, max_step),
+                lost: mask,
+            },
+            unplaced,
+        ))
     }
 }
 
@@ -351,9 +381,6 @@ pub(crate) fn open(dir: &Path, cal: &CalFile) -> Result<Opened> {
         .collect::<Result<_>>()?;
     crate::array::record::check_camera_ids(&recs, &arr.dir)?;
     let board = arr.board_id(&recs)?;
-    for ((r, c), i) in recs.iter().zip(&cal.camera).zip(0..) {
-        check_latch_steps(r, c, i)?;
-    }
 
     let m = &arr.manifest;
     let pitch = m.pixel_mm;
@@ -379,13 +406,19 @@ pub(crate) fn open(dir: &Path, cal: &CalFile) -> Result<Opened> {
     })
 }
 
-/// Refuses a camera recording whose frames advance further per frame than its core can take:
-/// the median latch step divided by the calibration's `counts_per_pixel` (board rows per
-/// frame) above the recording's `processing.max_step_rows`. The simulator sets
-/// `max_step_rows` to 1.25 times the nominal step, so a good recording's median step is about
-/// 0.8 of it; latches doubled (or a calibration of another encoder scale) give 1.6.
-fn check_latch_steps(rec: &Recording, cal: &CameraCal, i: usize) -> Result<()> {
-    let f = &rec.manifest.frames;
+/// Refuses a camera's frames (triggers `f`, from `source`: a manifest or a stream's trigger
+/// log) that advance further per frame than its core can take: the median latch step divided
+/// by the calibration's `counts_per_pixel` (board rows per frame) above `max_step_rows`. The
+/// simulator sets `max_step_rows` to 1.25 times the nominal step, so a good recording's median
+/// step is about 0.8 of it; latches doubled (or a calibration of another encoder scale) give
+/// 1.6.
+fn check_latch_steps(
+    f: &[dpsa_core::Trigger],
+    max: u32,
+    cal: &CameraCal,
+    i: usize,
+    source: &Path,
+) -> Result<()> {
     if f.len() < 3 {
         return Ok(());
     }
@@ -395,16 +428,27 @@ fn check_latch_steps(rec: &Recording, cal: &CameraCal, i: usize) -> Result<()> {
         .collect();
     steps.sort_unstable();
     let median = steps[steps.len() / 2] as f64 / cal.counts_per_pixel;
-    let max = rec.manifest.processing.max_step_rows;
     if median > f64::from(max) {
         bail!(
             "camera {i}: its frames advance a median {median:.1} board rows each (latch steps of {} counts over the calibration's counts_per_pixel {}), more than the {max} rows (processing.max_step_rows) its core takes: the latches of {} are scaled wrong (doubled?) or the calibration is of another encoder",
             steps[steps.len() / 2],
             cal.counts_per_pixel,
-            rec.dir.join(crate::simulation::recording::MANIFEST_FILE).display()
+            source.display()
         );
     }
     Ok(())
+}
+
+/// [`check_latch_steps`] on a recording's manifest.
+fn check_recording_steps(rec: &Recording, cal: &CameraCal, i: usize) -> Result<()> {
+    let t: Vec<dpsa_core::Trigger> = rec.manifest.frames.iter().map(|f| f.trigger()).collect();
+    check_latch_steps(
+        &t,
+        rec.manifest.processing.max_step_rows,
+        cal,
+        i,
+        &rec.dir.join(crate::simulation::recording::MANIFEST_FILE),
+    )
 }
 
 /// A camera that contributes less than this fraction of an equal share (valid map pixels /
@@ -508,9 +552,12 @@ pub fn run_shown(
     let t0 = Instant::now();
     let (cams, mut streams_report) = match source {
         Source::Core => {
+            for ((r, c), i) in recs.iter().zip(&cal.camera).zip(0..) {
+                check_recording_steps(r, c, i)?;
+            }
             let bar = crate::progress::progress_bar(progress, 0, "board core");
             let bar = &bar;
-            let cams: Vec<CameraRows> = std::thread::scope(|s| {
+            let cams: Vec<(CameraRows, u64)> = std::thread::scope(|s| {
                 let handles: Vec<_> = recs
                     .iter()
                     .zip(&cal.camera)
@@ -518,12 +565,13 @@ pub fn run_shown(
                         s.spawn(move || {
                             let max_step = r.manifest.processing.max_step_rows;
                             let r = calibrated(r, c, cal.height_lsb_um)?;
+                            let prov = Provenance::of_recording(&r);
                             core_rows_counted(&r, c, cal.height_lsb_um, bar)?.finish(
-                                &r,
+                                &prov,
+                                Some(&r),
                                 c,
                                 max_step,
                                 &[],
-                                true,
                             )
                         })
                     })
@@ -553,18 +601,25 @@ pub fn run_shown(
             let cams = arrived
                 .into_iter()
                 .zip(recs.iter().zip(&cal.camera))
-                .map(|(a, (r, c))| {
+                .enumerate()
+                .map(|(i, (a, (r, c)))| {
+                    // Where each row came from: the registration replayed on the stream's
+                    // own trigger log, not on the recording's frames.
+                    check_latch_steps(&a.triggers, a.registration.max_step_rows, c, i, &a.path)?;
+                    let prov = Provenance::replay(&a.triggers, &a.registration);
                     let mut rows = Collector::new(c, cal.height_lsb_um);
                     for row in &a.map.rows {
                         rows.push(row);
                     }
+                    // The recording only for the simulator's truth (the Cramer-Rao bound).
                     let r = calibrated(r, c, cal.height_lsb_um)?;
-                    rows.finish(&r, c, r.manifest.processing.max_step_rows, &a.lost, true)
+                    rows.finish(&prov, Some(&r), c, a.registration.max_step_rows, &a.lost)
                 })
                 .collect::<Result<Vec<_>>>()?;
             (cams, Some(report))
         }
     };
+    let (cams, unplaced): (Vec<CameraRows>, Vec<u64>) = cams.into_iter().unzip();
     let core_s = t0.elapsed().as_secs_f64();
 
     // The steps after the core, one bar position each; the truth comparison has its own bar.
@@ -658,6 +713,7 @@ pub fn run_shown(
                 0.0
             },
             dead_masked: cams.iter().map(|c| c.dead_masked).collect(),
+            unplaced_rows: unplaced,
         },
         unwrap: UnwrapStats {
             wrong_turn_pixels: truth.as_ref().map(|t| t.wrong_turn_pixels),

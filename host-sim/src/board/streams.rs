@@ -18,9 +18,12 @@
 use super::resample::{BoardGrid, CameraPlacement};
 use crate::calibration::file::{CalFile, CameraCal};
 use crate::heightmap::HeightMap;
+use crate::reference::dpsa::Registration;
 use crate::simulation::recording::{BoardId, Recording};
+use crate::simulation::scene::round_counts_per_pixel;
 use crate::stream::{self, Damage, DecodeOutcome, DecodeReport, Keep};
 use anyhow::{bail, Context, Result};
+use dpsa_core::Trigger;
 use serde::Serialize;
 use std::io::{BufReader, Read};
 use std::path::{Path, PathBuf};
@@ -80,9 +83,23 @@ pub struct CameraStream {
 
 /// One camera's rows from its stream.
 pub struct Arrived {
+    /// The stream's file.
+    pub path: PathBuf,
     pub map: HeightMap,
     /// Lost board rows, inclusive ranges, clipped to where the camera sees the board.
     pub lost: Vec<(i64, i64)>,
+    /// The stream's trigger log (every frame's counter and latch, frame order).
+    pub triggers: Vec<Trigger>,
+    /// What replaying the registration on `triggers` needs: the stream header's `H`, `n`,
+    /// `max_step_rows`, the calibration's counts per pixel.
+    pub registration: Registration,
+}
+
+/// One decoded stream: its rows, its trigger log and its report.
+struct Decoded {
+    map: HeightMap,
+    triggers: Vec<Trigger>,
+    report: DecodeReport,
 }
 
 /// The most bytes read from one stream: enough for [`stream::MAX_MAP_PIXELS`] heights of the
@@ -114,7 +131,7 @@ pub fn board_extent(p: &CameraPlacement, grid: &BoardGrid, width: u32) -> (i64, 
 }
 
 /// Decodes one stream file in bounded memory.
-fn read(path: &Path, lsb_um: f64, max_bytes: u64) -> Result<(HeightMap, DecodeReport)> {
+fn read(path: &Path, lsb_um: f64, max_bytes: u64) -> Result<Decoded> {
     let file = crate::files::open_regular(path, "packet stream")?;
     let keep = Keep {
         rows: true,
@@ -137,8 +154,20 @@ fn read(path: &Path, lsb_um: f64, max_bytes: u64) -> Result<(HeightMap, DecodeRe
             stream::MAX_MAP_PIXELS >> 20
         );
     }
+    if d.triggers_over_limit {
+        bail!(
+            "packet stream {} holds more than {} frame trigger records, more than one camera of \
+             a board map can have",
+            path.display(),
+            stream::MAX_TRIGGERS
+        );
+    }
     let map = d.map.unwrap_or_else(|| HeightMap::new(0, lsb_um));
-    Ok((map, d.report))
+    Ok(Decoded {
+        map,
+        triggers: d.triggers,
+        report: d.report,
+    })
 }
 
 /// The configuration hash a stream of camera `cal` carries when its frame grabber runs with
@@ -247,16 +276,17 @@ pub fn read_streams(
     check_widths(paths, &decoded, &order, cal)?;
     let board = check_board(paths, &decoded, &order, board, rec_dir)?;
     check_configs(paths, &decoded, &order, cal, recs)?;
+    check_trigger_logs(paths, &decoded, &order)?;
 
     // Rows and what was lost, camera by camera.
-    let mut slots: Vec<Option<(HeightMap, DecodeReport)>> = decoded.into_iter().map(Some).collect();
+    let mut slots: Vec<Option<Decoded>> = decoded.into_iter().map(Some).collect();
     let mut arrived = Vec::with_capacity(n);
     let mut cameras = Vec::with_capacity(n);
     for (i, &k) in order.iter().enumerate() {
-        let Some((map, rep)) = slots[k].take() else {
+        let Some(read) = slots[k].take() else {
             bail!("internal error: stream {k} matched twice");
         };
-        let (camera, rows) = camera_stream(i, &paths[k], map, rep, extents[i]);
+        let (camera, rows) = camera_stream(i, &paths[k], read, &cal.camera[i], extents[i]);
         cameras.push(camera);
         arrived.push(rows);
     }
@@ -275,7 +305,7 @@ pub fn read_streams(
 }
 
 /// Decodes every stream (one thread each, at most [`max_stream_bytes`] of `cal` read).
-fn decode_all(paths: &[PathBuf], cal: &CalFile) -> Result<Vec<(HeightMap, DecodeReport)>> {
+fn decode_all(paths: &[PathBuf], cal: &CalFile) -> Result<Vec<Decoded>> {
     let max_bytes = max_stream_bytes(cal);
     std::thread::scope(|s| {
         let handles: Vec<_> = paths
@@ -295,13 +325,9 @@ fn decode_all(paths: &[PathBuf], cal: &CalFile) -> Result<Vec<(HeightMap, Decode
 
 /// Matches the streams to the `n` cameras by the camera id of their stream headers: which
 /// stream is camera `i`'s (one per camera, none twice, every id below `n`).
-fn match_cameras(
-    paths: &[PathBuf],
-    decoded: &[(HeightMap, DecodeReport)],
-    n: usize,
-) -> Result<Vec<usize>> {
+fn match_cameras(paths: &[PathBuf], decoded: &[Decoded], n: usize) -> Result<Vec<usize>> {
     let mut slot: Vec<Option<usize>> = vec![None; n];
-    for (k, (path, (_, rep))) in paths.iter().zip(decoded).enumerate() {
+    for (k, (path, Decoded { report: rep, .. })) in paths.iter().zip(decoded).enumerate() {
         let st = &rep.stream;
         let Some(camera) = st.camera else {
             bail!(
@@ -334,12 +360,12 @@ fn match_cameras(
 /// Each camera's stream is as wide as the calibration's camera.
 fn check_widths(
     paths: &[PathBuf],
-    decoded: &[(HeightMap, DecodeReport)],
+    decoded: &[Decoded],
     order: &[usize],
     cal: &CalFile,
 ) -> Result<()> {
     for (i, &k) in order.iter().enumerate() {
-        let st = &decoded[k].1.stream;
+        let st = &decoded[k].report.stream;
         let w = st.width.map_or(0, u32::from);
         if w != cal.camera[i].width {
             bail!(
@@ -355,12 +381,12 @@ fn check_widths(
 /// Every stream has the same run id, and it is the recording's board identity (returned).
 fn check_board(
     paths: &[PathBuf],
-    decoded: &[(HeightMap, DecodeReport)],
+    decoded: &[Decoded],
     order: &[usize],
     board: Option<BoardId>,
     rec_dir: &Path,
 ) -> Result<BoardId> {
-    let run_of = |k: usize| decoded[k].1.stream.run_id.unwrap_or(0);
+    let run_of = |k: usize| decoded[k].report.stream.run_id.unwrap_or(0);
     let first = order[0];
     for &k in &order[1..] {
         if run_of(k) != run_of(first) {
@@ -368,10 +394,10 @@ fn check_board(
                 "streams from different boards: {} (camera {}) has run id {:016x}, {} (camera {}) \
                  {:016x}",
                 paths[first].display(),
-                decoded[first].1.stream.camera.unwrap_or(0),
+                decoded[first].report.stream.camera.unwrap_or(0),
                 run_of(first),
                 paths[k].display(),
-                decoded[k].1.stream.camera.unwrap_or(0),
+                decoded[k].report.stream.camera.unwrap_or(0),
                 run_of(k)
             );
         }
@@ -398,7 +424,7 @@ fn check_board(
 /// give (configuration hash).
 fn check_configs(
     paths: &[PathBuf],
-    decoded: &[(HeightMap, DecodeReport)],
+    decoded: &[Decoded],
     order: &[usize],
     cal: &CalFile,
     recs: &[Recording],
@@ -408,7 +434,12 @@ fn check_configs(
             "{:016x}",
             expected_config_hash(&recs[i], &cal.camera[i], cal.height_lsb_um)?
         );
-        let have = decoded[k].1.stream.config_hash.clone().unwrap_or_default();
+        let have = decoded[k]
+            .report
+            .stream
+            .config_hash
+            .clone()
+            .unwrap_or_default();
         if have != want {
             bail!(
                 "{} (camera {i}) was made with another configuration than the calibration gives \
@@ -421,14 +452,37 @@ fn check_configs(
     Ok(())
 }
 
-/// Camera `i`'s report line and rows from its decoded stream at `path` (board rows `extent`).
+/// Every stream carries its trigger log (streams made before trigger records have none, and a
+/// stream that lost all of them cannot say where its rows came from).
+fn check_trigger_logs(paths: &[PathBuf], decoded: &[Decoded], order: &[usize]) -> Result<()> {
+    for (i, &k) in order.iter().enumerate() {
+        let d = &decoded[k];
+        if d.triggers.is_empty() && !d.map.rows.is_empty() {
+            bail!(
+                "{} (camera {i}) carries no frame trigger records (a stream made before they \
+                 were part of the format, or every one was lost): which frames fed its rows, and \
+                 so its dead-pixel masks and row places, cannot be known; make it again",
+                paths[k].display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Camera `i`'s report line and rows from its decoded stream at `path` (calibration `cal`,
+/// board rows `extent`).
 fn camera_stream(
     i: usize,
     path: &Path,
-    map: HeightMap,
-    rep: DecodeReport,
+    read: Decoded,
+    cal: &CameraCal,
     extent: (i64, i64),
 ) -> (CameraStream, Arrived) {
+    let Decoded {
+        map,
+        triggers,
+        report: rep,
+    } = read;
     let (lost, missing, listed) = lost_rows(&map, &rep, extent);
     let verdict = rep.verdict(&map);
     let status = if verdict == DecodeOutcome::Clean && missing == 0 {
@@ -456,7 +510,20 @@ fn camera_stream(
         damage: rep.damage.clone(),
         status,
     };
-    (camera, Arrived { map, lost })
+    let registration = Registration {
+        rows: st.frame_rows.map_or(cal.rows, u32::from),
+        n: st.n.unwrap_or(0),
+        max_step_rows: st.max_step_rows.map_or(0, u32::from),
+        counts_per_pixel: round_counts_per_pixel(cal.counts_per_pixel),
+    };
+    let arrived = Arrived {
+        path: path.to_path_buf(),
+        map,
+        lost,
+        triggers,
+        registration,
+    };
+    (camera, arrived)
 }
 
 #[cfg(test)]

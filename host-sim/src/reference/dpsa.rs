@@ -13,6 +13,7 @@
 
 use crate::heightmap::{flags, HeightMap, HeightRow};
 use crate::simulation::recording::{Frame, Manifest};
+use dpsa_core::Trigger;
 use nalgebra::{Dyn, Matrix2, Matrix3, OMatrix, SymmetricEigen, U3};
 use std::f64::consts::{PI, TAU};
 
@@ -80,11 +81,49 @@ pub struct RowPlan {
 /// [`reconstruct`]. An empty manifest, `H = 0`, an unusable `counts_per_pixel` or a row span
 /// above [`MAX_PLAN_ROWS`] gives an empty plan.
 pub fn plan(manifest: &Manifest) -> Vec<RowPlan> {
-    let h = i64::from(manifest.camera.rows);
-    let n = usize::from(manifest.processing.n);
-    let max_step_rows = i64::from(manifest.processing.max_step_rows);
-    let frames = &manifest.frames;
-    let Some(o) = offsets(manifest) else {
+    let triggers: Vec<Trigger> = manifest.frames.iter().map(|f| f.trigger()).collect();
+    plan_triggers(
+        &triggers,
+        &Registration {
+            rows: manifest.camera.rows,
+            n: manifest.processing.n,
+            max_step_rows: manifest.processing.max_step_rows,
+            counts_per_pixel: manifest.calibration.counts_per_pixel,
+        },
+    )
+}
+
+/// What the registration of a camera's frames needs besides their triggers: the frame
+/// geometry and processing of its configuration (the stream header's `H`, `n` and
+/// `max_step_rows`, the calibration's counts per pixel).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Registration {
+    /// ROI rows per frame `H`.
+    pub rows: u32,
+    /// Observations per row `n`.
+    pub n: u8,
+    /// Rows a frame admits at most.
+    pub max_step_rows: u32,
+    /// Encoder counts per board row (a multiple of 2^-16).
+    pub counts_per_pixel: f64,
+}
+
+/// Offsets `o_k` of frames triggered at `triggers`, px; `None` when any is unusable.
+pub fn trigger_offsets(triggers: &[Trigger], counts_per_pixel: f64) -> Option<Vec<i64>> {
+    triggers
+        .iter()
+        .map(|t| offset(t.latch, counts_per_pixel))
+        .collect()
+}
+
+/// [`plan`] of the frames triggered at `triggers` (a recording's manifest or a stream's
+/// trigger log) with `reg`; `first_frame` indexes `triggers`.
+pub fn plan_triggers(triggers: &[Trigger], reg: &Registration) -> Vec<RowPlan> {
+    let h = i64::from(reg.rows);
+    let n = usize::from(reg.n);
+    let max_step_rows = i64::from(reg.max_step_rows);
+    let frames = triggers;
+    let Some(o) = trigger_offsets(triggers, reg.counts_per_pixel) else {
         return Vec::new();
     };
     let (Some(&lo), Some(&hi)) = (o.first(), o.iter().max()) else {
@@ -121,14 +160,7 @@ pub fn plan(manifest: &Manifest) -> Vec<RowPlan> {
 }
 
 /// Window flags of board row `b` entering at frame `w` (step 4).
-fn window_flags(
-    b: i64,
-    w: usize,
-    n: usize,
-    h: i64,
-    o: &[i64],
-    frames: &[crate::simulation::recording::FrameEntry],
-) -> u16 {
+fn window_flags(b: i64, w: usize, n: usize, h: i64, o: &[i64], frames: &[Trigger]) -> u16 {
     let mut f = 0;
     for j in 0..n {
         let k = w + j;

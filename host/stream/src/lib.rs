@@ -11,6 +11,7 @@ use dpsa_core::packets::{
     self, codec, Item, Kind, Packet, PacketError, Summary, Totals, Tracker, Verdict, Walk,
     MAX_PACKET_LEN,
 };
+use dpsa_core::Trigger;
 use dpsa_formats::heightmap::{HeightMap, HeightRow};
 use serde::Serialize;
 use std::io::Read;
@@ -58,6 +59,12 @@ pub struct StreamReport {
     pub config_hash: Option<String>,
     /// Codec intra period from the stream header, rows (`None`: no header).
     pub intra_period: Option<u32>,
+    /// Observations per row `n` from the stream header (`None`: no header).
+    pub n: Option<u8>,
+    /// ROI rows per frame `H` from the stream header (`None`: no header).
+    pub frame_rows: Option<u16>,
+    /// Rows a frame admits at most, from the stream header (`None`: no header).
+    pub max_step_rows: Option<u16>,
     /// Packets lost (sequence numbers never seen, and packets the end's total says exist).
     pub missing: u64,
     /// Packets whose sequence number was seen already (version 1, which has none: board rows
@@ -88,6 +95,9 @@ pub struct StreamReport {
     pub gap_rows: u64,
     /// Board rows between the first and the last row or gap that no packet covers.
     pub rows_missing: u64,
+    /// Frame trigger records accepted (the stream's trigger log, one per frame the frame
+    /// grabber took; 0 in streams made before trigger records).
+    pub triggers: u64,
 }
 
 /// The end packet's totals.
@@ -206,6 +216,10 @@ pub struct Keep {
 /// counted, but gives no map.
 pub const MAX_MAP_PIXELS: u64 = 1 << 26;
 
+/// Frame triggers a decode keeps at most (2^24, 256 MiB of them): more than a stream of a map
+/// of [`MAX_MAP_PIXELS`] holds at one frame per board row of the narrowest camera.
+pub const MAX_TRIGGERS: usize = 1 << 24;
+
 /// Rows decoded from a stream, each board row counted once.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
 pub struct RowCounts {
@@ -228,6 +242,12 @@ pub struct Decoded {
     pub rows: RowCounts,
     /// The map would have exceeded [`Keep::max_pixels`].
     pub over_limit: bool,
+    /// The stream's trigger log in packet order (kept with the rows, [`Keep::rows`]; at most
+    /// [`MAX_TRIGGERS`], past it [`Decoded::triggers_over_limit`]): every frame's counter and
+    /// latch.
+    pub triggers: Vec<Trigger>,
+    /// The stream held more than [`MAX_TRIGGERS`] trigger records: `triggers` is incomplete.
+    pub triggers_over_limit: bool,
     /// The damage and stream report.
     pub report: DecodeReport,
 }
@@ -278,6 +298,10 @@ struct Decoder {
     keep: Keep,
     kept_pixels: u64,
     over_limit: bool,
+    /// Trigger records kept, with their packets' sequence numbers (16 + 4 bytes each, less
+    /// than the 44-byte record).
+    triggers: Vec<(u32, Trigger)>,
+    triggers_over_limit: bool,
 }
 
 impl Decoder {
@@ -330,6 +354,18 @@ impl Decoder {
                             count: g.count,
                             flags: g.flags,
                         });
+                    }
+                }
+            }
+            Kind::Trigger => {
+                self.rep.ok += 1;
+                if let Some(t) = p.trigger() {
+                    if self.keep.rows {
+                        if self.triggers.len() < MAX_TRIGGERS {
+                            self.triggers.push((p.seq, t));
+                        } else {
+                            self.triggers_over_limit = true;
+                        }
                     }
                 }
             }
@@ -468,6 +504,9 @@ impl Decoder {
             st.run_id = Some(i.run_id);
             st.config_hash = Some(format!("{:016x}", i.config_hash));
             st.intra_period = Some(i.intra_period);
+            st.n = Some(i.n);
+            st.frame_rows = Some(i.rows);
+            st.max_step_rows = Some(i.max_step_rows);
         }
         st.missing = s.missing;
         st.duplicated = s.duplicated + if s.version == 1 { dup_rows } else { 0 };
@@ -480,6 +519,10 @@ impl Decoder {
         st.end_totals = s.totals.map(Into::into);
         st.gap_records = s.gaps;
         st.gap_rows = s.gap_rows;
+        st.triggers = s.triggers;
+        // Frame order is packet order (a late packet goes back to its place).
+        self.triggers.sort_by_key(|t| t.0);
+        let triggers = self.triggers.into_iter().map(|t| t.1).collect();
         if s.first_row <= s.last_row {
             let span = (s.last_row as i128 - s.first_row as i128 + 1) as u128;
             let covered = n_rows + s.gap_rows as u128;
@@ -489,6 +532,8 @@ impl Decoder {
             map,
             rows: counts,
             over_limit: self.over_limit,
+            triggers,
+            triggers_over_limit: self.triggers_over_limit,
             report: self.rep,
         }
     }
@@ -527,6 +572,8 @@ pub fn decode_reader_with<R: Read>(
         keep,
         kept_pixels: 0,
         over_limit: false,
+        triggers: Vec::new(),
+        triggers_over_limit: false,
     };
     let mut walk = Walk::new();
     let mut buf: Vec<u8> = Vec::with_capacity(CHUNK + MAX_PACKET_LEN);
