@@ -91,7 +91,7 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
     let cams: Vec<CameraRows> = per_camera(
         collected.into_iter().zip(loaded.iter().zip(&cal.camera)),
         |(col, ((r, _), c))| {
-            let prov = crate::board::provenance::Provenance::of_recording(r);
+            let prov = crate::board::provenance::of_recording(r);
             let max_step = r.manifest.processing.max_step_rows;
             Ok(col.finish(&prov, None, c, max_step, &[])?.0)
         },

@@ -565,7 +565,7 @@ pub fn run_shown(
                         s.spawn(move || {
                             let max_step = r.manifest.processing.max_step_rows;
                             let r = calibrated(r, c, cal.height_lsb_um)?;
-                            let prov = Provenance::of_recording(&r);
+                            let prov = super::provenance::of_recording(&r);
                             core_rows_counted(&r, c, cal.height_lsb_um, bar)?.finish(
                                 &prov,
                                 Some(&r),

@@ -13,32 +13,12 @@
 
 use crate::heightmap::{flags, HeightMap, HeightRow};
 use crate::simulation::recording::{Frame, Manifest};
+pub use dpsa_board::provenance::{
+    offset, plan_triggers, trigger_offsets, Registration, RowPlan, MAX_PLAN_ROWS,
+};
 use dpsa_core::Trigger;
 use nalgebra::{Dyn, Matrix2, Matrix3, OMatrix, SymmetricEigen, U3};
 use std::f64::consts::{PI, TAU};
-
-/// Largest number of board rows [`plan`] will enumerate. Offsets spanning more rows than this
-/// (absurd latches or calibration) are treated as unusable data and give an empty plan rather
-/// than an enormous allocation.
-pub const MAX_PLAN_ROWS: i64 = 1 << 24;
-
-/// Largest absolute offset accepted, px; keeps `o_k + H` far from `i64` overflow.
-const MAX_ABS_OFFSET: f64 = (1u64 << 60) as f64;
-
-/// Registration step 1: `o = floor(e / cpp + 1/2)` (round half up), px.
-///
-/// Computed in f64. `cpp` is a multiple of 2^-16, so the exact quotient `e / cpp` is at least
-/// `1 / (2 * 65536 * cpp)` away from a half-integer unless it is one; the f64 quotient is
-/// correctly rounded, so the result is exact while `|e| < 2^36` counts (and `e` itself is exact
-/// in f64 up to 2^53). Returns `None` for a non-finite result or `|o| >= 2^60`
-/// (non-positive or non-finite `cpp`).
-pub fn offset(latch: i64, counts_per_pixel: f64) -> Option<i64> {
-    if !(counts_per_pixel > 0.0 && counts_per_pixel.is_finite()) {
-        return None;
-    }
-    let o = (latch as f64 / counts_per_pixel + 0.5).floor();
-    (o.is_finite() && o.abs() < MAX_ABS_OFFSET).then_some(o as i64)
-}
 
 /// Offsets `o_k` of all manifest frames, px; `None` when any is unusable (see [`offset`]).
 pub fn offsets(manifest: &Manifest) -> Option<Vec<i64>> {
@@ -50,36 +30,11 @@ pub fn offsets(manifest: &Manifest) -> Option<Vec<i64>> {
         .collect()
 }
 
-/// The registration decision for one board row.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct RowPlan {
-    /// Board row `b`.
-    pub row: i64,
-    /// Index into `manifest.frames` of the frame `w` at which the row entered; `None` for
-    /// rows that never entered (`SKIPPED`).
-    pub first_frame: Option<usize>,
-    /// Row-level flags decidable from the manifest alone: `SKIPPED`, `INCOMPLETE`,
-    /// `FRAME_GAP` (sequence gaps), `ENCODER_REVERSAL`. Zero when the window is usable.
-    pub flags: u16,
-}
-
-/// Registration steps 1-4 of `docs/model.md`.
-///
-/// Returns every board row from the first frame's top row (`o_0`) to `E_last - 1` exactly
-/// once, in increasing order (rows below `o_0`, visible only after a reversal, never enter):
-/// - rows that entered at frame `w` (`[max(E_{w-1}, o_w + H - max_step_rows), o_w + H)`) carry
-///   `first_frame = Some(w)` and the window flags: `INCOMPLETE` when the row is not visible
-///   in one of the frames `w..w+n-1` or the window runs past the last frame, `FRAME_GAP` when
-///   consecutive window frames do not have consecutive `seq` (wrapping `u32` counter),
-///   `ENCODER_REVERSAL` when the latch decreases between consecutive window frames (a
-///   decrease never re-admits rows because `E_k` is a running maximum). The flags of a window
-///   truncated by the end of the recording are evaluated over the frames that exist;
-/// - all other rows (below the `max_step_rows` bound of the frame that first showed them) are
-///   `SKIPPED` with no frame.
-///
-/// Frame-content checks (a frame that did not deliver the row's line) are added by
-/// [`reconstruct`]. An empty manifest, `H = 0`, an unusable `counts_per_pixel` or a row span
-/// above [`MAX_PLAN_ROWS`] gives an empty plan.
+/// Registration steps 1-4 of `docs/model.md` on a manifest's frames
+/// ([`plan_triggers`], which the production board map
+/// replays on a stream's trigger log: one implementation of the rule, in `dpsa-board`).
+/// `first_frame` indexes `manifest.frames`. Frame-content checks (a frame that did not deliver
+/// the row's line) are added by [`reconstruct`].
 pub fn plan(manifest: &Manifest) -> Vec<RowPlan> {
     let triggers: Vec<Trigger> = manifest.frames.iter().map(|f| f.trigger()).collect();
     plan_triggers(
@@ -91,96 +46,6 @@ pub fn plan(manifest: &Manifest) -> Vec<RowPlan> {
             counts_per_pixel: manifest.calibration.counts_per_pixel,
         },
     )
-}
-
-/// What the registration of a camera's frames needs besides their triggers: the frame
-/// geometry and processing of its configuration (the stream header's `H`, `n` and
-/// `max_step_rows`, the calibration's counts per pixel).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Registration {
-    /// ROI rows per frame `H`.
-    pub rows: u32,
-    /// Observations per row `n`.
-    pub n: u8,
-    /// Rows a frame admits at most.
-    pub max_step_rows: u32,
-    /// Encoder counts per board row (a multiple of 2^-16).
-    pub counts_per_pixel: f64,
-}
-
-/// Offsets `o_k` of frames triggered at `triggers`, px; `None` when any is unusable.
-pub fn trigger_offsets(triggers: &[Trigger], counts_per_pixel: f64) -> Option<Vec<i64>> {
-    triggers
-        .iter()
-        .map(|t| offset(t.latch, counts_per_pixel))
-        .collect()
-}
-
-/// [`plan`] of the frames triggered at `triggers` (a recording's manifest or a stream's
-/// trigger log) with `reg`; `first_frame` indexes `triggers`.
-pub fn plan_triggers(triggers: &[Trigger], reg: &Registration) -> Vec<RowPlan> {
-    let h = i64::from(reg.rows);
-    let n = usize::from(reg.n);
-    let max_step_rows = i64::from(reg.max_step_rows);
-    let frames = triggers;
-    let Some(o) = trigger_offsets(triggers, reg.counts_per_pixel) else {
-        return Vec::new();
-    };
-    let (Some(&lo), Some(&hi)) = (o.first(), o.iter().max()) else {
-        return Vec::new();
-    };
-    let end = hi + h; // E_last
-    if h == 0 || end - lo > MAX_PLAN_ROWS {
-        return Vec::new();
-    }
-
-    let mut rows: Vec<RowPlan> = (lo..end)
-        .map(|row| RowPlan {
-            row,
-            first_frame: None,
-            flags: flags::SKIPPED,
-        })
-        .collect();
-
-    let mut e_prev = i64::MIN; // E_{k-1}, -inf before the first frame
-    for (k, &ok) in o.iter().enumerate() {
-        let top = ok + h;
-        let from = e_prev.max(top - max_step_rows).max(lo);
-        for b in from..top {
-            let f = window_flags(b, k, n, h, &o, frames);
-            rows[(b - lo) as usize] = RowPlan {
-                row: b,
-                first_frame: Some(k),
-                flags: f,
-            };
-        }
-        e_prev = e_prev.max(top);
-    }
-    rows
-}
-
-/// Window flags of board row `b` entering at frame `w` (step 4).
-fn window_flags(b: i64, w: usize, n: usize, h: i64, o: &[i64], frames: &[Trigger]) -> u16 {
-    let mut f = 0;
-    for j in 0..n {
-        let k = w + j;
-        if k >= o.len() {
-            f |= flags::INCOMPLETE;
-            break;
-        }
-        if !(o[k] <= b && b < o[k] + h) {
-            f |= flags::INCOMPLETE;
-        }
-        if j > 0 {
-            if frames[k].seq != frames[k - 1].seq.wrapping_add(1) {
-                f |= flags::FRAME_GAP;
-            }
-            if frames[k].latch < frames[k - 1].latch {
-                f |= flags::ENCODER_REVERSAL;
-            }
-        }
-    }
-    f
 }
 
 /// Noise gain `g = sqrt(n / (2 lambda_min(A)))` of a shift set (rad), `docs/model.md`.

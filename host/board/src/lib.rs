@@ -3,6 +3,9 @@
 //! Every camera's rows placed in board millimetres, unwrapped into absolute heights and
 //! blended where cameras overlap (`docs/board.md`). The data flow, one file per step:
 //!
+//! - [`provenance`]: which frames fed each of a camera's board rows, the registration replayed
+//!   on the frames' triggers (a recording's latches or a stream's trigger log): the dead-pixel
+//!   masks and the row [`places`].
 //! - [`unwrap`]: a camera's wrapped heights (known modulo one fringe turn `T_z`) into absolute
 //!   heights, referenced to the smooth local board surface (paste stays within half a turn of
 //!   it; the board's bow does not), and anchored by the board's clamped edges.
@@ -15,10 +18,10 @@
 //! - [`output`]: the 16-bit PNG, the float TIFF in micrometres, the false-colour PNG with its
 //!   scale bar, and the JSON metadata.
 //!
-//! On the bottom layer (`dpsa-formats`) only. What feeds it (the core on a recording or the
-//! cameras' streams, the calibration, the provenance of each row) and the comparison with a
-//! simulated board's truth are still in `dpsa-sim` (`board::run`, `board::streams`,
-//! `board::provenance`, `board::truth`).
+//! On the bottom layer (`dpsa-formats`, and `dpsa-core` for the frame trigger) only. What feeds
+//! it (the core on a recording or the cameras' streams, the calibration), the Cramer-Rao bound
+//! per pixel and the comparison with a simulated board's truth are still in `dpsa-sim`
+//! (`board::run`, `board::streams`, `board::provenance::crb_variance`, `board::truth`).
 //!
 //! Heights are `f32` micrometres; NaN marks an invalid pixel everywhere in this crate.
 
@@ -26,6 +29,7 @@ pub mod assemble;
 pub mod blend;
 pub mod output;
 pub mod places;
+pub mod provenance;
 pub mod resample;
 pub mod unwrap;
 

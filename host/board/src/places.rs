@@ -1,7 +1,7 @@
 //! Where a camera's rows were seen: the row places that the provenance of a board recording
 //! (its latches replayed) gives, and that the resampling uses instead of the nominal placement.
 
-/// Where a camera's rows were seen (`dpsa_sim::board::provenance::row_places` makes them).
+/// Where a camera's rows were seen ([`crate::provenance::row_places`] makes them).
 #[derive(Clone, Debug, PartialEq)]
 pub struct RowPlaces {
     /// Position of row `i` along the motion, in rows (increasing: neighbours differ by
