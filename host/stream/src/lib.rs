@@ -216,8 +216,9 @@ pub struct Keep {
 /// counted, but gives no map.
 pub const MAX_MAP_PIXELS: u64 = 1 << 26;
 
-/// Frame triggers a decode keeps at most (2^24, 256 MiB of them): more than a stream of a map
-/// of [`MAX_MAP_PIXELS`] holds at one frame per board row of the narrowest camera.
+/// Frame triggers a decode keeps at most (2^24; 24 bytes each while decoding, 16 after): more
+/// than a stream of a map of [`MAX_MAP_PIXELS`] holds at one frame per board row of a camera
+/// 4 px wide.
 pub const MAX_TRIGGERS: usize = 1 << 24;
 
 /// Rows decoded from a stream, each board row counted once.
@@ -298,8 +299,8 @@ struct Decoder {
     keep: Keep,
     kept_pixels: u64,
     over_limit: bool,
-    /// Trigger records kept, with their packets' sequence numbers (16 + 4 bytes each, less
-    /// than the 44-byte record).
+    /// Trigger records kept, with their packets' sequence numbers (24 bytes each, less than
+    /// the 44-byte record they came from).
     triggers: Vec<(u32, Trigger)>,
     triggers_over_limit: bool,
 }
