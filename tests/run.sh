@@ -31,8 +31,20 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 bash firmware/build.sh --install --clippy
 (cd fuzz && cargo fmt --check && cargo check --quiet)   # the fuzz target builds on dpsa-core alone
 
-echo "== the production binary: dpsa without the simulator (program, pads, inspect, decode)"
+echo "== the production binary: dpsa without the simulator (program, pads, board --streams, inspect, decode)"
 cargo build -p dpsa --no-default-features --locked --quiet
+for c in program pads board inspect decode; do
+    if ! target/debug/dpsa help "$c" >/dev/null; then
+        echo "error: the production binary has no \`$c\` command" >&2
+        exit 1
+    fi
+done
+# Without the simulator `board` takes the cameras' streams only; without them it says so.
+if ! target/debug/dpsa board /nonexistent --cal /nonexistent --out /nonexistent/map 2>&1 |
+    grep -q "give the cameras' packet streams with --streams"; then
+    echo "error: the production binary's board does not ask for --streams" >&2
+    exit 1
+fi
 prod=$(cargo tree -p dpsa --no-default-features -e normal,build --prefix none --locked | sed 's/ (\*)//' | sort -u)
 echo "   $(echo "$prod" | wc -l) crates (the full binary: $(cargo tree -p dpsa -e normal,build --prefix none --locked | sed 's/ (\*)//' | sort -u | wc -l))"
 for c in dpsa-sim zstd defmt-decoder lz4_flex heatshrink-lib rand_distr; do

@@ -26,7 +26,6 @@ fn main() {
         Cmd::Simulate(a) => commands::simulate::run(a, progress),
         #[cfg(feature = "sim")]
         Cmd::Calibrate(a) => commands::calibrate::run(a),
-        #[cfg(feature = "sim")]
         // 0, or 2 when a --streams stream was damaged or incomplete (commands/board.rs).
         Cmd::Board(a) => commands::board::run(a, progress).map(exit_unless_zero),
         #[cfg(feature = "sim")]

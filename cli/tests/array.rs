@@ -46,6 +46,23 @@ fn calibration_recording() -> &'static Path {
     })
 }
 
+/// The files of a board map (`dpsa board --out`).
+const MAP_FILES: [&str; 5] = [
+    "heights.png",
+    "heights_um.tiff",
+    "heights.colour.png",
+    "camera.png",
+    "board.json",
+];
+
+/// The board-map files of `a` and `b` are the same bytes (`what` names the two in the message).
+fn assert_same_map(a: &Path, b: &Path, what: &str) {
+    for f in MAP_FILES {
+        let same = std::fs::read(a.join(f)).unwrap() == std::fs::read(b.join(f)).unwrap();
+        assert!(same, "{f} differs between {what}");
+    }
+}
+
 #[test]
 fn calibration_meets_the_acceptance_targets() {
     let rec = calibration_recording();
@@ -138,8 +155,15 @@ fn calibration_meets_the_acceptance_targets() {
     let mut m = Recording::open(arr.camera_dir(1, Some("plane0")))
         .unwrap()
         .manifest;
-    cal.camera[1].apply(&mut m, cal.height_lsb_um).unwrap();
+    calibration::apply(&cal, 1, &mut m).unwrap();
     m.validate().unwrap();
+    // Calibration has one shape: the core's configuration of the calibrated recording is the
+    // calibration file's own (what a frame grabber configured with the file runs, and what
+    // `board --streams` checks the streams' configuration hash against).
+    assert_eq!(
+        dpsa_sim::reconstruct::config(&m).unwrap(),
+        dpsa_stream::config::of_calibration(&cal, 1).unwrap()
+    );
     assert_eq!(
         m.calibration.fringe_period_px,
         cal.camera[1].fringe_period_px
@@ -148,7 +172,7 @@ fn calibration_meets_the_acceptance_targets() {
     // included) measures the held-out plane: its heights are calibrated um in every column.
     let mut hold = Recording::open(arr.camera_dir(0, Some("holdout"))).unwrap();
     let cam = &cal.camera[0];
-    cam.apply(&mut hold.manifest, cal.height_lsb_um).unwrap();
+    calibration::apply(&cal, 0, &mut hold.manifest).unwrap();
     let (_, _, map) = dpsa_sim::reconstruct::reconstruct_map(&hold, false).unwrap();
     let mut errs = Vec::new();
     for row in map.rows.iter().filter(|r| r.is_valid()) {
@@ -170,12 +194,20 @@ fn calibration_meets_the_acceptance_targets() {
 
     let text = std::fs::read_to_string(&cal_path).unwrap();
     assert!(
-        text.starts_with("format = \"dpsa-calibration\"\nversion = 1\n"),
+        text.starts_with("format = \"dpsa-calibration\"\nversion = 2\n"),
         "{}",
         &text[..80]
     );
-    let e = CalFile::from_toml(&text.replace("version = 1", "version = 9")).unwrap_err();
+    assert!(text.contains("\n[processing]\nn = "), "{}", &text[..400]);
+    let e = CalFile::from_toml(&text.replace("version = 2", "version = 9")).unwrap_err();
     assert!(format!("{e:#}").contains("version 9"), "{e:#}");
+    // A version 1 file (before the processing and sample range were part of it) is named
+    // as such, with what to do.
+    let e = CalFile::from_toml(&text.replace("version = 2", "version = 1")).unwrap_err();
+    assert!(
+        format!("{e:#}").contains("run `dpsa calibrate` again"),
+        "{e:#}"
+    );
 }
 
 /// A copy of the shared recording's layout (symlinked passes) with `array.json` edited.
@@ -357,7 +389,7 @@ fn board_map_of_the_small_scene_against_its_truth() {
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let num = |a: &str, b: &str| v[a][b].as_f64().unwrap_or_else(|| panic!("{a}.{b}: {v}"));
     // A 300 um bow (0.6 turn at 500 um per turn) and 40 deposits: no pixel on a wrong turn.
-    assert_eq!(num("unwrap", "wrong_turn_pixels"), 0.0, "{v}");
+    assert_eq!(num("truth", "wrong_turn_pixels"), 0.0, "{v}");
     assert!(num("pixels", "valid_fraction") >= 0.97, "{v}");
     assert!(num("seams", "height_step_um_max") <= 0.3, "{v}");
     // Every seam axis has walls to measure (40 deposits), and the cameras meet within 5 um.
@@ -379,13 +411,7 @@ fn board_map_of_the_small_scene_against_its_truth() {
         assert!((150..600).contains(&masked), "{v}");
     }
     assert!(num("truth", "bias_um").abs() < 0.5, "{v}");
-    for f in [
-        "heights.png",
-        "heights_um.tiff",
-        "heights.colour.png",
-        "camera.png",
-        "board.json",
-    ] {
+    for f in MAP_FILES {
         assert!(out_dir.join(f).is_file(), "{f}");
     }
     // A calibration recording is not a board.
@@ -529,9 +555,7 @@ fn board_from_the_host_streams_is_the_core_map_byte_for_byte() {
     for cam in 0..3 {
         let mut rec = Recording::open(b.boards[0].join(format!("cam{cam}"))).unwrap();
         assert_eq!(format!("{:016x}", rec.run_id()), id);
-        cal.camera[cam]
-            .apply(&mut rec.manifest, cal.height_lsb_um)
-            .unwrap();
+        calibration::apply(&cal, cam, &mut rec.manifest).unwrap();
         assert_eq!(
             format!("{:016x}", rec.run_id()),
             id,
@@ -568,19 +592,7 @@ fn board_from_the_host_streams_is_the_core_map_byte_for_byte() {
         s[0].display().to_string()
     );
     assert!(v["pixels"]["valid_fraction"].as_f64().unwrap() > 0.9, "{v}");
-    for f in [
-        "heights.png",
-        "heights_um.tiff",
-        "heights.colour.png",
-        "camera.png",
-        "board.json",
-    ] {
-        let (a, c) = (
-            std::fs::read(core.join(f)).unwrap(),
-            std::fs::read(out.join(f)).unwrap(),
-        );
-        assert!(a == c, "{f} differs between the core and the streams");
-    }
+    assert_same_map(&core, &out, "the core and the streams");
 }
 
 /// Copies directory `from` to `to` (files and subdirectories).
@@ -642,19 +654,39 @@ fn board_streams_need_no_frames_only_their_trigger_logs() {
         "the calibration's dead pixels masked nothing: {v}"
     );
     let core = core_map(0);
-    for f in [
-        "heights.png",
-        "heights_um.tiff",
-        "heights.colour.png",
-        "camera.png",
-        "board.json",
-    ] {
-        let same = std::fs::read(core.join(f)).unwrap() == std::fs::read(out.join(f)).unwrap();
-        assert!(same, "{f} differs from the core's map without the frames");
-    }
+    assert_same_map(
+        &core,
+        &out,
+        "the core's map and the streams' without the frames",
+    );
     // The core needs the frames: on this recording it is refused.
     let o = board_cmd(&board, &tmp.path().join("core"), &[]);
     assert!(!o.status.success());
+
+    // No camera recording at all, only `array.json` (and the simulator's truth): the
+    // production library (what `cargo build -p dpsa --no-default-features` runs for
+    // `board --streams`) and the command both give the core's map byte for byte.
+    for cam in 0..3 {
+        std::fs::remove_dir_all(board.join(format!("cam{cam}"))).unwrap();
+    }
+    let cal = CalFile::load(calibration_file()).unwrap();
+    let streams: Vec<PathBuf> = s.iter().map(PathBuf::from).collect();
+    let lib = tmp.path().join("lib-map");
+    let built = dpsa_board::run::from_streams(&board, &cal, &streams, &lib, false).unwrap();
+    assert_eq!(built.report.pixels.unplaced_rows, vec![0, 0, 0]);
+    let cli = tmp.path().join("cli-map");
+    let o = board_cmd(&board, &cli, &[&s[0], &s[1], &s[2]]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_same_map(
+        &core,
+        &lib,
+        "the core's map and the library's without recordings",
+    );
+    assert_same_map(
+        &core,
+        &cli,
+        "the core's map and the command's without recordings",
+    );
 }
 
 /// A trigger record lost from a stream: the rows whose window the replay can no longer
@@ -786,22 +818,7 @@ fn board_from_predicted_row_streams_is_the_core_map_byte_for_byte() {
             serde_json::json!([0, 0, 0]),
             "K {k}: {v}"
         );
-        for f in [
-            "heights.png",
-            "heights_um.tiff",
-            "heights.colour.png",
-            "camera.png",
-            "board.json",
-        ] {
-            let (a, c) = (
-                std::fs::read(core.join(f)).unwrap(),
-                std::fs::read(out.join(f)).unwrap(),
-            );
-            assert!(
-                a == c,
-                "K {k}: {f} differs between the core and the streams"
-            );
-        }
+        assert_same_map(&core, &out, &format!("K {k}: the core and the streams"));
     }
 }
 

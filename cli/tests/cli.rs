@@ -463,6 +463,6 @@ fn demo_runs_the_camera_and_the_array() {
     }
     let r: Value =
         serde_json::from_slice(&std::fs::read(out.join("board-map/report.json")).unwrap()).unwrap();
-    assert_eq!(r["unwrap"]["wrong_turn_pixels"], 0, "{r}");
+    assert_eq!(r["truth"]["wrong_turn_pixels"], 0, "{r}");
     assert!(r["truth"]["over_crb"].as_f64().unwrap() <= 1.05, "{r}");
 }

@@ -259,6 +259,8 @@ fn truth_calibration(board: &Path) -> dpsa_sim::calibration::CalFile {
     use dpsa_sim::calibration::file::{CalFile, CameraCal, Lateral, CAL_FORMAT, CAL_VERSION};
     let arr = dpsa_sim::array::record::ArrayRecording::open(board).unwrap();
     let t = arr.truth().unwrap().unwrap();
+    // The frame grabbers' sample range and processing: the recording's own.
+    let m0 = Recording::open(arr.camera_dir(0, None)).unwrap().manifest;
     let camera = t
         .cameras
         .iter()
@@ -269,6 +271,8 @@ fn truth_calibration(board: &Path) -> dpsa_sim::calibration::CalFile {
                 id: m.id,
                 width: m.width,
                 rows: m.rows,
+                bit_depth: m0.camera.bit_depth,
+                saturation: m0.camera.saturation,
                 counts_per_pixel: m.counts_per_pixel,
                 counts_per_mm: t.counts_per_mm,
                 fringe_period_px: 1.0 / f,
@@ -301,6 +305,7 @@ fn truth_calibration(board: &Path) -> dpsa_sim::calibration::CalFile {
         counts_per_mm: t.counts_per_mm,
         height_lsb_um: 0.25,
         fx_budget_um: 0.5,
+        processing: m0.processing,
         camera,
     }
 }

@@ -234,6 +234,19 @@ fn every_calibration_field_is_validated_on_reading() {
         (Some(1), "id", |c| c.camera[1].id = 2),
         (Some(1), "width", |c| c.camera[1].width = 0),
         (Some(1), "rows", |c| c.camera[1].rows = 100_000),
+        (Some(1), "bit_depth", |c| c.camera[1].bit_depth = 17),
+        (Some(1), "saturation", |c| c.camera[1].saturation = 0),
+        (Some(1), "saturation", |c| c.camera[1].saturation = 5000),
+        (Some(0), "processing.n", |c| c.processing.n = 2),
+        (Some(0), "processing.max_step_rows", |c| {
+            c.processing.max_step_rows = 0
+        }),
+        (Some(0), "processing.min_modulation", |c| {
+            c.processing.min_modulation = f64::NAN
+        }),
+        (Some(0), "processing.max_noise_gain", |c| {
+            c.processing.max_noise_gain = 100.0
+        }),
         (Some(1), "counts_per_pixel", |c| {
             c.camera[1].counts_per_pixel *= 2.0
         }),
@@ -476,22 +489,13 @@ fn board_warns_from_the_evidence_with_exit_status_2() {
     assert!(!v["warnings"].as_array().unwrap().is_empty());
     assert!(out.join("heights.png").is_file());
 
-    // Camera 2 finds no pixel valid (its modulation threshold above anything it sees): it
-    // contributes nothing, and the map says so.
-    let d = board_variant(
-        "mute-camera",
-        |i| i,
-        |_| {},
-        |i, m| {
-            if i != 2 {
-                return false;
-            }
-            m["processing"]["min_modulation"] = 4000.0.into();
-            true
-        },
-    );
+    // Camera 2 finds no pixel valid (its frame grabber configured to take every sample as
+    // saturated): it contributes nothing, and the map says so.
+    let mut c = cal();
+    c.camera[2].saturation = 1;
+    let p = write_cal("mute-camera.cal.toml", &c);
     let out = root().join("mute.map");
-    let o = board_run(&d, cal_file(), &out);
+    let o = board_run(board(), &p, &out);
     let e = stderr(&o);
     assert_eq!(o.status.code(), Some(2), "{e}");
     assert!(

@@ -1,15 +1,18 @@
-//! `dpsa board`: an array recording and its calibration into one board height map.
+//! `dpsa board`: an array recording and its calibration into one board height map. The
+//! production build takes the rows from the cameras' streams (`--streams`: `dpsa_board::run`,
+//! reading only `array.json` of the recording); the simulator's (feature `sim`) can also run
+//! the core on the recording and compares the map with the simulated board's truth.
 
 use super::out;
 use anyhow::Result;
-use dpsa_sim::board::run::Source;
-use dpsa_sim::calibration::file::CalFile;
-use dpsa_sim::files;
+use dpsa_formats::calibration::CalFile;
+use dpsa_formats::{files, kind};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]
 pub struct Args {
-    /// Array board recording (`dpsa simulate --scene ARRAY.toml --out DIR`).
+    /// Array board recording (`dpsa simulate --scene ARRAY.toml --out DIR`, or a camera
+    /// array's, docs/recording.md). With --streams only its array.json is read.
     dir: PathBuf,
     /// Calibration file of the array (`dpsa calibrate`).
     #[arg(long)]
@@ -24,8 +27,9 @@ pub struct Args {
     json: bool,
     /// Take the rows from the cameras' packet streams (one per camera, any order; matched by
     /// the camera id in their headers), e.g. `dpsa reconstruct` or `dpsa target-run` with
-    /// `--cal CAL --camera I`, instead of running the core. Rows a stream lost stay invalid
-    /// in the map and are reported (exit status 2).
+    /// `--cal CAL --camera I`, instead of running the core (the production build has no core
+    /// on recordings: it needs them). Rows a stream lost stay invalid in the map and are
+    /// reported (exit status 2).
     #[arg(long, num_args = 1.., value_name = "STREAM")]
     streams: Vec<PathBuf>,
 }
@@ -34,29 +38,50 @@ pub struct Args {
 /// (the map is written with the rows it lost invalid), as `dpsa decode`, or when the map
 /// itself shows it is wrong or useless (`Report::warnings`).
 pub fn run(a: Args, progress: bool) -> Result<i32> {
-    dpsa_sim::kind::expect(
-        &a.dir,
-        "DIR",
-        dpsa_sim::kind::Kind::ArrayBoardRecording,
-        &[],
-    )?;
-    dpsa_sim::kind::expect(&a.cal, "--cal", dpsa_sim::kind::Kind::Calibration, &[])?;
+    #[cfg(not(feature = "sim"))]
+    if a.streams.is_empty() {
+        anyhow::bail!(
+            "this build has no core on recordings (it is built without the feature `sim`): \
+             give the cameras' packet streams with --streams"
+        );
+    }
+    kind::expect(&a.dir, "DIR", kind::Kind::ArrayBoardRecording, &[])?;
+    kind::expect(&a.cal, "--cal", kind::Kind::Calibration, &[])?;
     for s in &a.streams {
-        dpsa_sim::kind::expect(s, "--streams", dpsa_sim::kind::Kind::Stream, &[])?;
+        kind::expect(s, "--streams", kind::Kind::Stream, &[])?;
     }
     let mut inputs = vec![files::Input::Dir(&a.dir), files::Input::File(&a.cal)];
     inputs.extend(a.streams.iter().map(|p| files::Input::File(p)));
     // The map directory may not be, hold or lie inside an input; it replaces only an
     // earlier map (checked again when it is swapped in).
     files::refuse_overwrite_dir("--out", &a.out, &inputs)?;
-    dpsa_sim::board::output::check_destination(&a.out)?;
+    dpsa_board::output::check_destination(&a.out)?;
     let cal = CalFile::load(&a.cal)?;
-    let source = if a.streams.is_empty() {
-        Source::Core
-    } else {
-        Source::Streams(&a.streams)
+    #[cfg(feature = "sim")]
+    let (r, json, summary) = {
+        use dpsa_sim::board::run::Source;
+        let source = if a.streams.is_empty() {
+            Source::Core
+        } else {
+            Source::Streams(&a.streams)
+        };
+        let r = dpsa_sim::board::run::run_shown(&a.dir, &cal, &a.out, source, progress)?;
+        let json = a
+            .json
+            .then(|| serde_json::to_string_pretty(&r))
+            .transpose()?;
+        (r.map.clone(), json, r.summary())
     };
-    let r = dpsa_sim::board::run::run_shown(&a.dir, &cal, &a.out, source, progress)?;
+    #[cfg(not(feature = "sim"))]
+    let (r, json, summary) = {
+        let r = dpsa_board::run::from_streams(&a.dir, &cal, &a.streams, &a.out, progress)?.report;
+        let json = a
+            .json
+            .then(|| serde_json::to_string_pretty(&r))
+            .transpose()?;
+        let summary = r.summary();
+        (r, json, summary)
+    };
     let mut status = r.streams.as_ref().map_or(0, |s| s.status);
     for (i, &u) in r.pixels.unplaced_rows.iter().enumerate() {
         if u > 0 {
@@ -94,10 +119,10 @@ pub fn run(a: Args, progress: bool) -> Result<i32> {
             );
         }
     }
-    if a.json {
-        out!("{}", serde_json::to_string_pretty(&r)?);
+    if let Some(json) = json {
+        out!("{json}");
         return Ok(status);
     }
-    out!("{} -> {}", r.summary(), a.out.display());
+    out!("{summary} -> {}", a.out.display());
     Ok(status)
 }

@@ -6,7 +6,6 @@
 //! feature `sim` (on by default): the simulator, the reference, calibration, the board map,
 //! benches and the firmware tooling, all still in `dpsa-sim`.
 
-#[cfg(feature = "sim")]
 pub mod board;
 #[cfg(feature = "sim")]
 pub mod board_bench;
@@ -86,7 +85,6 @@ pub enum Cmd {
     #[cfg(feature = "sim")]
     Calibrate(calibrate::Args),
     /// One board height map in mm from an array recording and its calibration.
-    #[cfg(feature = "sim")]
     Board(board::Args),
     /// Write a generated paste layer (Gerber X2): the paper's board or the small test board.
     #[cfg(feature = "sim")]
@@ -190,14 +188,14 @@ pub fn open(dir: &Path) -> Result<Recording> {
 pub fn apply_cal(rec: &mut Recording, path: &Path, camera: Option<u8>) -> Result<()> {
     let cal = dpsa_sim::calibration::CalFile::load(path)?;
     let id = camera.unwrap_or(rec.manifest.camera.id);
-    let cam = cal.camera.get(usize::from(id)).ok_or_else(|| {
-        anyhow::anyhow!(
+    if usize::from(id) >= cal.camera.len() {
+        anyhow::bail!(
             "{}: no camera {id} (the calibration has {} cameras)",
             path.display(),
             cal.camera.len()
-        )
-    })?;
-    cam.apply(&mut rec.manifest, cal.height_lsb_um)?;
+        );
+    }
+    dpsa_sim::calibration::apply(&cal, usize::from(id), &mut rec.manifest)?;
     rec.manifest
         .validate()
         .map_err(|e| anyhow::anyhow!("the calibrated manifest is invalid: {e}"))

@@ -16,12 +16,10 @@ use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::Mutex;
 use std::time::Instant;
 
-/// Name of the array manifest.
-pub const ARRAY_FILE: &str = dpsa_formats::kind::markers::ARRAY_FILE;
-/// Format tag of `array.json`.
-pub const ARRAY_FORMAT: &str = dpsa_formats::kind::markers::ARRAY_FORMAT;
-/// Version of `array.json` this build reads and writes.
-pub const ARRAY_VERSION: u32 = 1;
+pub use dpsa_formats::array::{
+    ArrayManifest, DesignCamera, Kind, Pass, PassKind, TargetInfo, ARRAY_FILE, ARRAY_FORMAT,
+    ARRAY_VERSION,
+};
 /// The array truth (simulated recordings only).
 pub const ARRAY_TRUTH_FILE: &str = "truth/array.json";
 /// The board height raster (simulated board recordings only), f32 um, row-major along x.
@@ -60,93 +58,6 @@ pub fn inspection_program(scene: &ArrayScene) -> crate::inspection::program::Pro
     p.fiducials.search_mm = (reach + 0.5).clamp(0.5, 20.0);
     p.truth = Some(PRINT_FILE.to_string());
     p
-}
-
-/// Board recording or calibration recording.
-#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
-#[serde(rename_all = "lowercase")]
-pub enum Kind {
-    Board,
-    Calibration,
-}
-
-/// What a calibration pass carried through the cameras.
-#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq, Eq)]
-#[serde(rename_all = "lowercase")]
-pub enum PassKind {
-    /// A flat matte plane at a known height, used for fitting.
-    Plane,
-    /// A flat plane at a known height not used for fitting (checks the calibration).
-    Holdout,
-    /// The lateral target: a flat printed grid of marks.
-    Target,
-}
-
-/// One calibration pass; camera `i`'s recording of it is `cam{i}/{name}`.
-#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct Pass {
-    pub name: String,
-    pub kind: PassKind,
-    /// Known height of the plane (0 for the target), um: an input of calibration.
-    pub height_um: f64,
-}
-
-/// The design position of a camera (what calibration starts from).
-#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct DesignCamera {
-    pub id: u8,
-    pub width: u32,
-    pub rows: u32,
-    /// Design position along the motion of image row 0, mm.
-    pub x_mm: f64,
-    /// Design position across the board of column 0, mm.
-    pub y_mm: f64,
-}
-
-/// The lateral target as printed: inputs of calibration.
-#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct TargetInfo {
-    /// Mark pitch, both directions, mm.
-    pub pitch_mm: f64,
-    /// Board coordinates of the first mark `[along, across]`, mm (the target's leading edge
-    /// resets the encoder, as a board's does).
-    pub origin_mm: [f64; 2],
-    /// Target length along the motion, mm.
-    pub length_mm: f64,
-}
-
-/// Contents of `array.json`.
-#[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct ArrayManifest {
-    pub format: String,
-    pub version: u32,
-    pub kind: Kind,
-    pub cameras: Vec<DesignCamera>,
-    /// Nominal pixel pitch on the board, mm.
-    pub pixel_mm: f64,
-    /// Encoder scale typed before calibration, counts/mm.
-    pub nominal_counts_per_mm: f64,
-    pub board_length_mm: f64,
-    pub board_width_mm: f64,
-    /// Calibration passes (calibration recordings only).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub passes: Vec<Pass>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub target: Option<TargetInfo>,
-    /// Board recordings: the board's identity, also in every camera's manifest (`board_id`)
-    /// and so the run id of every camera's packet stream ([`board_identity`]).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub board_id: Option<BoardId>,
-    /// Board recordings of a scene with a paste layer: the layer printed ([`PASTE_LAYER_FILE`]).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub paste_layer: Option<String>,
-    /// Simulated board recordings with a paste layer: the print ([`PRINT_FILE`]).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub print: Option<String>,
 }
 
 /// The board truth raster: `rows x cols` f32 heights at `((i + 1/2) pitch, (j + 1/2) pitch)`.
@@ -190,81 +101,12 @@ pub struct ArrayRecording {
 }
 
 impl ArrayRecording {
-    /// Opens `dir/array.json`; errors say what is wrong.
+    /// Opens the array recording `dir`: reads and checks its `array.json`
+    /// ([`ArrayManifest::load`]).
     pub fn open(dir: &Path) -> Result<ArrayRecording> {
-        let path = dir.join(ARRAY_FILE);
-        let bytes = crate::files::read_capped_io(&path, crate::files::MAX_MANIFEST_BYTES).map_err(
-            |e| {
-                if e.kind() == std::io::ErrorKind::NotFound {
-                    anyhow::anyhow!(
-                        "{}: no {ARRAY_FILE} (is this an array recording written by `dpsa simulate` with an array scene?)",
-                        dir.display()
-                    )
-                } else {
-                    anyhow::anyhow!("{} {}", path.display(), crate::files::io_cause(&e))
-                }
-            },
-        )?;
-        let manifest: ArrayManifest = serde_json::from_slice(&bytes)
-            .with_context(|| format!("{}: not a valid array manifest", path.display()))?;
-        if manifest.format != ARRAY_FORMAT || manifest.version != ARRAY_VERSION {
-            bail!(
-                "{}: format {:?} version {}, this build reads {ARRAY_FORMAT:?} version {ARRAY_VERSION}",
-                path.display(),
-                manifest.format,
-                manifest.version
-            );
-        }
-        if manifest.cameras.is_empty() || manifest.cameras.len() > crate::array::scene::MAX_CAMERAS
-        {
-            bail!(
-                "{}: {} cameras, expected 1..=8",
-                path.display(),
-                manifest.cameras.len()
-            );
-        }
-        for (i, c) in manifest.cameras.iter().enumerate() {
-            if usize::from(c.id) != i {
-                bail!(
-                    "{}: camera {i} has id {}, expected {i}",
-                    path.display(),
-                    c.id
-                );
-            }
-            if !(c.x_mm.is_finite() && c.y_mm.is_finite()) {
-                bail!(
-                    "{}: camera {i}'s design position (x_mm {}, y_mm {}) is not finite",
-                    path.display(),
-                    c.x_mm,
-                    c.y_mm
-                );
-            }
-        }
-        // The same ranges as the scene's keys: a 0 here would size a board map from a
-        // division by zero (or a map of no rows).
-        let m = &manifest;
-        for (key, v, lo, hi, unit) in [
-            ("pixel_mm", m.pixel_mm, 1e-4, 10.0, "mm"),
-            (
-                "nominal_counts_per_mm",
-                m.nominal_counts_per_mm,
-                1e-3,
-                1e6,
-                "counts/mm",
-            ),
-            ("board_length_mm", m.board_length_mm, 1.0, 2000.0, "mm"),
-            ("board_width_mm", m.board_width_mm, 1.0, 2000.0, "mm"),
-        ] {
-            if !(v.is_finite() && (lo..=hi).contains(&v)) {
-                bail!(
-                    "{}: `{key}` is {v}, expected a finite value in {lo}..={hi} ({unit})",
-                    path.display()
-                );
-            }
-        }
         Ok(ArrayRecording {
             dir: dir.to_path_buf(),
-            manifest,
+            manifest: ArrayManifest::load(dir)?,
         })
     }
 

@@ -10,11 +10,10 @@ use crate::inspection::pads::{Pad, Rigid};
 use crate::simulation::recording::{Calibration, Camera, Noise, Processing};
 use crate::simulation::scene::{round_counts_per_pixel, Stall};
 use serde::{Deserialize, Serialize};
-use std::f64::consts::{PI, TAU};
+use std::f64::consts::TAU;
 use std::path::{Path, PathBuf};
 
-/// Largest number of cameras in an array.
-pub const MAX_CAMERAS: usize = 8;
+pub use dpsa_formats::array::MAX_CAMERAS;
 /// Largest |row rotation| of a camera, degrees.
 pub const MAX_ROTATION_DEG: f64 = 0.3;
 /// Largest |pixel pitch error| of a camera, percent.
@@ -876,15 +875,8 @@ impl ArrayScene {
     }
 }
 
-/// Wraps into `[-pi, pi)`.
-pub fn wrap(x: f64) -> f64 {
-    let w = (x + PI).rem_euclid(TAU) - PI;
-    if w >= PI {
-        -PI
-    } else {
-        w
-    }
-}
+/// Wraps into `[-pi, pi)`: the one wrap of the calibration file's phase tables.
+pub use dpsa_formats::calibration::wrap_phase as wrap;
 
 #[cfg(test)]
 mod tests {

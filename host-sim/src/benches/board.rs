@@ -7,7 +7,8 @@
 //! numpy float64 least-squares phase of camera 0's frames ([`super::numpy`]).
 
 use crate::board::assemble::{assemble, CameraRows};
-use crate::board::run::{calibrated, core_rows, open, Opened};
+use crate::board::run::{core_rows, open, Opened};
+use crate::calibration::calibrated;
 use crate::calibration::file::CalFile;
 use anyhow::{Context, Result};
 use serde::Serialize;
@@ -67,19 +68,19 @@ pub const BUDGET_S: f64 = 1.0;
 /// Runs the bench on the array board recording `dir` with `cal`; `python` runs the numpy
 /// baseline (`None`: skipped).
 pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench> {
-    let Opened { recs, grid, .. } = open(dir, cal)?;
-    let lsb = cal.height_lsb_um;
+    let Opened { recs, layout, .. } = open(dir, cal)?;
+    let grid = layout.grid;
     let t0 = Instant::now();
-    let loaded = per_camera(recs.iter().zip(&cal.camera), |(r, c)| {
-        let mut r = calibrated(r, c, lsb)?;
+    let loaded = per_camera(recs.iter().enumerate(), |(i, r)| {
+        let mut r = calibrated(r, cal, i)?;
         let bytes = r.preload()?;
         Ok((r, bytes))
     })?;
     let load = t0.elapsed().as_secs_f64();
 
     let t1 = Instant::now();
-    let collected = per_camera(loaded.iter().zip(&cal.camera), |((r, _), c)| {
-        core_rows(r, c, lsb)
+    let collected = per_camera(loaded.iter().enumerate(), |(i, (r, _))| {
+        core_rows(r, cal, i)
     })?;
     let core = t1.elapsed().as_secs_f64();
     let core_pixels: u64 = collected
@@ -93,7 +94,9 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
         |(col, ((r, _), c))| {
             let prov = crate::board::provenance::of_recording(r);
             let max_step = r.manifest.processing.max_step_rows;
-            Ok(col.finish(&prov, None, c, max_step, &[])?.0)
+            Ok(col
+                .finish(&prov, &mut dpsa_board::run::no_variance, c, max_step, &[])?
+                .0)
         },
     )?;
     let provenance = t2.elapsed().as_secs_f64();
@@ -103,7 +106,7 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
     // Camera 0 alone, then numpy on the same frames.
     let (r0, _) = loaded.first().context("no camera")?;
     let t3 = Instant::now();
-    let one = core_rows(r0, &cal.camera[0], lsb)?;
+    let one = core_rows(r0, cal, 0)?;
     let core_camera0 = t3.elapsed().as_secs_f64();
     let one_px = one.rows.len() as f64 * one.width as f64;
     drop(one);

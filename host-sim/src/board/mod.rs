@@ -1,9 +1,10 @@
 //! The board height map: every camera's rows placed in board millimetres, unwrapped into
 //! absolute heights and blended where cameras overlap (issue 10, "The board map").
 //!
-//! The steps are the crate `dpsa-board`, re-exported here; what stays here feeds them from a
-//! recording or the cameras' streams ([`run`], [`streams`], [`provenance`]) and compares a map
-//! with a simulated board's truth ([`truth`]). The data flow:
+//! The steps are the crate `dpsa-board`, re-exported here (its `run::from_streams` is the
+//! production `board --streams`); what stays here feeds them from the core on a recording
+//! ([`run`]), adds the Cramer-Rao bound per pixel ([`provenance`]) and compares a map with a
+//! simulated board's truth ([`truth`]). The data flow:
 //!
 //! - [`unwrap`]: a camera's wrapped heights (known modulo one fringe turn `T_z`) into absolute
 //!   heights, referenced to the smooth local board surface (paste stays within half a turn of
@@ -21,9 +22,8 @@
 
 pub mod provenance;
 pub mod run;
-pub mod streams;
 pub mod truth;
 
 // The board map's steps (crate `dpsa-board`), at their old paths.
-pub use dpsa_board::{assemble, blend, output, resample, unwrap};
+pub use dpsa_board::{assemble, blend, output, resample, streams, unwrap};
 pub use dpsa_formats::grid::Grid;

@@ -700,16 +700,27 @@ pub fn calibrate(rec: &ArrayRecording, fx_budget_um: f64) -> Result<CalFile> {
     });
     let cams = results.into_iter().collect::<Result<Vec<_>>>()?;
     let cpm = cams.iter().map(|c| c.counts_per_mm).sum::<f64>() / cams.len() as f64;
-    let lsb = Recording::open(rec.camera_dir(0, Some(&planes[0].name)))?
-        .manifest
-        .calibration
-        .height_lsb_um;
+    let first = Recording::open(rec.camera_dir(0, Some(&planes[0].name)))?.manifest;
+    let lsb = first.calibration.height_lsb_um;
+    // The frame grabbers' processing, one for the array: every camera's recordings must agree.
+    let processing = first.processing;
+    for i in 1..m.cameras.len() {
+        let d = rec.camera_dir(i, Some(&planes[0].name));
+        let other = Recording::open(&d)?.manifest.processing;
+        if other != processing {
+            bail!(
+                "camera {i}'s recording {} has processing {other:?}, camera 0's {processing:?}: the calibration file holds one processing for the array",
+                d.display()
+            );
+        }
+    }
     Ok(CalFile {
         format: CAL_FORMAT.into(),
         version: CAL_VERSION,
         counts_per_mm: cpm,
         height_lsb_um: lsb,
         fx_budget_um,
+        processing,
         camera: cams,
     })
 }
@@ -784,6 +795,8 @@ fn calibrate_camera(
         id: i as u8,
         width: width as u32,
         rows: rows as u32,
+        bit_depth: recs[0].manifest.camera.bit_depth,
+        saturation: recs[0].manifest.camera.saturation,
         counts_per_pixel: cpp,
         counts_per_mm: cpm,
         fringe_period_px: 1.0 / f_mean,
@@ -857,6 +870,8 @@ mod tests {
             id: 0,
             width: w,
             rows: 40,
+            bit_depth: 12,
+            saturation: 4095,
             counts_per_pixel: 11.0,
             counts_per_mm: 400.0,
             fringe_period_px: 32.0,

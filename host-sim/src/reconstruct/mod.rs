@@ -1,7 +1,7 @@
 //! Runs the fixed-point core (`dpsa-core`) on a recording through its streaming API, exactly
 //! as the frame grabber does: frame by frame, line by line, into a packet stream.
 
-pub mod config;
+pub use dpsa_stream::config;
 pub mod sink;
 
 pub use config::config;

@@ -2,7 +2,7 @@
 //! ([`simulate`]) and the recording format on disk ([`recording`]) that every other command
 //! reads, simulated or real.
 
-pub mod checks;
+pub use dpsa_formats::recording::checks;
 pub mod recording;
 pub mod scene;
 pub mod simulate;

@@ -209,10 +209,7 @@ fn origin(path: &Option<PathBuf>) -> String {
         .unwrap_or_default()
 }
 
-/// Rounds `cpp` to the nearest multiple of 2^-16 (counts per pixel).
-pub fn round_counts_per_pixel(cpp: f64) -> f64 {
-    (cpp * 65536.0).round() / 65536.0
-}
+pub use dpsa_formats::calibration::round_counts_per_pixel;
 
 fn invalid(knob: impl Into<String>, message: String) -> SceneError {
     SceneError::Invalid {

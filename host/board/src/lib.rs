@@ -17,11 +17,16 @@
 //! - [`assemble`]: the three for every camera, each in its own thread, timed.
 //! - [`output`]: the 16-bit PNG, the float TIFF in micrometres, the false-colour PNG with its
 //!   scale bar, and the JSON metadata.
+//! - [`streams`]: the cameras' packet streams read, matched to the cameras and checked
+//!   against the calibration file, with what each lost.
+//! - [`run`]: one board from the streams, `array.json` and the calibration file
+//!   ([`run::from_streams`], `dpsa board --streams`), or from any rows ([`run::build`]).
 //!
-//! On the bottom layer (`dpsa-formats`, and `dpsa-core` for the frame trigger) only. What feeds
-//! it (the core on a recording or the cameras' streams, the calibration), the Cramer-Rao bound
-//! per pixel and the comparison with a simulated board's truth are still in `dpsa-sim`
-//! (`board::run`, `board::streams`, `board::provenance::crb_variance`, `board::truth`).
+//! On `dpsa-formats` (array manifest, calibration file, heights), `dpsa-stream` (the stream
+//! decoder, the core's configuration of a camera) and `dpsa-core` (the frame trigger). The core
+//! run on a recording's frames, the Cramer-Rao bound per pixel and the comparison with a
+//! simulated board's truth are the simulator crate's (`board::run`,
+//! `board::provenance::crb_variance`, `board::truth`).
 //!
 //! Heights are `f32` micrometres; NaN marks an invalid pixel everywhere in this crate.
 
@@ -31,6 +36,9 @@ pub mod output;
 pub mod places;
 pub mod provenance;
 pub mod resample;
+pub mod run;
+pub mod streams;
 pub mod unwrap;
 
 pub use dpsa_formats::grid::{BoardGrid, Grid};
+pub use output::BoardError;

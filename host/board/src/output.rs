@@ -27,6 +27,22 @@ pub enum BoardError {
     /// `board.json` could not be serialised.
     #[error(transparent)]
     Json(#[from] serde_json::Error),
+    /// An input refused before any file is written: the calibration, `array.json`, a stream
+    /// (one sentence saying which and why).
+    #[error("{0}")]
+    Refused(String),
+    /// The calibration file does not fit the array.
+    #[error(transparent)]
+    Calibration(#[from] dpsa_formats::calibration::CalError),
+    /// `array.json` missing or out of range.
+    #[error(transparent)]
+    Array(#[from] dpsa_formats::array::ArrayError),
+    /// What a caller's hook reported (the simulator's Cramer-Rao bound per pixel).
+    #[error("{0}")]
+    Hook(Box<dyn std::error::Error + Send + Sync>),
+    /// A thread panicked or an invariant broke (a bug: please report it).
+    #[error("internal error: {0}")]
+    Internal(String),
 }
 
 type Result<T> = std::result::Result<T, BoardError>;

@@ -4,6 +4,8 @@
 //!
 //! | module | what |
 //! | --- | --- |
+//! | [`array`](mod@array) | the array recording's manifest `array.json`: the array's design and the board's size and identity |
+//! | [`calibration`] | the calibration file: every camera's configuration of the core, its lateral mapping and dead pixels |
 //! | [`files`] | bounded reads, atomic writes, output directories that appear whole, inputs never overwritten |
 //! | [`heightmap`] | the core's rows as a height map (the decoded stream, the reference) |
 //! | [`grid`] | the board map's grids: heights in board millimetres and their placement |
@@ -12,14 +14,18 @@
 //! | [`kind`] | what kind of file or directory a path is (from its first bytes or marker), to name a wrong input for what it is |
 //! | [`images`] | 16-bit and false-colour PNGs |
 //! | [`progress`] | progress bars on stderr |
+//! | [`recording`] | a camera's recording manifest (`manifest.json`): camera, calibration, processing, trigger log, and the range checks they share with the calibration file |
 
+pub mod array;
 pub mod board_id;
 pub mod board_map;
+pub mod calibration;
 pub mod files;
 pub mod grid;
 pub mod heightmap;
 pub mod images;
 pub mod kind;
 pub mod progress;
+pub mod recording;
 
 pub use board_id::BoardId;

@@ -6,6 +6,11 @@
 //! The input is read in chunks ([`decode_reader`]): memory is the chunk buffer, the decoded rows
 //! and at most [`MAX_DAMAGE_ENTRIES`] damage entries and [`MAX_GAP_ENTRIES`] gap entries (the
 //! counts are always complete); time is linear in the input (`dpsa_core::packets::Walk`).
+//!
+//! [`config`]: the core's configuration of a camera (from a recording's manifest or a
+//! calibration file), whose hash every stream header carries.
+
+pub mod config;
 
 use dpsa_core::packets::{
     self, codec, Item, Kind, Packet, PacketError, Summary, Totals, Tracker, Verdict, Walk,

@@ -1,6 +1,6 @@
 //! Every field of a calibration file checked when it is read (`docs/calibration.md`, "Checks
 //! on reading"): its range (physical, and what the fixed-point core takes: the core's part goes
-//! through [`crate::simulation::checks::check_calibration`], the manifest's own checks), and
+//! through [`check_calibration`], the manifest's own checks), and
 //! its consistency with the file's redundancy:
 //!
 //! - `counts_per_pixel = pitch_mm * counts_per_mm / cos(rotation_rad)` (the core's encoder step
@@ -13,11 +13,12 @@
 //!   [`TZ_COLUMN_SPREAD`] of the camera's median.
 //!
 //! The position of each camera against the array's design (a swapped `[[camera]]` block) is
-//! checked against a recording in [`CalFile::check_design`](super::file::CalFile::check_design).
+//! checked against the array's design in [`CalFile::check_design`].
 
-use super::file::{CalFile, CameraCal};
-use crate::simulation::checks::check_calibration;
-use crate::simulation::recording::{MAX_ROWS, MAX_WIDTH};
+use super::{CalFile, CameraCal};
+use crate::array::MAX_CAMERAS;
+use crate::recording::checks::{check_blocks, check_calibration};
+use crate::recording::{MAX_ROWS, MAX_WIDTH};
 use std::fmt;
 
 /// Largest relative spread of the cameras' `counts_per_mm` (one encoder for all of them). The
@@ -54,6 +55,7 @@ pub struct CalInvalid {
     pub camera: Option<usize>,
     /// The field, as the file spells it (`lateral.pitch_mm`, `height_per_turn_um[17]`).
     pub field: String,
+    /// What is wrong with it, one sentence.
     pub message: String,
 }
 
@@ -140,17 +142,13 @@ impl CalFile {
         top.check(!self.camera.is_empty(), "camera", || {
             "no [[camera]] blocks: the file calibrates no camera".into()
         })?;
-        top.check(
-            self.camera.len() <= crate::array::scene::MAX_CAMERAS,
-            "camera",
-            || {
-                format!(
-                    "{} [[camera]] blocks, an array has at most {}",
-                    self.camera.len(),
-                    crate::array::scene::MAX_CAMERAS
-                )
-            },
-        )?;
+        top.check(self.camera.len() <= MAX_CAMERAS, "camera", || {
+            format!(
+                "{} [[camera]] blocks, an array has at most {}",
+                self.camera.len(),
+                MAX_CAMERAS
+            )
+        })?;
         top.positive(self.height_lsb_um, "height_lsb_um", 1000.0, "um")?;
         top.positive(self.fx_budget_um, "fx_budget_um", 1e6, "um")?;
         top.positive(
@@ -332,7 +330,7 @@ impl CalFile {
                 )
             },
         )?;
-        let mut block = crate::simulation::recording::Calibration {
+        let mut block = crate::recording::Calibration {
             counts_per_pixel: cpp_bits / 65536.0,
             fringe_period_px: c.fringe_period_px,
             reference_phase_rad: c.core_reference_phase_rad.clone(),
@@ -354,6 +352,17 @@ impl CalFile {
                 field,
                 message: format!("{} (as the core takes it)", e.message),
             }
+        })?;
+        // The camera's sample range and the processing, with the checks a manifest's blocks
+        // get (the processing's line pool depends on the camera's width).
+        check_blocks(&c.core_camera(), &block, &self.processing).map_err(|e| CalInvalid {
+            camera: Some(i),
+            field: e
+                .field
+                .strip_prefix("camera.")
+                .unwrap_or(&e.field)
+                .to_string(),
+            message: e.message,
         })?;
 
         // Redundancy: the encoder step from the lateral fit.

@@ -1,32 +1,42 @@
 //! `dpsa board --streams`: the cameras' packet streams (what a line receives from its frame
-//! grabbers) as the rows of the board map, instead of running the core.
+//! grabbers) as the rows of the board map. They need the calibration file and the array's
+//! `array.json` only: no camera recording, no frame.
 //!
 //! Each stream is read in chunks with the stream decoder (a regular file, at most
 //! [`max_stream_bytes`] read, at most [`stream::MAX_MAP_PIXELS`] heights kept) and matched to its
 //! camera by the camera id of its stream header, in any order. Refused, before any file is
 //! written: a stream without a header, a camera missing, given twice or not in the
 //! calibration, a width other than the calibration's, run ids that differ between the streams
-//! ("streams from different boards") or from the recording's board identity, a configuration
-//! hash other than the calibration gives (another calibration, LSB or processing).
+//! ("streams from different boards") or from the board identity of `array.json`, a
+//! configuration hash other than the calibration file's configuration of that camera gives
+//! (another calibration, LSB or processing; `dpsa_stream::config::of_calibration`).
 //!
 //! Damage does not stop the map: the board rows a stream lacks (missing or damaged packets,
 //! a truncated end) are *lost*. They are the rows between the stream's first and last row
 //! (the end packet's totals, or, without an end packet, up to where the camera sees the
 //! board) that no row packet and no gap record covers; the map keeps their board pixels
-//! invalid (never interpolated across, see [`super::resample`]) and the report lists them.
+//! invalid (never interpolated across, see [`crate::resample`]) and the report lists them.
 
-use super::resample::{BoardGrid, CameraPlacement};
-use crate::calibration::file::{CalFile, CameraCal};
-use crate::heightmap::HeightMap;
-use crate::reference::dpsa::Registration;
-use crate::simulation::recording::{BoardId, Recording};
-use crate::simulation::scene::round_counts_per_pixel;
-use crate::stream::{self, Damage, DecodeOutcome, DecodeReport, Keep};
-use anyhow::{bail, Context, Result};
+use crate::output::BoardError;
+use crate::provenance::Registration;
+use crate::resample::{BoardGrid, CameraPlacement};
 use dpsa_core::Trigger;
+use dpsa_formats::calibration::{round_counts_per_pixel, CalFile, CameraCal};
+use dpsa_formats::heightmap::HeightMap;
+use dpsa_formats::BoardId;
+use dpsa_stream::{self as stream, Damage, DecodeOutcome, DecodeReport, Keep};
 use serde::Serialize;
 use std::io::{BufReader, Read};
 use std::path::{Path, PathBuf};
+
+type Result<T> = std::result::Result<T, BoardError>;
+
+/// Refuses with a sentence.
+macro_rules! bail {
+    ($($arg:tt)*) => {
+        return Err(BoardError::Refused(format!($($arg)*)))
+    };
+}
 
 /// Lost row ranges listed per camera in the report (the counts are complete).
 pub const MAX_LOST_RANGES: usize = 100;
@@ -53,9 +63,13 @@ pub struct StreamsReport {
 /// One camera's stream in the report.
 #[derive(Clone, Debug, Serialize)]
 pub struct CameraStream {
+    /// The camera (its place in the array).
     pub camera: u8,
+    /// The stream's file.
     pub file: String,
+    /// Its size.
     pub bytes: u64,
+    /// The configuration hash its header carries (16 hex digits).
     pub config_hash: String,
     /// Row packets decoded (each board row once).
     pub rows: u64,
@@ -63,11 +77,15 @@ pub struct CameraStream {
     pub missing_rows: u64,
     /// The first [`MAX_LOST_RANGES`] lost ranges `[first, last]` (board rows, inclusive).
     pub lost_ranges: Vec<[i64; 2]>,
+    /// Packets decoded intact.
     pub packets_ok: usize,
     /// Damage reports (bytes that were not a packet, packets that did not unpack).
     pub damaged_packets: usize,
+    /// Packets the sequence numbers say are missing.
     pub missing_packets: u64,
+    /// Packets that arrived twice.
     pub duplicated_packets: u64,
+    /// Packets out of order.
     pub reordered_packets: u64,
     /// No end packet, or its totals disagree with what arrived.
     pub truncated: bool,
@@ -85,6 +103,7 @@ pub struct CameraStream {
 pub struct Arrived {
     /// The stream's file.
     pub path: PathBuf,
+    /// The rows, by board row.
     pub map: HeightMap,
     /// Lost board rows, inclusive ranges, clipped to where the camera sees the board.
     pub lost: Vec<(i64, i64)>,
@@ -132,13 +151,13 @@ pub fn board_extent(p: &CameraPlacement, grid: &BoardGrid, width: u32) -> (i64, 
 
 /// Decodes one stream file in bounded memory.
 fn read(path: &Path, lsb_um: f64, max_bytes: u64) -> Result<Decoded> {
-    let file = crate::files::open_regular(path, "packet stream")?;
+    let file = dpsa_formats::files::open_regular(path, "packet stream")?;
     let keep = Keep {
         rows: true,
         max_pixels: stream::MAX_MAP_PIXELS,
     };
     let d = stream::decode_reader_with(BufReader::new(file.take(max_bytes + 1)), lsb_um, keep)
-        .with_context(|| format!("cannot read {}", path.display()))?;
+        .map_err(|e| BoardError::Refused(format!("cannot read {}: {e}", path.display())))?;
     if d.report.bytes > max_bytes {
         bail!(
             "packet stream {} is larger than {max_bytes} bytes, more than one camera's stream of \
@@ -170,12 +189,11 @@ fn read(path: &Path, lsb_um: f64, max_bytes: u64) -> Result<Decoded> {
     })
 }
 
-/// The configuration hash a stream of camera `cal` carries when its frame grabber runs with
-/// the calibration (`CameraCal::apply`, as `reconstruct --cal` and `target-run --cal` do).
-fn expected_config_hash(rec: &Recording, cal: &CameraCal, lsb_um: f64) -> Result<u64> {
-    let mut m = rec.manifest.clone();
-    cal.apply(&mut m, lsb_um)?;
-    let core = crate::reconstruct::config(&m)?;
+/// The configuration hash a stream of camera `i` carries when its frame grabber runs with the
+/// calibration file `cal` (`dpsa_stream::config::of_calibration`).
+fn expected_config_hash(cal: &CalFile, i: usize) -> Result<u64> {
+    let core = dpsa_stream::config::of_calibration(cal, i)
+        .map_err(|e| BoardError::Refused(format!("calibration camera {i}: {e}")))?;
     let (cfg, table) = (&core.cfg, &core.ref_phase);
     Ok(cfg.hash_with(
         &table[..usize::from(cfg.width).min(table.len())],
@@ -253,15 +271,14 @@ fn lost_rows(
     (ranges, count.min(u128::from(u64::MAX)) as u64, listed)
 }
 
-/// Reads, checks and matches the streams at `paths` to the cameras of `cal` (recordings
-/// `recs`, board identity `board`, board extents `extents`); returns each camera's rows in
-/// camera order and the report (its `gap_board_pixels` filled in later).
+/// Reads, checks and matches the streams at `paths` to the cameras of `cal` (board identity
+/// `board` from `array_file`, board extents `extents`); returns each camera's rows in camera
+/// order and the report (its `gap_board_pixels` filled in later).
 pub fn read_streams(
     paths: &[PathBuf],
     cal: &CalFile,
-    recs: &[Recording],
     board: Option<BoardId>,
-    rec_dir: &Path,
+    array_file: &Path,
     extents: &[(i64, i64)],
 ) -> Result<(Vec<Arrived>, StreamsReport)> {
     let n = cal.camera.len();
@@ -274,8 +291,8 @@ pub fn read_streams(
     let decoded = decode_all(paths, cal)?;
     let order = match_cameras(paths, &decoded, n)?;
     check_widths(paths, &decoded, &order, cal)?;
-    let board = check_board(paths, &decoded, &order, board, rec_dir)?;
-    check_configs(paths, &decoded, &order, cal, recs)?;
+    let board = check_board(paths, &decoded, &order, board, array_file)?;
+    check_configs(paths, &decoded, &order, cal)?;
     check_trigger_logs(paths, &decoded, &order)?;
 
     // Rows and what was lost, camera by camera.
@@ -284,7 +301,7 @@ pub fn read_streams(
     let mut cameras = Vec::with_capacity(n);
     for (i, &k) in order.iter().enumerate() {
         let Some(read) = slots[k].take() else {
-            bail!("internal error: stream {k} matched twice");
+            return Err(BoardError::Internal(format!("stream {k} matched twice")));
         };
         let (camera, rows) = camera_stream(i, &paths[k], read, &cal.camera[i], extents[i]);
         cameras.push(camera);
@@ -316,7 +333,7 @@ fn decode_all(paths: &[PathBuf], cal: &CalFile) -> Result<Vec<Decoded>> {
             .into_iter()
             .map(|h| {
                 h.join().unwrap_or_else(|_| {
-                    Err(anyhow::anyhow!("internal error: a decoder thread panicked"))
+                    Err(BoardError::Internal("a decoder thread panicked".into()))
                 })
             })
             .collect::<Result<Vec<_>>>()
@@ -384,7 +401,7 @@ fn check_board(
     decoded: &[Decoded],
     order: &[usize],
     board: Option<BoardId>,
-    rec_dir: &Path,
+    array_file: &Path,
 ) -> Result<BoardId> {
     let run_of = |k: usize| decoded[k].report.stream.run_id.unwrap_or(0);
     let first = order[0];
@@ -406,34 +423,30 @@ fn check_board(
         bail!(
             "{} has no board identity (it was recorded before board identities): its streams \
              cannot be told from another board's; record it again",
-            rec_dir.display()
+            array_file.display()
         );
     };
     if run_of(first) != board.0 {
         bail!(
-            "the streams are of another board than {}: their run id is {:016x}, the recording's \
-             board identity {board} (streams from different boards cannot make one map)",
-            rec_dir.display(),
+            "the streams are of another board than {}: their run id is {:016x}, its board \
+             identity is {board} (streams from different boards cannot make one map)",
+            array_file.display(),
             run_of(first)
         );
     }
     Ok(board)
 }
 
-/// Each camera's stream was made with the configuration its recording and the calibration
-/// give (configuration hash).
+/// Each camera's stream was made with the configuration the calibration file gives that camera
+/// (configuration hash).
 fn check_configs(
     paths: &[PathBuf],
     decoded: &[Decoded],
     order: &[usize],
     cal: &CalFile,
-    recs: &[Recording],
 ) -> Result<()> {
     for (i, &k) in order.iter().enumerate() {
-        let want = format!(
-            "{:016x}",
-            expected_config_hash(&recs[i], &cal.camera[i], cal.height_lsb_um)?
-        );
+        let want = format!("{:016x}", expected_config_hash(cal, i)?);
         let have = decoded[k]
             .report
             .stream
@@ -529,8 +542,8 @@ fn camera_stream(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::heightmap::HeightRow;
-    use crate::stream::{GapEntry, TotalsReport};
+    use dpsa_formats::heightmap::HeightRow;
+    use dpsa_stream::{GapEntry, TotalsReport};
 
     fn map(rows: &[i64]) -> HeightMap {
         let mut m = HeightMap::new(1, 0.25);

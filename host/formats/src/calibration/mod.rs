@@ -1,17 +1,72 @@
 //! The calibration file (`dpsa calibrate --out CAL`): TOML, versioned, documented in
-//! `docs/calibration.md`.
+//! `docs/calibration.md`. It is everything a camera's frame grabber is configured with: per
+//! camera the blocks of the core's configuration ([`CalFile::core_blocks`]: the same camera,
+//! calibration and processing blocks a recording's manifest has, so one function makes the
+//! core's `Config` of either), and what the host needs to place and mask its rows (lateral
+//! mapping, dead pixels, the per-column height per turn).
 
-use crate::simulation::recording::Manifest;
-use crate::simulation::scene::round_counts_per_pixel;
-use anyhow::{bail, Context, Result};
+pub mod validate;
+
+use crate::array::{ArrayManifest, DesignCamera};
+use crate::recording::{Calibration, Camera, Processing};
 use serde::{Deserialize, Serialize};
-use std::f64::consts::TAU;
+use std::f64::consts::{PI, TAU};
 use std::path::Path;
 
+pub use validate::CalInvalid;
+
 /// Format tag of a calibration file.
-pub const CAL_FORMAT: &str = dpsa_formats::kind::markers::CALIBRATION_FORMAT;
-/// Version this build reads and writes.
-pub const CAL_VERSION: u32 = 1;
+pub const CAL_FORMAT: &str = crate::kind::markers::CALIBRATION_FORMAT;
+/// Version this build reads and writes: 2 added `[processing]` and each camera's
+/// `bit_depth` and `saturation` (the frame grabber's whole configuration).
+pub const CAL_VERSION: u32 = 2;
+
+/// A calibration file that cannot be read, or does not fit what it is used with.
+#[derive(Debug, thiserror::Error)]
+pub enum CalError {
+    /// The file could not be read (the sentence names it).
+    #[error(transparent)]
+    Read(#[from] crate::files::FileError),
+    /// Not TOML of a calibration file's keys and types.
+    #[error("not a valid calibration file: {0}")]
+    Toml(String),
+    /// Another format or version.
+    #[error("format {found:?} version {version}, this build reads {CAL_FORMAT:?} version {CAL_VERSION}{hint}")]
+    Version {
+        /// The file's `format`.
+        found: String,
+        /// The file's `version`.
+        version: u32,
+        /// What to do about it (a version 1 file: calibrate again).
+        hint: &'static str,
+    },
+    /// A field out of range or inconsistent with the rest of the file.
+    #[error(transparent)]
+    Invalid(#[from] CalInvalid),
+    /// The calibration does not fit the array, recording or stream it is used with (one
+    /// sentence saying how).
+    #[error("{0}")]
+    Mismatch(String),
+    /// The file could not be written as TOML.
+    #[error("cannot write the calibration as TOML: {0}")]
+    Write(String),
+}
+
+/// Rounds `cpp` to the nearest multiple of 2^-16 (counts per pixel): the core's Q16.16
+/// encoder step.
+pub fn round_counts_per_pixel(cpp: f64) -> f64 {
+    (cpp * 65536.0).round() / 65536.0
+}
+
+/// Wraps a phase into `[-pi, pi)`, rad: the reference-phase tables the core takes.
+pub fn wrap_phase(x: f64) -> f64 {
+    let w = (x + PI).rem_euclid(TAU) - PI;
+    if w >= PI {
+        -PI
+    } else {
+        w
+    }
+}
 
 /// Lateral mapping of one camera: image pixel `(r, c)` at conveyor travel `s` (mm, encoder
 /// count / `counts_per_mm`) sees board point
@@ -39,9 +94,16 @@ pub struct Lateral {
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct CameraCal {
+    /// The camera's place in the array (the `[[camera]]` block's index).
     pub id: u8,
+    /// Frame columns `W`.
     pub width: u32,
+    /// Frame rows `H`.
     pub rows: u32,
+    /// Significant bits per sample (8..=16), as the camera delivers them.
+    pub bit_depth: u8,
+    /// A sample `>= saturation` (DN) is saturated: the core flags its window.
+    pub saturation: u16,
     /// Encoder counts per board row (per image row of travel), a multiple of 2^-16: the core's
     /// `counts_per_pixel`.
     pub counts_per_pixel: f64,
@@ -77,6 +139,7 @@ pub struct CameraCal {
     /// Per-pixel modulation against the column's (`modulation_dn`), the same units and shape.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub modulation_map: Vec<Vec<u16>>,
+    /// Where its pixels lie on the board.
     pub lateral: Lateral,
 }
 
@@ -117,7 +180,9 @@ pub fn relative_map(values: &[f64], column: &[f64], rows: usize) -> Vec<Vec<u16>
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct CalFile {
+    /// [`CAL_FORMAT`].
     pub format: String,
+    /// [`CAL_VERSION`].
     pub version: u32,
     /// Encoder scale (mean of the cameras' estimates), counts/mm.
     pub counts_per_mm: f64,
@@ -125,6 +190,11 @@ pub struct CalFile {
     pub height_lsb_um: f64,
     /// Budget of `fx_height_error_um`, um.
     pub fx_budget_um: f64,
+    /// The core's processing settings on every camera (observations per row, largest encoder
+    /// step, modulation floor, noise-gain ceiling): part of the configuration each stream's
+    /// configuration hash is checked against.
+    pub processing: Processing,
+    /// The cameras, camera `i` at index `i`.
     pub camera: Vec<CameraCal>,
 }
 
@@ -138,7 +208,7 @@ impl CameraCal {
     }
 
     /// The core's nominal (uniform) height per turn, the field mean, um: its
-    /// `lsb_per_turn`, around which the per-column table ([`CameraCal::apply`]) lies.
+    /// `lsb_per_turn`, around which the per-column table ([`CameraCal::core_calibration`]) lies.
     pub fn core_height_per_turn_um(&self) -> f64 {
         self.height_per_turn_um.iter().sum::<f64>() / self.height_per_turn_um.len().max(1) as f64
     }
@@ -153,69 +223,102 @@ impl CameraCal {
         )
     }
 
-    /// Puts this calibration into a single-camera manifest (what `reconstruct` and the
-    /// firmware take): encoder scale, the core's fringe period and reference-phase table, the
-    /// core's nominal height per turn and the per-column `T_z(c)`
-    /// (`height_per_turn_um_per_column`: the core emits every column in calibrated LSB).
-    /// Refuses a manifest of another camera geometry.
-    pub fn apply(&self, manifest: &mut Manifest, height_lsb_um: f64) -> Result<()> {
-        if manifest.camera.id != self.id {
-            bail!(
-                "the recording is camera {}'s (its manifest says camera.id = {}), the calibration given is camera {}'s: a camera's frames measured with another camera's calibration give wrong heights and positions",
-                manifest.camera.id,
-                manifest.camera.id,
-                self.id
-            );
+    /// The calibration block of the core's configuration: the encoder step rounded to the
+    /// core's Q16.16, the core's single fringe period and reference-phase table (wrapped), its
+    /// nominal height per turn and the per-column `T_z(c)` (the core emits every column in
+    /// calibrated LSB of `height_lsb_um`).
+    pub fn core_calibration(&self, height_lsb_um: f64) -> Calibration {
+        Calibration {
+            counts_per_pixel: round_counts_per_pixel(self.counts_per_pixel),
+            fringe_period_px: self.fringe_period_px,
+            reference_phase_rad: self
+                .core_reference_phase_rad
+                .iter()
+                .map(|&p| wrap_phase(p))
+                .collect(),
+            height_per_turn_um: self.core_height_per_turn_um(),
+            height_lsb_um,
+            height_per_turn_um_per_column: Some(self.height_per_turn_um.clone()),
         }
-        if (manifest.camera.width, manifest.camera.rows) != (self.width, self.rows) {
-            bail!(
-                "calibration of camera {} is for {} x {} px frames, the recording has {} x {}",
-                self.id,
-                self.rows,
-                self.width,
-                manifest.camera.rows,
-                manifest.camera.width
-            );
+    }
+
+    /// The camera block of the core's configuration.
+    pub fn core_camera(&self) -> Camera {
+        Camera {
+            id: self.id,
+            width: self.width,
+            rows: self.rows,
+            bit_depth: self.bit_depth,
+            saturation: self.saturation,
         }
-        let c = &mut manifest.calibration;
-        c.counts_per_pixel = round_counts_per_pixel(self.counts_per_pixel);
-        c.fringe_period_px = self.fringe_period_px;
-        c.reference_phase_rad = self
-            .core_reference_phase_rad
-            .iter()
-            .map(|&p| crate::array::scene::wrap(p))
-            .collect();
-        c.height_per_turn_um = self.core_height_per_turn_um();
-        c.height_per_turn_um_per_column = Some(self.height_per_turn_um.clone());
-        c.height_lsb_um = height_lsb_um;
-        Ok(())
     }
 }
 
 impl CalFile {
-    pub fn to_toml(&self) -> Result<String> {
-        Ok(toml::to_string(self)?)
+    /// The file's text.
+    pub fn to_toml(&self) -> Result<String, CalError> {
+        toml::to_string(self).map_err(|e| CalError::Write(e.to_string()))
     }
 
     /// Parses and checks a calibration file's text ([`CalFile::validate`]).
-    pub fn from_toml(text: &str) -> Result<CalFile> {
-        let cal: CalFile = toml::from_str(text).context("not a valid calibration file")?;
-        if cal.format != CAL_FORMAT || cal.version != CAL_VERSION {
-            bail!(
-                "format {:?} version {}, this build reads {CAL_FORMAT:?} version {CAL_VERSION}",
-                cal.format,
-                cal.version
-            );
+    pub fn from_toml(text: &str) -> Result<CalFile, CalError> {
+        // Format and version first, so that an older file is named as such rather than by
+        // the first key it lacks.
+        #[derive(Deserialize)]
+        struct Tag {
+            format: Option<String>,
+            version: Option<u32>,
         }
-        cal.validate().map_err(|e| anyhow::anyhow!("{e}"))?;
+        if let Ok(Tag {
+            format: Some(format),
+            version: Some(version),
+        }) = toml::from_str::<Tag>(text)
+        {
+            if format != CAL_FORMAT || version != CAL_VERSION {
+                let hint = if format == CAL_FORMAT && version == 1 {
+                    " (version 1 files lack the frame grabber's processing and sample range: run `dpsa calibrate` again)"
+                } else {
+                    ""
+                };
+                return Err(CalError::Version {
+                    found: format,
+                    version,
+                    hint,
+                });
+            }
+        }
+        let cal: CalFile = toml::from_str(text).map_err(|e| CalError::Toml(e.to_string()))?;
+        if cal.format != CAL_FORMAT || cal.version != CAL_VERSION {
+            return Err(CalError::Version {
+                found: cal.format,
+                version: cal.version,
+                hint: "",
+            });
+        }
+        cal.validate()?;
         Ok(cal)
     }
 
     /// Reads a calibration file; errors name it.
-    pub fn load(path: &Path) -> Result<CalFile> {
+    pub fn load(path: &Path) -> Result<CalFile, CalError> {
         let bytes = crate::files::read_capped(path, 1 << 28, "calibration file")?;
-        CalFile::from_toml(&String::from_utf8_lossy(&bytes))
-            .with_context(|| format!("calibration file {}", path.display()))
+        CalFile::from_toml(&String::from_utf8_lossy(&bytes)).map_err(|e| match e {
+            CalError::Read(e) => CalError::Read(e),
+            e => CalError::Mismatch(format!("calibration file {}: {e}", path.display())),
+        })
+    }
+
+    /// Camera `i`'s blocks of the core's configuration (camera, calibration, processing): the
+    /// same blocks a recording's manifest holds, so the one function that makes the core's
+    /// `Config` of a manifest makes it of the calibration file (`dpsa_stream::config`).
+    /// `None` when the file has no camera `i`.
+    pub fn core_blocks(&self, i: usize) -> Option<(Camera, Calibration, Processing)> {
+        let c = self.camera.get(i)?;
+        Some((
+            c.core_camera(),
+            c.core_calibration(self.height_lsb_um),
+            self.processing.clone(),
+        ))
     }
 
     /// Refuses a calibration whose cameras are not where the array's design puts them
@@ -223,9 +326,9 @@ impl CalFile {
     /// [`DESIGN_TOLERANCE_MM`] of design camera `i`'s, and its pitch within [`PITCH_TOLERANCE`]
     /// of the nominal `pixel_mm`. A `[[camera]]` block swapped with another (ids renumbered or
     /// not) is caught here: the sentence names the design camera it does match.
-    pub fn check_design(&self, arr: &crate::array::record::ArrayManifest) -> Result<()> {
+    pub fn check_design(&self, arr: &ArrayManifest) -> Result<(), CalError> {
         for (i, (c, d)) in self.camera.iter().zip(&arr.cameras).enumerate() {
-            let off = |d: &crate::array::record::DesignCamera| {
+            let off = |d: &DesignCamera| {
                 (c.lateral.x0_mm - d.x_mm)
                     .abs()
                     .max((c.lateral.y0_mm - d.y_mm).abs())
@@ -241,46 +344,46 @@ impl CalFile {
                             o.id
                         )
                     });
-                bail!(
+                return Err(CalError::Mismatch(format!(
                     "calibration camera {i} has pixel (0, 0) at x {:.3} mm, y {:.3} mm, but array.json puts camera {i} at x {:.3} mm, y {:.3} mm (more than {DESIGN_TOLERANCE_MM} mm off){other}",
                     c.lateral.x0_mm,
                     c.lateral.y0_mm,
                     d.x_mm,
                     d.y_mm
-                );
+                )));
             }
             if !(arr.pixel_mm.is_finite()
                 && (c.lateral.pitch_mm / arr.pixel_mm - 1.0).abs() <= PITCH_TOLERANCE)
             {
-                bail!(
+                return Err(CalError::Mismatch(format!(
                     "array.json says pixel_mm = {} mm, but camera {i}'s calibrated pitch is {} mm (more than {} % apart): the board map's grid would not be the cameras' pixels",
                     arr.pixel_mm,
                     c.lateral.pitch_mm,
                     PITCH_TOLERANCE * 100.0
-                );
+                )));
             }
         }
         Ok(())
     }
 
     /// Refuses a calibration for another array (camera count, widths, rows).
-    pub fn check_array(&self, cameras: &[(u32, u32)]) -> Result<()> {
+    pub fn check_array(&self, cameras: &[(u32, u32)]) -> Result<(), CalError> {
         if self.camera.len() != cameras.len() {
-            bail!(
+            return Err(CalError::Mismatch(format!(
                 "the calibration is for {} cameras, the recording has {}",
                 self.camera.len(),
                 cameras.len()
-            );
+            )));
         }
         for (i, (c, &(w, r))) in self.camera.iter().zip(cameras).enumerate() {
             if (c.width, c.rows) != (w, r) {
-                bail!(
+                return Err(CalError::Mismatch(format!(
                     "camera {i}: the calibration is for {} x {} px frames, the recording has {} x {}",
                     c.rows,
                     c.width,
                     r,
                     w
-                );
+                )));
             }
         }
         Ok(())

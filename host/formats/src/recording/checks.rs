@@ -1,14 +1,12 @@
 //! One set of range checks for the camera, calibration and processing blocks, shared by scene
-//! files ([`Scene::validate`](crate::simulation::scene::Scene::validate)) and manifests
-//! ([`Manifest::validate`](crate::simulation::recording::Manifest::validate)).
+//! files (the simulator's `Scene::validate`), manifests ([`Manifest::validate`](super::Manifest::validate))
+//! and calibration files ([`CalFile::validate`](crate::calibration::CalFile::validate)).
 //!
-//! The ranges are exactly what the fixed-point core accepts (`reconstruct::config` and
+//! The ranges are exactly what the fixed-point core accepts (`dpsa_stream::config::core_config` and
 //! `dpsa_core::Config::validate`), so a scene or manifest that loads never fails later in the
 //! core. [`warnings`] lists settings that are legal but make the result useless.
 
-use crate::simulation::recording::{
-    max_value, Calibration, Camera, Processing, MAX_ROWS, MAX_WIDTH,
-};
+use super::{max_value, Calibration, Camera, Processing, MAX_ROWS, MAX_WIDTH};
 
 /// Largest number of raw lines in the core's line pool (`max_step_rows * n (n-1) / 2`): slot
 /// indices are `u16`.
@@ -17,7 +15,9 @@ pub const MAX_POOL_LINES: u64 = u16::MAX as u64;
 /// A value out of range: the manifest field (`block.name`) and a sentence.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Invalid {
+    /// The field, as the manifest spells it (`calibration.fringe_period_px`).
     pub field: String,
+    /// What is wrong with it, one sentence.
     pub message: String,
 }
 
@@ -187,7 +187,7 @@ pub fn check_calibration(cal: &Calibration, width: u32) -> Result<(), Invalid> {
 /// `T_z(c) / height_lsb_um` rounded to Q16.16, then to the table's 16-bit mantissas, checked by
 /// the core's own [`ColumnScale::check`](dpsa_core::height::ColumnScale::check) against the
 /// uniform `lsb_per_turn` (`height_per_turn_um / height_lsb_um`; this block's other checks
-/// come first). One function for the manifest check and `reconstruct::config`, so a table that
+/// come first). One function for the manifest check and the core's configuration (`dpsa_stream::config`), so a table that
 /// loads is one the core takes.
 pub fn column_scale_table(
     cal: &Calibration,

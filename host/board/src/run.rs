@@ -1,0 +1,640 @@
+//! The board map of one board: every camera's rows (from its packet stream, [`from_streams`],
+//! or from any other source through a [`Collector`]) placed, masked, unwrapped, resampled,
+//! blended ([`crate::assemble`]) and written ([`crate::output`]), with the report of
+//! `dpsa board --json`.
+//!
+//! What it needs: the array's `array.json` (board size, pixel pitch, the cameras' design
+//! positions, the board identity), the calibration file, and the rows. [`from_streams`] needs
+//! no camera recording and no frame: the dead-pixel masks and row places come from the
+//! registration replayed on each stream's trigger log ([`crate::provenance`]).
+//!
+//! Placement of a core board row `b` (`docs/calibration.md`): its window's first frame saw it
+//! at image row `r_w = H - (max_step_rows + 1) / 2`, so column `c` lies at
+//! `X = x0 + (p / cos a) b - p sin a (c + r_w tan a)`, `Y = y0 + p (c cos a + r_w sin a)`.
+
+use crate::assemble::{assemble, Assembled, CameraRows, Timing};
+use crate::blend::Blended;
+use crate::output::BoardError;
+use crate::provenance::Provenance;
+use crate::resample::{BoardGrid, CameraPlacement};
+use crate::streams::{self, StreamsReport};
+use crate::Grid;
+use dpsa_formats::array::{ArrayManifest, Kind, ARRAY_FILE};
+use dpsa_formats::calibration::{CalFile, CameraCal};
+use dpsa_formats::heightmap::HeightRow;
+use dpsa_formats::BoardId;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+type Result<T> = std::result::Result<T, BoardError>;
+
+/// A camera's per-pixel variance of its rows as they stand (`(provenance, first board row,
+/// wrapped heights)` -> um^2 in the same layout, or `None`): the simulator's Cramer-Rao
+/// bound. [`no_variance`] for none.
+pub type Variance<'a> = dyn FnMut(
+        &Provenance,
+        i64,
+        &Grid,
+    ) -> std::result::Result<Option<Grid>, Box<dyn std::error::Error + Send + Sync>>
+    + 'a;
+
+/// No per-pixel variance (a production map).
+pub fn no_variance(
+    _: &Provenance,
+    _: i64,
+    _: &Grid,
+) -> std::result::Result<Option<Grid>, Box<dyn std::error::Error + Send + Sync>> {
+    Ok(None)
+}
+
+/// `dpsa board --json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    /// Cameras in the map.
+    pub cameras: usize,
+    /// The evidence that the map is wrong or useless (empty when none), one sentence each:
+    /// `dpsa board` prints each as `warning: ...` and exits with status 2.
+    pub warnings: Vec<String>,
+    /// The board map's grid.
+    pub grid: BoardGrid,
+    /// How the cameras agree where they overlap.
+    pub seams: Seams,
+    /// Pixel counts.
+    pub pixels: PixelCounts,
+    /// The turns the unwrapping chose.
+    pub unwrap: UnwrapStats,
+    /// Seconds per step.
+    pub timing: RunTiming,
+    /// `--streams`: what each camera's stream held and lost.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub streams: Option<StreamsReport>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+/// `seams.*`: the cameras' agreement in their overlaps.
+pub struct Seams {
+    /// Largest |mean height difference| between neighbouring cameras over their shared flat
+    /// valid pixels, um.
+    pub height_step_um_max: Option<f64>,
+    /// Largest misregistration between neighbouring cameras in their overlap, um.
+    pub lateral_um_max: Option<f64>,
+    /// Every pair of neighbouring cameras.
+    pub per_seam: Vec<crate::blend::Seam>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+/// `pixels.*`.
+pub struct PixelCounts {
+    /// Board-map pixels.
+    pub total: u64,
+    /// Valid board-map pixels.
+    pub valid: u64,
+    /// `valid / total`.
+    pub valid_fraction: f64,
+    /// Camera pixels masked because a dead or weak image pixel of the calibration fed them,
+    /// per camera (before resampling).
+    pub dead_masked: Vec<u64>,
+    /// Valid rows whose window the registration replay on the trigger log did not confirm (a
+    /// lost trigger record), per camera: without it their dead-pixel mask and place are
+    /// unknown, so they are left invalid ([`crate::provenance::Provenance::confirms`]).
+    pub unplaced_rows: Vec<u64>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+/// `unwrap.*`.
+pub struct UnwrapStats {
+    /// Whole turns each camera was moved by.
+    pub turns: Vec<i32>,
+    /// Median height of the board edge before the board's turn was chosen, um.
+    pub edge_median_um: Option<f64>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+/// `timing.*`, s.
+pub struct RunTiming {
+    /// The rows: the fixed-point core on every camera (threads), or decoding and checking the
+    /// streams, s.
+    pub core_s: f64,
+    /// Unwrap, resample, blend.
+    #[serde(flatten)]
+    pub assemble: Timing,
+    /// Writing the files, s.
+    pub write_s: f64,
+    /// Opening and checking the inputs (before the rows), s.
+    pub open_s: f64,
+    /// The whole run, s: the sum of the steps above and what lies between them.
+    pub total_s: f64,
+}
+
+impl Report {
+    /// A few lines for the terminal: [`Report::summary_head`] and [`Report::time_line`].
+    pub fn summary(&self) -> String {
+        self.summary_head() + &self.time_line(None)
+    }
+
+    /// The map's and the seams' lines (each ending in a newline).
+    pub fn summary_head(&self) -> String {
+        let opt = |x: Option<f64>| x.map_or_else(|| "n/a".to_string(), |v| format!("{v:.3}"));
+        let mut s = format!(
+            "board map {} x {} px at {} mm, {} cameras: {:.2} % valid ({} camera px masked for dead image pixels)\n",
+            self.grid.rows,
+            self.grid.width,
+            self.grid.pitch_mm,
+            self.cameras,
+            100.0 * self.pixels.valid_fraction,
+            self.pixels.dead_masked.iter().sum::<u64>()
+        );
+        s += &format!(
+            "seams: height step max {} um, misregistration max {} um; turns per camera {:?}\n",
+            opt(self.seams.height_step_um_max),
+            opt(self.seams.lateral_um_max),
+            self.unwrap.turns
+        );
+        s
+    }
+
+    /// The time line: each step and the total, s; `truth_s`: a comparison after the run
+    /// (the simulator's), printed before the total and added to it.
+    pub fn time_line(&self, truth_s: Option<f64>) -> String {
+        let truth = truth_s.map_or_else(String::new, |t| format!(", truth {t:.2} s"));
+        format!(
+            "time: open {:.2} s, core {:.2} s, unwrap {:.2} s, resample {:.2} s, blend {:.2} s, write {:.2} s{truth}; total {:.2} s",
+            self.timing.open_s,
+            self.timing.core_s,
+            self.timing.assemble.unwrap_s,
+            self.timing.assemble.resample_s,
+            self.timing.assemble.blend_s,
+            self.timing.write_s,
+            self.timing.total_s + truth_s.unwrap_or(0.0)
+        )
+    }
+}
+
+/// The board row's image row in its window's first frame (see the module docs).
+fn entry_row(cal: &CameraCal, max_step_rows: u32) -> f64 {
+    f64::from(cal.rows) - f64::from(max_step_rows + 1) / 2.0
+}
+
+/// A camera's [`CameraPlacement`] from its lateral calibration.
+pub fn placement(cal: &CameraCal, max_step_rows: u32) -> CameraPlacement {
+    let l = &cal.lateral;
+    let (s, c) = l.rotation_rad.sin_cos();
+    let r_w = entry_row(cal, max_step_rows);
+    CameraPlacement {
+        x0_mm: l.x0_mm - l.pitch_mm * s * r_w * s / c,
+        y0_mm: l.y0_mm + l.pitch_mm * r_w * s,
+        row_mm: l.pitch_mm / c,
+        pitch_mm: l.pitch_mm,
+        rotation_rad: -l.rotation_rad,
+    }
+}
+
+/// A camera's rows on their way to the board, whatever their source: wrapped heights in um
+/// by board row.
+pub struct Collector {
+    id: u8,
+    /// Columns.
+    pub width: usize,
+    lsb_um: f32,
+    /// Board row and wrapped heights (um, NaN invalid) of every row, in arrival order.
+    pub rows: Vec<(i64, Vec<f32>)>,
+    /// Per row of `rows`: the window's first latch when the row is valid (to be confirmed by
+    /// the registration replay), `None` for an invalid row.
+    latches: Vec<Option<i64>>,
+}
+
+impl Collector {
+    /// An empty collector for camera `cal`, heights in LSB of `lsb_um`.
+    pub fn new(cal: &CameraCal, lsb_um: f64) -> Collector {
+        let width = cal.width as usize;
+        Collector {
+            id: cal.id,
+            width,
+            lsb_um: lsb_um as f32,
+            rows: Vec::new(),
+            latches: Vec::new(),
+        }
+    }
+
+    /// One row as the core emitted it (the same bytes as its packet, from the core or from a
+    /// stream): LSB to um (the core applied the per-column height per turn).
+    pub fn push(&mut self, r: &HeightRow) {
+        let h = (0..self.width)
+            .map(|c| match r.heights.get(c) {
+                Some(&v) if r.pixel_valid(c) => f32::from(v) * self.lsb_um,
+                _ => f32::NAN,
+            })
+            .collect();
+        self.rows.push((r.row, h));
+        self.latches.push(r.is_valid().then_some(r.latch));
+    }
+
+    /// The rows (sorted by board row) as a grid from the first to the last row, with the
+    /// `lost` board rows (inclusive ranges) inside it marked; returns it and the valid rows
+    /// `prov` did not confirm (left invalid, marked lost).
+    /// `prov` is the registration of the camera's frames (which frames fed each row, see
+    /// [`crate::provenance`]); `variance`: each pixel's variance (um^2) of the rows as they
+    /// stand (the simulator's Cramer-Rao bound), or `None`.
+    pub fn finish(
+        mut self,
+        prov: &Provenance,
+        variance: &mut Variance<'_>,
+        cal: &CameraCal,
+        max_step: u32,
+        lost: &[(i64, i64)],
+    ) -> Result<(CameraRows, u64)> {
+        // A valid row whose window the replay does not confirm: its mask and place are
+        // unknown, so it is not used (lost, never interpolated across).
+        let mut lost = lost.to_vec();
+        let mut unplaced = 0u64;
+        for ((b, h), latch) in self.rows.iter_mut().zip(&self.latches) {
+            if let Some(l) = *latch {
+                if !prov.confirms(*b, l) {
+                    h.fill(f32::NAN);
+                    lost.push((*b, *b));
+                    unplaced += 1;
+                }
+            }
+        }
+        let lost = &lost[..];
+        let w = self.width;
+        let ends = self
+            .rows
+            .first()
+            .map(|r| (r.0, self.rows.last().map_or(r.0, |l| l.0)));
+        let (first, last) = lost
+            .iter()
+            .fold(ends, |e, &(a, b)| {
+                Some(e.map_or((a, b), |(f, l)| (f.min(a), l.max(b))))
+            })
+            .filter(|_| !self.rows.is_empty())
+            .ok_or_else(|| BoardError::Refused(format!("camera {}: no rows arrived", self.id)))?;
+        let lost_rows: i128 = lost
+            .iter()
+            .map(|&(a, b)| i128::from(b) - i128::from(a) + 1)
+            .sum();
+        let span = i128::from(last) - i128::from(first) + 1;
+        if span > self.rows.len() as i128 + lost_rows + (1 << 16) {
+            return Err(BoardError::Refused(format!(
+                "camera {}: its rows span {span} board rows but only {} are present (an encoder fault?)",
+                self.id,
+                self.rows.len()
+            )));
+        }
+        let span = span as usize;
+        let mut g = Grid::invalid(w, span);
+        for (b, h) in self.rows {
+            let i = (b - first) as usize;
+            g.data[i * w..(i + 1) * w].copy_from_slice(&h);
+        }
+        let mut mask = Vec::new();
+        if !lost.is_empty() {
+            mask = vec![false; span];
+            for &(a, b) in lost {
+                mask[(a - first) as usize..=(b - first) as usize].fill(true);
+            }
+        }
+        let dead_masked =
+            crate::provenance::mask_dead_pixels(prov, &cal.dead_pixels, first, &mut g);
+        let variance = variance(prov, first, &g).map_err(BoardError::Hook)?;
+        let places = crate::provenance::row_places(
+            prov,
+            first,
+            g.rows,
+            entry_row(cal, max_step),
+            cal.lateral.rotation_rad,
+        );
+        Ok((
+            CameraRows {
+                heights: g,
+                variance,
+                dead_masked,
+                places: Some(places),
+                first_row: first,
+                period_um: cal.height_per_turn_um.iter().map(|&t| t as f32).collect(),
+                placement: placement(cal, max_step),
+                lost: mask,
+            },
+            unplaced,
+        ))
+    }
+}
+
+/// Refuses a camera's frames (triggers `f`, from `source`: a manifest or a stream's trigger
+/// log) that advance further per frame than its core can take: the median latch step divided
+/// by the calibration's `counts_per_pixel` (board rows per frame) above `max_step_rows`. The
+/// simulator sets `max_step_rows` to 1.25 times the nominal step, so a good recording's median
+/// step is about 0.8 of it; latches doubled (or a calibration of another encoder scale) give
+/// 1.6.
+pub fn check_latch_steps(
+    f: &[dpsa_core::Trigger],
+    max: u32,
+    cal: &CameraCal,
+    i: usize,
+    source: &Path,
+) -> Result<()> {
+    if f.len() < 3 {
+        return Ok(());
+    }
+    let mut steps: Vec<i64> = f
+        .windows(2)
+        .map(|w| w[1].latch.saturating_sub(w[0].latch))
+        .collect();
+    steps.sort_unstable();
+    let median = steps[steps.len() / 2] as f64 / cal.counts_per_pixel;
+    if median > f64::from(max) {
+        return Err(BoardError::Refused(format!(
+            "camera {i}: its frames advance a median {median:.1} board rows each (latch steps of {} counts over the calibration's counts_per_pixel {}), more than the {max} rows (processing.max_step_rows) its core takes: the latches of {} are scaled wrong (doubled?) or the calibration is of another encoder",
+            steps[steps.len() / 2],
+            cal.counts_per_pixel,
+            source.display()
+        )));
+    }
+    Ok(())
+}
+
+/// A camera that contributes less than this fraction of an equal share (valid map pixels /
+/// cameras) to the map, or whose own rows are less than [`MIN_CAMERA_VALID`] valid, is
+/// reported (exit status 2). The small scene's cameras give 0.9 to 1.2 of an equal share and
+/// 97 % valid rows (`docs/board.md`).
+pub const MIN_CAMERA_SHARE: f64 = 0.25;
+/// See [`MIN_CAMERA_SHARE`].
+pub const MIN_CAMERA_VALID: f64 = 0.5;
+/// A map less valid than this is reported (the shipped scenes' maps are 97 % valid or more).
+pub const MIN_MAP_VALID: f64 = 0.5;
+/// Seams this many times over their acceptance budgets (0.3 um height step, 5 um
+/// misregistration, `docs/board.md`) are reported: 3 um and 50 um. The shipped scenes meet
+/// them with 0.07 um and 1.7 um at most.
+pub const SEAM_ALARM: f64 = 10.0;
+/// The seams' acceptance budgets, um: height step, misregistration.
+pub const SEAM_BUDGET_UM: (f64, f64) = (0.3, 5.0);
+
+/// The evidence that a written map is wrong or useless, one sentence each (printed as
+/// `warning: ...`, exit status 2).
+pub fn evidence(cams: &[CameraRows], b: &Blended, seams: &Seams) -> Vec<String> {
+    let mut w = Vec::new();
+    let total = b.heights.data.len().max(1) as f64;
+    let valid = b.heights.valid();
+    if (valid as f64) < MIN_MAP_VALID * total {
+        w.push(format!(
+            "the board map is {:.1} % valid ({valid} of {} px), less than {} %: check pixel_mm and the board size in array.json and the calibration",
+            100.0 * valid as f64 / total,
+            b.heights.data.len(),
+            MIN_MAP_VALID * 100.0
+        ));
+    }
+    let share = valid as f64 / cams.len().max(1) as f64;
+    for (i, c) in cams.iter().enumerate() {
+        let own = c.heights.valid() as f64 / c.heights.data.len().max(1) as f64;
+        let src = b.camera.iter().filter(|&&k| usize::from(k) == i).count();
+        if own < MIN_CAMERA_VALID {
+            w.push(format!(
+                "camera {i} contributes almost nothing: {:.1} % of its own pixels are valid (less than {} %): check its calibration (fringe period, height per turn) and its frames",
+                own * 100.0,
+                MIN_CAMERA_VALID * 100.0
+            ));
+        } else if (src as f64) < MIN_CAMERA_SHARE * share {
+            w.push(format!(
+                "camera {i} contributes almost nothing: {src} map px, less than {} % of an equal share ({share:.0} px): check its lateral calibration",
+                MIN_CAMERA_SHARE * 100.0
+            ));
+        }
+    }
+    if let Some(h) = seams
+        .height_step_um_max
+        .filter(|&h| h > SEAM_ALARM * SEAM_BUDGET_UM.0)
+    {
+        w.push(format!(
+            "the cameras' heights differ by up to {h:.2} um at a seam, more than {} times the 0.3 um budget: a camera's calibration is wrong or belongs to another camera",
+            SEAM_ALARM
+        ));
+    }
+    if let Some(l) = seams
+        .lateral_um_max
+        .filter(|&l| l > SEAM_ALARM * SEAM_BUDGET_UM.1)
+    {
+        w.push(format!(
+            "the cameras are misregistered by up to {l:.1} um at a seam, more than {} times the 5 um budget: a camera's lateral calibration is wrong or belongs to another camera",
+            SEAM_ALARM
+        ));
+    }
+    w
+}
+
+/// The board map's grid and identity from the array's `array.json` and the calibration file,
+/// both checked against each other (camera count, frame sizes, design positions, pitch).
+pub struct Layout {
+    /// The board map's grid: the board's size at the array's pixel pitch, from (0, 0).
+    pub grid: BoardGrid,
+    /// The board identity every camera's stream carries (`array.json`'s `board_id`).
+    pub board: Option<BoardId>,
+}
+
+/// Lays out the board map of the array recording `dir` (its `array.json` only) with `cal`.
+pub fn layout(dir: &Path, cal: &CalFile) -> Result<(ArrayManifest, Layout)> {
+    let m = ArrayManifest::load(dir)?;
+    if m.kind != Kind::Board {
+        return Err(BoardError::Refused(format!(
+            "{} is a calibration recording; dpsa board takes a board recording",
+            dir.display()
+        )));
+    }
+    let dims: Vec<(u32, u32)> = m.cameras.iter().map(|c| (c.width, c.rows)).collect();
+    cal.check_array(&dims)?;
+    cal.check_design(&m)
+        .map_err(|e| BoardError::Refused(format!("{} and its calibration: {e}", dir.display())))?;
+    let pitch = m.pixel_mm;
+    let grid = BoardGrid {
+        x0_mm: 0.0,
+        y0_mm: 0.0,
+        pitch_mm: pitch,
+        rows: (m.board_length_mm / pitch).ceil() as usize,
+        width: (m.board_width_mm / pitch).ceil() as usize,
+    };
+    if grid.rows.saturating_mul(grid.width) > 1 << 28 {
+        return Err(BoardError::Refused(format!(
+            "a {} x {} px board map is more than this tool holds (2^28 px)",
+            grid.rows, grid.width
+        )));
+    }
+    let board = m.board_id;
+    Ok((m, Layout { grid, board }))
+}
+
+/// The rows of every camera from its packet stream (`paths`, one per camera, any order;
+/// [`crate::streams`]): each stream's trigger log replays the registration (dead-pixel masks,
+/// row places, rows it cannot confirm left invalid), `variance` gives camera `i`'s per-pixel
+/// variance. Returns the cameras' rows with each one's unplaced-row count, and the report.
+pub fn rows_from_streams<'v>(
+    paths: &[PathBuf],
+    cal: &CalFile,
+    layout: &Layout,
+    array_file: &Path,
+    variance: &mut dyn FnMut(usize) -> Box<Variance<'v>>,
+) -> Result<(Vec<(CameraRows, u64)>, StreamsReport)> {
+    let max_step = cal.processing.max_step_rows;
+    let extents: Vec<(i64, i64)> = cal
+        .camera
+        .iter()
+        .map(|c| streams::board_extent(&placement(c, max_step), &layout.grid, c.width))
+        .collect();
+    let (arrived, report) = streams::read_streams(paths, cal, layout.board, array_file, &extents)?;
+    let cams = arrived
+        .into_iter()
+        .zip(&cal.camera)
+        .enumerate()
+        .map(|(i, (a, c))| {
+            // Where each row came from: the registration replayed on the stream's own
+            // trigger log.
+            check_latch_steps(&a.triggers, a.registration.max_step_rows, c, i, &a.path)?;
+            let prov = Provenance::replay(&a.triggers, &a.registration);
+            let mut rows = Collector::new(c, cal.height_lsb_um);
+            for row in &a.map.rows {
+                rows.push(row);
+            }
+            let mut v = variance(i);
+            rows.finish(&prov, &mut *v, c, a.registration.max_step_rows, &a.lost)
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok((cams, report))
+}
+
+/// A board map built and written: the report and the blended map (for a comparison after).
+pub struct Built {
+    /// `dpsa board --json`.
+    pub report: Report,
+    /// The blended map, its variance and turns.
+    pub blended: Blended,
+}
+
+/// What [`build`] was given besides the rows.
+pub struct Inputs<'a> {
+    /// The board map's grid and identity.
+    pub layout: &'a Layout,
+    /// The streams' report (`--streams`), or `None` (rows from the core).
+    pub streams: Option<StreamsReport>,
+    /// When the run started (for `timing.total_s`).
+    pub started: Instant,
+    /// Opening and checking the inputs, s.
+    pub open_s: f64,
+    /// The rows, s.
+    pub rows_s: f64,
+    /// Progress bars on stderr.
+    pub progress: bool,
+}
+
+/// Assembles the cameras' rows `cams` (with each one's unplaced-row count) into the board map,
+/// writes it into `out` and reports on it, with the evidence that it is wrong or useless.
+pub fn build(cams: Vec<(CameraRows, u64)>, inputs: Inputs<'_>, out: &Path) -> Result<Built> {
+    let Inputs {
+        layout,
+        streams: mut streams_report,
+        started,
+        open_s,
+        rows_s,
+        progress,
+    } = inputs;
+    let grid = &layout.grid;
+    let (cams, unplaced): (Vec<CameraRows>, Vec<u64>) = cams.into_iter().unzip();
+    let steps = dpsa_formats::progress::progress_bar(progress, 2, "board map");
+    let Assembled {
+        blended,
+        timing,
+        lost_pixels,
+        ..
+    } = assemble(&cams, grid);
+    steps.inc(1);
+    if let Some(r) = &mut streams_report {
+        r.gap_board_pixels = lost_pixels;
+    }
+    let missing: Vec<u64> = match &streams_report {
+        Some(r) => r.missing_rows.clone(),
+        None => vec![0; cams.len()],
+    };
+    let t1 = Instant::now();
+    crate::output::write(out, grid, &blended, cams.len(), &missing, layout.board)?;
+    let write_s = t1.elapsed().as_secs_f64();
+    steps.finish_and_clear();
+
+    let b = &blended;
+    let valid = b.heights.valid() as u64;
+    let total = b.heights.data.len() as u64;
+    let fold = |f: fn(&crate::blend::Seam) -> Option<f64>| {
+        b.seams
+            .iter()
+            .filter_map(f)
+            .map(f64::abs)
+            .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))))
+    };
+    let seams = Seams {
+        height_step_um_max: fold(|s| s.height_step_um),
+        lateral_um_max: fold(|s| s.lateral_um()),
+        per_seam: b.seams.clone(),
+    };
+    let warnings = evidence(&cams, b, &seams);
+    let report = Report {
+        cameras: cams.len(),
+        warnings,
+        grid: *grid,
+        seams,
+        pixels: PixelCounts {
+            total,
+            valid,
+            valid_fraction: if total > 0 {
+                valid as f64 / total as f64
+            } else {
+                0.0
+            },
+            dead_masked: cams.iter().map(|c| c.dead_masked).collect(),
+            unplaced_rows: unplaced,
+        },
+        unwrap: UnwrapStats {
+            turns: b.turns.clone(),
+            edge_median_um: b.edge_median_um,
+        },
+        timing: RunTiming {
+            core_s: rows_s,
+            assemble: timing,
+            write_s,
+            open_s,
+            total_s: started.elapsed().as_secs_f64(),
+        },
+        streams: streams_report,
+    };
+    Ok(Built { report, blended })
+}
+
+/// `dpsa board DIR --cal CAL --streams S0 S1 ... --out OUT`: the board map of the array
+/// recording `dir` (its `array.json` only) from the cameras' packet streams, with the
+/// calibration file `cal`. Every check (array, calibration, streams) comes before any file
+/// is written.
+pub fn from_streams(
+    dir: &Path,
+    cal: &CalFile,
+    paths: &[PathBuf],
+    out: &Path,
+    progress: bool,
+) -> Result<Built> {
+    let started = Instant::now();
+    let (_, layout) = layout(dir, cal)?;
+    let open_s = started.elapsed().as_secs_f64();
+    let t0 = Instant::now();
+    let (cams, report) =
+        rows_from_streams(paths, cal, &layout, &dir.join(ARRAY_FILE), &mut |_| {
+            Box::new(no_variance)
+        })?;
+    let rows_s = t0.elapsed().as_secs_f64();
+    build(
+        cams,
+        Inputs {
+            layout: &layout,
+            streams: Some(report),
+            started,
+            open_s,
+            rows_s,
+            progress,
+        },
+        out,
+    )
+}
