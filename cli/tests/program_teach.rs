@@ -546,3 +546,111 @@ fn the_taught_program_of_the_simulated_board_inspects_it() {
     assert!(x2.iter().all(|c| !c.is_empty()));
     assert_eq!(placed, x2);
 }
+
+/// A real board from its design files to a verdict per pad, the way a line runs it: the STM32
+/// mini pill's KiCad paste layer, outline and placement file taught into a program; the
+/// simulated small array (`scenes/stm32-mini-pill.toml`: that layer printed with two defects of
+/// every class, no fiducials) calibrated and then recording the board; each camera's frame
+/// grabber (`reconstruct --cal --camera`) sending its packet stream; `board --streams` (the
+/// production path, no camera recording read) and `inspect`. The simulator's print truth is
+/// the independent reference of the verdicts.
+#[test]
+fn a_real_board_goes_from_its_gerber_files_to_verdicts_through_the_streams() {
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/stm32-mini-pill.toml");
+    let dir = tempfile::tempdir_in(env!("CARGO_TARGET_TMPDIR")).unwrap();
+    let d = dir.path();
+    let prog = d.join("program.toml");
+    ok(&[
+        "program",
+        "--paste",
+        s(&paste()),
+        "--outline",
+        s(&pill("pcb-Edge_Cuts.gbr")),
+        "--placement",
+        s(&pill("pcb-top.pos")),
+        "--stencil-um",
+        "120",
+        "--out",
+        s(&prog),
+    ]);
+    let (calrec, board) = (d.join("calrec"), d.join("board"));
+    for (extra, seed, out) in [(Some("--calibration"), "3", &calrec), (None, "5", &board)] {
+        let mut args = vec!["--quiet", "simulate", "--scene", s(&scene)];
+        args.extend(extra);
+        args.extend(["--seed", seed, "--out", s(out)]);
+        ok(&args);
+    }
+    let cal = d.join("cal.toml");
+    ok(&["--quiet", "calibrate", s(&calrec), "--out", s(&cal)]);
+    // The frame grabbers: one stream per camera. Then nothing of the cameras' recordings is
+    // needed any more.
+    let mut streams = Vec::new();
+    for i in 0..3 {
+        let st = d.join(format!("cam{i}.dpsa"));
+        ok(&[
+            "--quiet",
+            "reconstruct",
+            s(&board.join(format!("cam{i}"))),
+            "--cal",
+            s(&cal),
+            "--camera",
+            &i.to_string(),
+            "--out",
+            s(&st),
+        ]);
+        streams.push(st);
+    }
+    let truth = d.join("print.json");
+    std::fs::rename(board.join("print.json"), &truth).unwrap();
+    for i in 0..3 {
+        std::fs::remove_dir_all(board.join(format!("cam{i}"))).unwrap();
+    }
+    let map = d.join("map");
+    let mut args = vec![
+        "--quiet",
+        "board",
+        s(&board),
+        "--cal",
+        s(&cal),
+        "--out",
+        s(&map),
+    ];
+    args.push("--streams");
+    args.extend(streams.iter().map(|p| s(p)));
+    ok(&args);
+    let text = ok(&[
+        "--quiet",
+        "inspect",
+        s(&map),
+        "--program",
+        s(&prog),
+        "--truth",
+        s(&truth),
+        "--out",
+        s(&d.join("inspection")),
+        "--json",
+    ]);
+    let r: serde_json::Value = serde_json::from_str(&text).unwrap();
+    // Every pad of the real layer measured, under the name the placement file gives it.
+    assert_eq!(r["pads"]["total"], 102, "{text}");
+    assert_eq!(r["pads"]["measured"], 102, "{text}");
+    let csv = std::fs::read_to_string(d.join("inspection/pads.csv")).unwrap();
+    assert!(csv.lines().skip(1).all(|l| !l.starts_with('#')), "{csv}");
+    assert!(csv.contains("\nU1.25,"), "{csv}");
+    // No fiducials on this board: the paste pattern registers it, within 30 um of the truth.
+    assert_eq!(r["registration"]["method"], "paste pattern", "{text}");
+    assert!(
+        r["truth"]["registration_error_um"].as_f64().unwrap() < 30.0,
+        "{text}"
+    );
+    // Against the print truth: every injected defect fails, no good pad fails.
+    let det = &r["detection"];
+    assert!(det["injected"].as_u64().unwrap() >= 10, "{text}");
+    assert_eq!(det["missed"], 0, "{text}");
+    assert_eq!(det["false_fail"], 0, "{text}");
+    // Good pads: volume within a few percent of the truth.
+    assert!(
+        r["truth"]["volume_err_pct"]["rms"].as_f64().unwrap() < 3.0,
+        "{text}"
+    );
+}

@@ -14,7 +14,9 @@ pub const MAX_PIXELS: u64 = 64 << 20;
 
 /// A stack of same-size greyscale images with their phase steps.
 pub struct Stack {
+    /// Image width, px.
     pub width: usize,
+    /// Image height, px.
     pub height: usize,
     /// Significant bits (8 or 16).
     pub bit_depth: u8,
@@ -130,14 +132,24 @@ pub struct StackPhase {
 /// JSON report of `dpsa phase`.
 #[derive(Serialize, Debug, Clone)]
 pub struct PhaseReport {
+    /// Image width, px.
     pub width: usize,
+    /// Image height, px.
     pub height: usize,
+    /// Pixels per image (`width x height`).
     pub total_pixels: usize,
+    /// Pixels valid in both the fixed-point and the f64 result.
     pub valid_pixels: usize,
+    /// Pixels valid in exactly one of the two.
     pub valid_mismatch: usize,
+    /// RMS of the wrapped phase difference `fixed - ref` over the pixels valid in both,
+    /// rad (0 when none).
     pub fixed_vs_ref_rms_rad: f64,
+    /// Largest wrapped `|fixed - ref|` over the same pixels, rad.
     pub fixed_vs_ref_max_rad: f64,
+    /// Modulation a valid pixel must reach, DN.
     pub min_modulation: f64,
+    /// Noise gain `g` of the phase steps (1 for an ideal equally spaced set).
     pub noise_gain: f64,
 }
 

@@ -28,7 +28,7 @@
 //! the accounting behind the gap is checked.
 
 use dpsa_core::packets::codec::{self, Decoder, Encoder};
-use dpsa_sim::benches::codec::{self as codec_bench, BenchRows, Report};
+use dpsa_sim::benches::codec::{self as codec_bench, BenchRows, CodecReport};
 use dpsa_sim::reconstruct;
 use dpsa_sim::simulation::{recording::Recording, scene::Scene, simulate};
 
@@ -48,7 +48,7 @@ fn scene_rows(width: u32, board_length: u32, tmp: &std::path::Path) -> (BenchRow
     (BenchRows::from_map(&map).unwrap(), bytes)
 }
 
-fn general_purpose(r: &Report) -> [(&'static str, f64); 6] {
+fn general_purpose(r: &CodecReport) -> [(&'static str, f64); 6] {
     let q = &r.ratio;
     [
         ("lz4", q.lz4),

@@ -36,7 +36,7 @@ pub struct Args {
 
 /// Builds the map; returns the exit status: 0, or 2 when a stream was damaged or incomplete
 /// (the map is written with the rows it lost invalid), as `dpsa decode`, or when the map
-/// itself shows it is wrong or useless (`Report::warnings`).
+/// itself shows it is wrong or useless (`MapReport::warnings`).
 pub fn run(a: Args, progress: bool) -> Result<i32> {
     #[cfg(not(feature = "sim"))]
     if a.streams.is_empty() {

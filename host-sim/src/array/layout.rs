@@ -76,14 +76,23 @@ impl LayoutBoard {
 /// A package family.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
 pub enum Family {
+    /// Two-terminal chip, imperial size 0201.
     Chip0201,
+    /// Two-terminal chip, imperial size 0402.
     Chip0402,
+    /// Two-terminal chip, imperial size 0603.
     Chip0603,
+    /// Two-terminal chip, imperial size 0805.
     Chip0805,
+    /// SOT-23, three pins.
     Sot23,
+    /// SOIC-8, 1.27 mm pitch.
     Soic8,
+    /// SOIC-16, 1.27 mm pitch.
     Soic16,
+    /// QFN, 4 x 4 mm body, 24 pins at 0.5 mm pitch; thermal pad in 2 x 2 panes.
     Qfn4x4,
+    /// QFN, 5 x 5 mm body, 32 pins at 0.5 mm pitch; thermal pad in 3 x 3 panes.
     Qfn5x5,
     /// LQFP-32, 5 x 5 mm body, 0.5 mm pitch.
     Qfp32,
@@ -379,6 +388,7 @@ fn footprint(f: Family) -> Vec<FootPad> {
 pub struct Component {
     /// Reference designator, e.g. `U3`.
     pub refdes: String,
+    /// Package family.
     pub family: Family,
     /// Centre, mm (design frame).
     pub centre: Point,
@@ -386,12 +396,14 @@ pub struct Component {
     pub rotation_deg: f64,
     /// Its pads: `pads[first_pad..first_pad + pad_count]`.
     pub first_pad: usize,
+    /// Number of its pads (openings) in the layer.
     pub pad_count: usize,
 }
 
 /// A generated paste layer.
 #[derive(Clone, Debug)]
 pub struct Layout {
+    /// Which generated board.
     pub board: LayoutBoard,
     /// Board length along x, mm.
     pub length_mm: f64,
@@ -401,6 +413,7 @@ pub struct Layout {
     pub pads: Vec<Pad>,
     /// Fiducial centres (1.0 mm copper discs, not paste openings), mm.
     pub fiducials: Vec<Point>,
+    /// The placed components, in the order of their pads.
     pub components: Vec<Component>,
     /// The apertures: D code and shape, in the order of first use.
     pub apertures: Vec<(i32, Shape)>,
@@ -779,8 +792,11 @@ pub fn generate(board: LayoutBoard) -> Layout {
 /// Pads and components of one family on a layout.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct FamilyCount {
+    /// The family's short name ([`Family::name`]).
     pub family: String,
+    /// Components of the family.
     pub components: usize,
+    /// Paste openings of those components.
     pub pads: usize,
 }
 

@@ -67,6 +67,7 @@ pub struct Deposit {
     /// Dog-ears.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub bumps: Vec<Bump>,
+    /// What it is made of: paste, or copper for a fiducial.
     pub material: Material,
     /// The pad (index in the layer) this deposit belongs to; `None` for a bridge strip, a
     /// fiducial or a random-box deposit.
@@ -445,10 +446,20 @@ impl Default for PrintParams {
 pub enum PrintError {
     /// A print parameter out of range (`knob` is its name under `print.`).
     #[error("invalid `print.{knob}`: {message}")]
-    Param { knob: String, message: String },
+    Param {
+        /// The parameter's name, e.g. `stencil_um`.
+        knob: String,
+        /// The value found and the range expected.
+        message: String,
+    },
     /// A pad the print cannot fill.
     #[error("pad {pad}: {message}")]
-    Pad { pad: String, message: String },
+    Pad {
+        /// The pad's name (`component-pin` or `#index`).
+        pad: String,
+        /// What is wrong with its opening.
+        message: String,
+    },
     /// More defects than the layer can take.
     #[error("print.defects: {0}")]
     Defects(String),
@@ -513,12 +524,19 @@ pub fn transfer_efficiency(area_ratio: f64) -> f64 {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Defect {
+    /// No defect: the pad is printed normally.
     None,
+    /// No paste at all.
     Missing,
+    /// 15-50 % of the opening volume.
     Insufficient,
+    /// 150-200 % of the opening volume, on a spread footprint.
     Excess,
+    /// The normal volume shifted by 1/3 to 1/2 of the opening along x or y.
     Offset,
+    /// Joined to its nearest neighbour by a paste strip.
     Bridge,
+    /// The normal deposit plus a thin (15-30 um) smear beyond one side.
     Smear,
 }
 
@@ -530,6 +548,7 @@ pub struct PrintedPad {
     pub pad: usize,
     /// `component-pin` or `#index`.
     pub name: String,
+    /// The defect injected on this pad ([`Defect::None`] if none).
     pub defect: Defect,
     /// The other pad of a bridge.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -573,7 +592,9 @@ pub struct Print {
     pub design_to_board: Rigid,
     /// The print offset drawn for this board, design frame, mm.
     pub print_offset_mm: Point,
+    /// The print parameters used.
     pub params: PrintParams,
+    /// The seed everything random in the print was drawn from.
     pub seed: u64,
     /// The identity of the board printed (`array.json`'s `board_id`, also in its map's
     /// `board.json`): `dpsa inspect` refuses the truth of another board. Absent in prints
@@ -584,6 +605,7 @@ pub struct Print {
     pub pads: Vec<PrintedPad>,
     /// Everything on the board: pads' deposits, bridge strips, then fiducials.
     pub deposits: Vec<Deposit>,
+    /// The copper fiducials, in the order given.
     pub fiducials: Vec<PrintedFiducial>,
 }
 

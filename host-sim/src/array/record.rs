@@ -64,7 +64,9 @@ pub fn inspection_program(scene: &ArrayScene) -> crate::inspection::program::Pro
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct BoardTruth {
+    /// The raster file, relative to the recording ([`BOARD_TRUTH_FILE`]).
     pub file: String,
+    /// Raster pitch on the board (both directions), mm.
     pub pitch_mm: f64,
     /// Rows along the motion.
     pub rows: u32,
@@ -76,27 +78,34 @@ pub struct BoardTruth {
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct ArrayTruth {
+    /// True encoder scale, counts per mm of conveyor travel.
     pub counts_per_mm: f64,
+    /// The true model of every camera, camera `i` at index `i`.
     pub cameras: Vec<CameraModel>,
+    /// Board bow at the centre, um (0 for a calibration recording).
     pub warp_um: f64,
     /// Random-box deposits (scenes without a paste layer; a printed board's deposits are in
     /// [`ArrayManifest::print`]).
     pub deposits: Vec<MmDeposit>,
-    /// Per camera: the true background `B` and contrast `C M` (with illumination) per column
-    /// of a bare plane, DN.
+    /// Per camera: the true background `B` (with illumination) per column of a bare plane, DN.
     pub plane_background_dn: Vec<Vec<f64>>,
+    /// Per camera: the true modulation `C M` (with illumination) per column of a bare plane, DN.
     pub plane_modulation_dn: Vec<Vec<f64>>,
+    /// The board height raster (board recordings only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub board: Option<BoardTruth>,
     /// The scene that was rendered.
     pub scene: ArrayScene,
+    /// The run's seed (noise, conveyor, placement).
     pub seed: u64,
 }
 
 /// An opened array recording.
 #[derive(Clone, Debug)]
 pub struct ArrayRecording {
+    /// The recording's directory.
     pub dir: PathBuf,
+    /// Its `array.json`.
     pub manifest: ArrayManifest,
 }
 
@@ -175,10 +184,15 @@ pub fn check_camera_ids(recs: &[Recording], array_dir: &Path) -> Result<()> {
 /// What a write produced (sizes and times measured while writing).
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct WriteSummary {
+    /// Cameras written.
     pub cameras: usize,
+    /// Frames written, all cameras and passes.
     pub frames: usize,
+    /// Pixels in those frames.
     pub pixels: u64,
+    /// Bytes written to disk.
     pub bytes: u64,
+    /// Wall-clock time of the whole write, s.
     pub seconds: f64,
 }
 

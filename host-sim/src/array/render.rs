@@ -103,11 +103,20 @@ pub fn place_deposits(scene: &ArrayScene, seed: u64) -> Vec<MmDeposit> {
 #[derive(Clone, Debug)]
 pub enum Surface<'a> {
     /// The board: warp plus deposits (paste, copper), board frame.
-    Board { deposits: &'a [Deposit] },
+    Board {
+        /// Everything printed on the board, board frame, mm.
+        deposits: &'a [Deposit],
+    },
     /// A flat matte plane at a height, um.
-    Plane { height_um: f64 },
+    Plane {
+        /// Height of the plane, um.
+        height_um: f64,
+    },
     /// The flat lateral target (height 0) with its printed mark grid.
-    Target { plan: &'a CalibrationPlan },
+    Target {
+        /// The calibration plan: the grid's pitch and origin and the marks' size and depth.
+        plan: &'a CalibrationPlan,
+    },
 }
 
 impl Surface<'_> {
@@ -134,8 +143,11 @@ fn sinc(x: f64) -> f64 {
 
 /// Renders frames of one camera.
 pub struct CameraRenderer<'a> {
+    /// The scene: board, reflectance, blur and noise settings.
     pub scene: &'a ArrayScene,
+    /// The true model of the camera rendered.
     pub model: &'a CameraModel,
+    /// What the conveyor carries past it.
     pub surface: Surface<'a>,
     /// Modulation factor of the smooth surface per column (area integration and blur).
     m0: Vec<f64>,
@@ -147,6 +159,8 @@ pub struct CameraRenderer<'a> {
 }
 
 impl<'a> CameraRenderer<'a> {
+    /// A renderer of `model`'s frames of `surface`: precomputes the per-column modulation
+    /// factors and dead-pixel mask, and bins the board's deposits.
     pub fn new(scene: &'a ArrayScene, model: &'a CameraModel, surface: Surface<'a>) -> Self {
         let w = model.width as usize;
         let sigma2 = scene.blur_px * scene.blur_px;

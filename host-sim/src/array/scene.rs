@@ -219,11 +219,13 @@ pub struct ArrayScene {
     pub deposit_corner_mm: f64,
     /// Width of the sloped deposit wall, mm.
     pub deposit_edge_mm: f64,
-    /// Board background / contrast, DN.
+    /// Board background `B`, DN.
     pub background: f64,
+    /// Board fringe contrast `C`, DN.
     pub contrast: f64,
-    /// Paste background / contrast, DN.
+    /// Paste background `B`, DN.
     pub paste_background: f64,
+    /// Paste fringe contrast `C`, DN.
     pub paste_contrast: f64,
     /// Encoder counts per mm of conveyor travel (true value; calibration measures it).
     pub counts_per_mm: f64,
@@ -241,11 +243,17 @@ pub struct ArrayScene {
     pub rows: u32,
     /// Observations per board row.
     pub n: u8,
+    /// Camera bit depth (8..=16), all cameras.
     pub bit_depth: u8,
+    /// Conversion gain, electrons per DN (shot noise).
     pub gain_e_per_dn: f64,
+    /// Read noise, DN rms.
     pub read_noise_dn: f64,
+    /// Height LSB of the core's i16 output, um.
     pub height_lsb_um: f64,
+    /// Minimum fringe modulation of a valid pixel, DN.
     pub min_modulation: f64,
+    /// Largest window noise gain accepted (1..=8).
     pub max_noise_gain: f64,
     /// Optical blur (Gaussian sigma), px; pixels also integrate over their area.
     pub blur_px: f64,
@@ -255,7 +263,9 @@ pub struct ArrayScene {
     pub camera_truth: bool,
     /// Pitch of the board truth raster, mm.
     pub truth_pitch_mm: f64,
+    /// The projector/camera pairs (`[[cameras]]`), 1..=`MAX_CAMERAS`.
     pub cameras: Vec<ArrayCamera>,
+    /// What a calibration recording holds (`[calibration]`).
     pub calibration: CalibrationPlan,
     /// The machine's own seed: its cameras' dead pixels (a run's `--seed` draws the noise,
     /// the conveyor and the placement).
@@ -347,12 +357,22 @@ impl Default for ArrayScene {
 /// A scene knob out of range, or an unreadable scene.
 #[derive(Debug, thiserror::Error)]
 pub enum ArraySceneError {
+    /// The scene file could not be read, or its TOML does not parse (unknown key, wrong type).
     #[error("{path}: {message}")]
-    Parse { path: String, message: String },
+    Parse {
+        /// The scene file (`scene` for text not read from a file).
+        path: String,
+        /// The reader's or parser's error.
+        message: String,
+    },
+    /// A knob out of its range.
     #[error("{path}: invalid `{knob}`: {message}")]
     Invalid {
+        /// The scene file (empty for text not read from a file).
         path: String,
+        /// The knob's name, e.g. `cameras[0].rotation_deg`.
         knob: String,
+        /// The value found and the range expected.
         message: String,
     },
 }
@@ -362,8 +382,11 @@ pub enum ArraySceneError {
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct CameraModel {
+    /// Camera index in the array.
     pub id: u8,
+    /// Columns `W`, px.
     pub width: u32,
+    /// ROI rows per frame `H`, px.
     pub rows: u32,
     /// True position along the motion of image row 0, column 0 (conveyor frame), mm.
     pub x0_mm: f64,

@@ -18,6 +18,7 @@ use std::time::Instant;
 /// `dpsa board-bench --json`.
 #[derive(Clone, Debug, Serialize)]
 pub struct BoardBench {
+    /// Cameras of the board recording.
     pub cameras: usize,
     /// Hardware threads available to this process.
     pub threads: usize,
@@ -38,6 +39,7 @@ pub struct BoardBench {
     /// The numpy float64 least-squares phase of camera 0 (null when it could not run: then
     /// `numpy_error` says why).
     pub numpy: Option<super::numpy::NumpyRun>,
+    /// Why the numpy baseline did not run (absent when it did).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub numpy_error: Option<String>,
     /// Camera 0's core rate (its own run, one thread, frames in memory) over numpy's on the
@@ -45,6 +47,7 @@ pub struct BoardBench {
     pub core_over_numpy: Option<f64>,
 }
 
+/// Wall time per stage, s (`seconds` in the JSON).
 #[derive(Clone, Debug, Serialize)]
 pub struct Stages {
     /// Decoding every frame into memory (threads per camera; not part of `total`).
@@ -53,8 +56,11 @@ pub struct Stages {
     pub core: f64,
     /// Dead-pixel masks and row places, all cameras.
     pub provenance: f64,
+    /// Unwrapping, all cameras (in parallel threads).
     pub unwrap: f64,
+    /// Resampling onto the board grid, all cameras (in parallel threads).
     pub resample: f64,
+    /// Blending the cameras into one map (turn alignment and seams).
     pub blend: f64,
     /// `core + provenance + unwrap + resample + blend`.
     pub total: f64,

@@ -90,7 +90,9 @@ type McuDecoder = HeatshrinkDecoder<MCU_W, MCU_L, MCU_I, { 1 << MCU_W }>;
 /// (`ceil(W/8)` bytes per row, bit `c % 8` of byte `c / 8`, padding bits 0).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct BenchRows {
+    /// Pixels per row `W`.
     pub width: usize,
+    /// Rows held.
     pub rows: usize,
     heights: Vec<i16>,
     valid: Vec<u8>,
@@ -219,7 +221,12 @@ pub enum Source {
     /// A recording, run through the fixed-point core.
     Recording,
     /// A packet stream file; `corrupt` packets were left out.
-    Stream { ok: usize, corrupt: usize },
+    Stream {
+        /// Packets whose framing and CRC checked out.
+        ok: usize,
+        /// Damaged packets and stray bytes, counted and left out.
+        corrupt: usize,
+    },
 }
 
 /// Loads the rows: a directory is a recording (run through the fixed-point core), a file a
@@ -264,28 +271,46 @@ pub fn load(path: &Path, progress: bool) -> Result<(BenchRows, Source)> {
 /// Compressed bytes per method.
 #[derive(Clone, Debug, Serialize)]
 pub struct Sizes {
+    /// Row codec payloads, intra period 1 (every row decodable alone).
     pub ours: usize,
+    /// `ours` plus the packet framing of every row and the stream's own packets.
     pub ours_framed: usize,
+    /// Row codec payloads, intra period 32 (rows predicted from the previous row).
     pub ours_predicted: usize,
+    /// `lz4_flex` block compression of each row's raw payload, summed over rows.
     pub lz4: usize,
+    /// `lz4_flex` block compression of all raw payloads concatenated.
     pub lz4_stream: usize,
+    /// heatshrink (the MCU compressor) on each row's raw payload, summed over rows.
     pub mcu: usize,
+    /// zstd level 3 on all raw payloads concatenated.
     pub zstd3: usize,
+    /// zstd level 19 on all raw payloads concatenated.
     pub zstd19: usize,
+    /// The whole map as one 16-bit grey PNG.
     pub png16: usize,
 }
 
 /// Compression ratios (raw bytes / compressed bytes).
 #[derive(Clone, Debug, Serialize)]
 pub struct Ratios {
+    /// Row codec, intra period 1, payloads only.
     pub ours: f64,
+    /// Row codec with packet and stream framing (`compressed_bytes.ours_framed`).
     pub ours_framed: f64,
+    /// Row codec, intra period 32.
     pub ours_predicted: f64,
+    /// `lz4_flex`, row by row.
     pub lz4: f64,
+    /// `lz4_flex`, all rows concatenated.
     pub lz4_stream: f64,
+    /// heatshrink, row by row.
     pub mcu: f64,
+    /// zstd level 3, all rows concatenated.
     pub zstd3: f64,
+    /// zstd level 19, all rows concatenated.
     pub zstd19: f64,
+    /// One 16-bit grey PNG of the whole map.
     pub png16: f64,
     /// `16 / H` (validity bits ignored; see the module docs).
     pub entropy_bound: f64,
@@ -324,6 +349,7 @@ pub struct OursParts {
     pub raw_rows: f64,
 }
 
+/// The height noise estimate (`noise` in the JSON).
 #[derive(Clone, Debug, Serialize)]
 pub struct Noise {
     /// Estimated height noise, LSB.
@@ -343,6 +369,7 @@ pub struct Throughput {
     pub lz4_encode: f64,
 }
 
+/// The largest `ours` row payload against the codec's bound (`worst_row_payload`).
 #[derive(Clone, Debug, Serialize)]
 pub struct WorstRow {
     /// Largest `ours` payload of a row, bytes.
@@ -353,30 +380,45 @@ pub struct WorstRow {
     pub raw_rows: usize,
 }
 
+/// The MCU compressor behind the `mcu` method (`mcu_compressor` in the JSON).
 #[derive(Clone, Debug, Serialize)]
 pub struct McuInfo {
+    /// Crate name ([`MCU_NAME`]).
     pub name: &'static str,
+    /// Crate version ([`MCU_VERSION`]).
     pub version: &'static str,
+    /// Window, lookahead and search-index settings it ran with.
     pub config: String,
 }
 
 /// The benchmark result (`--json` prints it).
 #[derive(Clone, Debug, Serialize)]
-pub struct Report {
+pub struct CodecReport {
+    /// Rows compressed.
     pub rows: usize,
+    /// Pixels per row `W`.
     pub width: usize,
+    /// Raw payload bytes of all rows (codec 0): the numerator of every ratio.
     pub raw_bytes: usize,
+    /// Valid pixels over all rows.
     pub valid_pixels: usize,
+    /// Which MCU compressor `mcu` ran.
     pub mcu_compressor: McuInfo,
+    /// Compression ratio per method.
     pub ratio: Ratios,
+    /// Compressed size per method, bytes.
     pub compressed_bytes: Sizes,
+    /// Bits per valid pixel of `ours`, of the residual entropy and of the noise.
     pub bits_per_pixel: BitsPerPixel,
+    /// The height noise estimate behind `bits_per_pixel.noise`.
     pub noise: Noise,
+    /// Host throughput, raw MB (10^6 bytes) per second.
     pub host_mb_s: Throughput,
+    /// The largest `ours` row payload.
     pub worst_row_payload: WorstRow,
 }
 
-impl Report {
+impl CodecReport {
     /// Best ratio among the general-purpose compressors (lz4, lz4_stream, mcu, zstd, PNG).
     pub fn best_general_purpose(&self) -> (&'static str, f64) {
         let r = &self.ratio;
@@ -908,7 +950,7 @@ fn png16(rows: &BenchRows) -> Result<usize> {
 const STAGES: u64 = 9;
 
 /// Runs every method on `rows`.
-pub fn run(rows: &BenchRows, progress: bool) -> Result<Report> {
+pub fn run(rows: &BenchRows, progress: bool) -> Result<CodecReport> {
     let (w, n) = (rows.width, rows.rows);
     let raw = rows.raw_bytes();
     let valid_px = rows.valid_pixels();
@@ -1029,7 +1071,7 @@ pub fn run(rows: &BenchRows, progress: bool) -> Result<Report> {
     let ratio = |b: usize| raw as f64 / b as f64;
     let per_px = |bits: usize| bits as f64 / valid_px as f64;
     let ours_bpp = per_px(ours_bytes * 8);
-    Ok(Report {
+    Ok(CodecReport {
         rows: n,
         width: w,
         raw_bytes: raw,

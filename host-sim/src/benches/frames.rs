@@ -11,20 +11,28 @@ use std::time::Instant;
 /// One format's figures.
 #[derive(Serialize, Clone, Debug)]
 pub struct FormatFigures {
+    /// Encoded bytes of all the frames.
     pub bytes: u64,
     /// Bytes relative to raw 16-bit samples.
     pub ratio_to_raw: f64,
+    /// Encoding rate, Mpx (10^6 samples) per second (PNG: file write and read back).
     pub encode_mpx_per_s: f64,
+    /// Decoding rate (with the round-trip check), Mpx per second.
     pub decode_mpx_per_s: f64,
 }
 
 /// The report.
 #[derive(Serialize, Clone, Debug)]
 pub struct FrameBench {
+    /// Frames encoded and decoded.
     pub frames: usize,
+    /// Samples in those frames (frames x rows x W).
     pub pixels: u64,
+    /// Raw size of those samples at 2 bytes each.
     pub raw_bytes: u64,
+    /// The 16-bit PNG format.
     pub png: FormatFigures,
+    /// The `.zfr` format.
     pub zfr: FormatFigures,
 }
 

@@ -31,16 +31,26 @@ pub const KINDS: [&str; 7] = [
 /// Why the bench could not run (a reading that fails is a result, not this).
 #[derive(Debug, thiserror::Error)]
 pub enum BenchError {
+    /// A kind not in [`KINDS`].
     #[error("unknown kind {0:?} (one of repeat, same, grid, apertures, arcs, strokes, regions)")]
     Kind(String),
+    /// Writing a layer file, or starting the child, failed.
     #[error("{what}: {source}")]
     Io {
+        /// What was being done: the file's path, or the layer or command.
         what: String,
+        /// The I/O error.
         #[source]
         source: std::io::Error,
     },
+    /// The child failed, or did not print a [`Reading`] as JSON.
     #[error("the child reading {file} failed: {message}")]
-    Child { file: String, message: String },
+    Child {
+        /// The layer file the child was given.
+        file: String,
+        /// The child's exit status and stderr, or why its output did not parse.
+        message: String,
+    },
 }
 
 fn io(what: impl Into<String>) -> impl FnOnce(std::io::Error) -> BenchError {
@@ -188,10 +198,13 @@ fn peak_rss_mb() -> Option<f64> {
 /// One case of the bench.
 #[derive(Clone, Debug, Serialize)]
 pub struct Case {
+    /// The layer kind (one of [`KINDS`]).
     pub kind: String,
     /// Objects the layer draws (flashes, strokes, regions; copies of a step and repeat).
     pub objects: usize,
+    /// Size of the layer file, bytes.
     pub file_bytes: u64,
+    /// What the child measured (its keys sit beside these in the JSON).
     #[serde(flatten)]
     pub reading: Reading,
 }

@@ -20,6 +20,7 @@ pub struct NumpyRun {
     pub pixels: u64,
     /// Compute time (gather, pseudo-inverse, solve, atan2), s.
     pub seconds: f64,
+    /// `pixels / seconds` / 1e6: phase Mpx per second.
     pub mpx_s: f64,
 }
 

@@ -10,7 +10,7 @@
 //! the rows exactly as its packets carry them (the calibration's per-column `T_z(c)` is part
 //! of the core's configuration, so its heights are already in calibrated LSB in every column).
 
-use super::truth::{against_truth, TruthRaster, TruthStats};
+use super::truth::{against_truth, MapTruth, TruthRaster};
 use super::Grid;
 use crate::array::record::ArrayRecording;
 use crate::calibration::{calibrated, CalFile};
@@ -40,17 +40,17 @@ pub enum Source<'a> {
 
 /// `dpsa board --json`: the map's report and, with the simulator's truth, the map against it.
 #[derive(Clone, Debug, Serialize)]
-pub struct Report {
-    /// The production report ([`dpsa_board::run::Report`]).
+pub struct BoardReport {
+    /// The production report ([`dpsa_board::run::MapReport`]).
     #[serde(flatten)]
-    pub map: map::Report,
+    pub map: map::MapReport,
     /// Against the simulator's board truth (null without it).
-    pub truth: Option<TruthStats>,
+    pub truth: Option<MapTruth>,
     /// The comparison with the truth, s (0 without it).
     pub truth_s: f64,
 }
 
-impl Report {
+impl BoardReport {
     /// A few lines for the terminal.
     pub fn summary(&self) -> String {
         let opt = |x: Option<f64>| x.map_or_else(|| "n/a".to_string(), |v| format!("{v:.3}"));
@@ -160,13 +160,13 @@ fn check_recording_steps(rec: &Recording, cal: &CalFile, i: usize) -> Result<()>
 
 /// Builds the board map of the array recording `dir` with `cal` into `out`, the core on
 /// every camera.
-pub fn run(dir: &Path, cal: &CalFile, out: &Path) -> Result<Report> {
+pub fn run(dir: &Path, cal: &CalFile, out: &Path) -> Result<BoardReport> {
     run_from(dir, cal, out, Source::Core)
 }
 
 /// Builds the board map of the array recording `dir` with `cal` into `out`, the rows from
 /// `source`. Every check (recording, calibration, streams) comes before any file is written.
-pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Result<Report> {
+pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Result<BoardReport> {
     run_shown(dir, cal, out, source, false)
 }
 
@@ -218,7 +218,7 @@ fn against_board_truth(
     grid: &dpsa_board::BoardGrid,
     with_crb: bool,
     progress: bool,
-) -> Result<Option<TruthStats>> {
+) -> Result<Option<MapTruth>> {
     Ok(match arr.truth()? {
         Some(t) => match t.board {
             Some(b) => {
@@ -279,7 +279,7 @@ pub fn run_shown(
     out: &Path,
     source: Source<'_>,
     progress: bool,
-) -> Result<Report> {
+) -> Result<BoardReport> {
     let started = Instant::now();
     if let Source::Streams(paths) = source {
         let arr = ArrayRecording::open(dir)?;
@@ -290,7 +290,7 @@ pub fn run_shown(
             let t2 = Instant::now();
             let truth =
                 against_board_truth(&arr, cal, &built, &built.report.grid, false, progress)?;
-            return Ok(Report {
+            return Ok(BoardReport {
                 map: built.report,
                 truth,
                 truth_s: t2.elapsed().as_secs_f64(),
@@ -341,7 +341,7 @@ pub fn run_shown(
     let truth = against_board_truth(&arr, cal, &built, &layout.grid, with_crb, progress)?;
     let truth_s = t2.elapsed().as_secs_f64();
     let Built { report, .. } = built;
-    Ok(Report {
+    Ok(BoardReport {
         map: report,
         truth,
         truth_s,

@@ -8,9 +8,14 @@ use dpsa_formats::grid::Grid;
 /// (row `i` along the motion), um.
 #[derive(Clone, Debug)]
 pub struct TruthRaster {
+    /// Board `X` (along the motion) of the raster's corner, mm: cell `i` is centred at
+    /// `x0_mm + (i + 0.5) pitch_mm`.
     pub x0_mm: f64,
+    /// Board `Y` (across) of the raster's corner, mm.
     pub y0_mm: f64,
+    /// Raster pitch on both axes, mm.
     pub pitch_mm: f64,
+    /// The true heights, um: row `i` along the motion, column `j` across.
     pub heights: Grid,
 }
 
@@ -39,7 +44,7 @@ impl TruthRaster {
 
 /// The map against the truth (`truth.*` and `unwrap.*` of `dpsa board --json`).
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
-pub struct TruthStats {
+pub struct MapTruth {
     /// Valid pixels inside the truth.
     pub pixels: u64,
     /// Of them, on flat board: the truth's second differences (along, across and both
@@ -73,8 +78,8 @@ pub fn against_truth(
     grid: &BoardGrid,
     truth: &TruthRaster,
     rows_done: &indicatif::ProgressBar,
-) -> TruthStats {
-    let mut st = TruthStats::default();
+) -> MapTruth {
+    let mut st = MapTruth::default();
     let (mut sum, mut sq, mut vsum) = (0.0f64, 0.0f64, 0.0f64);
     for i in 0..grid.rows {
         rows_done.inc(1);

@@ -32,17 +32,20 @@ pub struct TruthError {
     pub counts_per_mm_rel: f64,
     /// `|rotation^ - rotation|`, millidegrees.
     pub rotation_err_mdeg_max: f64,
-    /// `max |B^(c) / B(c) - 1|` and `max |C^(c) / C(c) - 1|` (flat field, modulation).
+    /// `max |B^(c) / B(c) - 1|` over columns without a dead pixel: the flat field.
     pub background_rel_max: f64,
+    /// `max |C^(c) / C(c) - 1|` over the same columns: the modulation.
     pub modulation_rel_max: f64,
-    /// Dead pixels of the truth not flagged, and flagged pixels that are not dead.
+    /// Dead pixels of the truth not flagged, summed over cameras.
     pub dead_pixels_missed: usize,
+    /// Flagged pixels that are not dead in the truth, summed over cameras.
     pub dead_pixels_false: usize,
 }
 
 /// The held-out plane measured with the calibration.
 #[derive(Serialize, Clone, Debug, Default)]
 pub struct Holdout {
+    /// Known height of the held-out plane (`array.json`), um.
     pub height_um: f64,
     /// `max |mean(h - height)|` over cameras, um.
     pub bias_um_max: f64,
@@ -54,42 +57,62 @@ pub struct Holdout {
     /// `max rms / crb_rms` over cameras (truth only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub rms_over_crb_max: Option<f64>,
+    /// Pixels measured, summed over cameras (pixels fed by a flagged dead pixel excluded).
     pub pixels: u64,
 }
 
 /// Per camera.
 #[derive(Serialize, Clone, Debug, Default)]
 pub struct CameraFigures {
+    /// The camera's place in the array.
     pub id: u8,
+    /// `mean(h - height)` of this camera's held-out plane, um.
     pub holdout_bias_um: f64,
+    /// `rms(h - height)` of this camera's held-out plane, um.
     pub holdout_rms_um: f64,
+    /// rms of the truth's per-pixel Cramer-Rao bound over the same pixels, um (truth only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub holdout_crb_rms_um: Option<f64>,
     /// The held-out plane's Cramer-Rao bound from the images and the calibration alone
     /// ([`holdout_bound`]), um, and `holdout_rms_um` over it (at most [`HOLDOUT_CRB_LIMIT`]).
     pub holdout_bound_um: f64,
+    /// `holdout_rms_um / holdout_bound_um`; above [`HOLDOUT_CRB_LIMIT`] the calibration is refused.
     pub holdout_rms_over_bound: f64,
+    /// Worst height error the field variation of `f_x` causes with the core's single `f_x`, um.
     pub fx_height_error_um: f64,
+    /// `true` when `fx_height_error_um` exceeds the budget `fx_budget_um`.
     pub fx_over_budget: bool,
+    /// Image pixels the calibration flagged as dead or low-modulation.
     pub dead_pixels: usize,
+    /// Lateral-target marks used in the lateral fit.
     pub marks: u32,
+    /// `max |T_z^(c) / T_z(c) - 1|` over this camera's columns (truth only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub t_z_rel_max: Option<f64>,
+    /// rms distance between the estimated and the true board point of every pixel of rows
+    /// 0, H/2, H-1, um (truth only).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lateral_rms_um: Option<f64>,
 }
 
 /// What `dpsa calibrate --json` prints.
 #[derive(Serialize, Clone, Debug, Default)]
-pub struct Report {
+pub struct CalibrationReport {
+    /// Cameras in the calibration file.
     pub cameras: usize,
+    /// Encoder scale, the mean of the cameras' estimates, counts/mm.
     pub counts_per_mm: f64,
+    /// Budget of each camera's `fx_height_error_um`, um.
     pub fx_budget_um: f64,
+    /// Ids of the cameras whose `fx_height_error_um` exceeds the budget.
     pub fx_over_budget: Vec<u8>,
+    /// The held-out plane measured with the calibration (absent without a held-out pass).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub holdout: Option<Holdout>,
+    /// Estimated parameters against the truth (only when the recording carries it).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub truth_error: Option<TruthError>,
+    /// Figures per camera, camera `i` at index `i`.
     pub per_camera: Vec<CameraFigures>,
 }
 
@@ -252,14 +275,14 @@ fn truth_errors(cal: &CalFile, truth: &ArrayTruth) -> (TruthError, Vec<(f64, f64
 }
 
 /// Measures the held-out plane with `cal` and, with the truth, compares everything.
-pub fn evaluate(rec: &ArrayRecording, cal: &CalFile) -> Result<Report> {
+pub fn evaluate(rec: &ArrayRecording, cal: &CalFile) -> Result<CalibrationReport> {
     let truth = rec.truth()?;
     let holdout = rec
         .manifest
         .passes
         .iter()
         .find(|p| p.kind == PassKind::Holdout);
-    let mut report = Report {
+    let mut report = CalibrationReport {
         cameras: cal.camera.len(),
         counts_per_mm: cal.counts_per_mm,
         fx_budget_um: cal.fx_budget_um,
@@ -269,7 +292,7 @@ pub fn evaluate(rec: &ArrayRecording, cal: &CalFile) -> Result<Report> {
             .filter(|c| c.fx_over_budget)
             .map(|c| c.id)
             .collect(),
-        ..Report::default()
+        ..CalibrationReport::default()
     };
     let mut per_truth = Vec::new();
     if let Some(t) = &truth {

@@ -12,5 +12,5 @@ pub use dpsa_formats::calibration::validate;
 
 pub use apply::{apply, calibrated};
 pub use estimate::{calibrate, FX_BUDGET_UM};
-pub use evaluate::{evaluate, Report};
+pub use evaluate::{evaluate, CalibrationReport};
 pub use file::{CalFile, CameraCal, Lateral};

@@ -11,7 +11,7 @@ use dpsa_gerber::pads::{Pad, Point, Rigid};
 use dpsa_inspect::map::BoardMap;
 use dpsa_inspect::measure::Placed;
 use dpsa_inspect::program::Program;
-use dpsa_inspect::run::{Evaluate, Evaluation, Inspection, Report};
+use dpsa_inspect::run::{Evaluate, Evaluation, Inspection, InspectionReport};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
@@ -160,7 +160,7 @@ pub fn evaluation(e: &Evaluated) -> Evaluation {
 
 /// A report with an evaluation's keys and lines, as `dpsa inspect` writes it for a simulated
 /// board.
-pub fn with_evaluation(mut r: Report, e: &Evaluated) -> Report {
+pub fn with_evaluation(mut r: InspectionReport, e: &Evaluated) -> InspectionReport {
     r.evaluation = Some(evaluation(e));
     r
 }
@@ -245,7 +245,7 @@ pub fn inspect_dir_shown(
     repeat: u32,
     use_truth: bool,
     progress: bool,
-) -> anyhow::Result<(Report, Inspection)> {
+) -> anyhow::Result<(InspectionReport, Inspection)> {
     let truth_path = match truth {
         Some(t) => Some(t.to_path_buf()),
         None if use_truth => Program::load(program_path)?.truth_path(program_path),

@@ -16,15 +16,21 @@ use dpsa_inspect::run::inspect_dir;
 use serde::Serialize;
 use std::path::Path;
 
+/// What `dpsa grr --json` prints: the study's repeatability figures.
 #[derive(Clone, Debug, Serialize)]
 pub struct GrrReport {
+    /// The scene file, as given.
     pub scene: String,
+    /// Times the board went through the machine.
     pub repeats: u32,
     /// Pads measured in every repeat.
     pub pads: usize,
     /// Median over the pads of the volume's standard deviation, % of opening volume.
     pub volume_sigma_pct_median: f64,
+    /// 95th percentile over the pads of the volume's standard deviation, % of opening
+    /// volume.
     pub volume_sigma_pct_p95: f64,
+    /// Largest volume standard deviation of any pad, % of opening volume.
     pub volume_sigma_pct_max: f64,
     /// Pooled (rms) sigma, % of opening volume.
     pub volume_sigma_pct_pooled: f64,
@@ -36,11 +42,13 @@ pub struct GrrReport {
     pub grr_pct: f64,
     /// Per pad %GR&R: median and 95th percentile.
     pub grr_pct_pad_median: f64,
+    /// Per pad %GR&R: 95th percentile.
     pub grr_pct_pad_p95: f64,
     /// Pads whose call (level and class) was the same in every repeat.
     pub calls_consistent: usize,
     /// The placements drawn: shift (mm) and rotation (deg) the registration found.
     pub placements: Vec<([f64; 2], f64)>,
+    /// Wall time of the whole study (calibration included), s.
     pub seconds: f64,
 }
 

@@ -12,6 +12,7 @@ pub const MAX_PRINT_BYTES: u64 = 1 << 30;
 pub struct PrintTruth {
     /// The printed board's identity (None in prints written before it).
     pub board_id: Option<dpsa_formats::BoardId>,
+    /// The true placement: design (paste layer) frame to board frame, mm.
     pub transform: Rigid,
     /// Per pad of the layer: the injected defect's name, None for a good print.
     pub defects: Vec<Option<String>>,
@@ -28,6 +29,8 @@ impl PrintTruth {
         PrintTruth::new(print, pads).with_context(|| format!("{}", path.display()))
     }
 
+    /// Builds the truth from a parsed print; `pads` is the paste layer's pad count, which
+    /// it must match.
     pub fn new(print: Print, pads: usize) -> Result<PrintTruth> {
         let mut defects = vec![None; pads];
         for p in &print.pads {

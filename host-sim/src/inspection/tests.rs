@@ -387,8 +387,10 @@ fn truth_comparison_and_report_files() {
         );
     }
     assert!((tp[5].offset_um[0] - 300.0).abs() < 2.0);
-    let r =
-        super::evaluate::with_evaluation(super::run::Report::build("b", "p", &i, &s.pads, 0.0), &e);
+    let r = super::evaluate::with_evaluation(
+        super::run::InspectionReport::build("b", "p", &i, &s.pads, 0.0),
+        &e,
+    );
     let d = &e.detection;
     assert_eq!(
         (

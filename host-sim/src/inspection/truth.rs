@@ -18,9 +18,16 @@ pub const STEP_MM: f64 = 0.005;
 /// One pad's true figures (the inspection's definitions).
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct PadTruth {
+    /// True paste volume over the pad's cell, % of the opening volume (area x stencil).
     pub volume_pct: f64,
+    /// True cell area with paste above `area_threshold_pct` of the stencil, % of the
+    /// opening's.
     pub area_pct: f64,
+    /// True mean paste height over the opening's interior (shrunk by the wall), um; NaN
+    /// when no point lies there.
     pub height_um: f64,
+    /// True deposit centre minus opening centre, design-frame axes, um (NaN: no paste
+    /// above the area threshold).
     pub offset_um: [f64; 2],
 }
 
@@ -113,12 +120,17 @@ fn one(
 /// Mean and rms of a set of errors (None when empty).
 #[derive(Clone, Debug, Serialize)]
 pub struct ErrStats {
+    /// Finite errors counted.
     pub n: usize,
+    /// Mean error, in the errors' unit.
     pub bias: f64,
+    /// Root mean square error (about zero, not the mean), in the errors' unit.
     pub rms: f64,
+    /// Largest absolute error, in the errors' unit.
     pub max_abs: f64,
 }
 
+/// [`ErrStats`] of the finite values of `v`; `None` when none is finite.
 pub fn stats(v: &[f64]) -> Option<ErrStats> {
     let v: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
     if v.is_empty() {
@@ -138,12 +150,16 @@ pub fn stats(v: &[f64]) -> Option<ErrStats> {
 pub struct Accuracy {
     /// Measured minus true volume, percentage points of the opening volume.
     pub volume_err_pct: Option<ErrStats>,
+    /// Measured minus true mean interior height, um.
     pub height_err_um: Option<ErrStats>,
     /// Length of the offset error vector, um (bias: its mean).
     pub offset_err_um: Option<ErrStats>,
+    /// Measured minus true paste area, percentage points of the opening area.
     pub area_err_pct: Option<ErrStats>,
 }
 
+/// Accuracy of the pads `sel`: measurements `m` minus truths `t`, pads the inspection
+/// could not measure left out.
 pub fn accuracy(sel: &[usize], m: &[PadMeasurement], t: &[PadTruth]) -> Accuracy {
     let mut v = Vec::new();
     let mut h = Vec::new();
@@ -201,10 +217,13 @@ pub struct Detection {
     pub false_fail_next_to_defect: usize,
     /// Defect-free pads called warning.
     pub false_warn: usize,
+    /// Pads with no injected defect.
     pub defect_free: usize,
     /// Smears (judged as shape): injected, failed with class shape, failed otherwise.
     pub smear_injected: usize,
+    /// Smears called fail with class shape.
     pub smear_detected: usize,
+    /// Smears called fail with another class.
     pub smear_other_class: usize,
     /// Per injected class: `[injected, detected with the right class]`.
     pub per_class: std::collections::BTreeMap<String, [usize; 2]>,
@@ -212,6 +231,8 @@ pub struct Detection {
     pub errors: Vec<String>,
 }
 
+/// Scores the inspection's `calls` against the injected `defects` (per pad, `None`
+/// for a good print).
 pub fn detection(pads: &[Pad], defects: &[Option<String>], calls: &[Call]) -> Detection {
     let mut d = Detection::default();
     for (k, call) in calls.iter().enumerate() {

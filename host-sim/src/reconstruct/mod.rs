@@ -21,10 +21,15 @@ use std::io::Write;
 /// Summary of one reconstruction run.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct RunStats {
+    /// Frames fed to the core.
     pub frames: usize,
+    /// Packets written (every kind).
     pub packets: u64,
+    /// Bytes of packet stream written.
     pub bytes: u64,
+    /// Bytes of the core's pipeline state (line pool, row slots, tables).
     pub state_bytes: usize,
+    /// Most line slots in use at the end of any frame.
     pub pool_high_water: usize,
 }
 

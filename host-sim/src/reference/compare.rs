@@ -108,13 +108,21 @@ pub struct RowStats {
     pub total: u64,
     /// Rows without an invalidating flag.
     pub valid: u64,
+    /// Rows flagged `ILL_CONDITIONED` (window noise gain above `max_noise_gain`).
     pub ill_conditioned: u64,
+    /// Rows flagged `INCOMPLETE` (not seen in `n` consecutive frames).
     pub incomplete: u64,
+    /// Rows flagged `SKIPPED` (never admitted).
     pub skipped: u64,
+    /// Rows flagged `ENCODER_REVERSAL` (the encoder count decreased while open).
     pub encoder_reversal: u64,
+    /// Rows flagged `FRAME_GAP` (a lost frame or an undelivered line).
     pub frame_gap: u64,
+    /// Rows flagged `SATURATED` (a pixel with a saturated sample).
     pub saturated: u64,
+    /// Rows flagged `LOW_MODULATION` (a pixel below `min_modulation`).
     pub low_modulation: u64,
+    /// Rows flagged `OVERFLOW` (the core ran out of line slots).
     pub overflow: u64,
     /// Rows of the reference.
     pub ref_total: u64,
@@ -125,9 +133,13 @@ pub struct RowStats {
 /// Result of [`compare`]; serialises to the JSON report.
 #[derive(Serialize, Clone, Debug, PartialEq, Default)]
 pub struct Comparison {
+    /// The fixed-point result against the f64 reference, LSB.
     pub fixed_vs_ref: FixedVsRef,
+    /// Errors against the ground truth, um (null without truth).
     pub truth: TruthStats,
+    /// Pixel counts.
     pub pixels: PixelStats,
+    /// Row counts.
     pub rows: RowStats,
 }
 

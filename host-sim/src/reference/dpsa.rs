@@ -334,6 +334,7 @@ pub struct LazyFrames<'a> {
 }
 
 impl<'a> LazyFrames<'a> {
+    /// The frames of `rec`, none decoded yet.
     pub fn new(rec: &'a crate::simulation::recording::Recording) -> Self {
         LazyFrames {
             rec,

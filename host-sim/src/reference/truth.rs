@@ -80,9 +80,13 @@ pub fn flat_row(prev: &[f32], cur: &[f32], next: &[f32]) -> Vec<bool> {
 /// [`flat_row`] (all false for the first and last truth rows).
 #[derive(Clone, Debug)]
 pub struct TruthRow<'a> {
+    /// True height per column, um.
     pub height_um: &'a [f32],
+    /// Background `B` per column, DN.
     pub background: &'a [f32],
+    /// Contrast `C` per column, DN.
     pub contrast: &'a [f32],
+    /// Per column: flat in the truth ([`flat_row`]).
     pub flat: Vec<bool>,
 }
 

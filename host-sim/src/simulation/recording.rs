@@ -12,7 +12,9 @@ use std::path::{Path, PathBuf};
 /// An opened, validated recording.
 #[derive(Clone, Debug)]
 pub struct Recording {
+    /// The recording's directory.
     pub dir: PathBuf,
+    /// Its `manifest.json`, parsed and validated.
     pub manifest: Manifest,
     /// Every frame decoded in memory ([`Recording::preload`], for benchmarks that time the
     /// processing without the file reading); `None`: frames are read on demand.
@@ -22,21 +24,32 @@ pub struct Recording {
 /// One decoded frame, row-major `rows x width`.
 #[derive(Clone, Debug)]
 pub struct Frame {
+    /// Camera frame counter (a gap means a lost frame).
     pub seq: u32,
+    /// Encoder count latched at the frame's trigger, counts.
     pub latch: i64,
+    /// Rows `H`, px.
     pub rows: usize,
+    /// Columns `W`, px.
     pub width: usize,
+    /// The samples, DN.
     pub data: Vec<u16>,
 }
 
 /// Simulator ground truth on the board grid, row-major `rows x width`.
 #[derive(Clone, Debug)]
 pub struct Truth {
+    /// Board row held at index 0.
     pub first_row: i64,
+    /// Board rows held.
     pub rows: usize,
+    /// Columns `W`, px.
     pub width: usize,
+    /// True height per board pixel, um.
     pub height_um: Vec<f32>,
+    /// Background `B` per board pixel, DN.
     pub background: Vec<f32>,
+    /// Contrast `C` per board pixel, DN.
     pub contrast: Vec<f32>,
 }
 

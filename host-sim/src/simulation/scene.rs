@@ -185,20 +185,27 @@ pub enum SceneError {
     /// The scene file could not be read.
     #[error("{} {}", path.display(), crate::files::io_cause(cause))]
     Io {
+        /// The scene file.
         path: PathBuf,
+        /// The I/O error.
         cause: std::io::Error,
     },
     /// The TOML is malformed or does not match the schema (unknown key, wrong type).
     #[error("{}scene TOML: {message}", origin(path))]
     Parse {
+        /// The scene file (`None` when parsed from or written to a string).
         path: Option<PathBuf>,
+        /// The TOML parser's message.
         message: String,
     },
     /// A knob is out of range.
     #[error("{}invalid scene knob `{knob}`: {message}", origin(path))]
     Invalid {
+        /// The scene file (`None` when parsed from a string).
         path: Option<PathBuf>,
+        /// The knob's name (its TOML key).
         knob: String,
+        /// What is wrong with its value.
         message: String,
     },
 }

@@ -103,9 +103,11 @@ pub struct Realtime {
     pub pixels_per_second_per_camera: f64,
     /// Board rows per second (`pixels_per_second_per_camera / W`).
     pub board_rows_per_second: f64,
-    /// Board length (mm), width (mm) and pixel pitch (um) of the model.
+    /// Board length along the conveyor, mm.
     pub board_length_mm: f64,
+    /// Board width across the conveyor, mm.
     pub board_width_mm: f64,
+    /// Pixel pitch on the board, um.
     pub pixel_um: f64,
     /// Frame grabbers (cameras) side by side across the board width.
     pub cameras: u32,
@@ -150,9 +152,11 @@ impl Realtime {
 /// The firmware's measured figures (`dpsa target-run --bench --json`).
 #[derive(Clone, Debug, Serialize)]
 pub struct BenchReport {
+    /// Instructions per output pixel, by stage.
     pub instructions_per_pixel: PerPixel,
     /// One-off cost of `P` for one window (the integer solve).
     pub instructions_per_window_solve: f64,
+    /// RAM use, bytes.
     pub ram_bytes: Ram,
     /// The real-time model (assumed clock and IPC; see [`Realtime`]).
     pub realtime: Realtime,
@@ -161,18 +165,24 @@ pub struct BenchReport {
     /// Retired instructions per SysTick tick, calibrated by the firmware (40 on mps2 at
     /// `-icount shift=0`).
     pub instructions_per_tick: f64,
+    /// Pixels per row `W` of the recording.
     pub width: i64,
+    /// Observations per board row (frames in a phase window).
     pub n: i64,
+    /// Height rows the firmware wrote to the stream.
     pub rows_out: i64,
+    /// Height pixels it wrote (`rows_out x width`).
     pub pixels_out: i64,
     /// Pixels the per-stage loops (accumulate, phase + height) were timed over.
     pub stage_pixels: i64,
+    /// Window solves timed (`instructions_per_window_solve` is their mean).
     pub solves: i64,
     /// Inputs on which the firmware checked its `asm!` SMLAD and UQSUB16 against their
     /// portable twins (`core/src/dsp.rs`); a report is only made when none differed.
     pub dsp_checks: i64,
     /// Instructions spent in semihosting file I/O (context: QEMU's host I/O, not the board's).
     pub io_instructions: f64,
+    /// Section sizes of the firmware ELF, bytes.
     pub elf_sections: Sections,
     /// The bench file as the firmware wrote it.
     pub raw: BTreeMap<String, i64>,

@@ -25,17 +25,24 @@ pub struct ElfSizes {
     pub flash: u64,
     /// Static RAM: `.data + .bss + .uninit` (the `.state` region is not counted).
     pub static_ram: u64,
+    /// Size of each section of interest.
     pub sections: Sections,
 }
 
 /// Section sizes, bytes (a section absent from the ELF is 0).
 #[derive(Clone, Debug, Default, Serialize, PartialEq, Eq)]
 pub struct Sections {
+    /// `.vector_table`: the Cortex-M exception vectors.
     pub vector_table: u64,
+    /// `.text`: code.
     pub text: u64,
+    /// `.rodata`: read-only data.
     pub rodata: u64,
+    /// `.data`: initialised statics (RAM; the load image is in flash).
     pub data: u64,
+    /// `.bss`: zero-initialised statics.
     pub bss: u64,
+    /// `.uninit`: statics left uninitialised at reset.
     pub uninit: u64,
     /// Hot code run from ITCM (its load image is in flash too).
     pub itcm: u64,

@@ -41,10 +41,12 @@ pub const TIMEOUT_ENV: &str = "DPSA_QEMU_TIMEOUT";
 /// Default QEMU time limit, seconds (a firmware that hangs is killed after it).
 pub const DEFAULT_TIMEOUT_S: u64 = 1800;
 
+/// What [`run`] returns: the firmware's packet stream, the QEMU run and the measurements.
 #[derive(Clone, Debug)]
 pub struct TargetOutput {
     /// The packet stream the firmware wrote.
     pub stream: Vec<u8>,
+    /// How the QEMU run ended (exit code, decoded log).
     pub outcome: Outcome,
     /// The firmware's measurements (`--bench`), key by key.
     pub bench: Option<BTreeMap<String, i64>>,
@@ -58,6 +60,7 @@ pub struct RunOptions {
     pub intra_period: u32,
     /// Ask the firmware for its measurements.
     pub bench: bool,
+    /// What the run reports on stderr (log lines, spinner).
     pub echo: Echo,
 }
 

@@ -64,6 +64,7 @@ pub fn qemu_command(elf: &Path, args: &[String], log: &Path) -> Result<Command> 
 pub struct LogLine {
     /// `TRACE`, `DEBUG`, `INFO`, `WARN`, `ERROR`, or empty for `println`.
     pub level: String,
+    /// The formatted message.
     pub message: String,
     /// Source location (`file:line`) when the ELF has debug information for it.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -95,10 +96,12 @@ pub struct Outcome {
     pub malformed: usize,
     /// What QEMU itself printed (its own errors, e.g. a bad option or a missing file).
     pub qemu_output: String,
+    /// Wall time of the QEMU run, until it exited or was killed.
     pub elapsed: Duration,
 }
 
 impl Outcome {
+    /// Whether the firmware exited with status 0.
     pub fn success(&self) -> bool {
         self.code == Some(0)
     }

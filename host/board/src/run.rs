@@ -50,7 +50,7 @@ pub fn no_variance(
 
 /// `dpsa board --json`.
 #[derive(Clone, Debug, Serialize)]
-pub struct Report {
+pub struct MapReport {
     /// Cameras in the map.
     pub cameras: usize,
     /// The evidence that the map is wrong or useless (empty when none), one sentence each:
@@ -127,8 +127,8 @@ pub struct RunTiming {
     pub total_s: f64,
 }
 
-impl Report {
-    /// A few lines for the terminal: [`Report::summary_head`] and [`Report::time_line`].
+impl MapReport {
+    /// A few lines for the terminal: [`MapReport::summary_head`] and [`MapReport::time_line`].
     pub fn summary(&self) -> String {
         self.summary_head() + &self.time_line(None)
     }
@@ -503,7 +503,7 @@ pub fn rows_from_streams<'v>(
 /// A board map built and written: the report and the blended map (for a comparison after).
 pub struct Built {
     /// `dpsa board --json`.
-    pub report: Report,
+    pub report: MapReport,
     /// The blended map, its variance and turns.
     pub blended: Blended,
 }
@@ -573,7 +573,7 @@ pub fn build(cams: Vec<(CameraRows, u64)>, inputs: Inputs<'_>, out: &Path) -> Re
         per_seam: b.seams.clone(),
     };
     let warnings = evidence(&cams, b, &seams);
-    let report = Report {
+    let report = MapReport {
         cameras: cams.len(),
         warnings,
         grid: *grid,

@@ -146,7 +146,7 @@ pub fn counts(i: &Inspection) -> (Counts, Calls) {
 
 /// The JSON report of `dpsa inspect` (`--json`, `report.json`).
 #[derive(Clone, Debug, Serialize)]
-pub struct Report {
+pub struct InspectionReport {
     /// The board map's directory, as given.
     pub board: String,
     /// The program file, as given.
@@ -246,10 +246,16 @@ pub struct Timing {
     pub total_s: f64,
 }
 
-impl Report {
+impl InspectionReport {
     /// The report of inspection `i` of `pads`, without an evaluation; `board` and `program`
     /// name the inputs, `load_s` is the time reading them took (write and total times 0).
-    pub fn build(board: &str, program: &str, i: &Inspection, pads: &[Pad], load_s: f64) -> Report {
+    pub fn build(
+        board: &str,
+        program: &str,
+        i: &Inspection,
+        pads: &[Pad],
+        load_s: f64,
+    ) -> InspectionReport {
         let (c, calls) = counts(i);
         let failures = i
             .calls
@@ -265,7 +271,7 @@ impl Report {
                 )
             })
             .collect();
-        Report {
+        InspectionReport {
             board: board.into(),
             program: program.into(),
             pads: c,
@@ -391,7 +397,7 @@ pub fn inspect_dir(
     program_path: &std::path::Path,
     out: Option<&std::path::Path>,
     repeat: u32,
-) -> Result<(Report, Inspection), InspectError> {
+) -> Result<(InspectionReport, Inspection), InspectError> {
     inspect_dir_with(board, program_path, out, repeat, None, false)
 }
 
@@ -404,7 +410,7 @@ pub fn inspect_dir_with(
     repeat: u32,
     mut evaluate: Option<&mut dyn Evaluate>,
     progress: bool,
-) -> Result<(Report, Inspection), InspectError> {
+) -> Result<(InspectionReport, Inspection), InspectError> {
     let t0 = Instant::now();
     let mut program = Program::load(program_path)?;
     let layer_path = program.paste_layer_path(program_path);
@@ -443,7 +449,7 @@ pub fn inspect_dir_with(
     let Some(i) = best else {
         return Err(InspectError::NoInspection);
     };
-    let mut report = Report::build(
+    let mut report = InspectionReport::build(
         &board.display().to_string(),
         &program_path.display().to_string(),
         &i,
