@@ -40,8 +40,8 @@ for c in program pads board inspect decode; do
     fi
 done
 # Without the simulator `board` takes the cameras' streams only; without them it says so.
-if ! target/debug/dpsa board /nonexistent --cal /nonexistent --out /nonexistent/map 2>&1 |
-    grep -q "give the cameras' packet streams with --streams"; then
+said=$(target/debug/dpsa board /nonexistent --cal /nonexistent --out /nonexistent/map 2>&1 || true)
+if ! grep -q "give the cameras' packet streams with --streams" <<<"$said"; then
     echo "error: the production binary's board does not ask for --streams" >&2
     exit 1
 fi
