@@ -44,6 +44,17 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// `dpsa program` of the mini pill (paste layer, outline, KiCad placement file, 120 um
+/// stencil, then `extra`) into `out`; its summary.
+fn teach_pill(out: &Path, extra: &[&str]) -> String {
+    let (paste, edge, pos) = (paste(), pill("pcb-Edge_Cuts.gbr"), pill("pcb-top.pos"));
+    let mut args = vec!["program", "--paste", s(&paste), "--outline", s(&edge)];
+    args.extend(["--placement", s(&pos), "--stencil-um", "120"]);
+    args.extend(extra);
+    args.extend(["--out", s(out)]);
+    ok(&args)
+}
+
 /// Every pad of the paste layer named as `dpsa inspect` names it from the program.
 fn named_pads(program: &Path) -> gerber::PasteLayer {
     let mut prog = Program::load(program).unwrap();
@@ -97,21 +108,7 @@ fn agreement(layer: &gerber::PasteLayer) -> (usize, Vec<String>) {
 fn a_kicad_board_is_taught_with_names_outline_and_families() {
     let dir = tempfile::tempdir_in(env!("CARGO_TARGET_TMPDIR")).unwrap();
     let out = dir.path().join("program.toml");
-    let text = ok(&[
-        "program",
-        "--paste",
-        s(&paste()),
-        "--outline",
-        s(&pill("pcb-Edge_Cuts.gbr")),
-        "--placement",
-        s(&pill("pcb-top.pos")),
-        "--stencil-um",
-        "120",
-        "--name",
-        "pill",
-        "--out",
-        s(&out),
-    ]);
+    let text = teach_pill(&out, &["--name", "pill"]);
     // The program loads and validates, with the outline's corner (the Edge.Cuts rectangle's
     // lines run through x = 126.746, y = -118.237, see pcb-Edge_Cuts.gbr).
     let prog = Program::load(&out).unwrap();
@@ -560,19 +557,7 @@ fn a_real_board_goes_from_its_gerber_files_to_verdicts_through_the_streams() {
     let dir = tempfile::tempdir_in(env!("CARGO_TARGET_TMPDIR")).unwrap();
     let d = dir.path();
     let prog = d.join("program.toml");
-    ok(&[
-        "program",
-        "--paste",
-        s(&paste()),
-        "--outline",
-        s(&pill("pcb-Edge_Cuts.gbr")),
-        "--placement",
-        s(&pill("pcb-top.pos")),
-        "--stencil-um",
-        "120",
-        "--out",
-        s(&prog),
-    ]);
+    teach_pill(&prog, &[]);
     let (calrec, board) = (d.join("calrec"), d.join("board"));
     for (extra, seed, out) in [(Some("--calibration"), "3", &calrec), (None, "5", &board)] {
         let mut args = vec!["--quiet", "simulate", "--scene", s(&scene)];

@@ -18,7 +18,7 @@ use crate::simulation::recording::Recording;
 use anyhow::{Context, Result};
 use dpsa_board::assemble::CameraRows;
 use dpsa_board::provenance::Provenance;
-use dpsa_board::run::{self as map, Built, Collector, Inputs, Layout};
+use dpsa_board::run::{self as map, Built, Collector, Inputs, MapLayout};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -126,13 +126,13 @@ pub(crate) struct Opened {
     /// Every camera's recording (without the calibration applied).
     pub recs: Vec<Recording>,
     /// The board map's grid and identity.
-    pub layout: Layout,
+    pub layout: MapLayout,
 }
 
 /// Opens the array board recording `dir` with its cameras' recordings, checks it against `cal`
 /// and lays out its board grid.
 pub(crate) fn open(dir: &Path, cal: &CalFile) -> Result<Opened> {
-    let (_, layout) = map::layout(dir, cal)?;
+    let layout = map::layout(dir, cal)?;
     let arr = ArrayRecording::open(dir)?;
     let recs: Vec<Recording> = (0..arr.manifest.cameras.len())
         .map(|i| {

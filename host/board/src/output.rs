@@ -47,6 +47,15 @@ pub enum BoardError {
 
 type Result<T> = std::result::Result<T, BoardError>;
 
+/// `valid / total`, 0 for an empty map.
+pub fn valid_fraction(valid: u64, total: u64) -> f64 {
+    if total > 0 {
+        valid as f64 / total as f64
+    } else {
+        0.0
+    }
+}
+
 /// LSB of `heights.png`, um: 0.25 um over +-8.19 mm.
 pub const PNG_LSB_UM: f64 = 0.25;
 
@@ -223,11 +232,7 @@ fn write_files(
         pixels: Pixels {
             total,
             valid,
-            valid_fraction: if total > 0 {
-                valid as f64 / total as f64
-            } else {
-                0.0
-            },
+            valid_fraction: valid_fraction(valid, total),
             per_camera,
         },
         turns: b.turns.clone(),

@@ -424,7 +424,7 @@ pub fn evidence(cams: &[CameraRows], b: &Blended, seams: &Seams) -> Vec<String> 
 
 /// The board map's grid and identity from the array's `array.json` and the calibration file,
 /// both checked against each other (camera count, frame sizes, design positions, pitch).
-pub struct Layout {
+pub struct MapLayout {
     /// The board map's grid: the board's size at the array's pixel pitch, from (0, 0).
     pub grid: BoardGrid,
     /// The board identity every camera's stream carries (`array.json`'s `board_id`).
@@ -432,7 +432,7 @@ pub struct Layout {
 }
 
 /// Lays out the board map of the array recording `dir` (its `array.json` only) with `cal`.
-pub fn layout(dir: &Path, cal: &CalFile) -> Result<(ArrayManifest, Layout)> {
+pub fn layout(dir: &Path, cal: &CalFile) -> Result<MapLayout> {
     let m = ArrayManifest::load(dir)?;
     if m.kind != Kind::Board {
         return Err(BoardError::Refused(format!(
@@ -458,8 +458,10 @@ pub fn layout(dir: &Path, cal: &CalFile) -> Result<(ArrayManifest, Layout)> {
             grid.rows, grid.width
         )));
     }
-    let board = m.board_id;
-    Ok((m, Layout { grid, board }))
+    Ok(MapLayout {
+        grid,
+        board: m.board_id,
+    })
 }
 
 /// The rows of every camera from its packet stream (`paths`, one per camera, any order;
@@ -469,7 +471,7 @@ pub fn layout(dir: &Path, cal: &CalFile) -> Result<(ArrayManifest, Layout)> {
 pub fn rows_from_streams<'v>(
     paths: &[PathBuf],
     cal: &CalFile,
-    layout: &Layout,
+    layout: &MapLayout,
     array_file: &Path,
     variance: &mut dyn FnMut(usize) -> Box<Variance<'v>>,
 ) -> Result<(Vec<(CameraRows, u64)>, StreamsReport)> {
@@ -511,7 +513,7 @@ pub struct Built {
 /// What [`build`] was given besides the rows.
 pub struct Inputs<'a> {
     /// The board map's grid and identity.
-    pub layout: &'a Layout,
+    pub layout: &'a MapLayout,
     /// The streams' report (`--streams`), or `None` (rows from the core).
     pub streams: Option<StreamsReport>,
     /// When the run started (for `timing.total_s`).
@@ -581,11 +583,7 @@ pub fn build(cams: Vec<(CameraRows, u64)>, inputs: Inputs<'_>, out: &Path) -> Re
         pixels: PixelCounts {
             total,
             valid,
-            valid_fraction: if total > 0 {
-                valid as f64 / total as f64
-            } else {
-                0.0
-            },
+            valid_fraction: crate::output::valid_fraction(valid, total),
             dead_masked: cams.iter().map(|c| c.dead_masked).collect(),
             unplaced_rows: unplaced,
         },
@@ -617,7 +615,7 @@ pub fn from_streams(
     progress: bool,
 ) -> Result<Built> {
     let started = Instant::now();
-    let (_, layout) = layout(dir, cal)?;
+    let layout = layout(dir, cal)?;
     let open_s = started.elapsed().as_secs_f64();
     let t0 = Instant::now();
     let (cams, report) =
