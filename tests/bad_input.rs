@@ -19,10 +19,10 @@ fn sim() -> Sim {
 }
 
 /// The error chain of a failed job, as the CLI prints it.
-fn err_text<T>(r: anyhow::Result<T>) -> String {
+fn err_text<T>(r: dpsa_sim::Result<T>) -> String {
     match r {
         Ok(_) => panic!("expected an error"),
-        Err(e) => format!("{e:#}"),
+        Err(e) => format!("{:#}", anyhow::Error::new(e)),
     }
 }
 

@@ -19,6 +19,7 @@
 //! | [`target`] | the firmware: feed export, build, ELF sizes, QEMU with its defmt log, its bench figures |
 //! | [`benches`] | `codec-bench`: our row codec against general-purpose compressors and the entropy bound |
 //! | [`stack`] | ordinary phase-shifting image stacks (real camera images) through the same kernel |
+//! | [`error`] | [`SimError`]: the one error of this crate's API (the production crates' errors inside it, typed); [`At`] says where |
 //! | [`files`], [`heightmap`], [`images`], [`kind`], [`progress`] | the bottom layer (crate `dpsa-formats`) |
 //!
 //! The `dpsa` binary is its own package (`cli/`): it only parses arguments and prints, one file
@@ -28,6 +29,7 @@ pub mod array;
 pub mod benches;
 pub mod board;
 pub mod calibration;
+pub mod error;
 pub mod inspection;
 pub mod reconstruct;
 pub mod reference;
@@ -38,3 +40,4 @@ pub mod target;
 // The bottom layer, re-exported at its old paths.
 pub use dpsa_formats::{files, heightmap, images, kind, progress};
 pub use dpsa_stream as stream;
+pub use error::{At, Result, SimError};

@@ -1,7 +1,7 @@
 //! Phase of an ordinary phase-shifting image stack (real captures, any steps), with the same
 //! fixed-point kernel as the pipeline and an independent f64 least squares beside it.
 
-use anyhow::{anyhow, bail, Result};
+use crate::{Result, SimError};
 use dpsa_core::fixed::types::{U16F16, U20F12, U8F8};
 use dpsa_core::{bench, bench::Window, height::Scale, phase};
 use nalgebra::{DMatrix, DVector};
@@ -30,14 +30,17 @@ impl Stack {
     /// Loads PNG/JPEG/TIFF images (8 or 16 bit; colour is converted to luma).
     pub fn load(paths: &[impl AsRef<Path>], steps_deg: &[f64]) -> Result<Stack> {
         if paths.len() != steps_deg.len() {
-            bail!(
+            return Err(SimError::Refused(format!(
                 "{} images but {} steps: give one --step per --image",
                 paths.len(),
                 steps_deg.len()
-            );
+            )));
         }
         if !(3..=8).contains(&paths.len()) {
-            bail!("a stack needs 3 to 8 images, got {}", paths.len());
+            return Err(SimError::Refused(format!(
+                "a stack needs 3 to 8 images, got {}",
+                paths.len()
+            )));
         }
         let mut images = Vec::new();
         let mut dims = None;
@@ -45,23 +48,28 @@ impl Stack {
         for p in paths {
             let p = p.as_ref();
             let reader = || -> Result<image::ImageReader<std::io::BufReader<std::fs::File>>> {
-                crate::files::check_regular(p)
-                    .map_err(|e| anyhow!("{} {}", p.display(), crate::files::io_cause(&e)))?;
+                crate::files::check_regular(p).map_err(|e| {
+                    SimError::Refused(format!("{} {}", p.display(), crate::files::io_cause(&e)))
+                })?;
                 image::ImageReader::open(p)
-                    .map_err(|e| anyhow!("{} {}", p.display(), crate::files::io_cause(&e)))?
+                    .map_err(|e| {
+                        SimError::Refused(format!("{} {}", p.display(), crate::files::io_cause(&e)))
+                    })?
                     .with_guessed_format()
-                    .map_err(|e| anyhow!("{} {}", p.display(), crate::files::io_cause(&e)))
+                    .map_err(|e| {
+                        SimError::Refused(format!("{} {}", p.display(), crate::files::io_cause(&e)))
+                    })
             };
             // The header first: the pixel limit is checked before anything is decoded.
             let (w, h) = reader()?
                 .into_dimensions()
-                .map_err(|e| anyhow!("cannot decode {}: {e}", p.display()))?;
+                .map_err(|e| SimError::Refused(format!("cannot decode {}: {e}", p.display())))?;
             let px = u64::from(w) * u64::from(h);
             if px > MAX_PIXELS {
-                bail!(
+                return Err(SimError::Refused(format!(
                     "{} is {w} x {h} = {px} pixels, more than the {MAX_PIXELS} (64 Mpx) dpsa phase takes per image",
                     p.display()
-                );
+                )));
             }
             let mut limits = image::Limits::default();
             limits.max_image_width = Some(w);
@@ -71,7 +79,7 @@ impl Stack {
             r.limits(limits);
             let img = r
                 .decode()
-                .map_err(|e| anyhow!("cannot decode {}: {e}", p.display()))?;
+                .map_err(|e| SimError::Refused(format!("cannot decode {}: {e}", p.display())))?;
             let sixteen = matches!(
                 img.color(),
                 image::ColorType::L16
@@ -96,20 +104,20 @@ impl Stack {
             match dims {
                 None => dims = Some((w, h)),
                 Some(d) if d != (w, h) => {
-                    bail!(
+                    return Err(SimError::Refused(format!(
                         "{} is {}x{}, the first image is {}x{}",
                         p.display(),
                         w,
                         h,
                         d.0,
                         d.1
-                    )
+                    )));
                 }
                 _ => {}
             }
             images.push(data);
         }
-        let (width, height) = dims.ok_or_else(|| anyhow!("no images"))?;
+        let (width, height) = dims.ok_or_else(|| SimError::Refused("no images".into()))?;
         let steps_rad = steps_deg.iter().map(|d| d.to_radians()).collect();
         Ok(Stack {
             width,
@@ -167,15 +175,18 @@ pub fn run(stack: &Stack, min_modulation: f64) -> Result<(StackPhase, PhaseRepor
         .map(|&s| phase::from_rad(s))
         .collect();
     let win = Window::solve(&shifts, U8F8::from_num(8)).map_err(|e| {
-        anyhow!("the phase steps give no usable solution ({e:?}): noise gain above 8")
+        SimError::Core(format!(
+            "the phase steps give no usable solution ({e:?}): noise gain above 8"
+        ))
     })?;
     let scale = Scale::from_parts(
         U16F16::ONE,
         U20F12::from_bits((min_modulation * 4096.0).round() as u32),
     );
     // The pipeline's kernel: 16-bit coefficients, 32-bit sums, the folded modulation gate.
-    let coef = bench::Coef::of(&win, saturation)
-        .ok_or_else(|| anyhow!("the phase steps give coefficients too large for the kernel"))?;
+    let coef = bench::Coef::of(&win, saturation).ok_or_else(|| {
+        SimError::Core("the phase steps give coefficients too large for the kernel".into())
+    })?;
     let gate = scale.gate(coef.frac);
     // f64 path: P = (M^T M)^-1 M^T with rows [1, cos s, -sin s].
     let m = DMatrix::from_fn(n, 3, |j, k| match k {
@@ -186,7 +197,7 @@ pub fn run(stack: &Stack, min_modulation: f64) -> Result<(StackPhase, PhaseRepor
     let mtm = m.transpose() * &m;
     let inv = mtm
         .try_inverse()
-        .ok_or_else(|| anyhow!("the phase steps are singular"))?;
+        .ok_or_else(|| SimError::Refused("the phase steps are singular".into()))?;
     let p = inv * m.transpose();
     // Noise gain from the centred 2x2 block, for the report.
     let g = crate::reference::noise_gain(&stack.steps_rad);

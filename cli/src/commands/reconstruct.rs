@@ -84,7 +84,7 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
         (Err(_), Some(io)) => {
             return Err(anyhow!("{} {}", a.out.display(), files::write_cause(&io)))
         }
-        (Err(e), None) => return Err(e),
+        (Err(e), None) => return Err(e.into()),
     };
     let Tee { inner, copy, .. } = tee;
     let file = inner

@@ -20,7 +20,7 @@
 //! these layouts; `dpsa layout --board paper|small --out FILE` writes them again, byte for byte.
 
 use crate::inspection::pads::{Outline, Pad, Point};
-use anyhow::{Context, Result};
+use crate::{Result, SimError};
 use rand::seq::SliceRandom;
 use rand::RngExt;
 use serde::Serialize;
@@ -52,7 +52,9 @@ impl LayoutBoard {
         match s {
             "paper" => Ok(LayoutBoard::Paper),
             "small" => Ok(LayoutBoard::Small),
-            _ => anyhow::bail!("unknown board {s:?}: expected `paper` or `small`"),
+            _ => Err(SimError::Refused(format!(
+                "unknown board {s:?}: expected `paper` or `small`"
+            ))),
         }
     }
 
@@ -907,10 +909,11 @@ impl Layout {
         }
         cmds.push(ExtendedCode::LoadPolarity(Polarity::Dark).into());
         let nm = |mm: f64| -> Result<CoordinateNumber> {
-            anyhow::ensure!(
-                mm.is_finite() && mm.abs() < 9999.0,
-                "coordinate {mm} mm out of range"
-            );
+            if !(mm.is_finite() && mm.abs() < 9999.0) {
+                return Err(SimError::Refused(format!(
+                    "coordinate {mm} mm out of range"
+                )));
+            }
             Ok(CoordinateNumber::new((mm * 1e6).round() as i64))
         };
         let mut current: Option<&str> = None;
@@ -922,12 +925,12 @@ impl Layout {
                 let code = p
                     .aperture
                     .as_deref()
-                    .context("internal error: pad without aperture")?;
+                    .ok_or_else(|| SimError::Internal("pad without aperture".into()))?;
                 if current != Some(code) {
                     let n: i32 = code
                         .trim_start_matches('D')
                         .parse()
-                        .context("internal error: aperture name")?;
+                        .map_err(|e| SimError::Internal(format!("aperture name: {e}")))?;
                     cmds.push(FunctionCode::DCode(DCode::SelectAperture(n)).into());
                     current = Some(code);
                 }
@@ -957,7 +960,7 @@ impl Layout {
         cmds.push(FunctionCode::MCode(MCode::EndOfFile).into());
         let mut out = Vec::new();
         cmds.serialize(&mut out)
-            .map_err(|e| anyhow::anyhow!("writing the Gerber layer: {e}"))?;
+            .map_err(|e| SimError::Refused(format!("writing the Gerber layer: {e}")))?;
         Ok(out)
     }
 }

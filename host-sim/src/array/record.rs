@@ -9,7 +9,7 @@ use crate::simulation::recording::{
     self, BoardId, FrameEntry, Manifest, Recording, TruthInfo, FORMAT, TRUTH_BACKGROUND_FILE,
     TRUTH_CONTRAST_FILE, TRUTH_HEIGHT_FILE, VERSION,
 };
-use anyhow::{bail, Context, Result};
+use crate::{At, Result, SimError};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
@@ -139,13 +139,13 @@ impl ArrayRecording {
             if have != want {
                 let show =
                     |b: Option<BoardId>| b.map_or_else(|| "none".to_string(), |b| b.to_string());
-                bail!(
+                return Err(SimError::Refused(format!(
                     "camera {i}'s recording {} is not of this board: its board id is {}, {} says {}",
                     r.dir.display(),
                     show(have),
                     self.dir.join(ARRAY_FILE).display(),
                     show(want)
-                );
+                )));
             }
         }
         Ok(want)
@@ -155,11 +155,17 @@ impl ArrayRecording {
     pub fn truth(&self) -> Result<Option<ArrayTruth>> {
         let path = self.dir.join(ARRAY_TRUTH_FILE);
         match crate::files::read_capped_io(&path, 1 << 30) {
-            Ok(b) => Ok(Some(serde_json::from_slice(&b).with_context(|| {
-                format!("{}: not a valid array truth", path.display())
-            })?)),
+            Ok(b) => {
+                Ok(Some(serde_json::from_slice(&b).at(|| {
+                    format!("{}: not a valid array truth", path.display())
+                })?))
+            }
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-            Err(e) => bail!("{} {}", path.display(), crate::files::io_cause(&e)),
+            Err(e) => Err(SimError::Refused(format!(
+                "{} {}",
+                path.display(),
+                crate::files::io_cause(&e)
+            ))),
         }
     }
 }
@@ -171,11 +177,11 @@ pub fn check_camera_ids(recs: &[Recording], array_dir: &Path) -> Result<()> {
     for (i, r) in recs.iter().enumerate() {
         let id = r.manifest.camera.id;
         if usize::from(id) != i {
-            bail!(
+            return Err(SimError::Refused(format!(
                 "{} is camera {i}'s place in {}, but its manifest says camera.id = {id}: the camera directories are swapped or misnamed",
                 r.dir.display(),
                 array_dir.display()
-            );
+            )));
         }
     }
     Ok(())
@@ -241,7 +247,7 @@ fn write_camera(
     truth_rows: Option<(i64, i64)>,
 ) -> Result<(usize, u64, Manifest)> {
     std::fs::create_dir_all(dir.join("frames"))
-        .with_context(|| format!("cannot create {}", dir.display()))?;
+        .at(|| format!("cannot create {}", dir.display()))?;
     let renderer = CameraRenderer::new(scene, model, surface);
     let ext = scene.frame_format.extension();
     let (rows, width) = (model.rows as usize, model.width as usize);
@@ -256,7 +262,7 @@ fn write_camera(
         .collect();
     let next = AtomicUsize::new(0);
     let bytes = AtomicU64::new(0);
-    let error: Mutex<Option<anyhow::Error>> = Mutex::new(None);
+    let error: Mutex<Option<SimError>> = Mutex::new(None);
     let threads = std::thread::available_parallelism()
         .map_or(1, |n| n.get())
         .min(positions.len())
@@ -272,19 +278,19 @@ fn write_camera(
                 let path = dir.join(&frames_list[k].file);
                 let res = match scene.frame_format {
                     FrameFormat::Png => recording::write_frame_png(&path, rows, width, &data)
-                        .map_err(anyhow::Error::new),
+                        .map_err(SimError::from),
                     FrameFormat::Zfr => frames::encode(rows, width, &data)
-                        .map_err(anyhow::Error::new)
+                        .map_err(SimError::from)
                         .and_then(|b| Ok(crate::files::write_bytes(&path, &b)?)),
                 };
-                match res {
+                match res.at(|| format!("writing frame {k}")) {
                     Ok(()) => {
                         let len = std::fs::metadata(&path).map(|m| m.len()).unwrap_or(0);
                         bytes.fetch_add(len, Ordering::Relaxed);
                     }
                     Err(e) => {
                         if let Ok(mut slot) = error.lock() {
-                            slot.get_or_insert(e.context(format!("writing frame {k}")));
+                            slot.get_or_insert(e);
                         }
                     }
                 }
@@ -346,7 +352,7 @@ fn write_camera(
     };
     manifest
         .validate()
-        .context("internal error: sub-recording manifest")?;
+        .at(|| "internal error: sub-recording manifest")?;
     Ok((positions.len(), total, manifest))
 }
 
@@ -438,14 +444,19 @@ pub fn board_deposits(
         return Ok((boxes, deposits, None));
     };
     let layer = crate::files::read_capped_io(&path, 256 << 20).map_err(|e| {
-        anyhow::anyhow!(
+        SimError::Refused(format!(
             "paste layer {} {}",
             path.display(),
             crate::files::io_cause(&e)
-        )
+        ))
     })?;
     let pads = load_paste_layer(&path)?;
-    anyhow::ensure!(!pads.is_empty(), "paste layer {}: no pads", path.display());
+    if pads.is_empty() {
+        return Err(SimError::Refused(format!(
+            "paste layer {}: no pads",
+            path.display()
+        )));
+    }
     let (length, width) = (scene.board_length_mm, scene.board_width_mm);
     let inside = |b: [f64; 4]| b[0] >= 0.0 && b[1] >= 0.0 && b[2] <= length && b[3] <= width;
     // The nominal placement must put the whole layer on the board.
@@ -456,7 +467,7 @@ pub fn board_deposits(
         .collect();
     if let Some(first) = off.first() {
         let c = nominal.apply(first.outline.centroid());
-        bail!(
+        return Err(SimError::Refused(format!(
             "paste layer {}: {} of {} pads fall outside the {length} x {width} mm board under the nominal [placement] (first: {} at [{:.3}, {:.3}] mm on the board); check placement.design_origin_mm and orientation_deg",
             path.display(),
             off.len(),
@@ -464,17 +475,17 @@ pub fn board_deposits(
             first.name(),
             c[0],
             c[1]
-        );
+        )));
     }
     for f in &scene.fiducials {
         let c = nominal.apply(*f);
         let r = scene.fiducial_diameter_mm / 2.0;
         if !inside([c[0] - r, c[1] - r, c[0] + r, c[1] + r]) {
-            bail!(
+            return Err(SimError::Refused(format!(
                 "fiducial at [{}, {}] (design) falls outside the board under the nominal [placement]",
                 f[0],
                 f[1]
-            );
+            )));
         }
     }
     let t = scene.placement.design_to_board(length, width, seed);
@@ -488,12 +499,12 @@ pub fn board_deposits(
         &t,
         print_seed,
     )
-    .with_context(|| format!("printing {}", path.display()))?;
+    .at(|| format!("printing {}", path.display()))?;
     if let Some(d) = print.deposits.iter().find(|d| !inside(d.reach_bbox())) {
-        bail!(
+        return Err(SimError::Refused(format!(
             "the board's placement error (placement.offset_sigma_mm, rotation_sigma_deg) moves {} off the board; lower them or keep the layer further from the board edges",
             d.pad.map_or_else(|| "a fiducial or bridge".to_string(), |i| pads[i].name())
-        );
+        )));
     }
     let deposits = print.deposits.clone();
     Ok((Vec::new(), deposits, Some((print, layer))))
@@ -677,11 +688,11 @@ pub fn simulate_calibration(scene: &ArrayScene, seed: u64, out: &Path) -> Result
         };
         let positions = conveyor(scene, seed, 0x200 + pi as u64, lo, length - hi_off);
         if positions.len() < usize::from(scene.n) + 2 {
-            bail!(
+            return Err(SimError::Refused(format!(
                 "calibration pass {}: {length} mm is too short for the cameras' fields (only {} frames); lengthen it",
                 pass.name,
                 positions.len()
-            );
+            )));
         }
         for (i, m) in models.iter().enumerate() {
             let surface = match pass.kind {

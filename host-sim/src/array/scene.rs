@@ -9,6 +9,7 @@ use crate::array::print::PrintParams;
 use crate::inspection::pads::{Pad, Rigid};
 use crate::simulation::recording::{Calibration, Camera, Noise, Processing};
 use crate::simulation::scene::{round_counts_per_pixel, Stall};
+use crate::{At, SimError};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::TAU;
 use std::path::{Path, PathBuf};
@@ -190,11 +191,14 @@ impl ScenePlacement {
 
 /// Reads the pads of a paste layer (Gerber RS-274X / X2; design frame, mm) with the
 /// inspection's own reader: the one place scenes get their pads from.
-pub fn load_paste_layer(path: &Path) -> anyhow::Result<Vec<Pad>> {
+pub fn load_paste_layer(path: &Path) -> crate::Result<Vec<Pad>> {
     let layer = crate::inspection::gerber::read_file(path)
-        .map_err(|e| anyhow::anyhow!("paste layer {}: {e}", path.display()))?;
+        .at(|| format!("paste layer {}", path.display()))?;
     if layer.pads.is_empty() {
-        anyhow::bail!("paste layer {}: no pads", path.display());
+        return Err(SimError::Refused(format!(
+            "paste layer {}: no pads",
+            path.display()
+        )));
     }
     Ok(layer.pads)
 }

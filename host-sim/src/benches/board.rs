@@ -10,7 +10,7 @@ use crate::board::assemble::{assemble, CameraRows};
 use crate::board::run::{core_rows, open, Opened};
 use crate::calibration::calibrated;
 use crate::calibration::file::CalFile;
-use anyhow::{Context, Result};
+use crate::{Result, SimError};
 use serde::Serialize;
 use std::path::Path;
 use std::time::Instant;
@@ -110,7 +110,9 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
     drop(cams);
 
     // Camera 0 alone, then numpy on the same frames.
-    let (r0, _) = loaded.first().context("no camera")?;
+    let (r0, _) = loaded
+        .first()
+        .ok_or_else(|| SimError::refused("no camera"))?;
     let t3 = Instant::now();
     let one = core_rows(r0, cal, 0)?;
     let core_camera0 = t3.elapsed().as_secs_f64();
@@ -123,7 +125,8 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
             Err(e) => (
                 None,
                 Some(format!(
-                    "{e:#} (the baseline needs python3 with numpy: pip install numpy)"
+                    "{} (the baseline needs python3 with numpy: pip install numpy)",
+                    crate::error::chain(&e)
                 )),
             ),
         },
@@ -172,7 +175,7 @@ fn per_camera<T: Send, R: Send>(
             .into_iter()
             .map(|h| {
                 h.join()
-                    .unwrap_or_else(|_| Err(anyhow::anyhow!("internal error: a thread panicked")))
+                    .unwrap_or_else(|_| Err(SimError::Internal("a thread panicked".into())))
             })
             .collect()
     })

@@ -52,10 +52,11 @@
 //! integer bin. Every method's output is decoded again and compared with the input; a
 //! difference fails the benchmark.
 
+use crate::error::chain;
 use crate::heightmap::{HeightMap, HeightRow};
 use crate::simulation::recording::Recording;
 use crate::{progress::progress_bar, reconstruct, stream};
-use anyhow::{bail, ensure, Context, Result};
+use crate::{At, Result, SimError};
 use dpsa_core::packets::codec::{self, Decoder, Encoder};
 use heatshrink::decoder::HeatshrinkDecoder;
 use heatshrink::encoder::HeatshrinkEncoder;
@@ -107,12 +108,15 @@ pub const MAX_BENCH_PIXELS: usize = 1 << 23;
 impl BenchRows {
     /// No rows yet, `w` pixels wide.
     fn empty(w: usize) -> Result<Self> {
-        ensure!(w > 0, "width 0: nothing to compress");
-        ensure!(
-            w <= codec::MAX_WIDTH,
-            "width {w} exceeds the codec's {}",
-            codec::MAX_WIDTH
-        );
+        if w == 0 {
+            return Err(SimError::refused("width 0: nothing to compress"));
+        }
+        if w > codec::MAX_WIDTH {
+            return Err(SimError::Refused(format!(
+                "width {w} exceeds the codec's {}",
+                codec::MAX_WIDTH
+            )));
+        }
         Ok(BenchRows {
             width: w,
             rows: 0,
@@ -125,19 +129,21 @@ impl BenchRows {
     /// than [`MAX_BENCH_PIXELS`] in all.
     fn push(&mut self, row: &HeightRow) -> Result<()> {
         let w = self.width;
-        ensure!(
-            row.heights.len() == w && row.valid.len() == w,
-            "board row {} has {} pixels, the map {w}",
-            row.row,
-            row.heights.len()
-        );
-        ensure!(
-            (self.rows + 1) * w <= MAX_BENCH_PIXELS,
-            "more than {} Mpx of heights: codec-bench takes at most {} Mpx (a shorter \
-             recording or stream)",
-            MAX_BENCH_PIXELS >> 20,
-            MAX_BENCH_PIXELS >> 20
-        );
+        if !(row.heights.len() == w && row.valid.len() == w) {
+            return Err(SimError::Refused(format!(
+                "board row {} has {} pixels, the map {w}",
+                row.row,
+                row.heights.len()
+            )));
+        }
+        if (self.rows + 1) * w > MAX_BENCH_PIXELS {
+            return Err(SimError::Refused(format!(
+                "more than {} Mpx of heights: codec-bench takes at most {} Mpx (a shorter \
+                 recording or stream)",
+                MAX_BENCH_PIXELS >> 20,
+                MAX_BENCH_PIXELS >> 20
+            )));
+        }
         let nb = w.div_ceil(8);
         let base = self.valid.len();
         self.valid.resize(base + nb, 0);
@@ -153,10 +159,9 @@ impl BenchRows {
 
     /// The rows of a decoded height map (all of them must have the map's width).
     pub fn from_map(map: &HeightMap) -> Result<Self> {
-        ensure!(
-            !map.rows.is_empty() && map.width > 0,
-            "no decoded rows: nothing to compress"
-        );
+        if map.rows.is_empty() || map.width == 0 {
+            return Err(SimError::refused("no decoded rows: nothing to compress"));
+        }
         let mut rows = BenchRows::empty(map.width)?;
         for row in &map.rows {
             rows.push(row)?;
@@ -233,11 +238,13 @@ pub enum Source {
 /// packet stream. Only rows that decoded are used.
 pub fn load(path: &Path, progress: bool) -> Result<(BenchRows, Source)> {
     if path.is_dir() {
-        let rec = Recording::open(path).with_context(|| format!("recording {}", path.display()))?;
+        let rec = Recording::open(path).at(|| format!("recording {}", path.display()))?;
         // Rows are taken as the core emits them; nothing else of the run is held.
         let mut rows = BenchRows::empty(rec.width())?;
         reconstruct::reconstruct_rows(&rec, progress, |row| rows.push(&row))?;
-        ensure!(rows.rows > 0, "no decoded rows: nothing to compress");
+        if rows.rows == 0 {
+            return Err(SimError::refused("no decoded rows: nothing to compress"));
+        }
         Ok((rows, Source::Recording))
     } else {
         let file = crate::files::open_regular(path, "packet stream")?;
@@ -247,17 +254,17 @@ pub fn load(path: &Path, progress: bool) -> Result<(BenchRows, Source)> {
             max_pixels: MAX_BENCH_PIXELS as u64,
         };
         let d = stream::decode_reader_with(std::io::BufReader::new(file), 0.25, keep)
-            .with_context(|| format!("reading {}", path.display()))?;
-        ensure!(
-            !d.over_limit,
-            "packet stream {}: more than {} Mpx of heights, codec-bench takes at most {} Mpx",
-            path.display(),
-            MAX_BENCH_PIXELS >> 20,
-            MAX_BENCH_PIXELS >> 20
-        );
+            .at(|| format!("reading {}", path.display()))?;
+        if d.over_limit {
+            return Err(SimError::Refused(format!(
+                "packet stream {}: more than {} Mpx of heights, codec-bench takes at most {} Mpx",
+                path.display(),
+                MAX_BENCH_PIXELS >> 20,
+                MAX_BENCH_PIXELS >> 20
+            )));
+        }
         let map = d.map.unwrap_or_default();
-        let rows = BenchRows::from_map(&map)
-            .with_context(|| format!("packet stream {}", path.display()))?;
+        let rows = BenchRows::from_map(&map).at(|| format!("packet stream {}", path.display()))?;
         Ok((
             rows,
             Source::Stream {
@@ -675,19 +682,21 @@ fn run_ours(rows: &BenchRows, intra_period: u32) -> Result<Coded> {
     let mut buf = vec![0u8; n * stride];
     let mut lens = vec![0usize; n];
     let (mut eh, mut ev) = (vec![0i16; w], vec![0u8; nb]);
-    let mut enc = Encoder::new(&mut eh, &mut ev, w, intra_period).context("codec encoder")?;
+    let mut enc = Encoder::new(&mut eh, &mut ev, w, intra_period)
+        .ok_or_else(|| SimError::Core("codec encoder".into()))?;
     let encode_s = best_time(|| {
         enc.reset();
         for (r, (out, len)) in buf.chunks_exact_mut(stride).zip(&mut lens).enumerate() {
             let (h, v) = rows.row(r);
             *len = enc
                 .encode(h, v, out)
-                .map_err(|e| anyhow::anyhow!("codec encode row {r}: {e}"))?;
+                .map_err(|e| SimError::Core(format!("codec encode row {r}: {e}")))?;
         }
         Ok(())
     })?;
     let (mut dh, mut dv) = (vec![0i16; w], vec![0u8; nb]);
-    let mut dec = Decoder::new(&mut dh, &mut dv, w).context("codec decoder")?;
+    let mut dec =
+        Decoder::new(&mut dh, &mut dv, w).ok_or_else(|| SimError::Core("codec decoder".into()))?;
     let (mut oh, mut ov) = (vec![0i16; n * w], vec![0u8; n * nb]);
     let decode_s = best_time(|| {
         dec.reset();
@@ -698,14 +707,16 @@ fn run_ours(rows: &BenchRows, intra_period: u32) -> Result<Coded> {
             .enumerate()
         {
             dec.decode(&p[..lens[r]], h, v)
-                .map_err(|e| anyhow::anyhow!("codec decode row {r}: {e}"))?;
+                .map_err(|e| SimError::Core(format!("codec decode row {r}: {e}")))?;
         }
         Ok(())
     })?;
     for r in 0..n {
         let (h, v) = rows.row(r);
         if oh[r * w..(r + 1) * w] != *h || ov[r * nb..(r + 1) * nb] != *v {
-            bail!("row codec (intra period {intra_period}): row {r} does not round-trip");
+            return Err(SimError::RoundTrip(format!(
+                "row codec (intra period {intra_period}): row {r} does not round-trip"
+            )));
         }
     }
     Ok(Coded {
@@ -855,17 +866,18 @@ fn mcu_compress(enc: &mut McuEncoder, src: &[u8], dst: &mut [u8]) -> Result<usiz
             match enc.sink(&src[i..]) {
                 Ok(k) => i += k,
                 Err(SinkError::Full) => {}
-                Err(e) => bail!("heatshrink encoder: {e:?}"),
+                Err(e) => return Err(SimError::RoundTrip(format!("heatshrink encoder: {e:?}"))),
             }
         }
         if i == src.len() {
             enc.finish();
         }
-        ensure!(
-            o < dst.len(),
-            "heatshrink output exceeds {} bytes",
-            dst.len()
-        );
+        if o >= dst.len() {
+            return Err(SimError::RoundTrip(format!(
+                "heatshrink output exceeds {} bytes",
+                dst.len()
+            )));
+        }
         match enc.poll(&mut dst[o..]) {
             Ok(Poll::More(k)) => o += k,
             Ok(Poll::Empty(k)) => {
@@ -874,7 +886,7 @@ fn mcu_compress(enc: &mut McuEncoder, src: &[u8], dst: &mut [u8]) -> Result<usiz
                     return Ok(o);
                 }
             }
-            Err(e) => bail!("heatshrink encoder: {e:?}"),
+            Err(e) => return Err(SimError::RoundTrip(format!("heatshrink encoder: {e:?}"))),
         }
     }
 }
@@ -888,7 +900,7 @@ fn mcu_decompress(dec: &mut McuDecoder, src: &[u8], dst: &mut [u8]) -> Result<us
             match dec.sink(&src[i..]) {
                 Ok(k) => i += k,
                 Err(SinkError::Full) => {}
-                Err(e) => bail!("heatshrink decoder: {e:?}"),
+                Err(e) => return Err(SimError::RoundTrip(format!("heatshrink decoder: {e:?}"))),
             }
         }
         let full = o == dst.len();
@@ -896,19 +908,22 @@ fn mcu_decompress(dec: &mut McuDecoder, src: &[u8], dst: &mut [u8]) -> Result<us
         let (k, empty) = match dec.poll(out) {
             Ok(Poll::More(k)) => (k, false),
             Ok(Poll::Empty(k)) => (k, true),
-            Err(e) => bail!("heatshrink decoder: {e:?}"),
+            Err(e) => return Err(SimError::RoundTrip(format!("heatshrink decoder: {e:?}"))),
         };
-        ensure!(
-            !(full && k > 0),
-            "heatshrink decoded more than {} bytes",
-            dst.len()
-        );
+        if full && k > 0 {
+            return Err(SimError::RoundTrip(format!(
+                "heatshrink decoded more than {} bytes",
+                dst.len()
+            )));
+        }
         o += k;
         if empty && i == src.len() {
             return Ok(o);
         }
     }
-    bail!("heatshrink decoder does not finish")
+    Err(SimError::RoundTrip(
+        "heatshrink decoder does not finish".into(),
+    ))
 }
 
 /// The 16-bit PNG of the map: `h + 32768` where valid (at least 1), 0 where invalid.
@@ -939,11 +954,15 @@ fn png16(rows: &BenchRows) -> Result<usize> {
             rows.rows as u32,
             ExtendedColorType::L16,
         )
-        .context("PNG encoding")?;
+        .map_err(|e| SimError::RoundTrip(chain(&e)))
+        .at(|| "PNG encoding")?;
     let back = image::load_from_memory_with_format(&png, image::ImageFormat::Png)
-        .context("PNG decoding")?
+        .map_err(|e| SimError::RoundTrip(chain(&e)))
+        .at(|| "PNG decoding")?
         .into_luma16();
-    ensure!(back.as_raw() == &px, "PNG does not round-trip");
+    if back.as_raw() != &px {
+        return Err(SimError::RoundTrip("PNG does not round-trip".into()));
+    }
     Ok(png.len())
 }
 
@@ -954,7 +973,9 @@ pub fn run(rows: &BenchRows, progress: bool) -> Result<CodecReport> {
     let (w, n) = (rows.width, rows.rows);
     let raw = rows.raw_bytes();
     let valid_px = rows.valid_pixels();
-    ensure!(valid_px > 0, "no valid pixels: nothing to benchmark");
+    if valid_px == 0 {
+        return Err(SimError::refused("no valid pixels: nothing to benchmark"));
+    }
     // Show the bar at once when the run will clearly take over a second (zstd -19 alone runs
     // at a few MB/s), else only once a second has passed.
     let stages = Stages::new(progress, STAGES, raw > 4_000_000);
@@ -977,12 +998,13 @@ pub fn run(rows: &BenchRows, progress: bool) -> Result<CodecReport> {
     for r in 0..n {
         let (h, v) = rows.row(r);
         let model = intra_row(h, v, w, &mut hist);
-        ensure!(
-            model.len == ours.lens[r],
-            "internal error: the reproduced intra predictor and Rice model give {} bytes for row {r}, the codec {}",
-            model.len,
-            ours.lens[r]
-        );
+        if model.len != ours.lens[r] {
+            return Err(SimError::Internal(format!(
+                "the reproduced intra predictor and Rice model give {} bytes for row {r}, the codec {}",
+                model.len,
+                ours.lens[r]
+            )));
+        }
         raw_rows += usize::from(model.raw);
         raw_row_bits += if model.raw { model.len * 8 } else { 0 };
         validity_bits += model.validity;
@@ -1009,7 +1031,9 @@ pub fn run(rows: &BenchRows, progress: bool) -> Result<CodecReport> {
             .zip(lz.chunks_exact_mut(stride))
             .zip(&mut lz_lens)
         {
-            *len = lz4_flex::block::compress_into(src, out).context("lz4 compress")?;
+            *len = lz4_flex::block::compress_into(src, out)
+                .map_err(|e| SimError::RoundTrip(chain(&e)))
+                .at(|| "lz4 compress")?;
         }
         Ok(())
     })?;
@@ -1017,11 +1041,13 @@ pub fn run(rows: &BenchRows, progress: bool) -> Result<CodecReport> {
     for (r, src) in raw_rows_bytes.iter().enumerate() {
         let k =
             lz4_flex::block::decompress_into(&lz[r * stride..r * stride + lz_lens[r]], &mut back)
-                .context("lz4 decompress")?;
-        ensure!(
-            k == back.len() && back == *src,
-            "lz4: row {r} does not round-trip"
-        );
+                .map_err(|e| SimError::RoundTrip(chain(&e)))
+                .at(|| "lz4 decompress")?;
+        if !(k == back.len() && back == *src) {
+            return Err(SimError::RoundTrip(format!(
+                "lz4: row {r} does not round-trip"
+            )));
+        }
     }
     let lz4_bytes: usize = lz_lens.iter().sum();
     stages.next();
@@ -1029,10 +1055,12 @@ pub fn run(rows: &BenchRows, progress: bool) -> Result<CodecReport> {
     stages.start("lz4 stream");
     let stream = rows.raw_stream();
     let lzs = lz4_flex::block::compress(&stream);
-    ensure!(
-        lz4_flex::block::decompress(&lzs, stream.len()).context("lz4 decompress")? == stream,
-        "lz4 stream does not round-trip"
-    );
+    let lz_back = lz4_flex::block::decompress(&lzs, stream.len())
+        .map_err(|e| SimError::RoundTrip(chain(&e)))
+        .at(|| "lz4 decompress")?;
+    if lz_back != stream {
+        return Err(SimError::RoundTrip("lz4 stream does not round-trip".into()));
+    }
     stages.next();
 
     stages.start("heatshrink");
@@ -1043,10 +1071,11 @@ pub fn run(rows: &BenchRows, progress: bool) -> Result<CodecReport> {
     for (r, src) in raw_rows_bytes.iter().enumerate() {
         let k = mcu_compress(&mut enc, src, &mut hs)?;
         let m = mcu_decompress(&mut dec, &hs[..k], &mut back)?;
-        ensure!(
-            m == back.len() && back == *src,
-            "heatshrink: row {r} does not round-trip"
-        );
+        if !(m == back.len() && back == *src) {
+            return Err(SimError::RoundTrip(format!(
+                "heatshrink: row {r} does not round-trip"
+            )));
+        }
         mcu_bytes += k;
     }
     stages.next();
@@ -1054,11 +1083,12 @@ pub fn run(rows: &BenchRows, progress: bool) -> Result<CodecReport> {
     let mut zstd_bytes = [0usize; 2];
     for (i, level) in [3, 19].into_iter().enumerate() {
         stages.start(if level == 3 { "zstd -3" } else { "zstd -19" });
-        let z = zstd::bulk::compress(&stream, level).context("zstd compress")?;
-        ensure!(
-            zstd::bulk::decompress(&z, stream.len()).context("zstd decompress")? == stream,
-            "zstd -{level} does not round-trip"
-        );
+        let z = zstd::bulk::compress(&stream, level).at(|| "zstd compress")?;
+        if zstd::bulk::decompress(&z, stream.len()).at(|| "zstd decompress")? != stream {
+            return Err(SimError::RoundTrip(format!(
+                "zstd -{level} does not round-trip"
+            )));
+        }
         zstd_bytes[i] = z.len();
         stages.next();
     }

@@ -4,7 +4,7 @@
 
 use crate::array::frames;
 use crate::simulation::recording::{decode_frame, write_frame_png, Recording};
-use anyhow::Result;
+use crate::{Result, SimError};
 use serde::Serialize;
 use std::time::Instant;
 
@@ -65,7 +65,11 @@ pub fn run(rec: &Recording, max_frames: usize) -> Result<FrameBench> {
         let t = Instant::now();
         for (k, b) in blobs.iter().enumerate() {
             let f = decode_frame(&m, k, b, std::path::Path::new(&m.frames[k].file))?;
-            anyhow::ensure!(f.data == loaded[k].data, "frame {k} does not round-trip");
+            if f.data != loaded[k].data {
+                return Err(SimError::RoundTrip(format!(
+                    "frame {k} does not round-trip"
+                )));
+            }
         }
         let dec = t.elapsed().as_secs_f64();
         let bytes: u64 = blobs.iter().map(|b| b.len() as u64).sum();

@@ -6,7 +6,7 @@
 
 use crate::reference::dpsa::{offsets, plan};
 use crate::simulation::recording::Recording;
-use anyhow::{bail, Context, Result};
+use crate::{At, Result, SimError};
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::process::Command;
@@ -28,8 +28,9 @@ pub struct NumpyRun {
 pub fn run(rec: &Recording, python: &str) -> Result<NumpyRun> {
     let m = &rec.manifest;
     let n = usize::from(m.processing.n);
-    let o = offsets(m).context("the recording's latches give no registration")?;
-    let dir = tempfile::tempdir().context("a temporary directory for the numpy baseline")?;
+    let o = offsets(m)
+        .ok_or_else(|| SimError::refused("the recording's latches give no registration"))?;
+    let dir = tempfile::tempdir().at(|| "a temporary directory for the numpy baseline")?;
     let mut rows: Vec<u8> = Vec::new();
     let mut count = 0u64;
     for p in plan(m) {
@@ -44,7 +45,7 @@ pub fn run(rec: &Recording, python: &str) -> Result<NumpyRun> {
         count += 1;
     }
     if count == 0 {
-        bail!("no board row has a complete window");
+        return Err(SimError::refused("no board row has a complete window"));
     }
     std::fs::write(dir.path().join("rows.i64"), &rows)?;
     let mut f = std::io::BufWriter::new(std::fs::File::create(dir.path().join("frames.u16"))?);
@@ -70,15 +71,15 @@ pub fn run(rec: &Recording, python: &str) -> Result<NumpyRun> {
         .arg(&script)
         .arg(dir.path())
         .output()
-        .with_context(|| format!("running {python}"))?;
+        .at(|| format!("running {python}"))?;
     if !out.status.success() {
-        bail!(
+        return Err(SimError::Tool(format!(
             "{python} {}: {}",
             script.display(),
             String::from_utf8_lossy(&out.stderr).trim()
-        );
+        )));
     }
-    serde_json::from_slice(&out.stdout).with_context(|| {
+    serde_json::from_slice(&out.stdout).at(|| {
         format!(
             "the numpy baseline printed {:?}",
             String::from_utf8_lossy(&out.stdout)

@@ -10,7 +10,7 @@ use super::Grid;
 use crate::reference::crb::phase_variance;
 use crate::reference::truth::TruthReader;
 use crate::simulation::recording::Recording;
-use anyhow::{Context, Result};
+use crate::{At, Result};
 use dpsa_core::Trigger;
 use std::f64::consts::TAU;
 
@@ -57,7 +57,7 @@ pub fn crb_variance(
     let Some(noise) = &m.noise else {
         return Ok(None);
     };
-    let Some(mut truth) = TruthReader::open(rec).context("reading the camera truth")? else {
+    let Some(mut truth) = TruthReader::open(rec).at(|| "reading the camera truth")? else {
         return Ok(None);
     };
     let f_x = 1.0 / m.calibration.fringe_period_px;
@@ -67,7 +67,7 @@ pub fn crb_variance(
         let Some(offs) = prov.window_offsets(b) else {
             continue;
         };
-        let Some(t) = truth.row(b).context("reading the camera truth")? else {
+        let Some(t) = truth.row(b).at(|| "reading the camera truth")? else {
             continue;
         };
         let theta: Vec<f64> = offs

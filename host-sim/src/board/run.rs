@@ -15,7 +15,7 @@ use super::Grid;
 use crate::array::record::ArrayRecording;
 use crate::calibration::{calibrated, CalFile};
 use crate::simulation::recording::Recording;
-use anyhow::{Context, Result};
+use crate::{At, Result, SimError};
 use dpsa_board::assemble::CameraRows;
 use dpsa_board::provenance::Provenance;
 use dpsa_board::run::{self as map, Built, Collector, Inputs, MapLayout};
@@ -115,7 +115,7 @@ fn crb_of(
        + '_ {
     move |prov, first, g| {
         super::provenance::crb_variance(rec, prov, &tz, first, g)
-            .with_context(|| format!("camera {camera}"))
+            .at(|| format!("camera {camera}"))
             .map_err(Into::into)
     }
 }
@@ -137,7 +137,7 @@ pub(crate) fn open(dir: &Path, cal: &CalFile) -> Result<Opened> {
     let recs: Vec<Recording> = (0..arr.manifest.cameras.len())
         .map(|i| {
             let d = arr.camera_dir(i, None);
-            Recording::open(&d).with_context(|| format!("camera {i}: {}", d.display()))
+            Recording::open(&d).at(|| format!("camera {i}: {}", d.display()))
         })
         .collect::<Result<_>>()?;
     crate::array::record::check_camera_ids(&recs, &arr.dir)?;
@@ -199,9 +199,8 @@ fn rows_from_core(
         handles
             .into_iter()
             .map(|h| {
-                h.join().unwrap_or_else(|_| {
-                    Err(anyhow::anyhow!("internal error: a core thread panicked"))
-                })
+                h.join()
+                    .unwrap_or_else(|_| Err(SimError::Internal("a core thread panicked".into())))
             })
             .collect::<Result<Vec<_>>>()
     })?;

@@ -7,44 +7,38 @@
 
 use crate::calibration::CalFile;
 use crate::simulation::recording::{Manifest, Recording};
-use anyhow::{bail, Result};
+use crate::{Result, SimError};
 
 /// Puts camera `i` of `cal` into `manifest`. Refuses a manifest of another camera (id), frame
 /// size or sample range: its frames measured with that calibration would give wrong heights
 /// and positions.
 pub fn apply(cal: &CalFile, i: usize, manifest: &mut Manifest) -> Result<()> {
     let Some((camera, calibration, processing)) = cal.core_blocks(i) else {
-        bail!(
+        return Err(SimError::Refused(format!(
             "the calibration has no camera {i} (it has {})",
             cal.camera.len()
-        );
+        )));
     };
     let have = &manifest.camera;
     if have.id != camera.id {
-        bail!(
+        return Err(SimError::Refused(format!(
             "the recording is camera {}'s (its manifest says camera.id = {}), the calibration given is camera {}'s: a camera's frames measured with another camera's calibration give wrong heights and positions",
             have.id,
             have.id,
             camera.id
-        );
+        )));
     }
     if (have.width, have.rows) != (camera.width, camera.rows) {
-        bail!(
+        return Err(SimError::Refused(format!(
             "calibration of camera {} is for {} x {} px frames, the recording has {} x {}",
-            camera.id,
-            camera.rows,
-            camera.width,
-            have.rows,
-            have.width
-        );
+            camera.id, camera.rows, camera.width, have.rows, have.width
+        )));
     }
     if have.bit_depth != camera.bit_depth {
-        bail!(
+        return Err(SimError::Refused(format!(
             "calibration of camera {} is for {}-bit samples, the recording has {}-bit samples",
-            camera.id,
-            camera.bit_depth,
-            have.bit_depth
-        );
+            camera.id, camera.bit_depth, have.bit_depth
+        )));
     }
     manifest.camera = camera;
     manifest.calibration = calibration;

@@ -28,7 +28,7 @@ use crate::calibration::file::{CalFile, CameraCal, Lateral, CAL_FORMAT, CAL_VERS
 use crate::reference::{self, LazyFrames, PhaseFit};
 use crate::simulation::recording::Recording;
 use crate::simulation::scene::round_counts_per_pixel;
-use anyhow::{bail, Context, Result};
+use crate::{At, Result, SimError};
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix4, Vector3, Vector4};
 use std::f64::consts::TAU;
 
@@ -43,11 +43,11 @@ pub const MIN_PLANE_SPACING_UM: f64 = 5.0;
 fn filled<T: Clone>(n: usize, v: T, what: &str) -> Result<Vec<T>> {
     let mut out = Vec::new();
     out.try_reserve_exact(n).map_err(|e| {
-        anyhow::anyhow!(
+        SimError::Refused(format!(
             "cannot allocate the {what} ({n} values of {} bytes, {:.0} MB): {e}",
             size_of::<T>(),
             n as f64 * size_of::<T>() as f64 / 1e6
-        )
+        ))
     })?;
     out.resize(n, v);
     Ok(out)
@@ -239,15 +239,16 @@ fn fit_planes(
         }
     }
     if xs.len() < 3 {
-        bail!("camera {cam}: the planes show no fringes (no column could be fitted)");
+        return Err(SimError::Refused(format!(
+            "camera {cam}: the planes show no fringes (no column could be fitted)"
+        )));
     }
     let degree = if width >= 16 { 3 } else { 1 };
     let a = DMatrix::from_fn(xs.len(), degree, |i, j| xs[i].powi(j as i32) * ws[i].sqrt());
     let b = DVector::from_iterator(ys.len(), ys.iter().zip(&ws).map(|(y, w)| y * w.sqrt()));
-    let sol = a
-        .svd(true, true)
-        .solve(&b, 1e-15)
-        .map_err(|e| anyhow::anyhow!("camera {cam}: fringe frequency fit failed: {e}"))?;
+    let sol = a.svd(true, true).solve(&b, 1e-15).map_err(|e| {
+        SimError::Refused(format!("camera {cam}: fringe frequency fit failed: {e}"))
+    })?;
     let mut poly = [0.0; 3];
     for (j, v) in sol.iter().enumerate() {
         poly[j] = *v;
@@ -266,8 +267,9 @@ fn fit_planes(
         let k: Vec<bool> = (0..rows).map(|r| keep[r * width + c]).collect();
         let mut fits = Vec::new();
         for img in means {
-            let s = fit_linear(&column(img, c), &k, f)
-                .with_context(|| format!("camera {cam}, column {c}: too few good pixels"))?;
+            let s = fit_linear(&column(img, c), &k, f).ok_or_else(|| {
+                SimError::Refused(format!("camera {cam}, column {c}: too few good pixels"))
+            })?;
             fits.push(s);
         }
         background[c] = fits.iter().map(|s| s.a).sum::<f64>() / fits.len() as f64;
@@ -298,9 +300,9 @@ fn fit_planes(
             .map(|(h, p)| (p - intercept - slope * h).abs())
             .fold(0.0, f64::max);
         if worst > 0.5 || slope <= 0.0 {
-            bail!(
+            return Err(SimError::Refused(format!(
                 "camera {cam}, column {c}: the plane phases do not lie on one line in the plane heights (residual {worst:.2} rad): are the plane heights right, and within a fringe turn of what the nominal height per turn ({nominal_tz} um) predicts?"
-            );
+            )));
         }
         tz[c] = TAU / slope;
         phi0[c] = wrap(intercept);
@@ -439,10 +441,10 @@ fn fit_lateral(
     target: &crate::array::record::TargetInfo,
 ) -> Result<(Lateral, f64)> {
     if marks.len() < 12 {
-        bail!(
+        return Err(SimError::Refused(format!(
             "camera {cam}: lateral target not found ({} marks detected, at least 12 needed): is the target pass recorded, lit and in focus?",
             marks.len()
-        );
+        )));
     }
     let p = target.pitch_mm;
     let [ox, oy] = target.origin_mm;
@@ -472,9 +474,9 @@ fn fit_lateral(
         }
         used = rows_a.len() / 2;
         if used < 12 {
-            bail!(
+            return Err(SimError::Refused(format!(
                 "camera {cam}: lateral target not found ({used} marks lie on the expected {p} mm grid, at least 12 needed): check the design camera positions and the target pitch"
-            );
+            )));
         }
         // Scale the latch column for conditioning.
         let scale = rows_a.iter().map(|r| r[4].abs()).fold(1.0, f64::max);
@@ -490,13 +492,13 @@ fn fit_lateral(
             .clone()
             .svd(true, true)
             .solve(&b, 1e-14)
-            .map_err(|e| anyhow::anyhow!("camera {cam}: lateral fit failed: {e}"))?;
+            .map_err(|e| SimError::Refused(format!("camera {cam}: lateral fit failed: {e}")))?;
         par = [sol[0], sol[1], sol[2], sol[3], sol[4] / scale];
         let res = &a * &sol - &b;
         rms = (res.norm_squared() / res.len() as f64).sqrt();
     }
     if rms > 0.05 * p {
-        bail!("camera {cam}: lateral target not found: the marks do not fit a {p} mm grid (residual {:.0} um rms)", rms * 1e3);
+        return Err(SimError::Refused(format!("camera {cam}: lateral target not found: the marks do not fit a {p} mm grid (residual {:.0} um rms)", rms * 1e3)));
     }
     let [y0, x0, a, b, mu] = par;
     let pitch = a.hypot(b);
@@ -632,7 +634,7 @@ pub fn measure_plane(
 pub fn calibrate(rec: &ArrayRecording, fx_budget_um: f64) -> Result<CalFile> {
     let m = &rec.manifest;
     if m.kind != Kind::Calibration {
-        bail!("{} is a board recording, not a calibration recording (`dpsa simulate --calibration` writes one)", rec.dir.display());
+        return Err(SimError::Refused(format!("{} is a board recording, not a calibration recording (`dpsa simulate --calibration` writes one)", rec.dir.display())));
     }
     let planes: Vec<&crate::array::record::Pass> = m
         .passes
@@ -640,43 +642,44 @@ pub fn calibrate(rec: &ArrayRecording, fx_budget_um: f64) -> Result<CalFile> {
         .filter(|p| p.kind == PassKind::Plane)
         .collect();
     if planes.len() < 3 {
-        bail!(
+        return Err(SimError::Refused(format!(
             "{} calibration planes, at least 3 at different known heights are needed",
             planes.len()
-        );
+        )));
     }
     let mut hs: Vec<f64> = planes.iter().map(|p| p.height_um).collect();
     if hs.iter().any(|h| !h.is_finite()) {
-        bail!("a plane height is not a finite number");
+        return Err(SimError::refused("a plane height is not a finite number"));
     }
     hs.sort_by(f64::total_cmp);
     for w in hs.windows(2) {
         if w[1] - w[0] < MIN_PLANE_SPACING_UM {
-            bail!(
+            return Err(SimError::Refused(format!(
                 "two calibration planes are at {} um and {} um: planes must differ by at least {MIN_PLANE_SPACING_UM} um (equal heights give no height scale)",
                 w[0],
                 w[1]
-            );
+            )));
         }
     }
     let target = m
         .passes
         .iter()
         .find(|p| p.kind == PassKind::Target)
-        .context("the calibration recording has no lateral target pass")?;
-    let tinfo = m
-        .target
-        .as_ref()
-        .context("array.json has no `target` block (pitch and origin of the lateral target)")?;
+        .ok_or_else(|| SimError::refused("the calibration recording has no lateral target pass"))?;
+    let tinfo = m.target.as_ref().ok_or_else(|| {
+        SimError::refused(
+            "array.json has no `target` block (pitch and origin of the lateral target)",
+        )
+    })?;
     for i in 0..m.cameras.len() {
         for p in &m.passes {
             let d = rec.camera_dir(i, Some(&p.name));
             if !d.join(crate::simulation::recording::MANIFEST_FILE).exists() {
-                bail!(
+                return Err(SimError::Refused(format!(
                     "camera {i}: its recording of pass {:?} ({}) is missing",
                     p.name,
                     d.display()
-                );
+                )));
             }
         }
     }
@@ -693,8 +696,9 @@ pub fn calibrate(rec: &ArrayRecording, fx_budget_um: f64) -> Result<CalFile> {
         handles
             .into_iter()
             .map(|h| {
-                h.join()
-                    .unwrap_or_else(|_| Err(anyhow::anyhow!("calibration thread panicked")))
+                h.join().unwrap_or_else(|_| {
+                    Err(SimError::Internal("calibration thread panicked".into()))
+                })
             })
             .collect()
     });
@@ -708,10 +712,10 @@ pub fn calibrate(rec: &ArrayRecording, fx_budget_um: f64) -> Result<CalFile> {
         let d = rec.camera_dir(i, Some(&planes[0].name));
         let other = Recording::open(&d)?.manifest.processing;
         if other != processing {
-            bail!(
+            return Err(SimError::Refused(format!(
                 "camera {i}'s recording {} has processing {other:?}, camera 0's {processing:?}: the calibration file holds one processing for the array",
                 d.display()
-            );
+            )));
         }
     }
     Ok(CalFile {
@@ -737,23 +741,20 @@ fn calibrate_camera(
     let design = &rec.manifest.cameras[i];
     let open = |name: &str| -> Result<Recording> {
         let r = Recording::open(rec.camera_dir(i, Some(name)))
-            .with_context(|| format!("camera {i}, pass {name}"))?;
+            .at(|| format!("camera {i}, pass {name}"))?;
         if usize::from(r.manifest.camera.id) != i {
-            bail!(
+            return Err(SimError::Refused(format!(
                 "camera {i}, pass {name}: {} holds camera {}'s frames (its manifest says camera.id = {}), not camera {i}'s: the camera directories are swapped or misnamed",
                 r.dir.display(),
                 r.manifest.camera.id,
                 r.manifest.camera.id
-            );
+            )));
         }
         if (r.manifest.camera.width, r.manifest.camera.rows) != (design.width, design.rows) {
-            bail!(
+            return Err(SimError::Refused(format!(
                 "camera {i}, pass {name}: {} x {} px frames, array.json says {} x {}",
-                r.manifest.camera.rows,
-                r.manifest.camera.width,
-                design.rows,
-                design.width
-            );
+                r.manifest.camera.rows, r.manifest.camera.width, design.rows, design.width
+            )));
         }
         Ok(r)
     };
@@ -849,11 +850,11 @@ fn calibrate_camera(
         let (rms, bound, bias, px) = super::evaluate::holdout_bound(&hr, &cal, p.height_um)?;
         let limit = super::evaluate::HOLDOUT_CRB_LIMIT;
         if rms.is_nan() || bound.is_nan() || rms > limit * bound {
-            bail!(
+            return Err(SimError::Refused(format!(
                 "camera {i}: the held-out plane ({} um in array.json) measures {rms:.2} um rms off with this calibration (bias {bias:+.2} um over {px} px), {:.1} times its Cramer-Rao bound of {bound:.2} um (at most {limit} allowed): a plane height in array.json is wrong, or the planes are not flat, or not the heights given",
                 p.height_um,
                 rms / bound
-            );
+            )));
         }
     }
     Ok(cal)

@@ -7,7 +7,7 @@ use crate::array::scene::{wrap, CameraModel};
 use crate::calibration::estimate::measure_plane;
 use crate::calibration::file::{CalFile, CameraCal};
 use crate::simulation::recording::Recording;
-use anyhow::{Context, Result};
+use crate::{At, Result};
 use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 use std::f64::consts::TAU;
@@ -317,7 +317,7 @@ pub fn evaluate(rec: &ArrayRecording, cal: &CalFile) -> Result<CalibrationReport
         };
         if let (Some(p), Some(h)) = (holdout, ho.as_mut()) {
             let hr = Recording::open(rec.camera_dir(i, Some(&p.name)))
-                .with_context(|| format!("camera {i}, held-out plane"))?;
+                .at(|| format!("camera {i}, held-out plane"))?;
             let noise_truth = truth
                 .as_ref()
                 .zip(hr.manifest.noise.as_ref())

@@ -7,11 +7,13 @@
 
 use super::simulated::PrintTruth;
 use super::truth::{accuracy, detection, Accuracy, Detection, ErrStats, PadTruth};
+use crate::SimError;
 use dpsa_gerber::pads::{Pad, Point, Rigid};
 use dpsa_inspect::map::BoardMap;
 use dpsa_inspect::measure::Placed;
 use dpsa_inspect::program::Program;
 use dpsa_inspect::run::{Evaluate, Evaluation, Inspection, InspectionReport};
+use dpsa_inspect::InspectError;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
@@ -198,7 +200,7 @@ impl Evaluate for PrintEvaluation {
         inspection: &Inspection,
         progress: bool,
     ) -> Result<Evaluation, Box<dyn std::error::Error + Send + Sync + 'static>> {
-        // The print truth's errors keep their message and chain (`anyhow` into the box).
+        // The print truth's errors keep their message and chain (`SimError` into the box).
         Ok(self.evaluate_truth(map, pads, program, inspection, progress)?)
     }
 }
@@ -211,15 +213,15 @@ impl PrintEvaluation {
         program: &Program,
         inspection: &Inspection,
         progress: bool,
-    ) -> anyhow::Result<Evaluation> {
+    ) -> crate::Result<Evaluation> {
         let p = PrintTruth::load(&self.path, pads.len())?;
         if let (Some(have), Some(want)) = (p.board_id, map.board_id) {
             if have != want {
-                anyhow::bail!(
+                return Err(SimError::Refused(format!(
                     "the print truth {} is of board {have}, the map {} of board {want}: a truth of another board would judge this board's pads against another print",
                     self.path.display(),
                     self.board.display()
-                );
+                )));
             }
         }
         let height = |q: Point| p.height(q);
@@ -245,10 +247,12 @@ pub fn inspect_dir_shown(
     repeat: u32,
     use_truth: bool,
     progress: bool,
-) -> anyhow::Result<(InspectionReport, Inspection)> {
+) -> crate::Result<(InspectionReport, Inspection)> {
     let truth_path = match truth {
         Some(t) => Some(t.to_path_buf()),
-        None if use_truth => Program::load(program_path)?.truth_path(program_path),
+        None if use_truth => Program::load(program_path)
+            .map_err(InspectError::from)?
+            .truth_path(program_path),
         None => None,
     };
     let mut eval = truth_path

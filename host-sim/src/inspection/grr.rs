@@ -11,7 +11,7 @@
 
 use crate::array::{record, record::ArrayRecording, scene::ArrayScene};
 use crate::calibration;
-use anyhow::{bail, Context, Result};
+use crate::{At, Result, SimError};
 use dpsa_inspect::run::inspect_dir;
 use serde::Serialize;
 use std::path::Path;
@@ -64,17 +64,19 @@ fn quantile(v: &[f64], q: f64) -> f64 {
 /// Runs the study in `work` (created; its board recordings are removed as it goes).
 pub fn grr(scene_path: &Path, repeats: u32, seed: u64, work: &Path) -> Result<GrrReport> {
     if !(2..=1000).contains(&repeats) {
-        bail!("--repeats {repeats}: need 2 to 1000");
+        return Err(SimError::Refused(format!(
+            "--repeats {repeats}: need 2 to 1000"
+        )));
     }
     let t0 = std::time::Instant::now();
     let scene = ArrayScene::load(scene_path)?;
     if scene.paste_layer.is_none() {
-        bail!(
+        return Err(SimError::Refused(format!(
             "{}: no paste layer: a repeatability study needs a board with pads (`paste_layer`)",
             scene_path.display()
-        );
+        )));
     }
-    std::fs::create_dir_all(work).with_context(|| format!("creating {}", work.display()))?;
+    std::fs::create_dir_all(work).at(|| format!("creating {}", work.display()))?;
     let cal_dir = work.join("calibration");
     record::simulate_calibration(&scene, seed, &cal_dir)?;
     let cal = calibration::calibrate(&ArrayRecording::open(&cal_dir)?, calibration::FX_BUDGET_UM)?;
@@ -93,7 +95,8 @@ pub fn grr(scene_path: &Path, repeats: u32, seed: u64, work: &Path) -> Result<Gr
         crate::board::run::run(&board, &cal, &map)?;
         let program_path = board.join("program.toml");
         let (report, insp) = inspect_dir(&map, &program_path, None, 1)?;
-        let program = super::program::Program::load(&program_path)?;
+        let program = super::program::Program::load(&program_path)
+            .map_err(dpsa_inspect::InspectError::from)?;
         tolerance = program.windows.volume_pct.fail[1] - program.windows.volume_pct.fail[0];
         placements.push((
             report.registration.shift_mm,
@@ -105,7 +108,7 @@ pub fn grr(scene_path: &Path, repeats: u32, seed: u64, work: &Path) -> Result<Gr
             calls = vec![Vec::new(); insp.measurements.len()];
         }
         if insp.measurements.len() != volumes.len() {
-            bail!("the pad count changed between repeats");
+            return Err(SimError::refused("the pad count changed between repeats"));
         }
         for (k, m) in insp.measurements.iter().enumerate() {
             let v = if m.unmeasurable.is_none() {
@@ -135,7 +138,7 @@ pub fn grr(scene_path: &Path, repeats: u32, seed: u64, work: &Path) -> Result<Gr
         }
     }
     if sig.is_empty() {
-        bail!("no pad was measured in every repeat");
+        return Err(SimError::refused("no pad was measured in every repeat"));
     }
     let pooled = (sig.iter().map(|s| s * s).sum::<f64>() / sig.len() as f64).sqrt();
     let per_pad: Vec<f64> = sig.iter().map(|s| 600.0 * s / tolerance).collect();

@@ -1,7 +1,7 @@
 //! A simulated board's print (`print.json`, `array::print`) as the inspection's truth.
 
 use crate::array::print::{Defect, Deposit, DepositIndex, Material, Print};
-use anyhow::{bail, Context, Result};
+use crate::{At, Result, SimError};
 use dpsa_gerber::pads::{Point, Rigid};
 use std::path::Path;
 
@@ -25,8 +25,8 @@ impl PrintTruth {
     pub fn load(path: &Path, pads: usize) -> Result<PrintTruth> {
         let bytes = crate::files::read_capped(path, MAX_PRINT_BYTES, "print truth")?;
         let print: Print = serde_json::from_slice(&bytes)
-            .with_context(|| format!("{} is not a dpsa print truth", path.display()))?;
-        PrintTruth::new(print, pads).with_context(|| format!("{}", path.display()))
+            .at(|| format!("{} is not a dpsa print truth", path.display()))?;
+        PrintTruth::new(print, pads).at(|| format!("{}", path.display()))
     }
 
     /// Builds the truth from a parsed print; `pads` is the paste layer's pad count, which
@@ -35,10 +35,10 @@ impl PrintTruth {
         let mut defects = vec![None; pads];
         for p in &print.pads {
             let Some(slot) = defects.get_mut(p.pad) else {
-                bail!(
+                return Err(SimError::Refused(format!(
                     "the print has pad {} but the paste layer only {pads} pads: another layer",
                     p.pad
-                );
+                )));
             };
             *slot = match p.defect {
                 Defect::None => None,
@@ -51,10 +51,10 @@ impl PrintTruth {
             };
         }
         if print.pads.len() != pads {
-            bail!(
+            return Err(SimError::Refused(format!(
                 "the print has {} pads, the paste layer {pads}: another layer",
                 print.pads.len()
-            );
+            )));
         }
         // Paste only: the fiducials' copper is not paste.
         let deposits: Vec<Deposit> = print

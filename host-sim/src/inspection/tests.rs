@@ -10,6 +10,7 @@ use super::register::register;
 use super::verdict::{judge, Class, Level};
 use crate::board::resample::BoardGrid;
 use crate::board::Grid;
+use crate::error::chain;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 
@@ -642,12 +643,12 @@ fn an_evaluation_error_reaches_the_caller_with_its_whole_chain() {
     let Err(direct) = super::simulated::PrintTruth::load(&bad, s.pads.len()) else {
         panic!("{{nope is not a print truth");
     };
-    let direct = format!("{direct:#}");
+    let direct = chain(&direct);
     assert!(direct.contains("is not a dpsa print truth: "), "{direct}");
     let i = super::run::inspect(&s.map, &s.pads, &s.program).unwrap();
     let mut ev = super::evaluate::PrintEvaluation::new(&bad, dir.path());
     let e = super::run::Evaluate::evaluate(&mut ev, &s.map, &s.pads, &s.program, &i, false)
         .unwrap_err();
-    let through = anyhow::Error::from(dpsa_inspect::InspectError::Evaluation(e));
-    assert_eq!(format!("{through:#}"), direct);
+    let through = dpsa_inspect::InspectError::Evaluation(e);
+    assert_eq!(chain(&through), direct);
 }

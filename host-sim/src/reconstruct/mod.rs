@@ -10,7 +10,7 @@ pub use sink::IoLink;
 use crate::heightmap::{HeightMap, HeightRow};
 use crate::progress::progress_bar;
 use crate::simulation::recording::Recording;
-use anyhow::{anyhow, Result};
+use crate::{Result, SimError};
 use dpsa_core::{
     packets::{self, codec},
     pipeline::{Pipeline, State},
@@ -62,21 +62,22 @@ pub fn run_link<L: Link>(
 where
     L::Error: std::fmt::Display,
 {
-    anyhow::ensure!(
-        intra_period >= 1,
-        "the codec intra period must be at least 1 (got 0)"
-    );
+    if intra_period < 1 {
+        return Err(SimError::Refused(
+            "the codec intra period must be at least 1 (got 0)".into(),
+        ));
+    }
     let core = config(&rec.manifest)?;
     let cfg = core.cfg;
     let mut state = State::new(&cfg);
     let mut pipe =
         Pipeline::with_column_scale(cfg, &core.ref_phase, core.columns(), state.memory())
-            .map_err(|e| anyhow!("cannot build the pipeline: {e}"))?;
+            .map_err(|e| SimError::Core(format!("cannot build the pipeline: {e}")))?;
     let w = cfg.width as usize;
     let mut reference = codec::ReferenceRow::new(w);
     let enc = reference
         .encoder(intra_period)
-        .ok_or_else(|| anyhow!("width {w} is not supported by the codec"))?;
+        .ok_or_else(|| SimError::Core(format!("width {w} is not supported by the codec")))?;
     let mut buf = vec![0u8; packets::max_packet_len(w)];
     let mut sink = PacketSink::new(link, enc, &mut buf);
     sink.set_run_id(rec.run_id());
@@ -87,20 +88,21 @@ where
         let frame = rec.frame(k)?;
         let w = frame.width;
         pipe.begin_frame(entry.trigger(), &mut sink)
-            .map_err(|e| anyhow!("frame {k}: {e}"))?;
+            .map_err(|e| SimError::Core(format!("frame {k}: {e}")))?;
         for (r, line) in frame.data.chunks_exact(w).enumerate() {
             pipe.push_line(r as u16, line, &mut sink)
-                .map_err(|e| anyhow!("frame {k} line {r}: {e}"))?;
+                .map_err(|e| SimError::Core(format!("frame {k} line {r}: {e}")))?;
         }
         pipe.end_frame(&mut sink)
-            .map_err(|e| anyhow!("frame {k}: {e}"))?;
+            .map_err(|e| SimError::Core(format!("frame {k}: {e}")))?;
         high = high.max(pipe.pool_used());
         bar.inc(1);
     }
-    pipe.finish(&mut sink).map_err(|e| anyhow!("finish: {e}"))?;
+    pipe.finish(&mut sink)
+        .map_err(|e| SimError::Core(format!("finish: {e}")))?;
     bar.finish_and_clear();
     sink.flush()
-        .map_err(|e| anyhow!("flushing the packet stream: {e}"))?;
+        .map_err(|e| SimError::Core(format!("flushing the packet stream: {e}")))?;
     let stats = RunStats {
         frames: frames.len(),
         packets: sink.packets(),
@@ -158,7 +160,7 @@ impl<F: FnMut(HeightRow) -> Result<()>> Link for RowLink<F> {
             heights,
             valid: (0..w).map(|c| bits[c / 8] & (1 << (c % 8)) != 0).collect(),
         };
-        (self.each)(row).map_err(|e| format!("{e:#}"))
+        (self.each)(row).map_err(|e| crate::error::chain(&e))
     }
     fn flush(&mut self) -> std::result::Result<(), String> {
         Ok(())
@@ -174,10 +176,11 @@ pub fn reconstruct_bytes(rec: &Recording, progress: bool) -> Result<(RunStats, V
 pub fn reconstruct_map(rec: &Recording, progress: bool) -> Result<(RunStats, Vec<u8>, HeightMap)> {
     let (stats, bytes) = reconstruct_bytes(rec, progress)?;
     let (map, rep) = crate::stream::decode_stream(&bytes, rec.manifest.calibration.height_lsb_um);
-    anyhow::ensure!(
-        rep.corrupt == 0,
-        "internal error: the core's own stream has {} bad packets",
-        rep.corrupt
-    );
+    if rep.corrupt != 0 {
+        return Err(SimError::Internal(format!(
+            "the core's own stream has {} bad packets",
+            rep.corrupt
+        )));
+    }
     Ok((stats, bytes, map))
 }

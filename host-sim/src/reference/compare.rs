@@ -11,7 +11,7 @@ use crate::reference::crb::crb_row;
 use crate::reference::truth::{flat_mask, truth_row, TruthReader, TruthRow};
 use crate::reference::{LazyFrames, RefOutput, RefRow, RowEval};
 use crate::simulation::recording::{Manifest, Recording, Truth};
-use anyhow::{Context, Result};
+use crate::{At, Result, SimError};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -525,14 +525,14 @@ impl Comparison {
 /// into the [`Comparer`] and dropped.
 pub fn compare_recording(rec: &Recording, progress: bool) -> Result<Comparison> {
     let m = &rec.manifest;
-    let mut truth = TruthReader::open(rec).context("reading the ground truth")?;
+    let mut truth = TruthReader::open(rec).at(|| "reading the ground truth")?;
     let mut cmp = Comparer::new(m, m.calibration.height_lsb_um, true, truth.is_some());
     std::thread::scope(|s| -> Result<()> {
         let (tx, rx) = std::sync::mpsc::sync_channel::<HeightRow>(ROW_QUEUE);
         let core = s.spawn(move || {
             crate::reconstruct::reconstruct_rows(rec, progress, |row| {
                 tx.send(row)
-                    .map_err(|_| anyhow::anyhow!("the comparison stopped"))
+                    .map_err(|_| SimError::Core("the comparison stopped".into()))
             })
         });
         let consumed = (|| -> Result<()> {
@@ -561,7 +561,7 @@ pub fn compare_recording(rec: &Recording, progress: bool) -> Result<Comparison> 
                     }
                 };
                 let t = match truth.as_mut() {
-                    Some(t) => t.row(r.row).context("reading the ground truth")?,
+                    Some(t) => t.row(r.row).at(|| "reading the ground truth")?,
                     None => None,
                 };
                 cmp.row(f.as_ref(), Some(&r), p.as_ref(), t.as_ref());
@@ -575,11 +575,11 @@ pub fn compare_recording(rec: &Recording, progress: bool) -> Result<Comparison> 
         match core.join() {
             Ok(Ok(_)) => consumed,
             Ok(Err(e)) => consumed.and(Err(e)),
-            Err(_) => Err(anyhow::anyhow!("internal error: the core thread panicked")),
+            Err(_) => Err(SimError::Internal("the core thread panicked".into())),
         }
     })?;
     let flat = match truth {
-        Some(t) => Some(t.finish().context("reading the ground truth")?),
+        Some(t) => Some(t.finish().at(|| "reading the ground truth")?),
         None => None,
     };
     Ok(cmp.finish(flat))

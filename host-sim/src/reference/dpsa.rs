@@ -293,12 +293,12 @@ pub fn reconstruct(manifest: &Manifest, frames: &[Frame]) -> RefOutput {
 pub fn reconstruct_from(
     manifest: &Manifest,
     frames: &mut dyn FrameSource,
-) -> anyhow::Result<RefOutput> {
+) -> crate::Result<RefOutput> {
     run(manifest, frames, Shifts::Actual)
 }
 
 /// A result whose frame source cannot fail (frames in memory).
-pub(super) fn infallible(r: anyhow::Result<RefOutput>) -> RefOutput {
+pub(super) fn infallible(r: crate::Result<RefOutput>) -> RefOutput {
     match r {
         Ok(o) => o,
         Err(e) => unreachable!("in-memory frames cannot fail: {e}"),
@@ -310,13 +310,13 @@ pub(super) fn infallible(r: anyhow::Result<RefOutput>) -> RefOutput {
 /// forward through the recording.
 pub trait FrameSource {
     /// Makes frames `range` available to [`FrameSource::get`]; frames outside it may be dropped.
-    fn window(&mut self, range: std::ops::Range<usize>) -> anyhow::Result<()>;
+    fn window(&mut self, range: std::ops::Range<usize>) -> crate::Result<()>;
     /// Frame `k`, if it exists (and is inside the last [`FrameSource::window`]).
     fn get(&self, k: usize) -> Option<&Frame>;
 }
 
 impl FrameSource for &[Frame] {
-    fn window(&mut self, _: std::ops::Range<usize>) -> anyhow::Result<()> {
+    fn window(&mut self, _: std::ops::Range<usize>) -> crate::Result<()> {
         Ok(())
     }
     fn get(&self, k: usize) -> Option<&Frame> {
@@ -345,7 +345,7 @@ impl<'a> LazyFrames<'a> {
 }
 
 impl FrameSource for LazyFrames<'_> {
-    fn window(&mut self, range: std::ops::Range<usize>) -> anyhow::Result<()> {
+    fn window(&mut self, range: std::ops::Range<usize>) -> crate::Result<()> {
         self.held.retain(|(k, _)| range.contains(k));
         for k in range.start..range.end.min(self.rec.len()) {
             if !self.held.iter().any(|(j, _)| *j == k) {
@@ -375,7 +375,7 @@ pub(super) fn run(
     manifest: &Manifest,
     frames: &mut dyn FrameSource,
     shifts: Shifts,
-) -> anyhow::Result<RefOutput> {
+) -> crate::Result<RefOutput> {
     let mut eval = RowEval::new(manifest, shifts);
     let mut rows = Vec::with_capacity(eval.len());
     while let Some(row) = eval.next_row(frames) {
@@ -457,7 +457,7 @@ impl<'m> RowEval<'m> {
 
     /// The next planned board row, `None` after the last; an error only when `frames` fails
     /// to read a frame.
-    pub fn next_row(&mut self, frames: &mut dyn FrameSource) -> Option<anyhow::Result<RefRow>> {
+    pub fn next_row(&mut self, frames: &mut dyn FrameSource) -> Option<crate::Result<RefRow>> {
         let p = self.plan.get(self.next)?.clone();
         self.next += 1;
         Some(self.evaluate(&p, frames))
@@ -484,7 +484,7 @@ impl<'m> RowEval<'m> {
         (window, fit)
     }
 
-    fn evaluate(&mut self, p: &RowPlan, frames: &mut dyn FrameSource) -> anyhow::Result<RefRow> {
+    fn evaluate(&mut self, p: &RowPlan, frames: &mut dyn FrameSource) -> crate::Result<RefRow> {
         let manifest = self.manifest;
         let width = self.width;
         let n = usize::from(manifest.processing.n);

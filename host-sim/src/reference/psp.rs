@@ -30,7 +30,7 @@ pub fn psp(manifest: &Manifest, frames: &[Frame]) -> RefOutput {
 }
 
 /// [`psp`] on frames read on demand (see [`super::dpsa::LazyFrames`]).
-pub fn psp_from(manifest: &Manifest, frames: &mut dyn FrameSource) -> anyhow::Result<RefOutput> {
+pub fn psp_from(manifest: &Manifest, frames: &mut dyn FrameSource) -> crate::Result<RefOutput> {
     let f_x = 1.0 / manifest.calibration.fringe_period_px;
     run(
         manifest,

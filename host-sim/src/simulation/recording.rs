@@ -4,6 +4,7 @@
 
 pub use dpsa_formats::recording::*;
 
+use crate::error::chain;
 use image::codecs::png::{CompressionType, FilterType, PngDecoder, PngEncoder};
 use image::{ColorType, ExtendedColorType, ImageDecoder, ImageEncoder};
 use std::io::{Cursor, Write};
@@ -246,7 +247,7 @@ pub fn write_f32(path: &Path, data: &[f32]) -> Result<(), RecordingError> {
     })
     .map_err(|e| RecordingError::Write {
         path: path.to_path_buf(),
-        message: format!("{:#}", anyhow::Error::new(e)),
+        message: chain(&e),
     })
 }
 
@@ -281,8 +282,8 @@ pub fn write_frame_png(
     })
     .map_err(|e| RecordingError::Write {
         path: path.to_path_buf(),
-        // Through anyhow for the whole `source()` chain of a non-I/O encoder error.
-        message: format!("{:#}", anyhow::Error::new(e)),
+        // The whole `source()` chain of a non-I/O encoder error.
+        message: chain(&e),
     })
 }
 
@@ -435,7 +436,7 @@ fn decode_zfr(
 }
 
 /// Loads every frame of a recording (the f64 reference needs them all at once).
-pub fn load_frames(rec: &Recording, progress: bool) -> anyhow::Result<Vec<Frame>> {
+pub fn load_frames(rec: &Recording, progress: bool) -> crate::Result<Vec<Frame>> {
     let bar =
         crate::progress::progress_bar(progress, rec.manifest.frames.len() as u64, "load frames");
     let mut frames = Vec::with_capacity(rec.manifest.frames.len());

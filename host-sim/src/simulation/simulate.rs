@@ -29,7 +29,7 @@ use crate::simulation::recording::{
     TRUTH_CONTRAST_FILE, TRUTH_HEIGHT_FILE, VERSION,
 };
 use crate::simulation::scene::Scene;
-use anyhow::Context;
+use crate::{At, SimError};
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -272,7 +272,7 @@ struct RowBuf {
 
 impl<'a> Simulator<'a> {
     /// Lays out the deposits and the motion of `scene` for `seed`. The scene must be valid.
-    pub fn new(scene: &'a Scene, seed: u64) -> anyhow::Result<Simulator<'a>> {
+    pub fn new(scene: &'a Scene, seed: u64) -> crate::Result<Simulator<'a>> {
         scene.validate()?;
         let deposits = place_deposits(scene, seed);
         let mut row_deposits = vec![Vec::new(); scene.board_length as usize];
@@ -490,12 +490,7 @@ fn file_size(path: &Path) -> u64 {
 /// Refuses an output that would exceed [`MAX_OUTPUT_BYTES`] (see [`simulate_with`] to force
 /// it) and an output directory that is neither new, empty nor a recording (see
 /// [`prepare_out_dir`]).
-pub fn simulate(
-    scene: &Scene,
-    seed: u64,
-    out: &Path,
-    progress: bool,
-) -> anyhow::Result<SimSummary> {
+pub fn simulate(scene: &Scene, seed: u64, out: &Path, progress: bool) -> crate::Result<SimSummary> {
     simulate_with(scene, seed, out, progress, false)
 }
 
@@ -538,7 +533,7 @@ pub const DIR_KIND: crate::files::DirKind = crate::files::DirKind {
 /// Checks `out` before anything is rendered: new, empty, or an earlier recording (replaced
 /// whole when the new one is complete, see [`crate::files::OutputDir`]); anything else is
 /// refused.
-pub fn prepare_out_dir(out: &Path) -> anyhow::Result<()> {
+pub fn prepare_out_dir(out: &Path) -> crate::Result<()> {
     Ok(crate::files::check_output_dir(out, DIR_KIND)?)
 }
 
@@ -549,33 +544,34 @@ pub fn simulate_with(
     out: &Path,
     progress: bool,
     force: bool,
-) -> anyhow::Result<SimSummary> {
-    let sim = Simulator::new(scene, seed).context("invalid scene")?;
+) -> crate::Result<SimSummary> {
+    let sim = Simulator::new(scene, seed).at(|| "invalid scene")?;
     let manifest = sim.manifest();
     manifest
         .validate()
-        .context("internal error: simulated manifest is invalid")?;
+        .at(|| "internal error: simulated manifest is invalid")?;
     let estimate = output_size_estimate(scene, manifest.frames.len() as u64);
-    anyhow::ensure!(
-        force || estimate <= MAX_OUTPUT_BYTES,
-        "the recording would take up to {:.1} GB ({} frames of {} x {} px as 16-bit PNG, plus ground truth), more than the {} GB limit; pass --force to write it anyway",
-        estimate as f64 / 1e9,
-        manifest.frames.len(),
-        scene.rows,
-        scene.width,
-        MAX_OUTPUT_BYTES / 1_000_000_000
-    );
+    if !(force || estimate <= MAX_OUTPUT_BYTES) {
+        return Err(SimError::Refused(format!(
+            "the recording would take up to {:.1} GB ({} frames of {} x {} px as 16-bit PNG, plus ground truth), more than the {} GB limit; pass --force to write it anyway",
+            estimate as f64 / 1e9,
+            manifest.frames.len(),
+            scene.rows,
+            scene.width,
+            MAX_OUTPUT_BYTES / 1_000_000_000
+        )));
+    }
     // Built in a hidden directory beside `out` and swapped in whole at the end: an earlier
     // recording stays as it was until then, and none of its frames survives.
     let staging = crate::files::OutputDir::create(out, DIR_KIND)?;
     let out = staging.path();
     for dir in [out.to_path_buf(), out.join("frames"), out.join("truth")] {
         std::fs::create_dir_all(&dir).map_err(|e| {
-            anyhow::anyhow!(
+            SimError::Refused(format!(
                 "cannot create {}: it {}",
                 dir.display(),
                 crate::files::io_cause(&e)
-            )
+            ))
         })?;
     }
     let manifest_path = out.join(MANIFEST_FILE);
@@ -628,7 +624,7 @@ pub fn simulate_with(
     });
     bar.finish_and_clear();
     if let Some((k, e)) = first_error.into_inner().unwrap_or_else(|p| p.into_inner()) {
-        return Err(anyhow::Error::new(e).context(format!("writing frame {k}")));
+        return Err(e).at(|| format!("writing frame {k}"));
     }
     let mut bytes_written = bytes.into_inner() as u64;
 

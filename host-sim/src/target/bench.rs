@@ -1,7 +1,7 @@
 //! The firmware's measurements of itself, as JSON figures.
 
 use super::elf::{ElfSizes, Sections};
-use anyhow::{anyhow, bail, ensure, Context, Result};
+use crate::{At, Result, SimError};
 use serde::Serialize;
 use std::collections::BTreeMap;
 
@@ -38,16 +38,20 @@ pub fn parse_bench(text: &str) -> Result<BTreeMap<String, i64>> {
         }
         let mut it = line.split_whitespace();
         let (Some(k), Some(v), None) = (it.next(), it.next(), it.next()) else {
-            bail!(
+            return Err(SimError::Refused(format!(
                 "bench file line {}: expected `key value`, got {line:?}",
                 i + 1
-            );
+            )));
         };
         let v: i64 = v
             .parse()
-            .with_context(|| format!("bench file line {}: {k}: {v:?} is not an integer", i + 1))?;
+            .map_err(|e: std::num::ParseIntError| SimError::refused(e.to_string()))
+            .at(|| format!("bench file line {}: {k}: {v:?} is not an integer", i + 1))?;
         if out.insert(k.to_string(), v).is_some() {
-            bail!("bench file line {}: {k} given twice", i + 1);
+            return Err(SimError::Refused(format!(
+                "bench file line {}: {k} given twice",
+                i + 1
+            )));
         }
     }
     Ok(out)
@@ -196,27 +200,32 @@ pub fn bench_report(raw: &BTreeMap<String, i64>, elf: &ElfSizes) -> Result<Bench
         .copied()
         .filter(|k| !raw.contains_key(*k))
         .collect();
-    ensure!(
-        missing.is_empty(),
-        "the firmware's bench file lacks {}",
-        missing.join(", ")
-    );
+    if !missing.is_empty() {
+        return Err(SimError::Refused(format!(
+            "the firmware's bench file lacks {}",
+            missing.join(", ")
+        )));
+    }
     let get = |k: &str| raw[k];
     let positive = |k: &str| -> Result<f64> {
         let v = get(k);
-        ensure!(v > 0, "bench {k} = {v}, expected > 0");
+        if v <= 0 {
+            return Err(SimError::Refused(format!("bench {k} = {v}, expected > 0")));
+        }
         Ok(v as f64)
     };
     let unsigned = |k: &str| -> Result<u64> {
-        u64::try_from(get(k)).map_err(|_| anyhow!("bench {k} = {} is negative", get(k)))
+        u64::try_from(get(k))
+            .map_err(|_| SimError::Refused(format!("bench {k} = {} is negative", get(k))))
     };
-    ensure!(
-        get("dsp_mismatches") == 0,
-        "the firmware's SMLAD/UQSUB16 differ from their portable twins on {} of {} inputs \
-         (core/src/dsp.rs): its results cannot be trusted to match the host",
-        get("dsp_mismatches"),
-        get("dsp_checks")
-    );
+    if get("dsp_mismatches") != 0 {
+        return Err(SimError::Tool(format!(
+            "the firmware's SMLAD/UQSUB16 differ from their portable twins on {} of {} inputs \
+             (core/src/dsp.rs): its results cannot be trusted to match the host",
+            get("dsp_mismatches"),
+            get("dsp_checks")
+        )));
+    }
     let ipt = positive("calib_loop_instructions")? / positive("calib_ticks")?;
     let ticks = |k: &str| -> Result<f64> { Ok(unsigned(k)? as f64 * ipt) };
     let pixels = positive("pixels_out")?;

@@ -1,6 +1,6 @@
 //! Flash and RAM figures from the firmware ELF's sections.
 
-use anyhow::{ensure, Context, Result};
+use crate::{At, Result, SimError};
 use serde::Serialize;
 
 /// Largest firmware ELF read, bytes (64 MiB: the firmware with its debug information is a few
@@ -53,7 +53,9 @@ pub struct Sections {
 /// Section sizes of a firmware ELF.
 pub fn elf_sizes(elf: &[u8]) -> Result<ElfSizes> {
     use object::{Object, ObjectSection, SectionFlags, SectionKind};
-    let file = object::File::parse(elf).context("parsing the firmware ELF")?;
+    let file = object::File::parse(elf)
+        .map_err(|e| SimError::refused(e.to_string()))
+        .at(|| "parsing the firmware ELF")?;
     let mut out = ElfSizes::default();
     for s in file.sections() {
         let name = s.name().unwrap_or("");
@@ -85,9 +87,10 @@ pub fn elf_sizes(elf: &[u8]) -> Result<ElfSizes> {
     }
     let t = &out.sections;
     out.static_ram = t.data + t.bss + t.uninit;
-    ensure!(
-        t.text > 0 || t.itcm > 0,
-        "the ELF has no code sections: is it the firmware?"
-    );
+    if !(t.text > 0 || t.itcm > 0) {
+        return Err(SimError::refused(
+            "the ELF has no code sections: is it the firmware?",
+        ));
+    }
     Ok(out)
 }

@@ -3,7 +3,7 @@
 use crate::progress::progress_bar;
 use crate::reconstruct::config;
 use crate::simulation::recording::Recording;
-use anyhow::{anyhow, ensure, Context, Result};
+use crate::{At, Result, SimError};
 use dpsa_core::frames::feed;
 use std::io::{BufWriter, Write};
 use std::path::Path;
@@ -12,13 +12,11 @@ use std::path::Path;
 /// packet stream the firmware emits from it uses codec intra period `intra_period`.
 /// Returns the bytes written.
 pub fn write_feed(rec: &Recording, intra_period: u32, path: &Path) -> Result<u64> {
-    let file =
-        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+    let file = std::fs::File::create(path).at(|| format!("creating {}", path.display()))?;
     let mut w = BufWriter::with_capacity(1 << 20, file);
     let n = write_feed_to(rec, intra_period, &mut w, false)
-        .with_context(|| format!("writing the feed {}", path.display()))?;
-    w.flush()
-        .with_context(|| format!("writing {}", path.display()))?;
+        .at(|| format!("writing the feed {}", path.display()))?;
+    w.flush().at(|| format!("writing {}", path.display()))?;
     Ok(n)
 }
 
@@ -29,17 +27,18 @@ pub fn write_feed_to<W: Write>(
     mut out: W,
     progress: bool,
 ) -> Result<u64> {
-    ensure!(
-        intra_period >= 1,
-        "the codec intra period must be at least 1"
-    );
+    if intra_period < 1 {
+        return Err(SimError::refused(
+            "the codec intra period must be at least 1",
+        ));
+    }
     let core = config(&rec.manifest)?;
     let (cfg, ref_phase) = (core.cfg, &core.ref_phase);
     let frames = &rec.manifest.frames;
     let header = feed::Header {
         cfg,
         frames: u32::try_from(frames.len())
-            .map_err(|_| anyhow!("{} frames do not fit a feed", frames.len()))?,
+            .map_err(|_| SimError::Refused(format!("{} frames do not fit a feed", frames.len())))?,
         intra_period,
         run_id: rec.run_id(),
         column_scale: core.column_scale.as_ref().map(|(shift, _)| *shift),
@@ -49,21 +48,28 @@ pub fn write_feed_to<W: Write>(
     };
     // Check that the header reads back as written (the firmware applies the same checks).
     let head = header.encode();
-    feed::Header::decode(&head)
-        .map_err(|e| anyhow!("the recording's configuration is not valid for the target: {e}"))?;
+    feed::Header::decode(&head).map_err(|e| {
+        SimError::Core(format!(
+            "the recording's configuration is not valid for the target: {e}"
+        ))
+    })?;
     out.write_all(&head)?;
     let mut table = vec![0u8; header.table_len()];
-    feed::encode_table(ref_phase, &mut table).map_err(|e| anyhow!("reference-phase table: {e}"))?;
+    feed::encode_table(ref_phase, &mut table)
+        .map_err(|e| SimError::Core(format!("reference-phase table: {e}")))?;
     out.write_all(&table)?;
     let mut written = (head.len() + table.len()) as u64;
     if let Some((_, mantissa)) = &core.column_scale {
         let mut t = vec![0u8; header.scale_table_len()];
         feed::encode_scale_table(mantissa, &mut t)
-            .map_err(|e| anyhow!("height-scale table: {e}"))?;
+            .map_err(|e| SimError::Core(format!("height-scale table: {e}")))?;
         // Read back as the firmware will (CRC and range).
         let mut back = vec![0u16; mantissa.len()];
-        feed::decode_scale_table(&t, &header, &mut back)
-            .map_err(|e| anyhow!("the per-column height scale is not valid for the target: {e}"))?;
+        feed::decode_scale_table(&t, &header, &mut back).map_err(|e| {
+            SimError::Core(format!(
+                "the per-column height scale is not valid for the target: {e}"
+            ))
+        })?;
         out.write_all(&t)?;
         written += t.len() as u64;
     }

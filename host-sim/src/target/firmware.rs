@@ -1,7 +1,7 @@
 //! Building the firmware ELF.
 
 use super::PROGRAM;
-use anyhow::{ensure, Context, Result};
+use crate::{At, Result, SimError};
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -24,23 +24,26 @@ pub fn default_elf_path() -> PathBuf {
 pub fn firmware_elf(build: bool) -> Result<PathBuf> {
     if !build {
         let p = default_elf_path();
-        ensure!(
-            p.is_file(),
-            "no firmware ELF at {}: build it with `bash firmware/build.sh` (add --install to install \
-             the cross toolchain and QEMU) or pass --elf",
-            p.display()
-        );
+        if !p.is_file() {
+            return Err(SimError::Tool(format!(
+                "no firmware ELF at {}: build it with `bash firmware/build.sh` (add --install to install \
+                 the cross toolchain and QEMU) or pass --elf",
+                p.display()
+            )));
+        }
         return Ok(p);
     }
     let script = firmware_dir().join("build.sh");
-    ensure!(script.is_file(), "{} is missing", script.display());
+    if !script.is_file() {
+        return Err(SimError::Tool(format!("{} is missing", script.display())));
+    }
     let mut child = Command::new("bash")
         .arg(&script)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
-        .context("starting bash firmware/build.sh")?;
+        .at(|| "starting bash firmware/build.sh")?;
     // Forward the build log line by line (through eprintln, so a test harness captures it)
     // and keep its tail for the error message.
     let stderr = child.stderr.take().expect("piped stderr");
@@ -63,11 +66,12 @@ pub fn firmware_elf(build: bool) -> Result<PathBuf> {
         .read_to_string(&mut stdout)?;
     let status = child.wait()?;
     let tail = log.join().unwrap_or_default();
-    ensure!(
-        status.success(),
-        "bash firmware/build.sh failed ({status}); if the cross toolchain or QEMU is missing, run \
-         `bash firmware/build.sh --install`. Last lines of its log:\n{tail}"
-    );
+    if !status.success() {
+        return Err(SimError::Tool(format!(
+            "bash firmware/build.sh failed ({status}); if the cross toolchain or QEMU is missing, run \
+             `bash firmware/build.sh --install`. Last lines of its log:\n{tail}"
+        )));
+    }
     let last = stdout
         .lines()
         .rev()
@@ -75,9 +79,10 @@ pub fn firmware_elf(build: bool) -> Result<PathBuf> {
         .unwrap_or("")
         .trim();
     let elf = PathBuf::from(last);
-    ensure!(
-        elf.is_absolute() && elf.is_file(),
-        "firmware/build.sh succeeded but its last line of output is not the path of an ELF: {last:?}"
-    );
+    if !(elf.is_absolute() && elf.is_file()) {
+        return Err(SimError::Tool(format!(
+            "firmware/build.sh succeeded but its last line of output is not the path of an ELF: {last:?}"
+        )));
+    }
     Ok(elf)
 }

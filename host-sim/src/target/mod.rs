@@ -25,7 +25,7 @@ pub use firmware::*;
 pub use qemu::*;
 
 use crate::simulation::recording::Recording;
-use anyhow::{Context, Result};
+use crate::{At, Result};
 use std::collections::BTreeMap;
 use std::io::{BufWriter, Write};
 use std::path::Path;
@@ -79,7 +79,7 @@ pub fn run(rec: &Recording, elf: &Path, opts: RunOptions) -> Result<TargetOutput
     let dir = tempfile::Builder::new()
         .prefix("dpsa-target")
         .tempdir()
-        .context("creating a temporary directory")?;
+        .at(|| "creating a temporary directory")?;
     let feed_path = dir.path().join("feed.dpsr");
     let out_path = dir.path().join("stream.dpsa");
     let bench_path = dir.path().join("bench.txt");
@@ -96,11 +96,10 @@ pub fn run(rec: &Recording, elf: &Path, opts: RunOptions) -> Result<TargetOutput
         opts.bench.then_some(bench_path.as_path()),
         opts.echo,
     )?;
-    let stream =
-        std::fs::read(&out_path).context("reading the packet stream the firmware wrote")?;
+    let stream = std::fs::read(&out_path).at(|| "reading the packet stream the firmware wrote")?;
     let bench = if opts.bench {
         let text =
-            std::fs::read_to_string(&bench_path).context("reading the firmware's bench file")?;
+            std::fs::read_to_string(&bench_path).at(|| "reading the firmware's bench file")?;
         Some(parse_bench(&text)?)
     } else {
         None

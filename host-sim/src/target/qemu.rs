@@ -1,7 +1,7 @@
 //! Running the firmware under QEMU and decoding its defmt log.
 
 use super::{firmware::firmware_dir, DEFAULT_TIMEOUT_S, PROGRAM, QEMU, TIMEOUT_ENV};
-use anyhow::{anyhow, ensure, Context, Result};
+use crate::{At, Result, SimError};
 use serde::Serialize;
 use std::io::Read;
 use std::path::{Path, PathBuf};
@@ -15,14 +15,18 @@ fn qemu_value(v: &str) -> String {
 
 /// A path as UTF-8, refused if the semihosting command line could not carry it.
 fn arg_path(p: &Path) -> Result<String> {
-    let s = p
-        .to_str()
-        .ok_or_else(|| anyhow!("{}: not UTF-8, cannot pass it to the firmware", p.display()))?;
-    ensure!(
-        !s.chars().any(char::is_whitespace),
-        "{s}: the semihosting command line is split at spaces, so the firmware cannot be given a path \
-         containing whitespace (set TMPDIR to a directory without spaces)"
-    );
+    let s = p.to_str().ok_or_else(|| {
+        SimError::Refused(format!(
+            "{}: not UTF-8, cannot pass it to the firmware",
+            p.display()
+        ))
+    })?;
+    if s.chars().any(char::is_whitespace) {
+        return Err(SimError::Refused(format!(
+            "{s}: the semihosting command line is split at spaces, so the firmware cannot be given a path \
+             containing whitespace (set TMPDIR to a directory without spaces)"
+        )));
+    }
     Ok(s.to_string())
 }
 
@@ -37,7 +41,7 @@ pub fn qemu_command(elf: &Path, args: &[String], log: &Path) -> Result<Command> 
     }
     let log = log
         .to_str()
-        .ok_or_else(|| anyhow!("{}: not UTF-8", log.display()))?;
+        .ok_or_else(|| SimError::Refused(format!("{}: not UTF-8", log.display())))?;
     let mut cmd = Command::new(QEMU);
     cmd.args([
         "-machine",
@@ -113,7 +117,7 @@ impl Outcome {
 
     /// An error describing a failed run: exit status, the error lines of the log (or its last
     /// lines when there are none) and what QEMU printed.
-    pub fn failure(&self) -> anyhow::Error {
+    pub fn failure(&self) -> SimError {
         let status = match self.code {
             Some(c) => format!("the firmware exited with status {c}"),
             None => format!(
@@ -141,7 +145,7 @@ impl Outcome {
             msg.push_str("\nqemu: ");
             msg.push_str(q);
         }
-        anyhow!(msg)
+        SimError::Tool(msg)
     }
 }
 
@@ -221,7 +225,7 @@ impl LogSource<'_> {
             loop {
                 let n = f
                     .read(buf)
-                    .with_context(|| format!("reading {}", self.path.display()))?;
+                    .at(|| format!("reading {}", self.path.display()))?;
                 if n == 0 {
                     break;
                 }
@@ -255,21 +259,23 @@ pub struct Echo {
 /// packet stream). Fails only when QEMU cannot be run or the log cannot be decoded at all; the
 /// firmware's own failure is in [`Outcome::code`].
 pub fn qemu(elf: &Path, args: &[String], watch: Option<&Path>, echo: Echo) -> Result<Outcome> {
-    let elf_bytes = std::fs::read(elf)
-        .with_context(|| format!("reading the firmware ELF {}", elf.display()))?;
+    let elf_bytes =
+        std::fs::read(elf).at(|| format!("reading the firmware ELF {}", elf.display()))?;
+    // defmt-decoder's own errors are `anyhow` chains: kept as their `{:#}` text.
     let table = defmt_decoder::Table::parse(&elf_bytes)
-        .with_context(|| format!("reading the defmt table of {}", elf.display()))?
+        .map_err(|e| SimError::Refused(format!("{e:#}")))
+        .at(|| format!("reading the defmt table of {}", elf.display()))?
         .ok_or_else(|| {
-            anyhow!(
+            SimError::Refused(format!(
                 "{} has no .defmt section: not a defmt firmware",
                 elf.display()
-            )
+            ))
         })?;
 
     let dir = tempfile::Builder::new()
         .prefix("dpsa-qemu")
         .tempdir()
-        .context("creating a temporary directory")?;
+        .at(|| "creating a temporary directory")?;
     // The defmt frames arrive on the semihosting console. QEMU 7.2 (Debian 12) writes what the
     // firmware writes to `:tt` on its own stdout and only SYS_WRITEC/WRITE0 to the console
     // chardev; later versions send both to the chardev. Both are captured and decoded (each
@@ -283,9 +289,9 @@ pub fn qemu(elf: &Path, args: &[String], watch: Option<&Path>, echo: Echo) -> Re
     let start = Instant::now();
     let mut child = cmd.spawn().map_err(|e| {
         if e.kind() == std::io::ErrorKind::NotFound {
-            anyhow!("{QEMU} not found: install it with `bash firmware/build.sh --install` (Debian package qemu-system-arm)")
+            SimError::Tool(format!("{QEMU} not found: install it with `bash firmware/build.sh --install` (Debian package qemu-system-arm)"))
         } else {
-            anyhow!("starting {QEMU}: {e}")
+            SimError::Tool(format!("starting {QEMU}: {e}"))
         }
     })?;
 
@@ -381,8 +387,7 @@ pub fn run_files(
 }
 
 fn absolute(p: &Path) -> Result<PathBuf> {
-    std::path::absolute(p)
-        .with_context(|| format!("{}: cannot make the path absolute", p.display()))
+    std::path::absolute(p).at(|| format!("{}: cannot make the path absolute", p.display()))
 }
 
 #[cfg(test)]

@@ -38,7 +38,7 @@ pub enum BoardError {
     #[error(transparent)]
     Array(#[from] dpsa_formats::array::ArrayError),
     /// What a caller's hook reported (the simulator's Cramer-Rao bound per pixel).
-    #[error("{0}")]
+    #[error(transparent)]
     Hook(Box<dyn std::error::Error + Send + Sync>),
     /// A thread panicked or an invariant broke (a bug: please report it).
     #[error("internal error: {0}")]
