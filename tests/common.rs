@@ -5,7 +5,7 @@
 //! textbook least-squares facts, not from `dpsa_sim::reference` or `dpsa_sim::reference::compare`.
 
 use dpsa_sim::heightmap::{flags, HeightMap, HeightRow};
-use dpsa_sim::simulation::recording::{Manifest, Recording, Truth};
+use dpsa_sim::simulation::recording::{CameraTruth, Manifest, Recording};
 use dpsa_sim::simulation::scene::Scene;
 use std::f64::consts::TAU;
 use std::path::{Path, PathBuf};
@@ -27,7 +27,7 @@ impl Sim {
         Recording::open(self.dir.path()).expect("re-open the edited recording")
     }
 
-    pub fn truth(&self) -> Truth {
+    pub fn truth(&self) -> CameraTruth {
         self.rec
             .truth()
             .expect("read the truth")
@@ -86,7 +86,7 @@ pub fn fold(d: f64, period: f64) -> f64 {
 /// Flat pixels of the truth: the pixel and its 8 neighbours have the same height (border
 /// pixels are never flat). Registration rounds each frame to a whole pixel, so on deposit
 /// walls an error measures lateral sampling, not phase.
-pub fn flat(truth: &Truth) -> Vec<bool> {
+pub fn flat(truth: &CameraTruth) -> Vec<bool> {
     let (rows, w) = (truth.rows, truth.width);
     let h = &truth.height_um;
     let mut out = vec![false; rows * w];
@@ -154,7 +154,7 @@ impl TruthCheck {
 /// with the ground truth. See [`TruthCheck`].
 pub fn check_vs_truth(
     m: &Manifest,
-    truth: &Truth,
+    truth: &CameraTruth,
     map: &HeightMap,
     select: impl Fn(&HeightRow) -> bool,
 ) -> TruthCheck {

@@ -5,17 +5,13 @@
 //! The folder is part of the CI contract: if it is missing these tests fail (with a message
 //! saying where it was expected), they do not pass silently.
 
+use dpsa_sim::reference::wrap_phase;
 use dpsa_sim::stack::{self, PhaseReport, Stack, StackPhase};
 use dpsa_tests::real_data_dir;
-use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 
 /// `dpsa phase`'s default threshold: 4 % of the 8-bit full scale.
 const MIN_MOD_8BIT: f64 = 0.04 * 255.0;
-
-fn wrap(d: f64) -> f64 {
-    (d + PI).rem_euclid(2.0 * PI) - PI
-}
 
 fn run(paths: &[PathBuf], steps_deg: &[f64]) -> (Stack, StackPhase, PhaseReport) {
     for p in paths {
@@ -52,7 +48,7 @@ fn vs_textbook(st: &Stack, ph: &StackPhase, textbook: impl Fn(&[f64]) -> f64) ->
         for (s, img) in samples.iter_mut().zip(&st.images) {
             *s = f64::from(img[i]);
         }
-        let d = wrap(f - textbook(&samples));
+        let d = wrap_phase(f - textbook(&samples));
         s2 += d * d;
         max = max.max(d.abs());
         n += 1;
@@ -199,7 +195,7 @@ fn lens_step_order_does_not_matter() {
     for (x, y) in a.fixed.iter().zip(&b.fixed) {
         assert_eq!(x.is_some(), y.is_some());
         if let (Some(x), Some(y)) = (x, y) {
-            worst = worst.max(wrap(x - y).abs());
+            worst = worst.max(wrap_phase(x - y).abs());
         }
     }
     assert!(worst <= 1e-3, "permuted stack differs by {worst} rad");

@@ -4,6 +4,7 @@
 use crate::{Result, SimError};
 use dpsa_core::fixed::types::{U16F16, U20F12, U8F8};
 use dpsa_core::{bench, bench::Window, height::Scale, phase};
+use dpsa_formats::calibration::wrap_phase;
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 use std::path::Path;
@@ -225,7 +226,7 @@ pub fn run(stack: &Stack, min_modulation: f64) -> Result<(StackPhase, PhaseRepor
     for (f, r) in fixed.iter().zip(&reference) {
         match (f, r) {
             (Some(f), Some(r)) => {
-                let d = wrap(f - r);
+                let d = wrap_phase(f - r);
                 sum2 += d * d;
                 max = max.max(d.abs());
                 valid += 1;
@@ -250,9 +251,4 @@ pub fn run(stack: &Stack, min_modulation: f64) -> Result<(StackPhase, PhaseRepor
         noise_gain: g,
     };
     Ok((StackPhase { fixed, reference }, report))
-}
-
-fn wrap(d: f64) -> f64 {
-    use std::f64::consts::PI;
-    (d + PI).rem_euclid(2.0 * PI) - PI
 }

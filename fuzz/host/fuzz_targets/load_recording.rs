@@ -6,15 +6,15 @@
 //! as the PNG of frame 0.
 //!
 //! Oracles besides "no panic, no hang, no overflow, no allocation beyond the caps":
-//! - a manifest that loads is one the fixed-point core accepts: `reconstruct::config` builds
+//! - a manifest that loads is one the fixed-point core accepts: `dpsa_stream::config` builds
 //!   its integer configuration (nothing that passes validation fails later in the core);
 //! - a frame that decodes has exactly `rows x width` samples, none above `2^bit_depth - 1`,
 //!   and carries the trigger of its manifest entry.
 
 #![no_main]
 
-use dpsa_sim::reconstruct;
-use dpsa_sim::simulation::recording::{decode_frame, max_value, Manifest};
+use dpsa_formats::recording::{max_value, Manifest};
+use dpsa_sim::simulation::recording::decode_frame;
 use libfuzzer_sys::fuzz_target;
 use std::path::Path;
 
@@ -27,8 +27,8 @@ fuzz_target!(|data: &[u8]| {
     let Ok(manifest) = Manifest::parse(json, Path::new("manifest.json")) else {
         return;
     };
-    if let Err(e) = reconstruct::config(&manifest) {
-        panic!("a manifest that validates must build the core's configuration: {e:#}");
+    if let Err(e) = dpsa_stream::config::config(&manifest) {
+        panic!("a manifest that validates must build the core's configuration: {e}");
     }
     if manifest.frames.is_empty() {
         return;
@@ -44,9 +44,6 @@ fuzz_target!(|data: &[u8]| {
         );
         let max = max_value(manifest.camera.bit_depth);
         assert!(frame.data.iter().all(|&v| v <= max));
-        assert_eq!(
-            (frame.seq, frame.latch),
-            (manifest.frames[0].seq, manifest.frames[0].latch)
-        );
+        assert_eq!(frame.trigger, manifest.frames[0].trigger());
     }
 });

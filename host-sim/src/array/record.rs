@@ -63,7 +63,7 @@ pub fn inspection_program(scene: &ArrayScene) -> crate::inspection::program::Pro
 /// The board truth raster: `rows x cols` f32 heights at `((i + 1/2) pitch, (j + 1/2) pitch)`.
 #[derive(Serialize, Deserialize, Clone, Debug, PartialEq)]
 #[serde(deny_unknown_fields)]
-pub struct BoardTruth {
+pub struct BoardTruthFile {
     /// The raster file, relative to the recording ([`BOARD_TRUTH_FILE`]).
     pub file: String,
     /// Raster pitch on the board (both directions), mm.
@@ -93,7 +93,7 @@ pub struct ArrayTruth {
     pub plane_modulation_dn: Vec<Vec<f64>>,
     /// The board height raster (board recordings only).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub board: Option<BoardTruth>,
+    pub board: Option<BoardTruthFile>,
     /// The scene that was rendered.
     pub scene: ArrayScene,
     /// The run's seed (noise, conveyor, placement).
@@ -585,7 +585,7 @@ pub fn simulate_board(scene: &ArrayScene, seed: u64, out: &Path) -> Result<Write
         deposits: boxes,
         plane_background_dn: pb,
         plane_modulation_dn: pm,
-        board: Some(BoardTruth {
+        board: Some(BoardTruthFile {
             file: BOARD_TRUTH_FILE.into(),
             pitch_mm: tp,
             rows: tr as u32,

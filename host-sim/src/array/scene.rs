@@ -902,9 +902,6 @@ impl ArrayScene {
     }
 }
 
-/// Wraps into `[-pi, pi)`: the one wrap of the calibration file's phase tables.
-pub use dpsa_formats::calibration::wrap_phase as wrap;
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -8,7 +8,7 @@
 
 use super::Grid;
 use crate::reference::crb::phase_variance;
-use crate::reference::truth::TruthReader;
+use crate::reference::truth::CameraTruthReader;
 use crate::simulation::recording::Recording;
 use crate::{At, Result};
 use dpsa_core::Trigger;
@@ -57,7 +57,7 @@ pub fn crb_variance(
     let Some(noise) = &m.noise else {
         return Ok(None);
     };
-    let Some(mut truth) = TruthReader::open(rec).at(|| "reading the camera truth")? else {
+    let Some(mut truth) = CameraTruthReader::open(rec).at(|| "reading the camera truth")? else {
         return Ok(None);
     };
     let f_x = 1.0 / m.calibration.fringe_period_px;

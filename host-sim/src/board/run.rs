@@ -10,7 +10,7 @@
 //! the rows exactly as its packets carry them (the calibration's per-column `T_z(c)` is part
 //! of the core's configuration, so its heights are already in calibrated LSB in every column).
 
-use super::truth::{against_truth, MapTruth, TruthRaster};
+use super::truth::{against_truth, BoardTruth, MapAccuracy};
 use super::Grid;
 use crate::array::record::ArrayRecording;
 use crate::calibration::{calibrated, CalFile};
@@ -45,7 +45,7 @@ pub struct BoardReport {
     #[serde(flatten)]
     pub map: map::MapReport,
     /// Against the simulator's board truth (null without it).
-    pub truth: Option<MapTruth>,
+    pub truth: Option<MapAccuracy>,
     /// The comparison with the truth, s (0 without it).
     pub truth_s: f64,
 }
@@ -217,7 +217,7 @@ fn against_board_truth(
     grid: &dpsa_board::BoardGrid,
     with_crb: bool,
     progress: bool,
-) -> Result<Option<MapTruth>> {
+) -> Result<Option<MapAccuracy>> {
     Ok(match arr.truth()? {
         Some(t) => match t.board {
             Some(b) => {
@@ -226,7 +226,7 @@ fn against_board_truth(
                     &path,
                     b.rows as usize * b.cols as usize,
                 )?;
-                let raster = TruthRaster {
+                let raster = BoardTruth {
                     x0_mm: 0.0,
                     y0_mm: 0.0,
                     pitch_mm: b.pitch_mm,

@@ -7,7 +7,7 @@ use dpsa_formats::grid::Grid;
 /// The ground truth of a board: heights on a raster of `pitch_mm` from `(x0_mm, y0_mm)`
 /// (row `i` along the motion), um.
 #[derive(Clone, Debug)]
-pub struct TruthRaster {
+pub struct BoardTruth {
     /// Board `X` (along the motion) of the raster's corner, mm: cell `i` is centred at
     /// `x0_mm + (i + 0.5) pitch_mm`.
     pub x0_mm: f64,
@@ -19,7 +19,7 @@ pub struct TruthRaster {
     pub heights: Grid,
 }
 
-impl TruthRaster {
+impl BoardTruth {
     /// Bilinear height at board `(x, y)`; NaN outside.
     pub fn at(&self, x: f64, y: f64) -> f32 {
         let (fi, fj) = (
@@ -44,7 +44,7 @@ impl TruthRaster {
 
 /// The map against the truth (`truth.*` and `unwrap.*` of `dpsa board --json`).
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
-pub struct MapTruth {
+pub struct MapAccuracy {
     /// Valid pixels inside the truth.
     pub pixels: u64,
     /// Of them, on flat board: the truth's second differences (along, across and both
@@ -76,10 +76,10 @@ pub fn against_truth(
     variance: Option<&Grid>,
     period: impl Fn(usize, usize) -> f32,
     grid: &BoardGrid,
-    truth: &TruthRaster,
+    truth: &BoardTruth,
     rows_done: &indicatif::ProgressBar,
-) -> MapTruth {
-    let mut st = MapTruth::default();
+) -> MapAccuracy {
+    let mut st = MapAccuracy::default();
     let (mut sum, mut sq, mut vsum) = (0.0f64, 0.0f64, 0.0f64);
     for i in 0..grid.rows {
         rows_done.inc(1);
@@ -167,7 +167,7 @@ mod tests {
                     truth_fn((i as f64 + 0.5) * tp, (j as f64 + 0.5) * tp) as f32;
             }
         }
-        let truth = TruthRaster {
+        let truth = BoardTruth {
             x0_mm: 0.0,
             y0_mm: 0.0,
             pitch_mm: tp,

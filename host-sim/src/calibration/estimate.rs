@@ -23,12 +23,12 @@
 //!    nominal window and reported against the budget.
 
 use crate::array::record::{ArrayRecording, Kind, PassKind};
-use crate::array::scene::wrap;
 use crate::calibration::file::{CalFile, CameraCal, Lateral, CAL_FORMAT, CAL_VERSION};
 use crate::reference::{self, LazyFrames, PhaseFit};
 use crate::simulation::recording::Recording;
 use crate::simulation::scene::round_counts_per_pixel;
 use crate::{At, Result, SimError};
+use dpsa_formats::calibration::wrap_phase;
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix4, Vector3, Vector4};
 use std::f64::consts::TAU;
 
@@ -280,7 +280,7 @@ fn fit_planes(
         let base = fits[first].phase() - k_nom * heights[first];
         for &p in &order {
             let rel = fits[p].phase() - k_nom * heights[p];
-            unwrapped[p] = base + wrap(rel - base) + k_nom * heights[p];
+            unwrapped[p] = base + wrap_phase(rel - base) + k_nom * heights[p];
             psi[p][c] = fits[p].phase();
         }
         let n = heights.len() as f64;
@@ -305,7 +305,7 @@ fn fit_planes(
             )));
         }
         tz[c] = TAU / slope;
-        phi0[c] = wrap(intercept);
+        phi0[c] = wrap_phase(intercept);
     }
     // Per pixel: background and amplitude across the planes (their phases differ).
     let mut pix_a = filled(rows * width, 0.0, "per-pixel background")?;
@@ -422,7 +422,7 @@ fn detect_marks(rec: &Recording, pf: &PlaneFit, pitch_px: f64) -> Result<Vec<Mar
                     out.push(Mark {
                         r: sr / sw,
                         c: sc / sw,
-                        latch: fr.latch,
+                        latch: fr.trigger.latch,
                     });
                 }
             }
@@ -520,7 +520,7 @@ fn fit_lateral(
 
 /// Runs the f64 reference D-PSA with the calibrated encoder scale and `f_x` and a zero
 /// reference-phase table and hands every valid pixel whose samples avoid dead pixels to
-/// `each(column, D, sample rows)`, with `D = wrap(Phi - 2 pi f (b - o_w))` (no
+/// `each(column, D, sample rows)`, with `D = wrap_phase(Phi - 2 pi f (b - o_w))` (no
 /// reference-phase table) and the image rows of the pixel's `n` window samples.
 ///
 /// Streaming, row by row: memory is one window of frames and one row, whatever the plane's
@@ -598,7 +598,7 @@ pub fn fx_height_error(cal: &CameraCal, n: usize, step_px: f64, max_step: u32) -
                     .map(|o| (psi + TAU * f * (r0 - o)).cos())
                     .collect();
                 let (phi, _) = fit.fit(&samples);
-                errs.push(wrap(phi - TAU * f_core * r0 - psi));
+                errs.push(wrap_phase(phi - TAU * f_core * r0 - psi));
             }
         }
         let (s, co) = errs
@@ -607,7 +607,7 @@ pub fn fx_height_error(cal: &CameraCal, n: usize, step_px: f64, max_step: u32) -
         let mean = s.atan2(co);
         let e = errs
             .iter()
-            .map(|e| wrap(e - mean).abs())
+            .map(|e| wrap_phase(e - mean).abs())
             .fold(0.0, f64::max);
         worst = worst.max(e * cal.height_per_turn_um[c] / TAU);
     }
@@ -624,7 +624,7 @@ pub fn measure_plane(
 ) -> Result<()> {
     plane_phases(rec, cal, |c, d, rows| {
         let t = cal.height_per_turn_um[c];
-        let mut h = wrap(d - cal.core_reference_phase_rad[c]) / TAU * t;
+        let mut h = wrap_phase(d - cal.core_reference_phase_rad[c]) / TAU * t;
         h += t * ((known_um - h) / t).round();
         each(c, h, rows)
     })

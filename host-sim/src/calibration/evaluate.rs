@@ -3,25 +3,26 @@
 //! estimated parameter and the Cramer-Rao bound of the held-out plane.
 
 use crate::array::record::{ArrayRecording, ArrayTruth, PassKind};
-use crate::array::scene::{wrap, CameraModel};
+use crate::array::scene::CameraModel;
 use crate::calibration::estimate::measure_plane;
 use crate::calibration::file::{CalFile, CameraCal};
 use crate::simulation::recording::Recording;
 use crate::{At, Result};
+use dpsa_formats::calibration::wrap_phase;
 use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 use std::f64::consts::TAU;
 
 /// Estimated parameters against the truth (max over cameras unless said otherwise).
 #[derive(Serialize, Clone, Debug, Default)]
-pub struct TruthError {
+pub struct CalibrationAccuracy {
     /// `max |T_z^(c) / T_z(c) - 1|` over columns.
     pub t_z_rel_max: f64,
     /// `|f_core / mean_c f_x(c) - 1|`: the core's single fringe frequency.
     pub f_x_rel_max: f64,
     /// `max |f_x^(c) / f_x(c) - 1|` over columns: the field map.
     pub f_x_field_rel_max: f64,
-    /// rms over columns of `wrap(phi_0^ - phi_0)`, mrad.
+    /// rms over columns of `wrap_phase(phi_0^ - phi_0)`, mrad.
     pub phi0_rms_mrad: f64,
     /// rms distance between the estimated and the true board point of every pixel of rows
     /// 0, H/2, H-1, um.
@@ -111,7 +112,7 @@ pub struct CalibrationReport {
     pub holdout: Option<Holdout>,
     /// Estimated parameters against the truth (only when the recording carries it).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub truth_error: Option<TruthError>,
+    pub truth_error: Option<CalibrationAccuracy>,
     /// Figures per camera, camera `i` at index `i`.
     pub per_camera: Vec<CameraFigures>,
 }
@@ -206,8 +207,8 @@ pub fn holdout_bound(
     Ok(((e2 / m).sqrt(), (crb2 / m).sqrt(), bias / m, used))
 }
 
-fn truth_errors(cal: &CalFile, truth: &ArrayTruth) -> (TruthError, Vec<(f64, f64)>) {
-    let mut e = TruthError::default();
+fn truth_errors(cal: &CalFile, truth: &ArrayTruth) -> (CalibrationAccuracy, Vec<(f64, f64)>) {
+    let mut e = CalibrationAccuracy::default();
     let mut per = Vec::new();
     e.counts_per_mm_rel = (cal.counts_per_mm / truth.counts_per_mm - 1.0).abs();
     for (k, (c, m)) in cal.camera.iter().zip(&truth.cameras).enumerate() {
@@ -225,7 +226,7 @@ fn truth_errors(cal: &CalFile, truth: &ArrayTruth) -> (TruthError, Vec<(f64, f64
             .fold(0.0, f64::max);
         e.f_x_field_rel_max = e.f_x_field_rel_max.max(field);
         let phi = ((0..w)
-            .map(|i| wrap(c.reference_phase_rad[i] - m.reference_phase_rad[i]).powi(2))
+            .map(|i| wrap_phase(c.reference_phase_rad[i] - m.reference_phase_rad[i]).powi(2))
             .sum::<f64>()
             / w as f64)
             .sqrt();

@@ -18,7 +18,7 @@ use serde::Serialize;
 use std::path::{Path, PathBuf};
 
 /// What the simulator knows about a board it printed.
-pub struct Truth<'a> {
+pub struct PrintTruthView<'a> {
     /// The true design-to-board transform.
     pub transform: Rigid,
     /// The injected defect of each pad (`missing`, `insufficient`, `excess`, `offset`,
@@ -33,7 +33,7 @@ pub const LARGE_MM: f64 = 0.5;
 
 /// The accuracy of one inspection against the truth.
 #[derive(Clone, Debug, Serialize)]
-pub struct TruthReport {
+pub struct InspectionAccuracy {
     /// Pads with openings of at least 0.5 x 0.5 mm, defect-free.
     pub large: Accuracy,
     /// Smaller defect-free pads.
@@ -45,7 +45,7 @@ pub struct TruthReport {
 /// An inspection against the truth: the accuracy, each pad's true figures, the detection.
 pub struct Evaluated {
     /// Accuracy of the measured figures.
-    pub report: TruthReport,
+    pub report: InspectionAccuracy,
     /// Each pad's true figures, in pad order.
     pub pads: Vec<PadTruth>,
     /// The injected defects found, missed and misnamed, and the false failures.
@@ -53,7 +53,7 @@ pub struct Evaluated {
 }
 
 /// Measures the truth of every pad and the inspection's accuracy against it.
-pub fn evaluate(i: &Inspection, pads: &[Pad], program: &Program, tr: &Truth) -> Evaluated {
+pub fn evaluate(i: &Inspection, pads: &[Pad], program: &Program, tr: &PrintTruthView) -> Evaluated {
     evaluate_shown(i, pads, program, tr, false)
 }
 
@@ -62,7 +62,7 @@ pub fn evaluate_shown(
     i: &Inspection,
     pads: &[Pad],
     program: &Program,
-    tr: &Truth,
+    tr: &PrintTruthView,
     progress: bool,
 ) -> Evaluated {
     let t = i.registration.transform;
@@ -83,7 +83,7 @@ pub fn evaluate_shown(
         reg_err = reg_err.max((a[0] - b[0]).hypot(a[1] - b[1]) * 1000.0);
     }
     Evaluated {
-        report: TruthReport {
+        report: InspectionAccuracy {
             large: accuracy(&large, &i.measurements, &tp),
             small: accuracy(&small, &i.measurements, &tp),
             registration_error_um: reg_err,
@@ -96,7 +96,7 @@ pub fn evaluate_shown(
 /// `truth.*`: the accuracy goal's group (openings of at least 0.5 x 0.5 mm, defect-free) at
 /// the top level, the smaller pads apart.
 #[derive(Clone, Debug, Serialize)]
-pub struct TruthKeys {
+pub struct AccuracyKeys {
     /// Volume error, % of the true volume.
     pub volume_err_pct: Option<ErrStats>,
     /// Height error, um.
@@ -114,7 +114,7 @@ pub struct TruthKeys {
 /// The report keys and summary lines of an evaluation.
 pub fn evaluation(e: &Evaluated) -> Evaluation {
     let t = &e.report;
-    let keys = TruthKeys {
+    let keys = AccuracyKeys {
         volume_err_pct: t.large.volume_err_pct.clone(),
         height_err_um: t.large.height_err_um.clone(),
         offset_err_um: t.large.offset_err_um.clone(),
@@ -225,7 +225,7 @@ impl PrintEvaluation {
             }
         }
         let height = |q: Point| p.height(q);
-        let truth = Truth {
+        let truth = PrintTruthView {
             transform: p.transform,
             defects: p.defects.clone(),
             height: &height,

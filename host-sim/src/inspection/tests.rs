@@ -353,7 +353,7 @@ fn truth_comparison_and_report_files() {
             _ => None,
         })
         .collect();
-    let truth = super::evaluate::Truth {
+    let truth = super::evaluate::PrintTruthView {
         transform: s.truth_t,
         defects,
         height: &height,

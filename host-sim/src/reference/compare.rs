@@ -8,9 +8,9 @@
 
 use crate::heightmap::{flags, HeightMap, HeightRow};
 use crate::reference::crb::crb_row;
-use crate::reference::truth::{flat_mask, truth_row, TruthReader, TruthRow};
+use crate::reference::truth::{flat_mask, truth_row, CameraTruthReader, CameraTruthRow};
 use crate::reference::{LazyFrames, RefOutput, RefRow, RowEval};
-use crate::simulation::recording::{Manifest, Recording, Truth};
+use crate::simulation::recording::{CameraTruth, Manifest, Recording};
 use crate::{At, Result, SimError};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -52,7 +52,7 @@ pub struct FixedVsRef {
 /// has a noise model, with a defined CRB. The PSP figures use the flat pixels valid in the PSP
 /// result.
 #[derive(Serialize, Clone, Debug, PartialEq, Default)]
-pub struct TruthStats {
+pub struct HeightAccuracy {
     /// Flat pixels in the truth.
     pub flat_pixels: Option<u64>,
     /// Pixels used for the fixed / reference / CRB figures.
@@ -136,7 +136,7 @@ pub struct Comparison {
     /// The fixed-point result against the f64 reference, LSB.
     pub fixed_vs_ref: FixedVsRef,
     /// Errors against the ground truth, um (null without truth).
-    pub truth: TruthStats,
+    pub truth: HeightAccuracy,
     /// Pixel counts.
     pub pixels: PixelStats,
     /// Row counts.
@@ -211,7 +211,7 @@ fn ref_valid(row: &RefRow, c: usize) -> bool {
 ///   the manifest's `height_lsb_um`, folded modulo the column's turn in LSB,
 ///   `T_z(c) / lsb` (`height_per_turn_um`, or `height_per_turn_um_per_column[c]`), into
 ///   `[-T_z(c)/lsb/2, T_z(c)/lsb/2)`;
-/// - vs truth: see [`TruthStats`] for the pixel sets; errors in um, folded modulo `T_z(c)`. The
+/// - vs truth: see [`HeightAccuracy`] for the pixel sets; errors in um, folded modulo `T_z(c)`. The
 ///   CRB comes from [`crb_row`] on the reference row (needs `manifest.noise`).
 pub struct Comparer<'m> {
     manifest: &'m Manifest,
@@ -257,7 +257,7 @@ impl<'m> Comparer<'m> {
         fixed: Option<&HeightRow>,
         reference: Option<&RefRow>,
         psp: Option<&RefRow>,
-        truth: Option<&TruthRow<'_>>,
+        truth: Option<&CameraTruthRow<'_>>,
     ) {
         let m = self.manifest;
         let lsb = m.calibration.height_lsb_um;
@@ -368,7 +368,7 @@ impl<'m> Comparer<'m> {
             let lsb_um = self.manifest.calibration.height_lsb_um;
             let crb_rms = (self.manifest.noise.is_some() && fe.n > 0)
                 .then(|| (self.crb_sum / fe.n as f64).sqrt());
-            TruthStats {
+            HeightAccuracy {
                 flat_pixels,
                 pixels: Some(fe.n),
                 fixed_rms_um: fe.rms(),
@@ -387,7 +387,7 @@ impl<'m> Comparer<'m> {
                 quantization_over_noise: ratio(Some(lsb_um / 12f64.sqrt()), re.rms()),
             }
         } else {
-            TruthStats::default()
+            HeightAccuracy::default()
         };
         Comparison {
             fixed_vs_ref: fvr,
@@ -406,7 +406,7 @@ pub fn compare(
     fixed: &HeightMap,
     reference: &RefOutput,
     psp: Option<&RefOutput>,
-    truth: Option<&Truth>,
+    truth: Option<&CameraTruth>,
 ) -> Comparison {
     type Slot<'a> = (
         Option<&'a HeightRow>,
@@ -521,11 +521,11 @@ impl Comparison {
 /// memory bounded by the pipeline window: the core runs in its own thread and hands over its
 /// rows as they leave it (decoded from its own packets, through a queue of
 /// [`ROW_QUEUE`] rows); the reference and the PSP baseline are evaluated row by row from one
-/// window of frames; the truth is read row by row ([`TruthReader`]). Each board row is folded
+/// window of frames; the truth is read row by row ([`CameraTruthReader`]). Each board row is folded
 /// into the [`Comparer`] and dropped.
 pub fn compare_recording(rec: &Recording, progress: bool) -> Result<Comparison> {
     let m = &rec.manifest;
-    let mut truth = TruthReader::open(rec).at(|| "reading the ground truth")?;
+    let mut truth = CameraTruthReader::open(rec).at(|| "reading the ground truth")?;
     let mut cmp = Comparer::new(m, m.calibration.height_lsb_um, true, truth.is_some());
     std::thread::scope(|s| -> Result<()> {
         let (tx, rx) = std::sync::mpsc::sync_channel::<HeightRow>(ROW_QUEUE);
@@ -650,7 +650,7 @@ mod tests {
         }
     }
 
-    fn fixture() -> (HeightMap, RefOutput, RefOutput, Truth) {
+    fn fixture() -> (HeightMap, RefOutput, RefOutput, CameraTruth) {
         let fixed = HeightMap {
             width: 3,
             lsb_um: 0.25,
@@ -677,7 +677,7 @@ mod tests {
             ],
         };
         // Board rows 9..=13, all at -0.25 um: flat pixels are column 1 of rows 10..=12.
-        let truth = Truth {
+        let truth = CameraTruth {
             first_row: 9,
             rows: 5,
             width: 3,

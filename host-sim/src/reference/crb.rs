@@ -2,7 +2,7 @@
 
 use super::truth::{truth_at, truth_row_index};
 use super::{RefOutput, RefRow};
-use crate::simulation::recording::{Manifest, Noise, Truth};
+use crate::simulation::recording::{CameraTruth, Manifest, Noise};
 use nalgebra::{Matrix3, Vector3};
 use std::f64::consts::TAU;
 
@@ -22,7 +22,7 @@ use std::f64::consts::TAU;
 /// `var_Phi = (F^-1)[2][2]` and `var_h = var_Phi (T_z / 2 pi)^2`.
 ///
 /// Every entry is `None` when the manifest has no noise model.
-pub fn crb(manifest: &Manifest, truth: &Truth, out: &RefOutput) -> Vec<Vec<Option<f64>>> {
+pub fn crb(manifest: &Manifest, truth: &CameraTruth, out: &RefOutput) -> Vec<Vec<Option<f64>>> {
     out.rows
         .iter()
         .map(|row| match truth_row_index(truth, row.row) {

@@ -79,6 +79,12 @@ pub fn noise_gain(shifts_rad: &[f64]) -> f64 {
 }
 
 /// Wraps a phase into `[-pi, pi)`, rad. Non-finite input gives NaN.
+///
+/// The reference's own wrap, not the host's ([`dpsa_formats::calibration::wrap_phase`]): the
+/// reference is written from the model apart from the production code, and this form returns
+/// a phase already in range exactly. The two differ by an ulp or so; the calibration's core
+/// table is computed through this one, so sharing either would move every calibration file
+/// and board map in its last bits.
 pub fn wrap_phase(x: f64) -> f64 {
     let mut d = x - TAU * ((x + PI) / TAU).floor();
     // Guard the boundaries against rounding.

@@ -3,7 +3,7 @@
 use super::*;
 use crate::heightmap::flags;
 use crate::simulation::recording::{Calibration, Camera, FrameEntry, Noise, Processing};
-use crate::simulation::recording::{Frame, Manifest, Truth};
+use crate::simulation::recording::{CameraTruth, Frame, Manifest};
 use std::f64::consts::{PI, TAU};
 
 const F: u16 = flags::INCOMPLETE;
@@ -273,6 +273,18 @@ fn wrap_phase_range() {
         assert!((k - k.round()).abs() < 1e-9);
     }
     assert_eq!(wrap_phase(PI), -PI);
+    // A phase already in range comes back exactly.
+    for x in [1e-12, -0.5, 2.0, PI - 1e-6, -PI] {
+        assert_eq!(wrap_phase(x).to_bits(), f64::to_bits(x), "{x}");
+    }
+    // Within an ulp of the host's wrap.
+    for x in [-10.0, -1e-9, 0.7, 3.0 * PI, 100.0] {
+        let host = dpsa_formats::calibration::wrap_phase(x);
+        assert!(
+            (wrap_phase(x) - host).abs() <= 4.0 * f64::EPSILON * 100.0,
+            "{x}"
+        );
+    }
 }
 
 #[test]
@@ -310,8 +322,7 @@ fn render(m: &Manifest, height: impl Fn(i64, usize) -> f64, bg: f64, ct: f64) ->
                 }
             }
             Frame {
-                seq: fe.seq,
-                latch: fe.latch,
+                trigger: fe.trigger(),
                 rows: h,
                 width: w,
                 data,
@@ -432,9 +443,9 @@ fn psp_equals_reconstruct_for_nominal_motion() {
     assert!(a.rows.iter().any(|r| r.flags & flags::ILL_CONDITIONED != 0));
 }
 
-fn truth_for(out_rows: std::ops::Range<i64>, w: usize, h: f32, bg: f32, ct: f32) -> Truth {
+fn truth_for(out_rows: std::ops::Range<i64>, w: usize, h: f32, bg: f32, ct: f32) -> CameraTruth {
     let rows = (out_rows.end - out_rows.start) as usize;
-    Truth {
+    CameraTruth {
         first_row: out_rows.start,
         rows,
         width: w,

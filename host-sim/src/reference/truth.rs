@@ -1,17 +1,18 @@
 //! Ground-truth lookups: heights and illumination at a board row, and the flat-pixel mask.
 
 use crate::simulation::recording::{
-    Recording, RecordingError, Truth, TRUTH_BACKGROUND_FILE, TRUTH_CONTRAST_FILE, TRUTH_HEIGHT_FILE,
+    CameraTruth, Recording, RecordingError, TRUTH_BACKGROUND_FILE, TRUTH_CONTRAST_FILE,
+    TRUTH_HEIGHT_FILE,
 };
 
 /// Index of board row `b` in the truth arrays.
-pub(crate) fn truth_row_index(truth: &Truth, b: i64) -> Option<usize> {
+pub(crate) fn truth_row_index(truth: &CameraTruth, b: i64) -> Option<usize> {
     let i = b.checked_sub(truth.first_row)?;
     (i >= 0 && (i as u64) < truth.rows as u64).then_some(i as usize)
 }
 
 /// `(height um, background DN, contrast DN)` of truth row index `ti`, column `c`.
-pub(crate) fn truth_at(truth: &Truth, ti: usize, c: usize) -> Option<(f64, f64, f64)> {
+pub(crate) fn truth_at(truth: &CameraTruth, ti: usize, c: usize) -> Option<(f64, f64, f64)> {
     if c >= truth.width {
         return None;
     }
@@ -24,7 +25,7 @@ pub(crate) fn truth_at(truth: &Truth, ti: usize, c: usize) -> Option<(f64, f64, 
 }
 
 /// True height of board row `b`, column `c`, um, when inside the truth.
-pub fn truth_height(truth: &Truth, b: i64, c: usize) -> Option<f64> {
+pub fn truth_height(truth: &CameraTruth, b: i64, c: usize) -> Option<f64> {
     let ti = truth_row_index(truth, b)?;
     if c >= truth.width {
         return None;
@@ -43,7 +44,7 @@ pub fn truth_height(truth: &Truth, b: i64, c: usize) -> Option<f64> {
 /// a whole pixel, so a sample can come from up to half a pixel away along the motion, and on
 /// deposit walls the error would measure that lateral sampling rather than the phase
 /// algorithm.
-pub fn flat_mask(truth: &Truth) -> Vec<bool> {
+pub fn flat_mask(truth: &CameraTruth) -> Vec<bool> {
     let (rows, w) = (truth.rows, truth.width);
     let mut mask = vec![false; rows.saturating_mul(w)];
     if truth.height_um.len() < rows.saturating_mul(w) {
@@ -79,7 +80,7 @@ pub fn flat_row(prev: &[f32], cur: &[f32], next: &[f32]) -> Vec<bool> {
 /// One board row of the ground truth: heights um, background and contrast DN, and its
 /// [`flat_row`] (all false for the first and last truth rows).
 #[derive(Clone, Debug)]
-pub struct TruthRow<'a> {
+pub struct CameraTruthRow<'a> {
     /// True height per column, um.
     pub height_um: &'a [f32],
     /// Background `B` per column, DN.
@@ -90,7 +91,7 @@ pub struct TruthRow<'a> {
     pub flat: Vec<bool>,
 }
 
-impl TruthRow<'_> {
+impl CameraTruthRow<'_> {
     /// `(height um, background DN, contrast DN)` of column `c`.
     pub fn at(&self, c: usize) -> Option<(f64, f64, f64)> {
         Some((
@@ -107,7 +108,7 @@ impl TruthRow<'_> {
 }
 
 /// The truth row of board row `b`, from a truth held in memory.
-pub fn truth_row(truth: &Truth, b: i64) -> Option<TruthRow<'_>> {
+pub fn truth_row(truth: &CameraTruth, b: i64) -> Option<CameraTruthRow<'_>> {
     let ti = truth_row_index(truth, b)?;
     let w = truth.width;
     fn line(v: &[f32], r: usize, w: usize) -> Option<&[f32]> {
@@ -125,7 +126,7 @@ pub fn truth_row(truth: &Truth, b: i64) -> Option<TruthRow<'_>> {
         (Some(prev), Some(next)) => flat_row(prev, h, next),
         _ => vec![false; w],
     };
-    Some(TruthRow {
+    Some(CameraTruthRow {
         height_um: h,
         background: bg,
         contrast: ct,
@@ -136,7 +137,7 @@ pub fn truth_row(truth: &Truth, b: i64) -> Option<TruthRow<'_>> {
 /// The ground truth of a recording read forward, row by row: at most three rows of each file
 /// are held, so a comparison of any board length stays within a constant memory. The files
 /// are checked for their exact size (`rows x width x 4` bytes) when opened.
-pub struct TruthReader {
+pub struct CameraTruthReader {
     first_row: i64,
     rows: usize,
     width: usize,
@@ -149,9 +150,9 @@ pub struct TruthReader {
     flat_pixels: u64,
 }
 
-impl TruthReader {
+impl CameraTruthReader {
     /// Opens the truth of `rec`; `Ok(None)` when the manifest has no truth block.
-    pub fn open(rec: &Recording) -> Result<Option<TruthReader>, RecordingError> {
+    pub fn open(rec: &Recording) -> Result<Option<CameraTruthReader>, RecordingError> {
         let Some(info) = &rec.manifest.truth else {
             return Ok(None);
         };
@@ -174,7 +175,7 @@ impl TruthReader {
             let f = std::fs::File::open(&path).map_err(io)?;
             Ok(std::io::BufReader::with_capacity(1 << 16, f))
         };
-        Ok(Some(TruthReader {
+        Ok(Some(CameraTruthReader {
             first_row: info.first_row,
             rows,
             width,
@@ -232,7 +233,7 @@ impl TruthReader {
 
     /// The truth row of board row `b`. Board rows must be asked in nondecreasing order; a row
     /// before one already passed, or outside the truth, gives `None`.
-    pub fn row(&mut self, b: i64) -> std::io::Result<Option<TruthRow<'_>>> {
+    pub fn row(&mut self, b: i64) -> std::io::Result<Option<CameraTruthRow<'_>>> {
         let Some(ti) = b
             .checked_sub(self.first_row)
             .filter(|&i| i >= 0 && (i as u64) < self.rows as u64)
@@ -249,7 +250,7 @@ impl TruthReader {
             (Some(p), Some(x)) => flat_row(&p[0], &cur[0], &x[0]),
             _ => vec![false; self.width],
         };
-        Ok(Some(TruthRow {
+        Ok(Some(CameraTruthRow {
             height_um: &cur[0],
             background: &cur[1],
             contrast: &cur[2],

@@ -25,10 +25,9 @@ pub struct Recording {
 /// One decoded frame, row-major `rows x width`.
 #[derive(Clone, Debug)]
 pub struct Frame {
-    /// Camera frame counter (a gap means a lost frame).
-    pub seq: u32,
-    /// Encoder count latched at the frame's trigger, counts.
-    pub latch: i64,
+    /// The frame's trigger: camera frame counter (a gap means a lost frame) and the encoder
+    /// count latched at it.
+    pub trigger: dpsa_core::Trigger,
     /// Rows `H`, px.
     pub rows: usize,
     /// Columns `W`, px.
@@ -39,7 +38,7 @@ pub struct Frame {
 
 /// Simulator ground truth on the board grid, row-major `rows x width`.
 #[derive(Clone, Debug)]
-pub struct Truth {
+pub struct CameraTruth {
     /// Board row held at index 0.
     pub first_row: i64,
     /// Board rows held.
@@ -179,13 +178,13 @@ impl Recording {
     }
 
     /// Reads the simulator ground truth, `Ok(None)` if the manifest has no `truth` block.
-    pub fn truth(&self) -> Result<Option<Truth>, RecordingError> {
+    pub fn truth(&self) -> Result<Option<CameraTruth>, RecordingError> {
         let Some(info) = &self.manifest.truth else {
             return Ok(None);
         };
         let (rows, width) = (info.rows as usize, self.width());
         let read = |name: &str| read_f32(&self.dir.join(name), rows * width);
-        Ok(Some(Truth {
+        Ok(Some(CameraTruth {
             first_row: info.first_row,
             rows,
             width,
@@ -203,7 +202,7 @@ impl Frame {
     }
 }
 
-impl Truth {
+impl CameraTruth {
     /// Index into the truth arrays of board row `b`, column `c`, if inside the truth area.
     pub fn index(&self, b: i64, c: usize) -> Option<usize> {
         let i = b.checked_sub(self.first_row)?;
@@ -312,7 +311,7 @@ pub fn decode_frame(
         .extension()
         .is_some_and(|e| e == crate::array::frames::EXTENSION)
     {
-        return decode_zfr(manifest, k, bytes, path, (entry.seq, entry.latch));
+        return decode_zfr(manifest, k, bytes, path, entry.trigger());
     }
     let decode_err = |e: image::ImageError| RecordingError::Decode {
         index: k,
@@ -359,15 +358,7 @@ pub fn decode_frame(
             })
         }
     };
-    in_range(
-        k,
-        path,
-        bit_depth,
-        (entry.seq, entry.latch),
-        rows,
-        width,
-        data,
-    )
+    in_range(k, path, bit_depth, entry.trigger(), rows, width, data)
 }
 
 /// The decoded samples as a [`Frame`], refused when a sample exceeds `2^bit_depth - 1`.
@@ -375,7 +366,7 @@ fn in_range(
     k: usize,
     path: PathBuf,
     bit_depth: u8,
-    (seq, latch): (u32, i64),
+    trigger: dpsa_core::Trigger,
     rows: usize,
     width: usize,
     data: Vec<u16>,
@@ -393,8 +384,7 @@ fn in_range(
         });
     }
     Ok(Frame {
-        seq,
-        latch,
+        trigger,
         rows,
         width,
         data,
@@ -407,7 +397,7 @@ fn decode_zfr(
     k: usize,
     bytes: &[u8],
     path: PathBuf,
-    (seq, latch): (u32, i64),
+    trigger: dpsa_core::Trigger,
 ) -> Result<Frame, RecordingError> {
     use crate::array::frames;
     let (rows, width) = (
@@ -432,7 +422,7 @@ fn decode_zfr(
     }
     let data = frames::decode_body(bytes, rows, width).map_err(decode_err)?;
     let bit_depth = manifest.camera.bit_depth;
-    in_range(k, path, bit_depth, (seq, latch), rows, width, data)
+    in_range(k, path, bit_depth, trigger, rows, width, data)
 }
 
 /// Loads every frame of a recording (the f64 reference needs them all at once).
@@ -529,7 +519,7 @@ mod tests {
         for k in 0..3 {
             let f = rec.frame(k).unwrap();
             assert_eq!(
-                (f.seq, f.latch, f.rows, f.width),
+                (f.trigger.seq, f.trigger.latch, f.rows, f.width),
                 (k as u32, 10 * k as i64, ROWS, WIDTH)
             );
             assert_eq!(f.data, frame_data(k));

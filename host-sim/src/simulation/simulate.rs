@@ -825,8 +825,8 @@ mod tests {
         let mut saturated = 0;
         for k in 0..rec.len() {
             let f = rec.frame(k).unwrap();
-            let o =
-                (f.latch as f64 / rec.manifest.calibration.counts_per_pixel + 0.5).floor() as i64;
+            let o = (f.trigger.latch as f64 / rec.manifest.calibration.counts_per_pixel + 0.5)
+                .floor() as i64;
             for r in 0..f.rows {
                 let b = r as i64 + o;
                 // Stay one row clear of the patch border (sub-pixel motion).

@@ -58,7 +58,8 @@ pub fn round_counts_per_pixel(cpp: f64) -> f64 {
     (cpp * 65536.0).round() / 65536.0
 }
 
-/// Wraps a phase into `[-pi, pi)`, rad: the reference-phase tables the core takes.
+/// Wraps a phase into `[-pi, pi)`, rad: the one phase wrap of the host (the core's
+/// reference-phase tables, the calibration, the f64 reference). Non-finite input gives NaN.
 pub fn wrap_phase(x: f64) -> f64 {
     let w = (x + PI).rem_euclid(TAU) - PI;
     if w >= PI {
@@ -393,4 +394,37 @@ impl CalFile {
 /// `2 pi / T`: phase per um of height.
 pub fn turn_rate(t: f64) -> f64 {
     TAU / t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::wrap_phase;
+    use std::f64::consts::{PI, TAU};
+
+    #[test]
+    fn wrap_phase_range_and_turns() {
+        for x in [
+            -10.0,
+            -PI,
+            -PI + 1e-9,
+            0.0,
+            PI - 1e-9,
+            PI,
+            3.0 * PI,
+            100.0,
+            -1e6,
+        ] {
+            let d = wrap_phase(x);
+            assert!((-PI..PI).contains(&d), "{x} -> {d}");
+            let k = (x - d) / TAU;
+            assert!((k - k.round()).abs() < 1e-9, "{x} -> {d}: not whole turns");
+        }
+        assert_eq!(wrap_phase(PI), -PI);
+        assert!(wrap_phase(f64::NAN).is_nan());
+        assert!(wrap_phase(f64::INFINITY).is_nan());
+        // In range it moves a phase by at most the rounding of `x + pi` and `- pi`.
+        for x in [1e-12, -0.5, 2.0, PI - 1e-6, -PI] {
+            assert!((wrap_phase(x) - x).abs() <= 2.0 * f64::EPSILON * PI, "{x}");
+        }
+    }
 }
