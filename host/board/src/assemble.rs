@@ -107,7 +107,7 @@ pub fn assemble(cameras: &[CameraRows], grid: &BoardGrid) -> Assembled {
             !blended.heights.data[i].is_finite()
                 && layers
                     .iter()
-                    .any(|l| l.lost.get(i).copied().unwrap_or(false))
+                    .any(|l| l.is_lost(i / grid.width, i % grid.width))
         })
         .count() as u64;
     let t3 = Instant::now();

@@ -93,11 +93,18 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
         let (prev, cur) = (&done[k - 1], &mut rest[0]);
         let mut d = Vec::new();
         let mut t = Vec::new();
-        for i in 0..n {
-            let (a, b) = (prev.heights.data[i], cur.heights.data[i]);
-            if a.is_finite() && b.is_finite() {
-                d.push(b - a);
-                t.push(cur.period_um.data[i]);
+        // Over the shared window, in board order (outside it one of the two is NaN).
+        let (rows, cols) = prev.overlap(cur);
+        for r in rows {
+            for c in cols.clone() {
+                let (Some(ia), Some(ib)) = (prev.index(r, c), cur.index(r, c)) else {
+                    continue;
+                };
+                let (a, b) = (prev.heights.data[ia], cur.heights.data[ib]);
+                if a.is_finite() && b.is_finite() {
+                    d.push(b - a);
+                    t.push(cur.period_um.data[ib]);
+                }
             }
         }
         if let (Some(d), Some(t)) = (median(d), median(t)) {
@@ -126,11 +133,16 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
             .enumerate();
         for (part, (((hs, vs_out), ps), cs)) in parts {
             sc.spawn(move || {
+                // Board row and column of the band's first pixel, then stepped.
+                let first = part * band;
+                let (mut r, mut c) = (first / grid.width, first % grid.width);
                 for j in 0..hs.len() {
-                    let i = part * band + j;
                     let (mut s, mut ws, mut ts, mut vs) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
                     let mut best = (0.0f32, NO_CAMERA);
                     for (k, l) in layers_ref.iter().enumerate() {
+                        let Some(i) = l.index(r, c) else {
+                            continue;
+                        };
                         let h = l.heights.data[i];
                         let w = l.weight.data[i];
                         if h.is_finite() && w > 0.0 {
@@ -143,6 +155,10 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
                                 best = (w, k.min(254) as u8);
                             }
                         }
+                    }
+                    c += 1;
+                    if c == grid.width {
+                        (r, c) = (r + 1, 0);
                     }
                     if ws > 0.0 {
                         hs[j] = (s / ws) as f32;
@@ -226,12 +242,17 @@ fn is_flat(g: &Grid, r: usize, c: usize) -> bool {
 
 fn seam(a: &Layer, b: &Layer, map: &Grid, grid: &BoardGrid, ids: (usize, usize)) -> Seam {
     let (mut pixels, mut flat_n, mut sum) = (0u64, 0u64, 0.0f64);
-    for (i, (&ha, &hb)) in a.heights.data.iter().zip(&b.heights.data).enumerate() {
-        if ha.is_finite() && hb.is_finite() {
-            pixels += 1;
-            if is_flat(map, i / grid.width, i % grid.width) {
-                flat_n += 1;
-                sum += f64::from(hb - ha);
+    // Over the shared window in board order: outside it one of the two is NaN.
+    let (rows, cols) = a.overlap(b);
+    for r in rows {
+        for c in cols.clone() {
+            let (ha, hb) = (a.height(r, c), b.height(r, c));
+            if ha.is_finite() && hb.is_finite() {
+                pixels += 1;
+                if is_flat(map, r, c) {
+                    flat_n += 1;
+                    sum += f64::from(hb - ha);
+                }
             }
         }
     }
@@ -257,20 +278,21 @@ fn seam(a: &Layer, b: &Layer, map: &Grid, grid: &BoardGrid, ids: (usize, usize))
 /// than [`MIN_WALL_PIXELS`] deposit-wall pixels in the shared area) or with a shift beyond
 /// the first-order range (2 px).
 fn best_shift(a: &Layer, b: &Layer, dr: i64, dc: i64) -> Option<f64> {
-    let (w, rows) = (a.heights.width as i64, a.heights.rows as i64);
+    // Board pixel `(r, c)` of a layer; NaN outside the board and the layer's window.
     let at = |l: &Layer, r: i64, c: i64| -> f64 {
-        if r < 0 || c < 0 || r >= rows || c >= w {
+        if r < 0 || c < 0 {
             f64::NAN
         } else {
-            f64::from(l.heights.at(r as usize, c as usize))
+            f64::from(l.height(r as usize, c as usize))
         }
     };
     // The shared area's bounding box: nothing outside it pairs.
-    let (mut r_lo, mut r_hi, mut c_lo, mut c_hi) = (rows, -1i64, w, -1i64);
-    for r in 0..rows {
-        for c in 0..w {
-            let i = (r * w + c) as usize;
-            if a.heights.data[i].is_finite() && b.heights.data[i].is_finite() {
+    let (rows, cols) = a.overlap(b);
+    let (mut r_lo, mut r_hi, mut c_lo, mut c_hi) = (i64::MAX, -1i64, i64::MAX, -1i64);
+    for r in rows {
+        for c in cols.clone() {
+            if a.height(r, c).is_finite() && b.height(r, c).is_finite() {
+                let (r, c) = (r as i64, c as i64);
                 (r_lo, r_hi, c_lo, c_hi) = (r_lo.min(r), r_hi.max(r), c_lo.min(c), c_hi.max(c));
             }
         }

@@ -18,6 +18,7 @@
 //! marked in [`Layer::lost`].
 
 use crate::Grid;
+use std::ops::Range;
 
 /// Where a camera's pixels lie on the board (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -55,22 +56,85 @@ impl CameraPlacement {
 
 pub use dpsa_formats::grid::BoardGrid;
 
-/// One camera on the board grid.
+/// One camera on the board grid, over its footprint only: the window `rows x cols` of the
+/// board grid its pixels can reach (outside it the camera saw nothing), so that a camera
+/// covering a third of the board holds a third of it, not the whole board.
 #[derive(Clone, Debug)]
 pub struct Layer {
-    /// Heights, um (NaN: not seen or invalid).
+    /// Board grid rows the window covers.
+    pub rows: Range<usize>,
+    /// Board grid columns the window covers.
+    pub cols: Range<usize>,
+    /// Heights over the window, um (NaN: not seen or invalid).
     pub heights: Grid,
-    /// Height per turn at each pixel, um (to move the layer by whole turns).
+    /// Height per turn at each pixel of the window, um (to move the layer by whole turns).
     pub period_um: Grid,
-    /// Blending weight: 1 inside the camera, falling linearly to 0 over `feather_px` camera
-    /// columns at its two side edges.
+    /// Blending weight over the window: 1 inside the camera, falling linearly to 0 over
+    /// `feather_px` camera columns at its two side edges.
     pub weight: Grid,
-    /// Variance of each height, um^2, through the resampling weights (NaN: unknown; all NaN
-    /// when the camera came without one).
+    /// Variance of each height over the window, um^2, through the resampling weights (NaN:
+    /// unknown; all NaN when the camera came without one).
     pub variance: Grid,
-    /// Board pixels (row-major, as `heights`) that fall on a lost camera row; empty when the
+    /// Window pixels (row-major, as `heights`) that fall on a lost camera row; empty when the
     /// camera lost no row.
     pub lost: Vec<bool>,
+}
+
+impl Layer {
+    /// An empty layer over the window `rows x cols`.
+    fn empty(rows: Range<usize>, cols: Range<usize>) -> Layer {
+        let (w, n) = (cols.len(), rows.len());
+        Layer {
+            heights: Grid::invalid(w, n),
+            period_um: Grid::invalid(w, n),
+            weight: Grid {
+                width: w,
+                rows: n,
+                data: vec![0.0; w * n],
+            },
+            variance: Grid::invalid(w, n),
+            lost: Vec::new(),
+            rows,
+            cols,
+        }
+    }
+
+    /// Index into the window's grids of board pixel `(r, c)`; `None` outside the window.
+    #[inline]
+    pub fn index(&self, r: usize, c: usize) -> Option<usize> {
+        (self.rows.contains(&r) && self.cols.contains(&c))
+            .then(|| (r - self.rows.start) * self.cols.len() + (c - self.cols.start))
+    }
+
+    /// Height at board pixel `(r, c)`, um; NaN outside the window.
+    pub fn height(&self, r: usize, c: usize) -> f32 {
+        self.index(r, c).map_or(f32::NAN, |i| self.heights.data[i])
+    }
+
+    /// Height per turn at board pixel `(r, c)`, um; NaN outside the window.
+    pub fn period(&self, r: usize, c: usize) -> f32 {
+        self.index(r, c)
+            .map_or(f32::NAN, |i| self.period_um.data[i])
+    }
+
+    /// Blending weight at board pixel `(r, c)`; 0 outside the window.
+    pub fn weight_at(&self, r: usize, c: usize) -> f32 {
+        self.index(r, c).map_or(0.0, |i| self.weight.data[i])
+    }
+
+    /// Whether board pixel `(r, c)` falls on a lost camera row.
+    pub fn is_lost(&self, r: usize, c: usize) -> bool {
+        self.index(r, c)
+            .and_then(|i| self.lost.get(i).copied())
+            .unwrap_or(false)
+    }
+
+    /// The board pixels the two layers' windows share: rows and columns.
+    pub fn overlap(&self, other: &Layer) -> (Range<usize>, Range<usize>) {
+        let rows = self.rows.start.max(other.rows.start)..self.rows.end.min(other.rows.end);
+        let cols = self.cols.start.max(other.cols.start)..self.cols.end.min(other.cols.end);
+        (rows, cols)
+    }
 }
 
 /// A camera's measurement as the resampling takes it.
@@ -98,7 +162,8 @@ fn row_at(pos: &[f64], t: f64) -> Option<f64> {
     if !(t >= first && t <= last) {
         return None;
     }
-    let mut i = (t.floor().max(0.0) as usize).min(pos.len() - 1);
+    // `as usize` truncates: the floor of a non-negative `t`, without a libm call.
+    let mut i = (t.max(0.0) as usize).min(pos.len() - 1);
     while i > 0 && pos[i] > t {
         i -= 1;
     }
@@ -116,23 +181,8 @@ pub fn resample(src: &Source, place: &CameraPlacement, grid: &BoardGrid, feather
     let (heights, variance, period_um) = (src.heights, src.variance, src.period_um);
     let lost_rows = src.lost_rows;
     let (w, rows) = (heights.width, heights.rows);
-    let mut out = Layer {
-        heights: Grid::invalid(grid.width, grid.rows),
-        period_um: Grid::invalid(grid.width, grid.rows),
-        weight: Grid {
-            width: grid.width,
-            rows: grid.rows,
-            data: vec![0.0; grid.width * grid.rows],
-        },
-        variance: Grid::invalid(grid.width, grid.rows),
-        lost: Vec::new(),
-    };
-    let any_lost = lost_rows.iter().any(|&l| l);
-    if any_lost {
-        out.lost = vec![false; grid.width * grid.rows];
-    }
     if w == 0 || rows == 0 {
-        return out;
+        return Layer::empty(0..0, 0..0);
     }
     // The camera's footprint on the grid: the bounding box of its four corners (its rows
     // shifted by up to one row either way by their places), two pixels wider.
@@ -158,6 +208,13 @@ pub fn resample(src: &Source, place: &CameraPlacement, grid: &BoardGrid, feather
         span(corners.map(|p| p.0), grid.x0_mm, grid.rows),
         span(corners.map(|p| p.1), grid.y0_mm, grid.width),
     );
+    // The layer holds that window only.
+    let mut out = Layer::empty(is.clone(), js.clone());
+    let any_lost = lost_rows.iter().any(|&l| l);
+    if any_lost {
+        out.lost = vec![false; out.heights.data.len()];
+    }
+    let (i0, j0, lw) = (is.start, js.start, js.len());
     // `CameraPlacement::to_camera` with its trigonometry once: `c` depends on the grid column only.
     let (sin, cos) = place.rotation_rad.sin_cos();
     let cols: Vec<f64> = js
@@ -172,7 +229,9 @@ pub fn resample(src: &Source, place: &CameraPlacement, grid: &BoardGrid, feather
             let (b, c) = match src.places {
                 Some(pl) => match row_at(&pl.along, b) {
                     Some(b) => {
-                        let (i, f) = (b.floor() as usize, b - b.floor());
+                        // `b >= 0` (a row of `along`): truncation is its floor.
+                        let i = b as usize;
+                        let f = b - i as f64;
                         let a0 = pl.across.get(i).copied().unwrap_or(0.0);
                         let a1 = pl.across.get(i + 1).copied().unwrap_or(a0);
                         (b, c - (a0 * (1.0 - f) + a1 * f))
@@ -184,13 +243,15 @@ pub fn resample(src: &Source, place: &CameraPlacement, grid: &BoardGrid, feather
             if !(b >= 0.0 && c >= 0.0 && b <= (rows - 1) as f64 && c <= (w - 1) as f64) {
                 continue;
             }
-            let (b0, c0) = (b.floor() as usize, c.floor() as usize);
+            // Both non-negative here: truncation is the floor (no libm `floor` call in the
+            // hot loop; the x86-64 baseline has no rounding instruction).
+            let (b0, c0) = (b as usize, c as usize);
             let (b1, c1) = ((b0 + 1).min(rows - 1), (c0 + 1).min(w - 1));
             let (fb, fc) = (b - b0 as f64, c - c0 as f64);
             if any_lost {
                 let lost = |r: usize| lost_rows.get(r).copied().unwrap_or(false);
                 if (lost(b0) && fb < 1.0) || (lost(b1) && fb > 0.0) {
-                    out.lost[i * grid.width + j] = true;
+                    out.lost[(i - i0) * lw + (j - j0)] = true;
                     continue;
                 }
             }
@@ -213,7 +274,7 @@ pub fn resample(src: &Source, place: &CameraPlacement, grid: &BoardGrid, feather
             if wsum < 0.5 {
                 continue;
             }
-            let idx = i * grid.width + j;
+            let idx = (i - i0) * lw + (j - j0);
             out.heights.data[idx] = (sum / wsum) as f32;
             out.variance.data[idx] = (vsum / (wsum * wsum)) as f32;
             let t = f64::from(period_um[c0]) * (1.0 - fc) + f64::from(period_um[c1]) * fc;
@@ -305,7 +366,7 @@ mod tests {
         let mut seen = 0;
         for i in 0..grid.rows {
             for j in 0..grid.width {
-                let h = l.heights.at(i, j);
+                let h = l.height(i, j);
                 let (x, y) = grid.centre(i, j);
                 let (b, c) = p.to_camera(x, y);
                 let inside = b >= first as f64
@@ -315,12 +376,16 @@ mod tests {
                 if inside {
                     seen += 1;
                     assert!((f64::from(h) - (2.0 * x + 3.0 * y)).abs() < 1e-3);
-                    assert_eq!(l.period_um.at(i, j), 400.0);
-                    let wt = l.weight.at(i, j);
+                    assert_eq!(l.period(i, j), 400.0);
+                    let wt = l.weight_at(i, j);
                     assert!(wt > 0.0 && wt <= 1.0);
                 }
             }
         }
         assert!(seen > 20_000);
+        // The window is the footprint, not the board: every finite pixel inside it, and it
+        // is narrower than the board across.
+        assert!(l.cols.len() < grid.width && l.heights.data.len() == l.rows.len() * l.cols.len());
+        assert!(!l.height(grid.rows + 5, 0).is_finite() && l.weight_at(0, grid.width) == 0.0);
     }
 }
