@@ -106,8 +106,7 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
         },
     )?;
     let provenance = t2.elapsed().as_secs_f64();
-    let a = assemble(&cams, &grid);
-    drop(cams);
+    let a = assemble(cams, &grid);
 
     // Camera 0 alone, then numpy on the same frames.
     let (r0, _) = loaded

@@ -246,7 +246,7 @@ fn against_board_truth(
                     crate::progress::progress_bar(progress, grid.rows as u64, "board truth");
                 let st = against_truth(
                     &built.blended.heights,
-                    with_crb.then_some(&built.blended.variance),
+                    built.blended.variance.as_ref().filter(|_| with_crb),
                     |_, _| t_mean as f32,
                     grid,
                     &raster,

@@ -223,10 +223,10 @@ mod tests {
             rows: 466,
             width: 300,
         };
-        let a = assemble(&cams, &grid);
+        let a = assemble(cams, &grid);
         let st = against_truth(
             &a.blended.heights,
-            Some(&a.blended.variance),
+            a.blended.variance.as_ref(),
             |_, _| t_um,
             &grid,
             &truth,

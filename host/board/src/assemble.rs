@@ -63,8 +63,10 @@ pub const FEATHER_PX: f64 = 16.0;
 /// Board-edge band that anchors the board's turn, px of the board grid.
 pub const EDGE_PX: usize = 8;
 
-/// Unwraps, resamples and blends `cameras` (in order across the board) onto `grid`.
-pub fn assemble(cameras: &[CameraRows], grid: &BoardGrid) -> Assembled {
+/// Unwraps, resamples and blends `cameras` (in order across the board) onto `grid`. The
+/// cameras' rows are consumed: each camera's heights are freed once unwrapped, the rest once
+/// resampled, so the blend holds only the layers and the map.
+pub fn assemble(mut cameras: Vec<CameraRows>, grid: &BoardGrid) -> Assembled {
     let t0 = Instant::now();
     let unwrapped: Vec<_> = std::thread::scope(|s| {
         let handles: Vec<_> = cameras
@@ -76,11 +78,15 @@ pub fn assemble(cameras: &[CameraRows], grid: &BoardGrid) -> Assembled {
             .map(|h| h.join().expect("unwrap thread"))
             .collect()
     });
+    for c in &mut cameras {
+        c.heights = Grid::invalid(0, 0);
+    }
     let t1 = Instant::now();
-    let mut layers: Vec<Layer> = std::thread::scope(|s| {
+    // Each thread owns its camera's unwrapped heights and frees them once resampled.
+    let (mut layers, unreached): (Vec<Layer>, Vec<usize>) = std::thread::scope(|s| {
         let handles: Vec<_> = cameras
-            .iter()
-            .zip(&unwrapped)
+            .into_iter()
+            .zip(unwrapped)
             .map(|(c, u)| {
                 s.spawn(move || {
                     let src = Source {
@@ -91,14 +97,14 @@ pub fn assemble(cameras: &[CameraRows], grid: &BoardGrid) -> Assembled {
                         places: c.places.as_ref(),
                         lost_rows: &c.lost,
                     };
-                    resample(&src, &c.placement, grid, FEATHER_PX)
+                    (resample(&src, &c.placement, grid, FEATHER_PX), u.unreached)
                 })
             })
             .collect();
         handles
             .into_iter()
             .map(|h| h.join().expect("resample thread"))
-            .collect()
+            .unzip()
     });
     let t2 = Instant::now();
     let blended = blend(&mut layers, grid, EDGE_PX);
@@ -114,7 +120,7 @@ pub fn assemble(cameras: &[CameraRows], grid: &BoardGrid) -> Assembled {
     Assembled {
         blended,
         lost_pixels,
-        unreached: unwrapped.iter().map(|u| u.unreached).collect(),
+        unreached,
         timing: Timing {
             unwrap_s: (t1 - t0).as_secs_f64(),
             resample_s: (t2 - t1).as_secs_f64(),

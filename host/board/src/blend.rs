@@ -62,8 +62,9 @@ impl Seam {
 pub struct Blended {
     /// Absolute heights, um (NaN invalid).
     pub heights: Grid,
-    /// Variance of each height, um^2, through the blending weights (NaN: unknown).
-    pub variance: Grid,
+    /// Variance of each height, um^2, through the blending weights (NaN: unknown); `None`
+    /// when no camera came with one.
+    pub variance: Option<Grid>,
     /// Source camera of each pixel ([`NO_CAMERA`] where invalid).
     pub camera: Vec<u8>,
     /// Whole turns each layer was moved by (steps 1 and 2).
@@ -116,8 +117,12 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
 
     // 3. Blend (the board's turn is applied after, to the layers and the map alike).
     let mut heights = Grid::invalid(grid.width, grid.rows);
-    let mut variance = Grid::invalid(grid.width, grid.rows);
-    let mut period = vec![0f32; n];
+    let mut variance = layers
+        .iter()
+        .any(|l| l.variance.is_some())
+        .then(|| Grid::invalid(grid.width, grid.rows));
+    // The blended height per turn is not kept (a board-sized grid): step 2 recomputes it
+    // where it needs it ([`mixed_period`]).
     let mut camera = vec![NO_CAMERA; n];
     // In parallel over row bands: every pixel is its own weighted mean.
     let threads = std::thread::available_parallelism().map_or(1, |t| t.get());
@@ -127,17 +132,23 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
         let parts = heights
             .data
             .chunks_mut(band)
-            .zip(variance.data.chunks_mut(band))
-            .zip(period.chunks_mut(band))
+            .zip(
+                variance
+                    .as_mut()
+                    .map_or(&mut [][..], |v| &mut v.data[..])
+                    .chunks_mut(band)
+                    .map(Some)
+                    .chain(std::iter::repeat_with(|| None)),
+            )
             .zip(camera.chunks_mut(band))
             .enumerate();
-        for (part, (((hs, vs_out), ps), cs)) in parts {
+        for (part, ((hs, mut vs_out), cs)) in parts {
             sc.spawn(move || {
                 // Board row and column of the band's first pixel, then stepped.
                 let first = part * band;
                 let (mut r, mut c) = (first / grid.width, first % grid.width);
                 for j in 0..hs.len() {
-                    let (mut s, mut ws, mut ts, mut vs) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+                    let (mut s, mut ws, mut vs) = (0.0f64, 0.0f64, 0.0f64);
                     let mut best = (0.0f32, NO_CAMERA);
                     for (k, l) in layers_ref.iter().enumerate() {
                         let Some(i) = l.index(r, c) else {
@@ -148,9 +159,13 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
                         if h.is_finite() && w > 0.0 {
                             let wf = f64::from(w);
                             s += wf * f64::from(h);
-                            ts += wf * f64::from(l.period_um.data[i]);
                             ws += wf;
-                            vs += wf * wf * f64::from(l.variance.data[i]);
+                            // A camera without a variance leaves the pixel's unknown (NaN).
+                            vs += wf
+                                * wf
+                                * l.variance
+                                    .as_ref()
+                                    .map_or(f64::NAN, |v| f64::from(v.data[i]));
                             if w > best.0 {
                                 best = (w, k.min(254) as u8);
                             }
@@ -162,8 +177,9 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
                     }
                     if ws > 0.0 {
                         hs[j] = (s / ws) as f32;
-                        vs_out[j] = (vs / (ws * ws)) as f32;
-                        ps[j] = (ts / ws) as f32;
+                        if let Some(v) = vs_out.as_deref_mut() {
+                            v[j] = (vs / (ws * ws)) as f32;
+                        }
                         cs[j] = best.1;
                     }
                 }
@@ -181,7 +197,7 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
             let h = heights.at(r, c);
             if on_edge && h.is_finite() {
                 edge.push(h);
-                edge_t.push(period[r * grid.width + c]);
+                edge_t.push(mixed_period(layers, r, c));
             }
         }
     }
@@ -193,9 +209,27 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
                 shift(l, k);
                 *tk += k;
             }
-            for (h, t) in heights.data.iter_mut().zip(&period) {
-                *h += k as f32 * t;
-            }
+            // Each valid pixel by `k` turns of its blended height per turn, recomputed from
+            // the layers (the shift above moved their heights, not their validity or weights).
+            let layers_ref: &[Layer] = layers;
+            let width = grid.width;
+            std::thread::scope(|sc| {
+                for (part, hs) in heights.data.chunks_mut(band).enumerate() {
+                    sc.spawn(move || {
+                        let first = part * band;
+                        let (mut r, mut c) = (first / width, first % width);
+                        for h in hs.iter_mut() {
+                            if h.is_finite() {
+                                *h += k as f32 * mixed_period(layers_ref, r, c);
+                            }
+                            c += 1;
+                            if c == width {
+                                (r, c) = (r + 1, 0);
+                            }
+                        }
+                    });
+                }
+            });
         }
     }
 
@@ -210,6 +244,28 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
         turns,
         edge_median_um,
         seams,
+    }
+}
+
+/// The blended height per turn at board pixel `(r, c)`, um: the covering layers' weighted as
+/// step 3 weighs their heights (the same sums in the same order); 0 where no layer is valid.
+fn mixed_period(layers: &[Layer], r: usize, c: usize) -> f32 {
+    let (mut ts, mut ws) = (0.0f64, 0.0f64);
+    for l in layers {
+        let Some(i) = l.index(r, c) else {
+            continue;
+        };
+        let (h, w) = (l.heights.data[i], l.weight.data[i]);
+        if h.is_finite() && w > 0.0 {
+            let wf = f64::from(w);
+            ts += wf * f64::from(l.period_um.data[i]);
+            ws += wf;
+        }
+    }
+    if ws > 0.0 {
+        (ts / ws) as f32
+    } else {
+        0.0
     }
 }
 
@@ -351,6 +407,46 @@ mod tests {
         bow + 120.0 * (inside / 0.1 + 0.5).clamp(0.0, 1.0)
     }
 
+    /// A camera of `cols x rows` pixels on a 0.03 mm grid at `y0` across, placed (by its
+    /// calibration) `dy` mm off where its pixels really sit, seeing `height` (um at board
+    /// `(x, y)`), resampled onto `grid` with a height per turn of `t`.
+    fn layer(
+        y0: f64,
+        dy: f64,
+        (cols, rows): (usize, usize),
+        t: f32,
+        height: impl Fn(f64, f64) -> f64,
+        grid: &BoardGrid,
+    ) -> Layer {
+        let place = CameraPlacement {
+            x0_mm: 0.0,
+            y0_mm: y0,
+            row_mm: 0.03,
+            pitch_mm: 0.03,
+            rotation_rad: 0.0,
+        };
+        let real = CameraPlacement {
+            y0_mm: y0 - dy,
+            ..place
+        };
+        let mut cam = Grid::invalid(cols, rows);
+        for b in 0..rows {
+            for c in 0..cols {
+                let (x, y) = real.to_board(b as f64, c as f64);
+                *cam.at_mut(b, c) = height(x, y) as f32;
+            }
+        }
+        let src = Source {
+            heights: &cam,
+            variance: None,
+            period_um: &vec![t; cols],
+            first_row: 0,
+            places: None,
+            lost_rows: &[],
+        };
+        resample(&src, &place, grid, 15.0)
+    }
+
     #[test]
     fn three_cameras_turn_aligned_anchored_and_seams_measured() {
         let (len, wid) = (12.0, 9.0);
@@ -362,40 +458,25 @@ mod tests {
             width: 300,
         };
         let t = 400.0f32;
-        let mut layers = Vec::new();
         // Three cameras of 120 columns, 0.5 mm overlaps; the middle one misplaced by 6 um
-        // across (its placement says y0 + 0.006 mm, the pixels sit at y0).
-        for (k, y0) in [0.0, 3.1, 6.2].into_iter().enumerate() {
-            let place = CameraPlacement {
-                x0_mm: 0.0,
-                y0_mm: y0,
-                row_mm: 0.03,
-                pitch_mm: 0.03,
-                rotation_rad: 0.0,
-            };
-            let real = CameraPlacement {
-                y0_mm: y0 - if k == 1 { 0.006 } else { 0.0 },
-                ..place
-            };
-            let mut cam = Grid::invalid(120, 400);
-            for b in 0..400 {
-                for c in 0..120 {
-                    let (x, y) = real.to_board(b as f64, c as f64);
-                    // Each camera unwrapped to another turn: 0, +1, -2.
-                    let off = [0.0, 1.0, -2.0][k] * t;
-                    *cam.at_mut(b, c) = (truth(x, y, len, wid) + f64::from(off)) as f32;
-                }
-            }
-            let src = Source {
-                heights: &cam,
-                variance: None,
-                period_um: &[t; 120],
-                first_row: 0,
-                places: None,
-                lost_rows: &[],
-            };
-            layers.push(resample(&src, &place, &grid, 15.0));
-        }
+        // across (its placement says y0 + 0.006 mm, the pixels sit at y0); each unwrapped
+        // to another turn: 0, +1, -2.
+        let mut layers: Vec<Layer> = [0.0, 3.1, 6.2]
+            .into_iter()
+            .enumerate()
+            .map(|(k, y0)| {
+                let off = f64::from([0.0, 1.0, -2.0][k] * t);
+                let dy = if k == 1 { 0.006 } else { 0.0 };
+                layer(
+                    y0,
+                    dy,
+                    (120, 400),
+                    t,
+                    |x, y| truth(x, y, len, wid) + off,
+                    &grid,
+                )
+            })
+            .collect();
         let out = blend(&mut layers, &grid, 3);
         assert_eq!(out.turns, vec![0, -1, 2]);
         // Absolute heights against the truth (bilinear on paste walls aside).
@@ -427,5 +508,51 @@ mod tests {
         assert!(y01 * y12 < 0.0);
         assert!(out.seams[0].shift_x_um.unwrap().abs() < 2.0);
         assert!(out.camera.contains(&2));
+    }
+
+    #[test]
+    fn the_boards_turn_moves_every_camera_and_the_map() {
+        // Every camera a whole turn off, the edges included: step 2 must bring the map back.
+        let (len, wid) = (6.0, 6.0);
+        let grid = BoardGrid {
+            x0_mm: 0.0,
+            y0_mm: 0.0,
+            pitch_mm: 0.03,
+            rows: 200,
+            width: 200,
+        };
+        let t = 400.0f32;
+        let mut layers: Vec<Layer> = [(0.0, 1.0), (3.0, 2.0)]
+            .into_iter()
+            .map(|(y0, turns)| {
+                let off = f64::from(turns * t);
+                layer(
+                    y0,
+                    0.0,
+                    (110, 200),
+                    t,
+                    |x, y| truth(x, y, len, wid) * 0.1 + off,
+                    &grid,
+                )
+            })
+            .collect();
+        let out = blend(&mut layers, &grid, 3);
+        assert_eq!(out.turns, vec![-1, -2]);
+        assert!(out.variance.is_none());
+        let mut n = 0;
+        for i in 0..grid.rows {
+            for j in 0..grid.width {
+                let h = out.heights.at(i, j);
+                if h.is_finite() {
+                    let (x, y) = grid.centre(i, j);
+                    assert!(
+                        (f64::from(h) - truth(x, y, len, wid) * 0.1).abs() < 15.0,
+                        "({i}, {j}) {h}"
+                    );
+                    n += 1;
+                }
+            }
+        }
+        assert!(n > grid.rows * grid.width * 9 / 10, "{n}");
     }
 }

@@ -359,7 +359,7 @@ mod tests {
             }
         }
         let b = Blended {
-            variance: Grid::invalid(h.width, h.rows),
+            variance: None,
             camera: h
                 .data
                 .iter()

@@ -73,16 +73,16 @@ pub struct Layer {
     /// `feather_px` camera columns at its two side edges.
     pub weight: Grid,
     /// Variance of each height over the window, um^2, through the resampling weights (NaN:
-    /// unknown; all NaN when the camera came without one).
-    pub variance: Grid,
+    /// unknown); `None` when the camera came without one.
+    pub variance: Option<Grid>,
     /// Window pixels (row-major, as `heights`) that fall on a lost camera row; empty when the
     /// camera lost no row.
     pub lost: Vec<bool>,
 }
 
 impl Layer {
-    /// An empty layer over the window `rows x cols`.
-    fn empty(rows: Range<usize>, cols: Range<usize>) -> Layer {
+    /// An empty layer over the window `rows x cols`, with a variance grid when `variance`.
+    fn empty(rows: Range<usize>, cols: Range<usize>, variance: bool) -> Layer {
         let (w, n) = (cols.len(), rows.len());
         Layer {
             heights: Grid::invalid(w, n),
@@ -92,7 +92,7 @@ impl Layer {
                 rows: n,
                 data: vec![0.0; w * n],
             },
-            variance: Grid::invalid(w, n),
+            variance: variance.then(|| Grid::invalid(w, n)),
             lost: Vec::new(),
             rows,
             cols,
@@ -182,7 +182,7 @@ pub fn resample(src: &Source, place: &CameraPlacement, grid: &BoardGrid, feather
     let lost_rows = src.lost_rows;
     let (w, rows) = (heights.width, heights.rows);
     if w == 0 || rows == 0 {
-        return Layer::empty(0..0, 0..0);
+        return Layer::empty(0..0, 0..0, variance.is_some());
     }
     // The camera's footprint on the grid: the bounding box of its four corners (its rows
     // shifted by up to one row either way by their places), two pixels wider.
@@ -209,7 +209,7 @@ pub fn resample(src: &Source, place: &CameraPlacement, grid: &BoardGrid, feather
         span(corners.map(|p| p.1), grid.y0_mm, grid.width),
     );
     // The layer holds that window only.
-    let mut out = Layer::empty(is.clone(), js.clone());
+    let mut out = Layer::empty(is.clone(), js.clone(), variance.is_some());
     let any_lost = lost_rows.iter().any(|&l| l);
     if any_lost {
         out.lost = vec![false; out.heights.data.len()];
@@ -268,7 +268,9 @@ pub fn resample(src: &Source, place: &CameraPlacement, grid: &BoardGrid, feather
                 if h.is_finite() && wt > 0.0 {
                     sum += wt * f64::from(h);
                     wsum += wt;
-                    vsum += wt * wt * variance.map_or(f64::NAN, |v| f64::from(v.at(r, cc)));
+                    if let Some(v) = variance {
+                        vsum += wt * wt * f64::from(v.at(r, cc));
+                    }
                 }
             }
             if wsum < 0.5 {
@@ -276,7 +278,9 @@ pub fn resample(src: &Source, place: &CameraPlacement, grid: &BoardGrid, feather
             }
             let idx = (i - i0) * lw + (j - j0);
             out.heights.data[idx] = (sum / wsum) as f32;
-            out.variance.data[idx] = (vsum / (wsum * wsum)) as f32;
+            if let Some(v) = out.variance.as_mut() {
+                v.data[idx] = (vsum / (wsum * wsum)) as f32;
+            }
             let t = f64::from(period_um[c0]) * (1.0 - fc) + f64::from(period_um[c1]) * fc;
             out.period_um.data[idx] = t as f32;
             let edge = c.min((w - 1) as f64 - c) + 0.5;

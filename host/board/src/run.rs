@@ -371,8 +371,9 @@ pub const SEAM_ALARM: f64 = 10.0;
 pub const SEAM_BUDGET_UM: (f64, f64) = (0.3, 5.0);
 
 /// The evidence that a written map is wrong or useless, one sentence each (printed as
-/// `warning: ...`, exit status 2).
-pub fn evidence(cams: &[CameraRows], b: &Blended, seams: &Seams) -> Vec<String> {
+/// `warning: ...`, exit status 2). `own_valid`: each camera's valid and total pixels of its
+/// own rows.
+pub fn evidence(own_valid: &[(usize, usize)], b: &Blended, seams: &Seams) -> Vec<String> {
     let mut w = Vec::new();
     let total = b.heights.data.len().max(1) as f64;
     let valid = b.heights.valid();
@@ -384,9 +385,9 @@ pub fn evidence(cams: &[CameraRows], b: &Blended, seams: &Seams) -> Vec<String> 
             MIN_MAP_VALID * 100.0
         ));
     }
-    let share = valid as f64 / cams.len().max(1) as f64;
-    for (i, c) in cams.iter().enumerate() {
-        let own = c.heights.valid() as f64 / c.heights.data.len().max(1) as f64;
+    let share = valid as f64 / own_valid.len().max(1) as f64;
+    for (i, &(own_n, own_total)) in own_valid.iter().enumerate() {
+        let own = own_n as f64 / own_total.max(1) as f64;
         let src = b.camera.iter().filter(|&&k| usize::from(k) == i).count();
         if own < MIN_CAMERA_VALID {
             w.push(format!(
@@ -539,23 +540,30 @@ pub fn build(cams: Vec<(CameraRows, u64)>, inputs: Inputs<'_>, out: &Path) -> Re
     } = inputs;
     let grid = &layout.grid;
     let (cams, unplaced): (Vec<CameraRows>, Vec<u64>) = cams.into_iter().unzip();
+    // What the report needs of the cameras' rows, taken before the assembly consumes them.
+    let own_valid: Vec<(usize, usize)> = cams
+        .iter()
+        .map(|c| (c.heights.valid(), c.heights.data.len()))
+        .collect();
+    let dead_masked: Vec<u64> = cams.iter().map(|c| c.dead_masked).collect();
+    let n_cams = cams.len();
     let steps = dpsa_formats::progress::progress_bar(progress, 2, "board map");
     let Assembled {
         blended,
         timing,
         lost_pixels,
         ..
-    } = assemble(&cams, grid);
+    } = assemble(cams, grid);
     steps.inc(1);
     if let Some(r) = &mut streams_report {
         r.gap_board_pixels = lost_pixels;
     }
     let missing: Vec<u64> = match &streams_report {
         Some(r) => r.missing_rows.clone(),
-        None => vec![0; cams.len()],
+        None => vec![0; n_cams],
     };
     let t1 = Instant::now();
-    crate::output::write(out, grid, &blended, cams.len(), &missing, layout.board)?;
+    crate::output::write(out, grid, &blended, n_cams, &missing, layout.board)?;
     let write_s = t1.elapsed().as_secs_f64();
     steps.finish_and_clear();
 
@@ -574,9 +582,9 @@ pub fn build(cams: Vec<(CameraRows, u64)>, inputs: Inputs<'_>, out: &Path) -> Re
         lateral_um_max: fold(|s| s.lateral_um()),
         per_seam: b.seams.clone(),
     };
-    let warnings = evidence(&cams, b, &seams);
+    let warnings = evidence(&own_valid, b, &seams);
     let report = MapReport {
-        cameras: cams.len(),
+        cameras: n_cams,
         warnings,
         grid: *grid,
         seams,
@@ -584,7 +592,7 @@ pub fn build(cams: Vec<(CameraRows, u64)>, inputs: Inputs<'_>, out: &Path) -> Re
             total,
             valid,
             valid_fraction: crate::output::valid_fraction(valid, total),
-            dead_masked: cams.iter().map(|c| c.dead_masked).collect(),
+            dead_masked,
             unplaced_rows: unplaced,
         },
         unwrap: UnwrapStats {
