@@ -672,7 +672,9 @@ fn board_streams_need_no_frames_only_their_trigger_logs() {
     let cal = CalFile::load(calibration_file()).unwrap();
     let streams: Vec<PathBuf> = s.iter().map(PathBuf::from).collect();
     let lib = tmp.path().join("lib-map");
-    let built = dpsa_board::run::from_streams(&board, &cal, &streams, &lib, false).unwrap();
+    let built =
+        dpsa_board::run::from_streams(&board, &cal, &streams, &lib, false, Default::default())
+            .unwrap();
     assert_eq!(built.report.pixels.unplaced_rows, vec![0, 0, 0]);
     let cli = tmp.path().join("cli-map");
     let o = board_cmd(&board, &cli, &[&s[0], &s[1], &s[2]]);
@@ -1108,11 +1110,29 @@ fn board_bench_reports_every_stage_of_the_board() {
     let v = json_of(&out);
     let s = &v["seconds"];
     let stage = |k: &str| s[k].as_f64().unwrap_or_else(|| panic!("{k}: {v}"));
-    let sum: f64 = ["core", "provenance", "unwrap", "resample", "blend"]
+    let stitching: f64 = ["provenance", "unwrap", "resample", "blend"]
         .iter()
         .map(|k| stage(k))
         .sum();
-    assert!((stage("total") - sum).abs() < 1e-9, "{v}");
+    assert!((stage("stitching") - stitching).abs() < 1e-9, "{v}");
+    // No program in this recording: no inspection stage.
+    assert!(
+        v["inspection"].is_null() && stage("inspection") == 0.0,
+        "{v}"
+    );
+    let total = stage("core") + stitching + stage("inspection");
+    assert!((stage("total") - total).abs() < 1e-9, "{v}");
+    // The line's feed: every camera's rows at 220 mm/s, then the latency to the map.
+    let line = &v["line"];
+    assert_eq!(line["conveyor_mm_s"], 220.0, "{v}");
+    let rows = v["core_pixels"].as_u64().unwrap() as f64 / 3.0 / 192.0;
+    let feed = line["feed_s"].as_f64().unwrap();
+    assert!((feed - rows * 0.0278 / 220.0).abs() < 0.1 * feed, "{v}");
+    assert!(
+        line["latency_after_last_row_s"].as_f64().unwrap() > 0.0,
+        "{v}"
+    );
+    assert!(v["core_camera0_mpx_s"].as_f64().unwrap() > 0.0, "{v}");
     assert!(stage("load") > 0.0 && stage("core_camera0") > 0.0, "{v}");
     assert_eq!(v["cameras"], 3);
     // Every camera's rows are 192 px wide; a 6 mm board at 27.7 um is about 217 rows each.

@@ -114,6 +114,33 @@ fn f(v: &Value, path: &str) -> f64 {
         .unwrap_or_else(|| panic!("{path} missing in {v}"))
 }
 
+/// `dpsa board-bench` inspects the board it stitched against the recording's program: the
+/// same pads and verdicts as `dpsa board` then `dpsa inspect` on that board, its time in the
+/// total, and the latency of the paced feed.
+#[test]
+fn board_bench_judges_every_pad_as_inspect_does() {
+    let u = upright();
+    let cal = root().join("array-paste.toml.cal.toml");
+    let v = ok_json(&[
+        "board-bench",
+        u.board.to_str().unwrap(),
+        "--cal",
+        cal.to_str().unwrap(),
+        "--no-numpy",
+    ]);
+    let i = &v["inspection"];
+    assert_eq!(i["pads"], u.report["pads"], "{v}");
+    assert_eq!(i["calls"], u.report["calls"], "{v}");
+    let s = &v["seconds"];
+    assert!(f(s, "inspection") > 0.0, "{v}");
+    let total = f(s, "core") + f(s, "stitching") + f(s, "inspection");
+    assert!((f(s, "total") - total).abs() < 1e-9, "{v}");
+    assert!(
+        f(&v["line"], "latency_after_last_row_s") >= f(i, "register_s"),
+        "{v}"
+    );
+}
+
 #[test]
 fn the_printed_board_is_measured_and_judged_against_the_truth() {
     let r = &upright().report;

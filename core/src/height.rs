@@ -202,7 +202,7 @@ impl<'a> ColumnScale<'a> {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Scale {
     /// Height LSBs per turn, Q16.16.
-    k: i32,
+    pub(crate) k: i32,
     /// `min_modulation^2`, Q40.24: threshold on `C^2` in DN^2 * 2^24.
     min_c2: u64,
 }
@@ -220,9 +220,9 @@ pub struct Scale {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Gate {
     /// `hi >= fast` proves the pixel modulated.
-    fast: u32,
+    pub(crate) fast: u32,
     /// Threshold on `x^2 + y^2`.
-    thr2: u64,
+    pub(crate) thr2: u64,
 }
 
 impl Gate {

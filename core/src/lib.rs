@@ -102,11 +102,15 @@
 #![no_std]
 // No `unsafe` anywhere but the three `asm!` blocks of `dsp` (`SMLAD`, `UQSUB16` and the
 // Mono12p unpack; behind that module's own `allow`, on an ARM target with the `dsp` feature
-// only; see that module for why and how it is tested).
+// only; see that module for why and how it is tested) and the two calls into the AVX2 build
+// of `lanes` (x86-64, after run-time detection; see that module).
 #![deny(unsafe_code)]
 
 #[cfg(feature = "alloc")]
 extern crate alloc;
+// Run-time CPU feature detection only (`lanes::Kernel::avx2`).
+#[cfg(feature = "std")]
+extern crate std;
 
 pub(crate) mod accumulate;
 pub mod bench;
@@ -117,6 +121,7 @@ pub(crate) mod dsp;
 mod error;
 pub mod frames;
 pub mod height;
+pub mod lanes;
 pub mod offload;
 pub mod packets;
 pub mod phase;

@@ -22,9 +22,9 @@ pub const UNITS_PER_RAD: f64 = 683_565_275.576_431_6;
 /// One eighth of a turn (`pi / 4`).
 const OCTANT: u32 = 1 << 29;
 /// A quarter turn (`pi / 2`).
-const QUARTER: u32 = 1 << 30;
+pub(crate) const QUARTER: u32 = 1 << 30;
 /// Half a turn (`pi`).
-const HALF: u32 = 1 << 31;
+pub(crate) const HALF: u32 = 1 << 31;
 
 /// Tested worst-case error of [`atan2`] in radians.
 pub const ATAN2_MAX_ERR_RAD: f64 = 2.0e-5;

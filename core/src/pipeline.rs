@@ -21,6 +21,7 @@ use crate::accumulate::{self, Pool};
 use crate::frames::registration::{self, Kind, Registry, Step};
 use crate::frames::{mono12p, Config, ConfigError, Trigger};
 use crate::height::{ColumnScale, ColumnScaleError, Gate, Scale};
+use crate::lanes::Kernel;
 use crate::row::{flags, Gap, Row, RowHeader, StreamInfo};
 use crate::sink::Sink;
 use crate::solve::{SolveError, Window, MAX_N};
@@ -234,6 +235,8 @@ pub struct Pipeline<'a> {
     /// The sink was told the stream started / ended.
     started: bool,
     ended: bool,
+    /// The build of the phase + height stage ([`Kernel::best`] unless set).
+    kernel: Kernel,
 }
 
 impl<'a> Pipeline<'a> {
@@ -299,7 +302,19 @@ impl<'a> Pipeline<'a> {
             hash: cfg.hash_with(&ref_phase[..w], columns.as_ref()),
             started: false,
             ended: false,
+            kernel: Kernel::best(),
         })
+    }
+
+    /// Runs the phase + height stage with `kernel` (the results are the same with every
+    /// kernel: tested in [`crate::lanes`] and below).
+    pub fn set_kernel(&mut self, kernel: Kernel) {
+        self.kernel = kernel;
+    }
+
+    /// The kernel of the phase + height stage.
+    pub fn kernel(&self) -> Kernel {
+        self.kernel
     }
 
     /// What the stream holds ([`Sink::start`]); `run_id` and `intra_period` are 0 (the sink
@@ -699,6 +714,7 @@ impl<'a> Pipeline<'a> {
             rho,
             ref_phase: self.ref_phase,
             columns: self.columns,
+            kernel: self.kernel,
         };
         rows.run(n, coef, gate, &self.scale, self.heights, self.valid)
     }
@@ -729,6 +745,7 @@ struct Rows<'l> {
     rho: u32,
     ref_phase: &'l [u32],
     columns: Option<ColumnScale<'l>>,
+    kernel: Kernel,
 }
 
 impl Rows<'_> {
@@ -758,10 +775,11 @@ impl Rows<'_> {
             let (v, r) = (&v[..len], &self.ref_phase[c0..c0 + len]);
             let (h, m) = (&mut heights[c0..c0 + len], &mut valid[c0 / 8..]);
             row_flags |= match &self.columns {
-                None => scale.row(gate, v, self.rho, r, h, m),
+                None => self.kernel.row(scale, gate, v, self.rho, r, h, m),
                 Some(t) => {
                     let k = &t.mantissa()[c0..c0 + len];
-                    scale.row_columns(gate, v, self.rho, r, t, k, h, m)
+                    self.kernel
+                        .row_columns(scale, gate, v, self.rho, r, t, k, h, m)
                 }
             };
             c0 += len;
@@ -1026,6 +1044,107 @@ mod tests {
         }
         p.finish(&mut sink).unwrap();
         (sink.0, p.stream_info().config_hash)
+    }
+
+    /// Whole rows through every kernel of the phase + height stage ([`Kernel::all`]): the
+    /// same rows, byte for byte, as the scalar loop (the firmware's), with noise, saturated
+    /// samples, unmodulated columns, an odd width (77: a partial lane group at the end of
+    /// every block), n = 3..8, 12- and 16-bit pools, the uniform and the per-column scale.
+    #[test]
+    fn every_kernel_gives_the_same_rows() {
+        const WK: usize = 77;
+        let mut seed = 0x1234_5678u64;
+        let mut noise = move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((seed >> 40) % 41) as f64 - 20.0
+        };
+        let tz = |c: usize| 500.0 * (1.0 + 0.02 * (c as f64 * 0.37).sin());
+        let k: Vec<U16F16> = (0..WK)
+            .map(|c| U16F16::from_bits((tz(c) / 0.25 * 65536.0).round() as u32))
+            .collect();
+        let mut mant = vec![0u16; WK];
+        let shift = ColumnScale::encode(&k, &mut mant).unwrap();
+        let refp: Vec<u32> = (0..WK).map(|c| from_rad(phi0(c))).collect();
+        let kernels: Vec<Kernel> = Kernel::all().collect();
+        assert!(kernels.len() >= 2);
+        for n in 3..=8u8 {
+            for saturation in [4095u16, 65535] {
+                let mut c = cfg();
+                c.width = WK as u16;
+                c.n = n;
+                c.saturation = saturation;
+                c.max_step_rows = 16;
+                // Frames: noise, a few saturated samples, columns 40..44 unmodulated; about a
+                // turn over the window (32 / n px per frame).
+                let step = (32 + i64::from(n) / 2) / i64::from(n) * 10;
+                let frames: Vec<Vec<Vec<u16>>> = (0..40i64)
+                    .map(|f| {
+                        (0..H as i64)
+                            .map(|r| {
+                                (0..WK)
+                                    .map(|col| {
+                                        let e = f * step - 200;
+                                        let ph = 2.0 * PI * r as f64 / 32.0
+                                            + phi0(col)
+                                            + 2.0 * PI * truth(r + c.offset(e), col % W) / tz(col);
+                                        let amp = if (40..44).contains(&col) { 0.0 } else { 700.0 };
+                                        let v = 1800.0 + amp * ph.cos() + noise();
+                                        if (r * 7 + col as i64 + f) % 97 == 0 {
+                                            saturation
+                                        } else {
+                                            v.round() as u16
+                                        }
+                                    })
+                                    .collect()
+                            })
+                            .collect()
+                    })
+                    .collect();
+                for table in [false, true] {
+                    let go = |kernel: Kernel| {
+                        let mut m = State::new(&c);
+                        let cols = table.then(|| ColumnScale::new(shift, &mant));
+                        let mut p =
+                            Pipeline::with_column_scale(c, &refp, cols, m.memory()).unwrap();
+                        p.set_kernel(kernel);
+                        let mut sink = Collect::default();
+                        for (f, fr) in frames.iter().enumerate() {
+                            let t = Trigger {
+                                seq: f as u32,
+                                latch: f as i64 * step - 200,
+                            };
+                            p.begin_frame(t, &mut sink).unwrap();
+                            for (r, line) in fr.iter().enumerate() {
+                                p.push_line(r as u16, line, &mut sink).unwrap();
+                            }
+                            p.end_frame(&mut sink).unwrap();
+                        }
+                        p.finish(&mut sink).unwrap();
+                        sink.0
+                    };
+                    let want = go(Kernel::Scalar);
+                    assert!(
+                        want.iter().any(|r| r.0.flags & flags::SATURATED != 0)
+                            && want.iter().any(|r| r.0.flags & flags::LOW_MODULATION != 0)
+                            && want.iter().filter(|r| r.0.flags & flags::ROW_INVALID == 0).count() > 50,
+                        "n {n}, saturation {saturation}: the input classes must all occur: {} rows, {} valid, saturated {}, low {}",
+                        want.len(),
+                        want.iter().filter(|r| r.0.flags & flags::ROW_INVALID == 0).count(),
+                        want.iter().any(|r| r.0.flags & flags::SATURATED != 0),
+                        want.iter().any(|r| r.0.flags & flags::LOW_MODULATION != 0)
+                    );
+                    for &k in &kernels[1..] {
+                        assert!(
+                            go(k) == want,
+                            "kernel {} differs from the scalar loop: n {n}, saturation {saturation}, table {table}",
+                            k.name()
+                        );
+                    }
+                }
+            }
+        }
     }
 
     #[test]

@@ -32,6 +32,15 @@ pub struct Args {
     /// reported (exit status 2).
     #[arg(long, num_args = 1.., value_name = "STREAM")]
     streams: Vec<PathBuf>,
+    /// Write `heights.colour.png` at the map's full size (about 2 s more on the paper board)
+    /// instead of a preview at most 2048 px on its longer side.
+    #[arg(long)]
+    full_colour: bool,
+    /// Skip the comparison with the simulator's board truth (about 35 s on the paper board;
+    /// `truth` is then null).
+    #[cfg(feature = "sim")]
+    #[arg(long)]
+    no_truth: bool,
 }
 
 /// Builds the map; returns the exit status: 0, or 2 when a stream was damaged or incomplete
@@ -57,6 +66,9 @@ pub fn run(a: Args, progress: bool) -> Result<i32> {
     files::refuse_overwrite_dir("--out", &a.out, &inputs)?;
     dpsa_board::output::check_destination(&a.out)?;
     let cal = CalFile::load(&a.cal)?;
+    let outputs = dpsa_board::output::Outputs {
+        full_colour: a.full_colour,
+    };
     #[cfg(feature = "sim")]
     let (r, json, summary) = {
         use dpsa_sim::board::run::Source;
@@ -65,7 +77,12 @@ pub fn run(a: Args, progress: bool) -> Result<i32> {
         } else {
             Source::Streams(&a.streams)
         };
-        let r = dpsa_sim::board::run::run_shown(&a.dir, &cal, &a.out, source, progress)?;
+        let opts = dpsa_sim::board::run::Options {
+            progress,
+            outputs,
+            truth: !a.no_truth,
+        };
+        let r = dpsa_sim::board::run::run_shown(&a.dir, &cal, &a.out, source, &opts)?;
         let json = a
             .json
             .then(|| serde_json::to_string_pretty(&r))
@@ -74,7 +91,8 @@ pub fn run(a: Args, progress: bool) -> Result<i32> {
     };
     #[cfg(not(feature = "sim"))]
     let (r, json, summary) = {
-        let r = dpsa_board::run::from_streams(&a.dir, &cal, &a.streams, &a.out, progress)?.report;
+        let r = dpsa_board::run::from_streams(&a.dir, &cal, &a.streams, &a.out, progress, outputs)?
+            .report;
         let json = a
             .json
             .then(|| serde_json::to_string_pretty(&r))

@@ -176,7 +176,10 @@ fn array(
         &cal,
         &map_dir,
         board::run::Source::Core,
-        progress,
+        &board::run::Options {
+            progress,
+            ..Default::default()
+        },
     )?;
     files::write_bytes(
         &map_dir.join("report.json"),

@@ -24,6 +24,11 @@ pub struct Args {
     #[cfg(feature = "sim")]
     #[arg(long)]
     truth: Option<PathBuf>,
+    /// Skip the comparison with the print truth the program names (about 20 s on the paper
+    /// board); the report then has no `evaluation`.
+    #[cfg(feature = "sim")]
+    #[arg(long, conflicts_with = "truth")]
+    no_truth: bool,
     /// Inspect this many times and report the fastest (a benchmark of the inspection alone).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=100))]
     repeat: u32,
@@ -53,7 +58,7 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
             a.truth.as_deref(),
             Some(&a.out),
             a.repeat,
-            true,
+            !a.no_truth,
             progress,
         )?
     };

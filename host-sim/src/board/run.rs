@@ -167,7 +167,29 @@ pub fn run(dir: &Path, cal: &CalFile, out: &Path) -> Result<BoardReport> {
 /// Builds the board map of the array recording `dir` with `cal` into `out`, the rows from
 /// `source`. Every check (recording, calibration, streams) comes before any file is written.
 pub fn run_from(dir: &Path, cal: &CalFile, out: &Path, source: Source<'_>) -> Result<BoardReport> {
-    run_shown(dir, cal, out, source, false)
+    run_shown(dir, cal, out, source, &Options::default())
+}
+
+/// How [`run_shown`] runs besides its inputs.
+#[derive(Clone, Copy, Debug)]
+pub struct Options {
+    /// Progress bars on stderr.
+    pub progress: bool,
+    /// What to write besides the cheap default files.
+    pub outputs: dpsa_board::output::Outputs,
+    /// Compare the map with the recording's board truth when it has one (the simulator's
+    /// check; about 35 s on the paper board). `false`: `truth` is null.
+    pub truth: bool,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            progress: false,
+            outputs: Default::default(),
+            truth: true,
+        }
+    }
 }
 
 /// The rows of every camera from the core on its calibrated recording (threads).
@@ -270,25 +292,33 @@ fn camera_recordings_present(arr: &ArrayRecording) -> bool {
     })
 }
 
-/// [`run_from`] with progress bars on stderr when `progress` (the core's rows over every
-/// camera, then the assembly's steps).
+/// [`run_from`] with [`Options`]: progress bars on stderr (the core's rows over every camera,
+/// then the assembly's steps), the outputs, the comparison with the truth.
 pub fn run_shown(
     dir: &Path,
     cal: &CalFile,
     out: &Path,
     source: Source<'_>,
-    progress: bool,
+    opts: &Options,
 ) -> Result<BoardReport> {
+    let Options {
+        progress,
+        outputs,
+        truth: compare,
+    } = *opts;
     let started = Instant::now();
     if let Source::Streams(paths) = source {
         let arr = ArrayRecording::open(dir)?;
         if !camera_recordings_present(&arr) {
             // The streams alone, as the production build runs them: no camera recording, so
             // no Cramer-Rao bound; the board truth (`truth/array.json`) is still compared.
-            let built = map::from_streams(dir, cal, paths, out, progress)?;
+            let built = map::from_streams(dir, cal, paths, out, progress, outputs)?;
             let t2 = Instant::now();
-            let truth =
-                against_board_truth(&arr, cal, &built, &built.report.grid, false, progress)?;
+            let truth = if compare {
+                against_board_truth(&arr, cal, &built, &built.report.grid, false, progress)?
+            } else {
+                None
+            };
             return Ok(BoardReport {
                 map: built.report,
                 truth,
@@ -333,11 +363,16 @@ pub fn run_shown(
             open_s,
             rows_s,
             progress,
+            outputs,
         },
         out,
     )?;
     let t2 = Instant::now();
-    let truth = against_board_truth(&arr, cal, &built, &layout.grid, with_crb, progress)?;
+    let truth = if compare {
+        against_board_truth(&arr, cal, &built, &layout.grid, with_crb, progress)?
+    } else {
+        None
+    };
     let truth_s = t2.elapsed().as_secs_f64();
     let Built { report, .. } = built;
     Ok(BoardReport {

@@ -4,7 +4,7 @@
 //! | --- | --- |
 //! | `heights.png` | 16-bit grey: `round(h / lsb_um) + 32768` (clamped to 1..=65535), 0 invalid |
 //! | `heights_um.tiff` | 32-bit float grey, heights in um, NaN invalid (ImageJ, GDAL, numpy + tifffile read it) |
-//! | `heights.colour.png` | false colour over the valid heights' 1st..99th percentile, invalid dark grey, a scale bar in um below |
+//! | `heights.colour.png` | false colour over the valid heights' 1st..99th percentile, invalid dark grey, a scale bar in um below; by default a preview at most [`PREVIEW_PX`] on its longer side (each pixel the mean of a `k x k` block of the map, `board.json`'s `files.colour_png_scale`), full size with [`Outputs::full_colour`] |
 //! | `camera.png` | 8-bit grey: the camera index of each pixel, 255 invalid |
 //! | `board.json` | [`Metadata`] |
 //!
@@ -123,11 +123,29 @@ pub struct Files {
     pub heights_tiff: &'static str,
     /// False colour with a scale bar.
     pub colour_png: &'static str,
+    /// Map pixels per pixel of the false-colour image along each axis (1: full size; a
+    /// preview's pixel is the mean of the valid heights of its `k x k` block).
+    pub colour_png_scale: usize,
     /// The camera each pixel came from.
     pub camera_png: &'static str,
 }
 
 pub use dpsa_formats::board_map::{colour_range, FORMAT};
+
+/// Longer side of the default false-colour preview, px.
+pub const PREVIEW_PX: usize = 2048;
+
+/// What to write besides the cheap default files (measured on the paper board's 47 Mpx map,
+/// `timing.files_s` of `dpsa board --json`): the TIFF (0.15 s: uncompressed, and what
+/// `dpsa inspect` reads), `heights.png` (about 1 s: 95 MB of 16-bit samples through PNG's
+/// fastest compression), `camera.png` (0.1 s), a false-colour preview (0.8 s, most of it the
+/// colour scale's percentiles over the whole map) are always written;
+/// the full-size false colour (2.6 s) on request.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Outputs {
+    /// `heights.colour.png` at the map's full size, not a preview.
+    pub full_colour: bool,
+}
 
 /// The files [`write`](fn@write) writes into its directory.
 pub const FILE_NAMES: [&str; 5] = [
@@ -170,11 +188,30 @@ pub fn write(
     cameras: usize,
     missing_rows: &[u64],
     board_id: Option<dpsa_formats::BoardId>,
-) -> Result<Metadata> {
+    outputs: Outputs,
+) -> Result<Written> {
     let staging = dpsa_formats::files::OutputDir::create(dir, DIR_KIND)?;
-    let meta = write_files(staging.path(), grid, b, cameras, missing_rows, board_id)?;
+    let written = write_files(
+        staging.path(),
+        grid,
+        b,
+        cameras,
+        missing_rows,
+        board_id,
+        outputs,
+    )?;
     staging.commit()?;
-    Ok(meta)
+    Ok(written)
+}
+
+/// What [`write`](fn@write) wrote: `board.json`'s metadata, and the seconds each file took
+/// (rendering and encoding included), by file name, in the order written.
+#[derive(Clone, Debug)]
+pub struct Written {
+    /// `board.json`.
+    pub meta: Metadata,
+    /// Seconds per file.
+    pub seconds: Vec<(&'static str, f64)>,
 }
 
 fn write_files(
@@ -184,14 +221,27 @@ fn write_files(
     cameras: usize,
     missing_rows: &[u64],
     board_id: Option<dpsa_formats::BoardId>,
-) -> Result<Metadata> {
+    outputs: Outputs,
+) -> Result<Written> {
+    let mut seconds = Vec::new();
+    let mut t = std::time::Instant::now();
+    let mut lap = |name: &'static str| {
+        seconds.push((name, t.elapsed().as_secs_f64()));
+        t = std::time::Instant::now();
+    };
+    let h = &b.heights;
+    let colour_scale = if outputs.full_colour {
+        1
+    } else {
+        h.width.max(h.rows).div_ceil(PREVIEW_PX).max(1)
+    };
     let files = Files {
         heights_png: "heights.png",
         heights_tiff: "heights_um.tiff",
         colour_png: "heights.colour.png",
+        colour_png_scale: colour_scale,
         camera_png: "camera.png",
     };
-    let h = &b.heights;
     let (w, rows) = (h.width as u32, h.rows as u32);
     let png: ImageBuffer<Luma<u16>, Vec<u16>> = ImageBuffer::from_fn(w, rows, |x, y| {
         let v = h.at(y as usize, x as usize);
@@ -202,11 +252,26 @@ fn write_files(
         }
     });
     dpsa_formats::images::save_png(&png, &dir.join(files.heights_png))?;
+    drop(png);
+    lap(files.heights_png);
     write_tiff(&dir.join(files.heights_tiff), h)?;
-    write_colour(&dir.join(files.colour_png), h)?;
+    lap(files.heights_tiff);
+    let range = colour_range(h).unwrap_or((0.0, 1.0));
+    if colour_scale == 1 {
+        write_colour(&dir.join(files.colour_png), h, range)?;
+    } else {
+        write_colour(
+            &dir.join(files.colour_png),
+            &block_mean(h, colour_scale),
+            range,
+        )?;
+    }
+    lap(files.colour_png);
     let cam: GrayImage =
         ImageBuffer::from_fn(w, rows, |x, y| Luma([b.camera[(y * w + x) as usize]]));
     dpsa_formats::images::save_png(&cam, &dir.join(files.camera_png))?;
+    drop(cam);
+    lap(files.camera_png);
 
     let mut per_camera = vec![0u64; cameras];
     for &c in &b.camera {
@@ -241,7 +306,8 @@ fn write_files(
     };
     let json = serde_json::to_string_pretty(&meta)?;
     dpsa_formats::files::write_bytes(&dir.join("board.json"), json.as_bytes())?;
-    Ok(meta)
+    lap("board.json");
+    Ok(Written { meta, seconds })
 }
 
 /// Heights as a 32-bit float TIFF, um (NaN invalid).
@@ -260,9 +326,43 @@ pub fn write_tiff(path: &Path, h: &Grid) -> Result<()> {
 /// Rows of the scale bar under the false-colour map.
 const BAR_ROWS: u32 = 24;
 
-/// False colour with a scale bar: a ramp over the map's width and five labelled ticks (um).
-fn write_colour(path: &Path, h: &Grid) -> Result<()> {
-    let (lo, hi) = colour_range(h).unwrap_or((0.0, 1.0));
+/// The mean of the valid heights of each `k x k` block of `h` (NaN where none is valid); the
+/// last row and column of blocks may be cut short.
+pub fn block_mean(h: &Grid, k: usize) -> Grid {
+    let k = k.max(1);
+    let (w, rows) = (h.width.div_ceil(k), h.rows.div_ceil(k));
+    let mut sum = vec![0f64; w * rows];
+    let mut n = vec![0u32; w * rows];
+    for r in 0..h.rows {
+        let row = &h.data[r * h.width..(r + 1) * h.width];
+        let out = (r / k) * w;
+        for (c, &v) in row.iter().enumerate() {
+            if v.is_finite() {
+                sum[out + c / k] += f64::from(v);
+                n[out + c / k] += 1;
+            }
+        }
+    }
+    Grid {
+        width: w,
+        rows,
+        data: sum
+            .iter()
+            .zip(&n)
+            .map(|(&s, &n)| {
+                if n > 0 {
+                    (s / f64::from(n)) as f32
+                } else {
+                    f32::NAN
+                }
+            })
+            .collect(),
+    }
+}
+
+/// False colour over `(lo, hi)` um with a scale bar: a ramp over the image's width and five
+/// labelled ticks (um).
+fn write_colour(path: &Path, h: &Grid, (lo, hi): (f32, f32)) -> Result<()> {
     let (w, rows) = (h.width as u32, h.rows as u32);
     let mut img: RgbImage = ImageBuffer::from_pixel(w.max(1), rows + BAR_ROWS, Rgb([255; 3]));
     for y in 0..rows {
@@ -378,7 +478,17 @@ mod tests {
             seams: Vec::new(),
         };
         let id = dpsa_formats::BoardId(0x0123_4567_89ab_cdef);
-        let meta = write(dir.path(), &grid, &b, 2, &[0, 0], Some(id)).unwrap();
+        let meta = write(
+            dir.path(),
+            &grid,
+            &b,
+            2,
+            &[0, 0],
+            Some(id),
+            Outputs::default(),
+        )
+        .unwrap()
+        .meta;
         assert_eq!(meta.pixels.valid, h.valid() as u64);
         assert_eq!(
             meta.pixels.per_camera.iter().sum::<u64>(),
@@ -412,5 +522,79 @@ mod tests {
         assert_eq!(v["format"], FORMAT);
         assert_eq!(v["board_id"], "0123456789abcdef");
         assert_eq!(v["grid"]["pitch_mm"], 0.03);
+        assert_eq!(v["files"]["colour_png_scale"], 1);
+    }
+
+    /// A map longer than [`PREVIEW_PX`] gets a preview of block means (the same colour scale
+    /// as the full map), unless the full size is asked for; the report times every file.
+    #[test]
+    fn a_large_map_gets_a_preview_unless_the_full_colour_is_asked_for() {
+        let (w, rows) = (3, 2 * PREVIEW_PX + 5);
+        let grid = BoardGrid {
+            x0_mm: 0.0,
+            y0_mm: 0.0,
+            pitch_mm: 0.03,
+            rows,
+            width: w,
+        };
+        let mut h = Grid::invalid(w, rows);
+        for (i, v) in h.data.iter_mut().enumerate() {
+            if i % 5 != 0 {
+                *v = (i % 97) as f32;
+            }
+        }
+        let b = Blended {
+            variance: None,
+            camera: vec![0; w * rows],
+            heights: h.clone(),
+            turns: vec![0],
+            edge_median_um: None,
+            seams: Vec::new(),
+        };
+        let k = rows.div_ceil(PREVIEW_PX);
+        assert_eq!(k, 3);
+        for full in [false, true] {
+            let dir = tempfile::tempdir().unwrap();
+            let out = dir.path().join("map");
+            let written = write(
+                &out,
+                &grid,
+                &b,
+                1,
+                &[0],
+                None,
+                Outputs { full_colour: full },
+            )
+            .unwrap();
+            let names: Vec<&str> = written.seconds.iter().map(|f| f.0).collect();
+            assert_eq!(names, FILE_NAMES, "every file timed, in order");
+            let colour = image::open(out.join("heights.colour.png")).unwrap();
+            let want = if full {
+                (w, rows)
+            } else {
+                (1, rows.div_ceil(k))
+            };
+            assert_eq!(
+                (colour.width() as usize, colour.height() as usize),
+                (want.0, want.1 + BAR_ROWS as usize)
+            );
+            assert_eq!(
+                written.meta.files.colour_png_scale,
+                if full { 1 } else { k }
+            );
+        }
+        // Block means: NaN only where the whole block is invalid.
+        let m = block_mean(&h, k);
+        assert_eq!((m.width, m.rows), (1, rows.div_ceil(k)));
+        for (bi, &v) in m.data.iter().enumerate() {
+            let vals: Vec<f64> = (bi * k..((bi + 1) * k).min(rows))
+                .flat_map(|r| (0..w).map(move |c| r * w + c))
+                .map(|i| h.data[i])
+                .filter(|v| v.is_finite())
+                .map(f64::from)
+                .collect();
+            let mean = vals.iter().sum::<f64>() / vals.len() as f64;
+            assert!((f64::from(v) - mean).abs() < 1e-4, "block {bi}");
+        }
     }
 }

@@ -121,6 +121,8 @@ pub struct RunTiming {
     pub assemble: Timing,
     /// Writing the files, s.
     pub write_s: f64,
+    /// Of `write_s`, each file (rendering, encoding and writing), by name, s.
+    pub files_s: std::collections::BTreeMap<&'static str, f64>,
     /// Opening and checking the inputs (before the rows), s.
     pub open_s: f64,
     /// The whole run, s: the sum of the steps above and what lies between them.
@@ -525,6 +527,8 @@ pub struct Inputs<'a> {
     pub rows_s: f64,
     /// Progress bars on stderr.
     pub progress: bool,
+    /// What to write besides the cheap default files.
+    pub outputs: crate::output::Outputs,
 }
 
 /// Assembles the cameras' rows `cams` (with each one's unplaced-row count) into the board map,
@@ -537,6 +541,7 @@ pub fn build(cams: Vec<(CameraRows, u64)>, inputs: Inputs<'_>, out: &Path) -> Re
         open_s,
         rows_s,
         progress,
+        outputs,
     } = inputs;
     let grid = &layout.grid;
     let (cams, unplaced): (Vec<CameraRows>, Vec<u64>) = cams.into_iter().unzip();
@@ -563,7 +568,8 @@ pub fn build(cams: Vec<(CameraRows, u64)>, inputs: Inputs<'_>, out: &Path) -> Re
         None => vec![0; n_cams],
     };
     let t1 = Instant::now();
-    crate::output::write(out, grid, &blended, n_cams, &missing, layout.board)?;
+    let written =
+        crate::output::write(out, grid, &blended, n_cams, &missing, layout.board, outputs)?;
     let write_s = t1.elapsed().as_secs_f64();
     steps.finish_and_clear();
 
@@ -603,6 +609,7 @@ pub fn build(cams: Vec<(CameraRows, u64)>, inputs: Inputs<'_>, out: &Path) -> Re
             core_s: rows_s,
             assemble: timing,
             write_s,
+            files_s: written.seconds.into_iter().collect(),
             open_s,
             total_s: started.elapsed().as_secs_f64(),
         },
@@ -621,6 +628,7 @@ pub fn from_streams(
     paths: &[PathBuf],
     out: &Path,
     progress: bool,
+    outputs: crate::output::Outputs,
 ) -> Result<Built> {
     let started = Instant::now();
     let layout = layout(dir, cal)?;
@@ -640,6 +648,7 @@ pub fn from_streams(
             open_s,
             rows_s,
             progress,
+            outputs,
         },
         out,
     )

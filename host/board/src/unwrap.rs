@@ -95,37 +95,40 @@ pub fn unwrap(wrapped: &Grid, period_um: &[f32], block: usize) -> Unwrapped {
     let (w, rows) = (wrapped.width, wrapped.rows);
     assert_eq!(period_um.len(), w, "one period per column");
     let block = block.max(2);
-    // Turns per pixel.
-    let turns: Vec<f32> = wrapped
-        .data
-        .iter()
-        .enumerate()
-        .map(|(i, &h)| {
-            let t = period_um[i % w];
+    // Turns per pixel (row by row: no division to find a pixel's column).
+    let mut turns: Vec<f32> = Vec::with_capacity(w * rows);
+    for row in wrapped.data.chunks_exact(w.max(1)) {
+        turns.extend(row.iter().zip(period_um).map(|(&h, &t)| {
             if h.is_finite() && t > 0.0 {
                 h / t
             } else {
                 f32::NAN
             }
-        })
-        .collect();
+        }));
+    }
     let (bw, bh) = (w.div_ceil(block).max(1), rows.div_ceil(block).max(1));
-    let pixels_of = |br: usize, bc: usize| {
+    // The finite turns of block (br, bc) into `vals`; returns the block's pixel count.
+    let block_turns = |br: usize, bc: usize, vals: &mut Vec<f32>| {
+        vals.clear();
         let (r0, c0) = (br * block, bc * block);
-        (r0..(r0 + block).min(rows))
-            .flat_map(move |r| (c0..(c0 + block).min(w)).map(move |c| r * w + c))
+        let (r1, c1) = ((r0 + block).min(rows), (c0 + block).min(w));
+        for r in r0..r1 {
+            vals.extend(
+                turns[r * w + c0..r * w + c1]
+                    .iter()
+                    .filter(|u| u.is_finite()),
+            );
+        }
+        (r1 - r0) * (c1 - c0)
     };
 
     // 1. Trimmed circular mean per block.
     let mut phase = vec![f32::NAN; bw * bh];
     let mut count = vec![0usize; bw * bh];
+    let mut vals: Vec<f32> = Vec::with_capacity(block * block);
     for br in 0..bh {
         for bc in 0..bw {
-            let vals: Vec<f32> = pixels_of(br, bc)
-                .map(|i| turns[i])
-                .filter(|u| u.is_finite())
-                .collect();
-            let size = pixels_of(br, bc).count();
+            let size = block_turns(br, bc, &mut vals);
             if vals.len() * 4 < size || vals.is_empty() {
                 continue;
             }
@@ -177,13 +180,21 @@ pub fn unwrap(wrapped: &Grid, period_um: &[f32], block: usize) -> Unwrapped {
     let bil = Bilinear::new(w, rows, bw, bh, block);
     let interp = |surf: &[f32], r: usize, c: usize| bil.at(surf, r, c);
     let mut low = vec![f32::NAN; bw * bh];
+    let mut v: Vec<f32> = Vec::with_capacity(block * block);
     for br in 0..bh {
         for bc in 0..bw {
-            let mut v: Vec<f32> = pixels_of(br, bc)
-                .filter(|&i| turns[i].is_finite())
-                .map(|i| nearest(turns[i], interp(&surf, i / w, i % w)))
-                .collect();
-            if v.len() * 4 < pixels_of(br, bc).count() || v.is_empty() {
+            v.clear();
+            let (r0, c0) = (br * block, bc * block);
+            let (r1, c1) = ((r0 + block).min(rows), (c0 + block).min(w));
+            for r in r0..r1 {
+                for c in c0..c1 {
+                    let u = turns[r * w + c];
+                    if u.is_finite() {
+                        v.push(nearest(u, interp(&surf, r, c)));
+                    }
+                }
+            }
+            if v.len() * 4 < (r1 - r0) * (c1 - c0) || v.is_empty() {
                 continue;
             }
             let k = (v.len() * 3) / 10;
@@ -198,19 +209,23 @@ pub fn unwrap(wrapped: &Grid, period_um: &[f32], block: usize) -> Unwrapped {
     // 4. Every pixel on the turn nearest the surface.
     let mut heights = Grid::invalid(w, rows);
     let mut unreached = 0;
-    for (i, &u) in turns.iter().enumerate() {
-        if !u.is_finite() {
-            continue;
+    for r in 0..rows {
+        let row = r * w;
+        let reached_row = &reached[(r / block) * bw..];
+        for c in 0..w {
+            let u = turns[row + c];
+            if !u.is_finite() {
+                continue;
+            }
+            let s = interp(&surf, r, c);
+            if !s.is_finite() {
+                continue;
+            }
+            if !reached_row[c / block] {
+                unreached += 1;
+            }
+            heights.data[row + c] = nearest(u, s) * period_um[c];
         }
-        let (r, c) = (i / w, i % w);
-        let s = interp(&surf, r, c);
-        if !s.is_finite() {
-            continue;
-        }
-        if !reached[(r / block) * bw + c / block] {
-            unreached += 1;
-        }
-        heights.data[i] = nearest(u, s) * period_um[c];
     }
     Unwrapped {
         heights,
