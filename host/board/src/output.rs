@@ -323,8 +323,17 @@ pub fn write_tiff(path: &Path, h: &Grid) -> Result<()> {
     })?)
 }
 
-/// Rows of the scale bar under the false-colour map.
-const BAR_ROWS: u32 = 24;
+/// Rows of the scale bar under a false-colour map `w` px wide: 24 at the glyphs' own size,
+/// more as they grow with the image ([`bar_scale`]).
+pub fn bar_rows(w: u32) -> u32 {
+    24 * bar_scale(w)
+}
+
+/// How many pixels each pixel of the scale bar's glyphs and ramp takes: 1 up to 999 px wide,
+/// then one more per 500 px (at most 4), so the labels stay legible on a wide map or preview.
+fn bar_scale(w: u32) -> u32 {
+    (w / 500).clamp(1, 4)
+}
 
 /// The mean of the valid heights of each `k x k` block of `h` (NaN where none is valid); the
 /// last row and column of blocks may be cut short.
@@ -364,7 +373,8 @@ pub fn block_mean(h: &Grid, k: usize) -> Grid {
 /// labelled ticks (um).
 fn write_colour(path: &Path, h: &Grid, (lo, hi): (f32, f32)) -> Result<()> {
     let (w, rows) = (h.width as u32, h.rows as u32);
-    let mut img: RgbImage = ImageBuffer::from_pixel(w.max(1), rows + BAR_ROWS, Rgb([255; 3]));
+    let u = bar_scale(w);
+    let mut img: RgbImage = ImageBuffer::from_pixel(w.max(1), rows + bar_rows(w), Rgb([255; 3]));
     for y in 0..rows {
         for x in 0..w {
             let v = h.at(y as usize, x as usize);
@@ -381,22 +391,26 @@ fn write_colour(path: &Path, h: &Grid, (lo, hi): (f32, f32)) -> Result<()> {
     // The ramp.
     for x in 0..w {
         let t = f64::from(x) / f64::from(w.saturating_sub(1).max(1));
-        for y in rows + 2..rows + 10 {
+        for y in rows + 2 * u..rows + 10 * u {
             img.put_pixel(x, y, Rgb(dpsa_formats::images::colour(t)));
         }
     }
     // Ticks and labels.
     for k in 0..5u32 {
         let x = (k * w.saturating_sub(1)) / 4;
-        for y in rows + 10..rows + 13 {
-            img.put_pixel(x, y, Rgb([0; 3]));
+        for y in rows + 10 * u..rows + 13 * u {
+            for dx in 0..u {
+                if x + dx < w {
+                    img.put_pixel(x + dx, y, Rgb([0; 3]));
+                }
+            }
         }
         let value = lo + (hi - lo) * k as f32 / 4.0;
         let text = format!("{:.0}", value);
         let text = if k == 4 { format!("{text}um") } else { text };
-        let tw = text.len() as u32 * 4;
+        let tw = text.len() as u32 * 4 * u;
         let x0 = x.saturating_sub(tw / 2).min(w.saturating_sub(tw));
-        draw_text(&mut img, x0, rows + 15, &text);
+        draw_text(&mut img, x0, rows + 15 * u, &text, u);
     }
     Ok(dpsa_formats::images::save_png(&img, path)?)
 }
@@ -422,13 +436,18 @@ fn glyph(ch: char) -> Option<[u8; 5]> {
     })
 }
 
-fn draw_text(img: &mut RgbImage, x0: u32, y0: u32, text: &str) {
+/// `text` in the 3 x 5 glyphs from `(x0, y0)`, each glyph pixel `u x u` image pixels.
+fn draw_text(img: &mut RgbImage, x0: u32, y0: u32, text: &str, u: u32) {
     for (i, ch) in text.chars().enumerate() {
         let Some(g) = glyph(ch) else { continue };
         for (dy, bits) in g.iter().enumerate() {
             for dx in 0..3u32 {
-                if bits >> (2 - dx) & 1 != 0 {
-                    let (x, y) = (x0 + i as u32 * 4 + dx, y0 + dy as u32);
+                if bits >> (2 - dx) & 1 == 0 {
+                    continue;
+                }
+                for (sx, sy) in (0..u).flat_map(|sx| (0..u).map(move |sy| (sx, sy))) {
+                    let x = x0 + (i as u32 * 4 + dx) * u + sx;
+                    let y = y0 + dy as u32 * u + sy;
                     if x < img.width() && y < img.height() {
                         img.put_pixel(x, y, Rgb([0; 3]));
                     }
@@ -515,7 +534,7 @@ mod tests {
             }
         }
         let colour = image::open(dir.path().join("heights.colour.png")).unwrap();
-        assert_eq!((colour.width(), colour.height()), (40, 30 + BAR_ROWS));
+        assert_eq!((colour.width(), colour.height()), (40, 30 + bar_rows(40)));
         let v: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(dir.path().join("board.json")).unwrap())
                 .unwrap();
@@ -576,13 +595,16 @@ mod tests {
             };
             assert_eq!(
                 (colour.width() as usize, colour.height() as usize),
-                (want.0, want.1 + BAR_ROWS as usize)
+                (want.0, want.1 + bar_rows(want.0 as u32) as usize)
             );
             assert_eq!(
                 written.meta.files.colour_png_scale,
                 if full { 1 } else { k }
             );
         }
+        // The scale bar's glyphs grow with the image: 1 px per glyph pixel up to 999 px wide,
+        // 3 for the paper board's 1511 px preview, at most 4.
+        assert_eq!([40, 999, 1000, 1511, 6044].map(bar_scale), [1, 1, 2, 3, 4]);
         // Block means: NaN only where the whole block is invalid.
         let m = block_mean(&h, k);
         assert_eq!((m.width, m.rows), (1, rows.div_ceil(k)));
