@@ -289,7 +289,7 @@ fn stitch(
 
 /// Camera `i`'s rows through the core (`rec`'s frames in memory). With `pace = Some((start,
 /// row_s))`, row `k` is not taken before `start + k row_s`: the rows arrive as a conveyor
-/// brings them; the result then also carries when the last row was taken.
+/// brings them.
 fn core_rows_paced(
     rec: &Recording,
     cal: &CalFile,
