@@ -324,7 +324,7 @@ pub fn write_tiff(path: &Path, h: &Grid) -> Result<()> {
 }
 
 /// Rows of the scale bar under a false-colour map `w` px wide: 24 at the glyphs' own size,
-/// more as they grow with the image ([`bar_scale`]).
+/// more as they grow with the image (`bar_scale`).
 pub fn bar_rows(w: u32) -> u32 {
     24 * bar_scale(w)
 }
