@@ -1,11 +1,18 @@
-//! One board map from the cameras' wrapped rows: unwrap each camera, resample it onto the
-//! board grid, blend (the steps of [`super`]), each camera in its own thread, with the time
-//! of every stage.
+//! One board map from the cameras' wrapped rows, band of board rows by band as the rows
+//! arrive ([`Stitcher`]): each camera's rows unwrapped chunk by chunk
+//! ([`crate::unwrap::Unwrapper`]), a band of board rows resampled from every camera once its
+//! rows are unwrapped ([`crate::resample`]), blended ([`crate::blend::Blender`]) and copied
+//! into the map; then the camera rows no later band needs are dropped. What it holds besides
+//! the map: per camera a chunk of wrapped rows with its margins and the unwrapped rows of a
+//! band, the layers of one band (more only while a turn waits for evidence, see
+//! [`crate::blend`]). [`assemble`] feeds whole cameras through it.
 
-use crate::blend::{blend, Blended};
+use crate::blend::{Blended, Blender};
+use crate::places::RowPlaces;
 use crate::resample::{resample, BoardGrid, CameraPlacement, Layer, Source};
-use crate::unwrap::{unwrap, BLOCK};
+use crate::unwrap::{Unwrapper, BLOCK, CHUNK_ROWS, MARGIN_ROWS};
 use crate::Grid;
+use std::ops::Range;
 use std::time::Instant;
 
 /// One camera's measurement, ready for the board.
@@ -20,7 +27,7 @@ pub struct CameraRows {
     /// Pixels masked for the calibration's dead image pixels (`dpsa_sim::board::provenance`).
     pub dead_masked: u64,
     /// Where each row was seen (`dpsa_sim::board::provenance::row_places`; `None`: nominal).
-    pub places: Option<crate::places::RowPlaces>,
+    pub places: Option<RowPlaces>,
     /// The board row of `heights`' row 0 (the core's board-row numbering).
     pub first_row: i64,
     /// Height per turn of each column, um.
@@ -32,7 +39,7 @@ pub struct CameraRows {
     pub lost: Vec<bool>,
 }
 
-/// Seconds per stage (`timing.*` of `dpsa board --json`).
+/// Seconds per stage (`timing.*` of `dpsa board --json`), summed over the bands.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct Timing {
     /// Unwrapping, all cameras (in parallel threads), s.
@@ -63,68 +70,516 @@ pub const FEATHER_PX: f64 = 16.0;
 /// Board-edge band that anchors the board's turn, px of the board grid.
 pub const EDGE_PX: usize = 8;
 
-/// Unwraps, resamples and blends `cameras` (in order across the board) onto `grid`. The
-/// cameras' rows are consumed: each camera's heights are freed once unwrapped, the rest once
-/// resampled, so the blend holds only the layers and the map.
-pub fn assemble(mut cameras: Vec<CameraRows>, grid: &BoardGrid) -> Assembled {
-    let t0 = Instant::now();
-    let unwrapped: Vec<_> = std::thread::scope(|s| {
-        let handles: Vec<_> = cameras
-            .iter()
-            .map(|c| s.spawn(move || unwrap(&c.heights, &c.period_um, BLOCK)))
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| h.join().expect("unwrap thread"))
-            .collect()
-    });
-    for c in &mut cameras {
-        c.heights = Grid::invalid(0, 0);
+/// Board rows per band.
+pub const BAND_ROWS: usize = 256;
+
+/// What a [`Stitcher`] knows of a camera before its rows arrive.
+#[derive(Clone, Debug)]
+pub struct CameraFeed {
+    /// The board row of the camera's row 0.
+    pub first_row: i64,
+    /// Height per turn of each column, um.
+    pub period_um: Vec<f32>,
+    /// Where the camera's pixels lie on the board.
+    pub placement: CameraPlacement,
+    /// Where each of its rows was seen (`None`: nominal).
+    pub places: Option<RowPlaces>,
+    /// Rows that never arrived, per camera row (empty: none).
+    pub lost: Vec<bool>,
+    /// Whether its rows come with a variance.
+    pub variance: bool,
+}
+
+/// A camera's state in the stitching.
+struct Cam {
+    feed: CameraFeed,
+    unwrapper: Unwrapper,
+    /// Unwrapped rows held, camera row `held0` first (up to the rows handed on).
+    held: Grid,
+    /// Variance rows from camera row `held0` (as many as pushed).
+    variance: Option<Grid>,
+    held0: usize,
+    ended: bool,
+}
+
+impl Cam {
+    /// The camera rows that board rows `rows` need (for the resampling's footprint and
+    /// bilinear neighbours), from row 0 on.
+    fn needs(&self, rows: &Range<usize>, grid: &BoardGrid) -> Range<usize> {
+        let (p, w) = (&self.feed.placement, self.feed.period_um.len() as f64);
+        if rows.is_empty() || w == 0.0 {
+            return 0..0;
+        }
+        let (sin, _) = p.rotation_rad.sin_cos();
+        let xs = [grid.centre(rows.start, 0).0, grid.centre(rows.end - 1, 0).0];
+        let mut t = (f64::INFINITY, f64::NEG_INFINITY);
+        for x in xs {
+            for c in [-1.0, w] {
+                let b =
+                    (x - p.x0_mm - c * p.pitch_mm * sin) / p.row_mm - self.feed.first_row as f64;
+                t = (t.0.min(b), t.1.max(b));
+            }
+        }
+        if !(t.0.is_finite() && t.1.is_finite()) {
+            return 0..0;
+        }
+        // Through the places (increasing) where the rows were seen, else nominal; two rows
+        // more either way.
+        let (lo, hi) = match &self.feed.places {
+            Some(pl) => (
+                pl.along
+                    .partition_point(|&a| a < t.0 - 2.0)
+                    .saturating_sub(1),
+                pl.along.partition_point(|&a| a <= t.1 + 2.0) + 1,
+            ),
+            None => {
+                let lo = (t.0 - 2.0).floor().max(0.0) as usize;
+                (lo, ((t.1 + 3.0).ceil().max(0.0) as usize).max(lo))
+            }
+        };
+        lo..hi
     }
-    let t1 = Instant::now();
-    // Each thread owns its camera's unwrapped heights and frees them once resampled.
-    let (mut layers, unreached): (Vec<Layer>, Vec<usize>) = std::thread::scope(|s| {
-        let handles: Vec<_> = cameras
+
+    /// Whether the rows `need` are all unwrapped (or will never come).
+    fn has(&self, need: &Range<usize>) -> bool {
+        let done = self.unwrapper.emitted();
+        need.end <= done || (self.ended && done == self.unwrapper.pushed())
+    }
+
+    /// Drops the held rows before camera row `row`.
+    fn drop_before(&mut self, row: usize) {
+        let w = self.held.width;
+        let k = row.saturating_sub(self.held0).min(self.held.rows);
+        if k == 0 {
+            return;
+        }
+        self.held.data.drain(..k * w);
+        self.held.rows -= k;
+        if let Some(v) = &mut self.variance {
+            let kv = k.min(v.rows);
+            v.data.drain(..kv * w);
+            v.rows -= kv;
+        }
+        self.held0 += k;
+    }
+}
+
+/// The board map built band by band as the cameras' rows arrive (see the module docs).
+pub struct Stitcher {
+    grid: BoardGrid,
+    cams: Vec<Cam>,
+    blender: Blender,
+    band_rows: usize,
+    /// The first board row not yet resampled.
+    next: usize,
+    /// The first board row not yet in the map.
+    done: usize,
+    /// The map's rows so far (grown band by band: no page of the map is touched before
+    /// its band is blended).
+    heights: Vec<f32>,
+    variance: Option<Vec<f32>>,
+    camera: Vec<u8>,
+    lost_pixels: u64,
+    timing: Timing,
+}
+
+impl Stitcher {
+    /// A map on `grid` from `cams` (in order across the board), `band_rows` board rows per
+    /// band and camera chunks of `chunk_rows` ([`BAND_ROWS`], [`CHUNK_ROWS`]).
+    pub fn new(
+        grid: BoardGrid,
+        cams: Vec<CameraFeed>,
+        band_rows: usize,
+        chunk_rows: usize,
+    ) -> Stitcher {
+        let variance = cams.iter().any(|c| c.variance);
+        let n = cams.len();
+        let cams = cams
             .into_iter()
-            .zip(unwrapped)
-            .map(|(c, u)| {
-                s.spawn(move || {
-                    let src = Source {
-                        heights: &u.heights,
-                        variance: c.variance.as_ref(),
-                        period_um: &u.period_um,
-                        first_row: c.first_row,
-                        places: c.places.as_ref(),
-                        lost_rows: &c.lost,
-                    };
-                    (resample(&src, &c.placement, grid, FEATHER_PX), u.unreached)
-                })
+            .map(|feed| {
+                let w = feed.period_um.len();
+                Cam {
+                    unwrapper: Unwrapper::new(
+                        feed.period_um.clone(),
+                        BLOCK,
+                        chunk_rows,
+                        MARGIN_ROWS,
+                    ),
+                    held: Grid::invalid(w, 0),
+                    variance: feed.variance.then(|| Grid::invalid(w, 0)),
+                    held0: 0,
+                    ended: false,
+                    feed,
+                }
             })
             .collect();
-        handles
-            .into_iter()
-            .map(|h| h.join().expect("resample thread"))
-            .unzip()
-    });
-    let t2 = Instant::now();
-    let blended = blend(&mut layers, grid, EDGE_PX);
-    let lost_pixels = (0..blended.heights.data.len())
-        .filter(|&i| {
-            !blended.heights.data[i].is_finite()
-                && layers
+        Stitcher {
+            grid,
+            cams,
+            blender: Blender::new(grid, n, EDGE_PX),
+            band_rows: band_rows.max(1),
+            next: 0,
+            done: 0,
+            heights: Vec::with_capacity(grid.rows * grid.width),
+            variance: variance.then(|| Vec::with_capacity(grid.rows * grid.width)),
+            camera: Vec::with_capacity(grid.rows * grid.width),
+            lost_pixels: 0,
+            timing: Timing::default(),
+        }
+    }
+
+    /// Board rows of the map finished so far (from row 0).
+    pub fn rows_done(&self) -> usize {
+        self.done
+    }
+
+    /// Camera `cam`'s next rows: wrapped heights (whole rows, um, NaN invalid) and, when the
+    /// camera has one, their variance (um^2, same layout). Call [`Self::advance`] to work on
+    /// them.
+    pub fn push(&mut self, cam: usize, heights: &[f32], variance: Option<&[f32]>) {
+        let c = &mut self.cams[cam];
+        c.unwrapper.push(heights);
+        if let (Some(v), Some(rows)) = (c.variance.as_mut(), variance) {
+            v.data.extend_from_slice(rows);
+            v.rows += rows.len() / v.width.max(1);
+        }
+    }
+
+    /// No more rows come from camera `cam`.
+    pub fn end(&mut self, cam: usize) {
+        self.cams[cam].ended = true;
+    }
+
+    /// Unwraps what has arrived and builds every band whose rows are unwrapped.
+    pub fn advance(&mut self) {
+        let t0 = Instant::now();
+        std::thread::scope(|s| {
+            for c in self.cams.iter_mut().filter(|c| c.unwrapper.ready(c.ended)) {
+                s.spawn(move || {
+                    while let Some(g) = c.unwrapper.next(c.ended) {
+                        c.held.data.extend_from_slice(&g.data);
+                        c.held.rows += g.rows;
+                    }
+                });
+            }
+        });
+        self.timing.unwrap_s += t0.elapsed().as_secs_f64();
+        while self.next < self.grid.rows {
+            let band = self.next..(self.next + self.band_rows).min(self.grid.rows);
+            let halo = self.blender.halo(&band);
+            let grid = &self.grid;
+            if !self.cams.iter().all(|c| c.has(&c.needs(&halo, grid))) {
+                break;
+            }
+            let t1 = Instant::now();
+            let layers: Vec<Layer> = std::thread::scope(|s| {
+                let handles: Vec<_> = self
+                    .cams
                     .iter()
-                    .any(|l| l.is_lost(i / grid.width, i % grid.width))
+                    .map(|c| {
+                        let halo = halo.clone();
+                        s.spawn(move || {
+                            let src = Source {
+                                heights: &c.held,
+                                row0: c.held0,
+                                variance: c.variance.as_ref(),
+                                period_um: &c.feed.period_um,
+                                first_row: c.feed.first_row,
+                                places: c.feed.places.as_ref(),
+                                lost_rows: &c.feed.lost,
+                            };
+                            resample(&src, &c.feed.placement, grid, halo, FEATHER_PX)
+                        })
+                    })
+                    .collect();
+                handles
+                    .into_iter()
+                    .map(|h| h.join().expect("resample thread"))
+                    .collect()
+            });
+            let t2 = Instant::now();
+            let bands = self.blender.band(band.clone(), layers);
+            self.put(bands);
+            self.timing.resample_s += (t2 - t1).as_secs_f64();
+            self.timing.blend_s += t2.elapsed().as_secs_f64();
+            self.next = band.end;
+            // The next band's halo starts one row before it.
+            let next = self.blender.halo(&(self.next..self.next + 1));
+            for c in &mut self.cams {
+                let from = c.needs(&next, &self.grid).start;
+                c.drop_before(from);
+            }
+        }
+    }
+
+    /// Appends blended bands (in board-row order) to the map.
+    fn put(&mut self, bands: Vec<crate::blend::BandMap>) {
+        for m in bands {
+            debug_assert_eq!(m.rows.start, self.done, "bands in order");
+            self.heights.extend_from_slice(&m.heights);
+            self.camera.extend_from_slice(&m.camera);
+            if let Some(v) = self.variance.as_mut() {
+                match &m.variance {
+                    Some(mv) => v.extend_from_slice(mv),
+                    None => v.resize(self.heights.len(), f32::NAN),
+                }
+            }
+            self.lost_pixels += m.lost_pixels;
+            self.done = m.rows.end;
+        }
+    }
+
+    /// Ends every camera, builds the remaining bands and returns the map.
+    pub fn finish(mut self) -> Assembled {
+        for c in &mut self.cams {
+            c.ended = true;
+        }
+        self.advance();
+        let t = Instant::now();
+        let bands = self.blender.end();
+        self.put(bands);
+        self.timing.blend_s += t.elapsed().as_secs_f64();
+        let unreached = self.cams.iter().map(|c| c.unwrapper.unreached).collect();
+        let (turns, edge_median_um, edge_off_bands, seams) = self.blender.finish();
+        let (w, rows) = (self.grid.width, self.grid.rows);
+        let grid = |data: Vec<f32>| Grid {
+            width: w,
+            rows,
+            data,
+        };
+        Assembled {
+            blended: Blended {
+                heights: grid(self.heights),
+                variance: self.variance.map(grid),
+                camera: self.camera,
+                turns,
+                edge_median_um,
+                edge_off_bands,
+                seams,
+            },
+            unreached,
+            lost_pixels: self.lost_pixels,
+            timing: self.timing,
+        }
+    }
+}
+
+/// Unwraps, resamples and blends `cameras` (in order across the board) onto `grid` through a
+/// [`Stitcher`], fed a chunk of every camera's rows at a time.
+pub fn assemble(cameras: Vec<CameraRows>, grid: &BoardGrid) -> Assembled {
+    assemble_in(cameras, grid, BAND_ROWS, CHUNK_ROWS)
+}
+
+/// [`assemble`] with `band_rows` board rows per band and camera chunks of `chunk_rows`.
+pub fn assemble_in(
+    cameras: Vec<CameraRows>,
+    grid: &BoardGrid,
+    band_rows: usize,
+    chunk_rows: usize,
+) -> Assembled {
+    let feeds = cameras
+        .iter()
+        .map(|c| CameraFeed {
+            first_row: c.first_row,
+            period_um: c.period_um.clone(),
+            placement: c.placement,
+            places: c.places.clone(),
+            lost: c.lost.clone(),
+            variance: c.variance.is_some(),
         })
-        .count() as u64;
-    let t3 = Instant::now();
-    Assembled {
-        blended,
-        lost_pixels,
-        unreached,
-        timing: Timing {
-            unwrap_s: (t1 - t0).as_secs_f64(),
-            resample_s: (t2 - t1).as_secs_f64(),
-            blend_s: (t3 - t2).as_secs_f64(),
-        },
+        .collect();
+    // Each camera's rows cut into chunks, one camera at a time, so that every chunk is freed
+    // once pushed (a camera's grid cannot give back its first rows).
+    let step = chunk_rows.max(1);
+    let split = |g: Grid| -> std::collections::VecDeque<Vec<f32>> {
+        g.data
+            .chunks(step * g.width.max(1))
+            .map(<[f32]>::to_vec)
+            .collect()
+    };
+    let mut chunks: Vec<_> = cameras
+        .into_iter()
+        .map(|c| (split(c.heights), c.variance.map(split)))
+        .collect();
+    let mut st = Stitcher::new(*grid, feeds, band_rows, chunk_rows);
+    while chunks.iter().any(|c| !c.0.is_empty()) {
+        for (k, (h, v)) in chunks.iter_mut().enumerate() {
+            let Some(rows) = h.pop_front() else {
+                st.end(k);
+                continue;
+            };
+            let var = v.as_mut().and_then(|v| v.pop_front());
+            st.push(k, &rows, var.as_deref());
+        }
+        st.advance();
+    }
+    st.finish()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The truth: a bow of 2 turns (no chunk's seed block on turn 0), 0 at the edges and flat
+    /// at the side edges, and paste boxes with sloped walls, um at board `(x, y)` mm. The
+    /// board is 20 times narrower than a real one, its slopes 10 times steeper (up to 8 um
+    /// per pixel).
+    fn truth(x: f64, y: f64, len: f64, wid: f64) -> f64 {
+        let (xi, eta) = (2.0 * x / len - 1.0, 2.0 * y / wid - 1.0);
+        let across = (1.0 - eta * eta).powi(2);
+        let bow = 300.0 * (1.0 - xi * xi) * across;
+        let tilt = 500.0 * (std::f64::consts::PI * x / len).sin() * across;
+        let (u, v) = (x.rem_euclid(1.0), y.rem_euclid(1.0));
+        let inside = (u - 0.1).min(0.5 - u).min(v - 0.1).min(0.6 - v);
+        bow + tilt + 120.0 * (inside / 0.1 + 0.5).clamp(0.0, 1.0)
+    }
+
+    const LEN: f64 = 36.0;
+    const WID: f64 = 9.0;
+    const T_UM: f32 = 400.0;
+
+    /// Three cameras of 120 columns across the board, rotated, wrapped; camera 1 seen at
+    /// places off its nominal rows, camera 2 with 40 lost rows.
+    fn cameras() -> (Vec<CameraRows>, BoardGrid) {
+        cameras_over(|x, y| truth(x, y, LEN, WID))
+    }
+
+    /// [`cameras`] over the heights `truth` (um at board `(x, y)` mm).
+    fn cameras_over(truth: impl Fn(f64, f64) -> f64) -> (Vec<CameraRows>, BoardGrid) {
+        let rows = 1200usize;
+        let cams = [0.0, 2.95, 5.9]
+            .into_iter()
+            .enumerate()
+            .map(|(k, y0)| {
+                let place = CameraPlacement {
+                    x0_mm: 0.0,
+                    y0_mm: y0,
+                    row_mm: 0.03,
+                    pitch_mm: 0.0301,
+                    rotation_rad: [0.002, -0.003, 0.001][k],
+                };
+                let w = 104usize;
+                let period: Vec<f32> = (0..w)
+                    .map(|c| T_UM * (1.0 + 0.02 * (c as f32 / w as f32 - 0.5)))
+                    .collect();
+                let along: Vec<f64> = (0..rows)
+                    .map(|i| i as f64 + 0.3 * (i as f64 / 17.0).sin())
+                    .collect();
+                let mut g = Grid::invalid(w, rows);
+                for b in 0..rows {
+                    for (c, &t) in period.iter().enumerate() {
+                        let row = if k == 1 { along[b] } else { b as f64 };
+                        let (x, y) = place.to_board(row, c as f64);
+                        let h = truth(x, y) as f32;
+                        *g.at_mut(b, c) = h - t * (h / t + 0.5).floor();
+                    }
+                }
+                let mut lost = Vec::new();
+                if k == 2 {
+                    lost = vec![false; rows];
+                    lost[700..740].fill(true);
+                    for r in 700..740 {
+                        g.data[r * w..(r + 1) * w].fill(f32::NAN);
+                    }
+                }
+                CameraRows {
+                    heights: g,
+                    variance: None,
+                    dead_masked: 0,
+                    places: (k == 1).then(|| RowPlaces {
+                        along,
+                        across: vec![0.0; rows],
+                    }),
+                    first_row: 0,
+                    period_um: period,
+                    placement: place,
+                    lost,
+                }
+            })
+            .collect();
+        let grid = BoardGrid {
+            x0_mm: 0.0,
+            y0_mm: 0.0,
+            pitch_mm: 0.03,
+            rows: 1200,
+            width: 300,
+        };
+        (cams, grid)
+    }
+
+    #[test]
+    fn band_by_band_the_map_is_the_truth_whatever_the_band() {
+        let (cams, grid) = cameras();
+        let whole = assemble_in(cams.clone(), &grid, grid.rows, 5000);
+        let m = &whole.blended;
+        // Absolute heights: no pixel a turn off, the median error small.
+        let mut errs = Vec::new();
+        for i in 0..grid.rows {
+            for j in 0..grid.width {
+                let h = m.heights.at(i, j);
+                if h.is_finite() {
+                    let (x, y) = grid.centre(i, j);
+                    errs.push((f64::from(h) - truth(x, y, LEN, WID)).abs());
+                }
+            }
+        }
+        errs.sort_by(f64::total_cmp);
+        assert!(
+            errs.len() > grid.rows * grid.width * 85 / 100,
+            "{}",
+            errs.len()
+        );
+        assert!(
+            errs[errs.len() / 2] < 1.0,
+            "median {}",
+            errs[errs.len() / 2]
+        );
+        assert!(errs[errs.len() - 1] < 100.0, "max {}", errs[errs.len() - 1]);
+        assert!(whole.lost_pixels > 0 && m.off_turn_bands() == 0);
+        // The same map band by band and chunk by chunk, as rows arrive.
+        for (band, chunk) in [(37, 64), (256, 100), (1, 512)] {
+            let a = assemble_in(cams.clone(), &grid, band, chunk);
+            let b = &a.blended;
+            // (The turns each camera was moved by depend on its first chunk's seed block;
+            // the heights they give do not.)
+            assert_eq!(b.camera, m.camera, "band {band}");
+            assert_eq!(a.lost_pixels, whole.lost_pixels);
+            assert_eq!(
+                b.off_turn_bands(),
+                0,
+                "band {band}: {} {:?}",
+                b.edge_off_bands,
+                b.seams
+            );
+            for (x, y) in b.heights.data.iter().zip(&m.heights.data) {
+                assert_eq!(x.is_finite(), y.is_finite());
+                if x.is_finite() {
+                    assert!((x - y).abs() < 1e-3, "band {band}: {x} {y}");
+                }
+            }
+            for (s, t) in b.seams.iter().zip(&m.seams) {
+                assert_eq!((s.pixels, s.flat_pixels), (t.pixels, t.flat_pixels));
+                let close = |p: Option<f64>, q: Option<f64>| match (p, q) {
+                    (Some(p), Some(q)) => (p - q).abs() < 1e-3,
+                    (p, q) => p.is_none() && q.is_none(),
+                };
+                assert!(close(s.height_step_um, t.height_step_um), "{s:?} {t:?}");
+                assert!(close(s.shift_x_um, t.shift_x_um) && close(s.shift_y_um, t.shift_y_um));
+            }
+        }
+    }
+
+    #[test]
+    fn a_board_whose_trailing_edge_is_a_turn_high_is_flagged() {
+        // The same board rising by 1.25 turns towards its trailing edge (not clamped there):
+        // the leading edge chooses the board's turn, the last bands' edge pixels disagree.
+        let (cams, grid) = cameras_over(|x, y| {
+            let eta = 2.0 * y / WID - 1.0;
+            truth(x, y, LEN, WID) + 500.0 * x / LEN * (1.0 - eta * eta).powi(2)
+        });
+        let a = assemble(cams, &grid);
+        assert!(a.blended.edge_off_bands > 0);
+        let (cams, grid) = cameras();
+        assert_eq!(assemble(cams, &grid).blended.edge_off_bands, 0);
     }
 }

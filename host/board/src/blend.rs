@@ -1,26 +1,39 @@
-//! The cameras' layers into one board map.
+//! The cameras' layers into one board map, band of board rows by band.
 //!
 //! 1. **Turns between cameras.** Each camera was unwrapped on its own (`super::unwrap`), so
 //!    two neighbours may sit whole turns apart. Layers are taken in order across the board;
 //!    each is moved by the whole number of turns that brings the median of its difference to
-//!    the previous layer, over their shared valid pixels, nearest to zero.
+//!    the previous layer, over their shared valid pixels, nearest to zero. The turn is decided
+//!    on the first band where the two share at least [`MIN_SHARED`] valid pixels (the board's
+//!    leading rows: the first band on the shipped scenes) and held; every later band with as
+//!    many is checked against it, and a band whose own median says another turn is counted
+//!    ([`Blended::off_turn_bands`]: the map's evidence that a camera's unwrapping slipped).
 //! 2. **The board's turn.** The board is clamped at its edges on the conveyor rails, which the
 //!    calibration planes define as height 0: the whole map is moved by the whole number of
 //!    turns that brings the median height of the valid pixels within `edge_px` of the board
-//!    outline nearest to zero.
+//!    outline nearest to zero. It is decided on the leading edge and the side edges of the
+//!    first bands, as soon as [`MIN_EDGE`] edge pixels are valid, and every band's side-edge
+//!    pixels and its leading or trailing edge rows are checked against it, each on their own
+//!    ([`Blended::edge_off_bands`]).
+//!    Bands wait (held whole) until both decisions are made; on a board they are made on its
+//!    first band.
 //! 3. **Blend.** Each pixel is the weighted mean of the valid layers (weights fall to zero at a
 //!    camera's side edges, so overlaps are feathered); the camera with the largest weight is
 //!    recorded as the pixel's source.
 //! 4. **Seams.** For each pair of neighbouring layers, over their shared valid pixels on flat
 //!    board (the 3 x 3 range of the blended map below [`FLAT_RANGE_UM`]): the mean height
 //!    difference, and the lateral misregistration: the shift (along and across, sub-pixel, a
-//!    gradient estimate without interpolation, see `best_shift`) that best aligns one layer to
+//!    gradient estimate without interpolation, see `ShiftSums`) that best aligns one layer to
 //!    the other over all shared pixels. The shift needs texture: at least [`MIN_WALL_PIXELS`]
 //!    deposit-wall pixels (a step above [`WALL_UM`] between neighbours along the shift) in the
-//!    overlap; otherwise it is not reported (null).
+//!    overlap; otherwise it is not reported (null). Both are sums over the pixels, added band
+//!    by band: the whole board is their window. A band's layers carry one row of context on
+//!    either side (its halo) for the 3 x 3 range and the shift's central differences.
 
 use crate::resample::{BoardGrid, Layer};
 use crate::Grid;
+use std::collections::VecDeque;
+use std::ops::Range;
 
 /// A pixel counts as flat board when the 3 x 3 range of the blended map is below this, um.
 pub const FLAT_RANGE_UM: f32 = 25.0;
@@ -29,6 +42,12 @@ pub const FLAT_RANGE_UM: f32 = 25.0;
 pub const WALL_UM: f32 = 20.0;
 /// Wall pixels a seam's shared area needs for its misregistration to be measured.
 pub const MIN_WALL_PIXELS: usize = 50;
+
+/// Shared valid pixels of two neighbouring layers that decide (or check) their turn.
+pub const MIN_SHARED: usize = 200;
+
+/// Valid board-edge pixels that decide (or check) the board's turn.
+pub const MIN_EDGE: usize = 500;
 
 /// No camera (invalid pixel) in [`Blended::camera`].
 pub const NO_CAMERA: u8 = u8::MAX;
@@ -48,6 +67,9 @@ pub struct Seam {
     pub shift_x_um: Option<f64>,
     /// Misregistration across the motion, um.
     pub shift_y_um: Option<f64>,
+    /// Bands whose own median difference put the later camera on another turn than the one
+    /// held (step 1): 0 on a good map.
+    pub off_turn_bands: u64,
 }
 
 impl Seam {
@@ -69,88 +91,460 @@ pub struct Blended {
     pub camera: Vec<u8>,
     /// Whole turns each layer was moved by (steps 1 and 2).
     pub turns: Vec<i32>,
-    /// Median height of the board edge before step 2, um (None: no valid edge pixel).
+    /// Median height of the board edge pixels that decided the board's turn, before it, um
+    /// (None: no valid edge pixel).
     pub edge_median_um: Option<f64>,
+    /// Bands whose edge pixels put the board on another turn than the one held (step 2): 0 on
+    /// a good map.
+    pub edge_off_bands: u64,
     /// Neighbouring layers.
     pub seams: Vec<Seam>,
+}
+
+impl Blended {
+    /// Bands on another turn than the one held, between cameras or at the board's edge.
+    pub fn off_turn_bands(&self) -> u64 {
+        self.edge_off_bands + self.seams.iter().map(|s| s.off_turn_bands).sum::<u64>()
+    }
 }
 
 fn median(mut v: Vec<f32>) -> Option<f32> {
     if v.is_empty() {
         return None;
     }
-    v.sort_by(f32::total_cmp);
-    Some(v[v.len() / 2])
+    let k = v.len() / 2;
+    Some(*v.select_nth_unstable_by(k, f32::total_cmp).1)
 }
 
-/// Blends `layers` (in order across the board) on `grid`; see the module docs.
-pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended {
-    let n = grid.rows * grid.width;
-    let mut turns = vec![0i32; layers.len()];
+/// One band of the blended map: board rows `rows`, row-major over the grid's width.
+#[derive(Clone, Debug)]
+pub struct BandMap {
+    /// Board rows.
+    pub rows: Range<usize>,
+    /// Heights, um (NaN invalid).
+    pub heights: Vec<f32>,
+    /// Variance, um^2 (NaN unknown), when a camera came with one.
+    pub variance: Option<Vec<f32>>,
+    /// Source camera of each pixel.
+    pub camera: Vec<u8>,
+    /// Pixels left invalid because a camera lost the rows that would have covered them.
+    pub lost_pixels: u64,
+}
 
-    // 1. Turns between neighbours.
-    for k in 1..layers.len() {
-        let (done, rest) = layers.split_at_mut(k);
-        let (prev, cur) = (&done[k - 1], &mut rest[0]);
-        let mut d = Vec::new();
-        let mut t = Vec::new();
-        // Over the shared window, in board order (outside it one of the two is NaN).
-        let (rows, cols) = prev.overlap(cur);
-        for r in rows {
-            for c in cols.clone() {
-                let (Some(ia), Some(ib)) = (prev.index(r, c), cur.index(r, c)) else {
-                    continue;
-                };
-                let (a, b) = (prev.heights.data[ia], cur.heights.data[ib]);
-                if a.is_finite() && b.is_finite() {
-                    d.push(b - a);
-                    t.push(cur.period_um.data[ib]);
-                }
-            }
+/// A band waiting for the turns: its layers (over `rows` and their halo), the turns they were
+/// already moved by.
+struct Pending {
+    rows: Range<usize>,
+    layers: Vec<Layer>,
+    moved: Vec<i32>,
+    /// Whether its edge pixels were gathered for the board's turn.
+    sampled: bool,
+}
+
+/// Running sums of a seam (step 4), added band by band.
+#[derive(Clone, Copy, Debug, Default)]
+struct SeamSums {
+    pixels: u64,
+    flat: u64,
+    step_sum: f64,
+    along: ShiftSums,
+    across: ShiftSums,
+    off_turn_bands: u64,
+}
+
+/// The sums of the shift estimate along one axis: `b(p) = a(p + s) + k` over the pixels valid
+/// in both layers, a gradient (Lucas-Kanade) estimate, `d = b - a = k + s g` solved by least
+/// squares for `(k, s)`, with `g` the central difference along the shift of the two layers'
+/// mean. No layer is interpolated: a search over interpolated shifts lowers the noise of the
+/// interpolated samples away from whole pixels (`(1-f)^2 + f^2` of it) and so finds a false
+/// minimum a fraction of a pixel off either way. No shift without texture (fewer than
+/// [`MIN_WALL_PIXELS`] deposit-wall pixels) or beyond the first-order range (2 px).
+#[derive(Clone, Copy, Debug, Default)]
+struct ShiftSums {
+    n: u64,
+    walls: u64,
+    sg: f64,
+    sgg: f64,
+    sd: f64,
+    sdg: f64,
+}
+
+impl ShiftSums {
+    /// The shift, px.
+    fn shift(&self) -> Option<f64> {
+        if self.walls < MIN_WALL_PIXELS as u64 || self.n < 100 {
+            return None;
         }
-        if let (Some(d), Some(t)) = (median(d), median(t)) {
-            let k_turns = (-d / t).round() as i32;
-            shift(cur, k_turns);
-            turns[k] = k_turns;
+        let nf = self.n as f64;
+        let det = nf * self.sgg - self.sg * self.sg;
+        if det.is_nan() || det <= 0.0 {
+            return None;
+        }
+        let s = (nf * self.sdg - self.sg * self.sd) / det;
+        (s.is_finite() && s.abs() <= 2.0).then_some(s)
+    }
+}
+
+/// The blend from band to band: the turns once decided, the seams' sums, the bands waiting.
+pub struct Blender {
+    grid: BoardGrid,
+    edge_px: usize,
+    /// Turn of layer `k` against layer `k - 1` once decided (`[0]`: `Some(0)`).
+    pair: Vec<Option<i32>>,
+    /// The board's turn once decided.
+    board: Option<i32>,
+    /// Edge heights and heights per turn gathered for the board's turn.
+    edge: (Vec<f32>, Vec<f32>),
+    /// Per undecided pair: the differences and heights per turn gathered for its turn.
+    shared: Vec<(Vec<f32>, Vec<f32>)>,
+    edge_median_um: Option<f64>,
+    edge_off_bands: u64,
+    seams: Vec<SeamSums>,
+    pending: VecDeque<Pending>,
+    variance: bool,
+}
+
+impl Blender {
+    /// A blend of `cameras` layers (in order across the board) on `grid`, the board's turn
+    /// from the pixels within `edge_px` of its outline.
+    pub fn new(grid: BoardGrid, cameras: usize, edge_px: usize) -> Blender {
+        let mut pair = vec![None; cameras];
+        if let Some(p) = pair.first_mut() {
+            *p = Some(0);
+        }
+        Blender {
+            grid,
+            edge_px,
+            pair,
+            board: None,
+            edge: (Vec::new(), Vec::new()),
+            shared: vec![(Vec::new(), Vec::new()); cameras],
+            edge_median_um: None,
+            edge_off_bands: 0,
+            seams: vec![SeamSums::default(); cameras.saturating_sub(1)],
+            pending: VecDeque::new(),
+            variance: false,
         }
     }
 
-    // 3. Blend (the board's turn is applied after, to the layers and the map alike).
-    let mut heights = Grid::invalid(grid.width, grid.rows);
-    let mut variance = layers
-        .iter()
-        .any(|l| l.variance.is_some())
-        .then(|| Grid::invalid(grid.width, grid.rows));
-    // The blended height per turn is not kept (a board-sized grid): step 2 recomputes it
-    // where it needs it ([`mixed_period`]).
+    /// The rows (with halo) a band of board rows `rows` needs its layers over.
+    pub fn halo(&self, rows: &Range<usize>) -> Range<usize> {
+        rows.start.saturating_sub(1)..(rows.end + 1).min(self.grid.rows)
+    }
+
+    /// The next band: board rows `rows` (following the last band's), with every camera's layer
+    /// over [`Self::halo`] of them. Returns the bands the turns allow to be blended now, in
+    /// order (none while a turn waits for evidence).
+    pub fn band(&mut self, rows: Range<usize>, layers: Vec<Layer>) -> Vec<BandMap> {
+        self.variance |= layers.iter().any(|l| l.variance.is_some());
+        for k in 1..layers.len() {
+            let (mut d, mut t) = shared_differences(&layers[k - 1], &layers[k]);
+            match self.pair[k] {
+                None => {
+                    // Gathered over the bands until there are enough.
+                    let e = &mut self.shared[k];
+                    e.0.append(&mut d);
+                    e.1.append(&mut t);
+                    if e.0.len() >= MIN_SHARED {
+                        let (d, t) = std::mem::take(e);
+                        self.pair[k] = pair_turn(d, t);
+                    }
+                }
+                Some(held) => {
+                    if d.len() >= MIN_SHARED && pair_turn(d, t).is_some_and(|t| t != held) {
+                        self.seams[k - 1].off_turn_bands += 1;
+                    }
+                }
+            }
+        }
+        let n = layers.len();
+        self.pending.push_back(Pending {
+            rows,
+            layers,
+            moved: vec![0; n],
+            sampled: false,
+        });
+        self.flush(false)
+    }
+
+    /// No more bands: undecided turns are 0; every waiting band is blended.
+    pub fn end(&mut self) -> Vec<BandMap> {
+        self.flush(true)
+    }
+
+    /// Whole turns of each layer (camera turns, then the board's; 0 where undecided).
+    fn turns(&self) -> Vec<i32> {
+        let mut acc = 0;
+        self.pair
+            .iter()
+            .map(|p| {
+                acc += p.unwrap_or(0);
+                acc + self.board.unwrap_or(0)
+            })
+            .collect()
+    }
+
+    fn flush(&mut self, ended: bool) -> Vec<BandMap> {
+        if ended {
+            // A pair with fewer shared pixels than needed decides on what it has.
+            for (p, e) in self.pair.iter_mut().zip(&mut self.shared) {
+                if p.is_none() {
+                    let (d, t) = std::mem::take(e);
+                    *p = Some(pair_turn(d, t).unwrap_or(0));
+                }
+            }
+        }
+        if self.pair.iter().any(Option::is_none) {
+            return Vec::new();
+        }
+        // The board's turn from the waiting bands' edge pixels, on the cameras' turns.
+        if self.board.is_none() {
+            let turns = self.turns();
+            for p in self.pending.iter_mut().filter(|p| !p.sampled) {
+                p.sampled = true;
+                move_layers(p, &turns);
+                let (h, t) = edge_pixels(&p.layers, &p.rows, &self.grid, self.edge_px, Edge::All);
+                self.edge.0.extend(h);
+                self.edge.1.extend(t);
+            }
+            if self.edge.0.len() >= MIN_EDGE || ended {
+                let (h, t) = std::mem::take(&mut self.edge);
+                self.edge_median_um = median(h.clone()).map(f64::from);
+                self.board = Some(match (median(h), median(t)) {
+                    (Some(m), Some(t)) if t > 0.0 => (-m / t).round() as i32,
+                    _ => 0,
+                });
+            } else {
+                return Vec::new();
+            }
+        }
+        let turns = self.turns();
+        let mut out = Vec::with_capacity(self.pending.len());
+        while let Some(mut p) = self.pending.pop_front() {
+            move_layers(&mut p, &turns);
+            // The band's side edges, and its rows of the leading or trailing edge, each on
+            // their own: the trailing edge is checked whatever the sides say.
+            for part in [Edge::Sides, Edge::Ends] {
+                let (h, t) = edge_pixels(&p.layers, &p.rows, &self.grid, self.edge_px, part);
+                if h.len() < MIN_EDGE / 5 {
+                    continue;
+                }
+                if let (Some(m), Some(t)) = (median(h), median(t)) {
+                    if t > 0.0 && (-m / t).round() as i32 != 0 {
+                        self.edge_off_bands += 1;
+                    }
+                }
+            }
+            out.push(self.blend_band(&p));
+        }
+        out
+    }
+
+    /// Steps 3 and 4 on a band whose layers sit on their turns.
+    fn blend_band(&mut self, p: &Pending) -> BandMap {
+        let grid = &self.grid;
+        let halo = self.halo(&p.rows);
+        let map = mix_rows(&p.layers, grid, halo.clone(), self.variance);
+        for k in 1..p.layers.len() {
+            add_seam(
+                &mut self.seams[k - 1],
+                (&p.layers[k - 1], &p.layers[k]),
+                &map,
+                p.rows.clone(),
+                grid,
+            );
+        }
+        // The band's rows out of the halo's.
+        let w = grid.width;
+        let (a, b) = (
+            (p.rows.start - halo.start) * w,
+            (p.rows.end - halo.start) * w,
+        );
+        let heights = map.heights[a..b].to_vec();
+        let lost_pixels = p
+            .rows
+            .clone()
+            .flat_map(|r| (0..w).map(move |c| (r, c)))
+            .zip(&heights)
+            .filter(|&((r, c), h)| !h.is_finite() && p.layers.iter().any(|l| l.is_lost(r, c)))
+            .count() as u64;
+        BandMap {
+            rows: p.rows.clone(),
+            heights,
+            variance: map.variance.map(|v| v[a..b].to_vec()),
+            camera: map.camera[a..b].to_vec(),
+            lost_pixels,
+        }
+    }
+
+    /// The turns, the edge's median, the seams: what the bands decided and added up.
+    pub fn finish(self) -> (Vec<i32>, Option<f64>, u64, Vec<Seam>) {
+        let to_um = self.grid.pitch_mm * 1000.0;
+        let seams = self
+            .seams
+            .iter()
+            .enumerate()
+            .map(|(k, s)| Seam {
+                cameras: (k, k + 1),
+                pixels: s.pixels,
+                flat_pixels: s.flat,
+                height_step_um: (s.flat > 0).then(|| s.step_sum / s.flat as f64),
+                shift_x_um: s.along.shift().map(|v| v * to_um),
+                shift_y_um: s.across.shift().map(|v| v * to_um),
+                off_turn_bands: s.off_turn_bands,
+            })
+            .collect();
+        (
+            self.turns(),
+            self.edge_median_um,
+            self.edge_off_bands,
+            seams,
+        )
+    }
+}
+
+/// Moves a waiting band's layers onto `turns`.
+fn move_layers(p: &mut Pending, turns: &[i32]) {
+    for ((l, m), &t) in p.layers.iter_mut().zip(&mut p.moved).zip(turns) {
+        shift(l, t - *m);
+        *m = t;
+    }
+}
+
+/// The whole turns that bring a layer onto the previous one (step 1) from the differences
+/// `d` (later minus earlier) over their shared valid pixels and the later one's heights per
+/// turn `t` there.
+fn pair_turn(d: Vec<f32>, t: Vec<f32>) -> Option<i32> {
+    let (d, t) = (median(d)?, median(t)?);
+    (t > 0.0).then(|| (-d / t).round() as i32)
+}
+
+/// The differences (`cur` minus `prev`) over the two layers' shared valid pixels, and `cur`'s
+/// heights per turn there.
+fn shared_differences(prev: &Layer, cur: &Layer) -> (Vec<f32>, Vec<f32>) {
+    let mut d = Vec::new();
+    let mut t = Vec::new();
+    // Over the shared window, in board order (outside it one of the two is NaN).
+    let (rows, cols) = prev.overlap(cur);
+    for r in rows {
+        for c in cols.clone() {
+            let (Some(ia), Some(ib)) = (prev.index(r, c), cur.index(r, c)) else {
+                continue;
+            };
+            let (a, b) = (prev.heights.data[ia], cur.heights.data[ib]);
+            if a.is_finite() && b.is_finite() {
+                d.push(b - a);
+                t.push(cur.period_um.data[ib]);
+            }
+        }
+    }
+    (d, t)
+}
+
+/// Which of a band's board-edge pixels.
+#[derive(Clone, Copy, PartialEq)]
+enum Edge {
+    /// Every pixel within `edge_px` of the outline.
+    All,
+    /// Those of the side edges (the columns), outside the leading and trailing rows.
+    Sides,
+    /// Those of the leading and trailing edge rows.
+    Ends,
+}
+
+/// The blended heights and heights per turn of the valid board-edge pixels of board rows
+/// `rows` (within `edge_px` of the outline; `part` of them).
+fn edge_pixels(
+    layers: &[Layer],
+    rows: &Range<usize>,
+    grid: &BoardGrid,
+    edge_px: usize,
+    part: Edge,
+) -> (Vec<f32>, Vec<f32>) {
+    let (mut h, mut t) = (Vec::new(), Vec::new());
+    let w = grid.width;
+    for r in rows.clone() {
+        let end = r < edge_px || r + edge_px >= grid.rows;
+        let cols: Vec<Range<usize>> = match (part, end || 2 * edge_px >= w) {
+            (Edge::Sides, true) | (Edge::Ends, false) => continue,
+            (_, true) => vec![0..w],
+            (_, false) => vec![0..edge_px, w - edge_px..w],
+        };
+        for c in cols.into_iter().flatten() {
+            if let Some((hm, tm)) = mix_at(layers, r, c) {
+                h.push(hm);
+                t.push(tm);
+            }
+        }
+    }
+    (h, t)
+}
+
+/// The blended height and height per turn at board pixel `(r, c)` (step 3's weighted means),
+/// `None` where no layer is valid.
+fn mix_at(layers: &[Layer], r: usize, c: usize) -> Option<(f32, f32)> {
+    let (mut s, mut ts, mut ws) = (0.0f64, 0.0f64, 0.0f64);
+    for l in layers {
+        let Some(i) = l.index(r, c) else {
+            continue;
+        };
+        let (h, w) = (l.heights.data[i], l.weight.data[i]);
+        if h.is_finite() && w > 0.0 {
+            let wf = f64::from(w);
+            s += wf * f64::from(h);
+            ts += wf * f64::from(l.period_um.data[i]);
+            ws += wf;
+        }
+    }
+    (ws > 0.0).then(|| ((s / ws) as f32, (ts / ws) as f32))
+}
+
+/// Blended rows of the map: board rows `rows`, row-major over the grid's width.
+struct MapRows {
+    rows: Range<usize>,
+    heights: Vec<f32>,
+    variance: Option<Vec<f32>>,
+    camera: Vec<u8>,
+}
+
+impl MapRows {
+    /// Height at board pixel `(r, c)` (`r` within the rows).
+    fn at(&self, r: usize, c: usize, w: usize) -> f32 {
+        self.heights[(r - self.rows.start) * w + c]
+    }
+}
+
+/// Step 3 over board rows `rows`, in parallel over parts of them: every pixel is its own
+/// weighted mean.
+fn mix_rows(layers: &[Layer], grid: &BoardGrid, rows: Range<usize>, variance: bool) -> MapRows {
+    let w = grid.width;
+    let n = rows.len() * w;
+    let mut heights = vec![f32::NAN; n];
+    let mut vars = variance.then(|| vec![f32::NAN; n]);
     let mut camera = vec![NO_CAMERA; n];
-    // In parallel over row bands: every pixel is its own weighted mean.
     let threads = std::thread::available_parallelism().map_or(1, |t| t.get());
-    let band = n.div_ceil(threads.max(1)).max(1);
-    let layers_ref: &[Layer] = layers;
+    let part_rows = rows.len().div_ceil(threads.max(1)).max(1);
+    let part = part_rows * w;
     std::thread::scope(|sc| {
         let parts = heights
-            .data
-            .chunks_mut(band)
+            .chunks_mut(part.max(1))
             .zip(
-                variance
-                    .as_mut()
-                    .map_or(&mut [][..], |v| &mut v.data[..])
-                    .chunks_mut(band)
+                vars.as_deref_mut()
+                    .unwrap_or(&mut [][..])
+                    .chunks_mut(part.max(1))
                     .map(Some)
                     .chain(std::iter::repeat_with(|| None)),
             )
-            .zip(camera.chunks_mut(band))
+            .zip(camera.chunks_mut(part.max(1)))
             .enumerate();
-        for (part, ((hs, mut vs_out), cs)) in parts {
+        for (k, ((hs, mut vs_out), cs)) in parts {
+            let r0 = rows.start + k * part_rows;
             sc.spawn(move || {
-                // Board row and column of the band's first pixel, then stepped.
-                let first = part * band;
-                let (mut r, mut c) = (first / grid.width, first % grid.width);
+                let (mut r, mut c) = (r0, 0);
                 for j in 0..hs.len() {
                     let (mut s, mut ws, mut vs) = (0.0f64, 0.0f64, 0.0f64);
                     let mut best = (0.0f32, NO_CAMERA);
-                    for (k, l) in layers_ref.iter().enumerate() {
+                    for (k, l) in layers.iter().enumerate() {
                         let Some(i) = l.index(r, c) else {
                             continue;
                         };
@@ -172,7 +566,7 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
                         }
                     }
                     c += 1;
-                    if c == grid.width {
+                    if c == w {
                         (r, c) = (r + 1, 0);
                     }
                     if ws > 0.0 {
@@ -186,86 +580,47 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
             });
         }
     });
-
-    // 2. The board's turn from its clamped edges.
-    let mut edge = Vec::new();
-    let mut edge_t = Vec::new();
-    for r in 0..grid.rows {
-        for c in 0..grid.width {
-            let on_edge =
-                r < edge_px || c < edge_px || r + edge_px >= grid.rows || c + edge_px >= grid.width;
-            let h = heights.at(r, c);
-            if on_edge && h.is_finite() {
-                edge.push(h);
-                edge_t.push(mixed_period(layers, r, c));
-            }
-        }
+    MapRows {
+        rows,
+        heights,
+        variance: vars,
+        camera,
     }
-    let edge_median_um = median(edge).map(f64::from);
-    if let (Some(m), Some(t)) = (edge_median_um, median(edge_t)) {
-        let k = (-m / f64::from(t)).round() as i32;
-        if k != 0 {
-            for (l, tk) in layers.iter_mut().zip(turns.iter_mut()) {
-                shift(l, k);
-                *tk += k;
-            }
-            // Each valid pixel by `k` turns of its blended height per turn, recomputed from
-            // the layers (the shift above moved their heights, not their validity or weights).
-            let layers_ref: &[Layer] = layers;
-            let width = grid.width;
-            std::thread::scope(|sc| {
-                for (part, hs) in heights.data.chunks_mut(band).enumerate() {
-                    sc.spawn(move || {
-                        let first = part * band;
-                        let (mut r, mut c) = (first / width, first % width);
-                        for h in hs.iter_mut() {
-                            if h.is_finite() {
-                                *h += k as f32 * mixed_period(layers_ref, r, c);
-                            }
-                            c += 1;
-                            if c == width {
-                                (r, c) = (r + 1, 0);
-                            }
-                        }
-                    });
-                }
-            });
-        }
-    }
+}
 
-    // 4. Seams.
-    let seams = (1..layers.len())
-        .map(|k| seam(&layers[k - 1], &layers[k], &heights, grid, (k - 1, k)))
+/// Blends whole `layers` (in order across the board) on `grid` in one band; see the module
+/// docs.
+pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended {
+    let mut b = Blender::new(*grid, layers.len(), edge_px);
+    let taken: Vec<Layer> = layers
+        .iter_mut()
+        .map(|l| std::mem::replace(l, Layer::empty(0..0, 0..0, false)))
         .collect();
+    let mut bands = b.band(0..grid.rows, taken);
+    bands.extend(b.end());
+    let mut heights = Grid::invalid(grid.width, grid.rows);
+    let mut variance = bands
+        .iter()
+        .any(|m| m.variance.is_some())
+        .then(|| Grid::invalid(grid.width, grid.rows));
+    let mut camera = vec![NO_CAMERA; grid.rows * grid.width];
+    for m in bands {
+        let a = m.rows.start * grid.width;
+        heights.data[a..a + m.heights.len()].copy_from_slice(&m.heights);
+        camera[a..a + m.camera.len()].copy_from_slice(&m.camera);
+        if let (Some(v), Some(mv)) = (variance.as_mut(), m.variance) {
+            v.data[a..a + mv.len()].copy_from_slice(&mv);
+        }
+    }
+    let (turns, edge_median_um, edge_off_bands, seams) = b.finish();
     Blended {
         heights,
         variance,
         camera,
         turns,
         edge_median_um,
+        edge_off_bands,
         seams,
-    }
-}
-
-/// The blended height per turn at board pixel `(r, c)`, um: the covering layers' weighted as
-/// step 3 weighs their heights (the same sums in the same order); 0 where no layer is valid.
-fn mixed_period(layers: &[Layer], r: usize, c: usize) -> f32 {
-    let (mut ts, mut ws) = (0.0f64, 0.0f64);
-    for l in layers {
-        let Some(i) = l.index(r, c) else {
-            continue;
-        };
-        let (h, w) = (l.heights.data[i], l.weight.data[i]);
-        if h.is_finite() && w > 0.0 {
-            let wf = f64::from(w);
-            ts += wf * f64::from(l.period_um.data[i]);
-            ws += wf;
-        }
-    }
-    if ws > 0.0 {
-        (ts / ws) as f32
-    } else {
-        0.0
     }
 }
 
@@ -278,17 +633,18 @@ fn shift(l: &mut Layer, turns: i32) {
     }
 }
 
-/// Pixels whose 3 x 3 neighbourhood is valid with a range below [`FLAT_RANGE_UM`].
-/// True when pixel `(r, c)` of `g` is flat board: its 3 x 3 neighbourhood valid with a range
-/// below [`FLAT_RANGE_UM`] (the outermost rows and columns never are).
-fn is_flat(g: &Grid, r: usize, c: usize) -> bool {
-    if r == 0 || c == 0 || r + 1 >= g.rows || c + 1 >= g.width {
+/// True when pixel `(r, c)` of the map is flat board: its 3 x 3 neighbourhood valid with a
+/// range below [`FLAT_RANGE_UM`] (the board's outermost rows and columns never are; `map`
+/// holds rows `r - 1..=r + 1`).
+fn is_flat(map: &MapRows, grid: &BoardGrid, r: usize, c: usize) -> bool {
+    let w = grid.width;
+    if r == 0 || c == 0 || r + 1 >= grid.rows || c + 1 >= w {
         return false;
     }
     let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
     for rr in r - 1..=r + 1 {
         for cc in c - 1..=c + 1 {
-            let h = g.at(rr, cc);
+            let h = map.at(rr, cc, w);
             lo = lo.min(h);
             hi = hi.max(h);
         }
@@ -296,44 +652,17 @@ fn is_flat(g: &Grid, r: usize, c: usize) -> bool {
     lo.is_finite() && hi.is_finite() && hi - lo < FLAT_RANGE_UM
 }
 
-fn seam(a: &Layer, b: &Layer, map: &Grid, grid: &BoardGrid, ids: (usize, usize)) -> Seam {
-    let (mut pixels, mut flat_n, mut sum) = (0u64, 0u64, 0.0f64);
-    // Over the shared window in board order: outside it one of the two is NaN.
-    let (rows, cols) = a.overlap(b);
-    for r in rows {
-        for c in cols.clone() {
-            let (ha, hb) = (a.height(r, c), b.height(r, c));
-            if ha.is_finite() && hb.is_finite() {
-                pixels += 1;
-                if is_flat(map, r, c) {
-                    flat_n += 1;
-                    sum += f64::from(hb - ha);
-                }
-            }
-        }
-    }
-    let to_um = grid.pitch_mm * 1000.0;
-    let shift_x = best_shift(a, b, 1, 0).map(|s| s * to_um);
-    let shift_y = best_shift(a, b, 0, 1).map(|s| s * to_um);
-    Seam {
-        cameras: ids,
-        pixels,
-        flat_pixels: flat_n,
-        height_step_um: (flat_n > 0).then(|| sum / flat_n as f64),
-        shift_x_um: shift_x,
-        shift_y_um: shift_y,
-    }
-}
-
-/// The shift `s` (px, along `(dr, dc)`) that best aligns `b` to `a`, `b(p) = a(p + s) + k`
-/// over the pixels valid in both: a gradient (Lucas-Kanade) estimate, `d = b - a = k + s g`
-/// solved by least squares for `(k, s)`, with `g` the central difference along the shift of
-/// the two layers' mean. No layer is interpolated: a search over interpolated shifts lowers
-/// the noise of the interpolated samples away from whole pixels (`(1-f)^2 + f^2` of it) and
-/// so finds a false minimum a fraction of a pixel off either way. `None` without texture (fewer
-/// than [`MIN_WALL_PIXELS`] deposit-wall pixels in the shared area) or with a shift beyond
-/// the first-order range (2 px).
-fn best_shift(a: &Layer, b: &Layer, dr: i64, dc: i64) -> Option<f64> {
+/// Adds board rows `rows` of the seam between layers `a` and `b` (their halo rows give the
+/// neighbours) to `s`.
+fn add_seam(
+    s: &mut SeamSums,
+    (a, b): (&Layer, &Layer),
+    map: &MapRows,
+    rows: Range<usize>,
+    grid: &BoardGrid,
+) {
+    let (shared_rows, cols) = a.overlap(b);
+    let rows = rows.start.max(shared_rows.start)..rows.end.min(shared_rows.end);
     // Board pixel `(r, c)` of a layer; NaN outside the board and the layer's window.
     let at = |l: &Layer, r: i64, c: i64| -> f64 {
         if r < 0 || c < 0 {
@@ -342,52 +671,38 @@ fn best_shift(a: &Layer, b: &Layer, dr: i64, dc: i64) -> Option<f64> {
             f64::from(l.height(r as usize, c as usize))
         }
     };
-    // The shared area's bounding box: nothing outside it pairs.
-    let (rows, cols) = a.overlap(b);
-    let (mut r_lo, mut r_hi, mut c_lo, mut c_hi) = (i64::MAX, -1i64, i64::MAX, -1i64);
     for r in rows {
         for c in cols.clone() {
-            if a.height(r, c).is_finite() && b.height(r, c).is_finite() {
-                let (r, c) = (r as i64, c as i64);
-                (r_lo, r_hi, c_lo, c_hi) = (r_lo.min(r), r_hi.max(r), c_lo.min(c), c_hi.max(c));
-            }
-        }
-    }
-    if r_hi < 0 {
-        return None;
-    }
-    let (mut n, mut sg, mut sgg, mut sd, mut sdg) = (0u64, 0.0, 0.0, 0.0, 0.0);
-    let mut walls = 0usize;
-    for r in r_lo..=r_hi {
-        for c in c_lo..=c_hi {
-            let (a0, b0) = (at(a, r, c), at(b, r, c));
-            let (ap, bp) = (at(a, r + dr, c + dc), at(b, r + dr, c + dc));
-            let (am, bm) = (at(a, r - dr, c - dc), at(b, r - dr, c - dc));
-            if ![a0, b0, ap, bp, am, bm].iter().all(|v| v.is_finite()) {
+            let (ha, hb) = (a.height(r, c), b.height(r, c));
+            if !(ha.is_finite() && hb.is_finite()) {
                 continue;
             }
-            if (bp - b0).abs() > f64::from(WALL_UM) {
-                walls += 1;
+            s.pixels += 1;
+            if is_flat(map, grid, r, c) {
+                s.flat += 1;
+                s.step_sum += f64::from(hb - ha);
             }
-            let g = 0.25 * ((ap + bp) - (am + bm));
-            let d = b0 - a0;
-            n += 1;
-            sg += g;
-            sgg += g * g;
-            sd += d;
-            sdg += d * g;
+            let (ri, ci) = (r as i64, c as i64);
+            for ((dr, dc), sums) in [((1i64, 0i64), &mut s.along), ((0, 1), &mut s.across)] {
+                let (a0, b0) = (f64::from(ha), f64::from(hb));
+                let (ap, bp) = (at(a, ri + dr, ci + dc), at(b, ri + dr, ci + dc));
+                let (am, bm) = (at(a, ri - dr, ci - dc), at(b, ri - dr, ci - dc));
+                if ![ap, bp, am, bm].iter().all(|v| v.is_finite()) {
+                    continue;
+                }
+                if (bp - b0).abs() > f64::from(WALL_UM) {
+                    sums.walls += 1;
+                }
+                let g = 0.25 * ((ap + bp) - (am + bm));
+                let d = b0 - a0;
+                sums.n += 1;
+                sums.sg += g;
+                sums.sgg += g * g;
+                sums.sd += d;
+                sums.sdg += d * g;
+            }
         }
     }
-    if walls < MIN_WALL_PIXELS || n < 100 {
-        return None;
-    }
-    let nf = n as f64;
-    let det = nf * sgg - sg * sg;
-    if det.is_nan() || det <= 0.0 {
-        return None;
-    }
-    let s = (nf * sdg - sg * sd) / det;
-    (s.is_finite() && s.abs() <= 2.0).then_some(s)
 }
 
 #[cfg(test)]
@@ -440,11 +755,12 @@ mod tests {
             heights: &cam,
             variance: None,
             period_um: &vec![t; cols],
+            row0: 0,
             first_row: 0,
             places: None,
             lost_rows: &[],
         };
-        resample(&src, &place, grid, 15.0)
+        resample(&src, &place, grid, 0..grid.rows, 15.0)
     }
 
     #[test]

@@ -243,16 +243,21 @@ fn write_files(
         camera_png: "camera.png",
     };
     let (w, rows) = (h.width as u32, h.rows as u32);
-    let png: ImageBuffer<Luma<u16>, Vec<u16>> = ImageBuffer::from_fn(w, rows, |x, y| {
-        let v = h.at(y as usize, x as usize);
-        if v.is_finite() {
-            Luma([((f64::from(v) / PNG_LSB_UM).round() + 32768.0).clamp(1.0, 65535.0) as u16])
-        } else {
-            Luma([0])
-        }
-    });
-    dpsa_formats::images::save_png(&png, &dir.join(files.heights_png))?;
-    drop(png);
+    dpsa_formats::images::save_png16_rows(
+        &dir.join(files.heights_png),
+        h.width,
+        h.rows,
+        |i, out| {
+            let row = &h.data[i * h.width..(i + 1) * h.width];
+            for (o, &v) in out.iter_mut().zip(row) {
+                *o = if v.is_finite() {
+                    ((f64::from(v) / PNG_LSB_UM).round() + 32768.0).clamp(1.0, 65535.0) as u16
+                } else {
+                    0
+                };
+            }
+        },
+    )?;
     lap(files.heights_png);
     write_tiff(&dir.join(files.heights_tiff), h)?;
     lap(files.heights_tiff);
@@ -494,6 +499,7 @@ mod tests {
             heights: h.clone(),
             turns: vec![0, 1],
             edge_median_um: Some(0.0),
+            edge_off_bands: 0,
             seams: Vec::new(),
         };
         let id = dpsa_formats::BoardId(0x0123_4567_89ab_cdef);
@@ -568,6 +574,7 @@ mod tests {
             heights: h.clone(),
             turns: vec![0],
             edge_median_um: None,
+            edge_off_bands: 0,
             seams: Vec::new(),
         };
         let k = rows.div_ceil(PREVIEW_PX);

@@ -82,7 +82,7 @@ pub struct Layer {
 
 impl Layer {
     /// An empty layer over the window `rows x cols`, with a variance grid when `variance`.
-    fn empty(rows: Range<usize>, cols: Range<usize>, variance: bool) -> Layer {
+    pub(crate) fn empty(rows: Range<usize>, cols: Range<usize>, variance: bool) -> Layer {
         let (w, n) = (cols.len(), rows.len());
         Layer {
             heights: Grid::invalid(w, n),
@@ -140,18 +140,23 @@ impl Layer {
 /// A camera's measurement as the resampling takes it.
 #[derive(Clone, Copy, Debug)]
 pub struct Source<'a> {
-    /// Heights, um: row `i` is board row `first_row + i`, `heights.width` columns.
+    /// Heights, um: row `i` is camera row `row0 + i` (board row `first_row + row0 + i`),
+    /// `heights.width` columns.
     pub heights: &'a Grid,
+    /// The camera row of `heights`' row 0 (0 for a whole camera; a band of its rows has
+    /// more).
+    pub row0: usize,
     /// Their variance, um^2 (same layout), if known.
     pub variance: Option<&'a Grid>,
     /// Height per turn of each column, um.
     pub period_um: &'a [f32],
-    /// The board row of `heights`' row 0.
+    /// The board row of the camera's row 0.
     pub first_row: i64,
-    /// Where each row was seen (`None`: row `i` at its nominal place), see
+    /// Where each camera row was seen (`None`: row `i` at its nominal place), see
     /// `dpsa_sim::board::provenance::row_places`.
     pub places: Option<&'a crate::places::RowPlaces>,
-    /// Rows that never arrived (empty, or one per row of `heights`; `dpsa board --streams`).
+    /// Camera rows that never arrived (empty, or one per camera row; `dpsa board
+    /// --streams`).
     pub lost_rows: &'a [bool],
 }
 
@@ -176,19 +181,26 @@ fn row_at(pos: &[f64], t: f64) -> Option<f64> {
     Some(i as f64 + (t - pos[i]) / (pos[i + 1] - pos[i]))
 }
 
-/// Resamples a camera's heights onto `grid` through its placement.
-pub fn resample(src: &Source, place: &CameraPlacement, grid: &BoardGrid, feather_px: f64) -> Layer {
+/// Resamples a camera's heights onto the board rows `board_rows` of `grid` through its
+/// placement (the layer's window: those rows of the camera's footprint).
+pub fn resample(
+    src: &Source,
+    place: &CameraPlacement,
+    grid: &BoardGrid,
+    board_rows: Range<usize>,
+    feather_px: f64,
+) -> Layer {
     let (heights, variance, period_um) = (src.heights, src.variance, src.period_um);
     let lost_rows = src.lost_rows;
-    let (w, rows) = (heights.width, heights.rows);
+    let (w, rows, row0) = (heights.width, heights.rows, src.row0);
     if w == 0 || rows == 0 {
         return Layer::empty(0..0, 0..0, variance.is_some());
     }
-    // The camera's footprint on the grid: the bounding box of its four corners (its rows
-    // shifted by up to one row either way by their places), two pixels wider.
+    // The footprint on the grid of the rows at hand: the bounding box of their four corners
+    // (shifted by up to one row either way by their places), two pixels wider.
     let (b_lo, b_hi) = (
-        src.first_row as f64 - 1.0,
-        (src.first_row + rows as i64) as f64,
+        (src.first_row + row0 as i64) as f64 - 1.0,
+        (src.first_row + (row0 + rows) as i64) as f64,
     );
     let corners = [
         (b_lo, -1.0),
@@ -208,6 +220,8 @@ pub fn resample(src: &Source, place: &CameraPlacement, grid: &BoardGrid, feather
         span(corners.map(|p| p.0), grid.x0_mm, grid.rows),
         span(corners.map(|p| p.1), grid.y0_mm, grid.width),
     );
+    let start = is.start.max(board_rows.start);
+    let is = start..is.end.min(board_rows.end).max(start);
     // The layer holds that window only.
     let mut out = Layer::empty(is.clone(), js.clone(), variance.is_some());
     let any_lost = lost_rows.iter().any(|&l| l);
@@ -240,6 +254,8 @@ pub fn resample(src: &Source, place: &CameraPlacement, grid: &BoardGrid, feather
                 },
                 None => (b, c),
             };
+            // The row within the rows at hand.
+            let b = b - row0 as f64;
             if !(b >= 0.0 && c >= 0.0 && b <= (rows - 1) as f64 && c <= (w - 1) as f64) {
                 continue;
             }
@@ -249,7 +265,7 @@ pub fn resample(src: &Source, place: &CameraPlacement, grid: &BoardGrid, feather
             let (b1, c1) = ((b0 + 1).min(rows - 1), (c0 + 1).min(w - 1));
             let (fb, fc) = (b - b0 as f64, c - c0 as f64);
             if any_lost {
-                let lost = |r: usize| lost_rows.get(r).copied().unwrap_or(false);
+                let lost = |r: usize| lost_rows.get(row0 + r).copied().unwrap_or(false);
                 if (lost(b0) && fb < 1.0) || (lost(b1) && fb > 0.0) {
                     out.lost[(i - i0) * lw + (j - j0)] = true;
                     continue;
@@ -362,11 +378,12 @@ mod tests {
             heights: &cam,
             variance: None,
             period_um: &vec![400.0; w],
+            row0: 0,
             first_row: first,
             places: None,
             lost_rows: &[],
         };
-        let l = resample(&src, &p, &grid, 20.0);
+        let l = resample(&src, &p, &grid, 0..grid.rows, 20.0);
         let mut seen = 0;
         for i in 0..grid.rows {
             for j in 0..grid.width {

@@ -106,8 +106,11 @@ pub struct PixelCounts {
 pub struct UnwrapStats {
     /// Whole turns each camera was moved by.
     pub turns: Vec<i32>,
-    /// Median height of the board edge before the board's turn was chosen, um.
+    /// Median height of the board edge pixels that chose the board's turn, before it, um.
     pub edge_median_um: Option<f64>,
+    /// Bands whose edge pixels put the board on another turn than the one chosen (0 on a
+    /// good map; a warning otherwise).
+    pub edge_off_bands: u64,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -422,6 +425,18 @@ pub fn evidence(own_valid: &[(usize, usize)], b: &Blended, seams: &Seams) -> Vec
             SEAM_ALARM
         ));
     }
+    for s in b.seams.iter().filter(|s| s.off_turn_bands > 0) {
+        w.push(format!(
+            "{} bands of the overlap of cameras {} and {} put camera {} on another fringe turn than the board's first rows did: a camera's unwrapping slipped there, heights a turn off are possible",
+            s.off_turn_bands, s.cameras.0, s.cameras.1, s.cameras.1
+        ));
+    }
+    if b.edge_off_bands > 0 {
+        w.push(format!(
+            "{} bands of the board's edge lie a fringe turn or more from 0 um, where the board's leading edge put them: the board is not clamped flat at its edges, or the map slipped a turn",
+            b.edge_off_bands
+        ));
+    }
     w
 }
 
@@ -604,6 +619,7 @@ pub fn build(cams: Vec<(CameraRows, u64)>, inputs: Inputs<'_>, out: &Path) -> Re
         unwrap: UnwrapStats {
             turns: b.turns.clone(),
             edge_median_um: b.edge_median_um,
+            edge_off_bands: b.edge_off_bands,
         },
         timing: RunTiming {
             core_s: rows_s,

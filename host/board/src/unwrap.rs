@@ -42,6 +42,8 @@ pub struct Unwrapped {
     pub period_um: Vec<f32>,
     /// Valid pixels whose block the flood did not reach (placed from an extrapolated surface).
     pub unreached: usize,
+    /// Of them, per row.
+    pub unreached_rows: Vec<u32>,
 }
 
 impl Unwrapped {
@@ -208,8 +210,8 @@ pub fn unwrap(wrapped: &Grid, period_um: &[f32], block: usize) -> Unwrapped {
 
     // 4. Every pixel on the turn nearest the surface.
     let mut heights = Grid::invalid(w, rows);
-    let mut unreached = 0;
-    for r in 0..rows {
+    let mut unreached_rows = vec![0u32; rows];
+    for (r, unreached) in unreached_rows.iter_mut().enumerate() {
         let row = r * w;
         let reached_row = &reached[(r / block) * bw..];
         for c in 0..w {
@@ -222,7 +224,7 @@ pub fn unwrap(wrapped: &Grid, period_um: &[f32], block: usize) -> Unwrapped {
                 continue;
             }
             if !reached_row[c / block] {
-                unreached += 1;
+                *unreached += 1;
             }
             heights.data[row + c] = nearest(u, s) * period_um[c];
         }
@@ -230,7 +232,192 @@ pub fn unwrap(wrapped: &Grid, period_um: &[f32], block: usize) -> Unwrapped {
     Unwrapped {
         heights,
         period_um: period_um.to_vec(),
-        unreached,
+        unreached: unreached_rows.iter().map(|&n| n as usize).sum(),
+        unreached_rows,
+    }
+}
+
+/// Camera rows each chunk of an [`Unwrapper`] hands on.
+pub const CHUNK_ROWS: usize = 512;
+
+/// Rows of context a chunk of an [`Unwrapper`] unwraps on either side of the rows it hands on
+/// (two blocks: the surface's 3 x 3 block median and the bilinear surface between block
+/// centres reach one block past a block).
+pub const MARGIN_ROWS: usize = 2 * BLOCK;
+
+/// A camera's rows unwrapped as they arrive, chunk by chunk, with bounded memory: the chunk
+/// of rows `[s, s + chunk)` is unwrapped ([`unwrap`]) together with `margin` rows on either
+/// side once those have arrived (or the camera has ended), and handed on.
+///
+/// Each chunk is unwrapped on its own turn (its seed block's), so it is moved by the whole
+/// number of turns that makes it agree with the chunk before: the median, over the leading
+/// margin rows that both unwrapped, of the whole turns between the two. Where the two share
+/// no valid pixel (a gap of invalid or lost rows longer than the margin across the whole
+/// camera), each column's first valid height of the chunk is compared with the column's last
+/// valid height handed on before; the board's bow changes by far less than half a turn over
+/// such a gap (0.25 um per 28 um row at 1 mm over 110 mm).
+///
+/// The rows handed on are those of [`unwrap`] on the whole camera, up to a whole number of
+/// turns per chunk that the alignment removes: the surface is estimated from the chunk and
+/// its margins, and every pixel's turn is the one nearest it.
+#[derive(Clone, Debug)]
+pub struct Unwrapper {
+    period_um: Vec<f32>,
+    block: usize,
+    chunk: usize,
+    margin: usize,
+    /// Wrapped rows held (row-major), camera row `held_from` first.
+    wrapped: Vec<f32>,
+    held_from: usize,
+    /// Rows pushed, and handed on.
+    pushed: usize,
+    emitted: usize,
+    /// The last `min(margin, emitted)` rows handed on, as handed on.
+    tail: Vec<f32>,
+    /// Each column's last valid height handed on, um (NaN: none yet).
+    last: Vec<f32>,
+    /// Valid pixels whose block the flood did not reach, over the rows handed on.
+    pub unreached: usize,
+    /// Chunks whose turn came from the columns' last valid heights (no shared margin pixel).
+    pub gap_aligned: usize,
+}
+
+impl Unwrapper {
+    /// A camera of `period_um.len()` columns (height per turn of each, um), unwrapped in
+    /// `block`-pixel blocks, `chunk` rows per chunk with `margin` rows of context (`chunk`
+    /// at least 1; a `margin` of at least two blocks keeps the rows handed on those of a whole
+    /// camera's unwrapping).
+    pub fn new(period_um: Vec<f32>, block: usize, chunk: usize, margin: usize) -> Unwrapper {
+        let w = period_um.len();
+        Unwrapper {
+            period_um,
+            block,
+            chunk: chunk.max(1),
+            margin,
+            wrapped: Vec::new(),
+            held_from: 0,
+            pushed: 0,
+            emitted: 0,
+            tail: Vec::new(),
+            last: vec![f32::NAN; w],
+            unreached: 0,
+            gap_aligned: 0,
+        }
+    }
+
+    /// Columns.
+    pub fn width(&self) -> usize {
+        self.period_um.len()
+    }
+
+    /// Rows pushed so far.
+    pub fn pushed(&self) -> usize {
+        self.pushed
+    }
+
+    /// Rows handed on so far.
+    pub fn emitted(&self) -> usize {
+        self.emitted
+    }
+
+    /// The next rows of wrapped heights (whole rows of [`Self::width`], um, NaN invalid).
+    pub fn push(&mut self, rows: &[f32]) {
+        let w = self.width().max(1);
+        debug_assert_eq!(rows.len() % w, 0, "whole rows");
+        self.wrapped.extend_from_slice(rows);
+        self.pushed += rows.len() / w;
+    }
+
+    /// Whether [`Self::next`] has a chunk to hand on (`ended`: no more rows will come).
+    pub fn ready(&self, ended: bool) -> bool {
+        if ended {
+            self.emitted < self.pushed
+        } else {
+            self.pushed >= self.emitted + self.chunk + self.margin
+        }
+    }
+
+    /// The next chunk of unwrapped rows (camera rows from [`Self::emitted`] before the call),
+    /// or `None` when [`Self::ready`] is false.
+    pub fn next(&mut self, ended: bool) -> Option<Grid> {
+        if !self.ready(ended) {
+            return None;
+        }
+        let w = self.width();
+        let s = self.emitted;
+        let e = (s + self.chunk).min(self.pushed);
+        let lo = s.saturating_sub(self.margin);
+        let hi = (e + self.margin).min(self.pushed);
+        let from = (lo - self.held_from) * w;
+        let g = Grid {
+            width: w,
+            rows: hi - lo,
+            data: self.wrapped[from..from + (hi - lo) * w].to_vec(),
+        };
+        let mut u = unwrap(&g, &self.period_um, self.block);
+        u.shift(self.turns_to_previous(&u.heights, s - lo));
+        let (a, b) = (s - lo, e - lo);
+        self.unreached += u.unreached_rows[a..b]
+            .iter()
+            .map(|&n| n as usize)
+            .sum::<usize>();
+        let out = Grid {
+            width: w,
+            rows: e - s,
+            data: u.heights.data[a * w..b * w].to_vec(),
+        };
+        for row in out.data.chunks_exact(w.max(1)) {
+            for (l, &h) in self.last.iter_mut().zip(row) {
+                if h.is_finite() {
+                    *l = h;
+                }
+            }
+        }
+        let t0 = e.saturating_sub(self.margin);
+        self.tail = u.heights.data[(t0 - lo) * w..b * w].to_vec();
+        // The next chunk's leading margin starts at `t0`.
+        self.wrapped.drain(..(t0 - self.held_from) * w);
+        self.held_from = t0;
+        self.emitted = e;
+        Some(out)
+    }
+
+    /// The whole turns that bring `u` (a chunk unwrapped on its own turn, whose row
+    /// `shared` is the first row not handed on before) onto the rows handed on before.
+    fn turns_to_previous(&mut self, u: &Grid, shared: usize) -> i32 {
+        let w = self.width();
+        let turns = |a: f32, b: f32, t: f32| ((a - b) / t).round() as i32;
+        let mut d: Vec<i32> = Vec::new();
+        for (prev, cur) in self
+            .tail
+            .chunks_exact(w.max(1))
+            .zip(u.data.chunks_exact(w.max(1)).take(shared))
+        {
+            for ((&a, &b), &t) in prev.iter().zip(cur).zip(&self.period_um) {
+                if a.is_finite() && b.is_finite() && t > 0.0 {
+                    d.push(turns(a, b, t));
+                }
+            }
+        }
+        if d.is_empty() && self.last.iter().any(|h| h.is_finite()) {
+            self.gap_aligned += 1;
+            for c in 0..w {
+                let first = (shared..u.rows)
+                    .map(|r| u.data[r * w + c])
+                    .find(|h| h.is_finite());
+                let (a, t) = (self.last[c], self.period_um[c]);
+                if let Some(b) = first {
+                    if a.is_finite() && t > 0.0 {
+                        d.push(turns(a, b, t));
+                    }
+                }
+            }
+        }
+        if d.is_empty() {
+            return 0;
+        }
+        let k = d.len() / 2;
+        *d.select_nth_unstable(k).1
     }
 }
 
@@ -356,6 +543,18 @@ mod tests {
     /// A bowed board with paste boxes, noise and dead pixels, wrapped with a period that
     /// varies across the columns.
     fn board(w: usize, rows: usize, bow_um: f32, t0: f32) -> (Grid, Grid, Vec<f32>) {
+        tilted_board(w, rows, bow_um, t0, 0.0)
+    }
+
+    /// [`board`] tilted by `tilt_um` per row along the rows (the board's leading edge lower
+    /// than its trailing edge: no corner of a chunk lies on turn 0).
+    fn tilted_board(
+        w: usize,
+        rows: usize,
+        bow_um: f32,
+        t0: f32,
+        tilt_um: f32,
+    ) -> (Grid, Grid, Vec<f32>) {
         let period: Vec<f32> = (0..w)
             .map(|c| t0 * (1.0 + 0.02 * (c as f32 / w as f32 - 0.5)))
             .collect();
@@ -373,7 +572,7 @@ mod tests {
                     2.0 * r as f32 / rows as f32 - 1.0,
                     2.0 * c as f32 / w as f32 - 1.0,
                 );
-                let mut h = bow_um * (1.0 - x * x) * (1.0 - y * y);
+                let mut h = bow_um * (1.0 - x * x) * (1.0 - y * y) + tilt_um * r as f32;
                 // 150 um paste boxes of 12 x 20 px on a 40 px pitch.
                 if r % 40 < 12 && c % 40 < 20 {
                     h += 150.0;
@@ -468,5 +667,94 @@ mod tests {
         let u = unwrap(&wrapped, &period, 6);
         assert!(u.unreached > 0);
         assert_eq!(wrong_turns(&u, &truth), 0);
+    }
+
+    /// Pushes `wrapped` into an unwrapper `pieces` rows at a time and collects every chunk.
+    fn chunked(
+        wrapped: &Grid,
+        period: &[f32],
+        chunk: usize,
+        margin: usize,
+        pieces: usize,
+    ) -> (Unwrapped, Unwrapper) {
+        let w = wrapped.width;
+        let mut un = Unwrapper::new(period.to_vec(), 6, chunk, margin);
+        let mut out = Vec::new();
+        for piece in wrapped.data.chunks(pieces * w) {
+            un.push(piece);
+            while let Some(g) = un.next(false) {
+                out.extend(g.data);
+            }
+        }
+        while let Some(g) = un.next(true) {
+            out.extend(g.data);
+        }
+        assert_eq!(un.emitted(), wrapped.rows);
+        let u = Unwrapped {
+            heights: Grid {
+                width: w,
+                rows: wrapped.rows,
+                data: out,
+            },
+            period_um: period.to_vec(),
+            unreached: un.unreached,
+            unreached_rows: Vec::new(),
+        };
+        (u, un)
+    }
+
+    #[test]
+    fn chunk_by_chunk_is_the_whole_camera_up_to_a_turn() {
+        // 1 mm bow and 1.8 mm of tilt along the rows: every chunk's seed block on another turn.
+        let (truth, wrapped, period) = tilted_board(400, 900, 1000.0, 400.0, 2.0);
+        let whole = unwrap(&wrapped, &period, 6);
+        for (chunk, margin, pieces) in [(100, 12, 7), (64, 24, 1000), (250, 12, 33), (2000, 12, 50)]
+        {
+            let (u, _) = chunked(&wrapped, &period, chunk, margin, pieces);
+            assert_eq!(u.heights.valid(), whole.heights.valid());
+            assert_eq!(wrong_turns(&u, &truth), 0, "chunk {chunk}");
+            // Every pixel on the whole camera's turn, up to one turn for all.
+            let k = (0..u.heights.data.len())
+                .find(|&i| u.heights.data[i].is_finite())
+                .map(|i| ((u.heights.data[i] - whole.heights.data[i]) / period[i % 400]).round())
+                .unwrap();
+            for (i, (a, b)) in u.heights.data.iter().zip(&whole.heights.data).enumerate() {
+                if a.is_finite() {
+                    assert!((a - b - k * period[i % 400]).abs() < 1e-2, "{i}: {a} {b}");
+                }
+            }
+        }
+        // One chunk over the whole camera is the whole camera's unwrapping, bit for bit.
+        let (u, _) = chunked(&wrapped, &period, 5000, 12, 900);
+        assert_eq!(
+            u.heights
+                .data
+                .iter()
+                .map(|h| h.to_bits())
+                .collect::<Vec<_>>(),
+            whole
+                .heights
+                .data
+                .iter()
+                .map(|h| h.to_bits())
+                .collect::<Vec<_>>()
+        );
+        assert_eq!(u.unreached, whole.unreached);
+    }
+
+    #[test]
+    fn a_gap_longer_than_the_margin_keeps_the_turn() {
+        // 80 invalid rows across the whole camera, longer than the 12-row margin: the chunk
+        // after the gap is aligned on the columns' last valid heights.
+        let (truth, mut wrapped, period) = tilted_board(300, 800, 800.0, 400.0, 1.5);
+        for r in 330..410 {
+            for c in 0..300 {
+                *wrapped.at_mut(r, c) = f32::NAN;
+            }
+        }
+        let (u, un) = chunked(&wrapped, &period, 100, 12, 64);
+        assert!(un.gap_aligned > 0);
+        assert_eq!(wrong_turns(&u, &truth), 0);
+        assert_eq!(u.heights.valid(), wrapped.valid());
     }
 }

@@ -123,6 +123,37 @@ where
     crate::files::write_atomic(path, |w| img.write_to(w, image::ImageFormat::Png))
 }
 
+/// Writes a 16-bit grey PNG of `width x rows` atomically, row by row: `row(i, out)` fills
+/// row `i`. Nothing image-sized is held (the `image` crate's encoder holds the image and a
+/// big-endian copy of it: 190 MB on a paper board's map); the `png` crate's encoder
+/// with the compression and filter `image` uses by default (fast, adaptive).
+pub fn save_png16_rows(
+    path: &Path,
+    width: usize,
+    rows: usize,
+    mut row: impl FnMut(usize, &mut [u16]),
+) -> Result<(), FileError> {
+    crate::files::write_atomic(path, |w| {
+        let mut enc = png::Encoder::new(w, width as u32, rows as u32);
+        enc.set_color(png::ColorType::Grayscale);
+        enc.set_depth(png::BitDepth::Sixteen);
+        enc.set_compression(png::Compression::Fast);
+        enc.set_filter(png::Filter::Adaptive);
+        let mut writer = enc.write_header()?;
+        let mut stream = writer.stream_writer()?;
+        let (mut values, mut bytes) = (vec![0u16; width], vec![0u8; 2 * width]);
+        for i in 0..rows {
+            row(i, &mut values);
+            for (b, v) in bytes.chunks_exact_mut(2).zip(&values) {
+                b.copy_from_slice(&v.to_be_bytes());
+            }
+            std::io::Write::write_all(&mut stream, &bytes)?;
+        }
+        stream.finish()?;
+        Ok::<(), png::EncodingError>(())
+    })
+}
+
 /// A perceptually ordered blue -> cyan -> green -> yellow -> red ramp, `t` in `[0, 1]`.
 pub fn colour(t: f64) -> [u8; 3] {
     const STOPS: [[f64; 3]; 5] = [
