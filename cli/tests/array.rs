@@ -1128,10 +1128,14 @@ fn board_bench_reports_every_stage_of_the_board() {
     let rows = v["core_pixels"].as_u64().unwrap() as f64 / 3.0 / 192.0;
     let feed = line["feed_s"].as_f64().unwrap();
     assert!((feed - rows * 0.0278 / 220.0).abs() < 0.1 * feed, "{v}");
+    let latency = line["latency_after_last_row_s"].as_f64().unwrap();
     assert!(
-        line["latency_after_last_row_s"].as_f64().unwrap() > 0.0,
+        latency > 0.0 && line["map_after_last_row_s"].as_f64().unwrap() <= latency,
         "{v}"
     );
+    // The rows handed on as they came, a chunk at a time with their places, give the map of
+    // the whole cameras at once.
+    assert_eq!(line["map_differs_px"], 0, "{v}");
     assert!(v["core_camera0_mpx_s"].as_f64().unwrap() > 0.0, "{v}");
     assert!(stage("load") > 0.0 && stage("core_camera0") > 0.0, "{v}");
     assert_eq!(v["cameras"], 3);
@@ -1146,6 +1150,7 @@ fn board_bench_reports_every_stage_of_the_board() {
         v["board_pixels"].as_u64().unwrap(),
         g["rows"].as_u64().unwrap() * g["width"].as_u64().unwrap()
     );
+    assert!(line["map_rows_done_at_last_row"].as_u64().unwrap() <= g["rows"].as_u64().unwrap());
     assert!(
         v["numpy"].is_null() && v["core_over_numpy"].is_null(),
         "{v}"

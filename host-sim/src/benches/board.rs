@@ -8,18 +8,19 @@
 //! the numpy float64 least-squares phase of camera 0's frames ([`super::numpy`]).
 //!
 //! Then the same board once more as the line receives it: every camera's rows paced at the
-//! paper's conveyor rate ([`CONVEYOR_MM_S`]), and the time from the last row to the last
-//! verdict (`latency_after_last_row_s`). The map is built once all rows are in (the banded
-//! assembly that would start earlier is not built yet), so that latency is the stitching and
-//! inspection of the whole board, plus any backlog of the core behind the conveyor.
+//! paper's conveyor rate ([`CONVEYOR_MM_S`]) and stitched band by band as they arrive
+//! (`dpsa_board::assemble::Stitcher`), and the time from the last row to the last verdict
+//! (`latency_after_last_row_s`): the last bands, the whole board's inspection, and any
+//! backlog of the core or the stitcher behind the conveyor.
 
-use crate::board::assemble::{assemble, CameraRows};
+use crate::board::assemble::{assemble, CameraFeed, CameraRows, Stitcher, BAND_ROWS};
 use crate::board::run::{open, Opened};
 use crate::calibration::calibrated;
 use crate::calibration::file::CalFile;
 use crate::simulation::recording::Recording;
 use crate::{Result, SimError};
 use dpsa_board::run::Collector;
+use dpsa_board::unwrap::CHUNK_ROWS;
 use dpsa_board::BoardGrid;
 use dpsa_gerber::pads::Pad;
 use dpsa_inspect::map::BoardMap;
@@ -88,6 +89,15 @@ pub struct LineFeed {
     pub feed_s: f64,
     /// Seconds the core fell behind the conveyor at its last row (0 when it kept up).
     pub core_backlog_s: f64,
+    /// Board rows of the map built band by band when the last row came (the stitcher keeps
+    /// up when it is near the board's rows).
+    pub map_rows_done_at_last_row: usize,
+    /// From the last row to the whole map (the last bands), s.
+    pub map_after_last_row_s: f64,
+    /// Pixels of this map that differ from the map of the first run (rows of whole cameras
+    /// handed over at once) by more than [`MAP_SAME_UM`] or in validity: 0, the same map
+    /// whichever way the rows came.
+    pub map_differs_px: usize,
     /// From the last row's arrival (the later of its paced time and the core's emitting it)
     /// to the last verdict (or the map, without a program), s.
     pub latency_after_last_row_s: f64,
@@ -186,7 +196,7 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
 
     let t1 = Instant::now();
     let collected = per_camera(loaded.iter().enumerate(), |(i, (r, _))| {
-        core_rows_paced(r, cal, i, None)
+        core_rows(r, cal, i)
     })?;
     let core = t1.elapsed().as_secs_f64();
     let core_pixels: u64 = collected
@@ -194,6 +204,8 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
         .map(|c| c.rows.len() as u64 * c.width as u64)
         .sum();
     let (a, provenance) = stitch(collected, &loaded, cal, &grid)?;
+    // Kept for the paced run's map to be compared with (not timed).
+    let stitched = a.blended.heights.clone();
     let t4 = Instant::now();
     let inspection = judge
         .as_ref()
@@ -211,7 +223,7 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
         .first()
         .ok_or_else(|| SimError::refused("no camera"))?;
     let t3 = Instant::now();
-    let one = core_rows_paced(r0, cal, 0, None)?;
+    let one = core_rows(r0, cal, 0)?;
     let core_camera0 = t3.elapsed().as_secs_f64();
     let one_px = one.rows.len() as f64 * one.width as f64;
     drop(one);
@@ -231,7 +243,8 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
     let core_camera0_mpx_s = one_px / core_camera0 / 1e6;
     let core_over_numpy = numpy.as_ref().map(|n| core_camera0_mpx_s / n.mpx_s);
 
-    let line = line_feed(&loaded, cal, &grid, judge.as_ref())?;
+    let line = line_feed(&loaded, cal, &grid, judge.as_ref(), &stitched)?;
+    drop(stitched);
 
     let stitching = provenance + t.unwrap_s + t.resample_s + t.blend_s;
     let total = core + stitching + inspection_s;
@@ -287,40 +300,42 @@ fn stitch(
     Ok((assemble(cams, grid), provenance))
 }
 
-/// Camera `i`'s rows through the core (`rec`'s frames in memory). With `pace = Some((start,
-/// row_s))`, row `k` is not taken before `start + k row_s`: the rows arrive as a conveyor
-/// brings them.
-fn core_rows_paced(
-    rec: &Recording,
-    cal: &CalFile,
-    i: usize,
-    pace: Option<(Instant, Duration)>,
-) -> Result<Collector> {
+/// Camera `i`'s rows through the core (`rec`'s frames in memory), as fast as it goes.
+fn core_rows(rec: &Recording, cal: &CalFile, i: usize) -> Result<Collector> {
     let mut rows = Collector::new(&cal.camera[i], cal.height_lsb_um);
-    let mut k = 0u32;
     crate::reconstruct::reconstruct_rows(rec, false, |r| {
-        if let Some((start, row_s)) = pace {
-            let due = start + row_s * k;
-            let now = Instant::now();
-            if due > now {
-                std::thread::sleep(due - now);
-            }
-        }
-        k += 1;
         rows.push(&r);
         Ok(())
     })?;
     Ok(rows)
 }
 
+/// Heights of the paced run's map and the first run's that differ by less than this are the
+/// same, um (the row places of a chunk and of a whole camera differ in the last bits).
+pub const MAP_SAME_UM: f32 = 1e-3;
+
+/// Rows a camera's thread hands to the stitcher at a time in the paced run.
+const FEED_ROWS: u32 = 128;
+
+/// What a camera's thread tells the stitcher in the paced run.
+enum Feed {
+    /// The camera's next rows.
+    Rows(usize, dpsa_board::run::Chunk),
+    /// The camera's last row came at this instant, when the map had this many board rows.
+    End(usize, Instant, usize),
+}
+
 /// The board again as the line receives it: each camera's rows paced at [`CONVEYOR_MM_S`]
-/// (board rows of `grid.pitch_mm`), then provenance, assembly and verdicts; the time from the
-/// last row to the last verdict.
+/// (board rows of `grid.pitch_mm`) in its own thread, handed on [`FEED_ROWS`] at a time
+/// (dead-pixel masked, placed) to the band-by-band stitcher on this thread, which builds
+/// every band whose rows are in as they arrive; after the last row, the last bands and the
+/// verdicts. The time from the last row to the last verdict.
 fn line_feed(
     loaded: &[(Recording, u64)],
     cal: &CalFile,
     grid: &BoardGrid,
     judge: Option<&Judge>,
+    stitched: &dpsa_board::Grid,
 ) -> Result<LineFeed> {
     let row_s = Duration::from_secs_f64(grid.pitch_mm / CONVEYOR_MM_S);
     let most_rows = loaded
@@ -328,14 +343,89 @@ fn line_feed(
         .map(|(r, _)| crate::reference::plan(&r.manifest).len())
         .max()
         .unwrap_or(0);
+    let n = loaded.len();
+    let (tx, rx) = std::sync::mpsc::channel::<Feed>();
+    // The map's board rows built so far, as the cameras' threads see it.
+    let done = std::sync::atomic::AtomicUsize::new(0);
     let start = Instant::now();
-    let collected = per_camera(loaded.iter().enumerate(), |(i, (r, _))| {
-        core_rows_paced(r, cal, i, Some((start, row_s)))
-    })?;
-    let last_row = Instant::now();
+    let (st, ends, fed) = std::thread::scope(|s| {
+        let handles: Vec<_> = loaded
+            .iter()
+            .enumerate()
+            .map(|(i, (r, _))| {
+                let (tx, done) = (tx.clone(), &done);
+                s.spawn(move || camera_feed(r, cal, i, (start, row_s), &tx, done))
+            })
+            .collect();
+        drop(tx);
+        let mut st: Option<Stitcher> = None;
+        let mut waiting: Vec<Vec<dpsa_board::run::Chunk>> = (0..n).map(|_| Vec::new()).collect();
+        let mut ends: Vec<Option<(Instant, usize)>> = vec![None; n];
+        for msg in rx {
+            match msg {
+                Feed::Rows(i, c) => waiting[i].push(c),
+                Feed::End(i, t, done) => ends[i] = Some((t, done)),
+            }
+            // The stitcher starts once every camera's first row (or end) is known.
+            if st.is_none() && (0..n).all(|i| !waiting[i].is_empty() || ends[i].is_some()) {
+                let feeds = (0..n)
+                    .map(|i| {
+                        let c = &cal.camera[i];
+                        let max_step = loaded[i].0.manifest.processing.max_step_rows;
+                        CameraFeed {
+                            first_row: waiting[i].first().map_or(0, |c| c.first_row),
+                            period_um: c.height_per_turn_um.iter().map(|&t| t as f32).collect(),
+                            placement: dpsa_board::run::placement(c, max_step),
+                            places: None,
+                            lost: Vec::new(),
+                            variance: false,
+                        }
+                    })
+                    .collect();
+                st = Some(Stitcher::new(*grid, feeds, BAND_ROWS, CHUNK_ROWS));
+            }
+            if let Some(st) = st.as_mut() {
+                for (i, w) in waiting.iter_mut().enumerate() {
+                    for c in w.drain(..) {
+                        st.push(i, &c.heights, None);
+                        st.push_places(i, &c.places, c.first_row);
+                    }
+                    if ends[i].is_some() {
+                        st.end(i);
+                    }
+                }
+                st.advance();
+                done.store(st.rows_done(), std::sync::atomic::Ordering::Relaxed);
+            }
+        }
+        let fed = handles
+            .into_iter()
+            .map(|h| {
+                h.join()
+                    .unwrap_or_else(|_| Err(SimError::Internal("a thread panicked".into())))
+            })
+            .collect::<Result<Vec<()>>>();
+        (st, ends, fed)
+    });
+    fed?;
+    let st = st.ok_or_else(|| SimError::refused("no camera"))?;
+    let (last_row, rows_done) = ends
+        .into_iter()
+        .flatten()
+        .max_by_key(|e| e.0)
+        .unwrap_or((start, 0));
     let feed_s = row_s.as_secs_f64() * most_rows as f64;
     let core_backlog_s = ((last_row - start).as_secs_f64() - feed_s).max(0.0);
-    let (a, _) = stitch(collected, loaded, cal, grid)?;
+    let a = st.finish();
+    let map_s = last_row.elapsed().as_secs_f64();
+    let map_differs_px = a
+        .blended
+        .heights
+        .data
+        .iter()
+        .zip(&stitched.data)
+        .filter(|(p, q)| p.is_finite() != q.is_finite() || (*p - *q).abs() > MAP_SAME_UM)
+        .count();
     if let Some(j) = judge {
         j.judge(grid, a.blended.heights)?;
     }
@@ -344,10 +434,56 @@ fn line_feed(
         conveyor_mm_s: CONVEYOR_MM_S,
         feed_s,
         core_backlog_s,
+        map_rows_done_at_last_row: rows_done,
+        map_after_last_row_s: map_s,
+        map_differs_px,
         latency_after_last_row_s: latency,
         latency_budget_s: LATENCY_BUDGET_S,
         within_latency_budget: latency <= LATENCY_BUDGET_S,
     })
+}
+
+/// Camera `i`'s rows through the core, paced (`(start, row_s)`: row `k` not before
+/// `start + k row_s`), handed on [`FEED_ROWS`] at a time, then its end.
+fn camera_feed(
+    rec: &Recording,
+    cal: &CalFile,
+    i: usize,
+    (start, row_s): (Instant, Duration),
+    tx: &std::sync::mpsc::Sender<Feed>,
+    done: &std::sync::atomic::AtomicUsize,
+) -> Result<()> {
+    // The registration replayed on the recording's latches (a line replays it on the
+    // triggers as they come).
+    let prov = crate::board::provenance::of_recording(rec);
+    let max_step = rec.manifest.processing.max_step_rows;
+    let c = &cal.camera[i];
+    let mut rows = Collector::new(c, cal.height_lsb_um);
+    let mut k = 0u32;
+    let send = |rows: &mut Collector| -> Result<()> {
+        if let Some(chunk) = rows.take_chunk(&prov, c, max_step)? {
+            // The stitcher gone (an error there) ends the feed quietly; its error is reported.
+            let _ = tx.send(Feed::Rows(i, chunk));
+        }
+        Ok(())
+    };
+    crate::reconstruct::reconstruct_rows(rec, false, |r| {
+        let due = start + row_s * k;
+        let now = Instant::now();
+        if due > now {
+            std::thread::sleep(due - now);
+        }
+        k += 1;
+        rows.push(&r);
+        if k % FEED_ROWS == 0 {
+            send(&mut rows)?;
+        }
+        Ok(())
+    })?;
+    send(&mut rows)?;
+    let done = done.load(std::sync::atomic::Ordering::Relaxed);
+    let _ = tx.send(Feed::End(i, Instant::now(), done));
+    Ok(())
 }
 
 /// `f` on every item in its own thread (one per camera), the results in order; a panicking

@@ -245,6 +245,20 @@ impl Stitcher {
         }
     }
 
+    /// Where camera `cam`'s next rows were seen: `places` of rows from board row `first_row`
+    /// (their `along` from that row), appended to the camera's (from its first row). Call it
+    /// with [`Self::push`] of the same rows, before [`Self::advance`].
+    pub fn push_places(&mut self, cam: usize, places: &RowPlaces, first_row: i64) {
+        let feed = &mut self.cams[cam].feed;
+        let offset = (first_row - feed.first_row) as f64;
+        let pl = feed.places.get_or_insert_with(|| RowPlaces {
+            along: Vec::new(),
+            across: Vec::new(),
+        });
+        pl.along.extend(places.along.iter().map(|a| a + offset));
+        pl.across.extend_from_slice(&places.across);
+    }
+
     /// No more rows come from camera `cam`.
     pub fn end(&mut self, cam: usize) {
         self.cams[cam].ended = true;
@@ -466,9 +480,9 @@ mod tests {
                     .map(|i| i as f64 + 0.3 * (i as f64 / 17.0).sin())
                     .collect();
                 let mut g = Grid::invalid(w, rows);
-                for b in 0..rows {
+                for (b, &seen) in along.iter().enumerate() {
                     for (c, &t) in period.iter().enumerate() {
-                        let row = if k == 1 { along[b] } else { b as f64 };
+                        let row = if k == 1 { seen } else { b as f64 };
                         let (x, y) = place.to_board(row, c as f64);
                         let h = truth(x, y) as f32;
                         *g.at_mut(b, c) = h - t * (h / t + 0.5).floor();

@@ -465,10 +465,10 @@ fn edge_pixels(
     let w = grid.width;
     for r in rows.clone() {
         let end = r < edge_px || r + edge_px >= grid.rows;
-        let cols: Vec<Range<usize>> = match (part, end || 2 * edge_px >= w) {
+        let cols: [Range<usize>; 2] = match (part, end || 2 * edge_px >= w) {
             (Edge::Sides, true) | (Edge::Ends, false) => continue,
-            (_, true) => vec![0..w],
-            (_, false) => vec![0..edge_px, w - edge_px..w],
+            (_, true) => [0..w, 0..0],
+            (_, false) => [0..edge_px, w - edge_px..w],
         };
         for c in cols.into_iter().flatten() {
             if let Some((hm, tm)) = mix_at(layers, r, c) {

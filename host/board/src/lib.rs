@@ -14,7 +14,8 @@
 //!   [`places`] its frames were seen at.
 //! - [`blend`]: the cameras' board grids into one, feathered across the overlaps, with the
 //!   camera each pixel came from and the seam statistics.
-//! - [`assemble`]: the three for every camera, each in its own thread, timed.
+//! - [`assemble`]: the three band by band of board rows as the cameras' rows arrive
+//!   ([`assemble::Stitcher`]), the cameras in parallel threads, timed.
 //! - [`output`]: the 16-bit PNG, the float TIFF in micrometres, the false-colour PNG with its
 //!   scale bar, and the JSON metadata.
 //! - [`streams`]: the cameras' packet streams read, matched to the cameras and checked

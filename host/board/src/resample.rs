@@ -228,18 +228,28 @@ pub fn resample(
     if any_lost {
         out.lost = vec![false; out.heights.data.len()];
     }
-    let (i0, j0, lw) = (is.start, js.start, js.len());
-    // `CameraPlacement::to_camera` with its trigonometry once: `c` depends on the grid column only.
+    let (i0, lw) = (is.start, js.len());
+    // `CameraPlacement::to_camera` with its trigonometry and division once: the camera column
+    // depends on the grid column only, the row on both through `b_row - along_c`.
     let (sin, cos) = place.rotation_rad.sin_cos();
-    let cols: Vec<f64> = js
+    let inv_row = 1.0 / place.row_mm;
+    let cols: Vec<(f64, f64)> = js
         .clone()
-        .map(|j| (grid.centre(0, j).1 - place.y0_mm) / (place.pitch_mm * cos))
+        .map(|j| {
+            let c = (grid.centre(0, j).1 - place.y0_mm) / (place.pitch_mm * cos);
+            (c, c * place.pitch_mm * sin * inv_row)
+        })
         .collect();
+    let hs = &heights.data;
+    let vs = variance.map(|v| &v.data[..]);
+    let lost = |r: usize| lost_rows.get(row0 + r).copied().unwrap_or(false);
+    let feather = feather_px.max(1e-9);
+    let (last_b, last_c) = ((rows - 1) as f64, (w - 1) as f64);
     for i in is {
-        let x = grid.centre(i, 0).0;
-        for (j, &c) in js.clone().zip(&cols) {
-            let b = (x - place.x0_mm - c * place.pitch_mm * sin) / place.row_mm;
-            let b = b - src.first_row as f64;
+        let b_row = (grid.centre(i, 0).0 - place.x0_mm) * inv_row - src.first_row as f64;
+        let at = (i - i0) * lw;
+        for (jj, &(c, along_c)) in cols.iter().enumerate() {
+            let b = b_row - along_c;
             let (b, c) = match src.places {
                 Some(pl) => match row_at(&pl.along, b) {
                     Some(b) => {
@@ -256,7 +266,7 @@ pub fn resample(
             };
             // The row within the rows at hand.
             let b = b - row0 as f64;
-            if !(b >= 0.0 && c >= 0.0 && b <= (rows - 1) as f64 && c <= (w - 1) as f64) {
+            if !(b >= 0.0 && c >= 0.0 && b <= last_b && c <= last_c) {
                 continue;
             }
             // Both non-negative here: truncation is the floor (no libm `floor` call in the
@@ -264,43 +274,40 @@ pub fn resample(
             let (b0, c0) = (b as usize, c as usize);
             let (b1, c1) = ((b0 + 1).min(rows - 1), (c0 + 1).min(w - 1));
             let (fb, fc) = (b - b0 as f64, c - c0 as f64);
-            if any_lost {
-                let lost = |r: usize| lost_rows.get(row0 + r).copied().unwrap_or(false);
-                if (lost(b0) && fb < 1.0) || (lost(b1) && fb > 0.0) {
-                    out.lost[(i - i0) * lw + (j - j0)] = true;
-                    continue;
-                }
+            let idx = at + jj;
+            if any_lost && ((lost(b0) && fb < 1.0) || (lost(b1) && fb > 0.0)) {
+                out.lost[idx] = true;
+                continue;
             }
-            let mut sum = 0.0f64;
-            let mut wsum = 0.0f64;
-            let mut vsum = 0.0f64;
-            for (r, cc, wt) in [
-                (b0, c0, (1.0 - fb) * (1.0 - fc)),
-                (b0, c1, (1.0 - fb) * fc),
-                (b1, c0, fb * (1.0 - fc)),
-                (b1, c1, fb * fc),
-            ] {
-                let h = heights.at(r, cc);
+            let (r0, r1) = (b0 * w, b1 * w);
+            let taps = [
+                (r0 + c0, (1.0 - fb) * (1.0 - fc)),
+                (r0 + c1, (1.0 - fb) * fc),
+                (r1 + c0, fb * (1.0 - fc)),
+                (r1 + c1, fb * fc),
+            ];
+            let (mut sum, mut wsum, mut vsum) = (0.0f64, 0.0f64, 0.0f64);
+            for (k, wt) in taps {
+                let h = hs[k];
                 if h.is_finite() && wt > 0.0 {
                     sum += wt * f64::from(h);
                     wsum += wt;
-                    if let Some(v) = variance {
-                        vsum += wt * wt * f64::from(v.at(r, cc));
+                    if let Some(v) = vs {
+                        vsum += wt * wt * f64::from(v[k]);
                     }
                 }
             }
             if wsum < 0.5 {
                 continue;
             }
-            let idx = (i - i0) * lw + (j - j0);
             out.heights.data[idx] = (sum / wsum) as f32;
             if let Some(v) = out.variance.as_mut() {
                 v.data[idx] = (vsum / (wsum * wsum)) as f32;
             }
             let t = f64::from(period_um[c0]) * (1.0 - fc) + f64::from(period_um[c1]) * fc;
             out.period_um.data[idx] = t as f32;
-            let edge = c.min((w - 1) as f64 - c) + 0.5;
-            out.weight.data[idx] = (edge / feather_px.max(1e-9)).clamp(1e-3, 1.0) as f32;
+            let edge = c.min(last_c - c) + 0.5;
+            out.weight.data[idx] = (edge / feather).clamp(1e-3, 1.0) as f32;
         }
     }
     out

@@ -207,6 +207,27 @@ pub struct Collector {
     /// Per row of `rows`: the window's first latch when the row is valid (to be confirmed by
     /// the registration replay), `None` for an invalid row.
     latches: Vec<Option<i64>>,
+    /// The board row after the last one [`Collector::take_chunk`] handed on.
+    next_row: Option<i64>,
+}
+
+/// A camera's rows as the line hands them on ([`Collector::take_chunk`]): whole rows from
+/// board row `first_row`, ready for [`crate::assemble::Stitcher::push`].
+#[derive(Clone, Debug)]
+pub struct Chunk {
+    /// The board row of the first row.
+    pub first_row: i64,
+    /// Rows.
+    pub rows: usize,
+    /// Wrapped heights, um (NaN invalid), whole rows: dead-pixel masked, rows the replay did
+    /// not confirm left invalid, a row that never came invalid.
+    pub heights: Vec<f32>,
+    /// Where each row was seen, row `i` at `along[i]` rows from `first_row`.
+    pub places: crate::places::RowPlaces,
+    /// Valid rows the registration replay did not confirm (left invalid).
+    pub unplaced: u64,
+    /// Pixels masked for dead image pixels.
+    pub dead_masked: u64,
 }
 
 impl Collector {
@@ -219,7 +240,76 @@ impl Collector {
             lsb_um: lsb_um as f32,
             rows: Vec::new(),
             latches: Vec::new(),
+            next_row: None,
         }
+    }
+
+    /// The rows pushed since the last call, as a [`Chunk`] (`None`: none new). The rows are
+    /// taken in board-row order from the row after the last chunk's (a row that comes again
+    /// or late is dropped; a row that never came is invalid); `prov` is the registration of
+    /// the camera's frames so far (masks, places and confirmations as in
+    /// [`Collector::finish`]).
+    /// Refused like [`Collector::finish`] when the rows span far more board rows than came
+    /// (an encoder fault).
+    pub fn take_chunk(
+        &mut self,
+        prov: &Provenance,
+        cal: &CameraCal,
+        max_step: u32,
+    ) -> Result<Option<Chunk>> {
+        let rows = std::mem::take(&mut self.rows);
+        let latches = std::mem::take(&mut self.latches);
+        let from = self.next_row;
+        let taken = |b: &i64| from.is_none_or(|f| *b >= f);
+        let (Some(first), Some(last)) = (
+            rows.iter().map(|r| r.0).filter(taken).min(),
+            rows.iter().map(|r| r.0).max(),
+        ) else {
+            return Ok(None);
+        };
+        let span = i128::from(last) - i128::from(first) + 1;
+        if span > rows.len() as i128 + (1 << 16) {
+            return Err(BoardError::Refused(format!(
+                "camera {}: its rows span {span} board rows but only {} came (an encoder fault?)",
+                self.id,
+                rows.len()
+            )));
+        }
+        let w = self.width;
+        let n = span as usize;
+        let mut g = Grid::invalid(w, n);
+        let mut unplaced = 0;
+        for ((b, h), latch) in rows.into_iter().zip(latches) {
+            if b < first {
+                continue;
+            }
+            let i = (b - first) as usize;
+            // A valid row whose window the replay does not confirm stays invalid.
+            if latch.is_some_and(|l| !prov.confirms(b, l)) {
+                unplaced += 1;
+                g.data[i * w..(i + 1) * w].fill(f32::NAN);
+                continue;
+            }
+            g.data[i * w..(i + 1) * w].copy_from_slice(&h);
+        }
+        let dead_masked =
+            crate::provenance::mask_dead_pixels(prov, &cal.dead_pixels, first, &mut g);
+        let places = crate::provenance::row_places(
+            prov,
+            first,
+            n,
+            entry_row(cal, max_step),
+            cal.lateral.rotation_rad,
+        );
+        self.next_row = Some(last + 1);
+        Ok(Some(Chunk {
+            first_row: first,
+            rows: n,
+            heights: g.data,
+            places,
+            unplaced,
+            dead_masked,
+        }))
     }
 
     /// One row as the core emitted it (the same bytes as its packet, from the core or from a
