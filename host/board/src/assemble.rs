@@ -236,12 +236,19 @@ impl Stitcher {
     /// Camera `cam`'s next rows: wrapped heights (whole rows, um, NaN invalid) and, when the
     /// camera has one, their variance (um^2, same layout). Call [`Self::advance`] to work on
     /// them.
+    /// A camera with a variance whose rows come without one has it unknown (NaN) there.
     pub fn push(&mut self, cam: usize, heights: &[f32], variance: Option<&[f32]>) {
         let c = &mut self.cams[cam];
+        let before = c.unwrapper.pushed();
         c.unwrapper.push(heights);
-        if let (Some(v), Some(rows)) = (c.variance.as_mut(), variance) {
-            v.data.extend_from_slice(rows);
-            v.rows += rows.len() / v.width.max(1);
+        if let Some(v) = c.variance.as_mut() {
+            // Row for row with the heights taken.
+            let n = (c.unwrapper.pushed() - before) * v.width;
+            match variance {
+                Some(rows) if rows.len() >= n => v.data.extend_from_slice(&rows[..n]),
+                _ => v.data.resize(v.data.len() + n, f32::NAN),
+            }
+            v.rows = v.data.len() / v.width.max(1);
         }
     }
 

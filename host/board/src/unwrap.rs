@@ -338,12 +338,14 @@ impl Unwrapper {
         self.emitted
     }
 
-    /// The next rows of wrapped heights (whole rows of [`Self::width`], um, NaN invalid).
+    /// The next rows of wrapped heights (whole rows of [`Self::width`], um, NaN invalid; the
+    /// caller hands whole rows: a part row at the end is not taken).
     pub fn push(&mut self, rows: &[f32]) {
         let w = self.width().max(1);
         debug_assert_eq!(rows.len() % w, 0, "whole rows");
-        self.wrapped.extend_from_slice(rows);
-        self.pushed += rows.len() / w;
+        let n = rows.len() / w;
+        self.wrapped.extend_from_slice(&rows[..n * w]);
+        self.pushed += n;
     }
 
     /// Whether [`Self::next`] has a chunk to hand on (`ended`: no more rows will come).
