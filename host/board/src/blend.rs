@@ -247,11 +247,11 @@ impl Blender {
                     e.1.append(&mut t);
                     if e.0.len() >= MIN_SHARED {
                         let (d, t) = std::mem::take(e);
-                        self.pair[k] = pair_turn(d, t);
+                        self.pair[k] = turns_to_zero(d, t);
                     }
                 }
                 Some(held) => {
-                    if d.len() >= MIN_SHARED && pair_turn(d, t).is_some_and(|t| t != held) {
+                    if d.len() >= MIN_SHARED && turns_to_zero(d, t).is_some_and(|t| t != held) {
                         self.seams[k - 1].off_turn_bands += 1;
                     }
                 }
@@ -290,7 +290,7 @@ impl Blender {
             for (p, e) in self.pair.iter_mut().zip(&mut self.shared) {
                 if p.is_none() {
                     let (d, t) = std::mem::take(e);
-                    *p = Some(pair_turn(d, t).unwrap_or(0));
+                    *p = Some(turns_to_zero(d, t).unwrap_or(0));
                 }
             }
         }
@@ -310,10 +310,7 @@ impl Blender {
             if self.edge.0.len() >= MIN_EDGE || ended {
                 let (h, t) = std::mem::take(&mut self.edge);
                 self.edge_median_um = median(h.clone()).map(f64::from);
-                self.board = Some(match (median(h), median(t)) {
-                    (Some(m), Some(t)) if t > 0.0 => (-m / t).round() as i32,
-                    _ => 0,
-                });
+                self.board = Some(turns_to_zero(h, t).unwrap_or(0));
             } else {
                 return Vec::new();
             }
@@ -329,10 +326,8 @@ impl Blender {
                 if h.len() < MIN_EDGE / 5 {
                     continue;
                 }
-                if let (Some(m), Some(t)) = (median(h), median(t)) {
-                    if t > 0.0 && (-m / t).round() as i32 != 0 {
-                        self.edge_off_bands += 1;
-                    }
+                if turns_to_zero(h, t).is_some_and(|k| k != 0) {
+                    self.edge_off_bands += 1;
                 }
             }
             out.push(self.blend_band(&p));
@@ -411,10 +406,11 @@ fn move_layers(p: &mut Pending, turns: &[i32]) {
     }
 }
 
-/// The whole turns that bring a layer onto the previous one (step 1) from the differences
-/// `d` (later minus earlier) over their shared valid pixels and the later one's heights per
-/// turn `t` there.
-fn pair_turn(d: Vec<f32>, t: Vec<f32>) -> Option<i32> {
+/// The whole turns that bring the median of `d` nearest zero, with `t` the heights per turn
+/// there: a layer onto the previous one (step 1; `d` the later minus the earlier over their
+/// shared valid pixels) or the map onto the board's edge (step 2; `d` the edge heights).
+/// `None` without samples.
+fn turns_to_zero(d: Vec<f32>, t: Vec<f32>) -> Option<i32> {
     let (d, t) = (median(d)?, median(t)?);
     (t > 0.0).then(|| (-d / t).round() as i32)
 }
