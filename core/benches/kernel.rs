@@ -68,6 +68,25 @@ fn kernel(c: &mut Criterion) {
         })
     });
     g.finish();
+    // The phase + height stage alone, every build this CPU runs (`Kernel::all`), over the
+    // reduced pixels of the same row.
+    let coef = bench::Coef::of(&win, cfg.saturation).unwrap();
+    let gate = scale.gate(coef.frac);
+    let v: Vec<bench::V> = (0..W)
+        .map(|col| {
+            let s = [l[0][col], l[1][col], l[2][col], l[3][col]];
+            bench::pixel_v(&coef, &s, cfg.saturation)
+        })
+        .collect();
+    let mut g = c.benchmark_group("phase_height");
+    g.throughput(Throughput::Elements(W as u64));
+    for k in dpsa_core::lanes::Kernel::all() {
+        g.bench_function(BenchmarkId::new(k.name(), W), |b| {
+            let (mut h, mut m) = (vec![0i16; W], vec![0u8; W / 8]);
+            b.iter(|| black_box(k.row(&scale, &gate, black_box(&v), 0, &refp, &mut h, &mut m)))
+        });
+    }
+    g.finish();
     c.bench_function("solve/window n=4", |b| {
         b.iter(|| Window::solve(black_box(&shifts), U8F8::from_num(2)))
     });

@@ -17,12 +17,15 @@
 //! - **The gate** `hi >= fast || exact(x, y)`: the fast compare in every lane, the exact
 //!   64-bit test only in lanes below the fast threshold (rare).
 //!
-//! Two builds beside the scalar loop ([`Kernel`]): `eight`, the branch-free formulation in
+//! Three builds beside the scalar loop ([`Kernel`]): `eight`, the branch-free formulation in
 //! plain Rust over arrays of eight (the definition, compiled for the target's baseline;
-//! [`Kernel::Lanes`]), and the same steps in AVX2 intrinsics ([`Kernel::Avx2`], chosen at run
-//! time when the CPU has it: [`Kernel::best`]). The compiler does not vectorize the plain
-//! build (its disassembly is scalar), so [`Kernel::best`] takes the scalar loop where AVX2 is
-//! missing, and the firmware keeps it. Tests below prove every kernel gives the same phases,
+//! [`Kernel::Lanes`]), the same steps in SSE2 intrinsics as two steps of four lanes
+//! (x86-64's baseline: [`Kernel::Sse2`]; its module says how it restates what SSE2 lacks),
+//! and in AVX2 intrinsics ([`Kernel::Avx2`], chosen at run time when the CPU has it:
+//! [`Kernel::best`]). The compiler does not vectorize the plain build (its disassembly is
+//! scalar) and the SSE2 build is slower than the scalar loop (measured: [`Kernel::best`]), so
+//! [`Kernel::best`] takes the scalar loop where AVX2 is missing, and the firmware keeps it.
+//! Tests below prove every kernel gives the same phases,
 //! heights, validity bytes and flags as the scalar one on every input class (saturated and
 //! invalid pixels, zero and threshold modulation, every octant and axis, the ends of the i32
 //! range, odd widths, both height scales); the pipeline's tests run whole rows through each.
@@ -43,10 +46,17 @@ pub enum Kernel {
     /// Eight pixels at a time, the plain-Rust definition (`eight`) compiled for the
     /// target's baseline (SSE2 on x86-64, which the compiler leaves scalar).
     Lanes,
+    /// Eight pixels at a time, as two steps of four with SSE2 (x86-64's baseline, so every
+    /// x86-64 CPU runs it). Only [`Kernel::sse2`] makes one, and only on x86-64.
+    Sse2(Sse2),
     /// Eight pixels at a time with AVX2 (x86-64). Only [`Kernel::best`] and
     /// [`Kernel::avx2`] make one, and only on a CPU that has AVX2.
     Avx2(Avx2),
 }
+
+/// Proof that this is an x86-64 build (whose baseline has SSE2).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Sse2(());
 
 /// Proof that this CPU runs AVX2 (made only by run-time detection).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -63,24 +73,42 @@ impl Kernel {
         None
     }
 
-    /// The fastest kernel here: AVX2 when detected, else the scalar loop (the firmware's;
-    /// the plain eight-lane build is not faster where the compiler does not vectorize it).
+    /// The SSE2 kernel on x86-64 (every such CPU has SSE2), else `None`.
+    pub fn sse2() -> Option<Kernel> {
+        #[cfg(target_arch = "x86_64")]
+        return Some(Kernel::Sse2(Sse2(())));
+        #[cfg(not(target_arch = "x86_64"))]
+        None
+    }
+
+    /// The fastest kernel here: AVX2 when detected, else the scalar loop (the firmware's).
+    /// The SSE2 and plain eight-lane builds give the same rows but are slower than the
+    /// scalar loop on this stage (`cargo bench -p dpsa-core --bench kernel -- phase_height`
+    /// on the development machine: scalar 98 - 110, SSE2 80 - 94, plain lanes 58 - 76, AVX2
+    /// 133 Mpx/s): four lanes do not pay for the emulated variable shifts, products and
+    /// table reads.
     pub fn best() -> Kernel {
         Kernel::avx2().unwrap_or(Kernel::Scalar)
     }
 
     /// Every kernel this CPU runs, scalar first (for tests and benchmarks).
     pub fn all() -> impl Iterator<Item = Kernel> {
-        [Some(Kernel::Scalar), Some(Kernel::Lanes), Kernel::avx2()]
-            .into_iter()
-            .flatten()
+        [
+            Some(Kernel::Scalar),
+            Some(Kernel::Lanes),
+            Kernel::sse2(),
+            Kernel::avx2(),
+        ]
+        .into_iter()
+        .flatten()
     }
 
-    /// A short name (`scalar`, `lanes`, `avx2`).
+    /// A short name (`scalar`, `lanes`, `sse2`, `avx2`).
     pub fn name(&self) -> &'static str {
         match self {
             Kernel::Scalar => "scalar",
             Kernel::Lanes => "lanes",
+            Kernel::Sse2(_) => "sse2",
             Kernel::Avx2(_) => "avx2",
         }
     }
@@ -108,6 +136,7 @@ impl Kernel {
         match self {
             Kernel::Scalar => scale.row(gate, v, rho, ref_phase, heights, valid),
             Kernel::Lanes => lanes(&run, heights, valid),
+            Kernel::Sse2(_) => sse2(&run, heights, valid),
             Kernel::Avx2(_) => avx2(&run, heights, valid),
         }
     }
@@ -140,6 +169,7 @@ impl Kernel {
                 scale.row_columns(gate, v, rho, ref_phase, columns, mantissa, heights, valid)
             }
             Kernel::Lanes => lanes(&run, heights, valid),
+            Kernel::Sse2(_) => sse2(&run, heights, valid),
             Kernel::Avx2(_) => avx2(&run, heights, valid),
         }
     }
@@ -172,6 +202,259 @@ fn avx2(run: &Run<'_>, heights: &mut [i16], valid: &mut [u8]) -> u16 {
     lanes(run, heights, valid)
 }
 
+/// The SSE2 build (x86-64; elsewhere no [`Kernel::Sse2`] exists, and this is the plain one).
+fn sse2(run: &Run<'_>, heights: &mut [i16], valid: &mut [u8]) -> u16 {
+    #[cfg(target_arch = "x86_64")]
+    return x86_sse2::run(run, heights, valid);
+    #[cfg(not(target_arch = "x86_64"))]
+    lanes(run, heights, valid)
+}
+
+/// The SSE2 build: [`eight`] as two steps of four lanes in x86-64's baseline instructions.
+///
+/// SSE2 lacks what the AVX2 build uses; each is restated with the same results:
+///
+/// - **unsigned compares, minimum and maximum** through signed compares of the values with
+///   their top bit flipped;
+/// - **the variable shifts** `hi << s`, `lo << s` as the low words of the products with `2^s`,
+///   made as the f32 `2^s` (exponent `s + 127`) truncated to an integer: exact for `s` in
+///   `0..=30`, and for `s = 31` the conversion's out-of-range result `0x8000_0000` is `2^31`
+///   as a `u32`; lanes whose `s` lies outside `0..=31` (`hi = 0`, or a discarded saturated
+///   lane) get 0, as the AVX2 shift by more than 31 gives;
+/// - **32 x 32-bit products**: `_mm_mul_epu32` on the even and odd lanes; the low words are
+///   the wrapping product, and the signed high word is the unsigned one less `b` where `a <
+///   0` and less `a` where `b < 0` (mod `2^32`);
+/// - **the table reads** as four scalar reads (the indices are at most 256: read as 16-bit
+///   lanes).
+#[cfg(target_arch = "x86_64")]
+#[allow(unsafe_code)]
+mod x86_sse2 {
+    use super::*;
+    use core::arch::x86_64::*;
+
+    /// Lanes per SSE2 step.
+    const Q: usize = 4;
+
+    pub(super) fn run(run: &Run<'_>, heights: &mut [i16], valid: &mut [u8]) -> u16 {
+        by_lanes(run, heights, valid, |g, step| {
+            // SAFETY: x86-64's baseline has SSE2 (this module is compiled for x86-64 only).
+            unsafe { eight_sse2(g, step) }
+        })
+    }
+
+    /// `a > b` as unsigned 32-bit lanes.
+    #[target_feature(enable = "sse2")]
+    #[inline]
+    fn gt_u32(a: __m128i, b: __m128i) -> __m128i {
+        let top = _mm_set1_epi32(i32::MIN);
+        _mm_cmpgt_epi32(_mm_xor_si128(a, top), _mm_xor_si128(b, top))
+    }
+
+    /// `a` where `m` is all ones, else `b`.
+    #[target_feature(enable = "sse2")]
+    #[inline]
+    fn select(m: __m128i, a: __m128i, b: __m128i) -> __m128i {
+        _mm_or_si128(_mm_and_si128(m, a), _mm_andnot_si128(m, b))
+    }
+
+    /// `|v|` as unsigned 32-bit lanes (`i32::MIN` gives `2^31`).
+    #[target_feature(enable = "sse2")]
+    #[inline]
+    fn abs(v: __m128i) -> __m128i {
+        let s = _mm_srai_epi32::<31>(v);
+        _mm_sub_epi32(_mm_xor_si128(v, s), s)
+    }
+
+    /// The 64-bit products of the even lanes and of the odd lanes (unsigned).
+    #[target_feature(enable = "sse2")]
+    #[inline]
+    fn products(a: __m128i, b: __m128i) -> (__m128i, __m128i) {
+        (
+            _mm_mul_epu32(a, b),
+            _mm_mul_epu32(_mm_srli_epi64::<32>(a), _mm_srli_epi64::<32>(b)),
+        )
+    }
+
+    /// The low words of the lanes' products (the wrapping product, signed or not).
+    #[target_feature(enable = "sse2")]
+    #[inline]
+    pub(super) fn mul_lo(a: __m128i, b: __m128i) -> __m128i {
+        let (even, odd) = products(a, b);
+        _mm_unpacklo_epi32(
+            _mm_shuffle_epi32::<0b00_00_10_00>(even),
+            _mm_shuffle_epi32::<0b00_00_10_00>(odd),
+        )
+    }
+
+    /// The high words of the lanes' signed 64-bit products.
+    #[target_feature(enable = "sse2")]
+    #[inline]
+    pub(super) fn mul_hi_i32(a: __m128i, b: __m128i) -> __m128i {
+        let (even, odd) = products(a, b);
+        let high = _mm_unpacklo_epi32(
+            _mm_shuffle_epi32::<0b00_00_11_01>(even),
+            _mm_shuffle_epi32::<0b00_00_11_01>(odd),
+        );
+        let fix_a = _mm_and_si128(_mm_srai_epi32::<31>(a), b);
+        let fix_b = _mm_and_si128(_mm_srai_epi32::<31>(b), a);
+        _mm_sub_epi32(_mm_sub_epi32(high, fix_a), fix_b)
+    }
+
+    /// Four lanes of [`eight`](super::eight): the phases, the heights (before packing), and
+    /// the saturated and fast-gate lanes as bits.
+    #[target_feature(enable = "sse2")]
+    #[inline]
+    #[allow(clippy::too_many_arguments)]
+    fn four(
+        x: __m128i,
+        y: __m128i,
+        rp: __m128i,
+        mv: __m128i,
+        rho: u32,
+        half: i32,
+        sh: u32,
+        fast_thr: u32,
+    ) -> (__m128i, __m128i, u32, u32) {
+        let zero = _mm_setzero_si128();
+        let ones = _mm_set1_epi32(-1);
+        let saturated = _mm_cmpeq_epi32(x, _mm_set1_epi32(SATURATED));
+        let (ax, ay) = (abs(x), abs(y));
+        // swap = ax < ay.
+        let swap = gt_u32(ay, ax);
+        let hi = select(swap, ay, ax);
+        let lo = select(swap, ax, ay);
+        let fast = _mm_xor_si128(gt_u32(_mm_set1_epi32(fast_thr as i32), hi), ones);
+        // s = 31 - floor(log2 hi) from the f32 exponent of hi without its second bit.
+        let top = _mm_andnot_si128(_mm_srli_epi32::<1>(hi), hi);
+        let bits = _mm_castps_si128(_mm_cvtepi32_ps(top));
+        let e = _mm_sub_epi32(_mm_srli_epi32::<23>(bits), _mm_set1_epi32(127));
+        let s = _mm_sub_epi32(_mm_set1_epi32(31), e);
+        // 2^s (0 where s is outside 0..=31: those lanes shift to 0).
+        let in_range = gt_u32(_mm_set1_epi32(32), s);
+        let pf = _mm_castsi128_ps(_mm_slli_epi32::<23>(_mm_add_epi32(s, _mm_set1_epi32(127))));
+        let pow = _mm_and_si128(_mm_cvttps_epi32(pf), in_range);
+        let hs = mul_lo(hi, pow);
+        let ls = mul_lo(lo, pow);
+        let d = _mm_or_si128(_mm_srli_epi32::<16>(hs), _mm_set1_epi32(0x8000));
+        // u32 -> f64 exactly: (ls - 2^31) as i32, then + 2^31; two lanes per division.
+        let flip = _mm_xor_si128(ls, _mm_set1_epi32(i32::MIN));
+        let two31 = _mm_set1_pd(2_147_483_648.0);
+        let n01 = _mm_add_pd(_mm_cvtepi32_pd(flip), two31);
+        let n23 = _mm_add_pd(_mm_cvtepi32_pd(_mm_unpackhi_epi64(flip, flip)), two31);
+        let d01 = _mm_cvtepi32_pd(d);
+        let d23 = _mm_cvtepi32_pd(_mm_unpackhi_epi64(d, d));
+        let t = _mm_unpacklo_epi64(
+            _mm_cvttpd_epi32(_mm_div_pd(n01, d01)),
+            _mm_cvttpd_epi32(_mm_div_pd(n23, d23)),
+        );
+        // 0 <= t < 2^17: the signed minimum is the unsigned one.
+        let lim = _mm_set1_epi32(1 << 16);
+        let t = select(_mm_cmpgt_epi32(t, lim), lim, t);
+        let i = _mm_srli_epi32::<8>(t);
+        let f = _mm_and_si128(t, _mm_set1_epi32(0xFF));
+        // i <= 256: its low 16 bits are the index (ATAN has 258 entries).
+        let idx = [
+            _mm_extract_epi16::<0>(i) as usize,
+            _mm_extract_epi16::<2>(i) as usize,
+            _mm_extract_epi16::<4>(i) as usize,
+            _mm_extract_epi16::<6>(i) as usize,
+        ]
+        .map(|k| k.min(256));
+        let ta = _mm_setr_epi32(
+            ATAN[idx[0]] as i32,
+            ATAN[idx[1]] as i32,
+            ATAN[idx[2]] as i32,
+            ATAN[idx[3]] as i32,
+        );
+        let tb = _mm_setr_epi32(
+            ATAN[idx[0] + 1] as i32,
+            ATAN[idx[1] + 1] as i32,
+            ATAN[idx[2] + 1] as i32,
+            ATAN[idx[3] + 1] as i32,
+        );
+        let step = mul_lo(_mm_sub_epi32(tb, ta), f);
+        let oct = _mm_add_epi32(
+            ta,
+            _mm_srli_epi32::<8>(_mm_add_epi32(step, _mm_set1_epi32(1 << 7))),
+        );
+        let ang = select(
+            swap,
+            _mm_sub_epi32(_mm_set1_epi32(QUARTER as i32), oct),
+            oct,
+        );
+        let ang = select(
+            _mm_cmpgt_epi32(zero, x),
+            _mm_sub_epi32(_mm_set1_epi32(HALF as i32), ang),
+            ang,
+        );
+        let phi = select(_mm_cmpgt_epi32(zero, y), _mm_sub_epi32(zero, ang), ang);
+        // Height: the high word of the signed 32 x 32 -> 64 product.
+        let dd = _mm_sub_epi32(phi, _mm_add_epi32(_mm_set1_epi32(rho as i32), rp));
+        let p = mul_hi_i32(dd, mv);
+        let h = _mm_sra_epi32(
+            _mm_add_epi32(p, _mm_set1_epi32(half)),
+            _mm_cvtsi32_si128(sh as i32),
+        );
+        let sat_bits = _mm_movemask_ps(_mm_castsi128_ps(saturated)) as u32;
+        let fast_bits = _mm_movemask_ps(_mm_castsi128_ps(fast)) as u32;
+        (phi, h, sat_bits, fast_bits)
+    }
+
+    /// [`eight`](super::eight) in SSE2 instructions (the same integer results; see the
+    /// module docs of this build).
+    #[target_feature(enable = "sse2")]
+    #[inline]
+    pub(super) fn eight_sse2(gate: &Gate, step: &Step) -> Eight {
+        let v = &step.v;
+        let mut r = Eight {
+            phi: [0; L],
+            heights: [0; L],
+            good: [false; L],
+            saturated: [false; L],
+        };
+        for q in 0..L / Q {
+            let k = q * Q;
+            // SAFETY: unaligned 16-byte loads of four pixels' `[x, y]` pairs (32 bytes of the
+            // 64 in `v` from pixel `k`, `k + Q <= L`) and of four words of `ref_phase` and `m`;
+            // 16-byte stores into local arrays of 16 bytes.
+            let (phi, h, sat_bits, fast_bits) = unsafe {
+                let a = _mm_loadu_si128(v.as_ptr().add(k).cast());
+                let b = _mm_loadu_si128(v.as_ptr().add(k + 2).cast());
+                // a = x0 y0 x1 y1, b = x2 y2 x3 y3.
+                let x = _mm_castps_si128(_mm_shuffle_ps::<0b10_00_10_00>(
+                    _mm_castsi128_ps(a),
+                    _mm_castsi128_ps(b),
+                ));
+                let y = _mm_castps_si128(_mm_shuffle_ps::<0b11_01_11_01>(
+                    _mm_castsi128_ps(a),
+                    _mm_castsi128_ps(b),
+                ));
+                let rp = _mm_loadu_si128(step.ref_phase.as_ptr().add(k).cast());
+                let mv = _mm_loadu_si128(step.m.as_ptr().add(k).cast());
+                let (phi, h, sb, fb) = four(x, y, rp, mv, step.rho, step.half, step.sh, gate.fast);
+                let mut phis = [0u32; Q];
+                _mm_storeu_si128(phis.as_mut_ptr().cast(), phi);
+                let mut hs = [0i16; 2 * Q];
+                // Within i16 (see `Scale::height`, `ColumnScale::height`): the saturating
+                // pack is the scalar's truncation.
+                _mm_storeu_si128(hs.as_mut_ptr().cast(), _mm_packs_epi32(h, h));
+                (phis, hs, sb, fb)
+            };
+            r.phi[k..k + Q].copy_from_slice(&phi);
+            r.heights[k..k + Q].copy_from_slice(&h[..Q]);
+            settle(
+                gate,
+                &v[k..k + Q],
+                sat_bits,
+                fast_bits,
+                &mut r.saturated[k..k + Q],
+                &mut r.good[k..k + Q],
+            );
+        }
+        r
+    }
+}
+
 /// The AVX2 build, entered only through a [`Kernel::Avx2`] (whose existence proves the CPU
 /// has it).
 #[cfg(target_arch = "x86_64")]
@@ -188,26 +471,16 @@ mod x86 {
     #[target_feature(enable = "avx2")]
     fn run_avx2(run: &Run<'_>, heights: &mut [i16], valid: &mut [u8]) -> u16 {
         // SAFETY: inlined into this AVX2 function.
-        let e = |g: &Gate, v: &[V; L], r: &[u32; L], rho, m: &[i32; L], half, sh| unsafe {
-            eight_avx2(g, v, r, rho, m, half, sh)
-        };
+        let e = |g: &Gate, step: &Step| unsafe { eight_avx2(g, step) };
         by_lanes(run, heights, valid, e)
     }
 
     /// [`eight`](super::eight) for the tests, as its own AVX2 function.
     #[cfg(test)]
     #[target_feature(enable = "avx2")]
-    pub(super) fn eight_avx2_alone(
-        gate: &Gate,
-        v: &[V; L],
-        ref_phase: &[u32; L],
-        rho: u32,
-        m: &[i32; L],
-        half: i32,
-        sh: u32,
-    ) -> Eight {
+    pub(super) fn eight_avx2_alone(gate: &Gate, step: &Step) -> Eight {
         // SAFETY: inside an AVX2 function.
-        unsafe { eight_avx2(gate, v, ref_phase, rho, m, half, sh) }
+        unsafe { eight_avx2(gate, step) }
     }
 
     /// [`eight`](super::eight) in AVX2 instructions, step for step (the same integer
@@ -219,15 +492,15 @@ mod x86 {
     /// # Safety
     /// Only inside a `#[target_feature(enable = "avx2")]` function (which the CPU runs).
     #[inline(always)]
-    unsafe fn eight_avx2(
-        gate: &Gate,
-        v: &[V; L],
-        ref_phase: &[u32; L],
-        rho: u32,
-        m: &[i32; L],
-        half: i32,
-        sh: u32,
-    ) -> Eight {
+    unsafe fn eight_avx2(gate: &Gate, step: &Step) -> Eight {
+        let Step {
+            v,
+            ref_phase,
+            m,
+            rho,
+            half,
+            sh,
+        } = *step;
         use core::arch::x86_64::*;
         // SAFETY: the caller runs AVX2 (the intrinsics); every load, store and gather stays
         // inside its array (said at each).
@@ -337,16 +610,7 @@ mod x86 {
                 good: [false; L],
                 saturated: [false; L],
             };
-            for l in 0..L {
-                let (sat, fast) = (sat_bits >> l & 1 != 0, fast_bits >> l & 1 != 0);
-                r.saturated[l] = sat;
-                r.good[l] = !sat
-                    && (fast || {
-                        let c2 = (v[l][0] as i64 * v[l][0] as i64) as u64
-                            + (v[l][1] as i64 * v[l][1] as i64) as u64;
-                        c2 >= gate.thr2 && c2 != 0
-                    });
-            }
+            settle(gate, &v, sat_bits, fast_bits, &mut r.saturated, &mut r.good);
             r
         }
     }
@@ -372,7 +636,7 @@ fn by_lanes(
     run: &Run<'_>,
     heights: &mut [i16],
     valid: &mut [u8],
-    eight: impl Fn(&Gate, &[V; L], &[u32; L], u32, &[i32; L], i32, u32) -> Eight,
+    eight: impl Fn(&Gate, &Step) -> Eight,
 ) -> u16 {
     let Run {
         gate,
@@ -405,7 +669,17 @@ fn by_lanes(
                 }
             }
         }
-        let r = eight(gate, &vc, &rc, rho, &m, half, sh);
+        let r = eight(
+            gate,
+            &Step {
+                v: vc,
+                ref_phase: rc,
+                m,
+                rho,
+                half,
+                sh,
+            },
+        );
         let mut byte = 0u8;
         for (l, h) in heights[k0..k0 + n].iter_mut().enumerate() {
             if r.good[l] {
@@ -424,6 +698,41 @@ fn by_lanes(
     (if saturated { flags::SATURATED } else { 0 }) | (if low { flags::LOW_MODULATION } else { 0 })
 }
 
+/// What one step of every build takes: eight reduced pixels, their reference phases and
+/// height multipliers, and the height's rounding (see [`Mult`]).
+#[derive(Clone, Copy)]
+struct Step {
+    v: [V; L],
+    ref_phase: [u32; L],
+    m: [i32; L],
+    rho: u32,
+    half: i32,
+    sh: u32,
+}
+
+/// The validity of lanes `v` from their saturated and fast-gate bits (bit `l` for lane `l`):
+/// a lane neither saturated nor above the gate's fast threshold takes the exact test (rare).
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+fn settle(
+    gate: &Gate,
+    v: &[V],
+    sat_bits: u32,
+    fast_bits: u32,
+    saturated: &mut [bool],
+    good: &mut [bool],
+) {
+    for (l, ((px, sat), ok)) in v.iter().zip(saturated).zip(good).enumerate() {
+        let fast = fast_bits >> l & 1 != 0;
+        *sat = sat_bits >> l & 1 != 0;
+        *ok = !*sat
+            && (fast || {
+                let c2 =
+                    (px[0] as i64 * px[0] as i64) as u64 + (px[1] as i64 * px[1] as i64) as u64;
+                c2 >= gate.thr2 && c2 != 0
+            });
+    }
+}
+
 /// Eight pixels' phases, heights and validity.
 struct Eight {
     /// The phases (binary angles; meaningful where `good`): what the tests compare, finer
@@ -440,15 +749,15 @@ struct Eight {
 /// into vector instructions; the exact modulation test, needed only by pixels below the
 /// gate's fast threshold, is done for those lanes alone.
 #[inline(always)]
-fn eight(
-    gate: &Gate,
-    v: &[V; L],
-    ref_phase: &[u32; L],
-    rho: u32,
-    m: &[i32; L],
-    half: i32,
-    sh: u32,
-) -> Eight {
+fn eight(gate: &Gate, step: &Step) -> Eight {
+    let Step {
+        v,
+        ref_phase,
+        m,
+        rho,
+        half,
+        sh,
+    } = *step;
     let mut x = [0i32; L];
     let mut y = [0i32; L];
     for l in 0..L {
@@ -667,11 +976,22 @@ mod tests {
             let px = pixels(&mut r, L, thr);
             let v: [V; L] = px.try_into().unwrap();
             let rp = [0u32; L];
-            let mut got = std::vec![eight(&gate, &v, &rp, 0, &m, 1 << 15, 16)];
+            let step = Step {
+                v,
+                ref_phase: rp,
+                m,
+                rho: 0,
+                half: 1 << 15,
+                sh: 16,
+            };
+            let mut got = std::vec![eight(&gate, &step)];
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: x86-64's baseline has SSE2.
+            got.push(unsafe { x86_sse2::eight_sse2(&gate, &step) });
             #[cfg(target_arch = "x86_64")]
             if Kernel::avx2().is_some() {
                 // SAFETY: the CPU has AVX2 (detected just above).
-                got.push(unsafe { x86::eight_avx2_alone(&gate, &v, &rp, 0, &m, 1 << 15, 16) });
+                got.push(unsafe { x86::eight_avx2_alone(&gate, &step) });
             }
             for e in &got {
                 for l in 0..L {
@@ -681,6 +1001,42 @@ mod tests {
                         assert_eq!(e.phi[l], phi, "case {case} lane {l}: {:?}", v[l]);
                     }
                 }
+            }
+        }
+    }
+
+    /// The SSE2 build's products against i64 ones, every sign (the pipeline's multipliers are
+    /// never negative, so the rows alone would not see the signed high word's corrections).
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    #[allow(unsafe_code)]
+    fn the_sse2_products_are_the_i64_products() {
+        use core::arch::x86_64::*;
+        let mut r = Lcg(99);
+        let lanes = |v: __m128i| {
+            let mut o = [0i32; 4];
+            // SAFETY: a 16-byte store into an array of 16 bytes.
+            unsafe { _mm_storeu_si128(o.as_mut_ptr().cast(), v) };
+            o
+        };
+        for case in 0..100_000 {
+            let pick = |r: &mut Lcg| match case % 4 {
+                0 => r.next() as i32,
+                1 => [i32::MIN, i32::MAX, -1, 0, 1][(r.next() % 5) as usize],
+                _ => (r.next() as i32) >> (r.next() % 32),
+            };
+            let a: [i32; 4] = core::array::from_fn(|_| pick(&mut r));
+            let b: [i32; 4] = core::array::from_fn(|_| pick(&mut r));
+            // SAFETY: x86-64's baseline has SSE2.
+            let (lo, hi) = unsafe {
+                let va = _mm_setr_epi32(a[0], a[1], a[2], a[3]);
+                let vb = _mm_setr_epi32(b[0], b[1], b[2], b[3]);
+                (x86_sse2::mul_lo(va, vb), x86_sse2::mul_hi_i32(va, vb))
+            };
+            for l in 0..4 {
+                let p = a[l] as i64 * b[l] as i64;
+                assert_eq!(lanes(lo)[l], p as i32, "{} x {}", a[l], b[l]);
+                assert_eq!(lanes(hi)[l], (p >> 32) as i32, "{} x {}", a[l], b[l]);
             }
         }
     }

@@ -161,24 +161,32 @@ pub struct Source<'a> {
 }
 
 /// The fractional grid row at nominal row `t` (rows from the first) through the increasing
-/// positions `pos`, searched from `floor(t)`; `None` outside `pos`.
-fn row_at(pos: &[f64], t: f64) -> Option<f64> {
+/// positions `pos` (`inv[i] = 1 / (pos[i + 1] - pos[i])`), searched from `hint` (the row the
+/// last call found: a neighbouring pixel's row is within a step or two, where the rows'
+/// places may have drifted many rows from their numbers); `None` outside `pos`.
+fn row_at(pos: &[f64], inv: &[f64], t: f64, hint: &mut usize) -> Option<f64> {
     let (first, last) = (*pos.first()?, *pos.last()?);
     if !(t >= first && t <= last) {
         return None;
     }
-    // `as usize` truncates: the floor of a non-negative `t`, without a libm call.
-    let mut i = (t.max(0.0) as usize).min(pos.len() - 1);
+    let mut i = (*hint).min(pos.len() - 1);
     while i > 0 && pos[i] > t {
         i -= 1;
     }
     while i + 1 < pos.len() && pos[i + 1] <= t {
         i += 1;
     }
+    *hint = i;
     if i + 1 == pos.len() {
         return Some(i as f64);
     }
-    Some(i as f64 + (t - pos[i]) / (pos[i + 1] - pos[i]))
+    Some(i as f64 + (t - pos[i]) * inv[i])
+}
+
+/// `1 / (pos[i + 1] - pos[i])` for every `i` (for [`row_at`]: a multiplication per pixel, not
+/// a division).
+fn inverse_steps(pos: &[f64]) -> Vec<f64> {
+    pos.windows(2).map(|p| 1.0 / (p[1] - p[0])).collect()
 }
 
 /// Resamples a camera's heights onto the board rows `board_rows` of `grid` through its
@@ -243,15 +251,18 @@ pub fn resample(
     let hs = &heights.data;
     let vs = variance.map(|v| &v.data[..]);
     let lost = |r: usize| lost_rows.get(row0 + r).copied().unwrap_or(false);
-    let feather = feather_px.max(1e-9);
+    let inv_feather = 1.0 / feather_px.max(1e-9);
+    let inv_steps = src.places.map(|pl| inverse_steps(&pl.along));
     let (last_b, last_c) = ((rows - 1) as f64, (w - 1) as f64);
     for i in is {
         let b_row = (grid.centre(i, 0).0 - place.x0_mm) * inv_row - src.first_row as f64;
         let at = (i - i0) * lw;
+        // The row places' search starts from the nominal row, then from the last found.
+        let mut hint = b_row.max(0.0) as usize;
         for (jj, &(c, along_c)) in cols.iter().enumerate() {
             let b = b_row - along_c;
-            let (b, c) = match src.places {
-                Some(pl) => match row_at(&pl.along, b) {
+            let (b, c) = match (src.places, &inv_steps) {
+                (Some(pl), Some(inv)) => match row_at(&pl.along, inv, b, &mut hint) {
                     Some(b) => {
                         // `b >= 0` (a row of `along`): truncation is its floor.
                         let i = b as usize;
@@ -262,7 +273,7 @@ pub fn resample(
                     }
                     None => continue,
                 },
-                None => (b, c),
+                _ => (b, c),
             };
             // The row within the rows at hand.
             let b = b - row0 as f64;
@@ -307,7 +318,7 @@ pub fn resample(
             let t = f64::from(period_um[c0]) * (1.0 - fc) + f64::from(period_um[c1]) * fc;
             out.period_um.data[idx] = t as f32;
             let edge = c.min(last_c - c) + 0.5;
-            out.weight.data[idx] = (edge / feather).clamp(1e-3, 1.0) as f32;
+            out.weight.data[idx] = (edge * inv_feather).clamp(1e-3, 1.0) as f32;
         }
     }
     out
@@ -326,7 +337,8 @@ mod tests {
             .collect();
         for k in 0..400 {
             let t = pos[0] + k as f64 * (pos[49] - pos[0]) / 399.0;
-            let r = row_at(&pos, t).unwrap();
+            let mut hint = [0, t.max(0.0) as usize, 49, 1000][k % 4];
+            let r = row_at(&pos, &inverse_steps(&pos), t, &mut hint).unwrap();
             let (i, f) = (r.floor() as usize, r - r.floor());
             let back = if i + 1 < pos.len() {
                 pos[i] * (1.0 - f) + pos[i + 1] * f
@@ -335,9 +347,10 @@ mod tests {
             };
             assert!((back - t).abs() < 1e-9, "{t} -> {r} -> {back}");
         }
-        assert_eq!(row_at(&pos, pos[0] - 0.01), None);
-        assert_eq!(row_at(&pos, pos[49] + 0.01), None);
-        assert_eq!(row_at(&[], 0.0), None);
+        let inv = inverse_steps(&pos);
+        assert_eq!(row_at(&pos, &inv, pos[0] - 0.01, &mut 0), None);
+        assert_eq!(row_at(&pos, &inv, pos[49] + 0.01, &mut 0), None);
+        assert_eq!(row_at(&[], &[], 0.0, &mut 0), None);
     }
 
     #[test]

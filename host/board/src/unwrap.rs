@@ -49,9 +49,14 @@ pub struct Unwrapped {
 impl Unwrapped {
     /// Moves every height by `turns` whole turns (`turns x T(c)`).
     pub fn shift(&mut self, turns: i32) {
-        let w = self.heights.width;
-        for (i, h) in self.heights.data.iter_mut().enumerate() {
-            *h += turns as f32 * self.period_um[i % w];
+        if turns == 0 {
+            return;
+        }
+        let w = self.heights.width.max(1);
+        for row in self.heights.data.chunks_exact_mut(w) {
+            for (h, &t) in row.iter_mut().zip(&self.period_um) {
+                *h += turns as f32 * t;
+            }
         }
     }
 }
@@ -197,20 +202,25 @@ pub fn unwrap(wrapped: &Grid, period_um: &[f32], block: usize) -> Unwrapped {
 
     // 3. Surface refinement: the 30th percentile of each block's pixels on their nearest
     //    turn, then a 3 x 3 median over the blocks.
-    let bil = Bilinear::new(w, rows, bw, bh, block);
-    let interp = |surf: &[f32], r: usize, c: usize| bil.at(surf, r, c);
+    let mut bil = Bilinear::new(w, rows, bw, bh, block);
     let mut low = vec![f32::NAN; bw * bh];
     let mut v: Vec<f32> = Vec::with_capacity(block * block);
+    // The surface of a block row's pixel rows, row-major (`block x w`).
+    let mut band: Vec<f32> = vec![f32::NAN; block * w];
     for br in 0..bh {
+        let r0 = br * block;
+        let r1 = (r0 + block).min(rows);
+        for r in r0..r1 {
+            bil.row(&surf, r, &mut band[(r - r0) * w..(r - r0 + 1) * w]);
+        }
         for bc in 0..bw {
             v.clear();
-            let (r0, c0) = (br * block, bc * block);
-            let (r1, c1) = ((r0 + block).min(rows), (c0 + block).min(w));
+            let (c0, c1) = (bc * block, (bc * block + block).min(w));
             for r in r0..r1 {
-                for c in c0..c1 {
-                    let u = turns[r * w + c];
+                let (us, ss) = (&turns[r * w + c0..r * w + c1], &band[(r - r0) * w + c0..]);
+                for (&u, &sv) in us.iter().zip(ss) {
                     if u.is_finite() {
-                        v.push(nearest(u, interp(&surf, r, c)));
+                        v.push(nearest(u, sv));
                     }
                 }
             }
@@ -227,24 +237,29 @@ pub fn unwrap(wrapped: &Grid, period_um: &[f32], block: usize) -> Unwrapped {
     }
 
     // 4. Every pixel on the turn nearest the surface.
+    bil.forget();
     let mut heights = Grid::invalid(w, rows);
     let mut unreached_rows = vec![0u32; rows];
+    let mut srow = vec![f32::NAN; w];
     for (r, unreached) in unreached_rows.iter_mut().enumerate() {
         let row = r * w;
         let reached_row = &reached[(r / block) * bw..];
-        for c in 0..w {
-            let u = turns[row + c];
-            if !u.is_finite() {
-                continue;
+        bil.row(&surf, r, &mut srow);
+        let out = &mut heights.data[row..row + w];
+        for ((o, &u), (&s, &t)) in out
+            .iter_mut()
+            .zip(&turns[row..row + w])
+            .zip(srow.iter().zip(period_um))
+        {
+            if u.is_finite() && s.is_finite() {
+                *o = nearest(u, s) * t;
             }
-            let s = interp(&surf, r, c);
-            if !s.is_finite() {
-                continue;
+        }
+        // A height is finite exactly where its turn and its surface are.
+        for (bc, part) in out.chunks(block).enumerate() {
+            if !reached_row[bc] {
+                *unreached += part.iter().filter(|h| h.is_finite()).count() as u32;
             }
-            if !reached_row[c / block] {
-                *unreached += 1;
-            }
-            heights.data[row + c] = nearest(u, s) * period_um[c];
         }
     }
     Unwrapped {
@@ -525,6 +540,11 @@ struct Bilinear {
     rows: Vec<(usize, usize, f32)>,
     /// Per pixel column: block columns `j`, `j1` and the weight of `j1`.
     cols: Vec<(usize, usize, f32)>,
+    /// The block rows `(i, i1)` last asked for (since [`Self::forget`]), and their values
+    /// interpolated across the columns, one per pixel column.
+    across: Option<(usize, usize)>,
+    across_i: Vec<f32>,
+    across_i1: Vec<f32>,
 }
 
 impl Bilinear {
@@ -542,17 +562,41 @@ impl Bilinear {
             bw,
             rows: (0..rows).map(|r| axis(r, bh)).collect(),
             cols: (0..w).map(|c| axis(c, bw)).collect(),
+            across: None,
+            across_i: vec![0.0; w],
+            across_i1: vec![0.0; w],
         }
     }
 
-    /// The interpolated block value at pixel `(r, c)`.
-    fn at(&self, v: &[f32], r: usize, c: usize) -> f32 {
+    /// The interpolated block values of pixel row `r` into `out` (one per column): for each
+    /// pixel `a (1 - fy) + b fy` with `a`, `b` the block rows' values interpolated across
+    /// (`v[.., j] (1 - fx) + v[.., j1] fx`), the same arithmetic in the same order for every
+    /// pixel as a pixel at a time. The values across are kept while the block rows are the
+    /// same (a block's rows): call [`Self::forget`] when `v` changes.
+    fn row(&mut self, v: &[f32], r: usize, out: &mut [f32]) {
         let (i, i1, fy) = self.rows[r];
-        let (j, j1, fx) = self.cols[c];
         let bw = self.bw;
-        let a = v[i * bw + j] * (1.0 - fx) + v[i * bw + j1] * fx;
-        let b = v[i1 * bw + j] * (1.0 - fx) + v[i1 * bw + j1] * fx;
-        a * (1.0 - fy) + b * fy
+        let key = (i, i1);
+        if self.across != Some(key) {
+            for ((a, b), &(j, j1, fx)) in self
+                .across_i
+                .iter_mut()
+                .zip(self.across_i1.iter_mut())
+                .zip(&self.cols)
+            {
+                *a = v[i * bw + j] * (1.0 - fx) + v[i * bw + j1] * fx;
+                *b = v[i1 * bw + j] * (1.0 - fx) + v[i1 * bw + j1] * fx;
+            }
+            self.across = Some(key);
+        }
+        for ((o, &a), &b) in out.iter_mut().zip(&self.across_i).zip(&self.across_i1) {
+            *o = a * (1.0 - fy) + b * fy;
+        }
+    }
+
+    /// Forgets the values across kept by [`Self::row`] (the block values changed).
+    fn forget(&mut self) {
+        self.across = None;
     }
 }
 
