@@ -481,6 +481,33 @@ fn write_files(
     report: &Value,
     names: Names,
 ) -> Result<usize, InspectError> {
+    // The overview (the largest image) in a thread of its own beside the other files.
+    let (overview, n) = std::thread::scope(|s| {
+        let o = s.spawn(|| {
+            let t = i.registration.transform;
+            dpsa_formats::images::save_png(
+                &overview(map, pads, &t, i, 2400),
+                &dir.join("overview.png"),
+            )
+        });
+        let n = write_tables_and_gallery(dir, map, pads, i, program, report, names);
+        (o.join(), n)
+    });
+    // A panic there is a bug: carried on as this thread's own.
+    overview.unwrap_or_else(|e| std::panic::resume_unwind(e))?;
+    n
+}
+
+/// `pads.csv`, `report.json`, the CFX message and the gallery of failures (their count).
+fn write_tables_and_gallery(
+    dir: &Path,
+    map: &BoardMap,
+    pads: &[Pad],
+    i: &Inspection,
+    program: &Program,
+    report: &Value,
+    names: Names,
+) -> Result<usize, InspectError> {
     let Names { unit, recipe } = names;
     dpsa_formats::files::write_bytes(&dir.join("pads.csv"), csv(pads, i).as_bytes())?;
     dpsa_formats::files::write_bytes(
@@ -493,7 +520,6 @@ fn write_files(
         serde_json::to_string_pretty(&msg)?.as_bytes(),
     )?;
     let t = i.registration.transform;
-    dpsa_formats::images::save_png(&overview(map, pads, &t, i, 2400), &dir.join("overview.png"))?;
     let gal = dir.join("gallery");
     std::fs::create_dir_all(&gal).map_err(|error| InspectError::CreateDir {
         path: gal.clone(),
