@@ -463,39 +463,28 @@ pub fn write(
     report_again: impl FnOnce() -> Result<Value, InspectError>,
 ) -> Result<usize, InspectError> {
     let staging = dpsa_formats::files::OutputDir::create(dir, DIR_KIND)?;
-    let n = write_files(staging.path(), map, pads, i, program, report, names)?;
-    dpsa_formats::files::write_bytes(
-        &staging.path().join("report.json"),
-        serde_json::to_string_pretty(&report_again()?)?.as_bytes(),
-    )?;
-    staging.commit()?;
-    Ok(n)
-}
-
-fn write_files(
-    dir: &Path,
-    map: &BoardMap,
-    pads: &[Pad],
-    i: &Inspection,
-    program: &Program,
-    report: &Value,
-    names: Names,
-) -> Result<usize, InspectError> {
+    let path = staging.path();
     // The overview (the largest image) in a thread of its own beside the other files.
     let (overview, n) = std::thread::scope(|s| {
         let o = s.spawn(|| {
             let t = i.registration.transform;
             dpsa_formats::images::save_png(
                 &overview(map, pads, &t, i, 2400),
-                &dir.join("overview.png"),
+                &path.join("overview.png"),
             )
         });
-        let n = write_tables_and_gallery(dir, map, pads, i, program, report, names);
+        let n = write_tables_and_gallery(path, map, pads, i, program, report, names);
         (o.join(), n)
     });
     // A panic there is a bug: carried on as this thread's own.
     overview.unwrap_or_else(|e| std::panic::resume_unwind(e))?;
-    n
+    let n = n?;
+    dpsa_formats::files::write_bytes(
+        &path.join("report.json"),
+        serde_json::to_string_pretty(&report_again()?)?.as_bytes(),
+    )?;
+    staging.commit()?;
+    Ok(n)
 }
 
 /// `pads.csv`, `report.json`, the CFX message and the gallery of failures (their count).
