@@ -19,7 +19,11 @@ fn exit_unless_zero(code: i32) {
 
 fn main() {
     let args = Cli::parse();
-    dpsa_formats::files::remove_unfinished_on_interrupt();
+    // The line service handles its own signals (SIGTERM: finish the board in progress); every
+    // other command removes its unfinished outputs on SIGINT / SIGTERM.
+    if !matches!(args.cmd, Cmd::Line(_)) {
+        dpsa_formats::files::remove_unfinished_on_interrupt();
+    }
     let progress = !args.quiet;
     let res = match args.cmd {
         #[cfg(feature = "sim")]
@@ -43,6 +47,7 @@ fn main() {
         Cmd::Grr(a) => commands::grr::run(a),
         // 0 clean, 2 damaged or incomplete, 3 nothing decodable (commands/decode.rs).
         Cmd::Decode(a) => commands::decode::run(a).map(exit_unless_zero),
+        Cmd::Line(a) => commands::line::run(a),
         #[cfg(feature = "sim")]
         Cmd::FrameBench(a) => commands::frame_bench::run(a),
         #[cfg(feature = "sim")]

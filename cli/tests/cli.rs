@@ -106,6 +106,7 @@ fn help_texts() {
         "board-bench",
         "pads",
         "demo",
+        "line",
     ] {
         assert!(top.contains(sub), "dpsa --help does not list {sub}: {top}");
     }
@@ -121,6 +122,10 @@ fn help_texts() {
         ("demo", &["--out", "--seed", "--scene", "--array"][..]),
         ("board", &["--cal", "--out", "--streams", "--json"][..]),
         ("pads", &["--json"][..]),
+        (
+            "line",
+            &["run", "init", "send", "boards", "store-bench"][..],
+        ),
     ] {
         let h = ok(&[sub, "--help"]);
         for o in options {

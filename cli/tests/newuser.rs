@@ -490,6 +490,41 @@ fn demo_array_runs_the_array_alone_and_its_cfx_names_the_board() {
         );
     }
 
+    // The README's two line commands on the demo's own line.toml: the service, and the
+    // board recording sent to it (each camera through the core with the line's calibration).
+    let line = out.join("line.toml");
+    assert!(line.is_file(), "{text}");
+    let mut run = Command::new(env!("CARGO_BIN_EXE_dpsa"))
+        .args(["line", "run", "--boards", "1", "--config"])
+        .arg(&line)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let board_dir = out.join("array-board");
+    let sent = dpsa(&[
+        "line",
+        "send",
+        board_dir.to_str().unwrap(),
+        "--config",
+        line.to_str().unwrap(),
+        "--rate",
+        "max",
+    ]);
+    assert!(
+        sent.status.success(),
+        "{}",
+        String::from_utf8_lossy(&sent.stderr)
+    );
+    let t0 = std::time::Instant::now();
+    while run.try_wait().unwrap().is_none() {
+        assert!(t0.elapsed().as_secs() < 120, "line run did not end");
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let summary: Value = serde_json::from_slice(&run.wait_with_output().unwrap().stdout).unwrap();
+    assert_eq!(summary["boards"], 1, "{summary}");
+    assert_eq!(summary["incomplete"], 0, "{summary}");
+
     let board: Value =
         serde_json::from_slice(&std::fs::read(out.join("array-board").join("array.json")).unwrap())
             .unwrap();

@@ -205,6 +205,25 @@ fn array(
             progress,
         )?;
         out!("{}", report.summary());
+        // A line for this board on loopback (`dpsa line init`), to start and feed in two
+        // commands; the demo's own file, made anew each run (with fresh ports).
+        let line = out.join("line.toml");
+        let _ = std::fs::remove_file(&line);
+        let m = dpsa_formats::array::ArrayManifest::load(&board_dir)?;
+        let board = dpsa_line::config::InitBoard {
+            length_mm: m.board_length_mm,
+            width_mm: m.board_width_mm,
+            pixel_mm: m.pixel_mm,
+        };
+        dpsa_line::config::init(&cal_path, &program, &out.join("line-data"), &board, &line)?;
+        out!(
+            "    the line for this board: {} (start it with `dpsa line run --config {}`, feed it \
+             with `dpsa line send {} --config {}`)",
+            line.display(),
+            line.display(),
+            board_dir.display(),
+            line.display()
+        );
     } else {
         out!(
             "{} (the scene has no paste layer: nothing to inspect)",

@@ -25,6 +25,7 @@ pub mod grr;
 pub mod inspect;
 #[cfg(feature = "sim")]
 pub mod layout;
+pub mod line;
 pub mod pads;
 #[cfg(feature = "sim")]
 pub mod pads_bench;
@@ -117,6 +118,10 @@ pub enum Cmd {
     Phase(phase::Args),
     /// Decode a packet stream: report good/corrupt packets and optionally write images.
     Decode(decode::Args),
+    /// The line: boards one after another, live from the frame grabbers, stitched, inspected
+    /// and stored (`run`); its configuration (`init`); simulated frame grabbers (`send`); the
+    /// boards stored (`boards`); the store's benchmark (`store-bench`).
+    Line(line::Args),
     /// Benchmark the row codec against lz4, zstd, heatshrink and PNG on the same height rows,
     /// with the entropy of its predictor's residuals and the noise floor.
     #[cfg(feature = "sim")]

@@ -13,7 +13,7 @@
 //! (`latency_after_last_row_s`): the last bands, the whole board's inspection, and any
 //! backlog of the core or the stitcher behind the conveyor.
 
-use crate::board::assemble::{assemble, CameraFeed, CameraRows, Stitcher, BAND_ROWS};
+use crate::board::assemble::{assemble, CameraRows, Stitcher, BAND_ROWS};
 use crate::board::run::{open, Opened};
 use crate::calibration::calibrated;
 use crate::calibration::file::CalFile;
@@ -370,16 +370,9 @@ fn line_feed(
             if st.is_none() && (0..n).all(|i| !waiting[i].is_empty() || ends[i].is_some()) {
                 let feeds = (0..n)
                     .map(|i| {
-                        let c = &cal.camera[i];
                         let max_step = loaded[i].0.manifest.processing.max_step_rows;
-                        CameraFeed {
-                            first_row: waiting[i].first().map_or(0, |c| c.first_row),
-                            period_um: c.height_per_turn_um.iter().map(|&t| t as f32).collect(),
-                            placement: dpsa_board::run::placement(c, max_step),
-                            places: None,
-                            lost: Vec::new(),
-                            variance: false,
-                        }
+                        let first = waiting[i].first().map_or(0, |c| c.first_row);
+                        dpsa_board::run::feed(&cal.camera[i], first, max_step)
                     })
                     .collect();
                 st = Some(Stitcher::new(*grid, feeds, BAND_ROWS, CHUNK_ROWS));

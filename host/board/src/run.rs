@@ -195,6 +195,20 @@ pub fn placement(cal: &CameraCal, max_step_rows: u32) -> CameraPlacement {
     }
 }
 
+/// What the stitcher needs of camera `cal` whose first row is board row `first_row` (rows
+/// placed as they come, nothing lost up front, no variance): the line's and the paced bench's
+/// cameras.
+pub fn feed(cal: &CameraCal, first_row: i64, max_step_rows: u32) -> crate::assemble::CameraFeed {
+    crate::assemble::CameraFeed {
+        first_row,
+        period_um: cal.height_per_turn_um.iter().map(|&t| t as f32).collect(),
+        placement: placement(cal, max_step_rows),
+        places: None,
+        lost: Vec::new(),
+        variance: false,
+    }
+}
+
 /// A camera's rows on their way to the board, whatever their source: wrapped heights in um
 /// by board row.
 pub struct Collector {
@@ -245,8 +259,9 @@ impl Collector {
     }
 
     /// The rows pushed since the last call, as a [`Chunk`] (`None`: none new). The rows are
-    /// taken in board-row order from the row after the last chunk's (a row that comes again
-    /// or late is dropped; a row that never came is invalid); `prov` is the registration of
+    /// taken in board-row order from the row after the last chunk's, so chunks follow each
+    /// other without a gap (a row that comes again or late is dropped; a row that never came
+    /// is invalid); `prov` is the registration of
     /// the camera's frames so far (masks, places and confirmations as in
     /// [`Collector::finish`]).
     /// Refused like [`Collector::finish`] when the rows span far more board rows than came
@@ -267,6 +282,9 @@ impl Collector {
         ) else {
             return Ok(None);
         };
+        // Chunks follow each other without a gap: rows lost at a chunk's start are invalid
+        // rows of it, so that every row stays at its board row in the stitcher.
+        let first = from.unwrap_or(first);
         let span = i128::from(last) - i128::from(first) + 1;
         if span > rows.len() as i128 + (1 << 16) {
             return Err(BoardError::Refused(format!(

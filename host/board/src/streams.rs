@@ -191,7 +191,7 @@ fn read(path: &Path, lsb_um: f64, max_bytes: u64) -> Result<Decoded> {
 
 /// The configuration hash a stream of camera `i` carries when its frame grabber runs with the
 /// calibration file `cal` (`dpsa_stream::config::of_calibration`).
-fn expected_config_hash(cal: &CalFile, i: usize) -> Result<u64> {
+pub fn expected_config_hash(cal: &CalFile, i: usize) -> Result<u64> {
     let core = dpsa_stream::config::of_calibration(cal, i)
         .map_err(|e| BoardError::Refused(format!("calibration camera {i}: {e}")))?;
     let (cfg, table) = (&core.cfg, &core.ref_phase);

@@ -31,7 +31,9 @@ fn result_name(c: &Call) -> &'static str {
     }
 }
 
-fn cfx_pad(p: &Pad) -> String {
+/// A pad's name as the reports give it: `component.pin` when the placement names it, else the
+/// layer's pad name.
+pub fn cfx_pad(p: &Pad) -> String {
     match (&p.component, &p.pin) {
         (Some(c), Some(n)) => format!("{c}.{n}"),
         _ => p.name(),

@@ -308,9 +308,28 @@ struct Decoder {
     /// the 44-byte record they came from).
     triggers: Vec<(u32, Trigger)>,
     triggers_over_limit: bool,
+    /// Rows handed on already ([`Live::take_rows`]): counted in the report, no longer kept.
+    taken: u64,
 }
 
 impl Decoder {
+    fn new(lsb_um: f64, keep: Keep) -> Decoder {
+        Decoder {
+            map: HeightMap::new(0, lsb_um),
+            rep: DecodeReport::default(),
+            tracker: Tracker::new(),
+            refs: Vec::new(),
+            last_seq: None,
+            rows: Vec::new(),
+            keep,
+            kept_pixels: 0,
+            over_limit: false,
+            triggers: Vec::new(),
+            triggers_over_limit: false,
+            taken: 0,
+        }
+    }
+
     fn packet(&mut self, offset: u64, p: &Packet<'_>) {
         // A stream carries one camera: a packet of another (spliced in from another camera's
         // stream) is not followed at all, as if it were garbage.
@@ -488,7 +507,7 @@ impl Decoder {
             counts.valid_pixels += valid_pixels;
             counts.total_pixels += width as u64;
         }
-        let n_rows = rows.len() as u128;
+        let n_rows = rows.len() as u128 + u128::from(self.taken);
         let map = if self.keep.rows && !self.over_limit {
             self.map.width = if rows.is_empty() { 0 } else { width };
             self.map.rows = rows
@@ -568,19 +587,7 @@ pub fn decode_reader_with<R: Read>(
     lsb_um: f64,
     keep: Keep,
 ) -> std::io::Result<Decoded> {
-    let mut d = Decoder {
-        map: HeightMap::new(0, lsb_um),
-        rep: DecodeReport::default(),
-        tracker: Tracker::new(),
-        refs: Vec::new(),
-        last_seq: None,
-        rows: Vec::new(),
-        keep,
-        kept_pixels: 0,
-        over_limit: false,
-        triggers: Vec::new(),
-        triggers_over_limit: false,
-    };
+    let mut d = Decoder::new(lsb_um, keep);
     let mut walk = Walk::new();
     let mut buf: Vec<u8> = Vec::with_capacity(CHUNK + MAX_PACKET_LEN);
     let mut base = 0u64;
@@ -630,11 +637,249 @@ pub fn decode_reader_with<R: Read>(
     Ok(d.finish())
 }
 
+/// A stream decoded as its bytes arrive (a frame grabber's link): the same decoder as
+/// [`decode_reader_with`], fed piece by piece, its rows and trigger records handed on as they
+/// come ([`Live::take_rows`], [`Live::take_triggers`]). It stops right after the end packet:
+/// bytes after it are the next stream's ([`Live::finish`] gives them back). Memory: the bytes
+/// of at most one unfinished packet plus what was pushed since the last take.
+pub struct Live {
+    d: Decoder,
+    walk: Walk,
+    buf: Vec<u8>,
+    /// Whether the end packet was decoded (nothing after it is looked at).
+    ended: bool,
+}
+
+impl Live {
+    /// A decoder at the start of a stream whose heights are in LSB of `lsb_um`.
+    pub fn new(lsb_um: f64) -> Live {
+        let keep = Keep {
+            rows: true,
+            max_pixels: u64::MAX,
+        };
+        Live {
+            d: Decoder::new(lsb_um, keep),
+            walk: Walk::new(),
+            buf: Vec::new(),
+            ended: false,
+        }
+    }
+
+    /// Decodes what `bytes` completes (damage reported and skipped as in a file); after the
+    /// end packet the bytes are only kept.
+    pub fn push(&mut self, bytes: &[u8]) {
+        self.buf.extend_from_slice(bytes);
+        self.walk_on(false);
+    }
+
+    fn walk_on(&mut self, eof: bool) {
+        while !self.ended {
+            let Some(item) = self.walk.next(&self.buf, eof) else {
+                break;
+            };
+            let base = self.d.rep.bytes;
+            match item {
+                Item::Packet { offset, packet } => {
+                    self.d.packet(base + offset as u64, &packet);
+                    // The end packet closes the stream once the tracker took it.
+                    self.ended =
+                        packet.kind == Kind::End && self.d.tracker.summary().totals.is_some();
+                }
+                Item::Damage { offset, error } => {
+                    // As in a file: version 1 damage may have held rows, so the references go.
+                    if self.d.tracker.summary().version != packets::VERSION {
+                        self.d.refs.clear();
+                    }
+                    self.d.tracker.damage();
+                    self.d.rep.damage(base + offset as u64, error);
+                    self.d.rep.resynced += 1;
+                }
+            }
+        }
+        let done = self.walk.position().min(self.buf.len());
+        self.buf.drain(..done);
+        self.walk.shift(done);
+        self.d.rep.bytes += done as u64;
+    }
+
+    /// The stream header's contents, once it arrived.
+    pub fn info(&self) -> Option<dpsa_core::row::StreamInfo> {
+        self.d.tracker.summary().info
+    }
+
+    /// The end packet arrived: the stream is complete (its report in [`Live::finish`]).
+    pub fn ended(&self) -> bool {
+        self.ended
+    }
+
+    /// Bytes received and not yet decoded (at most an unfinished packet, or after the end
+    /// packet the next stream's bytes).
+    pub fn pending(&self) -> usize {
+        self.buf.len()
+    }
+
+    /// The rows decoded since the last call, in arrival order.
+    pub fn take_rows(&mut self) -> Vec<HeightRow> {
+        self.d.taken += self.d.rows.len() as u64;
+        self.d.kept_pixels = 0;
+        self.d
+            .rows
+            .drain(..)
+            .filter_map(|(_, r)| match r {
+                Kept::Row(r) => Some(*r),
+                Kept::Counts { .. } => None,
+            })
+            .collect()
+    }
+
+    /// The frame trigger records decoded since the last call, in packet order.
+    pub fn take_triggers(&mut self) -> Vec<Trigger> {
+        self.d.triggers.sort_by_key(|t| t.0);
+        self.d.triggers.drain(..).map(|t| t.1).collect()
+    }
+
+    /// The stream's report (what [`decode_reader_with`] reports, rows taken or not), and the
+    /// bytes that came after its end packet (the next stream's start). Without the end packet
+    /// (a link cut) the rest of the bytes are walked to their end first.
+    pub fn finish(mut self) -> (DecodeReport, Vec<u8>) {
+        if !self.ended {
+            self.walk_on(true);
+        }
+        let rest = std::mem::take(&mut self.buf);
+        self.d.rows.clear();
+        (self.d.finish().report, rest)
+    }
+}
+
 #[cfg(test)]
 mod size_tests {
     /// The per-row entry kept without heights stays at 32 bytes (below any packet's size).
     #[test]
     fn counted_rows_take_32_bytes() {
         assert_eq!(size_of::<(u64, super::Kept)>(), 32);
+    }
+}
+
+#[cfg(test)]
+mod live_tests {
+    use super::*;
+    use dpsa_core::packets::{encode_end, encode_raw, encode_stream_header, encode_trigger};
+    use dpsa_core::row::StreamInfo;
+    use dpsa_core::{Row, RowHeader};
+
+    const W: u16 = 20;
+
+    /// A version 2 stream of `rows` rows of camera 1 with a trigger record before each row.
+    fn stream(rows: i64, run_id: u64) -> Vec<u8> {
+        let mut out = Vec::new();
+        let mut buf = vec![0u8; packets::max_packet_len(W as usize)];
+        let info = StreamInfo {
+            camera: 1,
+            n: 4,
+            width: W,
+            rows: 16,
+            max_step_rows: 5,
+            config_hash: 0xabcd,
+            run_id,
+            intra_period: 1,
+        };
+        let n = encode_stream_header(&info, &mut buf).unwrap();
+        out.extend_from_slice(&buf[..n]);
+        let mut seq = 1;
+        for r in 0..rows {
+            let t = Trigger {
+                seq: r as u32,
+                latch: 100 * r,
+            };
+            let n = encode_trigger(&t, 1, 4, W, seq, &mut buf).unwrap();
+            out.extend_from_slice(&buf[..n]);
+            seq += 1;
+            let heights: Vec<i16> = (0..W as i16).map(|c| c * 7 - r as i16).collect();
+            let valid = vec![0xffu8, 0x0f, 0x05];
+            let row = Row {
+                header: RowHeader {
+                    camera: 1,
+                    n: 4,
+                    row: 10 + r,
+                    latch: 100 * r,
+                    flags: 0,
+                    width: W,
+                },
+                heights: &heights,
+                valid: &valid,
+            };
+            let n = encode_raw(&row, seq, &mut buf).unwrap();
+            out.extend_from_slice(&buf[..n]);
+            seq += 1;
+        }
+        let totals = Totals {
+            packets: u64::from(seq) + 1,
+            rows: rows as u64,
+            gap_rows: 0,
+            first_row: 10,
+            last_row: 10 + rows - 1,
+        };
+        let n = encode_end(&totals, 1, 4, W, seq, &mut buf).unwrap();
+        out.extend_from_slice(&buf[..n]);
+        out
+    }
+
+    /// Fed in pieces of any size, the live decoder gives the rows, triggers and report of
+    /// the whole-stream decoder, stops at the end packet and hands back the next stream's
+    /// bytes untouched.
+    #[test]
+    fn live_pieces_give_the_whole_decode_and_the_next_stream() {
+        let first = stream(30, 7);
+        let second = stream(5, 8);
+        let (map, whole) = decode_stream(&first, 0.25);
+        let both: Vec<u8> = first.iter().chain(&second).copied().collect();
+        for piece in [1usize, 3, 44, 500, 100_000] {
+            let mut live = Live::new(0.25);
+            let (mut rows, mut triggers) = (Vec::new(), Vec::new());
+            let mut fed = 0;
+            while fed < both.len() && !live.ended() {
+                let end = (fed + piece).min(both.len());
+                live.push(&both[fed..end]);
+                fed = end;
+                rows.extend(live.take_rows());
+                triggers.extend(live.take_triggers());
+            }
+            assert!(live.ended(), "piece {piece}");
+            assert_eq!(live.info().map(|i| i.run_id), Some(7));
+            let (rep, mut rest) = live.finish();
+            rest.extend_from_slice(&both[fed..]);
+            assert_eq!(rest, second, "piece {piece}: the next stream's bytes");
+            assert_eq!(rows.len(), map.rows.len());
+            for (a, b) in rows.iter().zip(&map.rows) {
+                assert_eq!(
+                    (a.row, a.latch, &a.heights, &a.valid),
+                    (b.row, b.latch, &b.heights, &b.valid)
+                );
+            }
+            assert_eq!(triggers.len(), 30);
+            assert_eq!(triggers[29].latch, 2900);
+            assert_eq!(rep.ok, whole.ok);
+            assert_eq!(rep.bytes, first.len() as u64);
+            assert!(!rep.stream.truncated && rep.stream.rows_missing == 0 && rep.corrupt == 0);
+            assert_eq!(rep.verdict_rows(rows.len() as u64), DecodeOutcome::Clean);
+        }
+    }
+
+    /// A link cut mid-stream: the report says truncated, and damage inside is counted.
+    #[test]
+    fn a_cut_stream_is_truncated_and_damage_is_counted() {
+        let mut s = stream(30, 7);
+        s.truncate(s.len() / 2);
+        s[300] ^= 0x40;
+        let mut live = Live::new(0.25);
+        live.push(&s);
+        let rows = live.take_rows();
+        assert!(!live.ended());
+        let (rep, rest) = live.finish();
+        assert!(rest.is_empty());
+        assert!(rep.stream.truncated);
+        assert!(rep.corrupt >= 1);
+        assert!(!rows.is_empty());
+        assert_eq!(rep.verdict_rows(rows.len() as u64), DecodeOutcome::Damaged);
     }
 }

@@ -1,0 +1,350 @@
+//! `dpsa line`: the line service (`run`), its configuration (`init`), the simulated frame
+//! grabbers that feed it (`send`), what it stored (`boards`) and the store's benchmark
+//! (`store-bench`). The work is in `dpsa-line`; see `docs/line.md`.
+
+use super::out;
+use anyhow::{bail, Context, Result};
+use dpsa_line::config::{InitBoard, LineConfig};
+use dpsa_line::send::{Rate, SendOptions};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+#[derive(clap::Args)]
+pub struct Args {
+    #[command(subcommand)]
+    cmd: LineCmd,
+}
+
+#[derive(clap::Subcommand)]
+enum LineCmd {
+    /// Run the line: take boards from the frame grabbers, stitch, inspect, store, spool CFX.
+    /// Logs on stderr; on exit (SIGTERM, SIGINT, --boards) prints its summary as JSON.
+    Run(RunArgs),
+    /// Write a working configuration for one product on loopback (free ports chosen).
+    Init(InitArgs),
+    /// Simulated frame grabbers: replay a board's camera streams to the line.
+    Send(SendArgs),
+    /// The boards the line stored, newest first, as JSON.
+    Boards(BoardsArgs),
+    /// Benchmark the store: inserts per second, a pad's history, bytes per board; as JSON.
+    StoreBench(StoreBenchArgs),
+}
+
+#[derive(clap::Args)]
+struct RunArgs {
+    /// The line's configuration (`dpsa line init` writes one).
+    #[arg(long)]
+    config: PathBuf,
+    /// Stop (as on SIGTERM) once this many boards ended.
+    #[arg(long)]
+    boards: Option<usize>,
+}
+
+#[derive(clap::Args)]
+struct InitArgs {
+    /// The array's calibration file (`dpsa calibrate`).
+    #[arg(long)]
+    cal: PathBuf,
+    /// The product's inspection program (`program.toml`).
+    #[arg(long)]
+    program: PathBuf,
+    /// The line's data directory (store, CFX spool).
+    #[arg(long)]
+    data: PathBuf,
+    /// The configuration to write (never over an existing file).
+    #[arg(long)]
+    out: PathBuf,
+    /// Take the board's size and the map's pixel from this board recording's `array.json`.
+    #[arg(long, conflicts_with_all = ["board_mm", "pixel_mm"])]
+    board: Option<PathBuf>,
+    /// The board's length and width, mm (without --board).
+    #[arg(long, num_args = 2, value_names = ["LENGTH", "WIDTH"], value_parser = super::positive)]
+    board_mm: Option<Vec<f64>>,
+    /// The board map's pixel, mm (without --board).
+    #[arg(long, value_parser = super::positive)]
+    pixel_mm: Option<f64>,
+}
+
+#[derive(clap::Args)]
+struct SendArgs {
+    /// A board: a directory of its cameras' packet streams (`*.dpsa`, matched by the camera
+    /// id of their headers) or, with the simulator, an array board recording (each camera
+    /// run through the core with the line's calibration).
+    rec: PathBuf,
+    /// Send to the cameras' addresses of this configuration.
+    #[arg(long, conflicts_with = "to")]
+    config: Option<PathBuf>,
+    /// Send to these addresses (camera order).
+    #[arg(long, num_args = 1..)]
+    to: Vec<SocketAddr>,
+    /// The calibration the core runs with for a board recording (default: the config's).
+    #[arg(long)]
+    cal: Option<PathBuf>,
+    /// `paper`: the rows at the paper's conveyor speed (220 mm/s); `max`: as fast as it goes;
+    /// or a conveyor speed in mm/s.
+    #[arg(long, default_value = "paper", value_parser = rate)]
+    rate: String,
+    /// Consecutive boards, each with a fresh run id.
+    #[arg(long, default_value_t = 1)]
+    boards: usize,
+    /// Probability that a packet is lost (not the stream header or end).
+    #[arg(long, default_value_t = 0.0, value_parser = super::finite)]
+    loss: f64,
+    /// This camera falls silent in the first board ...
+    #[arg(long, requires = "at")]
+    drop_camera: Option<usize>,
+    /// ... at this board row.
+    #[arg(long, requires = "drop_camera")]
+    at: Option<i64>,
+    /// How long the silent camera's connection stays open (and silent), s.
+    #[arg(long, default_value_t = 10.0, value_parser = super::positive)]
+    silent_for: f64,
+    /// Seeds the run ids and the losses (default: the clock).
+    #[arg(long)]
+    seed: Option<u64>,
+}
+
+#[derive(clap::Args)]
+struct BoardsArgs {
+    /// The line's configuration.
+    #[arg(long)]
+    config: PathBuf,
+    /// At most this many boards.
+    #[arg(long, default_value_t = 50)]
+    last: usize,
+    /// With every pad of each board.
+    #[arg(long)]
+    pads: bool,
+}
+
+#[derive(clap::Args)]
+struct StoreBenchArgs {
+    /// A directory for the scratch store (`store-bench.sqlite`, removed after).
+    #[arg(long)]
+    dir: PathBuf,
+    /// Boards inserted.
+    #[arg(long, default_value_t = 2000)]
+    boards: usize,
+    /// Pads per board.
+    #[arg(long, default_value_t = 6000)]
+    pads: usize,
+}
+
+/// Runs `dpsa line ...`.
+pub fn run(a: Args) -> Result<()> {
+    match a.cmd {
+        LineCmd::Run(a) => run_line(a),
+        LineCmd::Init(a) => init(a),
+        LineCmd::Send(a) => send(a),
+        LineCmd::Boards(a) => boards(a),
+        LineCmd::StoreBench(a) => {
+            let r = dpsa_line::store::bench::run(&a.dir, a.boards, a.pads);
+            // The scratch store (1.4 GB at the defaults) goes, whatever the outcome.
+            let file = a.dir.join(dpsa_line::store::bench::FILE_NAME);
+            for suffix in ["", "-wal", "-shm"] {
+                let mut p = file.clone().into_os_string();
+                p.push(suffix);
+                let _ = std::fs::remove_file(p);
+            }
+            out!("{}", serde_json::to_string_pretty(&r?)?);
+            Ok(())
+        }
+    }
+}
+
+fn run_line(a: RunArgs) -> Result<()> {
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .init();
+    let cfg = LineConfig::load(&a.config)?;
+    let opts = dpsa_line::service::RunOptions { boards: a.boards };
+    let summary = dpsa_line::service::run(cfg, opts)?;
+    out!("{}", serde_json::to_string_pretty(&summary)?);
+    Ok(())
+}
+
+fn init(a: InitArgs) -> Result<()> {
+    let board = match (&a.board, &a.board_mm, a.pixel_mm) {
+        (Some(rec), _, _) => {
+            let m = dpsa_formats::array::ArrayManifest::load(rec)
+                .with_context(|| format!("--board {}", rec.display()))?;
+            InitBoard {
+                length_mm: m.board_length_mm,
+                width_mm: m.board_width_mm,
+                pixel_mm: m.pixel_mm,
+            }
+        }
+        (None, Some(lw), Some(p)) => InitBoard {
+            length_mm: lw[0],
+            width_mm: lw[1],
+            pixel_mm: p,
+        },
+        _ => bail!("give the board: --board REC (its array.json), or --board-mm LENGTH WIDTH and --pixel-mm P"),
+    };
+    let f = dpsa_line::config::init(&a.cal, &a.program, &a.data, &board, &a.out)?;
+    let addrs: Vec<String> = f.camera.iter().map(|c| c.listen.to_string()).collect();
+    out!(
+        "{} written: product {:?}, cameras at {}",
+        a.out.display(),
+        f.default_product,
+        addrs.join(" ")
+    );
+    Ok(())
+}
+
+/// The cameras' streams of `dir`: `*.dpsa` files matched by the camera id of their headers.
+fn stream_files(dir: &Path, cameras: usize) -> Result<Option<Vec<Vec<u8>>>> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("{}", dir.display()))?
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.extension().is_some_and(|x| x == "dpsa"))
+        .collect();
+    if files.is_empty() {
+        return Ok(None);
+    }
+    files.sort();
+    let mut slots: Vec<Option<Vec<u8>>> = vec![None; cameras];
+    for f in files {
+        let bytes = dpsa_formats::files::read_capped(&f, 1 << 32, "packet stream")?;
+        let cam = dpsa_core::packets::Stream::new(&bytes)
+            .find_map(|i| match i {
+                dpsa_core::packets::Item::Packet { packet, .. } => packet.stream_info(),
+                _ => None,
+            })
+            .map(|i| usize::from(i.camera));
+        match cam {
+            Some(c) if c < cameras && slots[c].is_none() => slots[c] = Some(bytes),
+            Some(c) if c < cameras => bail!("{}: a second stream of camera {c}", f.display()),
+            Some(c) => bail!(
+                "{}: camera {c}, but there are {cameras} cameras",
+                f.display()
+            ),
+            None => bail!("{}: no stream header", f.display()),
+        }
+    }
+    slots
+        .into_iter()
+        .enumerate()
+        .map(|(i, s)| s.with_context(|| format!("{}: no stream of camera {i}", dir.display())))
+        .collect::<Result<Vec<_>>>()
+        .map(Some)
+}
+
+/// Each camera of the board recording `dir` through the core with calibration `cal`.
+#[cfg(feature = "sim")]
+fn core_streams(dir: &Path, cal: &Path, cameras: usize) -> Result<Vec<Vec<u8>>> {
+    (0..cameras)
+        .map(|i| {
+            let mut rec = super::open(&dir.join(format!("cam{i}")))?;
+            super::apply_cal(&mut rec, cal, Some(i as u8))?;
+            let (_, bytes) = dpsa_sim::reconstruct::reconstruct_bytes(&rec, false)?;
+            Ok(bytes)
+        })
+        .collect()
+}
+
+fn send(a: SendArgs) -> Result<()> {
+    let (to, cal) = match &a.config {
+        Some(c) => {
+            let cfg = LineConfig::load(c)?;
+            let base = c.parent().unwrap_or(Path::new("."));
+            let f: dpsa_line::config::LineFile =
+                toml::from_str(&std::fs::read_to_string(c)?).context("the configuration")?;
+            (cfg.listen, Some(base.join(f.calibration)))
+        }
+        None if !a.to.is_empty() => (a.to.clone(), None),
+        None => bail!("give --config LINE.toml or --to ADDR..."),
+    };
+    let cameras = to.len();
+    let streams = match stream_files(&a.rec, cameras)? {
+        Some(s) => s,
+        None => {
+            #[cfg(feature = "sim")]
+            {
+                let Some(cal) = a.cal.clone().or(cal) else {
+                    bail!(
+                        "{} is a board recording: give --cal (or --config) for the core",
+                        a.rec.display()
+                    );
+                };
+                core_streams(&a.rec, &cal, cameras)?
+            }
+            #[cfg(not(feature = "sim"))]
+            {
+                let _ = cal;
+                bail!("{} holds no *.dpsa streams (a board recording needs the build with the simulator)", a.rec.display());
+            }
+        }
+    };
+    let rate = if a.rate == "max" {
+        Rate::Max
+    } else {
+        let mm_s = if a.rate == "paper" {
+            dpsa_line::send::CONVEYOR_MM_S
+        } else {
+            a.rate.parse::<f64>()?
+        };
+        // The paper's conveyor: 220 mm/s; a board row is one pixel of the array's pitch.
+        let pixel_mm = match &a.config {
+            Some(c) => {
+                let f: dpsa_line::config::LineFile = toml::from_str(&std::fs::read_to_string(c)?)?;
+                f.pixel_mm
+            }
+            None => 0.02,
+        };
+        Rate::Paced {
+            row_s: pixel_mm / mm_s,
+        }
+    };
+    let seed = a.seed.unwrap_or_else(|| {
+        std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(1, |d| d.as_nanos() as u64)
+    });
+    let opts = SendOptions {
+        to,
+        rate,
+        boards: a.boards,
+        loss: a.loss,
+        silent: a.drop_camera.zip(a.at),
+        silent_for_s: a.silent_for,
+        seed,
+    };
+    let r = dpsa_line::send::send(&streams, &opts)?;
+    out!("{}", serde_json::to_string_pretty(&r)?);
+    Ok(())
+}
+
+/// clap value parser of `--rate`.
+fn rate(s: &str) -> std::result::Result<String, String> {
+    match s {
+        "paper" | "max" => Ok(s.into()),
+        _ => match s.parse::<f64>() {
+            Ok(v) if v.is_finite() && v > 0.0 => Ok(s.into()),
+            _ => Err(format!(
+                "{s:?}: expected paper, max or a conveyor speed in mm/s > 0"
+            )),
+        },
+    }
+}
+
+fn boards(a: BoardsArgs) -> Result<()> {
+    let cfg = LineConfig::load(&a.config)?;
+    let store = dpsa_line::store::Store::open(&cfg.data.join(dpsa_line::service::STORE_FILE))?;
+    let mut list = Vec::new();
+    for b in store.boards(a.last)? {
+        let mut v = serde_json::to_value(&b)?;
+        if a.pads {
+            v["pad_rows"] = serde_json::to_value(store.pads(b.id)?)?;
+        }
+        list.push(v);
+    }
+    out!("{}", serde_json::to_string_pretty(&list)?);
+    Ok(())
+}

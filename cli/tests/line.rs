@@ -1,0 +1,603 @@
+//! `dpsa line` end to end on loopback: the small printed board (scenes/array-paste.toml)
+//! streamed camera by camera to `dpsa line run` by `dpsa line send`, against offline
+//! `dpsa board --streams` + `dpsa inspect` of the very same streams; a camera falling silent;
+//! packet loss; garbage, idle and foreign connections; `kill -9` in the middle of a board.
+
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+fn dpsa<I, S>(args: I) -> Output
+where
+    I: IntoIterator<Item = S>,
+    S: AsRef<std::ffi::OsStr>,
+{
+    Command::new(env!("CARGO_BIN_EXE_dpsa"))
+        .arg("--quiet")
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn ok(o: &Output, what: &str) -> String {
+    assert!(
+        o.status.success(),
+        "{what}: {}\n{}",
+        String::from_utf8_lossy(&o.stderr),
+        String::from_utf8_lossy(&o.stdout)
+    );
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// The calibration, the board recording, its three camera streams and the offline
+/// inspection of those streams (made once per test process).
+struct Fixture {
+    dir: PathBuf,
+    cal: PathBuf,
+    board: PathBuf,
+    streams: PathBuf,
+    /// Offline `pads.csv`: (name, level, volume um^3) per pad in layer order.
+    offline: Vec<(String, String, Option<f64>)>,
+}
+
+fn fixture() -> &'static Fixture {
+    static F: OnceLock<Fixture> = OnceLock::new();
+    F.get_or_init(|| {
+        // `line-PID` under the target directory; those of earlier runs (a process no longer
+        // alive) are removed first, so they do not pile up.
+        let base = Path::new(env!("CARGO_TARGET_TMPDIR"));
+        let me = std::process::id();
+        for e in std::fs::read_dir(base).into_iter().flatten().flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let pid = name
+                .strip_prefix("line-")
+                .and_then(|p| p.parse::<u32>().ok());
+            if pid.is_some_and(|p| p != me && !Path::new(&format!("/proc/{p}")).exists()) {
+                let _ = std::fs::remove_dir_all(e.path());
+            }
+        }
+        let dir = base.join(format!("line-{me}"));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/array-paste.toml");
+        let (calrec, cal, board, streams) = (
+            dir.join("calrec"),
+            dir.join("cal.toml"),
+            dir.join("board"),
+            dir.join("streams"),
+        );
+        let s = |p: &Path| p.as_os_str().to_owned();
+        ok(
+            &dpsa([
+                "simulate".into(),
+                "--scene".into(),
+                s(&scene),
+                "--calibration".into(),
+                "--out".into(),
+                s(&calrec),
+            ]),
+            "simulate --calibration",
+        );
+        ok(
+            &dpsa(["calibrate".into(), s(&calrec), "--out".into(), s(&cal)]),
+            "calibrate",
+        );
+        ok(
+            &dpsa([
+                "simulate".into(),
+                "--scene".into(),
+                s(&scene),
+                "--seed".into(),
+                "4".into(),
+                "--out".into(),
+                s(&board),
+            ]),
+            "simulate",
+        );
+        std::fs::create_dir_all(&streams).unwrap();
+        let mut paths = Vec::new();
+        for i in 0..3 {
+            let p = streams.join(format!("cam{i}.dpsa"));
+            ok(
+                &dpsa([
+                    "reconstruct".into(),
+                    s(&board.join(format!("cam{i}"))),
+                    "--cal".into(),
+                    s(&cal),
+                    "--camera".into(),
+                    i.to_string().into(),
+                    "--out".into(),
+                    s(&p),
+                ]),
+                "reconstruct",
+            );
+            paths.push(p);
+        }
+        let map = dir.join("map");
+        let mut args = vec![
+            "board".into(),
+            s(&board),
+            "--cal".into(),
+            s(&cal),
+            "--out".into(),
+            s(&map),
+            "--streams".into(),
+        ];
+        args.extend(paths.iter().map(|p| s(p)));
+        ok(&dpsa(args), "board --streams");
+        let insp = dir.join("inspection");
+        ok(
+            &dpsa([
+                "inspect".into(),
+                s(&map),
+                "--program".into(),
+                s(&board.join("program.toml")),
+                "--no-truth".into(),
+                "--out".into(),
+                s(&insp),
+            ]),
+            "inspect",
+        );
+        let offline = pads_csv(&insp.join("pads.csv"));
+        Fixture {
+            dir,
+            cal,
+            board,
+            streams,
+            offline,
+        }
+    })
+}
+
+/// (name, level, volume) of every pad of a `pads.csv`.
+fn pads_csv(path: &Path) -> Vec<(String, String, Option<f64>)> {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    let head: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |n: &str| head.iter().position(|h| *h == n).unwrap();
+    let (name, level, vol) = (col("ComponentPad"), col("Level"), col("PasteVolume_um3"));
+    lines
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            (
+                f[name].to_string(),
+                f[level].to_string(),
+                f[vol].parse().ok(),
+            )
+        })
+        .collect()
+}
+
+/// A line of its own: `line.toml` in `dir` (fresh ports), with `edit` applied to its text.
+fn line_config(dir: &Path, edit: impl Fn(String) -> String) -> PathBuf {
+    let f = fixture();
+    std::fs::create_dir_all(dir).unwrap();
+    let cfg = dir.join("line.toml");
+    let s = |p: &Path| p.as_os_str().to_owned();
+    ok(
+        &dpsa([
+            "line".into(),
+            "init".into(),
+            "--cal".into(),
+            s(&f.cal),
+            "--program".into(),
+            s(&f.board.join("program.toml")),
+            "--data".into(),
+            s(&dir.join("data")),
+            "--board".into(),
+            s(&f.board),
+            "--out".into(),
+            s(&cfg),
+        ]),
+        "line init",
+    );
+    let text = edit(std::fs::read_to_string(&cfg).unwrap());
+    std::fs::write(&cfg, text).unwrap();
+    cfg
+}
+
+/// `dpsa line run --config CFG [--boards N]` in the background, its log in `dir/run.log`.
+fn start(cfg: &Path, boards: Option<usize>) -> Child {
+    let log = std::fs::File::create(cfg.with_extension("log")).unwrap();
+    let mut c = Command::new(env!("CARGO_BIN_EXE_dpsa"));
+    c.args(["line", "run", "--config"]).arg(cfg);
+    if let Some(n) = boards {
+        c.args(["--boards", &n.to_string()]);
+    }
+    c.stdout(Stdio::piped()).stderr(log).spawn().unwrap()
+}
+
+/// Waits up to `secs` for `child` to exit; its stdout (the summary) as JSON.
+fn wait(mut child: Child, secs: u64, cfg: &Path) -> Value {
+    let t0 = Instant::now();
+    loop {
+        if let Some(st) = child.try_wait().unwrap() {
+            let out = child.wait_with_output().unwrap();
+            let log = std::fs::read_to_string(cfg.with_extension("log")).unwrap_or_default();
+            assert!(st.success(), "line run failed: {log}");
+            return serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}: {log}"));
+        }
+        if t0.elapsed() > Duration::from_secs(secs) {
+            let _ = child.kill();
+            let log = std::fs::read_to_string(cfg.with_extension("log")).unwrap_or_default();
+            panic!("line run did not end within {secs} s: {log}");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+fn send(cfg: &Path, extra: &[&str]) -> Value {
+    let f = fixture();
+    let mut args: Vec<std::ffi::OsString> = vec![
+        "line".into(),
+        "send".into(),
+        f.streams.as_os_str().into(),
+        "--config".into(),
+        cfg.as_os_str().into(),
+    ];
+    args.extend(extra.iter().map(|s| (*s).into()));
+    serde_json::from_str(&ok(&dpsa(args), "line send")).unwrap()
+}
+
+fn stored(cfg: &Path) -> Vec<Value> {
+    let out = ok(
+        &dpsa([
+            "line".as_ref(),
+            "boards".as_ref(),
+            "--config".as_ref(),
+            cfg.as_os_str(),
+            "--pads".as_ref(),
+        ]),
+        "line boards",
+    );
+    let v: Value = serde_json::from_str(&out).unwrap();
+    v.as_array().unwrap().clone()
+}
+
+fn board_of<'a>(boards: &'a [Value], run: &str) -> &'a Value {
+    boards
+        .iter()
+        .find(|b| b["run_id"].as_str() == Some(run))
+        .unwrap_or_else(|| panic!("board {run} not stored: {boards:?}"))
+}
+
+/// The stored pads of `b` equal the offline inspection of the same streams: every pad's
+/// level, and its volume within 0.1 % (the line stitches chunk by chunk: the places of a
+/// chunk and of a whole camera differ in the last bits).
+fn assert_offline(b: &Value) {
+    let f = fixture();
+    assert_eq!(b["state"], "inspected", "{b}");
+    let pads = b["pad_rows"].as_array().unwrap();
+    assert_eq!(pads.len(), f.offline.len());
+    for (p, (name, level, vol)) in pads.iter().zip(&f.offline) {
+        assert_eq!(p["name"].as_str(), Some(name.as_str()));
+        assert_eq!(p["level"].as_str(), Some(level.as_str()), "pad {name}");
+        match (p["volume_um3"].as_f64(), vol) {
+            (Some(a), Some(b)) => assert!(
+                (a - b).abs() <= 1e-3 * b.abs().max(1e3),
+                "pad {name}: {a} vs {b}"
+            ),
+            (None, None) => {}
+            (a, b) => panic!("pad {name}: volume {a:?} vs {b:?}"),
+        }
+    }
+}
+
+/// Three boards back to back: every one stored, inspected like the offline tools, a CFX
+/// message each.
+#[test]
+fn boards_back_to_back_are_stored_as_the_offline_inspection() {
+    let f = fixture();
+    let dir = f.dir.join("back-to-back");
+    let cfg = line_config(&dir, |t| t);
+    let run = start(&cfg, Some(3));
+    let sent = send(&cfg, &["--rate", "max", "--boards", "3", "--seed", "11"]);
+    let summary = wait(run, 120, &cfg);
+    assert_eq!(summary["boards"], 3, "{summary}");
+    assert_eq!(summary["incomplete"], 0, "{summary}");
+    let boards = stored(&cfg);
+    for run in sent["run_ids"].as_array().unwrap() {
+        let run = run.as_str().unwrap();
+        let b = board_of(&boards, run);
+        assert_offline(b);
+        for c in b["cameras"].as_array().unwrap() {
+            assert_eq!(c["missing_rows"], 0, "{b}");
+            assert_eq!(c["missing_packets"], 0, "{b}");
+        }
+        let msg: Value = serde_json::from_slice(
+            &std::fs::read(dir.join("data/cfx").join(format!("{run}.json"))).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(
+            msg["MessageBody"]["InspectedUnits"][0]["UnitIdentifier"],
+            run
+        );
+    }
+    assert_eq!(std::fs::read_dir(dir.join("data/cfx")).unwrap().count(), 3);
+}
+
+/// A camera that falls silent in the first board: that board is incomplete with the camera
+/// named, gets no CFX message, and the next board is inspected normally (none of the silent
+/// board's rows in it).
+#[test]
+fn a_silent_camera_makes_its_board_incomplete_and_the_next_board_is_whole() {
+    let f = fixture();
+    let dir = f.dir.join("silent");
+    let cfg = line_config(&dir, |t| t.replace("silent_s = 5.0", "silent_s = 1.0"));
+    let run = start(&cfg, Some(2));
+    let sent = send(
+        &cfg,
+        &[
+            "--rate",
+            "max",
+            "--boards",
+            "2",
+            "--seed",
+            "12",
+            "--drop-camera",
+            "1",
+            "--at",
+            "300",
+            "--silent-for",
+            "3",
+        ],
+    );
+    let summary = wait(run, 120, &cfg);
+    assert_eq!(summary["boards"], 2, "{summary}");
+    let runs: Vec<&str> = sent["run_ids"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r.as_str().unwrap())
+        .collect();
+    let boards = stored(&cfg);
+    let first = board_of(&boards, runs[0]);
+    assert_eq!(first["state"], "incomplete", "{first}");
+    assert!(first["verdict"].is_null());
+    let why = first["incomplete_reason"].as_str().unwrap();
+    assert!(
+        why.contains("camera 1") && why.contains("silent for"),
+        "{first}"
+    );
+    assert!(!dir
+        .join("data/cfx")
+        .join(format!("{}.json", runs[0]))
+        .exists());
+    assert_offline(board_of(&boards, runs[1]));
+}
+
+/// 1 % of the packets lost: the board is inspected, the losses are stored, and no pad with
+/// less than the program's coverage is judged (never pass or fail on interpolated data).
+#[test]
+fn packet_loss_is_counted_and_thin_pads_are_not_measurable() {
+    let f = fixture();
+    let dir = f.dir.join("loss");
+    let cfg = line_config(&dir, |t| t);
+    let run = start(&cfg, Some(1));
+    let sent = send(&cfg, &["--rate", "max", "--loss", "0.01", "--seed", "13"]);
+    assert!(sent["dropped"].as_u64().unwrap() > 0, "{sent}");
+    wait(run, 120, &cfg);
+    let boards = stored(&cfg);
+    let b = board_of(&boards, sent["run_ids"][0].as_str().unwrap());
+    assert_eq!(b["state"], "inspected", "{b}");
+    let lost: u64 = b["cameras"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["missing_packets"].as_u64().unwrap())
+        .sum();
+    assert!(lost > 0, "{b}");
+    for p in b["pad_rows"].as_array().unwrap() {
+        if p["coverage"].as_f64().unwrap() < 0.85 {
+            assert_eq!(p["class"], "not_measurable", "{p}");
+            assert_eq!(p["level"], "fail", "{p}");
+        }
+    }
+}
+
+/// Garbage, an idle client, a foreign camera's stream and too many connections: each refused
+/// or timed out, and a board after them is inspected normally.
+#[test]
+fn bad_clients_are_refused_and_the_line_goes_on() {
+    use std::io::Write;
+    let f = fixture();
+    let dir = f.dir.join("bad-clients");
+    let cfg = line_config(&dir, |t| t.replace("header_s = 5.0", "header_s = 1.0"));
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    let addrs: Vec<std::net::SocketAddr> = text
+        .lines()
+        .filter_map(|l| l.trim().strip_prefix("listen = \""))
+        .map(|l| l.trim_end_matches('"').parse().unwrap())
+        .collect();
+    assert_eq!(addrs.len(), 3);
+    let run = start(&cfg, Some(1));
+    // The line binds its ports at start.
+    let connect = |a| {
+        let t0 = Instant::now();
+        loop {
+            match std::net::TcpStream::connect(a) {
+                Ok(s) => return s,
+                Err(_) if t0.elapsed() < Duration::from_secs(20) => {
+                    std::thread::sleep(Duration::from_millis(50))
+                }
+                Err(e) => panic!("{e}"),
+            }
+        }
+    };
+    let mut garbage = connect(addrs[0]);
+    let junk: Vec<u8> = (0..3_000_000u32)
+        .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
+        .collect();
+    let _ = garbage.write_all(&junk);
+    let idle: Vec<_> = (0..8).map(|_| connect(addrs[1])).collect();
+    let mut foreign = connect(addrs[2]);
+    let _ = foreign.write_all(&std::fs::read(f.streams.join("cam0.dpsa")).unwrap());
+    std::thread::sleep(Duration::from_millis(1500));
+    drop(idle);
+    let sent = send(&cfg, &["--rate", "max", "--seed", "14"]);
+    wait(run, 120, &cfg);
+    let boards = stored(&cfg);
+    assert_eq!(boards.len(), 1, "{boards:?}");
+    assert_offline(board_of(&boards, sent["run_ids"][0].as_str().unwrap()));
+    let log = std::fs::read_to_string(cfg.with_extension("log")).unwrap();
+    assert!(log.contains("without a stream header"), "{log}");
+    assert!(
+        log.contains("camera 0's stream on camera 2's port"),
+        "{log}"
+    );
+    assert!(log.contains("no stream header within"), "{log}");
+}
+
+/// `kill -9` in the middle of a board: on restart the store checks out, the board is
+/// recorded incomplete with the reason, and the next board is inspected normally.
+#[test]
+fn kill_9_mid_board_leaves_a_sound_store_and_the_board_incomplete() {
+    let f = fixture();
+    let dir = f.dir.join("kill");
+    let cfg = line_config(&dir, |t| t);
+    let run = start(&cfg, None);
+    // At 5 mm/s the small board (20 mm) takes 4 s: killed once it is in the store as open.
+    let sender = send_slow(&cfg, "15");
+    wait_for_state(&cfg, "open");
+    let mut run = run;
+    run.kill().unwrap();
+    run.wait().unwrap();
+    let _ = sender.join();
+    let run2 = start(&cfg, Some(1));
+    let sent = send(&cfg, &["--rate", "max", "--seed", "16"]);
+    let summary = wait(run2, 120, &cfg);
+    assert_eq!(summary["recovered"], 1, "{summary}");
+    let boards = stored(&cfg);
+    assert_eq!(boards.len(), 2, "{boards:?}");
+    let killed = boards.iter().find(|b| b["state"] == "incomplete").unwrap();
+    assert!(
+        killed["incomplete_reason"]
+            .as_str()
+            .unwrap()
+            .contains("stopped"),
+        "{killed}"
+    );
+    assert!(killed["pad_rows"].as_array().unwrap().is_empty());
+    assert_offline(board_of(&boards, sent["run_ids"][0].as_str().unwrap()));
+}
+
+/// A configuration with a wrong key is refused before anything starts, naming the key.
+#[test]
+fn a_bad_configuration_names_its_key() {
+    let f = fixture();
+    let dir = f.dir.join("bad-config");
+    let cfg = line_config(&dir, |t| t.replace("silent_s = 5.0", "silent_s = -1.0"));
+    let o = dpsa([
+        "line".as_ref(),
+        "run".as_ref(),
+        "--config".as_ref(),
+        cfg.as_os_str(),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("timeouts.silent_s"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let cfg2 = line_config(&dir.join("2"), |t| {
+        t.replace("default_product", "default_prodcut")
+    });
+    let o = dpsa([
+        "line".as_ref(),
+        "run".as_ref(),
+        "--config".as_ref(),
+        cfg2.as_os_str(),
+    ]);
+    assert!(
+        String::from_utf8_lossy(&o.stderr).contains("default_prodcut"),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+/// `dpsa line send` of one board at 5 mm/s (the small board takes 4 s) in a thread.
+fn send_slow(cfg: &Path, seed: &str) -> std::thread::JoinHandle<Output> {
+    let (cfg, seed) = (cfg.to_path_buf(), seed.to_string());
+    std::thread::spawn(move || {
+        let f = fixture();
+        let args = [
+            "line".as_ref(),
+            "send".as_ref(),
+            f.streams.as_os_str(),
+            "--config".as_ref(),
+            cfg.as_os_str(),
+        ];
+        dpsa(args.into_iter().chain([
+            "--seed".as_ref(),
+            seed.as_ref(),
+            "--rate".as_ref(),
+            "5".as_ref(),
+        ]))
+    })
+}
+
+/// Waits until the line has stored board state `state` for some board.
+fn wait_for_state(cfg: &Path, state: &str) {
+    let t0 = Instant::now();
+    while !stored(cfg).iter().any(|b| b["state"] == state) {
+        assert!(t0.elapsed() < Duration::from_secs(30), "no board {state}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn signal(child: &Child, sig: &str) {
+    let st = Command::new("kill")
+        .args([sig, &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(st.success());
+}
+
+/// `SIGTERM` in the middle of a board: the board is finished and stored, then the line exits.
+#[test]
+fn sigterm_finishes_the_board_in_progress_then_exits() {
+    let f = fixture();
+    let dir = f.dir.join("sigterm");
+    let cfg = line_config(&dir, |t| t);
+    let run = start(&cfg, None);
+    let sender = send_slow(&cfg, "17");
+    wait_for_state(&cfg, "open");
+    signal(&run, "-TERM");
+    let summary = wait(run, 60, &cfg);
+    let sent: Value = serde_json::from_str(&ok(&sender.join().unwrap(), "line send")).unwrap();
+    assert_eq!(summary["boards"], 1, "{summary}");
+    let boards = stored(&cfg);
+    assert_offline(board_of(&boards, sent["run_ids"][0].as_str().unwrap()));
+}
+
+/// `SIGINT` twice: the line exits at once (status 130); the board in progress is found open
+/// at the next start and recorded incomplete.
+#[test]
+fn sigint_twice_exits_at_once_and_the_board_is_recovered() {
+    let f = fixture();
+    let dir = f.dir.join("sigint");
+    let cfg = line_config(&dir, |t| t);
+    let mut run = start(&cfg, None);
+    let sender = send_slow(&cfg, "18");
+    wait_for_state(&cfg, "open");
+    let t0 = Instant::now();
+    signal(&run, "-INT");
+    std::thread::sleep(Duration::from_millis(100));
+    signal(&run, "-INT");
+    let st = run.wait().unwrap();
+    assert_eq!(st.code(), Some(130));
+    assert!(t0.elapsed() < Duration::from_secs(2), "{:?}", t0.elapsed());
+    let _ = sender.join();
+    let run2 = start(&cfg, Some(1));
+    send(&cfg, &["--rate", "max", "--seed", "19"]);
+    let summary = wait(run2, 60, &cfg);
+    assert_eq!(summary["recovered"], 1, "{summary}");
+    let boards = stored(&cfg);
+    let b = boards.iter().find(|b| b["state"] == "incomplete").unwrap();
+    assert!(
+        b["incomplete_reason"].as_str().unwrap().contains("stopped"),
+        "{b}"
+    );
+}

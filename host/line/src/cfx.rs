@@ -1,0 +1,23 @@
+//! The CFX spool: one IPC-CFX `UnitsInspected` message per inspected board
+//! (`dpsa_inspect::report::cfx`, as `dpsa inspect` writes it), a file `RUNID.json` written
+//! whole or not at all (a temporary file renamed into place), so that whatever picks the
+//! spool up (a CFX publisher, a MES bridge) never reads half a message. An incomplete board
+//! gets none.
+
+use crate::LineError;
+use std::path::{Path, PathBuf};
+
+/// Writes `message` as `spool/RUNID.json` atomically; returns its path. A message already
+/// there for this board is never replaced.
+pub fn spool(dir: &Path, run_id: u64, message: &serde_json::Value) -> Result<PathBuf, LineError> {
+    let path = dir.join(format!("{run_id:016x}.json"));
+    if path.exists() {
+        return Err(LineError::Refused(format!(
+            "{} exists: board {run_id:016x} was inspected before",
+            path.display()
+        )));
+    }
+    let text = serde_json::to_string_pretty(message).map_err(|e| LineError::Io(e.to_string()))?;
+    dpsa_formats::files::write_bytes(&path, text.as_bytes())?;
+    Ok(path)
+}

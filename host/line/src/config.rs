@@ -1,0 +1,424 @@
+//! `LINE.toml`: what `dpsa line run` serves (the cameras' addresses, the calibration, the
+//! products and their programs, the data directory, the timeouts), read and checked whole
+//! before anything starts; and `dpsa line init`, which writes a working one.
+//!
+//! Paths are relative to the file's directory. Every key is documented in `docs/line.md`; an
+//! unknown key, a missing one or a value out of range is refused with a sentence naming it.
+
+use crate::LineError;
+use dpsa_formats::calibration::CalFile;
+use dpsa_formats::grid::BoardGrid;
+use dpsa_gerber::pads::Pad;
+use dpsa_inspect::program::Program;
+use serde::{Deserialize, Serialize};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+
+/// The file as written (see the module docs and `docs/line.md`).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct LineFile {
+    /// The array's calibration file (`dpsa calibrate`).
+    pub calibration: PathBuf,
+    /// Where the line keeps its store (`line.sqlite`) and, by default, its CFX spool.
+    pub data: PathBuf,
+    /// The board map's pixel, mm (the array's design pitch, `array.json`'s `pixel_mm`).
+    pub pixel_mm: f64,
+    /// The product inspected when a board's streams name none (format v2 streams carry no
+    /// product id, so today: every board).
+    pub default_product: String,
+    /// One per camera of the calibration.
+    pub camera: Vec<CameraEntry>,
+    /// The products the line inspects.
+    pub product: Vec<ProductEntry>,
+    /// How long the line waits.
+    #[serde(default)]
+    pub timeouts: Timeouts,
+    /// Where finished boards' CFX messages go.
+    #[serde(default)]
+    pub cfx: CfxEntry,
+}
+
+/// `[[camera]]`: where a camera's frame grabber connects.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraEntry {
+    /// The camera's id (its place in the calibration).
+    pub id: u8,
+    /// The address the line listens on for this camera's stream (TCP).
+    pub listen: SocketAddr,
+}
+
+/// `[[product]]`: a product and its inspection program.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProductEntry {
+    /// The product's id.
+    pub id: String,
+    /// Its inspection program (`program.toml`, `dpsa program`).
+    pub program: PathBuf,
+    /// The board's length along the conveyor, mm.
+    pub board_length_mm: f64,
+    /// The board's width across it, mm.
+    pub board_width_mm: f64,
+}
+
+/// `[timeouts]`, seconds.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Timeouts {
+    /// A connection that sends no stream header within this is closed.
+    pub header_s: f64,
+    /// A camera of an open board that sends nothing for this long (or never begins): the
+    /// board is incomplete.
+    pub silent_s: f64,
+    /// A board open longer than this is incomplete.
+    pub board_s: f64,
+}
+
+impl Default for Timeouts {
+    fn default() -> Self {
+        Timeouts {
+            header_s: 5.0,
+            silent_s: 5.0,
+            board_s: 120.0,
+        }
+    }
+}
+
+/// `[cfx]`.
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CfxEntry {
+    /// The spool directory `UnitsInspected` messages are written into, one file per finished
+    /// board (default `DATA/cfx`).
+    pub spool: Option<PathBuf>,
+}
+
+/// A product ready to inspect.
+pub struct Product {
+    /// Its id.
+    pub id: String,
+    /// The program.
+    pub program: Program,
+    /// The program's file.
+    pub program_path: PathBuf,
+    /// The pads of its paste layer (names from its placement file).
+    pub pads: Vec<Pad>,
+    /// The board map's grid.
+    pub grid: BoardGrid,
+    /// FNV-1a 64 of the program file and its paste layer, 16 hex digits.
+    pub program_hash: String,
+}
+
+/// The checked configuration: everything loaded.
+pub struct LineConfig {
+    /// The file's path.
+    pub path: PathBuf,
+    /// The calibration.
+    pub cal: CalFile,
+    /// FNV-1a 64 of the calibration file, 16 hex digits.
+    pub calibration_hash: String,
+    /// The data directory.
+    pub data: PathBuf,
+    /// The CFX spool directory.
+    pub spool: PathBuf,
+    /// Listening address per camera, in camera order.
+    pub listen: Vec<SocketAddr>,
+    /// The products.
+    pub products: Vec<Product>,
+    /// Index of the default product in `products`.
+    pub default_product: usize,
+    /// The timeouts.
+    pub timeouts: Timeouts,
+    /// Per camera: the configuration hash its streams must carry.
+    pub config_hashes: Vec<u64>,
+}
+
+/// FNV-1a 64 of some byte strings, as 16 hex digits.
+pub fn fnv_hex(parts: &[&[u8]]) -> String {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for p in parts {
+        for &b in *p {
+            h ^= u64::from(b);
+            h = h.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+    }
+    format!("{h:016x}")
+}
+
+fn bad(path: &Path, key: &str, why: impl std::fmt::Display) -> LineError {
+    LineError::Config {
+        path: path.to_path_buf(),
+        why: format!("{key}: {why}"),
+    }
+}
+
+fn read(path: &Path, what: &str, max: u64) -> Result<Vec<u8>, LineError> {
+    dpsa_formats::files::read_capped(path, max, what).map_err(LineError::File)
+}
+
+impl LineConfig {
+    /// Reads and checks `path`: the keys, the calibration, every product's program and paste
+    /// layer, the cameras against the calibration; creates the data and spool directories.
+    pub fn load(path: &Path) -> Result<LineConfig, LineError> {
+        let bytes = read(path, "line configuration", 1 << 20)?;
+        let text = String::from_utf8(bytes).map_err(|_| bad(path, "the file", "not UTF-8"))?;
+        let f: LineFile = toml::from_str(&text).map_err(|e| LineError::Config {
+            path: path.to_path_buf(),
+            why: e.to_string().trim().replace('\n', " "),
+        })?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        let at = |p: &Path| base.join(p);
+
+        let cal_path = at(&f.calibration);
+        let cal_bytes = read(&cal_path, "calibration file", 64 << 20)
+            .map_err(|e| bad(path, "calibration", e))?;
+        let cal = CalFile::load(&cal_path).map_err(|e| bad(path, "calibration", e))?;
+        let calibration_hash = fnv_hex(&[&cal_bytes]);
+
+        if !(f.pixel_mm.is_finite() && f.pixel_mm > 0.0 && f.pixel_mm <= 1.0) {
+            return Err(bad(
+                path,
+                "pixel_mm",
+                format!("{} is not a pixel pitch in (0, 1] mm", f.pixel_mm),
+            ));
+        }
+        let n = cal.camera.len();
+        if f.camera.len() != n {
+            return Err(bad(
+                path,
+                "camera",
+                format!("{} cameras listed; the calibration has {n}", f.camera.len()),
+            ));
+        }
+        let mut listen: Vec<Option<SocketAddr>> = vec![None; n];
+        for (k, c) in f.camera.iter().enumerate() {
+            let i = usize::from(c.id);
+            if i >= n {
+                return Err(bad(
+                    path,
+                    &format!("camera[{k}].id"),
+                    format!(
+                        "{} is not a camera of the calibration (0..={})",
+                        c.id,
+                        n - 1
+                    ),
+                ));
+            }
+            if listen[i].is_some() {
+                return Err(bad(
+                    path,
+                    &format!("camera[{k}].id"),
+                    format!("camera {} listed twice", c.id),
+                ));
+            }
+            if f.camera
+                .iter()
+                .take(k)
+                .any(|o| o.listen == c.listen && c.listen.port() != 0)
+            {
+                return Err(bad(
+                    path,
+                    &format!("camera[{k}].listen"),
+                    format!("{} is another camera's address too", c.listen),
+                ));
+            }
+            listen[i] = Some(c.listen);
+        }
+        let listen: Vec<SocketAddr> = listen.into_iter().flatten().collect();
+        let t = f.timeouts;
+        for (key, v, max) in [
+            ("timeouts.header_s", t.header_s, 3600.0),
+            ("timeouts.silent_s", t.silent_s, 3600.0),
+            ("timeouts.board_s", t.board_s, 86_400.0),
+        ] {
+            if !(v.is_finite() && v > 0.0 && v <= max) {
+                return Err(bad(path, key, format!("{v} s is not in (0, {max}] s")));
+            }
+        }
+        if f.product.is_empty() {
+            return Err(bad(
+                path,
+                "product",
+                "no product: list at least one [[product]]",
+            ));
+        }
+        let mut products = Vec::with_capacity(f.product.len());
+        for (k, p) in f.product.iter().enumerate() {
+            let key = |s: &str| format!("product[{k}].{s}");
+            if p.id.is_empty() || products.iter().any(|q: &Product| q.id == p.id) {
+                return Err(bad(
+                    path,
+                    &key("id"),
+                    format!("{:?} is empty or given twice", p.id),
+                ));
+            }
+            for (name, v) in [
+                ("board_length_mm", p.board_length_mm),
+                ("board_width_mm", p.board_width_mm),
+            ] {
+                if !(v.is_finite() && v > 0.0 && v <= 2000.0) {
+                    return Err(bad(
+                        path,
+                        &key(name),
+                        format!("{v} mm is not a board size in (0, 2000] mm"),
+                    ));
+                }
+            }
+            let grid = BoardGrid {
+                x0_mm: 0.0,
+                y0_mm: 0.0,
+                pitch_mm: f.pixel_mm,
+                rows: (p.board_length_mm / f.pixel_mm).ceil() as usize,
+                width: (p.board_width_mm / f.pixel_mm).ceil() as usize,
+            };
+            if grid.rows.saturating_mul(grid.width) > 1 << 28 {
+                return Err(bad(
+                    path,
+                    &key("board_length_mm"),
+                    format!(
+                        "a {} x {} px board map is more than the line holds (2^28 px)",
+                        grid.rows, grid.width
+                    ),
+                ));
+            }
+            let program_path = at(&p.program);
+            let prog_bytes = read(&program_path, "inspection program", 16 << 20)
+                .map_err(|e| bad(path, &key("program"), e))?;
+            let mut program =
+                Program::load(&program_path).map_err(|e| bad(path, &key("program"), e))?;
+            let layer_path = program.paste_layer_path(&program_path);
+            let layer_bytes = read(&layer_path, "paste layer", 256 << 20)
+                .map_err(|e| bad(path, &key("program"), e))?;
+            let (mut pads, _) = dpsa_inspect::run::paste_layer_pads(&program, &program_path)
+                .map_err(|e| bad(path, &key("program"), e))?;
+            dpsa_inspect::teach::apply_components(&mut program, &program_path, &mut pads)
+                .map_err(|e| bad(path, &key("program"), dpsa_inspect::InspectError::from(e)))?;
+            products.push(Product {
+                id: p.id.clone(),
+                program,
+                program_path,
+                pads,
+                grid,
+                program_hash: fnv_hex(&[&prog_bytes, &layer_bytes]),
+            });
+        }
+        let default_product = products
+            .iter()
+            .position(|p| p.id == f.default_product)
+            .ok_or_else(|| {
+                bad(
+                    path,
+                    "default_product",
+                    format!("{:?} is not one of the products listed", f.default_product),
+                )
+            })?;
+        let config_hashes = (0..n)
+            .map(|i| {
+                dpsa_board::streams::expected_config_hash(&cal, i)
+                    .map_err(|e| bad(path, "calibration", e))
+            })
+            .collect::<Result<Vec<u64>, LineError>>()?;
+        let data = at(&f.data);
+        let spool = f.cfx.spool.as_deref().map_or_else(|| data.join("cfx"), at);
+        for (key, d) in [("data", &data), ("cfx.spool", &spool)] {
+            std::fs::create_dir_all(d)
+                .map_err(|e| bad(path, key, format!("cannot create {}: {e}", d.display())))?;
+        }
+        Ok(LineConfig {
+            path: path.to_path_buf(),
+            cal,
+            calibration_hash,
+            data,
+            spool,
+            listen,
+            products,
+            default_product,
+            timeouts: t,
+            config_hashes,
+        })
+    }
+}
+
+/// What `dpsa line init` needs besides the calibration and the program.
+pub struct InitBoard {
+    /// Board length along the conveyor and width across it, mm.
+    pub length_mm: f64,
+    /// See `length_mm`.
+    pub width_mm: f64,
+    /// The board map's pixel, mm.
+    pub pixel_mm: f64,
+}
+
+/// `dpsa line init`: a configuration for one product on loopback, with a free port per camera
+/// (each port taken and released at once, so another program may take it before the line
+/// starts: `dpsa line run` then says which address is in use). Paths are written absolute.
+/// The result is loaded back before it is written, so a configuration that would not start is
+/// never written.
+pub fn init(
+    cal: &Path,
+    program: &Path,
+    data: &Path,
+    board: &InitBoard,
+    out: &Path,
+) -> Result<LineFile, LineError> {
+    let abs = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    let calf = CalFile::load(cal).map_err(|e| bad(cal, "calibration", e))?;
+    let mut camera = Vec::new();
+    for c in &calf.camera {
+        let l = std::net::TcpListener::bind(("127.0.0.1", 0))
+            .map_err(|e| LineError::Io(format!("no free loopback port: {e}")))?;
+        let listen = l.local_addr().map_err(|e| LineError::Io(e.to_string()))?;
+        camera.push(CameraEntry { id: c.id, listen });
+    }
+    let id = Program::load(program)
+        .ok()
+        .and_then(|p| p.name)
+        .filter(|n| !n.is_empty())
+        .unwrap_or_else(|| "default".into());
+    let f = LineFile {
+        calibration: abs(cal),
+        data: abs(data),
+        pixel_mm: board.pixel_mm,
+        default_product: id.clone(),
+        camera,
+        product: vec![ProductEntry {
+            id,
+            program: abs(program),
+            board_length_mm: board.length_mm,
+            board_width_mm: board.width_mm,
+        }],
+        timeouts: Timeouts::default(),
+        cfx: CfxEntry::default(),
+    };
+    let text = format!(
+        "# dpsa line: one line's configuration (docs/line.md lists every key).\n\
+         # Written by `dpsa line init`; edit it, then `dpsa line run --config {}`.\n\n{}",
+        out.display(),
+        toml::to_string_pretty(&f).map_err(|e| LineError::Io(e.to_string()))?
+    );
+    if out.exists() {
+        return Err(LineError::Io(format!(
+            "{} exists (an edited configuration is never replaced): remove it or give another --out",
+            out.display()
+        )));
+    }
+    use dpsa_formats::files::Input;
+    dpsa_formats::files::refuse_overwrite("--out", out, &[Input::File(cal), Input::File(program)])
+        .map_err(LineError::File)?;
+    // Loaded back from a scratch copy beside it before it is written.
+    let dir = out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let probe = tempfile::Builder::new()
+        .prefix(".line-init")
+        .suffix(".toml")
+        .tempfile_in(dir)
+        .map_err(|e| LineError::Io(format!("cannot write in {}: {e}", dir.display())))?;
+    std::fs::write(probe.path(), &text).map_err(|e| LineError::Io(e.to_string()))?;
+    LineConfig::load(probe.path())?;
+    dpsa_formats::files::write_bytes(out, text.as_bytes()).map_err(LineError::File)?;
+    Ok(f)
+}

@@ -1,0 +1,263 @@
+//! `dpsa line run`: the service. One listener per camera (TCP, the configured address), a
+//! thread per connection ([`crate::link`]), the boards on this thread ([`crate::boards`]), the
+//! store on the keeper's ([`crate::keeper`]).
+//!
+//! Stopping: `SIGTERM` (or a first `SIGINT`) stops taking new connections, lets the boards in
+//! progress end (finished, or incomplete by their timeouts), stores them and exits; a second
+//! `SIGINT` exits at once: what is stored stays (every board is one transaction; WAL), a board
+//! in progress is found `open` on the next start and recorded incomplete.
+
+use crate::boards::{Boards, Setup};
+use crate::config::LineConfig;
+use crate::keeper::{Keeper, Kept};
+use crate::link::{Event, LinkSetup};
+use crate::store::Store;
+use crate::LineError;
+use std::net::TcpListener;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{mpsc, Arc, Mutex};
+use std::time::{Duration, Instant};
+
+/// Connections one camera's port serves at once; more are closed at once (logged).
+pub const MAX_CONNECTIONS_PER_CAMERA: usize = 4;
+/// The store's file in the data directory.
+pub const STORE_FILE: &str = "line.sqlite";
+
+/// How the service ran.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Summary {
+    /// Boards ended (stored) while it ran.
+    pub boards: usize,
+    /// Of them inspected and passed / warned / failed, and incomplete.
+    pub pass: usize,
+    /// See `pass`.
+    pub warn: usize,
+    /// See `pass`.
+    pub fail: usize,
+    /// See `pass`.
+    pub incomplete: usize,
+    /// Boards found open at the start (the service had died in them), recorded incomplete.
+    pub recovered: usize,
+    /// Median and largest time from a board's last row to its verdict stored, s.
+    pub latency_median_s: Option<f64>,
+    /// See `latency_median_s`.
+    pub latency_max_s: Option<f64>,
+    /// Wall time, s.
+    pub seconds: f64,
+}
+
+/// What `run` is told besides the configuration.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RunOptions {
+    /// Stop (as on `SIGTERM`) once this many boards ended.
+    pub boards: Option<usize>,
+}
+
+/// Runs the line until a signal (or `opts.boards` boards); returns its summary.
+pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
+    let started = Instant::now();
+    let term = Arc::new(AtomicBool::new(false));
+    let int = Arc::new(AtomicBool::new(false));
+    // A second SIGINT exits at once (status 130); the first one is a stop like SIGTERM.
+    for (sig, flag) in [
+        (signal_hook::consts::SIGTERM, &term),
+        (signal_hook::consts::SIGINT, &int),
+    ] {
+        if sig == signal_hook::consts::SIGINT {
+            signal_hook::flag::register_conditional_shutdown(sig, 130, Arc::clone(flag))
+                .map_err(|e| LineError::Io(format!("cannot handle SIGINT: {e}")))?;
+        }
+        signal_hook::flag::register(sig, Arc::clone(flag))
+            .map_err(|e| LineError::Io(format!("cannot handle signal {sig}: {e}")))?;
+    }
+
+    let store_path = cfg.data.join(STORE_FILE);
+    let mut store = Store::open(&store_path)?;
+    store.check()?;
+    let recovered = store.recover(
+        "the line stopped during this board (killed, crashed or powered off)",
+        crate::boards::unix_now(),
+    )?;
+    for r in &recovered {
+        tracing::warn!(run = %format!("{r:016x}"), "board found open from the last run: recorded incomplete");
+    }
+
+    // Every listener bound before anything is served.
+    let mut listeners = Vec::new();
+    for (i, addr) in cfg.listen.iter().enumerate() {
+        let l = TcpListener::bind(addr).map_err(|e| LineError::Config {
+            path: cfg.path.clone(),
+            why: format!("camera {i}: cannot listen on {addr}: {e}"),
+        })?;
+        l.set_nonblocking(true)
+            .map_err(|e| LineError::Io(format!("camera {i}: {e}")))?;
+        tracing::info!(camera = i, addr = %l.local_addr().map_or(addr.to_string(), |a| a.to_string()), "listening");
+        listeners.push(l);
+    }
+
+    let product = cfg.default_product;
+    let grid = cfg.products[product].grid;
+    let max_rows = (grid.rows as u64).saturating_mul(4) + 4096;
+    let gate = Arc::new(crate::boards::Gate::new());
+    let links: Vec<LinkSetup> = cfg
+        .cal
+        .camera
+        .iter()
+        .enumerate()
+        .map(|(i, c)| LinkSetup {
+            camera: i,
+            cal: c.clone(),
+            lsb_um: cfg.cal.height_lsb_um,
+            config_hash: cfg.config_hashes[i],
+            header_s: cfg.timeouts.header_s,
+            silent_s: cfg.timeouts.silent_s,
+            max_rows,
+            gate: Arc::clone(&gate),
+        })
+        .collect();
+    let setup = Setup {
+        cal: cfg.cal.clone(),
+        grid,
+        product,
+        silent_s: cfg.timeouts.silent_s,
+        board_s: cfg.timeouts.board_s,
+    };
+    let kept = Arc::new(Mutex::new(Vec::<Kept>::new()));
+    let keeper = Keeper {
+        store,
+        products: cfg.products,
+        spool: cfg.spool.clone(),
+        calibration_hash: cfg.calibration_hash.clone(),
+        kept: Arc::clone(&kept),
+    };
+    let (job_tx, job_rx) = mpsc::sync_channel(16);
+    let keeper = std::thread::Builder::new()
+        .name("keeper".into())
+        .spawn(move || keeper.run(job_rx))
+        .map_err(|e| LineError::Io(format!("cannot start the keeper: {e}")))?;
+
+    let accepting = Arc::new(AtomicBool::new(true));
+    let stop_links = Arc::new(AtomicBool::new(false));
+    let (tx, rx) = mpsc::channel::<Event>();
+    let conn_ids = Arc::new(AtomicUsize::new(1));
+    let mut acceptors = Vec::new();
+    for (l, setup) in listeners.into_iter().zip(links) {
+        let (tx, accepting, stop_links, conn_ids) = (
+            tx.clone(),
+            Arc::clone(&accepting),
+            Arc::clone(&stop_links),
+            Arc::clone(&conn_ids),
+        );
+        acceptors.push(std::thread::spawn(move || {
+            accept(l, setup, tx, &accepting, &stop_links, &conn_ids)
+        }));
+    }
+    drop(tx);
+
+    let mut boards = Boards::new(setup, job_tx, gate);
+    let ended = |kept: &Mutex<Vec<Kept>>| kept.lock().map_or(0, |v| v.len());
+    let mut stopping = false;
+    loop {
+        match rx.recv_timeout(Duration::from_millis(100)) {
+            Ok(e) => boards.event(e),
+            Err(mpsc::RecvTimeoutError::Timeout) => {}
+            Err(mpsc::RecvTimeoutError::Disconnected) => break,
+        }
+        boards.tick();
+        let asked = term.load(Ordering::Relaxed)
+            || int.load(Ordering::Relaxed)
+            || opts.boards.is_some_and(|n| ended(&kept) >= n);
+        if asked && !stopping {
+            stopping = true;
+            accepting.store(false, Ordering::Relaxed);
+            boards.close_doors();
+            tracing::info!(
+                open = boards.open(),
+                "stopping: no new connection; the boards in progress end first"
+            );
+        }
+        if stopping && boards.open() == 0 {
+            break;
+        }
+    }
+    stop_links.store(true, Ordering::Relaxed);
+    // Events still queued belong to boards that had not begun: dropped.
+    drop(rx);
+    boards.abandon("the line stopped before this board ended");
+    drop(boards);
+    for a in acceptors {
+        let _ = a.join();
+    }
+    keeper
+        .join()
+        .map_err(|_| LineError::Io("the keeper thread panicked".into()))?;
+    let kept = kept.lock().map(|v| v.clone()).unwrap_or_default();
+    let count = |v: &str| kept.iter().filter(|k| k.verdict == v).count();
+    let mut lat: Vec<f64> = kept.iter().filter_map(|k| k.latency_s).collect();
+    lat.sort_by(f64::total_cmp);
+    Ok(Summary {
+        boards: kept.len(),
+        pass: count("pass"),
+        warn: count("warn"),
+        fail: count("fail"),
+        incomplete: count("incomplete"),
+        recovered: recovered.len(),
+        latency_median_s: lat.get(lat.len() / 2).copied(),
+        latency_max_s: lat.last().copied(),
+        seconds: started.elapsed().as_secs_f64(),
+    })
+}
+
+/// Camera `setup.camera`'s listener: a thread per connection, at most
+/// [`MAX_CONNECTIONS_PER_CAMERA`] at once.
+fn accept(
+    l: TcpListener,
+    setup: LinkSetup,
+    tx: mpsc::Sender<Event>,
+    accepting: &AtomicBool,
+    stop: &Arc<AtomicBool>,
+    conn_ids: &AtomicUsize,
+) {
+    let live = Arc::new(AtomicUsize::new(0));
+    let setup = Arc::new(setup);
+    let mut handlers = Vec::new();
+    while accepting.load(Ordering::Relaxed) {
+        match l.accept() {
+            Ok((sock, peer)) => {
+                let conn = conn_ids.fetch_add(1, Ordering::Relaxed) as u64;
+                if live.load(Ordering::Relaxed) >= MAX_CONNECTIONS_PER_CAMERA {
+                    tracing::warn!(camera = setup.camera, conn, %peer, "refused: {MAX_CONNECTIONS_PER_CAMERA} connections on this camera's port already");
+                    drop(sock);
+                    continue;
+                }
+                if sock.set_nonblocking(false).is_err() {
+                    continue;
+                }
+                live.fetch_add(1, Ordering::Relaxed);
+                let (tx, stop, live, setup) = (
+                    tx.clone(),
+                    Arc::clone(stop),
+                    Arc::clone(&live),
+                    Arc::clone(&setup),
+                );
+                handlers.push(std::thread::spawn(move || {
+                    crate::link::serve(sock, conn, &setup, &tx, &stop);
+                    live.fetch_sub(1, Ordering::Relaxed);
+                }));
+                handlers.retain(|h| !h.is_finished());
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            Err(e) => {
+                tracing::warn!(camera = setup.camera, "accept failed: {e}");
+                std::thread::sleep(Duration::from_millis(100));
+            }
+        }
+    }
+    drop(l);
+    // The connections serving boards in progress go on until the line stops them.
+    for h in handlers {
+        let _ = h.join();
+    }
+}
