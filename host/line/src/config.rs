@@ -35,7 +35,7 @@ pub struct LineFile {
     #[serde(default)]
     pub timeouts: Timeouts,
     /// Where finished boards' CFX messages go.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "CfxEntry::is_default")]
     pub cfx: CfxEntry,
 }
 
@@ -93,6 +93,12 @@ pub struct CfxEntry {
     /// The spool directory `UnitsInspected` messages are written into, one file per finished
     /// board (default `DATA/cfx`).
     pub spool: Option<PathBuf>,
+}
+
+impl CfxEntry {
+    fn is_default(&self) -> bool {
+        self.spool.is_none()
+    }
 }
 
 /// A product ready to inspect.

@@ -20,6 +20,8 @@ use std::time::{Duration, Instant};
 
 /// Connections one camera's port serves at once; more are closed at once (logged).
 pub const MAX_CONNECTIONS_PER_CAMERA: usize = 4;
+/// Jobs (a board begun, a board map done) waiting for the keeper at most.
+pub const JOBS_QUEUED: usize = 2;
 /// The store's file in the data directory.
 pub const STORE_FILE: &str = "line.sqlite";
 
@@ -130,7 +132,10 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
         calibration_hash: cfg.calibration_hash.clone(),
         kept: Arc::clone(&kept),
     };
-    let (job_tx, job_rx) = mpsc::sync_channel(16);
+    // Two jobs queued at most: a board map waiting for the keeper holds the boards' thread
+    // (and through the gate the frame grabbers), so memory stays at two open maps, two
+    // queued and the one being inspected.
+    let (job_tx, job_rx) = mpsc::sync_channel(JOBS_QUEUED);
     let keeper = std::thread::Builder::new()
         .name("keeper".into())
         .spawn(move || keeper.run(job_rx))
