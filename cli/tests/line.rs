@@ -601,3 +601,58 @@ fn sigint_twice_exits_at_once_and_the_board_is_recovered() {
         "{b}"
     );
 }
+
+/// The firmware on the line: three QEMU frame grabbers (the Cortex-M7 firmware on each
+/// camera's recording, its stream on the board's UART, carried by QEMU as a TCP connection to
+/// the camera's port) and `dpsa line run`: the stored pads equal offline `board --streams` +
+/// `inspect` of the host's streams (the firmware's streams are the host's byte for byte,
+/// `tests/firmware.rs`). Skipped with `DPSA_SKIP_FIRMWARE=1`, as the firmware tests.
+#[test]
+fn three_qemu_frame_grabbers_feed_the_line() {
+    if std::env::var("DPSA_SKIP_FIRMWARE").is_ok_and(|v| v == "1") {
+        eprintln!("DPSA_SKIP_FIRMWARE=1: skipped");
+        return;
+    }
+    let f = fixture();
+    let dir = f.dir.join("qemu");
+    let cfg = line_config(&dir, |t| t);
+    let text = std::fs::read_to_string(&cfg).unwrap();
+    let addrs: Vec<String> = text
+        .lines()
+        .filter_map(|l| l.trim().strip_prefix("listen = \""))
+        .map(|l| l.trim_end_matches('"').to_string())
+        .collect();
+    let run = start(&cfg, Some(1));
+    let grabbers: Vec<_> = addrs
+        .iter()
+        .enumerate()
+        .map(|(i, a)| {
+            let (cam, cal, a) = (f.board.join(format!("cam{i}")), f.cal.clone(), a.clone());
+            std::thread::spawn(move || {
+                dpsa([
+                    "target-run".into(),
+                    cam.into_os_string(),
+                    "--cal".into(),
+                    cal.into_os_string(),
+                    "--camera".into(),
+                    i.to_string().into(),
+                    "--link".into(),
+                    std::ffi::OsString::from(a),
+                ])
+            })
+        })
+        .collect();
+    for g in grabbers {
+        ok(&g.join().unwrap(), "target-run --link");
+    }
+    let summary = wait(run, 120, &cfg);
+    assert_eq!(summary["boards"], 1, "{summary}");
+    let boards = stored(&cfg);
+    assert_eq!(boards.len(), 1);
+    let b = &boards[0];
+    assert_offline(b);
+    // The firmware's run id is the recording's board id.
+    let array: Value =
+        serde_json::from_slice(&std::fs::read(f.board.join("array.json")).unwrap()).unwrap();
+    assert_eq!(b["run_id"], array["board_id"], "{b}");
+}

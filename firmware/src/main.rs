@@ -17,7 +17,7 @@ mod board;
 mod sink;
 mod state;
 
-use board::qemu::{self, Feed, HostFile, SysTickClock};
+use board::qemu::{self, Feed, Output, SysTickClock};
 use board::{Clock, LineSource, Triggered};
 use defmt_semihosting as _;
 use dpsa_core::height::ColumnScale;
@@ -114,7 +114,8 @@ fn run() -> Result<(), Failed> {
         encoder: capture,
         port,
     };
-    let link = HostFile::create(&args.out).map_err(|e| fail("creating the output", e))?;
+    // A host file, or `uart:` for the board's UART (carried live to the line by QEMU).
+    let link = Output::open(&args.out).map_err(|e| fail("creating the output", e))?;
     let enc = codec::Encoder::new(
         &mut codec_heights[..w],
         &mut codec_valid[..],

@@ -9,9 +9,13 @@ use std::path::PathBuf;
 pub struct Args {
     /// Recording directory.
     recording: PathBuf,
-    /// Packet stream output file (required unless --bench).
-    #[arg(long, required_unless_present = "bench")]
+    /// Packet stream output file (required unless --bench or --link).
+    #[arg(long, required_unless_present_any = ["bench", "link"])]
     out: Option<PathBuf>,
+    /// A frame grabber on the line: the stream goes out on the board's UART, which QEMU
+    /// carries as a TCP connection to this address (a camera's `listen` of `dpsa line run`).
+    #[arg(long, conflicts_with_all = ["out", "bench"])]
+    link: Option<std::net::SocketAddr>,
     /// Codec intra period of the stream (as for `dpsa reconstruct`).
     #[arg(long, default_value_t = dpsa_core::packets::STREAM_INTRA_PERIOD,
           value_parser = super::reconstruct::intra_period)]
@@ -76,8 +80,16 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
             log: true,
             progress,
         },
+        link: a.link,
     };
     let run = target::run(&rec, &elf, opts)?;
+    if let Some(link) = a.link {
+        out!(
+            "target: the stream went to {link} over the board's UART; {:.1} s in QEMU",
+            run.outcome.elapsed.as_secs_f64()
+        );
+        return Ok(());
+    }
     if let Some(out) = &a.out {
         files::write_bytes(out, &run.stream)?;
     }

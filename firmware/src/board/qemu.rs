@@ -399,6 +399,103 @@ impl Link for HostFile {
     }
 }
 
+/// The output link over the board's UART0 (the CMSDK APB UART of mps2-an500 at
+/// `0x4000_4000`), which QEMU carries to the host as a TCP connection
+/// (`-serial tcp:127.0.0.1:PORT`, `dpsa target-run --link`): the frame grabber's stream goes
+/// live to `dpsa line run`. Byte by byte, waiting while the transmitter is full: QEMU holds
+/// it full while the connection cannot take more, so the host's back-pressure reaches the
+/// firmware (a real board's UART or Ethernet DMA would do the same with its FIFO).
+pub struct Uart {
+    _private: (),
+}
+
+/// CMSDK APB UART0 of mps2-an500.
+const UART0: usize = 0x4000_4000;
+/// Register offsets: data, state (bit 0: transmitter full), control (bit 0: transmit
+/// enable), baud divider.
+const UART_DATA: usize = 0x00;
+const UART_STATE: usize = 0x04;
+const UART_CTRL: usize = 0x08;
+const UART_BAUDDIV: usize = 0x10;
+
+impl Uart {
+    /// Enables UART0's transmitter (the smallest baud divider the peripheral allows: the
+    /// emulated line has no baud rate).
+    pub fn open() -> Uart {
+        // SAFETY: UART0 is this board's memory-mapped peripheral; nothing else in the
+        // firmware touches it, and these are aligned 32-bit register writes.
+        #[allow(unsafe_code)]
+        unsafe {
+            core::ptr::write_volatile((UART0 + UART_BAUDDIV) as *mut u32, 16);
+            core::ptr::write_volatile((UART0 + UART_CTRL) as *mut u32, 1);
+        }
+        Uart { _private: () }
+    }
+
+    fn put(&mut self, b: u8) {
+        // SAFETY: as in `open`: aligned reads of the state register, writes of the data
+        // register of this board's UART0.
+        #[allow(unsafe_code)]
+        unsafe {
+            while core::ptr::read_volatile((UART0 + UART_STATE) as *const u32) & 1 != 0 {}
+            core::ptr::write_volatile((UART0 + UART_DATA) as *mut u32, u32::from(b));
+        };
+    }
+}
+
+impl Link for Uart {
+    type Error = Error;
+    fn send(&mut self, packet: &[u8]) -> Result<(), Error> {
+        for &b in packet {
+            self.put(b);
+        }
+        Ok(())
+    }
+    fn flush(&mut self) -> Result<(), Error> {
+        // SAFETY: as in `put`.
+        #[allow(unsafe_code)]
+        unsafe {
+            while core::ptr::read_volatile((UART0 + UART_STATE) as *const u32) & 1 != 0 {}
+        }
+        Ok(())
+    }
+}
+
+/// The output link the command line names: a host file, or `uart:` for [`Uart`].
+pub enum Output {
+    /// A host file (semihosting).
+    File(HostFile),
+    /// UART0.
+    Uart(Uart),
+}
+
+impl Output {
+    /// The link `OUT` names.
+    pub fn open(out: &Path) -> Result<Output, Error> {
+        if out.c_str().to_bytes() == b"uart:" {
+            Ok(Output::Uart(Uart::open()))
+        } else {
+            HostFile::create(out).map(Output::File)
+        }
+    }
+}
+
+impl Link for Output {
+    type Error = Error;
+    fn send(&mut self, packet: &[u8]) -> Result<(), Error> {
+        match self {
+            Output::File(f) => f.send(packet),
+            Output::Uart(u) => u.send(packet),
+        }
+    }
+    fn flush(&mut self) -> Result<(), Error> {
+        match self {
+            Output::File(f) => f.flush(),
+            Output::Uart(u) => u.flush(),
+        }
+    }
+}
+
 /// SysTick wraps (every 2^24 ticks).
 static WRAPS: AtomicU32 = AtomicU32::new(0);
 

@@ -62,6 +62,10 @@ pub struct RunOptions {
     pub bench: bool,
     /// What the run reports on stderr (log lines, spinner).
     pub echo: Echo,
+    /// Send the packet stream over the board's UART, carried by QEMU as a TCP connection to
+    /// this address (a frame grabber on the line), instead of writing it to a file: the
+    /// returned stream is then empty.
+    pub link: Option<std::net::SocketAddr>,
 }
 
 impl Default for RunOptions {
@@ -70,6 +74,7 @@ impl Default for RunOptions {
             intra_period: dpsa_core::packets::STREAM_INTRA_PERIOD,
             bench: false,
             echo: Echo::default(),
+            link: None,
         }
     }
 }
@@ -88,6 +93,14 @@ pub fn run(rec: &Recording, elf: &Path, opts: RunOptions) -> Result<TargetOutput
         let mut w = BufWriter::with_capacity(1 << 20, file);
         write_feed_to(rec, opts.intra_period, &mut w, opts.echo.progress)?;
         w.flush()?;
+    }
+    if let Some(link) = opts.link {
+        let outcome = run_link(elf, &feed_path, link, opts.echo)?;
+        return Ok(TargetOutput {
+            stream: Vec::new(),
+            outcome,
+            bench: None,
+        });
     }
     let outcome = run_files(
         elf,

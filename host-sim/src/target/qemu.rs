@@ -34,6 +34,17 @@ fn arg_path(p: &Path) -> Result<String> {
 /// and the semihosting console (the defmt log) written to `log`. The one place the QEMU
 /// machine and flags are chosen.
 pub fn qemu_command(elf: &Path, args: &[String], log: &Path) -> Result<Command> {
+    qemu_command_with(elf, args, log, None)
+}
+
+/// [`qemu_command`] with the board's UART0 carried to `serial` as a TCP connection (QEMU
+/// connects to it; the firmware's `uart:` output link), or none.
+pub fn qemu_command_with(
+    elf: &Path,
+    args: &[String],
+    log: &Path,
+    serial: Option<std::net::SocketAddr>,
+) -> Result<Command> {
     let mut semi = String::from("enable=on,target=native,chardev=dlog");
     for a in std::iter::once(PROGRAM.to_string()).chain(args.iter().cloned()) {
         semi.push_str(",arg=");
@@ -52,7 +63,12 @@ pub fn qemu_command(elf: &Path, args: &[String], log: &Path) -> Result<Command> 
         "-monitor",
         "none",
     ])
-    .args(["-serial", "none", "-icount", "shift=0"])
+    .arg("-serial")
+    .arg(match serial {
+        Some(a) => format!("tcp:{a},nodelay=on"),
+        None => "none".into(),
+    })
+    .args(["-icount", "shift=0"])
     .arg("-semihosting-config")
     .arg(semi)
     .arg("-chardev")
@@ -259,6 +275,17 @@ pub struct Echo {
 /// packet stream). Fails only when QEMU cannot be run or the log cannot be decoded at all; the
 /// firmware's own failure is in [`Outcome::code`].
 pub fn qemu(elf: &Path, args: &[String], watch: Option<&Path>, echo: Echo) -> Result<Outcome> {
+    qemu_with(elf, args, watch, echo, None)
+}
+
+/// [`qemu`] with UART0 carried to `serial` ([`qemu_command_with`]).
+pub fn qemu_with(
+    elf: &Path,
+    args: &[String],
+    watch: Option<&Path>,
+    echo: Echo,
+    serial: Option<std::net::SocketAddr>,
+) -> Result<Outcome> {
     let elf_bytes =
         std::fs::read(elf).at(|| format!("reading the firmware ELF {}", elf.display()))?;
     // defmt-decoder's own errors are `anyhow` chains: kept as their `{:#}` text.
@@ -283,7 +310,7 @@ pub fn qemu(elf: &Path, args: &[String], watch: Option<&Path>, echo: Echo) -> Re
     let console_path = dir.path().join("console.log");
     let stdout_path = dir.path().join("qemu.stdout");
     let stderr_path = dir.path().join("qemu.stderr");
-    let mut cmd = qemu_command(elf, args, &console_path)?;
+    let mut cmd = qemu_command_with(elf, args, &console_path, serial)?;
     cmd.stdout(std::fs::File::create(&stdout_path)?)
         .stderr(std::fs::File::create(&stderr_path)?);
     let start = Instant::now();
@@ -380,6 +407,23 @@ pub fn run_files(
         args.push(arg_path(&absolute(b)?)?);
     }
     let o = qemu(elf, &args, Some(out), echo)?;
+    if !o.success() {
+        return Err(o.failure());
+    }
+    Ok(o)
+}
+
+/// Runs the firmware on a feed file with its packet stream on UART0, which QEMU carries as a
+/// TCP connection to `link` (a frame grabber on the line: `dpsa-firmware FEED uart:`). A
+/// failed run is an error carrying the firmware's error lines.
+pub fn run_link(
+    elf: &Path,
+    feed: &Path,
+    link: std::net::SocketAddr,
+    echo: Echo,
+) -> Result<Outcome> {
+    let args = vec![arg_path(&absolute(feed)?)?, "uart:".to_string()];
+    let o = qemu_with(elf, &args, None, echo, Some(link))?;
     if !o.success() {
         return Err(o.failure());
     }
