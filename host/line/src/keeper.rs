@@ -50,8 +50,8 @@ pub enum Job {
     },
 }
 
-/// One board as the keeper stored it (for the service's summary and the tests).
-#[derive(Clone, Debug, serde::Serialize)]
+/// One board as the keeper stored it.
+#[derive(Clone, Debug)]
 pub struct Kept {
     /// The run id.
     pub run_id: u64,
@@ -59,6 +59,60 @@ pub struct Kept {
     pub verdict: String,
     /// From the last camera's last row to the board stored, s (inspected boards).
     pub latency_s: Option<f64>,
+    /// The service's resident memory when the board was stored, MB (Linux).
+    pub rss_mb: Option<f64>,
+}
+
+/// What the keeper stored so far, for the service's summary: counts of every board, the
+/// newest [`LATENCIES_KEPT`] latencies, the memory at the first and the last board.
+#[derive(Clone, Debug, Default)]
+pub struct Tally {
+    /// Boards stored, by verdict (`pass`, `warn`, `fail`, `incomplete`).
+    pub by_verdict: std::collections::BTreeMap<String, usize>,
+    /// Boards stored.
+    pub boards: usize,
+    /// Latencies of the newest inspected boards, s.
+    pub latencies: std::collections::VecDeque<f64>,
+    /// Resident memory when the first board was stored, MB.
+    pub rss_first_mb: Option<f64>,
+    /// Resident memory when the last board was stored, MB.
+    pub rss_last_mb: Option<f64>,
+}
+
+/// Latencies [`Tally`] keeps (the newest).
+pub const LATENCIES_KEPT: usize = 10_000;
+
+impl Tally {
+    fn add(&mut self, k: Kept) {
+        *self.by_verdict.entry(k.verdict).or_default() += 1;
+        self.boards += 1;
+        if let Some(l) = k.latency_s {
+            if self.latencies.len() >= LATENCIES_KEPT {
+                self.latencies.pop_front();
+            }
+            self.latencies.push_back(l);
+        }
+        if self.boards == 1 {
+            self.rss_first_mb = k.rss_mb;
+        }
+        self.rss_last_mb = k.rss_mb;
+    }
+}
+
+/// This process's `key` line of `/proc/self/status` (`VmRSS`, `VmHWM`), MB (10^6 bytes);
+/// `None` off Linux.
+pub fn memory_mb(key: &str) -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status
+        .lines()
+        .find(|l| l.starts_with(key) && l[key.len()..].starts_with(':'))?;
+    let kb: f64 = line[key.len() + 1..]
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kb * 1024.0 / 1e6)
 }
 
 /// What the keeper needs.
@@ -71,12 +125,9 @@ pub struct Keeper {
     pub spool: PathBuf,
     /// The calibration's hash.
     pub calibration_hash: String,
-    /// Every board kept so far (the newest [`KEPT_LISTED`]).
-    pub kept: Arc<Mutex<Vec<Kept>>>,
+    /// What was stored so far.
+    pub tally: Arc<Mutex<Tally>>,
 }
-
-/// Boards listed in [`Keeper::kept`] at most.
-pub const KEPT_LISTED: usize = 10_000;
 
 impl Keeper {
     /// Serves jobs until every sender is gone.
@@ -140,6 +191,7 @@ impl Keeper {
                                 run_id,
                                 verdict,
                                 latency_s: Some(latency),
+                                rss_mb: memory_mb("VmRSS"),
                             });
                         }
                         Err(e) => tracing::error!(%run, "not stored: {e}"),
@@ -162,6 +214,7 @@ impl Keeper {
                             run_id,
                             verdict: "incomplete".into(),
                             latency_s: None,
+                            rss_mb: memory_mb("VmRSS"),
                         }),
                         Err(e) => {
                             tracing::error!(run = %format!("{run_id:016x}"), "not stored: {e}")
@@ -173,11 +226,8 @@ impl Keeper {
     }
 
     fn keep(&self, k: Kept) {
-        if let Ok(mut v) = self.kept.lock() {
-            if v.len() >= KEPT_LISTED {
-                v.remove(0);
-            }
-            v.push(k);
+        if let Ok(mut t) = self.tally.lock() {
+            t.add(k);
         }
     }
 
@@ -242,5 +292,41 @@ impl Keeper {
         let recipe = p.program.name.clone().unwrap_or_else(|| p.id.clone());
         let msg = dpsa_inspect::report::cfx(&p.pads, &i, &p.program, &unit, &recipe);
         (Outcome::Inspected { verdict, pads }, Some(msg))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The peak is never below the current resident memory, and both are read (Linux).
+    #[test]
+    fn peak_memory_is_at_least_the_resident_memory() {
+        let rss = memory_mb("VmRSS").expect("VmRSS on Linux");
+        let peak = memory_mb("VmHWM").expect("VmHWM on Linux");
+        assert!(rss > 0.1 && peak >= rss, "{rss} {peak}");
+        assert_eq!(memory_mb("NoSuchKey"), None);
+    }
+
+    /// Counts go on past the latencies kept; the first board's memory stays the first's.
+    #[test]
+    fn the_tally_counts_every_board() {
+        let mut t = Tally::default();
+        for k in 0..LATENCIES_KEPT + 5 {
+            t.add(Kept {
+                run_id: k as u64 + 1,
+                verdict: if k % 3 == 0 { "fail" } else { "pass" }.into(),
+                latency_s: Some(k as f64),
+                rss_mb: Some(k as f64),
+            });
+        }
+        assert_eq!(t.boards, LATENCIES_KEPT + 5);
+        assert_eq!(t.by_verdict["fail"] + t.by_verdict["pass"], t.boards);
+        assert_eq!(t.latencies.len(), LATENCIES_KEPT);
+        assert_eq!(t.latencies.front(), Some(&5.0));
+        assert_eq!(
+            (t.rss_first_mb, t.rss_last_mb),
+            (Some(0.0), Some((LATENCIES_KEPT + 4) as f64))
+        );
     }
 }

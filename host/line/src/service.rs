@@ -9,7 +9,7 @@
 
 use crate::boards::{Boards, Setup};
 use crate::config::LineConfig;
-use crate::keeper::{Keeper, Kept};
+use crate::keeper::{Keeper, Tally};
 use crate::link::{Event, LinkSetup};
 use crate::store::Store;
 use crate::LineError;
@@ -40,10 +40,17 @@ pub struct Summary {
     pub incomplete: usize,
     /// Boards found open at the start (the service had died in them), recorded incomplete.
     pub recovered: usize,
-    /// Median and largest time from a board's last row to its verdict stored, s.
+    /// Median and largest time from a board's last row to its verdict stored, s (over the
+    /// newest 10,000 boards).
     pub latency_median_s: Option<f64>,
     /// See `latency_median_s`.
     pub latency_max_s: Option<f64>,
+    /// Resident memory when the first board was stored, MB (Linux; `None` elsewhere).
+    pub rss_first_board_mb: Option<f64>,
+    /// Resident memory when the last board was stored, MB.
+    pub rss_last_board_mb: Option<f64>,
+    /// Peak resident memory of the whole run (`VmHWM`), MB.
+    pub peak_rss_mb: Option<f64>,
     /// Wall time, s.
     pub seconds: f64,
 }
@@ -124,13 +131,13 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
         silent_s: cfg.timeouts.silent_s,
         board_s: cfg.timeouts.board_s,
     };
-    let kept = Arc::new(Mutex::new(Vec::<Kept>::new()));
+    let tally = Arc::new(Mutex::new(Tally::default()));
     let keeper = Keeper {
         store,
         products: cfg.products,
         spool: cfg.spool.clone(),
         calibration_hash: cfg.calibration_hash.clone(),
-        kept: Arc::clone(&kept),
+        tally: Arc::clone(&tally),
     };
     // Two jobs queued at most: a board map waiting for the keeper holds the boards' thread
     // (and through the gate the frame grabbers), so memory stays at two open maps, two
@@ -160,7 +167,7 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
     drop(tx);
 
     let mut boards = Boards::new(setup, job_tx, gate);
-    let ended = |kept: &Mutex<Vec<Kept>>| kept.lock().map_or(0, |v| v.len());
+    let ended = |t: &Mutex<Tally>| t.lock().map_or(0, |t| t.boards);
     let mut stopping = false;
     loop {
         match rx.recv_timeout(Duration::from_millis(100)) {
@@ -171,7 +178,7 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
         boards.tick();
         let asked = term.load(Ordering::Relaxed)
             || int.load(Ordering::Relaxed)
-            || opts.boards.is_some_and(|n| ended(&kept) >= n);
+            || opts.boards.is_some_and(|n| ended(&tally) >= n);
         if asked && !stopping {
             stopping = true;
             accepting.store(false, Ordering::Relaxed);
@@ -196,12 +203,12 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
     keeper
         .join()
         .map_err(|_| LineError::Io("the keeper thread panicked".into()))?;
-    let kept = kept.lock().map(|v| v.clone()).unwrap_or_default();
-    let count = |v: &str| kept.iter().filter(|k| k.verdict == v).count();
-    let mut lat: Vec<f64> = kept.iter().filter_map(|k| k.latency_s).collect();
+    let t = tally.lock().map(|t| t.clone()).unwrap_or_default();
+    let count = |v: &str| t.by_verdict.get(v).copied().unwrap_or(0);
+    let mut lat: Vec<f64> = t.latencies.iter().copied().collect();
     lat.sort_by(f64::total_cmp);
     Ok(Summary {
-        boards: kept.len(),
+        boards: t.boards,
         pass: count("pass"),
         warn: count("warn"),
         fail: count("fail"),
@@ -209,6 +216,9 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
         recovered: recovered.len(),
         latency_median_s: lat.get(lat.len() / 2).copied(),
         latency_max_s: lat.last().copied(),
+        rss_first_board_mb: t.rss_first_mb,
+        rss_last_board_mb: t.rss_last_mb,
+        peak_rss_mb: crate::keeper::memory_mb("VmHWM"),
         seconds: started.elapsed().as_secs_f64(),
     })
 }
