@@ -195,11 +195,15 @@ mod tests {
             .prop_map(|v| v.into_iter().map(|(k, a)| piece(k, a)).collect())
     }
 
-    /// Area of the symmetric difference, against the larger of the two areas. Both overlays
-    /// snap the points to an integer grid over the inputs' extent, each its own way: the
-    /// results differ by a few 1e-9 of the area (seen up to 6e-9); the bound is 1e-6.
-    fn mismatch(ours: &MultiPolygon<f64>, theirs: &MultiPolygon<f64>) -> f64 {
-        area(&ours.xor(theirs)) / area(ours).max(area(theirs)).max(1e-12)
+    /// Area of the symmetric difference, against the larger of the two results' areas and
+    /// the area of the input `scale`. Both overlays snap the points to an integer grid over
+    /// the inputs' extent, each its own way, so the results differ by slivers along the
+    /// outlines whose area follows the inputs, not the result: a difference that leaves a
+    /// sliver of a disc differed by 2.8e-6 of its own area (CI, stop 38) but by far less of
+    /// the disc's (4e-10). Against the inputs the results differ by up to a few 1e-8 (seen up to
+    /// 5e-8 in a few thousand cases); the bound is 1e-6.
+    fn mismatch(ours: &MultiPolygon<f64>, theirs: &MultiPolygon<f64>, scale: f64) -> f64 {
+        area(&ours.xor(theirs)) / area(ours).max(area(theirs)).max(scale).max(1e-12)
     }
 
     proptest! {
@@ -209,7 +213,8 @@ mod tests {
         fn union_is_geos_union(polys in pieces()) {
             let ours = union(&polys, None);
             let theirs = geo::unary_union(&polys);
-            prop_assert!(mismatch(&ours, &theirs) < 1e-6, "mismatch {}", mismatch(&ours, &theirs));
+            let m = mismatch(&ours, &theirs, 0.0);
+            prop_assert!(m < 1e-6, "mismatch {}", m);
             // Exteriors counter-clockwise, holes clockwise (geo's default orientation).
             use geo::Winding;
             for p in &ours {
@@ -223,7 +228,8 @@ mod tests {
             let (a, b) = (union(&a, None), union(&b, None));
             let ours = difference(&a, &b, None);
             let theirs = a.difference(&b);
-            prop_assert!(mismatch(&ours, &theirs) < 1e-6, "mismatch {}", mismatch(&ours, &theirs));
+            let m = mismatch(&ours, &theirs, area(&a));
+            prop_assert!(m < 1e-6, "mismatch {}", m);
             prop_assert!(difference(&MultiPolygon::new(vec![]), &b, None).0.is_empty());
         }
     }
