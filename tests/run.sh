@@ -15,6 +15,14 @@ if ! have cargo; then
     as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq cargo rustc
 fi
 
+# The line's store tests (host/line) start a throwaway PostgreSQL server of their own with
+# Debian's server programs (the package's own cluster is not used); they fail without them.
+if ! ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1; then
+    echo "== PostgreSQL's server programs not found: installing Debian's postgresql"
+    as_root apt-get update -qq
+    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq postgresql
+fi
+
 if [ ! -d ../shared/data/real ]; then
     echo "error: ../shared/data/real (real fringe stacks used by the tests) is missing" >&2
     exit 1

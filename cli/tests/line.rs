@@ -397,8 +397,9 @@ fn packet_loss_is_counted_and_thin_pads_are_not_measurable() {
     }
 }
 
-/// Garbage, an idle client, a foreign camera's stream and too many connections: each refused
-/// or timed out, and a board after them is inspected normally.
+/// Garbage, 100 idle clients, a foreign camera's stream: each refused or timed out (a camera's
+/// port takes a few connections at once, the rest are refused at once), and a board after them
+/// is inspected normally.
 #[test]
 fn bad_clients_are_refused_and_the_line_goes_on() {
     use std::io::Write;
@@ -431,7 +432,7 @@ fn bad_clients_are_refused_and_the_line_goes_on() {
         .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
         .collect();
     let _ = garbage.write_all(&junk);
-    let idle: Vec<_> = (0..8).map(|_| connect(addrs[1])).collect();
+    let idle: Vec<_> = (0..100).map(|i| connect(addrs[i % 2])).collect();
     let mut foreign = connect(addrs[2]);
     let _ = foreign.write_all(&std::fs::read(f.streams.join("cam0.dpsa")).unwrap());
     std::thread::sleep(Duration::from_millis(1500));
@@ -448,6 +449,10 @@ fn bad_clients_are_refused_and_the_line_goes_on() {
         "{log}"
     );
     assert!(log.contains("no stream header within"), "{log}");
+    assert!(
+        log.contains("connections on this camera's port already"),
+        "{log}"
+    );
 }
 
 /// `kill -9` in the middle of a board: on restart the store checks out, the board is
@@ -514,6 +519,47 @@ fn a_bad_configuration_names_its_key() {
         String::from_utf8_lossy(&o.stderr).contains("default_prodcut"),
         "{}",
         String::from_utf8_lossy(&o.stderr)
+    );
+    // The store and the line's name: named, and a password never shown.
+    for (i, (extra, key)) in [
+        ("store = \"mysql://line:s3cret@db/factory\"", "store:"),
+        (
+            "store = \"postgres://line:s3cret@db:port/factory\"",
+            "store:",
+        ),
+        ("line = \"smt 3\"", "line:"),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let cfg = line_config(&dir.join(format!("key{i}")), |t| {
+            t.replace("default_product", &format!("{extra}\ndefault_product"))
+        });
+        for cmd in ["run", "boards"] {
+            let o = dpsa([
+                "line".as_ref(),
+                cmd.as_ref(),
+                "--config".as_ref(),
+                cfg.as_os_str(),
+            ]);
+            let e = String::from_utf8_lossy(&o.stderr);
+            assert!(!o.status.success(), "{extra}");
+            assert!(e.contains(key) && !e.contains("s3cret"), "{extra}: {e}");
+        }
+    }
+    let good = line_config(&dir.join("good"), |t| t);
+    let o = dpsa([
+        "line".as_ref(),
+        "boards".as_ref(),
+        "--config".as_ref(),
+        good.as_os_str(),
+        "--store".as_ref(),
+        "mysql://line:s3cret@db/factory".as_ref(),
+    ]);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && e.contains("--store") && !e.contains("s3cret"),
+        "{e}"
     );
 }
 

@@ -6,6 +6,7 @@ use super::out;
 use anyhow::{bail, Context, Result};
 use dpsa_line::config::{InitBoard, LineConfig};
 use dpsa_line::send::{Rate, SendOptions};
+use dpsa_line::store::Location;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 
@@ -28,6 +29,9 @@ enum LineCmd {
     Boards(BoardsArgs),
     /// Benchmark the store: inserts per second, a pad's history, bytes per board; as JSON.
     StoreBench(StoreBenchArgs),
+    /// Benchmark the link on loopback: TCP against UDP for one camera's stream, with and
+    /// without a receiver that stalls halfway; as JSON.
+    LinkBench(LinkBenchArgs),
 }
 
 #[derive(clap::Args)]
@@ -38,6 +42,10 @@ struct RunArgs {
     /// Stop (as on SIGTERM) once this many boards ended.
     #[arg(long)]
     boards: Option<usize>,
+    /// The store, over the configuration's `store`: a PostgreSQL URL
+    /// (postgres://USER:PASSWORD@HOST:PORT/DATABASE) or the path of an SQLite file.
+    #[arg(long, value_name = "URL_OR_PATH")]
+    store: Option<String>,
 }
 
 #[derive(clap::Args)]
@@ -115,19 +123,44 @@ struct BoardsArgs {
     /// With every pad of each board.
     #[arg(long)]
     pads: bool,
+    /// The store, over the configuration's `store`: a PostgreSQL URL or the path of an
+    /// SQLite file. The boards listed are the configuration's line's.
+    #[arg(long, value_name = "URL_OR_PATH")]
+    store: Option<String>,
 }
 
 #[derive(clap::Args)]
+#[command(group(clap::ArgGroup::new("where").required(true).args(["dir", "store"])))]
 struct StoreBenchArgs {
-    /// A directory for the scratch store (`store-bench.sqlite`, removed after).
+    /// A directory for the scratch SQLite store (`store-bench.sqlite`, replaced if there,
+    /// removed after).
     #[arg(long)]
-    dir: PathBuf,
+    dir: Option<PathBuf>,
+    /// Where to measure: a PostgreSQL URL (the benchmark works in a scratch schema
+    /// `dpsa_store_bench` of that database, dropped after), or the path of an SQLite file that
+    /// must not exist (removed after).
+    #[arg(long, value_name = "URL_OR_PATH")]
+    store: Option<String>,
     /// Boards inserted.
     #[arg(long, default_value_t = 2000)]
     boards: usize,
     /// Pads per board.
     #[arg(long, default_value_t = 6000)]
     pads: usize,
+}
+
+#[derive(clap::Args)]
+struct LinkBenchArgs {
+    /// MB (10^6 bytes) carried per run; the default is one camera's stream of the paper board.
+    #[arg(long, default_value_t = 12.7)]
+    mb: f64,
+    /// The sender's rate, MB/s; the default is one camera of the paper board at the conveyor's
+    /// rate (38 MB a board for three cameras, a board a second).
+    #[arg(long, default_value_t = 12.7)]
+    rate_mb_s: f64,
+    /// How long the receiver stops reading halfway, ms (the host busy).
+    #[arg(long, default_value_t = 250)]
+    stall_ms: u64,
 }
 
 /// Runs `dpsa line ...`.
@@ -137,19 +170,55 @@ pub fn run(a: Args) -> Result<()> {
         LineCmd::Init(a) => init(a),
         LineCmd::Send(a) => send(a),
         LineCmd::Boards(a) => boards(a),
-        LineCmd::StoreBench(a) => {
-            let r = dpsa_line::store::bench::run(&a.dir, a.boards, a.pads);
-            // The scratch store (1.4 GB at the defaults) goes, whatever the outcome.
-            let file = a.dir.join(dpsa_line::store::bench::FILE_NAME);
-            for suffix in ["", "-wal", "-shm"] {
-                let mut p = file.clone().into_os_string();
-                p.push(suffix);
-                let _ = std::fs::remove_file(p);
+        LineCmd::StoreBench(a) => store_bench(a),
+        LineCmd::LinkBench(a) => {
+            if !(a.mb.is_finite() && a.mb > 0.0 && a.mb <= 10_000.0) {
+                bail!("--mb must be above 0 and at most 10000, not {}", a.mb);
             }
-            out!("{}", serde_json::to_string_pretty(&r?)?);
+            if !(a.rate_mb_s.is_finite() && a.rate_mb_s > 0.0) {
+                bail!("--rate-mb-s must be above 0, not {}", a.rate_mb_s);
+            }
+            let r = dpsa_line::link_bench::run(&dpsa_line::link_bench::Options {
+                bytes: (a.mb * 1e6) as u64,
+                rate: a.rate_mb_s * 1e6,
+                stall_ms: a.stall_ms,
+            })?;
+            out!("{}", serde_json::to_string_pretty(&r)?);
             Ok(())
         }
     }
+}
+
+/// The store a `--store` names.
+fn store_arg(text: &str) -> Result<Location> {
+    Location::from_arg(text).map_err(|why| anyhow::anyhow!("--store: {why}"))
+}
+
+fn store_bench(a: StoreBenchArgs) -> Result<()> {
+    use dpsa_line::store::bench;
+    let (r, target) = match (&a.dir, &a.store) {
+        (Some(dir), _) => (
+            bench::run(dir, a.boards, a.pads),
+            Location::Sqlite(dir.join(bench::FILE_NAME)),
+        ),
+        (None, Some(text)) => {
+            let target = store_arg(text)?;
+            (bench::run_at(&target, a.boards, a.pads), target)
+        }
+        (None, None) => bail!("give --dir DIR or --store URL_OR_PATH"),
+    };
+    // The scratch store (1.4 GB at the defaults in SQLite) goes, whatever the outcome; but
+    // an SQLite file the benchmark refused to replace is not its to remove. After a failed
+    // run the failure is what is said (the scratch store may never have been made).
+    let refused = matches!(&r, Err(dpsa_line::store::StoreError::Invalid { .. }));
+    if !(refused && a.dir.is_none()) {
+        let removed = bench::remove_scratch(&target);
+        if let (Ok(_), Err(e)) = (&r, removed) {
+            eprintln!("warning: the benchmark's scratch store is left: {e:#}");
+        }
+    }
+    out!("{}", serde_json::to_string_pretty(&r?)?);
+    Ok(())
 }
 
 fn run_line(a: RunArgs) -> Result<()> {
@@ -161,7 +230,10 @@ fn run_line(a: RunArgs) -> Result<()> {
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
         )
         .init();
-    let cfg = LineConfig::load(&a.config)?;
+    let mut cfg = LineConfig::load(&a.config)?;
+    if let Some(text) = &a.store {
+        cfg.store = store_arg(text)?;
+    }
     let opts = dpsa_line::service::RunOptions { boards: a.boards };
     let summary = dpsa_line::service::run(cfg, opts)?;
     out!("{}", serde_json::to_string_pretty(&summary)?);
@@ -336,7 +408,11 @@ fn rate(s: &str) -> std::result::Result<String, String> {
 
 fn boards(a: BoardsArgs) -> Result<()> {
     let cfg = LineConfig::load(&a.config)?;
-    let store = dpsa_line::store::Store::open(&cfg.data.join(dpsa_line::service::STORE_FILE))?;
+    let location = match &a.store {
+        Some(text) => store_arg(text)?,
+        None => cfg.store,
+    };
+    let mut store = dpsa_line::store::Store::open(&location, &cfg.line)?;
     let mut list = Vec::new();
     for b in store.boards(a.last)? {
         let mut v = serde_json::to_value(&b)?;

@@ -5,6 +5,7 @@
 //! Paths are relative to the file's directory. Every key is documented in `docs/line.md`; an
 //! unknown key, a missing one or a value out of range is refused with a sentence naming it.
 
+use crate::store::Location;
 use crate::LineError;
 use dpsa_formats::calibration::CalFile;
 use dpsa_formats::grid::BoardGrid;
@@ -20,13 +21,22 @@ use std::path::{Path, PathBuf};
 pub struct LineFile {
     /// The array's calibration file (`dpsa calibrate`).
     pub calibration: PathBuf,
-    /// Where the line keeps its store (`line.sqlite`) and, by default, its CFX spool.
+    /// Where the line keeps its store (`line.sqlite`, unless `store` says otherwise) and, by
+    /// default, its CFX spool.
     pub data: PathBuf,
     /// The board map's pixel, mm (the array's design pitch, `array.json`'s `pixel_mm`).
     pub pixel_mm: f64,
     /// The product inspected when a board's streams name none (format v2 streams carry no
     /// product id, so today: every board).
     pub default_product: String,
+    /// The line's name, which its boards are stored under (default `line-1`): each line of
+    /// one store needs its own.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub line: Option<String>,
+    /// The store: a PostgreSQL URL (`postgres://...`, one database for many lines); absent,
+    /// the SQLite file `DATA/line.sqlite`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub store: Option<String>,
     /// One per camera of the calibration.
     pub camera: Vec<CameraEntry>,
     /// The products the line inspects.
@@ -127,6 +137,10 @@ pub struct LineConfig {
     pub calibration_hash: String,
     /// The data directory.
     pub data: PathBuf,
+    /// The line's name.
+    pub line: String,
+    /// The store.
+    pub store: Location,
     /// The CFX spool directory.
     pub spool: PathBuf,
     /// Listening address per camera, in camera order.
@@ -176,6 +190,25 @@ impl LineConfig {
         })?;
         let base = path.parent().unwrap_or(Path::new("."));
         let at = |p: &Path| base.join(p);
+        // The line and the store first: they need nothing loaded.
+        let line = f
+            .line
+            .clone()
+            .unwrap_or_else(|| crate::store::DEFAULT_LINE.to_owned());
+        crate::store::check_line_name(&line).map_err(|why| bad(path, "line", why))?;
+        let store = match &f.store {
+            None => Location::Sqlite(at(&f.data).join(crate::service::STORE_FILE)),
+            Some(text) => Location::postgres(text).map_err(|why| {
+                bad(
+                    path,
+                    "store",
+                    format!(
+                        "{why}; leave the key out for the SQLite file {}",
+                        Path::new("DATA").join(crate::service::STORE_FILE).display()
+                    ),
+                )
+            })?,
+        };
 
         let cal_path = at(&f.calibration);
         let cal_bytes = read(&cal_path, "calibration file", 64 << 20)
@@ -337,6 +370,8 @@ impl LineConfig {
             cal,
             calibration_hash,
             data,
+            line,
+            store,
             spool,
             listen,
             products,
@@ -388,6 +423,8 @@ pub fn init(
         data: abs(data),
         pixel_mm: board.pixel_mm,
         default_product: id.clone(),
+        line: None,
+        store: None,
         camera,
         product: vec![ProductEntry {
             id,

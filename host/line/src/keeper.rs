@@ -77,6 +77,16 @@ pub struct Tally {
     pub rss_first_mb: Option<f64>,
     /// Resident memory when the last board was stored, MB.
     pub rss_last_mb: Option<f64>,
+    /// Resident memory when board 1, 10, 100, ... was stored, MB: flat memory shows as the
+    /// same figure from a hundred boards on.
+    pub rss_by_boards: std::collections::BTreeMap<usize, f64>,
+}
+
+fn is_power_of_ten(mut n: usize) -> bool {
+    while n >= 10 && n % 10 == 0 {
+        n /= 10;
+    }
+    n == 1
 }
 
 /// Latencies [`Tally`] keeps (the newest).
@@ -95,24 +105,11 @@ impl Tally {
         if self.boards == 1 {
             self.rss_first_mb = k.rss_mb;
         }
+        if let Some(mb) = k.rss_mb.filter(|_| is_power_of_ten(self.boards)) {
+            self.rss_by_boards.insert(self.boards, mb);
+        }
         self.rss_last_mb = k.rss_mb;
     }
-}
-
-/// This process's `key` line of `/proc/self/status` (`VmRSS`, `VmHWM`), MB (10^6 bytes);
-/// `None` off Linux.
-pub fn memory_mb(key: &str) -> Option<f64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status
-        .lines()
-        .find(|l| l.starts_with(key) && l[key.len()..].starts_with(':'))?;
-    let kb: f64 = line[key.len() + 1..]
-        .trim()
-        .trim_end_matches("kB")
-        .trim()
-        .parse()
-        .ok()?;
-    Some(kb * 1024.0 / 1e6)
 }
 
 /// What the keeper needs.
@@ -191,7 +188,7 @@ impl Keeper {
                                 run_id,
                                 verdict,
                                 latency_s: Some(latency),
-                                rss_mb: memory_mb("VmRSS"),
+                                rss_mb: crate::memory::status_mb("VmRSS"),
                             });
                         }
                         Err(e) => tracing::error!(%run, "not stored: {e}"),
@@ -214,7 +211,7 @@ impl Keeper {
                             run_id,
                             verdict: "incomplete".into(),
                             latency_s: None,
-                            rss_mb: memory_mb("VmRSS"),
+                            rss_mb: crate::memory::status_mb("VmRSS"),
                         }),
                         Err(e) => {
                             tracing::error!(run = %format!("{run_id:016x}"), "not stored: {e}")
@@ -299,15 +296,6 @@ impl Keeper {
 mod tests {
     use super::*;
 
-    /// The peak is never below the current resident memory, and both are read (Linux).
-    #[test]
-    fn peak_memory_is_at_least_the_resident_memory() {
-        let rss = memory_mb("VmRSS").expect("VmRSS on Linux");
-        let peak = memory_mb("VmHWM").expect("VmHWM on Linux");
-        assert!(rss > 0.1 && peak >= rss, "{rss} {peak}");
-        assert_eq!(memory_mb("NoSuchKey"), None);
-    }
-
     /// Counts go on past the latencies kept; the first board's memory stays the first's.
     #[test]
     fn the_tally_counts_every_board() {
@@ -328,5 +316,11 @@ mod tests {
             (t.rss_first_mb, t.rss_last_mb),
             (Some(0.0), Some((LATENCIES_KEPT + 4) as f64))
         );
+        // Board n's memory (n = 1, 10, 100, ...) is the n-th board's, k = n - 1.
+        let want: Vec<(usize, f64)> = [1, 10, 100, 1000, 10_000]
+            .into_iter()
+            .map(|n| (n, (n - 1) as f64))
+            .collect();
+        assert_eq!(t.rss_by_boards.into_iter().collect::<Vec<_>>(), want);
     }
 }

@@ -11,14 +11,18 @@
 //!   camera's end packet came, or is incomplete (a camera cut off or silent, a board too long).
 //! - [`keeper`]: the finished map inspected against the product's program, the board and
 //!   every pad stored ([`store`]), the CFX message spooled ([`cfx`]).
-//! - [`service`]: `dpsa line run`: the listeners, the threads, the signals.
-//! - [`send`]: `dpsa line send`: simulated frame grabbers replaying recorded streams.
+//! - [`service`]: `dpsa line run`: the listeners, the threads, the signals; [`memory`]: the
+//!   allocator told to keep the service's memory flat.
+//! - [`send`]: `dpsa line send`: simulated frame grabbers replaying recorded streams;
+//!   [`link_bench`]: TCP against UDP on loopback, behind the link's choice of TCP.
 
 pub mod boards;
 pub mod cfx;
 pub mod config;
 pub mod keeper;
 pub mod link;
+pub mod link_bench;
+pub mod memory;
 pub mod send;
 pub mod service;
 pub mod store;

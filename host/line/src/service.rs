@@ -22,12 +22,16 @@ use std::time::{Duration, Instant};
 pub const MAX_CONNECTIONS_PER_CAMERA: usize = 4;
 /// Jobs (a board begun, a board map done) waiting for the keeper at most.
 pub const JOBS_QUEUED: usize = 2;
-/// The store's file in the data directory.
+/// The store's file in the data directory (when LINE.toml's `store` names none).
 pub const STORE_FILE: &str = "line.sqlite";
 
 /// How the service ran.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Summary {
+    /// The line's name.
+    pub line: String,
+    /// The store (a PostgreSQL URL with its password hidden).
+    pub store: String,
     /// Boards ended (stored) while it ran.
     pub boards: usize,
     /// Of them inspected and passed / warned / failed, and incomplete.
@@ -49,6 +53,9 @@ pub struct Summary {
     pub rss_first_board_mb: Option<f64>,
     /// Resident memory when the last board was stored, MB.
     pub rss_last_board_mb: Option<f64>,
+    /// Resident memory when board 1, 10, 100, ... was stored, MB (flat memory: the same
+    /// figure from a hundred boards on).
+    pub rss_by_boards_mb: std::collections::BTreeMap<usize, f64>,
     /// Peak resident memory of the whole run (`VmHWM`), MB.
     pub peak_rss_mb: Option<f64>,
     /// Wall time, s.
@@ -65,6 +72,9 @@ pub struct RunOptions {
 /// Runs the line until a signal (or `opts.boards` boards); returns its summary.
 pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
     let started = Instant::now();
+    if !crate::memory::cap_arenas() {
+        tracing::debug!("malloc's arenas not capped (not glibc): memory may grow with threads");
+    }
     let term = Arc::new(AtomicBool::new(false));
     let int = Arc::new(AtomicBool::new(false));
     // A second SIGINT exits at once (status 130); the first one is a stop like SIGTERM.
@@ -80,9 +90,10 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
             .map_err(|e| LineError::Io(format!("cannot handle signal {sig}: {e}")))?;
     }
 
-    let store_path = cfg.data.join(STORE_FILE);
-    let mut store = Store::open(&store_path)?;
+    let mut store = Store::open(&cfg.store, &cfg.line)?;
+    store.claim_line()?;
     store.check()?;
+    tracing::info!(store = %cfg.store, line = %cfg.line, "store open and checked");
     let recovered = store.recover(
         "the line stopped during this board (killed, crashed or powered off)",
         crate::boards::unix_now(),
@@ -208,6 +219,8 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
     let mut lat: Vec<f64> = t.latencies.iter().copied().collect();
     lat.sort_by(f64::total_cmp);
     Ok(Summary {
+        line: cfg.line.clone(),
+        store: cfg.store.to_string(),
         boards: t.boards,
         pass: count("pass"),
         warn: count("warn"),
@@ -218,7 +231,8 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
         latency_max_s: lat.last().copied(),
         rss_first_board_mb: t.rss_first_mb,
         rss_last_board_mb: t.rss_last_mb,
-        peak_rss_mb: crate::keeper::memory_mb("VmHWM"),
+        peak_rss_mb: crate::memory::status_mb("VmHWM"),
+        rss_by_boards_mb: t.rss_by_boards.clone(),
         seconds: started.elapsed().as_secs_f64(),
     })
 }

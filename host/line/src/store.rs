@@ -1,29 +1,70 @@
-//! The line's store: every board the line began, how each ended, and every pad it measured,
-//! in one SQLite file.
+//! The line's store: every board the line began, how each ended, and every pad it measured;
+//! in one SQLite file (the default: one line, one file) or in one PostgreSQL database that
+//! all the lines of a factory share.
 //!
 //! The line service calls [`Store::begin_board`] when a board starts and
 //! [`Store::finish_board`] when it has been inspected (or could not be); a board's end, its
 //! cameras' losses, its pads, its defects and the per-pad running aggregates are written in one
-//! transaction, so a reader (the CLI, an engineer's `sqlite3`) sees a board whole or not at all.
-//! After a restart, [`Store::recover`] turns the boards the service died in into `incomplete`
-//! ones. [`Store::prune_pads`] is the retention: it deletes the bulky pad rows of old boards
-//! and keeps the boards and the aggregates.
+//! transaction, so a reader (the CLI, an engineer's `sqlite3` or `psql`) sees a board whole or
+//! not at all. After a restart, [`Store::recover`] turns the boards the service died in into
+//! `incomplete` ones. [`Store::prune_pads`] is the retention: it deletes the bulky pad rows of
+//! old boards and keeps the boards and the aggregates.
 //!
-//! The file is in WAL mode: readers never block the writer, nor the writer the readers.
+//! A [`Store`] is opened for one line ([`Store::open`]`(location, line)`): it stamps the
+//! boards it begins with that line's name, and what it reads or changes by line (recovery, the
+//! board list, a pad's history, the aggregates, retention) is that line's only. A board read by
+//! its id ([`Store::pads`]) may be any line's.
 //!
-//! # Schema, version 1
+//! # Where: [`Location`]
 //!
-//! The version is SQLite's `PRAGMA user_version`. [`Store::open`] brings an older file up to
-//! [`SCHEMA_VERSION`] by migrations, one transaction each, and refuses a file whose version is
-//! newer than this program knows ([`StoreError::NewerSchema`]). Times are Unix seconds (REAL);
-//! a measurement that could not be made (NaN) is stored as NULL, never as NaN.
+//! - SQLite: a file (the service's default `DATA/line.sqlite`), in WAL mode: readers never
+//!   block the writer, nor the writer the readers.
+//! - PostgreSQL: a `postgres://` or `postgresql://` URL (`postgres://USER:PASSWORD@HOST:PORT/
+//!   DATABASE`; rust-postgres's `postgres` crate, plain TCP without TLS). The tables go into
+//!   the first schema of the connection's search path (`public` unless the role or the URL's
+//!   `options=-csearch_path%3D...` says otherwise). A password in the URL is never shown: the
+//!   store is named everywhere by [`Location`]'s `Display`, which writes `***` for it.
 //!
-//! ## `boards`: one row per board the line began
+//! # Two backends, one store
+//!
+//! [`Store`] holds an enum of the two connections and each method matches on it; each backend
+//! (`store/sqlite.rs`, `store/pg.rs`) has the same methods. An enum rather than a trait object:
+//! the set is closed (two databases), neither needs boxing nor object-safe signatures (a
+//! transaction borrows its connection), a third backend would fail to compile at every method
+//! until written, and what is common (checking values, run ids as text, NaN as NULL, the
+//! line's name) stays here, once. The schema and its migrations are in one place for both,
+//! `store/schema.rs`: one text per step with the words the dialects spell differently filled
+//! in, or, where SQLite cannot alter in place, two texts side by side that end in the same
+//! tables (a test compares the two backends' tables, columns and indexes).
+//!
+//! # Schema, version 2
+//!
+//! Versioned: SQLite's `PRAGMA user_version`; on PostgreSQL the one row of a table
+//! `schema_version`. [`Store::open`] brings an older store up to [`SCHEMA_VERSION`] by
+//! migrations and refuses one whose version is newer than this program knows
+//! ([`StoreError::NewerSchema`]), leaving it untouched. On SQLite each migration is one
+//! transaction (the version read again under the write lock); on PostgreSQL all of them are
+//! one transaction under an advisory lock, so two lines starting at once on a new database do
+//! not both migrate it. Version 1 was one line's store; version 2 added `line` to `boards`
+//! and `pad_stats`, made a run id unique per line and the aggregates per line. A version-1
+//! SQLite file migrates in place (its `boards` and `pad_stats` copied into the new tables,
+//! `pads` untouched); its boards become line `line-1`'s ([`DEFAULT_LINE`]), so a line of
+//! another name that takes the file over renames them first (`UPDATE boards SET line = 'smt-3'
+//! WHERE line = 'line-1'`, the same in `pad_stats`).
+//!
+//! Times are Unix seconds (REAL: an 8-byte float; DOUBLE PRECISION on PostgreSQL, whose REAL
+//! is 4 bytes); a measurement that could not be made (NaN) is stored as NULL, never as NaN.
+//! INTEGER is 64-bit on SQLite; on PostgreSQL, ids, counts of rows and aggregates are BIGINT
+//! and the columns marked INTEGER below (a pad or camera index, a board's pad count) are its
+//! 32-bit INTEGER. `id INTEGER PRIMARY KEY` is SQLite's rowid, `BIGINT GENERATED ALWAYS AS
+//! IDENTITY PRIMARY KEY` on PostgreSQL.
+//!
+//! ## `boards`: one row per board a line began
 //!
 //! | column | type | meaning |
 //! | --- | --- | --- |
-//! | `id` | INTEGER PRIMARY KEY | the store's id of the board; grows with every board begun |
-//! | `run_id` | TEXT NOT NULL UNIQUE | the line's run id, 16 lowercase hex digits; a board is never stored twice |
+//! | `id` | INTEGER PRIMARY KEY | the store's id of the board; grows with every board begun, across lines (on PostgreSQL it may skip values: a refused insert spends one) |
+//! | `run_id` | TEXT NOT NULL | the line's run id, 16 lowercase hex digits; unique per line (`boards_by_run`): a board is never stored twice |
 //! | `product` | TEXT NOT NULL | the product (board type) name |
 //! | `program_hash` | TEXT NOT NULL | hash of the inspection program, as the caller gave it |
 //! | `calibration_hash` | TEXT NOT NULL | hash of the calibration in use |
@@ -33,12 +74,18 @@
 //! | `verdict` | TEXT NULL | `pass`, `warn` or `fail`: set for `inspected` boards only |
 //! | `incomplete_reason` | TEXT NULL | why the board was never inspected: set for `incomplete` boards only |
 //! | `pads` | INTEGER NOT NULL | pad rows written when it was inspected (0 otherwise); kept when [`Store::prune_pads`] deletes the rows |
+//! | `line` | TEXT NOT NULL | the line's name (LINE.toml's `line`, default `line-1`), not empty (version 2) |
 //!
 //! A CHECK ties `state` to the others: an `open` board has no end, verdict nor reason; an
 //! `inspected` board an end and a verdict and no reason; an `incomplete` board an end and a
-//! reason, no verdict and no pads. Indexes: `boards_by_product (product, state, id)` (a pad's
-//! history), `boards_by_end (ended_unix_s)` (retention) and `boards_open (id) WHERE state =
-//! 'open'` (recovery).
+//! reason, no verdict and no pads. Indexes: `boards_by_run (line, run_id)` UNIQUE,
+//! `boards_by_line (line, product, state, id)` (a line's pad history), `boards_by_product
+//! (product, state, id)` (a product across lines), `boards_by_end (ended_unix_s)` (retention)
+//! and `boards_open (id) WHERE state = 'open'` (recovery).
+//!
+//! A run id is unique per line, not in the whole store: it is the line's (the frame grabbers
+//! of one line share it, `docs/line.md`), and nothing makes two lines' run ids differ; a board
+//! is named by its line and run id (the CFX spool is per line too).
 //!
 //! ## `board_cameras`: one row per camera of a finished board
 //!
@@ -51,7 +98,7 @@
 //! | `missing_packets` | INTEGER NOT NULL | packets missing |
 //! | `damaged_packets` | INTEGER NOT NULL | packets that arrived damaged |
 //!
-//! Primary key `(board_id, camera)`, WITHOUT ROWID.
+//! Primary key `(board_id, camera)`, WITHOUT ROWID (SQLite).
 //!
 //! ## `pads`: one row per pad of an inspected board
 //!
@@ -72,10 +119,18 @@
 //! | `coverage` | REAL NOT NULL | share of the opening's pixels that were valid, 0..=1 |
 //! | `uncertainty_um3` | REAL NULL | volume uncertainty, um³ (not computed yet: NULL) |
 //!
-//! Primary key `(board_id, pad)`, WITHOUT ROWID: the rows sit in the primary key's B-tree
-//! itself, in the order they are written, which keeps inserts append-only and makes a pad of a
-//! given board one B-tree lookup (a pad's history over 1,000 boards is 1,000 lookups, served
-//! by `boards_by_product`: no second index on `pads` is needed, which would cost every insert).
+//! Primary key `(board_id, pad)`. On SQLite the table is WITHOUT ROWID: the rows sit in the
+//! primary key's B-tree itself, in the order they are written, which keeps inserts append-only
+//! and makes a pad of a given board one B-tree lookup (a pad's history over 1,000 boards is
+//! 1,000 lookups, served by `boards_by_line`: no second index on `pads` is needed, which would
+//! cost every insert). On PostgreSQL the rows are a heap with the primary key an index beside
+//! it (the same lookups, one more page each); they go in by binary `COPY` (measured, 6,000
+//! pads: 28 ms a board, against 46 ms by INSERTs of 500 rows and 2.1 s by one INSERT a row,
+//! `store::pg::tests::pad_rows_by_copy_and_by_insert`), and the foreign key to `boards` is
+//! kept by statement-level triggers rather than the constraint, which checks every row by a
+//! query of its own (70 of the 90 ms of a board's insert): a pad row of a board not in
+//! `boards` is refused, deleting a board deletes its pads, a board's id cannot change
+//! (`store/schema.rs`, version 2).
 //!
 //! ## `defects`: one row per pad of an inspected board whose level is `warn` or `fail`
 //!
@@ -86,7 +141,7 @@
 //! | `level` | TEXT NOT NULL | `warn` or `fail` |
 //! | `class` | TEXT NULL | the deciding class |
 //!
-//! Primary key `(board_id, pad)`, WITHOUT ROWID.
+//! Primary key `(board_id, pad)`, WITHOUT ROWID (SQLite).
 //!
 //! ## `alarms`: statistical process control alarms (empty for now)
 //!
@@ -99,10 +154,11 @@
 //! | `rule` | TEXT NOT NULL | the rule that fired |
 //! | `message` | TEXT NOT NULL | what it says, for a person |
 //!
-//! ## `pad_stats`: running aggregates per pad of a product, kept for ever
+//! ## `pad_stats`: running aggregates per pad of a product on a line, kept for ever
 //!
 //! | column | type | meaning |
 //! | --- | --- | --- |
+//! | `line` | TEXT NOT NULL | the line whose boards these are, not empty (version 2) |
 //! | `product` | TEXT NOT NULL | the product |
 //! | `pad` | INTEGER NOT NULL | pad index |
 //! | `boards` | INTEGER NOT NULL | inspected boards on which the pad had a `volume_pct` |
@@ -112,64 +168,97 @@
 //! | `warns` | INTEGER NOT NULL | of those boards, how many it warned |
 //! | `last_board_id` | INTEGER NOT NULL | the last board counted |
 //!
-//! Primary key `(product, pad)`, WITHOUT ROWID. Updated in [`Store::finish_board`]'s
-//! transaction for inspected boards, and only for the pads with a `volume_pct` (a pad whose
-//! volume could not be measured is not counted, not even in `fails`: its fail is in `defects`).
-//! Mean = `sum_volume_pct / boards`; variance = `sum_sq_volume_pct / boards - mean²`.
+//! Primary key `(line, product, pad)`, WITHOUT ROWID (SQLite); on PostgreSQL half of each
+//! page is left free (`fillfactor = 50`), so that the update of a row stays on its page and
+//! leaves the key's index alone ("HOT": half the time of an update). Updated in
+//! [`Store::finish_board`]'s transaction for inspected boards, and only for the pads with a
+//! `volume_pct` (a pad whose volume could not be measured is not counted, not even in `fails`:
+//! its fail is in `defects`). Mean = `sum_volume_pct / boards`; variance = `sum_sq_volume_pct
+//! / boards - mean²`.
+//!
+//! Per line, not per product across lines: each line's printer and stencil are their own
+//! process, and a statistical control loop watches one of them (a drifting printer shows in
+//! its line's row, where a row shared with a good line would dilute it). The sums add up, so
+//! the product's figures across lines are one `GROUP BY` away (below), while per-product rows
+//! could never be split by line again. And two lines running the same product never update
+//! the same rows, so they never wait for each other's locks on PostgreSQL.
+//!
+//! # Checks ([`Store::check`])
+//!
+//! SQLite: `PRAGMA integrity_check` (every page and index) and `PRAGMA foreign_key_check`.
+//! PostgreSQL has neither (its `amcheck` is an extension only a superuser installs). On both,
+//! in one read snapshot, the rows are checked against what the schema states and what the
+//! store keeps true: each CHECK restated as a query (boards' state against end, verdict, reason and pad
+//! count; run ids 16 hex digits; camera, pad, level and coverage ranges; aggregates with
+//! `fails + warns <= boards`), the foreign keys (no camera, pad or defect row of a board not
+//! in the store), a board's pad rows as many as its `pads` and only for inspected boards,
+//! one `defects` row for each pad that warned or failed and a pad row for each defect. On
+//! PostgreSQL also: no NaN anywhere, no trigger switched off, the triggers that keep `pads`'
+//! foreign key all there, no constraint added `NOT VALID`, and `schema_version` at this
+//! program's version. The checks read every pad row: seconds for a store of gigabytes.
 //!
 //! # Queries an engineer would run
 //!
-//! The last 20 boards, with their result:
+//! (SQLite spelling; on PostgreSQL `to_timestamp(started_unix_s)` for `datetime(started_unix_s,
+//! 'unixepoch')`.) The last 20 boards of line `line-1`, with their result:
 //!
 //! ```sql
 //! SELECT id, run_id, product, datetime(started_unix_s, 'unixepoch') AS started, state,
 //!        coalesce(verdict, incomplete_reason, '(in progress)') AS result, pads
-//! FROM boards ORDER BY id DESC LIMIT 20;
+//! FROM boards WHERE line = 'line-1' ORDER BY id DESC LIMIT 20;
 //! ```
 //!
-//! Pad 17's volume over the last 100 inspected boards of a product, newest first:
+//! Pad 17's volume over the last 100 inspected boards of a product on a line, newest first:
 //!
 //! ```sql
 //! SELECT b.id, b.run_id, datetime(b.started_unix_s, 'unixepoch') AS started,
 //!        p.name, p.level, p.volume_pct
 //! FROM (SELECT id, run_id, started_unix_s FROM boards
-//!       WHERE product = 'ctrl-b' AND state = 'inspected' ORDER BY id DESC LIMIT 100) AS b
+//!       WHERE line = 'line-1' AND product = 'ctrl-b' AND state = 'inspected'
+//!       ORDER BY id DESC LIMIT 100) AS b
 //! JOIN pads AS p ON p.board_id = b.id AND p.pad = 17
 //! ORDER BY b.id DESC;
 //! ```
 //!
-//! Defects per class and hour over the last day:
+//! Defects per line, class and hour over the last day:
 //!
 //! ```sql
-//! SELECT strftime('%Y-%m-%d %H:00', b.ended_unix_s, 'unixepoch') AS hour,
+//! SELECT strftime('%Y-%m-%d %H:00', b.ended_unix_s, 'unixepoch') AS hour, b.line,
 //!        d.level, coalesce(d.class, '?') AS class, count(*) AS pads
 //! FROM defects AS d JOIN boards AS b ON b.id = d.board_id
 //! WHERE b.ended_unix_s >= CAST(strftime('%s', 'now', '-1 day') AS REAL)
-//! GROUP BY hour, d.level, class ORDER BY hour, pads DESC;
+//! GROUP BY hour, b.line, d.level, class ORDER BY hour, pads DESC;
 //! ```
 //!
 //! Boards never inspected, and why:
 //!
 //! ```sql
-//! SELECT incomplete_reason, count(*) AS boards,
+//! SELECT line, incomplete_reason, count(*) AS boards,
 //!        datetime(max(ended_unix_s), 'unixepoch') AS last
 //! FROM boards WHERE state = 'incomplete'
-//! GROUP BY incomplete_reason ORDER BY boards DESC;
+//! GROUP BY line, incomplete_reason ORDER BY boards DESC;
 //! ```
 //!
-//! The pads of a product whose volume drifts most, from the aggregates:
+//! The pads of a product whose volume drifts most on a line, from the aggregates:
 //!
 //! ```sql
 //! SELECT pad, boards, sum_volume_pct / boards AS mean_pct,
 //!        sqrt(max(sum_sq_volume_pct / boards - (sum_volume_pct / boards) * (sum_volume_pct / boards), 0)) AS sd_pct,
 //!        fails, warns
-//! FROM pad_stats WHERE product = 'ctrl-b' ORDER BY abs(mean_pct - 100) DESC LIMIT 20;
+//! FROM pad_stats WHERE line = 'line-1' AND product = 'ctrl-b'
+//! ORDER BY abs(mean_pct - 100) DESC LIMIT 20;
 //! ```
 //!
-//! (`sqrt` needs an `sqlite3` built with the math functions, as the bundled one is.)
+//! (`sqrt` needs an `sqlite3` built with the math functions, as the bundled one is;
+//! PostgreSQL spells `max(a, b)` `greatest(a, b)`.) The same product across all lines:
+//!
+//! ```sql
+//! SELECT pad, sum(boards) AS boards, sum(sum_volume_pct) / sum(boards) AS mean_pct,
+//!        sum(fails) AS fails, sum(warns) AS warns
+//! FROM pad_stats WHERE product = 'ctrl-b' GROUP BY pad ORDER BY pad;
+//! ```
 
-use std::path::{Path, PathBuf};
-use std::time::Duration;
+use std::path::PathBuf;
 
 /// A run id as JSON: 16 lowercase hex digits, as the logs, the CFX spool and the `boards`
 /// table write it (a JSON number would lose bits in readers that hold numbers as f64).
@@ -177,196 +266,307 @@ fn hex_id<S: serde::Serializer>(id: &u64, s: S) -> Result<S::Ok, S::Error> {
     s.collect_str(&format_args!("{id:016x}"))
 }
 
-use rusqlite::{params, Connection, OptionalExtension, TransactionBehavior};
-
 #[path = "store_bench.rs"]
 pub mod bench;
+mod pg;
+#[cfg(test)]
+mod pg_test_server;
+mod schema;
+mod sqlite;
+
+use schema::{Step, MIGRATIONS};
 
 /// The newest schema version this program knows (`PRAGMA user_version` of a store it made).
 pub const SCHEMA_VERSION: u32 = MIGRATIONS.len() as u32;
 
-/// The migrations, in order: applying `MIGRATIONS[i]` takes a store from version `i` to
-/// version `i + 1`. Never edit one that has shipped: add the next.
-const MIGRATIONS: &[&str] = &[SCHEMA_V1];
-
-/// Version 1: the tables of the module documentation.
-///
-/// The CHECKs of the per-pad tables compare with `=` joined by OR, never `IN (...)`: SQLite
-/// evaluates a CHECK's `IN` list by building a small temporary table every row, which more
-/// than doubled the time of a pad insert (measured: 53 against 23 ms per board of 6,000 pads).
-const SCHEMA_V1: &str = "
-CREATE TABLE boards (
-    id                INTEGER PRIMARY KEY,
-    run_id            TEXT NOT NULL UNIQUE
-                      CHECK (length(run_id) = 16 AND run_id NOT GLOB '*[^0-9a-f]*'),
-    product           TEXT NOT NULL,
-    program_hash      TEXT NOT NULL,
-    calibration_hash  TEXT NOT NULL,
-    started_unix_s    REAL NOT NULL,
-    ended_unix_s      REAL,
-    state             TEXT NOT NULL CHECK (state IN ('open', 'inspected', 'incomplete')),
-    verdict           TEXT CHECK (verdict IN ('pass', 'warn', 'fail')),
-    incomplete_reason TEXT,
-    pads              INTEGER NOT NULL DEFAULT 0 CHECK (pads >= 0),
-    CHECK ((state = 'open' AND ended_unix_s IS NULL AND verdict IS NULL
-                AND incomplete_reason IS NULL AND pads = 0)
-        OR (state = 'inspected' AND ended_unix_s IS NOT NULL AND verdict IS NOT NULL
-                AND incomplete_reason IS NULL)
-        OR (state = 'incomplete' AND ended_unix_s IS NOT NULL AND verdict IS NULL
-                AND incomplete_reason IS NOT NULL AND pads = 0))
-);
-CREATE INDEX boards_by_product ON boards (product, state, id);
-CREATE INDEX boards_by_end ON boards (ended_unix_s);
-CREATE INDEX boards_open ON boards (id) WHERE state = 'open';
-
-CREATE TABLE board_cameras (
-    board_id        INTEGER NOT NULL REFERENCES boards (id) ON DELETE CASCADE,
-    camera          INTEGER NOT NULL CHECK (camera BETWEEN 0 AND 255),
-    rows            INTEGER NOT NULL CHECK (rows >= 0),
-    missing_rows    INTEGER NOT NULL CHECK (missing_rows >= 0),
-    missing_packets INTEGER NOT NULL CHECK (missing_packets >= 0),
-    damaged_packets INTEGER NOT NULL CHECK (damaged_packets >= 0),
-    PRIMARY KEY (board_id, camera)
-) WITHOUT ROWID;
-
-CREATE TABLE pads (
-    board_id        INTEGER NOT NULL REFERENCES boards (id) ON DELETE CASCADE,
-    pad             INTEGER NOT NULL CHECK (pad >= 0),
-    name            TEXT NOT NULL,
-    level           TEXT NOT NULL CHECK (level = 'pass' OR level = 'warn' OR level = 'fail'),
-    class           TEXT,
-    volume_um3      REAL,
-    volume_pct      REAL,
-    area_mm2        REAL,
-    area_pct        REAL,
-    height_um       REAL,
-    height_pct      REAL,
-    offset_x_um     REAL,
-    offset_y_um     REAL,
-    coverage        REAL NOT NULL CHECK (coverage BETWEEN 0 AND 1),
-    uncertainty_um3 REAL,
-    PRIMARY KEY (board_id, pad)
-) WITHOUT ROWID;
-
-CREATE TABLE defects (
-    board_id INTEGER NOT NULL REFERENCES boards (id) ON DELETE CASCADE,
-    pad      INTEGER NOT NULL,
-    level    TEXT NOT NULL CHECK (level = 'warn' OR level = 'fail'),
-    class    TEXT,
-    PRIMARY KEY (board_id, pad)
-) WITHOUT ROWID;
-
-CREATE TABLE alarms (
-    id            INTEGER PRIMARY KEY,
-    raised_unix_s REAL NOT NULL,
-    product       TEXT NOT NULL,
-    pad           INTEGER,
-    rule          TEXT NOT NULL,
-    message       TEXT NOT NULL
-);
-
-CREATE TABLE pad_stats (
-    product           TEXT NOT NULL,
-    pad               INTEGER NOT NULL,
-    boards            INTEGER NOT NULL,
-    sum_volume_pct    REAL NOT NULL,
-    sum_sq_volume_pct REAL NOT NULL,
-    fails             INTEGER NOT NULL,
-    warns             INTEGER NOT NULL,
-    last_board_id     INTEGER NOT NULL,
-    PRIMARY KEY (product, pad)
-) WITHOUT ROWID;
-";
-
-/// How long a statement waits for another connection's lock before it gives up (busy).
-const BUSY_TIMEOUT: Duration = Duration::from_secs(10);
+/// The line's name when LINE.toml gives none, and the line of every board stored before
+/// schema version 2.
+pub const DEFAULT_LINE: &str = "line-1";
 
 /// Boards whose pads [`Store::prune_pads`] deletes in one transaction: short enough that the
 /// line's own writes wait little, long enough that the commits cost nothing.
 const PRUNE_BOARDS_PER_TRANSACTION: usize = 50;
 
-/// Why the store could not do what was asked. Every sentence names the store's file.
+/// Whether `name` may name a line: 1 to 64 ASCII letters, digits, `-`, `_` or `.` (it is
+/// written in logs, JSON and SQL by hand, and compared byte for byte). `Err` says why not.
+pub fn check_line_name(name: &str) -> Result<(), String> {
+    let ok = (1..=64).contains(&name.len())
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'-' | b'_' | b'.'));
+    if ok {
+        Ok(())
+    } else {
+        Err(format!(
+            "{name:?} is not a line name (1 to 64 ASCII letters, digits, '-', '_' or '.')"
+        ))
+    }
+}
+
+/// Where a store is: an SQLite file or a PostgreSQL database.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Location {
+    /// An SQLite file (made, with its directory, if missing).
+    Sqlite(PathBuf),
+    /// A PostgreSQL database.
+    Postgres(PgUrl),
+}
+
+impl std::fmt::Display for Location {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Location::Sqlite(p) => write!(f, "{}", p.display()),
+            Location::Postgres(u) => u.fmt(f),
+        }
+    }
+}
+
+/// The URL schemes of PostgreSQL.
+const PG_SCHEMES: [&str; 2] = ["postgres://", "postgresql://"];
+
+impl Location {
+    /// A PostgreSQL URL, as LINE.toml's `store` key takes: `postgres://` or `postgresql://`,
+    /// parsed here (host, port, options), so a wrong one is refused before anything starts.
+    /// `Err` is a sentence that shows the text with its password hidden.
+    pub fn postgres(text: &str) -> Result<Location, String> {
+        if !PG_SCHEMES.iter().any(|s| text.starts_with(s)) {
+            return Err(format!(
+                "{:?} is not a PostgreSQL URL (postgres://USER:PASSWORD@HOST:PORT/DATABASE)",
+                redact(text)
+            ));
+        }
+        let url = PgUrl {
+            url: text.to_owned(),
+            shown: redact(text),
+            schema: None,
+        };
+        url.config()?;
+        Ok(Location::Postgres(url))
+    }
+
+    /// A command line's store: a PostgreSQL URL, else a path of an SQLite file. Another
+    /// `scheme://` is refused (it is no path anyone means).
+    pub fn from_arg(text: &str) -> Result<Location, String> {
+        if PG_SCHEMES.iter().any(|s| text.starts_with(s)) {
+            Location::postgres(text)
+        } else if text.contains("://") {
+            Err(format!(
+                "{:?} is neither a PostgreSQL URL (postgres://USER:PASSWORD@HOST:PORT/DATABASE) \
+                 nor the path of an SQLite file",
+                redact(text)
+            ))
+        } else if text.is_empty() {
+            Err("an empty store: give a PostgreSQL URL or the path of an SQLite file".to_owned())
+        } else {
+            Ok(Location::Sqlite(PathBuf::from(text)))
+        }
+    }
+
+    /// `sqlite` or `postgres`.
+    pub fn backend(&self) -> &'static str {
+        match self {
+            Location::Sqlite(_) => "sqlite",
+            Location::Postgres(_) => "postgres",
+        }
+    }
+}
+
+/// `text` with the password of a URL's user (`scheme://user:PASSWORD@host`, up to the first
+/// `@`, as the PostgreSQL client reads it) and the value of any `password=` parameter replaced
+/// by `***`.
+fn redact(text: &str) -> String {
+    let mut out = text.to_owned();
+    if let Some(start) = out.find("://").map(|i| i + 3) {
+        if let Some(at) = out[start..].find('@').map(|i| start + i) {
+            if let Some(colon) = out[start..at].find(':').map(|i| start + i) {
+                out.replace_range(colon + 1..at, "***");
+            }
+        }
+    }
+    let mut from = 0;
+    while let Some(i) = out[from..].to_ascii_lowercase().find("password=") {
+        let value = from + i + "password=".len();
+        let end = out[value..]
+            .find(|c: char| c == '&' || c.is_whitespace())
+            .map_or(out.len(), |e| value + e);
+        out.replace_range(value..end, "***");
+        from = value + 3;
+    }
+    out
+}
+
+/// A PostgreSQL URL whose `Display` and `Debug` hide its password.
+#[derive(Clone, PartialEq, Eq)]
+pub struct PgUrl {
+    /// As given (with the password): only ever handed to the client.
+    url: String,
+    /// With the password hidden: what logs and errors show.
+    shown: String,
+    /// A schema to put first on the search path (the benchmark's scratch space).
+    schema: Option<String>,
+}
+
+impl PgUrl {
+    /// The client's configuration, or why the URL is none (never quoting the URL).
+    fn config(&self) -> Result<postgres::Config, String> {
+        self.url.parse::<postgres::Config>().map_err(|e| {
+            // The client's sentence is in its source ("invalid value for option `port`"); it
+            // names options, never their values.
+            let why =
+                std::error::Error::source(&e).map_or_else(|| e.to_string(), |s| s.to_string());
+            format!(
+                "{:?} is not a PostgreSQL URL the client reads: {why}",
+                self.shown
+            )
+        })
+    }
+
+    /// The schema put first on the search path, if any.
+    fn schema(&self) -> Option<&str> {
+        self.schema.as_deref()
+    }
+
+    /// The same database with `schema` first on the search path.
+    fn with_schema(&self, schema: &str) -> PgUrl {
+        PgUrl {
+            schema: Some(schema.to_owned()),
+            ..self.clone()
+        }
+    }
+
+    /// The same database with the search path the URL gives.
+    fn without_schema(&self) -> PgUrl {
+        PgUrl {
+            schema: None,
+            ..self.clone()
+        }
+    }
+}
+
+impl std::fmt::Display for PgUrl {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.shown)?;
+        match &self.schema {
+            Some(s) => write!(f, " (schema {s})"),
+            None => Ok(()),
+        }
+    }
+}
+
+impl std::fmt::Debug for PgUrl {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "PgUrl({self})")
+    }
+}
+
+/// Why the store could not do what was asked. Every sentence names the store: its file, or
+/// its URL with the password hidden.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum StoreError {
-    /// The store's directory could not be created.
-    #[error("cannot create the directory of the store {}", .path.display())]
+    /// The store's directory (or the file, for its size) could not be reached.
+    #[error("cannot create or read the store {store}")]
     Io {
-        /// The store file.
-        path: PathBuf,
+        /// The store.
+        store: String,
         /// What the system said.
         source: std::io::Error,
     },
     /// SQLite failed (disk full, locked beyond the busy timeout, a constraint refused a row...).
-    #[error("SQLite failed on the store {}", .path.display())]
+    #[error("SQLite failed on the store {store}")]
     Sqlite {
-        /// The store file.
-        path: PathBuf,
+        /// The store.
+        store: String,
         /// What SQLite said.
         source: rusqlite::Error,
     },
-    /// The file was written by a newer program: its schema is unknown here, so it is left alone.
+    /// PostgreSQL failed (no server there, refused login, a constraint refused a row, the
+    /// connection cut...).
+    #[error("PostgreSQL failed on the store {store}")]
+    Postgres {
+        /// The store.
+        store: String,
+        /// What the client or the server said.
+        source: postgres::Error,
+    },
+    /// The store was written by a newer program: its schema is unknown here, so it is left
+    /// alone.
     #[error(
-        "the store {} has schema version {found}, newer than the {known} this program knows: \
-         use the newer program (or another store file)",
-        .path.display()
+        "the store {store} has schema version {found}, newer than the {known} this program \
+         knows: use the newer program (or another store)"
     )]
     NewerSchema {
-        /// The store file.
-        path: PathBuf,
-        /// Its `user_version`.
+        /// The store.
+        store: String,
+        /// Its version.
         found: u32,
         /// [`SCHEMA_VERSION`].
         known: u32,
     },
-    /// The file is damaged (or is not an SQLite database at all).
-    #[error("the store {} is damaged: {why}", .path.display())]
+    /// The store is damaged (or is not an SQLite database at all), or breaks its own rules.
+    #[error("the store {store} is damaged: {why}")]
     Corrupt {
-        /// The store file.
-        path: PathBuf,
-        /// What SQLite's checks (or SQLite itself) said.
+        /// The store.
+        store: String,
+        /// What the checks (or the database itself) said.
         why: String,
     },
-    /// A board with this run id is already stored: a board is never stored twice.
-    #[error("the store {} already holds a board of run id {run_id:016x}", .path.display())]
+    /// A board with this run id is already stored for this line: a board is never stored
+    /// twice.
+    #[error("the store {store} already holds a board of run id {run_id:016x} of line {line}")]
     Duplicate {
-        /// The store file.
-        path: PathBuf,
+        /// The store.
+        store: String,
+        /// The line.
+        line: String,
         /// The run id.
         run_id: u64,
     },
     /// No board has this id.
-    #[error("the store {} has no board {id}", .path.display())]
+    #[error("the store {store} has no board {id}")]
     UnknownBoard {
-        /// The store file.
-        path: PathBuf,
+        /// The store.
+        store: String,
         /// The board id asked for.
         id: i64,
     },
     /// The board was already finished: a finished board is never rewritten.
-    #[error("board {id} of the store {} is already {state}, not open: a finished board is never rewritten", .path.display())]
+    #[error(
+        "board {id} of the store {store} is already {state}, not open: a finished board is \
+         never rewritten"
+    )]
     NotOpen {
-        /// The store file.
-        path: PathBuf,
+        /// The store.
+        store: String,
         /// The board id.
         id: i64,
         /// Its state (`inspected` or `incomplete`).
         state: String,
     },
+    /// Another service holds this line on the store (PostgreSQL).
+    #[error(
+        "line {line} is in use on the store {store}: another `dpsa line run` serves a line of \
+         that name there; give each line its own `line` name in its LINE.toml"
+    )]
+    LineInUse {
+        /// The store.
+        store: String,
+        /// The line.
+        line: String,
+    },
     /// A value the caller gave was refused before anything was written.
-    #[error("the store {} refused a value: {why}", .path.display())]
+    #[error("the store {store} refused a value: {why}")]
     Invalid {
-        /// The store file.
-        path: PathBuf,
+        /// The store.
+        store: String,
         /// Which value, and why.
         why: String,
     },
 }
-
 /// A board the line began.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct BoardStart {
-    /// The line's run id; stored as 16 lowercase hex digits, unique.
+    /// The line's run id; stored as 16 lowercase hex digits, unique per line.
     pub run_id: u64,
     /// The product (board type) name.
     pub product: String,
@@ -453,6 +653,8 @@ pub struct StoredBoard {
     /// The line's run id.
     #[serde(serialize_with = "hex_id")]
     pub run_id: u64,
+    /// The line that began it.
+    pub line: String,
     /// The product name.
     pub product: String,
     /// Hash of the inspection program.
@@ -480,198 +682,131 @@ pub struct StoredBoard {
 /// volume_pct)`.
 pub type HistoryEntry = (i64, u64, String, Option<f64>);
 
-/// The line's store: one SQLite connection to one file.
-#[derive(Debug)]
-pub struct Store {
-    conn: Connection,
-    path: PathBuf,
-}
-
-/// Maps an SQLite error to a [`StoreError`] of the file `path`: a damaged file (or one that is
-/// no database) becomes [`StoreError::Corrupt`].
-fn sql_err(path: &Path, source: rusqlite::Error) -> StoreError {
-    use rusqlite::ErrorCode::{DatabaseCorrupt, NotADatabase};
-    match source.sqlite_error_code() {
-        Some(DatabaseCorrupt | NotADatabase) => StoreError::Corrupt {
-            path: path.to_owned(),
-            why: source.to_string(),
-        },
-        _ => StoreError::Sqlite {
-            path: path.to_owned(),
-            source,
-        },
-    }
-}
-
-/// `PRAGMA user_version`, which must be a version (not negative).
-fn user_version(conn: &Connection, path: &Path) -> Result<u32, StoreError> {
-    let v: i64 = conn
-        .pragma_query_value(None, "user_version", |r| r.get(0))
-        .map_err(|e| sql_err(path, e))?;
-    u32::try_from(v).map_err(|_| StoreError::Corrupt {
-        path: path.to_owned(),
-        why: format!("its schema version (user_version) is {v}"),
-    })
-}
-
 /// A run id as stored: 16 lowercase hex digits.
 fn run_id_text(run_id: u64) -> String {
     format!("{run_id:016x}")
 }
 
 /// A stored run id back to its number.
-fn parse_run_id(path: &Path, text: &str) -> Result<u64, StoreError> {
+fn parse_run_id(store: &str, text: &str) -> Result<u64, StoreError> {
     match u64::from_str_radix(text, 16) {
         Ok(v) if text.len() == 16 => Ok(v),
         _ => Err(StoreError::Corrupt {
-            path: path.to_owned(),
+            store: store.to_owned(),
             why: format!("a board's run id is {text:?}, not 16 hex digits"),
         }),
     }
 }
 
-/// NaN (a measurement that could not be made) becomes `None`, so NULL: never a NaN in the file.
+/// NaN (a measurement that could not be made) becomes `None`, so NULL: never a NaN stored.
 fn real(v: Option<f64>) -> Option<f64> {
     v.filter(|x| !x.is_nan())
 }
 
-/// Is `e` a UNIQUE (or primary key) constraint refusing a row?
-fn is_unique_violation(e: &rusqlite::Error) -> bool {
-    e.sqlite_error().is_some_and(|f| {
-        f.extended_code == rusqlite::ffi::SQLITE_CONSTRAINT_UNIQUE
-            || f.extended_code == rusqlite::ffi::SQLITE_CONSTRAINT_PRIMARYKEY
-    })
-}
-
 const LEVELS: [&str; 3] = ["pass", "warn", "fail"];
 
-const INSERT_PAD: &str = "INSERT INTO pads (board_id, pad, name, level, class, volume_um3, volume_pct, \
-     area_mm2, area_pct, height_um, height_pct, offset_x_um, offset_y_um, coverage, uncertainty_um3) \
-     VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)";
+/// The two connections. (PostgreSQL's client, its statements and its URL are the larger:
+/// boxed, as a store is opened once and moved about.)
+#[derive(Debug)]
+enum Db {
+    Sqlite(sqlite::Sqlite),
+    Postgres(Box<pg::Pg>),
+}
 
-/// Adds board `?2`'s pads (of product `?1`) that have a volume to the running aggregates.
-const UPSERT_PAD_STATS: &str = "INSERT INTO pad_stats (product, pad, boards, sum_volume_pct, \
-     sum_sq_volume_pct, fails, warns, last_board_id) \
-     SELECT ?1, pad, 1, volume_pct, volume_pct * volume_pct, level = 'fail', level = 'warn', board_id \
-     FROM pads WHERE board_id = ?2 AND volume_pct IS NOT NULL \
-     ON CONFLICT (product, pad) DO UPDATE SET \
-     boards = boards + 1, \
-     sum_volume_pct = sum_volume_pct + excluded.sum_volume_pct, \
-     sum_sq_volume_pct = sum_sq_volume_pct + excluded.sum_sq_volume_pct, \
-     fails = fails + excluded.fails, \
-     warns = warns + excluded.warns, \
-     last_board_id = excluded.last_board_id";
+/// Calls the same method of whichever backend the store is on.
+macro_rules! on_backend {
+    ($db:expr, $b:ident => $call:expr) => {
+        match $db {
+            Db::Sqlite($b) => $call,
+            Db::Postgres($b) => $call,
+        }
+    };
+}
+
+/// The line's store: one connection to an SQLite file or a PostgreSQL database, for one line.
+#[derive(Debug)]
+pub struct Store {
+    db: Db,
+    location: Location,
+    line: String,
+}
 
 impl Store {
-    /// Opens the store at `path`, creating it (and its parent directory) if it does not exist,
-    /// and brings its schema up to [`SCHEMA_VERSION`] by migrations (`PRAGMA user_version`;
-    /// each migration in its own transaction, so a store is always at one version or the
-    /// next). A store of a newer schema is refused ([`StoreError::NewerSchema`]) and left
-    /// untouched; a file that is no SQLite database is [`StoreError::Corrupt`].
+    /// Opens the store at `location` for line `line`, creating it if it does not exist (an
+    /// SQLite file and its directory; on PostgreSQL the tables, in a database that must
+    /// exist), and brings its schema up to [`SCHEMA_VERSION`] by migrations (see the module
+    /// documentation). A store of a newer schema is refused ([`StoreError::NewerSchema`]) and
+    /// left untouched; a file that is no SQLite database is [`StoreError::Corrupt`]; a line
+    /// name [`check_line_name`] refuses is [`StoreError::Invalid`].
     ///
-    /// The connection is in WAL mode with `synchronous = NORMAL`, foreign keys on and a busy
-    /// timeout of 10 s. `NORMAL` does not sync the disk at every commit, only when the WAL is
-    /// checkpointed into the database; with WAL that is safe: a commit appends its pages to
-    /// the WAL and a crash or power cut can lose at most the last transactions not yet synced
-    /// (each one whole, never half), never corrupt the file. For the line that means the last
-    /// boards of a power cut may be missing, and [`Store::recover`] finds the ones left open.
-    pub fn open(path: &Path) -> Result<Store, StoreError> {
-        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(dir).map_err(|source| StoreError::Io {
-                path: path.to_owned(),
-                source,
-            })?;
-        }
-        Self::open_with(path, MIGRATIONS)
+    /// SQLite: WAL mode with `synchronous = NORMAL`, foreign keys on, a busy timeout of 10 s;
+    /// a crash or power cut can lose the last transactions not yet synced (each one whole,
+    /// never half), never corrupt the file, and [`Store::recover`] finds the boards left open.
+    /// PostgreSQL: the server's own durability (`synchronous_commit`); a connection found
+    /// closed is opened again before the next call.
+    pub fn open(location: &Location, line: &str) -> Result<Store, StoreError> {
+        Self::open_with(location, line, MIGRATIONS)
     }
 
-    /// [`Store::open`] with another list of migrations (the benchmark compares schemas).
-    fn open_with(path: &Path, migrations: &[&str]) -> Result<Store, StoreError> {
-        let err = |e| sql_err(path, e);
-        let mut conn = Connection::open(path).map_err(err)?;
-        conn.busy_timeout(BUSY_TIMEOUT).map_err(err)?;
-        let known = migrations.len() as u32;
-        let found = user_version(&conn, path)?;
-        if found > known {
-            return Err(StoreError::NewerSchema {
-                path: path.to_owned(),
-                found,
-                known,
-            });
-        }
-        let mode: String = conn
-            .pragma_update_and_check(None, "journal_mode", "WAL", |r| r.get(0))
-            .map_err(err)?;
-        if !mode.eq_ignore_ascii_case("wal") {
-            return Err(StoreError::Invalid {
-                path: path.to_owned(),
-                why: format!("SQLite could not put it in WAL mode (journal mode is {mode})"),
-            });
-        }
-        conn.pragma_update(None, "synchronous", "NORMAL")
-            .map_err(err)?;
-        conn.pragma_update(None, "foreign_keys", "ON")
-            .map_err(err)?;
-        conn.set_prepared_statement_cache_capacity(32);
-        if found < known {
-            Self::migrate(&mut conn, path, migrations)?;
-        }
+    /// [`Store::open`] with another list of migrations (the benchmark compares schemas; tests
+    /// make stores of an older version).
+    fn open_with(
+        location: &Location,
+        line: &str,
+        migrations: &[Step],
+    ) -> Result<Store, StoreError> {
+        check_line_name(line).map_err(|why| StoreError::Invalid {
+            store: location.to_string(),
+            why: format!("line: {why}"),
+        })?;
+        let db = match location {
+            Location::Sqlite(path) => Db::Sqlite(sqlite::Sqlite::open(path, migrations)?),
+            Location::Postgres(url) => Db::Postgres(Box::new(pg::Pg::open(url, migrations)?)),
+        };
         Ok(Store {
-            conn,
-            path: path.to_owned(),
+            db,
+            location: location.clone(),
+            line: line.to_owned(),
         })
     }
 
-    /// Applies the migrations the store lacks, one transaction each. The version is read
-    /// again inside each (write-locked) transaction, so two programs opening a new store at
-    /// once do not both migrate it.
-    fn migrate(conn: &mut Connection, path: &Path, migrations: &[&str]) -> Result<(), StoreError> {
-        let err = |e| sql_err(path, e);
-        let known = migrations.len() as u32;
-        loop {
-            let tx = conn
-                .transaction_with_behavior(TransactionBehavior::Immediate)
-                .map_err(err)?;
-            let v = user_version(&tx, path)?;
-            if v > known {
-                return Err(StoreError::NewerSchema {
-                    path: path.to_owned(),
-                    found: v,
-                    known,
-                });
-            }
-            if v == known {
-                return tx.commit().map_err(err);
-            }
-            tx.execute_batch(migrations[v as usize]).map_err(err)?;
-            tx.pragma_update(None, "user_version", v + 1).map_err(err)?;
-            tx.commit().map_err(err)?;
+    /// Where the store is.
+    pub fn location(&self) -> &Location {
+        &self.location
+    }
+
+    /// The line this store was opened for.
+    pub fn line(&self) -> &str {
+        &self.line
+    }
+
+    /// The store's schema version: [`SCHEMA_VERSION`] once open.
+    pub fn schema_version(&mut self) -> Result<u32, StoreError> {
+        on_backend!(&mut self.db, d => d.schema_version())
+    }
+
+    /// Claims the line for this connection, for as long as the store is open: on PostgreSQL a
+    /// session advisory lock on the line's name, so that a second service of the same line
+    /// (two hosts left at the default name) is refused ([`StoreError::LineInUse`]) before its
+    /// [`Store::recover`] turns the first one's open boards incomplete. On SQLite nothing (a
+    /// file is one host's, whose ports the second service could not take anyway).
+    pub fn claim_line(&mut self) -> Result<(), StoreError> {
+        match &mut self.db {
+            Db::Sqlite(_) => Ok(()),
+            Db::Postgres(d) => d.claim_line(&self.line),
         }
-    }
-
-    /// The store's file.
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-
-    /// The store's schema version (`PRAGMA user_version`): [`SCHEMA_VERSION`] once open.
-    pub fn schema_version(&self) -> Result<u32, StoreError> {
-        user_version(&self.conn, &self.path)
-    }
-
-    fn err(&self) -> impl Fn(rusqlite::Error) -> StoreError + '_ {
-        |e| sql_err(&self.path, e)
     }
 
     fn invalid(&self, why: String) -> StoreError {
         StoreError::Invalid {
-            path: self.path.clone(),
+            store: self.location.to_string(),
             why,
         }
     }
 
-    /// A board the line began: a row in state `open`. Returns its id. A run id already stored
-    /// is refused ([`StoreError::Duplicate`]): a board is never stored twice.
+    /// A board the line began: a row in state `open`, of this store's line. Returns its id.
+    /// A run id already stored for this line is refused ([`StoreError::Duplicate`]): a board
+    /// is never stored twice.
     pub fn begin_board(&mut self, b: &BoardStart) -> Result<i64, StoreError> {
         if !b.started_unix_s.is_finite() {
             return Err(self.invalid(format!(
@@ -679,45 +814,47 @@ impl Store {
                 b.run_id, b.started_unix_s
             )));
         }
-        let result = self
-            .conn
-            .prepare_cached(
-                "INSERT INTO boards (run_id, product, program_hash, calibration_hash, \
-                 started_unix_s, state) VALUES (?1, ?2, ?3, ?4, ?5, 'open')",
-            )
-            .and_then(|mut s| {
-                s.execute(params![
-                    run_id_text(b.run_id),
-                    b.product,
-                    b.program_hash,
-                    b.calibration_hash,
-                    b.started_unix_s
-                ])
-            });
-        match result {
-            Ok(_) => Ok(self.conn.last_insert_rowid()),
-            Err(e) if is_unique_violation(&e) => Err(StoreError::Duplicate {
-                path: self.path.clone(),
-                run_id: b.run_id,
-            }),
-            Err(e) => Err(sql_err(&self.path, e)),
-        }
+        on_backend!(&mut self.db, d => d.begin_board(&self.line, b))
     }
 
-    /// Refuses, before anything is written, what a CHECK would refuse less clearly.
+    /// Refuses, before anything is written, what a CHECK would refuse less clearly, and what
+    /// one of the backends could not hold (a pad index or count past 2^31 - 1: PostgreSQL's
+    /// INTEGER; a count past 2^63 - 1: either's 64 bits).
     fn validate_finish(
         &self,
         id: i64,
         ended_unix_s: f64,
+        cameras: &[CameraLoss],
         outcome: &Outcome,
     ) -> Result<(), StoreError> {
         if !ended_unix_s.is_finite() {
             return Err(self.invalid(format!("board {id} ended at {ended_unix_s} s")));
         }
+        for c in cameras {
+            for (what, v) in [
+                ("rows", c.rows),
+                ("missing rows", c.missing_rows),
+                ("missing packets", c.missing_packets),
+                ("damaged packets", c.damaged_packets),
+            ] {
+                if i64::try_from(v).is_err() {
+                    return Err(self.invalid(format!(
+                        "board {id}, camera {}: {v} {what} is more than 2^63 - 1",
+                        c.camera
+                    )));
+                }
+            }
+        }
         if let Outcome::Inspected { verdict, pads } = outcome {
             if !LEVELS.contains(&verdict.as_str()) {
                 return Err(self.invalid(format!(
                     "board {id}: verdict {verdict:?} is none of pass, warn, fail"
+                )));
+            }
+            if i32::try_from(pads.len()).is_err() {
+                return Err(self.invalid(format!(
+                    "board {id}: {} pads is more than 2^31 - 1",
+                    pads.len()
                 )));
             }
             for p in pads {
@@ -733,6 +870,12 @@ impl Store {
                         p.pad, p.name, p.coverage
                     )));
                 }
+                if i32::try_from(p.pad).is_err() {
+                    return Err(self.invalid(format!(
+                        "board {id}, pad {} ({}): a pad index past 2^31 - 1",
+                        p.pad, p.name
+                    )));
+                }
             }
         }
         Ok(())
@@ -740,8 +883,8 @@ impl Store {
 
     /// Ends board `id` in one transaction: its state, verdict or reason, end time, the
     /// cameras' loss rows and, for an inspected board, every pad row, a `defects` row per pad
-    /// whose level is `fail` or `warn`, and the pads' running aggregates (`pad_stats`). If
-    /// anything fails, nothing is written and the board stays open.
+    /// whose level is `fail` or `warn`, and the pads' running aggregates of this store's line
+    /// (`pad_stats`). If anything fails, nothing is written and the board stays open.
     ///
     /// Ending a board that is not open is refused ([`StoreError::NotOpen`]): a finished board
     /// is never rewritten. So are an unknown id, a verdict or level other than `pass`, `warn`,
@@ -753,384 +896,220 @@ impl Store {
         cameras: &[CameraLoss],
         outcome: &Outcome,
     ) -> Result<(), StoreError> {
-        self.validate_finish(id, ended_unix_s, outcome)?;
-        let path = self.path.as_path();
-        let err = |e| sql_err(path, e);
-        let tx = self
-            .conn
-            .transaction_with_behavior(TransactionBehavior::Immediate)
-            .map_err(err)?;
-        let row: Option<(String, String)> = tx
-            .prepare_cached("SELECT state, product FROM boards WHERE id = ?1")
-            .and_then(|mut s| s.query_row([id], |r| Ok((r.get(0)?, r.get(1)?))).optional())
-            .map_err(err)?;
-        let product = match row {
-            None => {
-                return Err(StoreError::UnknownBoard {
-                    path: path.to_owned(),
-                    id,
-                })
-            }
-            Some((state, _)) if state != "open" => {
-                return Err(StoreError::NotOpen {
-                    path: path.to_owned(),
-                    id,
-                    state,
-                })
-            }
-            Some((_, product)) => product,
-        };
-        {
-            let mut s = tx
-                .prepare_cached(
-                    "INSERT INTO board_cameras (board_id, camera, rows, missing_rows, \
-                     missing_packets, damaged_packets) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
-                )
-                .map_err(err)?;
-            for c in cameras {
-                s.execute(params![
-                    id,
-                    c.camera,
-                    c.rows,
-                    c.missing_rows,
-                    c.missing_packets,
-                    c.damaged_packets
-                ])
-                .map_err(err)?;
-            }
-        }
-        match outcome {
-            Outcome::Inspected { verdict, pads } => {
-                {
-                    let mut s = tx.prepare_cached(INSERT_PAD).map_err(err)?;
-                    for p in pads {
-                        s.execute(params![
-                            id,
-                            p.pad,
-                            p.name,
-                            p.level,
-                            p.class,
-                            real(p.volume_um3),
-                            real(p.volume_pct),
-                            real(p.area_mm2),
-                            real(p.area_pct),
-                            real(p.height_um),
-                            real(p.height_pct),
-                            real(p.offset_x_um),
-                            real(p.offset_y_um),
-                            p.coverage,
-                            real(p.uncertainty_um3),
-                        ])
-                        .map_err(err)?;
-                    }
-                    let mut s = tx
-                        .prepare_cached(
-                            "INSERT INTO defects (board_id, pad, level, class) \
-                             VALUES (?1, ?2, ?3, ?4)",
-                        )
-                        .map_err(err)?;
-                    for p in pads.iter().filter(|p| p.level != "pass") {
-                        s.execute(params![id, p.pad, p.level, p.class])
-                            .map_err(err)?;
-                    }
-                    tx.prepare_cached(UPSERT_PAD_STATS)
-                        .and_then(|mut s| s.execute(params![product, id]))
-                        .map_err(err)?;
-                }
-                tx.prepare_cached(
-                    "UPDATE boards SET state = 'inspected', verdict = ?2, ended_unix_s = ?3, \
-                     pads = ?4 WHERE id = ?1",
-                )
-                .and_then(|mut s| s.execute(params![id, verdict, ended_unix_s, pads.len()]))
-                .map_err(err)?;
-            }
-            Outcome::Incomplete { reason } => {
-                tx.prepare_cached(
-                    "UPDATE boards SET state = 'incomplete', incomplete_reason = ?2, \
-                     ended_unix_s = ?3 WHERE id = ?1",
-                )
-                .and_then(|mut s| s.execute(params![id, reason, ended_unix_s]))
-                .map_err(err)?;
-            }
-        }
-        tx.commit().map_err(err)
+        self.validate_finish(id, ended_unix_s, cameras, outcome)?;
+        on_backend!(&mut self.db, d => d.finish_board(&self.line, id, ended_unix_s, cameras, outcome))
     }
 
-    /// After a restart: every board still open (the service died in it) becomes `incomplete`
-    /// with `reason`, ended at `now_unix_s`. Returns their run ids, oldest first. Finished
-    /// boards are left alone.
+    /// After a restart: every board of this store's line still open (the service died in
+    /// it) becomes `incomplete` with `reason`, ended at `now_unix_s`. Returns their run ids,
+    /// oldest first. Finished boards, and the open boards of other lines (in progress there),
+    /// are left alone.
     pub fn recover(&mut self, reason: &str, now_unix_s: f64) -> Result<Vec<u64>, StoreError> {
         if !now_unix_s.is_finite() {
             return Err(self.invalid(format!("recovery at {now_unix_s} s")));
         }
-        let path = self.path.as_path();
-        let err = |e| sql_err(path, e);
-        let tx = self
-            .conn
-            .transaction_with_behavior(TransactionBehavior::Immediate)
-            .map_err(err)?;
-        let texts: Vec<String> = {
-            let mut s = tx
-                .prepare("SELECT run_id FROM boards WHERE state = 'open' ORDER BY id")
-                .map_err(err)?;
-            let rows = s.query_map([], |r| r.get(0)).map_err(err)?;
-            rows.collect::<Result<_, _>>().map_err(err)?
-        };
-        tx.execute(
-            "UPDATE boards SET state = 'incomplete', incomplete_reason = ?1, ended_unix_s = ?2 \
-             WHERE state = 'open'",
-            params![reason, now_unix_s],
-        )
-        .map_err(err)?;
-        tx.commit().map_err(err)?;
-        texts.iter().map(|t| parse_run_id(path, t)).collect()
+        on_backend!(&mut self.db, d => d.recover(&self.line, reason, now_unix_s))
     }
 
-    /// Checks the file: `PRAGMA integrity_check` (every page, every index) and `PRAGMA
-    /// foreign_key_check`. `Ok(())`, or [`StoreError::Corrupt`] with what they said. Reads the
-    /// whole file: seconds for a store of gigabytes.
-    pub fn check(&self) -> Result<(), StoreError> {
-        let corrupt = |why: String| StoreError::Corrupt {
-            path: self.path.clone(),
-            why,
-        };
-        let said: Vec<String> = {
-            let mut s = self
-                .conn
-                .prepare("PRAGMA integrity_check(20)")
-                .map_err(self.err())?;
-            let rows = s.query_map([], |r| r.get(0)).map_err(self.err())?;
-            rows.collect::<Result<_, _>>().map_err(self.err())?
-        };
-        if said != ["ok"] {
-            return Err(corrupt(format!("integrity check: {}", said.join("; "))));
-        }
-        let orphans: Vec<(String, String)> = {
-            let mut s = self
-                .conn
-                .prepare("PRAGMA foreign_key_check")
-                .map_err(self.err())?;
-            let rows = s
-                .query_map([], |r| Ok((r.get(0)?, r.get(2)?)))
-                .map_err(self.err())?;
-            rows.collect::<Result<_, _>>().map_err(self.err())?
-        };
-        if let Some((table, parent)) = orphans.first() {
-            return Err(corrupt(format!(
-                "foreign key check: {} row(s) refer to missing rows, the first of table {table} \
-                 to a missing row of {parent}",
-                orphans.len()
-            )));
-        }
-        Ok(())
+    /// Checks the whole store (every line's rows; see "Checks" in the module documentation).
+    /// `Ok(())`, or [`StoreError::Corrupt`] with what was found. Reads every pad row: seconds
+    /// for a store of gigabytes.
+    pub fn check(&mut self) -> Result<(), StoreError> {
+        on_backend!(&mut self.db, d => d.check())
     }
 
-    /// The boards, newest (last begun) first, at most `limit`.
-    pub fn boards(&self, limit: usize) -> Result<Vec<StoredBoard>, StoreError> {
-        let limit = i64::try_from(limit).unwrap_or(i64::MAX);
-        let mut s = self
-            .conn
-            .prepare_cached(
-                "SELECT id, run_id, product, program_hash, calibration_hash, started_unix_s, \
-                 ended_unix_s, state, verdict, incomplete_reason, pads \
-                 FROM boards ORDER BY id DESC LIMIT ?1",
-            )
-            .map_err(self.err())?;
-        let rows = s
-            .query_map([limit], |r| {
-                Ok((
-                    r.get::<_, String>(1)?,
-                    StoredBoard {
-                        id: r.get(0)?,
-                        run_id: 0,
-                        product: r.get(2)?,
-                        program_hash: r.get(3)?,
-                        calibration_hash: r.get(4)?,
-                        started_unix_s: r.get(5)?,
-                        ended_unix_s: r.get(6)?,
-                        state: r.get(7)?,
-                        verdict: r.get(8)?,
-                        incomplete_reason: r.get(9)?,
-                        pads: r.get(10)?,
-                        cameras: Vec::new(),
-                    },
-                ))
-            })
-            .map_err(self.err())?;
-        let mut boards = Vec::new();
-        for row in rows {
-            let (run_id, mut board) = row.map_err(self.err())?;
-            board.run_id = parse_run_id(&self.path, &run_id)?;
-            board.cameras = self.cameras(board.id)?;
-            boards.push(board);
-        }
-        Ok(boards)
+    /// This line's boards, newest (last begun) first, at most `limit`.
+    pub fn boards(&mut self, limit: usize) -> Result<Vec<StoredBoard>, StoreError> {
+        on_backend!(&mut self.db, d => d.boards(&self.line, limit))
     }
 
-    /// Board `board_id`'s camera losses, in camera order.
-    fn cameras(&self, board_id: i64) -> Result<Vec<CameraLoss>, StoreError> {
-        let mut s = self
-            .conn
-            .prepare_cached(
-                "SELECT camera, rows, missing_rows, missing_packets, damaged_packets \
-                 FROM board_cameras WHERE board_id = ?1 ORDER BY camera",
-            )
-            .map_err(self.err())?;
-        let rows = s
-            .query_map([board_id], |r| {
-                Ok(CameraLoss {
-                    camera: r.get(0)?,
-                    rows: r.get(1)?,
-                    missing_rows: r.get(2)?,
-                    missing_packets: r.get(3)?,
-                    damaged_packets: r.get(4)?,
-                })
-            })
-            .map_err(self.err())?;
-        rows.collect::<Result<_, _>>().map_err(self.err())
+    /// One board's pads in pad order (none for a board not inspected, or pruned); the board
+    /// may be any line's. An unknown board is [`StoreError::UnknownBoard`].
+    pub fn pads(&mut self, board_id: i64) -> Result<Vec<PadRow>, StoreError> {
+        on_backend!(&mut self.db, d => d.pads(board_id))
     }
 
-    /// One board's pads in pad order (none for a board not inspected, or pruned). An unknown
-    /// board is [`StoreError::UnknownBoard`].
-    pub fn pads(&self, board_id: i64) -> Result<Vec<PadRow>, StoreError> {
-        let known = self
-            .conn
-            .prepare_cached("SELECT 1 FROM boards WHERE id = ?1")
-            .and_then(|mut s| s.exists([board_id]))
-            .map_err(self.err())?;
-        if !known {
-            return Err(StoreError::UnknownBoard {
-                path: self.path.clone(),
-                id: board_id,
-            });
-        }
-        let mut s = self
-            .conn
-            .prepare_cached(
-                "SELECT pad, name, level, class, volume_um3, volume_pct, area_mm2, area_pct, \
-                 height_um, height_pct, offset_x_um, offset_y_um, coverage, uncertainty_um3 \
-                 FROM pads WHERE board_id = ?1 ORDER BY pad",
-            )
-            .map_err(self.err())?;
-        let rows = s
-            .query_map([board_id], |r| {
-                Ok(PadRow {
-                    pad: r.get(0)?,
-                    name: r.get(1)?,
-                    level: r.get(2)?,
-                    class: r.get(3)?,
-                    volume_um3: r.get(4)?,
-                    volume_pct: r.get(5)?,
-                    area_mm2: r.get(6)?,
-                    area_pct: r.get(7)?,
-                    height_um: r.get(8)?,
-                    height_pct: r.get(9)?,
-                    offset_x_um: r.get(10)?,
-                    offset_y_um: r.get(11)?,
-                    coverage: r.get(12)?,
-                    uncertainty_um3: r.get(13)?,
-                })
-            })
-            .map_err(self.err())?;
-        rows.collect::<Result<_, _>>().map_err(self.err())
-    }
-
-    /// A pad's history: `(board id, run id, level, volume_pct)` of pad index `pad` of
-    /// `product` over the last `boards` inspected boards, newest first. Boards whose pad rows
-    /// were pruned, or that had no pad of that index, give no entry.
+    /// A pad's history on this line: `(board id, run id, level, volume_pct)` of pad index
+    /// `pad` of `product` over the line's last `boards` inspected boards, newest first. Boards
+    /// whose pad rows were pruned, or that had no pad of that index, give no entry.
     pub fn pad_history(
-        &self,
+        &mut self,
         product: &str,
         pad: u32,
         boards: usize,
     ) -> Result<Vec<HistoryEntry>, StoreError> {
-        let limit = i64::try_from(boards).unwrap_or(i64::MAX);
-        let mut s = self
-            .conn
-            .prepare_cached(
-                "SELECT b.id, b.run_id, p.level, p.volume_pct \
-                 FROM (SELECT id, run_id FROM boards \
-                       WHERE product = ?1 AND state = 'inspected' ORDER BY id DESC LIMIT ?3) AS b \
-                 JOIN pads AS p ON p.board_id = b.id AND p.pad = ?2 \
-                 ORDER BY b.id DESC",
-            )
-            .map_err(self.err())?;
-        let rows = s
-            .query_map(params![product, pad, limit], |r| {
-                Ok((
-                    r.get::<_, i64>(0)?,
-                    r.get::<_, String>(1)?,
-                    r.get::<_, String>(2)?,
-                    r.get::<_, Option<f64>>(3)?,
-                ))
-            })
-            .map_err(self.err())?;
-        let mut out = Vec::new();
-        for row in rows {
-            let (id, run_id, level, volume_pct) = row.map_err(self.err())?;
-            out.push((id, parse_run_id(&self.path, &run_id)?, level, volume_pct));
-        }
-        Ok(out)
+        on_backend!(&mut self.db, d => d.pad_history(&self.line, product, pad, boards))
     }
 
-    /// Retention: deletes the pad and defect rows of the boards that ended before
-    /// `before_unix_s`; the boards' rows, their cameras and the per-pad running aggregates stay.
-    /// Returns the pad rows deleted. Works in transactions of 50 boards, so that the line's
-    /// own writes never wait long; the freed pages are reused by later boards (the file does
-    /// not shrink). Only the boards from the oldest one that still has pads on are looked at,
-    /// so a daily prune costs the boards of the retention window, not of the store's life.
+    /// Retention: deletes the pad and defect rows of this line's boards that ended before
+    /// `before_unix_s`; the boards' rows, their cameras and the per-pad running aggregates
+    /// stay. Returns the pad rows deleted. Works in transactions of 50 boards, so that the
+    /// line's own writes never wait long; the freed space is reused by later boards (an
+    /// SQLite file does not shrink; PostgreSQL reuses it once vacuumed, which its autovacuum
+    /// does). Only the boards from the oldest one that still has pads on are looked at, so a
+    /// daily prune costs the boards of the retention window, not of the store's life.
     pub fn prune_pads(&mut self, before_unix_s: f64) -> Result<u64, StoreError> {
         if before_unix_s.is_nan() {
             return Err(self.invalid("pruning before NaN s".to_owned()));
         }
-        let path = self.path.as_path();
-        let err = |e| sql_err(path, e);
-        let ids: Vec<i64> = {
-            let mut s = self
-                .conn
-                .prepare(
-                    "SELECT id FROM boards \
-                     WHERE id >= (SELECT min(board_id) FROM pads) AND ended_unix_s < ?1 \
-                     AND EXISTS (SELECT 1 FROM pads WHERE board_id = boards.id) ORDER BY id",
-                )
-                .map_err(err)?;
-            let rows = s.query_map([before_unix_s], |r| r.get(0)).map_err(err)?;
-            rows.collect::<Result<_, _>>().map_err(err)?
-        };
-        let mut deleted = 0u64;
-        for chunk in ids.chunks(PRUNE_BOARDS_PER_TRANSACTION) {
-            let tx = self
-                .conn
-                .transaction_with_behavior(TransactionBehavior::Immediate)
-                .map_err(err)?;
-            {
-                let mut defects = tx
-                    .prepare_cached("DELETE FROM defects WHERE board_id = ?1")
-                    .map_err(err)?;
-                let mut pads = tx
-                    .prepare_cached("DELETE FROM pads WHERE board_id = ?1")
-                    .map_err(err)?;
-                for id in chunk {
-                    defects.execute([id]).map_err(err)?;
-                    deleted += pads.execute([id]).map_err(err)? as u64;
-                }
-            }
-            tx.commit().map_err(err)?;
-        }
-        Ok(deleted)
+        on_backend!(&mut self.db, d => d.prune_pads(&self.line, before_unix_s))
     }
 
-    /// Copies the WAL into the database and empties it (`PRAGMA wal_checkpoint(TRUNCATE)`).
-    fn checkpoint(&self) -> Result<(), StoreError> {
-        self.conn
-            .query_row("PRAGMA wal_checkpoint(TRUNCATE)", [], |_| Ok(()))
-            .map_err(self.err())
+    /// SQLite: copies the WAL into the database and empties it (`PRAGMA
+    /// wal_checkpoint(TRUNCATE)`). PostgreSQL: nothing (the server checkpoints itself).
+    fn checkpoint(&mut self) -> Result<(), StoreError> {
+        match &mut self.db {
+            Db::Sqlite(d) => d.checkpoint(),
+            Db::Postgres(_) => Ok(()),
+        }
+    }
+
+    /// The store's size in bytes and what was counted.
+    fn bytes(&mut self) -> Result<(u64, &'static str), StoreError> {
+        match (&mut self.db, &self.location) {
+            (Db::Sqlite(d), Location::Sqlite(path)) => {
+                Ok((d.bytes(path)?, "the database file and its WAL"))
+            }
+            (Db::Postgres(d), _) => Ok((
+                d.bytes()?,
+                "the tables with their indexes and TOAST (pg_total_relation_size)",
+            )),
+            (Db::Sqlite(_), Location::Postgres(_)) => {
+                Err(self.invalid("an SQLite connection to a PostgreSQL URL".to_owned()))
+            }
+        }
     }
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
+
+    /// A value of a row read by hand ([`Store::rows`]).
+    #[derive(Clone, Debug, PartialEq)]
+    pub(crate) enum Raw {
+        Null,
+        Int(i64),
+        Real(f64),
+        Text(String),
+    }
+
+    impl Raw {
+        fn int(&self) -> i64 {
+            match self {
+                Raw::Int(v) => *v,
+                other => panic!("{other:?} is no integer"),
+            }
+        }
+        fn real(&self) -> f64 {
+            match self {
+                Raw::Real(v) => *v,
+                Raw::Int(v) => *v as f64,
+                other => panic!("{other:?} is no number"),
+            }
+        }
+        fn text(&self) -> Option<&str> {
+            match self {
+                Raw::Text(t) => Some(t),
+                Raw::Null => None,
+                other => panic!("{other:?} is no text"),
+            }
+        }
+    }
+
+    impl Store {
+        /// Runs SQL by hand.
+        fn exec(&mut self, sql: &str) -> Result<(), StoreError> {
+            on_backend!(&mut self.db, d => d.exec_raw(sql))
+        }
+
+        /// The rows of SQL by hand.
+        fn rows(&mut self, sql: &str) -> Vec<Vec<Raw>> {
+            on_backend!(&mut self.db, d => d.query_raw(sql))
+                .unwrap_or_else(|e| panic!("{sql}: {e:#?}"))
+        }
+
+        /// The one integer SQL by hand gives.
+        fn int(&mut self, sql: &str) -> i64 {
+            self.rows(sql)[0][0].int()
+        }
+
+        fn dialect(&self) -> schema::Dialect {
+            match self.db {
+                Db::Sqlite(_) => schema::Dialect::Sqlite,
+                Db::Postgres(_) => schema::Dialect::Postgres,
+            }
+        }
+    }
+
+    #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+    pub(crate) enum Backend {
+        Sqlite,
+        Postgres,
+    }
+
+    /// Where a test's store is, and what keeps it (a temporary directory).
+    pub(crate) struct Place {
+        pub(crate) location: Location,
+        _dir: Option<tempfile::TempDir>,
+    }
+
+    /// A new, empty place for a store: a file in a fresh directory (in a subdirectory not made
+    /// yet), or a new database of the test server.
+    pub(crate) fn place(b: Backend) -> Place {
+        match b {
+            Backend::Sqlite => {
+                let dir = tempfile::tempdir().unwrap();
+                Place {
+                    location: Location::Sqlite(dir.path().join("sub").join("line.sqlite")),
+                    _dir: Some(dir),
+                }
+            }
+            Backend::Postgres => Place {
+                location: pg_test_server::database(),
+                _dir: None,
+            },
+        }
+    }
+
+    /// A fresh store of line `line-1`.
+    fn fresh(b: Backend) -> (Place, Store) {
+        let p = place(b);
+        let store = Store::open(&p.location, DEFAULT_LINE).unwrap();
+        (p, store)
+    }
+
+    /// Runs test function `name(Backend)` as two tests, `name::sqlite` and `name::postgres`.
+    macro_rules! both {
+        ($($name:ident),* $(,)?) => {$(
+            mod $name {
+                #[test]
+                fn sqlite() {
+                    super::$name(super::Backend::Sqlite)
+                }
+                #[test]
+                fn postgres() {
+                    super::$name(super::Backend::Postgres)
+                }
+            }
+        )*};
+    }
+
+    both!(
+        round_trip_of_a_board_with_pads_nan_becomes_none,
+        state_machine_refuses_what_would_rewrite_a_board,
+        recover_turns_open_boards_incomplete_and_leaves_finished_ones,
+        check_finds_rows_written_past_the_constraints,
+        pad_history_is_newest_first_and_only_inspected_boards,
+        prune_deletes_pads_and_keeps_boards_and_pad_stats,
+        a_newer_schema_is_refused,
+        opening_a_store_again_changes_nothing,
+        pad_stats_equal_sums_recomputed_from_the_pad_rows,
+        two_lines_share_one_store,
+        a_version_1_store_migrates_to_version_2,
+        programs_opening_a_new_store_at_once_migrate_it_once,
+        the_benchmark_runs_small,
+    );
 
     fn start(run_id: u64, product: &str, t: f64) -> BoardStart {
         BoardStart {
@@ -1184,13 +1163,6 @@ mod tests {
         ]
     }
 
-    /// A fresh store in a temporary directory (kept alive by the returned guard).
-    fn fresh() -> (tempfile::TempDir, Store) {
-        let dir = tempfile::tempdir().unwrap();
-        let store = Store::open(&dir.path().join("sub").join("line.sqlite")).unwrap();
-        (dir, store)
-    }
-
     /// Begins and inspects a board of `n` pads; pad `i`'s volume is `base + i`.
     fn inspect(store: &mut Store, run_id: u64, product: &str, n: u32, base: f64) -> i64 {
         let id = store
@@ -1213,9 +1185,16 @@ mod tests {
         id
     }
 
-    #[test]
-    fn round_trip_of_a_board_with_pads_nan_becomes_none() {
-        let (_dir, mut store) = fresh();
+    /// The store's name in its error sentences.
+    fn named(b: Backend) -> &'static str {
+        match b {
+            Backend::Sqlite => "line.sqlite",
+            Backend::Postgres => "postgres://postgres@127.0.0.1:",
+        }
+    }
+
+    fn round_trip_of_a_board_with_pads_nan_becomes_none(b: Backend) {
+        let (_p, mut store) = fresh(b);
         assert_eq!(store.schema_version().unwrap(), SCHEMA_VERSION);
         let id = store
             .begin_board(&start(0xdead_beef_0000_0001, "ctrl-b", 1000.25))
@@ -1250,21 +1229,20 @@ mod tests {
         want[2].volume_pct = None;
         want[2].height_um = None;
         assert_eq!(back, want);
-        let nan_stored: i64 = store
-            .conn
-            .query_row(
-                "SELECT count(*) FROM pads WHERE volume_pct != volume_pct",
-                [],
-                |r| r.get(0),
-            )
-            .unwrap();
-        assert_eq!(nan_stored, 0);
+        let nan = match b {
+            Backend::Sqlite => "SELECT count(*) FROM pads WHERE volume_pct != volume_pct",
+            Backend::Postgres => {
+                "SELECT count(*) FROM pads WHERE 'NaN' IN (volume_pct, volume_um3, height_um)"
+            }
+        };
+        assert_eq!(store.int(nan), 0);
         let board = &store.boards(10).unwrap()[0];
         assert_eq!(
             board,
             &StoredBoard {
                 id,
                 run_id: 0xdead_beef_0000_0001,
+                line: DEFAULT_LINE.to_owned(),
                 product: "ctrl-b".to_owned(),
                 program_hash: "a1b2c3".to_owned(),
                 calibration_hash: "d4e5f6".to_owned(),
@@ -1277,33 +1255,28 @@ mod tests {
                 cameras: cams(),
             }
         );
-        let run_id: String = store
-            .conn
-            .query_row("SELECT run_id FROM boards", [], |r| r.get(0))
-            .unwrap();
-        assert_eq!(run_id, "deadbeef00000001");
-        let defects: Vec<(u32, String, Option<String>)> = store
-            .conn
-            .prepare("SELECT pad, level, class FROM defects ORDER BY pad")
-            .unwrap()
-            .query_map([], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))
-            .unwrap()
-            .collect::<Result<_, _>>()
-            .unwrap();
+        assert_eq!(
+            store.rows("SELECT run_id, line FROM boards"),
+            [[
+                Raw::Text("deadbeef00000001".into()),
+                Raw::Text("line-1".into())
+            ]]
+        );
+        let defects = store.rows("SELECT pad, level, class FROM defects ORDER BY pad");
+        let t = |s: &str| Raw::Text(s.to_owned());
         assert_eq!(
             defects,
             [
-                (1, "warn".to_owned(), Some("insufficient".to_owned())),
-                (2, "fail".to_owned(), Some("not measurable".to_owned())),
-                (3, "fail".to_owned(), Some("not measurable".to_owned())),
+                [Raw::Int(1), t("warn"), t("insufficient")],
+                [Raw::Int(2), t("fail"), t("not measurable")],
+                [Raw::Int(3), t("fail"), t("not measurable")],
             ]
         );
         store.check().unwrap();
     }
 
-    #[test]
-    fn state_machine_refuses_what_would_rewrite_a_board() {
-        let (_dir, mut store) = fresh();
+    fn state_machine_refuses_what_would_rewrite_a_board(b: Backend) {
+        let (_p, mut store) = fresh(b);
         let id = store.begin_board(&start(7, "p", 1.0)).unwrap();
         // A run id is stored once.
         let dup = store.begin_board(&start(7, "p", 2.0)).unwrap_err();
@@ -1311,7 +1284,7 @@ mod tests {
             matches!(dup, StoreError::Duplicate { run_id: 7, .. }),
             "{dup}"
         );
-        assert!(dup.to_string().contains("line.sqlite"), "{dup}");
+        assert!(dup.to_string().contains(named(b)), "{dup}");
         // Invalid values are refused before anything is written, the board stays open.
         let bad_verdict = Outcome::Inspected {
             verdict: "ok".to_owned(),
@@ -1325,13 +1298,22 @@ mod tests {
         };
         let e = store.finish_board(id, 3.0, &[], &bad_level).unwrap_err();
         assert!(matches!(e, StoreError::Invalid { .. }), "{e}");
+        let huge_pad = Outcome::Inspected {
+            verdict: "pass".to_owned(),
+            pads: vec![pad(u32::MAX, "pass", Some(1.0))],
+        };
+        let e = store.finish_board(id, 3.0, &[], &huge_pad).unwrap_err();
+        assert!(matches!(e, StoreError::Invalid { .. }), "{e}");
         // A failure half way (two pads of one index) rolls the whole board back.
         let twice = Outcome::Inspected {
             verdict: "pass".to_owned(),
             pads: vec![pad(0, "pass", Some(1.0)), pad(0, "pass", Some(2.0))],
         };
         let e = store.finish_board(id, 3.0, &cams(), &twice).unwrap_err();
-        assert!(matches!(e, StoreError::Sqlite { .. }), "{e}");
+        assert!(
+            matches!(e, StoreError::Sqlite { .. } | StoreError::Postgres { .. }),
+            "{e}"
+        );
         assert_eq!(store.boards(1).unwrap()[0].state, "open");
         assert_eq!(store.boards(1).unwrap()[0].cameras, []);
         assert_eq!(store.pads(id).unwrap(), []);
@@ -1340,12 +1322,12 @@ mod tests {
             reason: "camera 1 silent".to_owned(),
         };
         store.finish_board(id, 3.0, &cams(), &why).unwrap();
-        let b = &store.boards(1).unwrap()[0];
-        assert_eq!(b.state, "incomplete");
-        assert_eq!(b.verdict, None);
-        assert_eq!(b.incomplete_reason.as_deref(), Some("camera 1 silent"));
-        assert_eq!(b.pads, 0);
-        assert_eq!(b.cameras, cams());
+        let board = store.boards(1).unwrap()[0].clone();
+        assert_eq!(board.state, "incomplete");
+        assert_eq!(board.verdict, None);
+        assert_eq!(board.incomplete_reason.as_deref(), Some("camera 1 silent"));
+        assert_eq!(board.pads, 0);
+        assert_eq!(board.cameras, cams());
         // Finishing again, either way, is refused and changes nothing.
         let pass = Outcome::Inspected {
             verdict: "pass".to_owned(),
@@ -1358,27 +1340,28 @@ mod tests {
                 "{e}"
             );
         }
-        assert_eq!(&store.boards(1).unwrap()[0], b);
+        assert_eq!(store.boards(1).unwrap()[0], board);
         let e = store.finish_board(id + 100, 4.0, &[], &why).unwrap_err();
         assert!(matches!(e, StoreError::UnknownBoard { .. }), "{e}");
-        // The schema's CHECK holds even against SQL written by hand.
+        // The schema's CHECKs hold even against SQL written by hand.
         for sql in [
             "UPDATE boards SET verdict = 'fail'",
             "UPDATE boards SET incomplete_reason = NULL",
             "UPDATE boards SET state = 'open'",
             "UPDATE boards SET state = 'inspected'",
+            "UPDATE boards SET line = ''",
+            "UPDATE boards SET run_id = 'ABCDEF0000000000'",
         ] {
-            assert!(store.conn.execute(sql, []).is_err(), "{sql} was accepted");
+            assert!(store.exec(sql).is_err(), "{sql} was accepted");
         }
+        store.check().unwrap();
     }
 
-    #[test]
-    fn recover_turns_open_boards_incomplete_and_leaves_finished_ones() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("line.sqlite");
+    fn recover_turns_open_boards_incomplete_and_leaves_finished_ones(b: Backend) {
+        let p = place(b);
         let (done, incomplete);
         {
-            let mut store = Store::open(&path).unwrap();
+            let mut store = Store::open(&p.location, DEFAULT_LINE).unwrap();
             done = inspect(&mut store, 1, "p", 3, 100.0);
             store.begin_board(&start(2, "p", 2.0)).unwrap();
             incomplete = store.begin_board(&start(3, "p", 3.0)).unwrap();
@@ -1395,8 +1378,11 @@ mod tests {
             store.begin_board(&start(4, "p", 4.0)).unwrap();
             // The service dies here: the store is dropped with boards 2 and 4 open.
         }
-        let before = Store::open(&path).unwrap().boards(10).unwrap();
-        let mut store = Store::open(&path).unwrap();
+        let before = Store::open(&p.location, DEFAULT_LINE)
+            .unwrap()
+            .boards(10)
+            .unwrap();
+        let mut store = Store::open(&p.location, DEFAULT_LINE).unwrap();
         assert_eq!(store.recover("service restarted", 99.0).unwrap(), [2, 4]);
         let after = store.boards(10).unwrap();
         for (b, a) in before.iter().zip(&after) {
@@ -1412,14 +1398,16 @@ mod tests {
         assert!(after.iter().any(|b| b.id == done && b.state == "inspected"));
         assert_eq!(store.recover("again", 100.0).unwrap(), Vec::<u64>::new());
         assert_eq!(store.boards(10).unwrap(), after);
+        store.check().unwrap();
     }
 
     #[test]
-    fn check_passes_on_a_fresh_store_and_fails_on_garbage() {
+    fn check_passes_on_a_fresh_sqlite_store_and_fails_on_garbage() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("line.sqlite");
+        let location = Location::Sqlite(path.clone());
         {
-            let mut store = Store::open(&path).unwrap();
+            let mut store = Store::open(&location, DEFAULT_LINE).unwrap();
             store.check().unwrap();
             for run in 0..12 {
                 inspect(&mut store, run, "p", 400, 90.0);
@@ -1435,9 +1423,9 @@ mod tests {
             *b = (i as u8).wrapping_mul(37) ^ 0x5a;
         }
         std::fs::write(&path, &bytes).unwrap();
-        match Store::open(&path) {
+        match Store::open(&location, DEFAULT_LINE) {
             Err(e) => assert!(e.to_string().contains("line.sqlite"), "{e}"),
-            Ok(store) => {
+            Ok(mut store) => {
                 let e = store.check().unwrap_err();
                 assert!(matches!(e, StoreError::Corrupt { .. }), "{e}");
                 assert!(e.to_string().contains("line.sqlite"), "{e}");
@@ -1446,13 +1434,116 @@ mod tests {
         // A file that is not a database at all.
         let junk = dir.path().join("junk.sqlite");
         std::fs::write(&junk, vec![0x42u8; 10_000]).unwrap();
-        let e = Store::open(&junk).unwrap_err();
+        let e = Store::open(&Location::Sqlite(junk), DEFAULT_LINE).unwrap_err();
         assert!(matches!(e, StoreError::Corrupt { .. }), "{e}");
     }
 
-    #[test]
-    fn pad_history_is_newest_first_and_only_inspected_boards() {
-        let (_dir, mut store) = fresh();
+    /// Rows written by hand past the constraints (switched off as each database allows) are
+    /// found by `check`, which names what is wrong; undone, the store checks out again.
+    fn check_finds_rows_written_past_the_constraints(b: Backend) {
+        let (_p, mut store) = fresh(b);
+        let id = inspect(&mut store, 1, "p", 5, 100.0);
+        let flagged = store.begin_board(&start(2, "p", 2.0)).unwrap();
+        store
+            .finish_board(
+                flagged,
+                2.5,
+                &cams(),
+                &Outcome::Inspected {
+                    verdict: "fail".to_owned(),
+                    pads: vec![pad(0, "pass", Some(100.0)), pad(1, "fail", Some(20.0))],
+                },
+            )
+            .unwrap();
+        store.begin_board(&start(3, "p", 3.0)).unwrap();
+        store.check().unwrap();
+        let (off, on) = match b {
+            Backend::Sqlite => ("PRAGMA foreign_keys = OFF;", "PRAGMA foreign_keys = ON;"),
+            Backend::Postgres => (
+                "SET session_replication_role = replica;",
+                "RESET session_replication_role;",
+            ),
+        };
+        let cases = [
+            (
+                format!(
+                    "{off} INSERT INTO pads (board_id, pad, name, level, coverage) \
+                     VALUES (999, 0, 'x', 'pass', 1); {on}"
+                ),
+                "DELETE FROM pads WHERE board_id = 999".to_owned(),
+                "refer to missing rows|of a board not in the store",
+            ),
+            (
+                format!("UPDATE boards SET pads = 6 WHERE id = {id}"),
+                format!("UPDATE boards SET pads = 5 WHERE id = {id}"),
+                "not as many as its pad count",
+            ),
+            (
+                format!("DELETE FROM defects WHERE board_id = {flagged}"),
+                format!(
+                    "INSERT INTO defects (board_id, pad, level, class) \
+                     VALUES ({flagged}, 1, 'fail', 'insufficient')"
+                ),
+                "one defect row per pad",
+            ),
+            (
+                format!("UPDATE pads SET level = 'warn' WHERE board_id = {flagged} AND pad = 1"),
+                format!("UPDATE pads SET level = 'fail' WHERE board_id = {flagged} AND pad = 1"),
+                "defect rows without the pad row",
+            ),
+            (
+                "UPDATE pad_stats SET fails = boards + 1 WHERE pad = 0".to_owned(),
+                "UPDATE pad_stats SET fails = 0 WHERE pad = 0".to_owned(),
+                "fails + warns <= boards",
+            ),
+        ];
+        for (damage, undo, said) in &cases {
+            store.exec(damage).unwrap();
+            let e = store.check().unwrap_err();
+            assert!(matches!(e, StoreError::Corrupt { .. }), "{e}");
+            let text = e.to_string();
+            assert!(
+                said.split('|').any(|s| text.contains(s)) && text.contains(named(b)),
+                "{damage}: {text}"
+            );
+            store.exec(undo).unwrap();
+            store.check().unwrap();
+        }
+        if b == Backend::Postgres {
+            for (damage, undo, said) in [
+                (
+                    "UPDATE pads SET volume_pct = 'NaN' WHERE pad = 0",
+                    "UPDATE pads SET volume_pct = 100 WHERE pad = 0",
+                    "NaN",
+                ),
+                (
+                    "ALTER TABLE pads DISABLE TRIGGER ALL",
+                    "ALTER TABLE pads ENABLE TRIGGER ALL",
+                    "2 triggers switched off (foreign keys not kept)",
+                ),
+                (
+                    "ALTER TABLE pads ADD CONSTRAINT no_r0 CHECK (name <> 'R0-1') NOT VALID",
+                    "ALTER TABLE pads DROP CONSTRAINT no_r0",
+                    "constraints not validated",
+                ),
+                (
+                    "DROP TRIGGER boards_id_fixed ON boards",
+                    "CREATE TRIGGER boards_id_fixed BEFORE UPDATE OF id ON boards FOR EACH ROW \
+                     WHEN (OLD.id IS DISTINCT FROM NEW.id) EXECUTE FUNCTION boards_id_fixed()",
+                    "of the 4 triggers that keep pads' foreign key missing",
+                ),
+            ] {
+                store.exec(damage).unwrap();
+                let e = store.check().unwrap_err().to_string();
+                assert!(e.contains(said), "{damage}: {e}");
+                store.exec(undo).unwrap();
+                store.check().unwrap();
+            }
+        }
+    }
+
+    fn pad_history_is_newest_first_and_only_inspected_boards(b: Backend) {
+        let (_p, mut store) = fresh(b);
         let a1 = inspect(&mut store, 1, "a", 5, 100.0);
         let b1 = inspect(&mut store, 2, "b", 5, 50.0);
         let open = store.begin_board(&start(3, "a", 3.0)).unwrap();
@@ -1481,12 +1572,28 @@ mod tests {
         assert!(h.iter().all(|e| e.0 != b1 && e.0 != open && e.0 != gone));
         assert_eq!(store.pad_history("a", 2, 2).unwrap(), h[..2]);
         assert_eq!(store.pad_history("a", 99, 10).unwrap(), []);
+        assert_eq!(store.pad_history("a", u32::MAX, 10).unwrap(), []);
         assert_eq!(store.pad_history("b", 0, 10).unwrap()[0].0, b1);
     }
 
-    #[test]
-    fn prune_deletes_pads_and_keeps_boards_and_pad_stats() {
-        let (_dir, mut store) = fresh();
+    /// `(pad, boards, sum_volume_pct, fails)` of every aggregate row, by line and pad.
+    fn stats(s: &mut Store) -> Vec<(String, i64, i64, f64, i64)> {
+        s.rows("SELECT line, pad, boards, sum_volume_pct, fails FROM pad_stats ORDER BY line, pad")
+            .iter()
+            .map(|r| {
+                (
+                    r[0].text().unwrap_or("").to_owned(),
+                    r[1].int(),
+                    r[2].int(),
+                    r[3].real(),
+                    r[4].int(),
+                )
+            })
+            .collect()
+    }
+
+    fn prune_deletes_pads_and_keeps_boards_and_pad_stats(b: Backend) {
+        let (_p, mut store) = fresh(b);
         let old = inspect(&mut store, 1, "p", 20, 100.0);
         let id = store.begin_board(&start(2, "p", 2.0)).unwrap();
         let mut pads: Vec<_> = (0..20).map(|i| pad(i, "pass", Some(100.0))).collect();
@@ -1504,99 +1611,302 @@ mod tests {
             .unwrap();
         let new = inspect(&mut store, 10, "p", 20, 100.0);
         let boards = store.boards(10).unwrap();
-        let stats = |s: &Store| -> Vec<(u32, i64, f64, i64)> {
-            s.conn
-                .prepare("SELECT pad, boards, sum_volume_pct, fails FROM pad_stats ORDER BY pad")
-                .unwrap()
-                .query_map([], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?)))
-                .unwrap()
-                .collect::<Result<_, _>>()
-                .unwrap()
-        };
-        let before = stats(&store);
+        let before = stats(&mut store);
         // Boards 1 and 2 ended at 1.5 and 2.5; board 10 at 10.5.
         assert_eq!(store.prune_pads(5.0).unwrap(), 40);
         assert_eq!(store.pads(old).unwrap(), []);
         assert_eq!(store.pads(id).unwrap(), []);
         assert_eq!(store.pads(new).unwrap().len(), 20);
-        let defects: i64 = store
-            .conn
-            .query_row("SELECT count(*) FROM defects", [], |r| r.get(0))
-            .unwrap();
-        assert_eq!(defects, 0);
+        assert_eq!(store.int("SELECT count(*) FROM defects"), 0);
         assert_eq!(store.boards(10).unwrap(), boards);
-        assert_eq!(stats(&store), before);
-        assert_eq!(before[3], (3, 3, 103.0 + 20.0 + 103.0, 1));
+        assert_eq!(stats(&mut store), before);
+        assert_eq!(
+            before[3],
+            ("line-1".to_owned(), 3, 3, 103.0 + 20.0 + 103.0, 1)
+        );
         assert_eq!(store.pad_history("p", 0, 10).unwrap().len(), 1);
         assert_eq!(store.prune_pads(5.0).unwrap(), 0);
         store.check().unwrap();
     }
 
-    #[test]
-    fn a_newer_schema_is_refused() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("line.sqlite");
-        drop(Store::open(&path).unwrap());
-        Connection::open(&path)
-            .unwrap()
-            .pragma_update(None, "user_version", 99)
-            .unwrap();
-        let e = Store::open(&path).unwrap_err();
+    /// Sets the store's schema version by hand.
+    fn set_version(store: &mut Store, v: u32) {
+        let sql = match store.dialect() {
+            schema::Dialect::Sqlite => format!("PRAGMA user_version = {v}"),
+            schema::Dialect::Postgres => format!("UPDATE schema_version SET version = {v}"),
+        };
+        store.exec(&sql).unwrap();
+    }
+
+    fn a_newer_schema_is_refused(b: Backend) {
+        let p = place(b);
+        set_version(&mut Store::open(&p.location, DEFAULT_LINE).unwrap(), 99);
+        let e = Store::open(&p.location, DEFAULT_LINE).unwrap_err();
         assert!(
             matches!(e, StoreError::NewerSchema { found: 99, known, .. } if known == SCHEMA_VERSION),
             "{e}"
         );
         let text = e.to_string();
-        assert!(
-            text.contains("line.sqlite") && text.contains("99"),
-            "{text}"
-        );
+        assert!(text.contains(named(b)) && text.contains("99"), "{text}");
         // Left untouched.
-        let v: i64 = Connection::open(&path)
-            .unwrap()
-            .pragma_query_value(None, "user_version", |r| r.get(0))
-            .unwrap();
-        assert_eq!(v, 99);
+        let left = match b {
+            Backend::Sqlite => {
+                let Location::Sqlite(path) = &p.location else {
+                    unreachable!()
+                };
+                rusqlite::Connection::open(path)
+                    .unwrap()
+                    .pragma_query_value(None, "user_version", |r| r.get::<_, i64>(0))
+                    .unwrap()
+            }
+            Backend::Postgres => {
+                let Location::Postgres(url) = &p.location else {
+                    unreachable!()
+                };
+                let mut c = url.config().unwrap().connect(postgres::NoTls).unwrap();
+                i64::from(
+                    c.query_one("SELECT version FROM schema_version", &[])
+                        .unwrap()
+                        .get::<_, i32>(0),
+                )
+            }
+        };
+        assert_eq!(left, 99);
     }
 
-    #[test]
-    fn opening_a_v1_store_again_changes_nothing() {
-        let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("line.sqlite");
-        let (boards, pads, schema) = {
-            let mut store = Store::open(&path).unwrap();
-            let id = inspect(&mut store, 1, "p", 7, 100.0);
-            store.begin_board(&start(2, "p", 2.0)).unwrap();
-            let schema: Vec<String> = store
-                .conn
-                .prepare("SELECT sql FROM sqlite_schema WHERE sql IS NOT NULL ORDER BY name")
-                .unwrap()
-                .query_map([], |r| r.get(0))
-                .unwrap()
-                .collect::<Result<_, _>>()
-                .unwrap();
-            (store.boards(10).unwrap(), store.pads(id).unwrap(), schema)
+    /// The store's tables, columns and indexes, in terms both dialects share: a column's
+    /// kind (int, real, text) and NOT NULL, the primary key, every other index (its name if
+    /// made by CREATE INDEX; its columns, UNIQUE, WHERE), the foreign keys.
+    fn schema_summary(store: &mut Store) -> Vec<String> {
+        let kind = |t: &str| match t.to_ascii_lowercase().as_str() {
+            "integer" | "bigint" => "int".to_owned(),
+            "real" | "double precision" => "real".to_owned(),
+            "text" => "text".to_owned(),
+            other => other.to_owned(),
         };
-        for _ in 0..2 {
-            let store = Store::open(&path).unwrap();
-            assert_eq!(store.schema_version().unwrap(), 1);
-            assert_eq!(store.boards(10).unwrap(), boards);
-            assert_eq!(store.pads(boards[1].id).unwrap(), pads);
-            let again: Vec<String> = store
-                .conn
-                .prepare("SELECT sql FROM sqlite_schema WHERE sql IS NOT NULL ORDER BY name")
-                .unwrap()
-                .query_map([], |r| r.get(0))
-                .unwrap()
-                .collect::<Result<_, _>>()
-                .unwrap();
-            assert_eq!(again, schema);
+        let mut out = Vec::new();
+        match store.dialect() {
+            schema::Dialect::Sqlite => {
+                let tables = store.rows(
+                    "SELECT name FROM sqlite_schema WHERE type = 'table' \
+                     AND name NOT LIKE 'sqlite_%' ORDER BY name",
+                );
+                for t in tables {
+                    let t = t[0].text().unwrap().to_owned();
+                    let mut pk = Vec::new();
+                    for c in store.rows(&format!(
+                        "SELECT name, type, \"notnull\", pk FROM pragma_table_info('{t}') ORDER BY cid"
+                    )) {
+                        let (name, ty, notnull, in_pk) =
+                            (c[0].text().unwrap(), c[1].text().unwrap(), c[2].int(), c[3].int());
+                        let not_null = notnull == 1 || in_pk > 0;
+                        out.push(format!("column {t}.{name} {} not null {not_null}", kind(ty)));
+                        if in_pk > 0 {
+                            pk.push((in_pk, name.to_owned()));
+                        }
+                    }
+                    pk.sort();
+                    let pk: Vec<String> = pk.into_iter().map(|(_, n)| n).collect();
+                    out.push(format!("primary key {t} ({})", pk.join(", ")));
+                    for i in store.rows(&format!(
+                        "SELECT name, \"unique\", origin, partial FROM pragma_index_list('{t}')"
+                    )) {
+                        let (name, unique, origin, partial) = (
+                            i[0].text().unwrap(),
+                            i[1].int(),
+                            i[2].text().unwrap(),
+                            i[3].int(),
+                        );
+                        if origin == "pk" {
+                            continue;
+                        }
+                        let cols: Vec<String> = store
+                            .rows(&format!(
+                                "SELECT name FROM pragma_index_info('{name}') ORDER BY seqno"
+                            ))
+                            .iter()
+                            .map(|c| c[0].text().unwrap().to_owned())
+                            .collect();
+                        let shown = if origin == "c" { name } else { "(constraint)" };
+                        out.push(format!(
+                            "index {t} {shown} ({}) unique {} partial {}",
+                            cols.join(", "),
+                            unique == 1,
+                            partial == 1
+                        ));
+                    }
+                    for f in store.rows(&format!(
+                        "SELECT \"table\", \"from\", \"to\", on_delete FROM pragma_foreign_key_list('{t}')"
+                    )) {
+                        out.push(format!(
+                            "foreign key {t}.{} -> {}.{} on delete {}",
+                            f[1].text().unwrap(),
+                            f[0].text().unwrap(),
+                            f[2].text().unwrap(),
+                            f[3].text().unwrap().to_ascii_lowercase()
+                        ));
+                    }
+                }
+            }
+            schema::Dialect::Postgres => {
+                let here = "current_schema()::regnamespace";
+                for c in store.rows(&format!(
+                    "SELECT c.relname, a.attname, format_type(a.atttypid, a.atttypmod), a.attnotnull
+                     FROM pg_attribute AS a JOIN pg_class AS c ON c.oid = a.attrelid
+                     WHERE c.relnamespace = {here} AND c.relkind = 'r'
+                       AND c.relname <> 'schema_version' AND a.attnum > 0 AND NOT a.attisdropped
+                     ORDER BY c.relname, a.attnum"
+                )) {
+                    let t = c[0].text().unwrap();
+                    let notnull = c[3].int() == 1;
+                    out.push(format!(
+                        "column {t}.{} {} not null {notnull}",
+                        c[1].text().unwrap(),
+                        kind(c[2].text().unwrap())
+                    ));
+                }
+                for i in store.rows(&format!(
+                    "SELECT t.relname, ic.relname, i.indisunique::int, i.indisprimary::int,
+                            (i.indpred IS NOT NULL)::int,
+                            (EXISTS (SELECT 1 FROM pg_constraint AS k WHERE k.conindid = i.indexrelid))::int,
+                            (SELECT string_agg(a.attname, ', ' ORDER BY k.n)
+                             FROM unnest(i.indkey::int2[]) WITH ORDINALITY AS k(attnum, n)
+                             JOIN pg_attribute AS a ON a.attrelid = t.oid AND a.attnum = k.attnum)
+                     FROM pg_index AS i JOIN pg_class AS t ON t.oid = i.indrelid
+                     JOIN pg_class AS ic ON ic.oid = i.indexrelid
+                     WHERE t.relnamespace = {here} AND t.relname <> 'schema_version'"
+                )) {
+                    let t = i[0].text().unwrap();
+                    let cols = i[6].text().unwrap();
+                    if i[3].int() == 1 {
+                        out.push(format!("primary key {t} ({cols})"));
+                        continue;
+                    }
+                    let shown = if i[5].int() == 1 { "(constraint)" } else { i[1].text().unwrap() };
+                    out.push(format!(
+                        "index {t} {shown} ({cols}) unique {} partial {}",
+                        i[2].int() == 1,
+                        i[4].int() == 1
+                    ));
+                }
+                for f in store.rows(&format!(
+                    "SELECT c.relname, a.attname, r.relname, ra.attname, k.confdeltype::text
+                     FROM pg_constraint AS k JOIN pg_class AS c ON c.oid = k.conrelid
+                     JOIN pg_class AS r ON r.oid = k.confrelid
+                     JOIN pg_attribute AS a ON a.attrelid = c.oid AND a.attnum = k.conkey[1]
+                     JOIN pg_attribute AS ra ON ra.attrelid = r.oid AND ra.attnum = k.confkey[1]
+                     WHERE k.contype = 'f' AND k.connamespace = {here}"
+                )) {
+                    let on_delete = match f[4].text().unwrap() {
+                        "c" => "cascade",
+                        "a" => "no action",
+                        other => other,
+                    };
+                    out.push(format!(
+                        "foreign key {}.{} -> {}.{} on delete {on_delete}",
+                        f[0].text().unwrap(),
+                        f[1].text().unwrap(),
+                        f[2].text().unwrap(),
+                        f[3].text().unwrap()
+                    ));
+                }
+                // From version 2, `pads`' foreign key is kept by triggers (schema.rs).
+                let triggers = store.rows(&format!(
+                    "SELECT c.relname, t.tgname FROM pg_trigger AS t
+                     JOIN pg_class AS c ON c.oid = t.tgrelid
+                     WHERE c.relnamespace = {here} AND NOT t.tgisinternal"
+                ));
+                let has = |table: &str, name: &str| {
+                    triggers
+                        .iter()
+                        .any(|r| r[0].text() == Some(table) && r[1].text() == Some(name))
+                };
+                if schema::POSTGRES_PADS_KEY_TRIGGERS
+                    .iter()
+                    .all(|(t, n)| has(t, n))
+                {
+                    out.push("foreign key pads.board_id -> boards.id on delete cascade".to_owned());
+                }
+            }
+        }
+        out.sort();
+        out
+    }
+
+    /// Every WITHOUT ROWID table's primary key is its first columns, in order: SQLite 3.40
+    /// (Debian 12's `sqlite3`) reports NULLs that are not there in `PRAGMA integrity_check`
+    /// otherwise.
+    #[test]
+    fn sqlite_keys_lead_their_tables() {
+        let (_p, mut store) = fresh(Backend::Sqlite);
+        let tables = store.rows(
+            "SELECT name FROM sqlite_schema WHERE type = 'table' AND sql LIKE '%WITHOUT ROWID%'",
+        );
+        assert_eq!(tables.len(), 4);
+        for t in tables {
+            let t = t[0].text().unwrap();
+            for c in store.rows(&format!("SELECT cid, pk FROM pragma_table_info('{t}')")) {
+                let (cid, pk) = (c[0].int(), c[1].int());
+                assert!(
+                    pk == 0 || pk == cid + 1,
+                    "{t}: column {cid} is key column {pk}"
+                );
+            }
         }
     }
 
+    /// Both backends hold the same tables, columns (kinds, NOT NULL, order), keys and
+    /// indexes after every migration step: version 1, and version 2 reached from it.
     #[test]
-    fn pad_stats_equal_sums_recomputed_from_the_pad_rows() {
-        let (_dir, mut store) = fresh();
+    fn both_backends_hold_the_same_tables_columns_and_indexes() {
+        for version in 1..=SCHEMA_VERSION as usize {
+            let mut summaries = Vec::new();
+            for b in [Backend::Sqlite, Backend::Postgres] {
+                let p = place(b);
+                let mut store =
+                    Store::open_with(&p.location, DEFAULT_LINE, &MIGRATIONS[..version]).unwrap();
+                assert_eq!(store.schema_version().unwrap(), version as u32);
+                summaries.push(schema_summary(&mut store));
+            }
+            assert!(summaries[0].len() > 40, "{:#?}", summaries[0]);
+            let only = |a: &[String], b: &[String]| -> Vec<String> {
+                a.iter().filter(|x| !b.contains(x)).cloned().collect()
+            };
+            assert_eq!(
+                (
+                    only(&summaries[0], &summaries[1]),
+                    only(&summaries[1], &summaries[0])
+                ),
+                (vec![], vec![]),
+                "version {version}: only in SQLite, only in PostgreSQL"
+            );
+            assert_eq!(
+                summaries[0], summaries[1],
+                "version {version}: column order"
+            );
+        }
+    }
+
+    fn opening_a_store_again_changes_nothing(b: Backend) {
+        let p = place(b);
+        let (boards, pads, schema) = {
+            let mut store = Store::open(&p.location, DEFAULT_LINE).unwrap();
+            let id = inspect(&mut store, 1, "p", 7, 100.0);
+            store.begin_board(&start(2, "p", 2.0)).unwrap();
+            let schema = schema_summary(&mut store);
+            (store.boards(10).unwrap(), store.pads(id).unwrap(), schema)
+        };
+        for _ in 0..2 {
+            let mut store = Store::open(&p.location, DEFAULT_LINE).unwrap();
+            assert_eq!(store.schema_version().unwrap(), SCHEMA_VERSION);
+            assert_eq!(store.boards(10).unwrap(), boards);
+            assert_eq!(store.pads(boards[1].id).unwrap(), pads);
+            assert_eq!(schema_summary(&mut store), schema);
+        }
+    }
+
+    fn pad_stats_equal_sums_recomputed_from_the_pad_rows(b: Backend) {
+        let (_p, mut store) = fresh(b);
         let mut seed = 0x1234_5678_u64;
         let mut next = move || {
             seed = seed
@@ -1637,12 +1947,12 @@ mod tests {
         }
         // Recompute from what `pads()` gives back.
         type Sums = (i64, f64, f64, i64, i64, i64);
-        let mut want = std::collections::BTreeMap::<(String, u32), Sums>::new();
+        let mut want = std::collections::BTreeMap::<(String, i64), Sums>::new();
         for board in store.boards(100).unwrap() {
             for p in store.pads(board.id).unwrap() {
                 let Some(v) = p.volume_pct else { continue };
                 let e = want
-                    .entry((board.product.clone(), p.pad))
+                    .entry((board.product.clone(), i64::from(p.pad)))
                     .or_insert((0, 0.0, 0.0, 0, 0, 0));
                 e.0 += 1;
                 e.1 += v;
@@ -1652,29 +1962,27 @@ mod tests {
                 e.5 = e.5.max(board.id);
             }
         }
-        let got: Vec<((String, u32), Sums)> = store
-            .conn
-            .prepare(
+        let got: Vec<((String, i64), Sums)> = store
+            .rows(
                 "SELECT product, pad, boards, sum_volume_pct, sum_sq_volume_pct, fails, warns, \
-                 last_board_id FROM pad_stats ORDER BY product, pad",
+                 last_board_id, line FROM pad_stats ORDER BY product, pad",
             )
-            .unwrap()
-            .query_map([], |r| {
-                Ok((
-                    (r.get(0)?, r.get(1)?),
+            .iter()
+            .map(|r| {
+                assert_eq!(r[8].text(), Some(DEFAULT_LINE));
+                (
+                    (r[0].text().unwrap().to_owned(), r[1].int()),
                     (
-                        r.get(2)?,
-                        r.get(3)?,
-                        r.get(4)?,
-                        r.get(5)?,
-                        r.get(6)?,
-                        r.get(7)?,
+                        r[2].int(),
+                        r[3].real(),
+                        r[4].real(),
+                        r[5].int(),
+                        r[6].int(),
+                        r[7].int(),
                     ),
-                ))
+                )
             })
-            .unwrap()
-            .collect::<Result<_, _>>()
-            .unwrap();
+            .collect();
         assert_eq!(got.len(), want.len());
         for ((key, g), (wkey, w)) in got.iter().zip(&want) {
             assert_eq!(key, wkey);
@@ -1683,17 +1991,333 @@ mod tests {
             assert!((g.2 - w.2).abs() < 1e-9 * w.2.abs().max(1.0), "{key:?}");
         }
         assert!(got.iter().any(|(_, g)| g.3 > 0) && got.iter().any(|(_, g)| g.4 > 0));
+        store.check().unwrap();
+    }
+
+    /// Two lines on one store: each its own boards, run ids, recovery, history, aggregates
+    /// and retention.
+    fn two_lines_share_one_store(b: Backend) {
+        let p = place(b);
+        let mut a = Store::open(&p.location, "smt-a").unwrap();
+        let mut l2 = Store::open(&p.location, "smt-b").unwrap();
+        a.claim_line().unwrap();
+        l2.claim_line().unwrap();
+        // The same run id on both lines: two boards.
+        let a1 = inspect(&mut a, 1, "p", 4, 100.0);
+        let b1 = inspect(&mut l2, 1, "p", 4, 50.0);
+        assert_ne!(a1, b1);
+        let e = a.begin_board(&start(1, "p", 9.0)).unwrap_err();
+        assert!(
+            matches!(&e, StoreError::Duplicate { line, run_id: 1, .. } if line == "smt-a"),
+            "{e}"
+        );
+        assert!(e.to_string().contains("smt-a"), "{e}");
+        // Line B's board in progress while line A restarts.
+        l2.begin_board(&start(2, "p", 2.0)).unwrap();
+        a.begin_board(&start(3, "p", 3.0)).unwrap();
+        drop(a);
+        let mut a = Store::open(&p.location, "smt-a").unwrap();
+        a.claim_line().unwrap();
+        assert_eq!(a.recover("line A restarted", 10.0).unwrap(), [3]);
+        let bs = l2.boards(10).unwrap();
+        assert_eq!(bs.len(), 2);
+        assert!(bs.iter().all(|x| x.line == "smt-b"));
+        assert_eq!((bs[0].run_id, bs[0].state.as_str()), (2, "open"));
+        let as_ = a.boards(10).unwrap();
+        assert_eq!(
+            as_.iter()
+                .map(|x| (x.run_id, x.state.as_str(), x.line.as_str()))
+                .collect::<Vec<_>>(),
+            [(3, "incomplete", "smt-a"), (1, "inspected", "smt-a")]
+        );
+        // A board of the other line is read by its id.
+        assert_eq!(a.pads(b1).unwrap().len(), 4);
+        // History and aggregates per line.
+        assert_eq!(
+            a.pad_history("p", 1, 10).unwrap(),
+            [(a1, 1, "pass".to_owned(), Some(101.0))]
+        );
+        assert_eq!(
+            l2.pad_history("p", 1, 10).unwrap(),
+            [(b1, 1, "pass".to_owned(), Some(51.0))]
+        );
+        let s = stats(&mut a);
+        assert_eq!(s.len(), 8);
+        assert_eq!(s[1], ("smt-a".to_owned(), 1, 1, 101.0, 0));
+        assert_eq!(s[5], ("smt-b".to_owned(), 1, 1, 51.0, 0));
+        // Retention of line A leaves line B's pads.
+        assert_eq!(a.prune_pads(100.0).unwrap(), 4);
+        assert_eq!(l2.pads(b1).unwrap().len(), 4);
+        a.check().unwrap();
+        assert_eq!(l2.recover("line B restarted", 11.0).unwrap(), [2]);
+        l2.check().unwrap();
+    }
+
+    /// A version-1 store with boards, pads and aggregates, made as version 1 made them (its
+    /// schema, rows written by hand), opened by this program: at version 2, every row kept,
+    /// the boards and aggregates line `line-1`'s, the keys and cascades working.
+    fn a_version_1_store_migrates_to_version_2(b: Backend) {
+        let p = place(b);
+        {
+            let mut v1 = Store::open_with(&p.location, DEFAULT_LINE, &MIGRATIONS[..1]).unwrap();
+            assert_eq!(v1.schema_version().unwrap(), 1);
+            v1.exec(
+                "INSERT INTO boards (run_id, product, program_hash, calibration_hash, \
+                 started_unix_s, ended_unix_s, state, verdict, pads) \
+                 VALUES ('00000000000000a1', 'p', 'h', 'c', 1.0, 1.5, 'inspected', 'fail', 3);
+                 INSERT INTO boards (run_id, product, program_hash, calibration_hash, \
+                 started_unix_s, state) VALUES ('00000000000000a2', 'p', 'h', 'c', 2.0, 'open');
+                 INSERT INTO board_cameras VALUES (1, 0, 100, 0, 0, 0);
+                 INSERT INTO pads (board_id, pad, name, level, class, volume_pct, coverage) VALUES
+                     (1, 0, 'R1-1', 'pass', NULL, 100.0, 1.0),
+                     (1, 1, 'R1-2', 'fail', 'insufficient', 20.0, 1.0),
+                     (1, 2, 'R2-1', 'pass', NULL, 99.0, 1.0);
+                 INSERT INTO defects VALUES (1, 1, 'fail', 'insufficient');
+                 INSERT INTO pad_stats VALUES
+                     ('p', 0, 1, 100.0, 10000.0, 0, 0, 1),
+                     ('p', 1, 1, 20.0, 400.0, 1, 0, 1),
+                     ('p', 2, 1, 99.0, 9801.0, 0, 0, 1);",
+            )
+            .unwrap();
+        }
+        let mut store = Store::open(&p.location, DEFAULT_LINE).unwrap();
+        assert_eq!(store.schema_version().unwrap(), 2);
+        store.check().unwrap();
+        let boards = store.boards(10).unwrap();
+        assert_eq!(
+            boards
+                .iter()
+                .map(|x| (x.id, x.run_id, x.line.as_str(), x.state.as_str(), x.pads))
+                .collect::<Vec<_>>(),
+            [
+                (2, 0xa2, "line-1", "open", 0),
+                (1, 0xa1, "line-1", "inspected", 3)
+            ]
+        );
+        assert_eq!(boards[1].cameras.len(), 1);
+        assert_eq!(store.pads(1).unwrap().len(), 3);
+        assert_eq!(
+            stats(&mut store),
+            [
+                ("line-1".to_owned(), 0, 1, 100.0, 0),
+                ("line-1".to_owned(), 1, 1, 20.0, 1),
+                ("line-1".to_owned(), 2, 1, 99.0, 0),
+            ]
+        );
+        // The open board of version 1 is line-1's to recover.
+        assert_eq!(store.recover("upgraded", 3.0).unwrap(), [0xa2]);
+        // Run ids per line now; ids go on after the old ones; the aggregates go on.
+        let e = store.begin_board(&start(0xa1, "p", 4.0)).unwrap_err();
+        assert!(matches!(e, StoreError::Duplicate { .. }), "{e}");
+        // (PostgreSQL's identity spent a value on the refused insert: ids may skip.)
+        let mut other = Store::open(&p.location, "line-2").unwrap();
+        let next = inspect(&mut other, 0xa1, "p", 3, 100.0);
+        assert!(next > 2, "{next}");
+        assert!(inspect(&mut store, 0xa3, "p", 3, 100.0) > next);
+        assert_eq!(stats(&mut store)[0], ("line-1".to_owned(), 0, 2, 200.0, 0));
+        // The foreign keys hold and cascade to the new `boards`.
+        let orphan = "INSERT INTO pads (board_id, pad, name, level, coverage) \
+                      VALUES (999, 0, 'x', 'pass', 1)";
+        assert!(store.exec(orphan).is_err(), "an orphan pad was accepted");
+        let moved = "UPDATE pads SET board_id = 999 WHERE board_id = 1";
+        assert!(store.exec(moved).is_err(), "a pad was moved to no board");
+        if b == Backend::Postgres {
+            let renumbered = "UPDATE boards SET id = DEFAULT WHERE id = 1";
+            assert!(store.exec(renumbered).is_err(), "a board's id changed");
+        }
+        store.exec("DELETE FROM boards WHERE id = 1").unwrap();
+        assert_eq!(
+            store.int("SELECT count(*) FROM pads WHERE board_id = 1")
+                + store.int("SELECT count(*) FROM defects WHERE board_id = 1")
+                + store.int("SELECT count(*) FROM board_cameras WHERE board_id = 1"),
+            0
+        );
+        store.check().unwrap();
+        if b == Backend::Sqlite {
+            // Nothing of the copy left; `pads` as version 1 made it.
+            assert_eq!(
+                store.int("SELECT count(*) FROM sqlite_schema WHERE name LIKE '%v2%'"),
+                0
+            );
+            let pads_sql = store.rows("SELECT sql FROM sqlite_schema WHERE name = 'pads'");
+            assert!(
+                include_str!("store/v1_as_shipped.sql").contains(pads_sql[0][0].text().unwrap())
+            );
+        }
+    }
+
+    fn programs_opening_a_new_store_at_once_migrate_it_once(b: Backend) {
+        let p = place(b);
+        let location = p.location.clone();
+        let opened: Vec<Result<u32, String>> = std::thread::scope(|s| {
+            let handles: Vec<_> = (0..4)
+                .map(|i| {
+                    let location = location.clone();
+                    s.spawn(move || {
+                        let mut store = Store::open(&location, &format!("line-{i}"))
+                            .map_err(|e| format!("{e:#?}"))?;
+                        inspect(&mut store, 1, "p", 3, 100.0);
+                        store.schema_version().map_err(|e| e.to_string())
+                    })
+                })
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        for o in &opened {
+            assert_eq!(o.as_ref(), Ok(&SCHEMA_VERSION));
+        }
+        let mut store = Store::open(&location, "line-0").unwrap();
+        assert_eq!(store.int("SELECT count(*) FROM boards"), 4);
+        store.check().unwrap();
+    }
+
+    /// Line B's service on the line A is serving is refused (PostgreSQL); line A's lock is
+    /// gone with its connection.
+    #[test]
+    fn a_second_service_of_the_same_line_is_refused_on_postgres() {
+        let p = place(Backend::Postgres);
+        let mut first = Store::open(&p.location, "smt-1").unwrap();
+        first.claim_line().unwrap();
+        first.claim_line().unwrap();
+        let mut second = Store::open(&p.location, "smt-1").unwrap();
+        let e = second.claim_line().unwrap_err();
+        assert!(
+            matches!(&e, StoreError::LineInUse { line, .. } if line == "smt-1"),
+            "{e}"
+        );
+        assert!(e.to_string().contains("`line` name"), "{e}");
+        Store::open(&p.location, "smt-2")
+            .unwrap()
+            .claim_line()
+            .unwrap();
+        drop(first);
+        second.claim_line().unwrap();
+    }
+
+    /// The server cuts the connection: the call during it fails, the next ones work on a
+    /// new connection, which holds the line again.
+    #[test]
+    fn a_cut_postgres_connection_is_opened_again() {
+        let p = place(Backend::Postgres);
+        let mut store = Store::open(&p.location, "smt-1").unwrap();
+        store.claim_line().unwrap();
+        inspect(&mut store, 1, "p", 3, 100.0);
+        let Db::Postgres(pg) = &mut store.db else {
+            unreachable!()
+        };
+        let pid = pg.backend_pid();
+        let Location::Postgres(url) = &p.location else {
+            unreachable!()
+        };
+        let mut admin = url.config().unwrap().connect(postgres::NoTls).unwrap();
+        admin
+            .execute("SELECT pg_terminate_backend($1)", &[&pid])
+            .unwrap();
+        // Until the client has seen the cut, a call may fail; then it connects again.
+        let mut ok = 0;
+        for run in 2..6 {
+            if store.begin_board(&start(run, "p", run as f64)).is_ok() {
+                ok += 1;
+            }
+        }
+        assert!(ok >= 3, "{ok} of 4 boards begun after the cut");
+        assert_eq!(store.boards(10).unwrap().len(), 1 + ok);
+        let e = Store::open(&p.location, "smt-1")
+            .unwrap()
+            .claim_line()
+            .unwrap_err();
+        assert!(matches!(e, StoreError::LineInUse { .. }), "{e}");
     }
 
     #[test]
-    fn the_benchmark_runs_small() {
+    fn a_password_is_never_shown() {
+        for (url, shown) in [
+            (
+                "postgres://line:s3cret@127.0.0.1:1/factory",
+                "postgres://line:***@127.0.0.1:1/factory",
+            ),
+            (
+                "postgresql://line:s3cret@127.0.0.1:1/factory?password=s3cret&connect_timeout=2",
+                "postgresql://line:***@127.0.0.1:1/factory?password=***&connect_timeout=2",
+            ),
+            (
+                "postgres://127.0.0.1:1/factory?user=line&password=s3cret",
+                "postgres://127.0.0.1:1/factory?user=line&password=***",
+            ),
+        ] {
+            let l = Location::from_arg(url).unwrap();
+            assert_eq!(l.to_string(), shown);
+            assert!(!format!("{l:?}").contains("s3cret"), "{l:?}");
+            // Nothing listens on port 1: the error names the store, without the password.
+            let e = Store::open(&l, DEFAULT_LINE).unwrap_err();
+            let text = format!("{e} / {:?}", anyhow_chain(&e));
+            assert!(
+                text.contains("127.0.0.1:1") && !text.contains("s3cret"),
+                "{text}"
+            );
+        }
+        for bad in [
+            "mysql://line:s3cret@host/db",
+            "postgres://line:s3cret@host:notaport/db",
+        ] {
+            let e = Location::from_arg(bad).unwrap_err();
+            assert!(!e.contains("s3cret") && e.contains("***"), "{e}");
+        }
+        let e = Location::postgres("host=db password=s3cret").unwrap_err();
+        assert!(!e.contains("s3cret"), "{e}");
+        assert_eq!(
+            Location::from_arg("data/line.sqlite").unwrap(),
+            Location::Sqlite(PathBuf::from("data/line.sqlite"))
+        );
+    }
+
+    /// An error and its sources, as the CLI prints them.
+    fn anyhow_chain(e: &dyn std::error::Error) -> Vec<String> {
+        let mut out = vec![e.to_string()];
+        let mut s = e.source();
+        while let Some(x) = s {
+            out.push(x.to_string());
+            s = x.source();
+        }
+        out
+    }
+
+    #[test]
+    fn line_names_are_checked() {
+        for ok in ["line-1", "SMT_3", "a", "hall.2-line.7", &"x".repeat(64)] {
+            check_line_name(ok).unwrap();
+        }
+        for bad in ["", "line 1", "line/1", "ligne-é", &"x".repeat(65), "a'b"] {
+            assert!(check_line_name(bad).is_err(), "{bad:?}");
+        }
         let dir = tempfile::tempdir().unwrap();
-        let b = bench::run(dir.path(), 30, 200).unwrap();
-        assert_eq!(b.boards, 30);
-        assert!(b.pad_rows > 0 && b.pad_rows <= 30 * 200);
-        assert!(b.insert.pads_per_s > 0.0 && b.history.median_ms >= 0.0);
-        assert!(b.prune.pad_rows_deleted > 0);
-        let json = serde_json::to_string(&b).unwrap();
+        let e = Store::open(&Location::Sqlite(dir.path().join("s.sqlite")), "").unwrap_err();
+        assert!(matches!(e, StoreError::Invalid { .. }), "{e}");
+        assert!(!dir.path().join("s.sqlite").exists());
+    }
+
+    fn the_benchmark_runs_small(b: Backend) {
+        let p = place(b);
+        let r = bench::run_at(&p.location, 30, 200).unwrap();
+        assert_eq!(r.backend, b_name(b));
+        assert_eq!(r.boards, 30);
+        assert!(r.pad_rows > 0 && r.pad_rows <= 30 * 200);
+        assert!(r.insert.pads_per_s > 0.0 && r.history.median_ms >= 0.0);
+        assert_eq!(r.history.entries, r.inspected_boards);
+        assert!(r.prune.pad_rows_deleted > 0);
+        assert!(r.size.bytes > 0);
+        let json = serde_json::to_string(&r).unwrap();
         assert!(json.contains("\"goals\""), "{json}");
+        bench::remove_scratch(&p.location).unwrap();
+        if let Location::Sqlite(path) = &p.location {
+            assert!(!path.exists());
+        }
+    }
+
+    fn b_name(b: Backend) -> &'static str {
+        match b {
+            Backend::Sqlite => "sqlite",
+            Backend::Postgres => "postgres",
+        }
     }
 }

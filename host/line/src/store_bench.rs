@@ -1,22 +1,34 @@
 //! A benchmark of the line's store on synthetic boards: how fast boards go in, how fast a pad's
-//! history comes out, how large the file grows and how fast retention deletes.
+//! history comes out, how large the store grows and how fast retention deletes; on SQLite or
+//! on PostgreSQL.
 //!
 //! [`run`] makes a fresh store `store-bench.sqlite` in the directory it is given (replacing
-//! one left by an earlier run), fills it with `boards` boards of `pads` pads each, as the line
-//! would, and measures. The values are pseudo-random but the same on every run: about 1 % of
-//! the pads warn, 0.2 % fail, 0.1 % could not be measured (NaN), and one board in 97 is
-//! incomplete. The file is left in the directory for a look (2,000 x 6,000 pads is about 1.4
-//! GB); the caller removes it.
+//! one left by an earlier run); [`run_at`] a fresh store at a [`Location`]: an SQLite file
+//! that must not exist yet, or, in a PostgreSQL database, a scratch schema
+//! `dpsa_store_bench` (made anew: one of that name left by an earlier run is dropped; the
+//! database's other schemas are not touched). Either fills it with `boards` boards of `pads`
+//! pads each, as the line would (line `store-bench`), and measures. The values are
+//! pseudo-random but the same on every run: about 1 % of the pads warn, 0.2 % fail, 0.1 % could
+//! not be measured (NaN), and one board in 97 is incomplete. The store is left for a look
+//! (2,000 x 6,000 pads is about 1.4 GB in SQLite); [`remove_scratch`] removes it.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
-use super::{BoardStart, CameraLoss, Outcome, PadRow, Store, StoreError, MIGRATIONS};
+use super::{
+    BoardStart, CameraLoss, Location, Outcome, PadRow, Step, Store, StoreError, MIGRATIONS,
+};
 
 /// The store's file name in the benchmark's directory.
 pub const FILE_NAME: &str = "store-bench.sqlite";
+
+/// The benchmark's schema in a PostgreSQL database.
+pub const SCRATCH_SCHEMA: &str = "dpsa_store_bench";
+
+/// The line the benchmark's boards are of.
+const LINE: &str = "store-bench";
 
 /// The goal for inserts, pad rows per second (sustained).
 pub const GOAL_PADS_PER_S: f64 = 50_000.0;
@@ -33,8 +45,10 @@ const HISTORY_QUERIES: usize = 20;
 /// What [`run`] measured.
 #[derive(Debug, Clone, Serialize)]
 pub struct StoreBench {
-    /// The store file measured.
-    pub path: PathBuf,
+    /// The store measured (a PostgreSQL URL with its password hidden).
+    pub store: String,
+    /// `sqlite` or `postgres`.
+    pub backend: &'static str,
     /// Its schema version.
     pub schema_version: u32,
     /// Which schema (the store's own, or a variant compared with it).
@@ -51,7 +65,9 @@ pub struct StoreBench {
     pub insert: InsertBench,
     /// A pad's history.
     pub history: HistoryBench,
-    /// The file's size.
+    /// [`Store::check`] of the full store (what the service does at every start), seconds.
+    pub check_s: f64,
+    /// The store's size.
     pub size: SizeBench,
     /// Retention ([`Store::prune_pads`]).
     pub prune: PruneBench,
@@ -96,11 +112,15 @@ pub struct HistoryBench {
     pub max_ms: f64,
 }
 
-/// The file's size after a checkpoint (`PRAGMA wal_checkpoint(TRUNCATE)`).
+/// The store's size once every board is in: SQLite's file and WAL after a checkpoint (`PRAGMA
+/// wal_checkpoint(TRUNCATE)`); PostgreSQL's tables with their indexes and TOAST
+/// (`pg_total_relation_size`: the server's WAL and catalogs not counted).
 #[derive(Debug, Clone, Serialize)]
 pub struct SizeBench {
-    /// Database and WAL, bytes.
-    pub file_bytes: u64,
+    /// Bytes.
+    pub bytes: u64,
+    /// What was counted.
+    pub counted: &'static str,
     /// Per board written.
     pub bytes_per_board: f64,
     /// Per pad row written.
@@ -139,43 +159,81 @@ pub struct Goal {
     pub met: bool,
 }
 
-/// Creates a fresh store in `dir`, writes `boards` synthetic boards of `pads` pads each, and
-/// measures (see [`StoreBench`]). `boards` must be at least 1. Takes one to two minutes for
-/// 2,000 x 6,000 pads on a two-core machine, and leaves a file of about 1.4 GB.
+/// Creates a fresh SQLite store `DIR/store-bench.sqlite` (replacing one left there, with its
+/// WAL), writes `boards` synthetic boards of `pads` pads each, and measures (see
+/// [`StoreBench`]). `boards` must be at least 1. Takes one to two minutes for 2,000 x 6,000
+/// pads on a two-core machine, and leaves a file of about 1.4 GB.
 pub fn run(dir: &Path, boards: usize, pads: usize) -> Result<StoreBench, StoreError> {
-    run_with(dir, boards, pads, MIGRATIONS, "store (pads WITHOUT ROWID)")
+    let path = dir.join(FILE_NAME);
+    remove_sqlite(&path)?;
+    run_at(&Location::Sqlite(path), boards, pads)
 }
 
-/// [`run`] with another schema.
-fn run_with(
-    dir: &Path,
-    boards: usize,
-    pads: usize,
-    migrations: &[&str],
-    schema: &str,
-) -> Result<StoreBench, StoreError> {
-    let path = dir.join(FILE_NAME);
-    if boards == 0 {
-        return Err(StoreError::Invalid {
-            path,
-            why: "a benchmark of 0 boards".to_owned(),
-        });
+/// [`run`] at `target`: an SQLite file that must not exist (a benchmark never replaces a file
+/// it did not make), or a PostgreSQL database, in its scratch schema [`SCRATCH_SCHEMA`].
+pub fn run_at(target: &Location, boards: usize, pads: usize) -> Result<StoreBench, StoreError> {
+    run_with(target, boards, pads, MIGRATIONS, "store")
+}
+
+/// Removes what [`run_at`] made at `target`: the SQLite file and its WAL, or the scratch
+/// schema with everything in it.
+pub fn remove_scratch(target: &Location) -> Result<(), StoreError> {
+    match target {
+        Location::Sqlite(path) => remove_sqlite(path),
+        Location::Postgres(url) => super::pg::Pg::scratch_schema(url, SCRATCH_SCHEMA, false),
     }
+}
+
+/// Removes an SQLite file and its WAL and shared-memory files, those that exist.
+fn remove_sqlite(path: &Path) -> Result<(), StoreError> {
     for suffix in ["", "-wal", "-shm"] {
-        let mut name = path.clone().into_os_string();
+        let mut name = path.to_owned().into_os_string();
         name.push(suffix);
         match std::fs::remove_file(&name) {
             Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-                return Err(StoreError::Io { path, source: e });
+                return Err(StoreError::Io {
+                    store: path.display().to_string(),
+                    source: e,
+                });
             }
             _ => {}
         }
     }
-    std::fs::create_dir_all(dir).map_err(|source| StoreError::Io {
-        path: path.clone(),
-        source,
-    })?;
-    let mut store = Store::open_with(&path, migrations)?;
+    Ok(())
+}
+
+/// [`run_at`] with another schema.
+fn run_with(
+    target: &Location,
+    boards: usize,
+    pads: usize,
+    migrations: &[Step],
+    schema: &str,
+) -> Result<StoreBench, StoreError> {
+    if boards == 0 {
+        return Err(StoreError::Invalid {
+            store: target.to_string(),
+            why: "a benchmark of 0 boards".to_owned(),
+        });
+    }
+    let location = match target {
+        Location::Sqlite(path) => {
+            if std::fs::symlink_metadata(path).is_ok() {
+                return Err(StoreError::Invalid {
+                    store: target.to_string(),
+                    why: "it exists: the benchmark makes a fresh store and never replaces a \
+                          file (remove it, or give another path)"
+                        .to_owned(),
+                });
+            }
+            target.clone()
+        }
+        Location::Postgres(url) => {
+            super::pg::Pg::scratch_schema(url, SCRATCH_SCHEMA, true)?;
+            Location::Postgres(url.with_schema(SCRATCH_SCHEMA))
+        }
+    };
+    let mut store = Store::open_with(&location, LINE, migrations)?;
     let product = "bench-board";
     let t0 = 1.7e9;
     let mut times = Vec::with_capacity(boards);
@@ -237,12 +295,17 @@ fn run_with(
         max_ms: ms.last().copied().unwrap_or(0.0),
     };
 
+    let t = Instant::now();
+    store.check()?;
+    let check_s = t.elapsed().as_secs_f64();
+
     store.checkpoint()?;
-    let file_bytes = file_size(&path)?;
+    let (bytes, counted) = store.bytes()?;
     let size = SizeBench {
-        file_bytes,
-        bytes_per_board: file_bytes as f64 / boards as f64,
-        bytes_per_pad_row: file_bytes as f64 / pad_rows.max(1) as f64,
+        bytes,
+        counted,
+        bytes_per_board: bytes as f64 / boards as f64,
+        bytes_per_pad_row: bytes as f64 / pad_rows.max(1) as f64,
     };
 
     let t = Instant::now();
@@ -269,7 +332,8 @@ fn run_with(
     };
     Ok(StoreBench {
         schema_version: store.schema_version()?,
-        path,
+        store: location.to_string(),
+        backend: location.backend(),
         schema: schema.to_owned(),
         boards,
         inspected_boards: inspected,
@@ -277,30 +341,11 @@ fn run_with(
         pad_rows,
         insert,
         history,
+        check_s,
         size,
         prune,
         goals,
     })
-}
-
-/// The store file and its WAL, bytes.
-fn file_size(path: &Path) -> Result<u64, StoreError> {
-    let mut wal = path.to_owned().into_os_string();
-    wal.push("-wal");
-    let mut bytes = 0;
-    for file in [path.as_os_str(), wal.as_os_str()] {
-        match std::fs::metadata(file) {
-            Ok(m) => bytes += m.len(),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
-            Err(source) => {
-                return Err(StoreError::Io {
-                    path: path.to_owned(),
-                    source,
-                })
-            }
-        }
-    }
-    Ok(bytes)
 }
 
 /// The `q` quantile of sorted values (nearest rank), 0 for none.
@@ -463,9 +508,10 @@ mod tests {
             .ok()
             .and_then(|v| v.parse().ok())
             .unwrap_or(6000);
-        let v1 = MIGRATIONS[0];
+        // Variants of version 1's `pads` (SQLite), version 2 on top as shipped.
+        let v1 = super::super::schema::V1;
         let rowid = v1.replacen(
-            "    PRIMARY KEY (board_id, pad)\n) WITHOUT ROWID;\n\nCREATE TABLE defects",
+            "    PRIMARY KEY (board_id, pad)\n){without_rowid};\n\nCREATE TABLE defects",
             "    PRIMARY KEY (board_id, pad)\n);\n\nCREATE TABLE defects",
             1,
         );
@@ -482,7 +528,9 @@ mod tests {
                 continue;
             }
             let dir = tempfile::tempdir().unwrap();
-            let b = run_with(dir.path(), boards, pads, &[sql.as_str()], name).unwrap();
+            let steps = [Step::Both(sql.clone().into()), MIGRATIONS[1].clone()];
+            let target = Location::Sqlite(dir.path().join(FILE_NAME));
+            let b = run_with(&target, boards, pads, &steps, name).unwrap();
             println!("{}", serde_json::to_string_pretty(&b).unwrap());
         }
     }
