@@ -78,6 +78,38 @@ fn kernel(c: &mut Criterion) {
             bench::pixel_v(&coef, &s, cfg.saturation)
         })
         .collect();
+    // The accumulate stage alone on the same four lines as a packed pool holds them
+    // (Mono12p), 64 columns a call as the pipeline makes them, every build this CPU runs.
+    let packed: Vec<Vec<u8>> = l
+        .iter()
+        .map(|line| {
+            let mut b = vec![0u8; dpsa_core::frames::mono12p::stored_len(W)];
+            dpsa_core::frames::mono12p::pack(line, &mut b);
+            b
+        })
+        .collect();
+    let pl: Vec<&[u8]> = packed.iter().map(|b| &b[..]).collect();
+    let mut g = c.benchmark_group("accumulate_packed");
+    g.throughput(Throughput::Elements(W as u64));
+    for k in dpsa_core::lanes::Kernel::all() {
+        g.bench_function(BenchmarkId::new(k.name(), W), |b| {
+            let mut out = vec![[0i32; 2]; 64];
+            b.iter(|| {
+                for c0 in (0..W).step_by(64) {
+                    bench::block_packed_with(
+                        k,
+                        &coef,
+                        black_box(&pl),
+                        c0,
+                        cfg.saturation,
+                        &mut out,
+                    );
+                    black_box(&out);
+                }
+            })
+        });
+    }
+    g.finish();
     let mut g = c.benchmark_group("phase_height");
     g.throughput(Throughput::Elements(W as u64));
     for k in dpsa_core::lanes::Kernel::all() {

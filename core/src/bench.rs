@@ -10,6 +10,8 @@
 //! host benchmark (`benches/kernel.rs`) and the host's f64 reference comparisons. Names,
 //! signatures and formats here may change with any release.
 
-pub use crate::accumulate::{block, block_packed, pixel, pixel_v, Acc, Coef, SATURATED, V};
+pub use crate::accumulate::{
+    block, block_packed, block_packed_with, pixel, pixel_v, Acc, Coef, SATURATED, V,
+};
 pub use crate::dsp::{check_against_twins, checks};
 pub use crate::solve::{SolveError, Window, MAX_N, MIN_N, P_FRAC};

@@ -102,9 +102,9 @@
 #![no_std]
 // No `unsafe` anywhere but the three `asm!` blocks of `dsp` (`SMLAD`, `UQSUB16` and the
 // Mono12p unpack; behind that module's own `allow`, on an ARM target with the `dsp` feature
-// only; see that module for why and how it is tested) and the SSE2 and AVX2 builds of `lanes`
-// (x86-64: their intrinsics' loads and stores, and AVX2 entered only after run-time
-// detection; see that module).
+// only; see that module for why and how it is tested), the SSE2 and AVX2 builds of `lanes`
+// and the AVX2 build of `accumulate` (x86-64: their intrinsics' loads and stores, and AVX2
+// entered only after run-time detection; see those modules).
 #![deny(unsafe_code)]
 
 #[cfg(feature = "alloc")]

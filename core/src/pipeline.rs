@@ -768,9 +768,14 @@ impl Rows<'_> {
             let len = BLOCK.min(self.w - c0);
             match &self.lines {
                 Lines::Wide(l) => accumulate::block(coef, &l[..n], c0, self.sat, &mut v[..len]),
-                Lines::Packed(l) => {
-                    accumulate::block_packed(coef, &l[..n], c0, self.sat, &mut v[..len])
-                }
+                Lines::Packed(l) => accumulate::block_packed_with(
+                    self.kernel,
+                    coef,
+                    &l[..n],
+                    c0,
+                    self.sat,
+                    &mut v[..len],
+                ),
             }
             let (v, r) = (&v[..len], &self.ref_phase[c0..c0 + len]);
             let (h, m) = (&mut heights[c0..c0 + len], &mut valid[c0 / 8..]);
