@@ -110,6 +110,22 @@ fn kernel(c: &mut Criterion) {
         });
     }
     g.finish();
+    // The same on 16-bit lines (the pool of a camera of more than 12 bits).
+    let wide: Vec<&[u16]> = l.iter().map(|line| &line[..]).collect();
+    let mut g = c.benchmark_group("accumulate_wide");
+    g.throughput(Throughput::Elements(W as u64));
+    for k in dpsa_core::lanes::Kernel::all() {
+        g.bench_function(BenchmarkId::new(k.name(), W), |b| {
+            let mut out = vec![[0i32; 2]; 64];
+            b.iter(|| {
+                for c0 in (0..W).step_by(64) {
+                    bench::block_with(k, &coef, black_box(&wide), c0, cfg.saturation, &mut out);
+                    black_box(&out);
+                }
+            })
+        });
+    }
+    g.finish();
     let mut g = c.benchmark_group("phase_height");
     g.throughput(Throughput::Elements(W as u64));
     for k in dpsa_core::lanes::Kernel::all() {

@@ -11,10 +11,10 @@
 //! The kernels ([`block`] for u16 lines, [`block_packed`] for Mono12p) work on pairs of
 //! neighbouring pixels with the M7's dual 16-bit instructions ([`crate::dsp`]); [`pixel_v`] is
 //! their scalar definition, and [`crate::offload`] the seam where a front end can take the
-//! stage over. On an x86-64 host with AVX2 the pipeline runs [`block_packed`] sixteen pixels
-//! at a time in AVX2 ([`block_packed_with`]: the same sums, about six times the scalar
-//! loop's rate, `cargo bench -p dpsa-core --bench kernel -- accumulate_packed`); 16-bit
-//! lines (cameras of more than 12 bits) keep [`block`].
+//! stage over. On an x86-64 host with AVX2 the pipeline runs both kernels sixteen pixels at a
+//! time in AVX2 ([`block_packed_with`], [`block_with`]: the same sums; about 6 times the
+//! scalar loop's rate on Mono12p lines and 9 times on 16-bit lines, `cargo bench -p dpsa-core
+//! --bench kernel -- accumulate`).
 
 use crate::dsp::{pack_bottoms, pack_tops, pair, smlad, unpack12, uqsub16};
 use crate::frames::mono12p;
@@ -571,6 +571,25 @@ impl<'a> Pool<'a> {
     }
 }
 
+/// [`block`] with the pipeline's [`Kernel`]: its AVX2 build ([`Kernel::Avx2`]) takes sixteen
+/// pixels at a time; every other kernel runs [`block`]. The same results (tested:
+/// `block_equals_pixel_v` through every kernel).
+#[inline(always)]
+pub fn block_with(
+    kernel: Kernel,
+    coef: &Coef,
+    lines: &[&[u16]],
+    c0: usize,
+    saturation: u16,
+    out: &mut [V],
+) {
+    match kernel {
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Avx2(proof) => x86::block(proof, coef, lines, c0, saturation, out),
+        _ => block(coef, lines, c0, saturation, out),
+    }
+}
+
 /// [`block_packed`] with the pipeline's [`Kernel`]: its AVX2 build ([`Kernel::Avx2`], x86-64
 /// with AVX2 detected at run time) takes sixteen pixels at a time; every other kernel (the
 /// firmware's scalar loop among them) runs [`block_packed`]. The results are the same
@@ -591,8 +610,8 @@ pub fn block_packed_with(
     }
 }
 
-/// The accumulate stage of Mono12p lines in AVX2: sixteen pixels (24 bytes of each line) a
-/// step, the same sums as [`pair_step`] in the same wrapping i32 arithmetic.
+/// The accumulate stage in AVX2: sixteen pixels a step (32 bytes of each 16-bit line, 24 of
+/// each Mono12p line), the same sums as [`pair_step`] in the same wrapping i32 arithmetic.
 ///
 /// - **Unpack.** Each 128-bit half takes twelve bytes (eight pixels) of a line; one byte
 ///   shuffle puts bytes `3i, 3i + 1` into the 16-bit lane of pixel `2i` and `3i + 1, 3i + 2`
@@ -603,14 +622,18 @@ pub fn block_packed_with(
 ///   lanes: two exact i16 products added in i32. Its one overflowing case, both products
 ///   `(-2^15)^2`, cannot occur (samples are below 2^12, and `|q| <= 32767`). The sums over the
 ///   pairs of lines are wrapping 32-bit adds, as [`smlad`]'s.
+/// - **16-bit lines** are read as they are, their lanes flipped (`x ^ 0x8000`) above a
+///   saturation level of 2^15 as [`block`] flips them; `madd`'s overflowing case needs a
+///   coefficient of `-2^15`, which [`Coef`] never has.
 /// - **Saturation.** `_mm256_subs_epu16` is [`uqsub16`]: a lane of `x - (saturation - 1)`
 ///   floored at 0 is non-zero exactly when `x >= saturation`; such pixels are marked
 ///   `[SATURATED, 0]` afterwards, off the hot path.
 ///
-/// A step runs where both sixteen-byte loads (bytes `0..16` and `12..28` of the step) lie
-/// inside every line; the rest of the columns (fewer than sixteen, or a line that ends within
-/// four bytes) go through [`block_packed`], as do a `c0` that is not a multiple of 8 and line
-/// counts outside `3..=8`.
+/// A Mono12p step runs where both sixteen-byte loads (bytes `0..16` and `12..28` of the step)
+/// lie inside every line; the rest of the columns (fewer than sixteen, or a line that ends
+/// within four bytes) go through [`block_packed`], as do a `c0` that is not a multiple of 8
+/// and line counts outside `3..=8`; the last columns of 16-bit lines (fewer than sixteen) go
+/// through [`block`].
 #[cfg(target_arch = "x86_64")]
 #[allow(unsafe_code)]
 mod x86 {
@@ -653,6 +676,56 @@ mod x86 {
         }
     }
 
+    pub(super) fn block(
+        proof: Avx2,
+        coef: &Coef,
+        lines: &[&[u16]],
+        c0: usize,
+        saturation: u16,
+        out: &mut [V],
+    ) {
+        let _ = proof;
+        let n = lines.len();
+        if !(3..=MAX_N).contains(&n) || saturation == 0 {
+            super::block(coef, lines, c0, saturation, out);
+            return;
+        }
+        let done = out.len() / STEP * STEP;
+        let (head, rest) = out.split_at_mut(done);
+        if done > 0 {
+            // SAFETY: as in `block_packed`; every line holds `c0 + out.len()` samples (the
+            // caller's contract, checked again by the slices the loads take).
+            unsafe { steps_wide_avx2(coef, lines, c0, saturation, head) };
+        }
+        if !rest.is_empty() {
+            super::block(coef, lines, c0 + done, saturation, rest);
+        }
+    }
+
+    /// Sixteen samples of a 16-bit line from column `at`, flipped by `flip`.
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn wide(line: &[u16], at: usize, flip: __m256i) -> (__m256i, __m256i) {
+        let s: &[u16; STEP] = line[at..at + STEP].try_into().expect("16 samples");
+        // SAFETY: `s` is 32 readable bytes; the load has no alignment requirement.
+        let raw = unsafe { _mm256_loadu_si256(s.as_ptr().cast()) };
+        (raw, _mm256_xor_si256(raw, flip))
+    }
+
+    #[target_feature(enable = "avx2")]
+    fn steps_wide_avx2(coef: &Coef, lines: &[&[u16]], c0: usize, saturation: u16, out: &mut [V]) {
+        let n = lines.len();
+        let k = Pairs::new(coef, n, saturation);
+        let flip = _mm256_set1_epi16(if saturation <= 0x8000 { 0 } else { i16::MIN });
+        let s1 = _mm256_set1_epi16((saturation - 1) as i16);
+        let q2: [__m256i; MAX_N / 2] = core::array::from_fn(|p| _mm256_set1_epi32(k.q2[p] as i32));
+        let q3: [__m256i; MAX_N / 2] = core::array::from_fn(|p| _mm256_set1_epi32(k.q3[p] as i32));
+        for (s, o) in out.chunks_exact_mut(STEP).enumerate() {
+            let at = c0 + STEP * s;
+            accumulate_step(n, &q2, &q3, s1, |j| wide(lines[j], at, flip), o);
+        }
+    }
+
     /// Sixteen bytes of `line` from `at` (a bounds-checked slice, then an unaligned load).
     #[target_feature(enable = "avx2")]
     #[inline]
@@ -686,56 +759,80 @@ mod x86 {
             0, 1, 1, 2, 3, 4, 4, 5, 6, 7, 7, 8, 9, 10, 10, 11,
         ));
         let s1 = _mm256_set1_epi16((saturation - 1) as i16);
-        let pairs = n.div_ceil(2);
         let q2: [__m256i; MAX_N / 2] = core::array::from_fn(|p| _mm256_set1_epi32(k.q2[p] as i32));
         let q3: [__m256i; MAX_N / 2] = core::array::from_fn(|p| _mm256_set1_epi32(k.q3[p] as i32));
         for (s, o) in out.chunks_exact_mut(STEP).enumerate() {
             let b = at + 24 * s;
-            let zero = _mm256_setzero_si256();
-            let (mut a2lo, mut a3lo, mut a2hi, mut a3hi) = (zero, zero, zero, zero);
-            let mut sat = zero;
-            for p in 0..pairs {
-                let x0 = samples(lines[2 * p], b, shuffle);
-                sat = _mm256_or_si256(sat, _mm256_subs_epu16(x0, s1));
-                let x1 = if 2 * p + 1 < n {
-                    let x1 = samples(lines[2 * p + 1], b, shuffle);
-                    sat = _mm256_or_si256(sat, _mm256_subs_epu16(x1, s1));
-                    x1
-                } else {
-                    zero
-                };
-                // Per 128-bit half: pixels 0-3 (8-11) in `lo`, 4-7 (12-15) in `hi`.
-                let lo = _mm256_unpacklo_epi16(x0, x1);
-                let hi = _mm256_unpackhi_epi16(x0, x1);
-                a2lo = _mm256_add_epi32(a2lo, _mm256_madd_epi16(lo, q2[p]));
-                a3lo = _mm256_add_epi32(a3lo, _mm256_madd_epi16(lo, q3[p]));
-                a2hi = _mm256_add_epi32(a2hi, _mm256_madd_epi16(hi, q2[p]));
-                a3hi = _mm256_add_epi32(a3hi, _mm256_madd_epi16(hi, q3[p]));
-            }
-            // `[v_2, v_3]` per pixel, back in column order.
-            let (l0, l1) = (
-                _mm256_unpacklo_epi32(a2lo, a3lo),
-                _mm256_unpackhi_epi32(a2lo, a3lo),
+            accumulate_step(
+                n,
+                &q2,
+                &q3,
+                s1,
+                |j| {
+                    let x = samples(lines[j], b, shuffle);
+                    (x, x)
+                },
+                o,
             );
-            let (h0, h1) = (
-                _mm256_unpacklo_epi32(a2hi, a3hi),
-                _mm256_unpackhi_epi32(a2hi, a3hi),
-            );
-            let quarters = [
-                _mm256_permute2x128_si256::<0x20>(l0, l1),
-                _mm256_permute2x128_si256::<0x20>(h0, h1),
-                _mm256_permute2x128_si256::<0x31>(l0, l1),
-                _mm256_permute2x128_si256::<0x31>(h0, h1),
-            ];
-            for (q, dst) in quarters.iter().zip(o.chunks_exact_mut(4)) {
-                let d: &mut [i32] = bytemuck::cast_slice_mut(dst);
-                let d: &mut [i32; 8] = d.try_into().expect("four pixels");
-                // SAFETY: `d` is 32 writable bytes; the store has no alignment requirement.
-                unsafe { _mm256_storeu_si256(d.as_mut_ptr().cast(), *q) };
-            }
-            if _mm256_testz_si256(sat, sat) == 0 {
-                mark(o, sat);
-            }
+        }
+    }
+
+    /// One step of sixteen pixels `o` of `n` lines: `line(j)` gives line `j`'s samples as
+    /// they are (for the saturation test) and as the products take them (flipped or not).
+    #[target_feature(enable = "avx2")]
+    #[inline]
+    fn accumulate_step(
+        n: usize,
+        q2: &[__m256i; MAX_N / 2],
+        q3: &[__m256i; MAX_N / 2],
+        s1: __m256i,
+        line: impl Fn(usize) -> (__m256i, __m256i),
+        o: &mut [V],
+    ) {
+        let zero = _mm256_setzero_si256();
+        let (mut a2lo, mut a3lo, mut a2hi, mut a3hi) = (zero, zero, zero, zero);
+        let mut sat = zero;
+        for p in 0..n.div_ceil(2) {
+            let (r0, x0) = line(2 * p);
+            sat = _mm256_or_si256(sat, _mm256_subs_epu16(r0, s1));
+            let x1 = if 2 * p + 1 < n {
+                let (r1, x1) = line(2 * p + 1);
+                sat = _mm256_or_si256(sat, _mm256_subs_epu16(r1, s1));
+                x1
+            } else {
+                zero
+            };
+            // Per 128-bit half: pixels 0-3 (8-11) in `lo`, 4-7 (12-15) in `hi`.
+            let lo = _mm256_unpacklo_epi16(x0, x1);
+            let hi = _mm256_unpackhi_epi16(x0, x1);
+            a2lo = _mm256_add_epi32(a2lo, _mm256_madd_epi16(lo, q2[p]));
+            a3lo = _mm256_add_epi32(a3lo, _mm256_madd_epi16(lo, q3[p]));
+            a2hi = _mm256_add_epi32(a2hi, _mm256_madd_epi16(hi, q2[p]));
+            a3hi = _mm256_add_epi32(a3hi, _mm256_madd_epi16(hi, q3[p]));
+        }
+        // `[v_2, v_3]` per pixel, back in column order.
+        let (l0, l1) = (
+            _mm256_unpacklo_epi32(a2lo, a3lo),
+            _mm256_unpackhi_epi32(a2lo, a3lo),
+        );
+        let (h0, h1) = (
+            _mm256_unpacklo_epi32(a2hi, a3hi),
+            _mm256_unpackhi_epi32(a2hi, a3hi),
+        );
+        let quarters = [
+            _mm256_permute2x128_si256::<0x20>(l0, l1),
+            _mm256_permute2x128_si256::<0x20>(h0, h1),
+            _mm256_permute2x128_si256::<0x31>(l0, l1),
+            _mm256_permute2x128_si256::<0x31>(h0, h1),
+        ];
+        for (q, dst) in quarters.iter().zip(o.chunks_exact_mut(4)) {
+            let d: &mut [i32] = bytemuck::cast_slice_mut(dst);
+            let d: &mut [i32; 8] = d.try_into().expect("four pixels");
+            // SAFETY: `d` is 32 writable bytes; the store has no alignment requirement.
+            unsafe { _mm256_storeu_si256(d.as_mut_ptr().cast(), *q) };
+        }
+        if _mm256_testz_si256(sat, sat) == 0 {
+            mark(o, sat);
         }
     }
 
@@ -881,6 +978,11 @@ mod tests {
             for (k, o) in out.iter().enumerate() {
                 let s: vec::Vec<u16> = lines.iter().map(|l| l[c0 + k]).collect();
                 proptest::prop_assert_eq!(*o, pixel_v(&coef, &s, sat), "column {}", c0 + k);
+            }
+            for kernel in Kernel::all() {
+                let mut outk = vec![[7i32, 7]; len];
+                block_with(kernel, &coef, &lines, c0, sat, &mut outk);
+                proptest::prop_assert_eq!(&outk, &out, "16-bit, {}", kernel.name());
             }
             // Mono12p lines (a packed pool: saturation <= 4095), with and without spare bytes
             // (the AVX2 build's last loads reach four bytes past a step), through every

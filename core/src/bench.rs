@@ -11,7 +11,7 @@
 //! signatures and formats here may change with any release.
 
 pub use crate::accumulate::{
-    block, block_packed, block_packed_with, pixel, pixel_v, Acc, Coef, SATURATED, V,
+    block, block_packed, block_packed_with, block_with, pixel, pixel_v, Acc, Coef, SATURATED, V,
 };
 pub use crate::dsp::{check_against_twins, checks};
 pub use crate::solve::{SolveError, Window, MAX_N, MIN_N, P_FRAC};

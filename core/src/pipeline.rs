@@ -767,7 +767,9 @@ impl Rows<'_> {
         while c0 < self.w {
             let len = BLOCK.min(self.w - c0);
             match &self.lines {
-                Lines::Wide(l) => accumulate::block(coef, &l[..n], c0, self.sat, &mut v[..len]),
+                Lines::Wide(l) => {
+                    accumulate::block_with(self.kernel, coef, &l[..n], c0, self.sat, &mut v[..len])
+                }
                 Lines::Packed(l) => accumulate::block_packed_with(
                     self.kernel,
                     coef,
