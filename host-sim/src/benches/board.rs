@@ -201,7 +201,7 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
     let core = t1.elapsed().as_secs_f64();
     let core_pixels: u64 = collected
         .iter()
-        .map(|c| c.rows.len() as u64 * c.width as u64)
+        .map(|c| c.len() as u64 * c.width as u64)
         .sum();
     let (a, provenance) = stitch(collected, &loaded, cal, &grid)?;
     // Kept for the paced run's map to be compared with (not timed).
@@ -225,7 +225,7 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
     let t3 = Instant::now();
     let one = core_rows(r0, cal, 0)?;
     let core_camera0 = t3.elapsed().as_secs_f64();
-    let one_px = one.rows.len() as f64 * one.width as f64;
+    let one_px = one.len() as f64 * one.width as f64;
     drop(one);
     let (numpy, numpy_error) = match python {
         None => (None, Some("skipped (--no-numpy)".to_string())),

@@ -216,8 +216,12 @@ pub struct Collector {
     /// Columns.
     pub width: usize,
     lsb_um: f32,
-    /// Board row and wrapped heights (um, NaN invalid) of every row, in arrival order.
-    pub rows: Vec<(i64, Vec<f32>)>,
+    /// Board row of every row, in arrival order.
+    rows: Vec<i64>,
+    /// Wrapped heights (um, NaN invalid) of every row of `rows`, `width` each, one after
+    /// another: one buffer, so that rows in order become the camera's grid without a copy
+    /// ([`Collector::finish`]) and the line's chunks reuse it ([`Collector::take_chunk`]).
+    heights: Vec<f32>,
     /// Per row of `rows`: the window's first latch when the row is valid (to be confirmed by
     /// the registration replay), `None` for an invalid row.
     latches: Vec<Option<i64>>,
@@ -253,9 +257,30 @@ impl Collector {
             width,
             lsb_um: lsb_um as f32,
             rows: Vec::new(),
+            heights: Vec::new(),
             latches: Vec::new(),
             next_row: None,
         }
+    }
+
+    /// Rows pushed (since the last chunk taken).
+    pub fn len(&self) -> usize {
+        self.rows.len()
+    }
+
+    /// Whether no row is held.
+    pub fn is_empty(&self) -> bool {
+        self.rows.is_empty()
+    }
+
+    /// Heights of held row `k` (arrival order).
+    fn row(&self, k: usize) -> &[f32] {
+        &self.heights[k * self.width..(k + 1) * self.width]
+    }
+
+    /// Whether the held rows are one after another from the first, each once.
+    fn in_order(&self) -> bool {
+        self.rows.windows(2).all(|p| p[1] == p[0] + 1)
     }
 
     /// The rows pushed since the last call, as a [`Chunk`] (`None`: none new). The rows are
@@ -272,32 +297,32 @@ impl Collector {
         cal: &CameraCal,
         max_step: u32,
     ) -> Result<Option<Chunk>> {
-        let rows = std::mem::take(&mut self.rows);
-        let latches = std::mem::take(&mut self.latches);
         let from = self.next_row;
         let taken = |b: &i64| from.is_none_or(|f| *b >= f);
         let (Some(first), Some(last)) = (
-            rows.iter().map(|r| r.0).filter(taken).min(),
-            rows.iter().map(|r| r.0).max(),
+            self.rows.iter().copied().filter(taken).min(),
+            self.rows.iter().copied().max(),
         ) else {
+            self.clear();
             return Ok(None);
         };
+        let rows = self.rows.len();
         // Chunks follow each other without a gap: rows lost at a chunk's start are invalid
         // rows of it, so that every row stays at its board row in the stitcher.
         let first = from.unwrap_or(first);
         let span = i128::from(last) - i128::from(first) + 1;
-        if span > rows.len() as i128 + (1 << 16) {
+        if span > rows as i128 + (1 << 16) {
+            self.clear();
             return Err(BoardError::Refused(format!(
-                "camera {}: its rows span {span} board rows but only {} came (an encoder fault?)",
+                "camera {}: its rows span {span} board rows but only {rows} came (an encoder fault?)",
                 self.id,
-                rows.len()
             )));
         }
         let w = self.width;
         let n = span as usize;
         let mut g = Grid::invalid(w, n);
         let mut unplaced = 0;
-        for ((b, h), latch) in rows.into_iter().zip(latches) {
+        for (k, (&b, latch)) in self.rows.iter().zip(&self.latches).enumerate() {
             if b < first {
                 continue;
             }
@@ -308,8 +333,9 @@ impl Collector {
                 g.data[i * w..(i + 1) * w].fill(f32::NAN);
                 continue;
             }
-            g.data[i * w..(i + 1) * w].copy_from_slice(&h);
+            g.data[i * w..(i + 1) * w].copy_from_slice(self.row(k));
         }
+        self.clear();
         let dead_masked =
             crate::provenance::mask_dead_pixels(prov, &cal.dead_pixels, first, &mut g);
         let places = crate::provenance::row_places(
@@ -330,22 +356,29 @@ impl Collector {
         }))
     }
 
+    /// Forgets the held rows, keeping the buffers for the next ones.
+    fn clear(&mut self) {
+        self.rows.clear();
+        self.heights.clear();
+        self.latches.clear();
+    }
+
     /// One row as the core emitted it (the same bytes as its packet, from the core or from a
     /// stream): LSB to um (the core applied the per-column height per turn).
     pub fn push(&mut self, r: &HeightRow) {
-        let h = (0..self.width)
-            .map(|c| match r.heights.get(c) {
-                Some(&v) if r.pixel_valid(c) => f32::from(v) * self.lsb_um,
+        let lsb = self.lsb_um;
+        self.heights
+            .extend((0..self.width).map(|c| match r.heights.get(c) {
+                Some(&v) if r.pixel_valid(c) => f32::from(v) * lsb,
                 _ => f32::NAN,
-            })
-            .collect();
-        self.rows.push((r.row, h));
+            }));
+        self.rows.push(r.row);
         self.latches.push(r.is_valid().then_some(r.latch));
     }
 
-    /// The rows (sorted by board row) as a grid from the first to the last row, with the
-    /// `lost` board rows (inclusive ranges) inside it marked; returns it and the valid rows
-    /// `prov` did not confirm (left invalid, marked lost).
+    /// The rows (in any order; a row that came twice keeps its last copy) as a grid from the
+    /// first to the last row, with the `lost` board rows (inclusive ranges) inside it marked;
+    /// returns it and the valid rows `prov` did not confirm (left invalid, marked lost).
     /// `prov` is the registration of the camera's frames (which frames fed each row, see
     /// [`crate::provenance`]); `variance`: each pixel's variance (um^2) of the rows as they
     /// stand (the simulator's Cramer-Rao bound), or `None`.
@@ -361,21 +394,24 @@ impl Collector {
         // unknown, so it is not used (lost, never interpolated across).
         let mut lost = lost.to_vec();
         let mut unplaced = 0u64;
-        for ((b, h), latch) in self.rows.iter_mut().zip(&self.latches) {
+        let w = self.width;
+        for (k, (&b, latch)) in self.rows.iter().zip(&self.latches).enumerate() {
             if let Some(l) = *latch {
-                if !prov.confirms(*b, l) {
-                    h.fill(f32::NAN);
-                    lost.push((*b, *b));
+                if !prov.confirms(b, l) {
+                    self.heights[k * w..(k + 1) * w].fill(f32::NAN);
+                    lost.push((b, b));
                     unplaced += 1;
                 }
             }
         }
         let lost = &lost[..];
-        let w = self.width;
+        // The rows' ends whatever their order (a stream's rows need not come sorted).
         let ends = self
             .rows
-            .first()
-            .map(|r| (r.0, self.rows.last().map_or(r.0, |l| l.0)));
+            .iter()
+            .min()
+            .zip(self.rows.iter().max())
+            .map(|(&f, &l)| (f, l));
         let (first, last) = lost
             .iter()
             .fold(ends, |e, &(a, b)| {
@@ -396,11 +432,21 @@ impl Collector {
             )));
         }
         let span = span as usize;
-        let mut g = Grid::invalid(w, span);
-        for (b, h) in self.rows {
-            let i = (b - first) as usize;
-            g.data[i * w..(i + 1) * w].copy_from_slice(&h);
-        }
+        // Rows that came in order, each once, over the whole span are the grid as they are.
+        let mut g = if self.rows.len() == span && self.in_order() {
+            Grid {
+                width: w,
+                rows: span,
+                data: std::mem::take(&mut self.heights),
+            }
+        } else {
+            let mut g = Grid::invalid(w, span);
+            for (k, &b) in self.rows.iter().enumerate() {
+                let i = (b - first) as usize;
+                g.data[i * w..(i + 1) * w].copy_from_slice(self.row(k));
+            }
+            g
+        };
         let mut mask = Vec::new();
         if !lost.is_empty() {
             mask = vec![false; span];
@@ -776,4 +822,146 @@ pub fn from_streams(
         },
         out,
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::provenance::{plan_triggers, Registration};
+    use dpsa_core::Trigger;
+    use dpsa_formats::calibration::Lateral;
+
+    const W: usize = 24;
+    const LSB_UM: f64 = 0.25;
+
+    fn cal() -> CameraCal {
+        CameraCal {
+            id: 0,
+            width: W as u32,
+            rows: 40,
+            bit_depth: 12,
+            saturation: 4095,
+            counts_per_pixel: 10.0,
+            counts_per_mm: 360.0,
+            fringe_period_px: 32.0,
+            fringe_frequency_poly: [1.0 / 32.0, 0.0, 0.0],
+            fx_height_error_um: 0.0,
+            fx_over_budget: false,
+            height_per_turn_um: vec![500.0; W],
+            reference_phase_rad: vec![0.0; W],
+            core_reference_phase_rad: vec![0.0; W],
+            background_dn: vec![1800.0; W],
+            modulation_dn: vec![700.0; W],
+            dead_pixels: Vec::new(),
+            background_map: Vec::new(),
+            modulation_map: Vec::new(),
+            lateral: Lateral {
+                x0_mm: 0.0,
+                y0_mm: 0.0,
+                pitch_mm: 0.0277,
+                rotation_rad: 0.0,
+                row_pitch_mm: 0.0277,
+                fit_rms_um: 0.0,
+                marks: 0,
+            },
+        }
+    }
+
+    /// Every row a steady run of 30 frames of 8 rows gives a complete window, as the core
+    /// emits it: heights `(7 b + 3 c) mod 1000 - 500` LSB, every fifth pixel invalid, the
+    /// window's first latch; and the registration of those frames.
+    fn rows() -> (Vec<HeightRow>, Provenance) {
+        let triggers: Vec<Trigger> = (0..30u32)
+            .map(|k| Trigger {
+                seq: k,
+                latch: i64::from(k) * 80 + 3,
+            })
+            .collect();
+        let reg = Registration {
+            rows: 40,
+            n: 4,
+            max_step_rows: 12,
+            counts_per_pixel: 10.0,
+        };
+        let rows = plan_triggers(&triggers, &reg)
+            .into_iter()
+            .filter(|p| p.flags == 0)
+            .filter_map(|p| {
+                let w = p.first_frame?;
+                Some(HeightRow {
+                    row: p.row,
+                    latch: triggers[w].latch,
+                    flags: 0,
+                    heights: (0..W as i64)
+                        .map(|c| ((7 * p.row + 3 * c).rem_euclid(1000) - 500) as i16)
+                        .collect(),
+                    valid: (0..W as i64).map(|c| (p.row + c) % 5 != 0).collect(),
+                })
+            })
+            .collect();
+        (rows, Provenance::replay(&triggers, &reg))
+    }
+
+    fn bits(v: &[f32]) -> Vec<u32> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    /// Rows in order become the grid as they are (no copy); shuffled, with one row twice, they
+    /// are placed row by row; handed on in chunks as the line does, the same heights again.
+    /// Every way gives each pixel its height in um (`LSB x 0.25`) or NaN where it was invalid.
+    #[test]
+    fn the_camera_grid_is_the_same_however_the_rows_come() {
+        let (rows, prov) = rows();
+        assert!(rows.len() > 150, "{}", rows.len());
+        let c = cal();
+        let whole = |order: &[usize]| {
+            let mut col = Collector::new(&c, LSB_UM);
+            for &k in order {
+                col.push(&rows[k]);
+            }
+            let (cam, unplaced) = col
+                .finish(&prov, &mut no_variance, &c, 12, &[])
+                .expect("rows");
+            assert_eq!(unplaced, 0);
+            cam
+        };
+        let in_order: Vec<usize> = (0..rows.len()).collect();
+        let a = whole(&in_order);
+        assert_eq!(a.first_row, rows[0].row);
+        assert_eq!(a.heights.rows, rows.len());
+        for (i, r) in rows.iter().enumerate() {
+            for col in 0..W {
+                let want = if r.valid[col] {
+                    f32::from(r.heights[col]) * LSB_UM as f32
+                } else {
+                    f32::NAN
+                };
+                assert_eq!(
+                    a.heights.at(i, col).to_bits(),
+                    want.to_bits(),
+                    "row {i} col {col}"
+                );
+            }
+        }
+        // Reversed, with row 10 again at the end.
+        let mut shuffled: Vec<usize> = (0..rows.len()).rev().collect();
+        shuffled.push(10);
+        let b = whole(&shuffled);
+        assert_eq!(b.first_row, a.first_row);
+        assert_eq!(bits(&b.heights.data), bits(&a.heights.data));
+
+        let mut col = Collector::new(&c, LSB_UM);
+        let mut chunks = Vec::new();
+        for (k, r) in rows.iter().enumerate() {
+            col.push(r);
+            if k % 37 == 36 || k + 1 == rows.len() {
+                let chunk = col.take_chunk(&prov, &c, 12).expect("chunk").expect("rows");
+                assert!(col.is_empty());
+                chunks.push(chunk);
+            }
+        }
+        assert_eq!(chunks[0].first_row, a.first_row);
+        let joined: Vec<f32> = chunks.iter().flat_map(|c| c.heights.clone()).collect();
+        assert_eq!(bits(&joined), bits(&a.heights.data));
+    }
 }
