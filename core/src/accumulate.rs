@@ -593,7 +593,7 @@ pub fn block_with(
 /// [`block_packed`] with the pipeline's [`Kernel`]: its AVX2 build ([`Kernel::Avx2`], x86-64
 /// with AVX2 detected at run time) takes sixteen pixels at a time; every other kernel (the
 /// firmware's scalar loop among them) runs [`block_packed`]. The results are the same
-/// (tested: `avx2_block_packed_is_block_packed`, and the pipeline's rows through every kernel).
+/// (tested: `block_equals_pixel_v` through every kernel, and the pipeline's rows).
 #[inline(always)]
 pub fn block_packed_with(
     kernel: Kernel,

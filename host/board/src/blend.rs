@@ -331,6 +331,7 @@ impl Blender {
                 }
             }
             out.push(self.blend_band(&p));
+            p.layers.into_iter().for_each(Layer::recycle);
         }
         out
     }
@@ -355,7 +356,7 @@ impl Blender {
             (p.rows.start - halo.start) * w,
             (p.rows.end - halo.start) * w,
         );
-        let heights = map.heights[a..b].to_vec();
+        let heights = part_of(map.heights, a..b);
         let lost_pixels = p
             .rows
             .clone()
@@ -366,14 +367,16 @@ impl Blender {
         BandMap {
             rows: p.rows.clone(),
             heights,
-            variance: map.variance.map(|v| v[a..b].to_vec()),
-            camera: map.camera[a..b].to_vec(),
+            variance: map.variance.map(|v| part_of(v, a..b)),
+            camera: part_of(map.camera, a..b),
             lost_pixels,
         }
     }
 
-    /// The turns, the edge's median, the seams: what the bands decided and added up.
+    /// The turns, the edge's median, the seams: what the bands decided and added up. The
+    /// layers' spare grids kept for later bands are dropped.
     pub fn finish(self) -> (Vec<i32>, Option<f64>, u64, Vec<Seam>) {
+        crate::resample::drop_spare();
         let to_um = self.grid.pitch_mm * 1000.0;
         let seams = self
             .seams
@@ -396,6 +399,13 @@ impl Blender {
             seams,
         )
     }
+}
+
+/// The values `part` of `v`, in `v`'s buffer (no copy into a new one).
+fn part_of<T>(mut v: Vec<T>, part: Range<usize>) -> Vec<T> {
+    v.truncate(part.end);
+    v.drain(..part.start.min(v.len()));
+    v
 }
 
 /// Moves a waiting band's layers onto `turns`.
@@ -515,9 +525,11 @@ impl MapRows {
 fn mix_rows(layers: &[Layer], grid: &BoardGrid, rows: Range<usize>, variance: bool) -> MapRows {
     let w = grid.width;
     let n = rows.len() * w;
-    let mut heights = vec![f32::NAN; n];
-    let mut vars = variance.then(|| vec![f32::NAN; n]);
-    let mut camera = vec![NO_CAMERA; n];
+    // Zeroed (fresh pages from the system, faulted in by the threads that write them): every
+    // pixel is written by `mix_part`.
+    let mut heights = vec![0.0f32; n];
+    let mut vars = variance.then(|| vec![0.0f32; n]);
+    let mut camera = vec![0u8; n];
     let threads = std::thread::available_parallelism().map_or(1, |t| t.get());
     let part_rows = rows.len().div_ceil(threads.max(1)).max(1);
     let part = part_rows * w;
@@ -533,47 +545,9 @@ fn mix_rows(layers: &[Layer], grid: &BoardGrid, rows: Range<usize>, variance: bo
             )
             .zip(camera.chunks_mut(part.max(1)))
             .enumerate();
-        for (k, ((hs, mut vs_out), cs)) in parts {
+        for (k, ((hs, vs), cs)) in parts {
             let r0 = rows.start + k * part_rows;
-            sc.spawn(move || {
-                let (mut r, mut c) = (r0, 0);
-                for j in 0..hs.len() {
-                    let (mut s, mut ws, mut vs) = (0.0f64, 0.0f64, 0.0f64);
-                    let mut best = (0.0f32, NO_CAMERA);
-                    for (k, l) in layers.iter().enumerate() {
-                        let Some(i) = l.index(r, c) else {
-                            continue;
-                        };
-                        let h = l.heights.data[i];
-                        let w = l.weight.data[i];
-                        if h.is_finite() && w > 0.0 {
-                            let wf = f64::from(w);
-                            s += wf * f64::from(h);
-                            ws += wf;
-                            // A camera without a variance leaves the pixel's unknown (NaN).
-                            vs += wf
-                                * wf
-                                * l.variance
-                                    .as_ref()
-                                    .map_or(f64::NAN, |v| f64::from(v.data[i]));
-                            if w > best.0 {
-                                best = (w, k.min(254) as u8);
-                            }
-                        }
-                    }
-                    c += 1;
-                    if c == w {
-                        (r, c) = (r + 1, 0);
-                    }
-                    if ws > 0.0 {
-                        hs[j] = (s / ws) as f32;
-                        if let Some(v) = vs_out.as_deref_mut() {
-                            v[j] = (vs / (ws * ws)) as f32;
-                        }
-                        cs[j] = best.1;
-                    }
-                }
-            });
+            sc.spawn(move || mix_part(layers, r0, w, (hs, vs, cs)));
         }
     });
     MapRows {
@@ -581,6 +555,92 @@ fn mix_rows(layers: &[Layer], grid: &BoardGrid, rows: Range<usize>, variance: bo
         heights,
         variance: vars,
         camera,
+    }
+}
+
+/// One pixel's sums over the layers in step 3.
+#[derive(Clone, Copy)]
+struct Mix {
+    /// Weighted heights, weights, squared weights times variances.
+    s: f64,
+    ws: f64,
+    vs: f64,
+    /// The largest weight so far and its layer.
+    best: (f32, u8),
+}
+
+impl Mix {
+    const NONE: Mix = Mix {
+        s: 0.0,
+        ws: 0.0,
+        vs: 0.0,
+        best: (0.0, NO_CAMERA),
+    };
+}
+
+/// Step 3 over whole board rows from `r0` (`w` pixels each) into `hs` (heights), `vs`
+/// (variances, when kept) and `cs` (cameras), every pixel written. Row by row, each layer adds
+/// its window's part of the row in turn: every pixel's sums take the layers in their order,
+/// as a pixel at a time would.
+fn mix_part(
+    layers: &[Layer],
+    r0: usize,
+    w: usize,
+    (hs, mut vs, cs): (&mut [f32], Option<&mut [f32]>, &mut [u8]),
+) {
+    let mut acc = vec![Mix::NONE; w];
+    for (k_row, (h_out, c_out)) in hs
+        .chunks_mut(w.max(1))
+        .zip(cs.chunks_mut(w.max(1)))
+        .enumerate()
+    {
+        let r = r0 + k_row;
+        acc.fill(Mix::NONE);
+        for (k, l) in layers.iter().enumerate() {
+            add_layer_row(&mut acc, l, r, k.min(254) as u8);
+        }
+        let v_out = vs
+            .as_deref_mut()
+            .map(|v| &mut v[k_row * w..(k_row + 1) * w]);
+        for (j, m) in acc.iter().enumerate() {
+            let valid = m.ws > 0.0;
+            h_out[j] = if valid { (m.s / m.ws) as f32 } else { f32::NAN };
+            c_out[j] = if valid { m.best.1 } else { NO_CAMERA };
+        }
+        if let Some(v_out) = v_out {
+            for (o, m) in v_out.iter_mut().zip(&acc) {
+                *o = if m.ws > 0.0 {
+                    (m.vs / (m.ws * m.ws)) as f32
+                } else {
+                    f32::NAN
+                };
+            }
+        }
+    }
+}
+
+/// Adds layer `l` (number `k`) at board row `r` to the sums of the row's pixels `acc`.
+fn add_layer_row(acc: &mut [Mix], l: &Layer, r: usize, k: u8) {
+    if !l.rows.contains(&r) {
+        return;
+    }
+    let cols = l.cols.start.min(acc.len())..l.cols.end.min(acc.len());
+    let at = (r - l.rows.start) * l.cols.len();
+    let n = cols.len();
+    let (hs, ws) = (&l.heights.data[at..at + n], &l.weight.data[at..at + n]);
+    // A camera without a variance leaves the pixel's unknown (NaN).
+    let vs = l.variance.as_ref().map(|v| &v.data[at..at + n]);
+    for (j, m) in acc[cols].iter_mut().enumerate() {
+        let (h, w) = (hs[j], ws[j]);
+        if h.is_finite() && w > 0.0 {
+            let wf = f64::from(w);
+            m.s += wf * f64::from(h);
+            m.ws += wf;
+            m.vs += wf * wf * vs.map_or(f64::NAN, |v| f64::from(v[j]));
+            if w > m.best.0 {
+                m.best = (w, k);
+            }
+        }
     }
 }
 

@@ -19,6 +19,41 @@
 
 use crate::Grid;
 use std::ops::Range;
+use std::sync::Mutex;
+
+/// Grids of layers already blended, kept for the next band's layers ([`Layer::recycle`]): a
+/// band's grids are megabytes each, which glibc maps afresh for every allocation and the
+/// kernel then zeroes page by page (over a quarter of `dpsa board-bench`'s time on the paper
+/// board while every band allocated its own).
+static SPARE: Mutex<Vec<Vec<f32>>> = Mutex::new(Vec::new());
+
+/// Most grids [`SPARE`] keeps: a band's layers (four grids for each of three cameras) and
+/// some more.
+const SPARE_MAX: usize = 16;
+
+/// A buffer of `n` values: the smallest spare one that holds them (else any spare one, else a
+/// new one). Its values are whatever its last layer left (`fill` where it had fewer): the
+/// caller writes every one.
+fn spare(n: usize, fill: f32) -> Vec<f32> {
+    let taken = SPARE.lock().ok().and_then(|mut s| {
+        let fits = (0..s.len())
+            .filter(|&k| s[k].capacity() >= n)
+            .min_by_key(|&k| s[k].capacity());
+        let k = fits.or_else(|| s.len().checked_sub(1))?;
+        Some(s.swap_remove(k))
+    });
+    let mut v = taken.unwrap_or_default();
+    v.truncate(n);
+    v.resize(n, fill);
+    v
+}
+
+/// Drops the spare grids (a map is finished: the memory goes back to the system).
+pub(crate) fn drop_spare() {
+    if let Ok(mut s) = SPARE.lock() {
+        *s = Vec::new();
+    }
+}
 
 /// Where a camera's pixels lie on the board (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -96,6 +131,44 @@ impl Layer {
             lost: Vec::new(),
             rows,
             cols,
+        }
+    }
+
+    /// A layer over the window `rows x cols` on spare grids ([`spare`]) whose values are left
+    /// over from earlier layers: the caller writes every pixel of every grid.
+    fn reused(rows: Range<usize>, cols: Range<usize>, variance: bool) -> Layer {
+        let (w, n) = (cols.len(), rows.len());
+        let grid = |fill: f32| Grid {
+            width: w,
+            rows: n,
+            data: spare(w * n, fill),
+        };
+        Layer {
+            heights: grid(f32::NAN),
+            period_um: grid(f32::NAN),
+            weight: grid(0.0),
+            variance: variance.then(|| grid(f32::NAN)),
+            lost: Vec::new(),
+            rows,
+            cols,
+        }
+    }
+
+    /// Hands the layer's grids on to later layers (the band it belongs to is blended).
+    pub(crate) fn recycle(self) {
+        let Ok(mut s) = SPARE.lock() else {
+            return;
+        };
+        let grids = [
+            Some(self.heights),
+            Some(self.period_um),
+            Some(self.weight),
+            self.variance,
+        ];
+        for g in grids.into_iter().flatten() {
+            if s.len() < SPARE_MAX && g.data.capacity() > 0 {
+                s.push(g.data);
+            }
         }
     }
 
@@ -198,7 +271,7 @@ pub fn resample(
     board_rows: Range<usize>,
     feather_px: f64,
 ) -> Layer {
-    let (heights, variance, period_um) = (src.heights, src.variance, src.period_um);
+    let (heights, variance) = (src.heights, src.variance);
     let lost_rows = src.lost_rows;
     let (w, rows, row0) = (heights.width, heights.rows, src.row0);
     if w == 0 || rows == 0 {
@@ -230,13 +303,12 @@ pub fn resample(
     );
     let start = is.start.max(board_rows.start);
     let is = start..is.end.min(board_rows.end).max(start);
-    // The layer holds that window only.
-    let mut out = Layer::empty(is.clone(), js.clone(), variance.is_some());
+    // The layer holds that window only (every pixel of it written below).
+    let mut out = Layer::reused(is.clone(), js.clone(), variance.is_some());
     let any_lost = lost_rows.iter().any(|&l| l);
     if any_lost {
         out.lost = vec![false; out.heights.data.len()];
     }
-    let (i0, lw) = (is.start, js.len());
     // `CameraPlacement::to_camera` with its trigonometry and division once: the camera column
     // depends on the grid column only, the row on both through `b_row - along_c`.
     let (sin, cos) = place.rotation_rad.sin_cos();
@@ -248,80 +320,232 @@ pub fn resample(
             (c, c * place.pitch_mm * sin * inv_row)
         })
         .collect();
-    let hs = &heights.data;
-    let vs = variance.map(|v| &v.data[..]);
-    let lost = |r: usize| lost_rows.get(row0 + r).copied().unwrap_or(false);
-    let inv_feather = 1.0 / feather_px.max(1e-9);
     let inv_steps = src.places.map(|pl| inverse_steps(&pl.along));
-    let (last_b, last_c) = ((rows - 1) as f64, (w - 1) as f64);
-    for i in is {
-        let b_row = (grid.centre(i, 0).0 - place.x0_mm) * inv_row - src.first_row as f64;
-        let at = (i - i0) * lw;
-        // The row places' search starts from the nominal row, then from the last found.
-        let mut hint = b_row.max(0.0) as usize;
-        for (jj, &(c, along_c)) in cols.iter().enumerate() {
-            let b = b_row - along_c;
-            let (b, c) = match (src.places, &inv_steps) {
-                (Some(pl), Some(inv)) => match row_at(&pl.along, inv, b, &mut hint) {
-                    Some(b) => {
-                        // `b >= 0` (a row of `along`): truncation is its floor.
-                        let i = b as usize;
-                        let f = b - i as f64;
-                        let a0 = pl.across.get(i).copied().unwrap_or(0.0);
-                        let a1 = pl.across.get(i + 1).copied().unwrap_or(a0);
-                        (b, c - (a0 * (1.0 - f) + a1 * f))
-                    }
-                    None => continue,
-                },
-                _ => (b, c),
-            };
-            // The row within the rows at hand.
-            let b = b - row0 as f64;
-            if !(b >= 0.0 && c >= 0.0 && b <= last_b && c <= last_c) {
-                continue;
+    let ctx = Sampler {
+        src,
+        x0: place.x0_mm,
+        inv_row,
+        grid,
+        cols: &cols,
+        places: src.places.zip(inv_steps.as_deref()),
+        any_lost,
+        inv_feather: 1.0 / feather_px.max(1e-9),
+        last: ((rows - 1) as f64, (w - 1) as f64),
+    };
+    // The rows in parts, one per core (each pixel is its own: the parts are the rows
+    // resampled one after the other).
+    let threads = std::thread::available_parallelism().map_or(1, |t| t.get());
+    let part_rows = is.len().div_ceil(threads).max(MIN_PART_ROWS);
+    let mut rest = Out {
+        heights: &mut out.heights.data,
+        period: &mut out.period_um.data,
+        weight: &mut out.weight.data,
+        variance: out.variance.as_mut().map(|v| &mut v.data[..]),
+        lost: &mut out.lost,
+    };
+    std::thread::scope(|sc| {
+        let mut i = is.start;
+        while i < is.end {
+            let n = part_rows.min(is.end - i);
+            let (part, tail) = rest.split_at(n * js.len());
+            rest = tail;
+            let ctx = &ctx;
+            let rows = i..i + n;
+            if i + n < is.end {
+                sc.spawn(move || ctx.rows(rows, part));
+            } else {
+                ctx.rows(rows, part);
             }
-            // Both non-negative here: truncation is the floor (no libm `floor` call in the
-            // hot loop; the x86-64 baseline has no rounding instruction).
-            let (b0, c0) = (b as usize, c as usize);
-            let (b1, c1) = ((b0 + 1).min(rows - 1), (c0 + 1).min(w - 1));
-            let (fb, fc) = (b - b0 as f64, c - c0 as f64);
-            let idx = at + jj;
-            if any_lost && ((lost(b0) && fb < 1.0) || (lost(b1) && fb > 0.0)) {
-                out.lost[idx] = true;
-                continue;
+            i += n;
+        }
+    });
+    out
+}
+
+/// Fewest rows a thread of [`resample`] takes.
+const MIN_PART_ROWS: usize = 32;
+
+/// A layer's grids over some of its rows (row-major, whole rows of the window).
+struct Out<'a> {
+    heights: &'a mut [f32],
+    period: &'a mut [f32],
+    weight: &'a mut [f32],
+    variance: Option<&'a mut [f32]>,
+    /// Empty when the camera lost no row.
+    lost: &'a mut [bool],
+}
+
+impl<'a> Out<'a> {
+    /// The first `n` pixels, and the rest.
+    fn split_at(self, n: usize) -> (Out<'a>, Out<'a>) {
+        let (h0, h1) = self.heights.split_at_mut(n);
+        let (p0, p1) = self.period.split_at_mut(n);
+        let (w0, w1) = self.weight.split_at_mut(n);
+        let (v0, v1) = match self.variance {
+            Some(v) => {
+                let (a, b) = v.split_at_mut(n);
+                (Some(a), Some(b))
             }
-            let (r0, r1) = (b0 * w, b1 * w);
-            let taps = [
-                (r0 + c0, (1.0 - fb) * (1.0 - fc)),
-                (r0 + c1, (1.0 - fb) * fc),
-                (r1 + c0, fb * (1.0 - fc)),
-                (r1 + c1, fb * fc),
-            ];
-            let (mut sum, mut wsum, mut vsum) = (0.0f64, 0.0f64, 0.0f64);
-            for (k, wt) in taps {
-                let h = hs[k];
-                if h.is_finite() && wt > 0.0 {
-                    sum += wt * f64::from(h);
-                    wsum += wt;
-                    if let Some(v) = vs {
-                        vsum += wt * wt * f64::from(v[k]);
+            None => (None, None),
+        };
+        let (l0, l1) = self.lost.split_at_mut(n.min(self.lost.len()));
+        (
+            Out {
+                heights: h0,
+                period: p0,
+                weight: w0,
+                variance: v0,
+                lost: l0,
+            },
+            Out {
+                heights: h1,
+                period: p1,
+                weight: w1,
+                variance: v1,
+                lost: l1,
+            },
+        )
+    }
+}
+
+/// One board pixel resampled.
+enum Pixel {
+    /// Outside the camera's rows at hand, or too few valid neighbours.
+    Invalid,
+    /// On a lost camera row.
+    Lost,
+    /// Height, variance (um^2), height per turn, blending weight.
+    Valid(f32, f32, f32, f32),
+}
+
+/// What [`resample`] resamples every pixel with.
+struct Sampler<'a> {
+    src: &'a Source<'a>,
+    /// The placement's `x0_mm` and `1 / row_mm`.
+    x0: f64,
+    inv_row: f64,
+    grid: &'a BoardGrid,
+    /// Per window column: the camera column and its share of the camera row.
+    cols: &'a [(f64, f64)],
+    /// The row places and their inverse steps ([`inverse_steps`]).
+    places: Option<(&'a crate::places::RowPlaces, &'a [f64])>,
+    any_lost: bool,
+    inv_feather: f64,
+    /// The last row at hand and the last column.
+    last: (f64, f64),
+}
+
+impl Sampler<'_> {
+    /// Board rows `is` (whole rows of the window, from its row `is.start`) into `out`, every
+    /// pixel written.
+    fn rows(&self, is: Range<usize>, out: Out<'_>) {
+        let lw = self.cols.len();
+        let Out {
+            heights,
+            period,
+            weight,
+            mut variance,
+            lost,
+        } = out;
+        for (k, i) in is.enumerate() {
+            let b_row =
+                (self.grid.centre(i, 0).0 - self.x0) * self.inv_row - self.src.first_row as f64;
+            // The row places' search starts from the nominal row, then from the last found.
+            let mut hint = b_row.max(0.0) as usize;
+            let at = k * lw;
+            for (jj, &(c, along_c)) in self.cols.iter().enumerate() {
+                let idx = at + jj;
+                let (h, v, t, wt) = match self.pixel(b_row - along_c, c, &mut hint) {
+                    Pixel::Valid(h, v, t, wt) => (h, v, t, wt),
+                    Pixel::Invalid => (f32::NAN, f32::NAN, f32::NAN, 0.0),
+                    Pixel::Lost => {
+                        lost[idx] = true;
+                        (f32::NAN, f32::NAN, f32::NAN, 0.0)
                     }
+                };
+                heights[idx] = h;
+                period[idx] = t;
+                weight[idx] = wt;
+                if let Some(vs) = variance.as_deref_mut() {
+                    vs[idx] = v;
                 }
             }
-            if wsum < 0.5 {
-                continue;
-            }
-            out.heights.data[idx] = (sum / wsum) as f32;
-            if let Some(v) = out.variance.as_mut() {
-                v.data[idx] = (vsum / (wsum * wsum)) as f32;
-            }
-            let t = f64::from(period_um[c0]) * (1.0 - fc) + f64::from(period_um[c1]) * fc;
-            out.period_um.data[idx] = t as f32;
-            let edge = c.min(last_c - c) + 0.5;
-            out.weight.data[idx] = (edge * inv_feather).clamp(1e-3, 1.0) as f32;
         }
     }
-    out
+
+    /// The pixel at camera row `b` (nominal, from the camera's row 0) and column `c`.
+    #[inline]
+    fn pixel(&self, b: f64, c: f64, hint: &mut usize) -> Pixel {
+        let src = self.src;
+        let (heights, row0) = (src.heights, src.row0);
+        let (w, rows) = (heights.width, heights.rows);
+        let (last_b, last_c) = self.last;
+        let (b, c) = match self.places {
+            Some((pl, inv)) => match row_at(&pl.along, inv, b, hint) {
+                Some(b) => {
+                    // `b >= 0` (a row of `along`): truncation is its floor.
+                    let i = b as usize;
+                    let f = b - i as f64;
+                    let a0 = pl.across.get(i).copied().unwrap_or(0.0);
+                    let a1 = pl.across.get(i + 1).copied().unwrap_or(a0);
+                    (b, c - (a0 * (1.0 - f) + a1 * f))
+                }
+                None => return Pixel::Invalid,
+            },
+            None => (b, c),
+        };
+        // The row within the rows at hand.
+        let b = b - row0 as f64;
+        if !(b >= 0.0 && c >= 0.0 && b <= last_b && c <= last_c) {
+            return Pixel::Invalid;
+        }
+        // Both non-negative here: truncation is the floor (no libm `floor` call in the
+        // hot loop; the x86-64 baseline has no rounding instruction).
+        let (b0, c0) = (b as usize, c as usize);
+        let (b1, c1) = ((b0 + 1).min(rows - 1), (c0 + 1).min(w - 1));
+        let (fb, fc) = (b - b0 as f64, c - c0 as f64);
+        let lost = |r: usize| src.lost_rows.get(row0 + r).copied().unwrap_or(false);
+        if self.any_lost && ((lost(b0) && fb < 1.0) || (lost(b1) && fb > 0.0)) {
+            return Pixel::Lost;
+        }
+        let (r0, r1) = (b0 * w, b1 * w);
+        let taps = [
+            (r0 + c0, (1.0 - fb) * (1.0 - fc)),
+            (r0 + c1, (1.0 - fb) * fc),
+            (r1 + c0, fb * (1.0 - fc)),
+            (r1 + c1, fb * fc),
+        ];
+        let (hs, vs) = (&heights.data, src.variance.map(|v| &v.data[..]));
+        let (mut sum, mut wsum, mut vsum) = (0.0f64, 0.0f64, 0.0f64);
+        // Without a branch per tap: a tap left out adds `0 x 0`, which leaves each sum the
+        // same value (none of them is ever -0: it starts at +0 and `x + (-x)` is +0).
+        for (k, wt) in taps {
+            let h = hs[k];
+            let take = h.is_finite() && wt > 0.0;
+            let m = if take { wt } else { 0.0 };
+            sum += m * if take { f64::from(h) } else { 0.0 };
+            wsum += m;
+            if let Some(v) = vs {
+                vsum += m * m * if take { f64::from(v[k]) } else { 0.0 };
+            }
+        }
+        if wsum < 0.5 {
+            return Pixel::Invalid;
+        }
+        let period = src.period_um;
+        let t = f64::from(period[c0]) * (1.0 - fc) + f64::from(period[c1]) * fc;
+        let edge = c.min(last_c - c) + 0.5;
+        let var = match vs {
+            Some(_) => (vsum / (wsum * wsum)) as f32,
+            None => f32::NAN,
+        };
+        Pixel::Valid(
+            (sum / wsum) as f32,
+            var,
+            t as f32,
+            (edge * self.inv_feather).clamp(1e-3, 1.0) as f32,
+        )
+    }
 }
 
 #[cfg(test)]

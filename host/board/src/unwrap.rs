@@ -49,16 +49,31 @@ pub struct Unwrapped {
 impl Unwrapped {
     /// Moves every height by `turns` whole turns (`turns x T(c)`).
     pub fn shift(&mut self, turns: i32) {
-        if turns == 0 {
-            return;
-        }
-        let w = self.heights.width.max(1);
-        for row in self.heights.data.chunks_exact_mut(w) {
-            for (h, &t) in row.iter_mut().zip(&self.period_um) {
-                *h += turns as f32 * t;
-            }
+        shift_rows(&mut self.heights.data, &self.period_um, turns);
+    }
+}
+
+/// Moves every height of the rows `heights` (of `period_um.len()` columns) by `turns` whole
+/// turns of its column.
+fn shift_rows(heights: &mut [f32], period_um: &[f32], turns: i32) {
+    if turns == 0 {
+        return;
+    }
+    for row in heights.chunks_exact_mut(period_um.len().max(1)) {
+        for (h, &t) in row.iter_mut().zip(period_um) {
+            *h += turns as f32 * t;
         }
     }
+}
+
+/// The buffers of an unwrapping, kept from chunk to chunk by an [`Unwrapper`] (a chunk's are
+/// megabytes: allocated afresh, every page of them is faulted in and zeroed again).
+#[derive(Clone, Debug, Default)]
+struct Scratch {
+    /// Turns per pixel.
+    turns: Vec<f32>,
+    /// The unwrapped heights, um (row-major, NaN where invalid).
+    heights: Vec<f32>,
 }
 
 /// Steps of the circular mean's angle table per turn.
@@ -119,10 +134,35 @@ fn round_f64(x: f64) -> f64 {
 pub fn unwrap(wrapped: &Grid, period_um: &[f32], block: usize) -> Unwrapped {
     let (w, rows) = (wrapped.width, wrapped.rows);
     assert_eq!(period_um.len(), w, "one period per column");
+    let mut s = Scratch::default();
+    let unreached_rows = unwrap_rows(&wrapped.data[..w * rows], rows, period_um, block, &mut s);
+    Unwrapped {
+        heights: Grid {
+            width: w,
+            rows,
+            data: s.heights,
+        },
+        period_um: period_um.to_vec(),
+        unreached: unreached_rows.iter().map(|&n| n as usize).sum(),
+        unreached_rows,
+    }
+}
+
+/// [`unwrap`] of the `rows` whole rows `wrapped` (of `period_um.len()` columns) into
+/// `scratch.heights`; returns the unreached pixels per row ([`Unwrapped::unreached_rows`]).
+fn unwrap_rows(
+    wrapped: &[f32],
+    rows: usize,
+    period_um: &[f32],
+    block: usize,
+    scratch: &mut Scratch,
+) -> Vec<u32> {
+    let w = period_um.len();
     let block = block.max(2);
     // Turns per pixel (row by row: no division to find a pixel's column).
-    let mut turns: Vec<f32> = Vec::with_capacity(w * rows);
-    for row in wrapped.data.chunks_exact(w.max(1)) {
+    let turns = &mut scratch.turns;
+    turns.clear();
+    for row in wrapped.chunks_exact(w.max(1)) {
         turns.extend(row.iter().zip(period_um).map(|(&h, &t)| {
             if h.is_finite() && t > 0.0 {
                 h / t
@@ -236,24 +276,29 @@ pub fn unwrap(wrapped: &Grid, period_um: &[f32], block: usize) -> Unwrapped {
         surf = median3(&low, bw, bh);
     }
 
-    // 4. Every pixel on the turn nearest the surface.
+    // 4. Every pixel on the turn nearest the surface (each one written: the buffer holds the
+    //    last chunk's).
     bil.forget();
-    let mut heights = Grid::invalid(w, rows);
+    let heights = &mut scratch.heights;
+    heights.truncate(w * rows);
+    heights.resize(w * rows, f32::NAN);
     let mut unreached_rows = vec![0u32; rows];
     let mut srow = vec![f32::NAN; w];
     for (r, unreached) in unreached_rows.iter_mut().enumerate() {
         let row = r * w;
         let reached_row = &reached[(r / block) * bw..];
         bil.row(&surf, r, &mut srow);
-        let out = &mut heights.data[row..row + w];
+        let out = &mut heights[row..row + w];
         for ((o, &u), (&s, &t)) in out
             .iter_mut()
             .zip(&turns[row..row + w])
             .zip(srow.iter().zip(period_um))
         {
-            if u.is_finite() && s.is_finite() {
-                *o = nearest(u, s) * t;
-            }
+            *o = if u.is_finite() && s.is_finite() {
+                nearest(u, s) * t
+            } else {
+                f32::NAN
+            };
         }
         // A height is finite exactly where its turn and its surface are.
         for (bc, part) in out.chunks(block).enumerate() {
@@ -262,12 +307,7 @@ pub fn unwrap(wrapped: &Grid, period_um: &[f32], block: usize) -> Unwrapped {
             }
         }
     }
-    Unwrapped {
-        heights,
-        period_um: period_um.to_vec(),
-        unreached: unreached_rows.iter().map(|&n| n as usize).sum(),
-        unreached_rows,
-    }
+    unreached_rows
 }
 
 /// Camera rows each chunk of an [`Unwrapper`] hands on.
@@ -313,6 +353,8 @@ pub struct Unwrapper {
     pub unreached: usize,
     /// Chunks whose turn came from the columns' last valid heights (no shared margin pixel).
     pub gap_aligned: usize,
+    /// The unwrapping's buffers, kept from chunk to chunk.
+    scratch: Scratch,
 }
 
 impl Unwrapper {
@@ -335,6 +377,7 @@ impl Unwrapper {
             last: vec![f32::NAN; w],
             unreached: 0,
             gap_aligned: 0,
+            scratch: Scratch::default(),
         }
     }
 
@@ -384,22 +427,26 @@ impl Unwrapper {
         let lo = s.saturating_sub(self.margin);
         let hi = (e + self.margin).min(self.pushed);
         let from = (lo - self.held_from) * w;
-        let g = Grid {
-            width: w,
-            rows: hi - lo,
-            data: self.wrapped[from..from + (hi - lo) * w].to_vec(),
-        };
-        let mut u = unwrap(&g, &self.period_um, self.block);
-        u.shift(self.turns_to_previous(&u.heights, s - lo));
+        let mut scratch = std::mem::take(&mut self.scratch);
+        let unreached_rows = unwrap_rows(
+            &self.wrapped[from..from + (hi - lo) * w],
+            hi - lo,
+            &self.period_um,
+            self.block,
+            &mut scratch,
+        );
+        let u = &mut scratch.heights;
+        let turns = self.turns_to_previous(u, s - lo);
+        shift_rows(u, &self.period_um, turns);
         let (a, b) = (s - lo, e - lo);
-        self.unreached += u.unreached_rows[a..b]
+        self.unreached += unreached_rows[a..b]
             .iter()
             .map(|&n| n as usize)
             .sum::<usize>();
         let out = Grid {
             width: w,
             rows: e - s,
-            data: u.heights.data[a * w..b * w].to_vec(),
+            data: u[a * w..b * w].to_vec(),
         };
         for row in out.data.chunks_exact(w.max(1)) {
             for (l, &h) in self.last.iter_mut().zip(row) {
@@ -409,7 +456,9 @@ impl Unwrapper {
             }
         }
         let t0 = e.saturating_sub(self.margin);
-        self.tail = u.heights.data[(t0 - lo) * w..b * w].to_vec();
+        self.tail.clear();
+        self.tail.extend_from_slice(&u[(t0 - lo) * w..b * w]);
+        self.scratch = scratch;
         // The next chunk's leading margin starts at `t0`.
         self.wrapped.drain(..(t0 - self.held_from) * w);
         self.held_from = t0;
@@ -417,16 +466,17 @@ impl Unwrapper {
         Some(out)
     }
 
-    /// The whole turns that bring `u` (a chunk unwrapped on its own turn, whose row
-    /// `shared` is the first row not handed on before) onto the rows handed on before.
-    fn turns_to_previous(&mut self, u: &Grid, shared: usize) -> i32 {
+    /// The whole turns that bring `u` (the rows of a chunk unwrapped on its own turn, whose
+    /// row `shared` is the first row not handed on before) onto the rows handed on before.
+    fn turns_to_previous(&mut self, u: &[f32], shared: usize) -> i32 {
         let w = self.width();
+        let rows = u.len() / w.max(1);
         let turns = |a: f32, b: f32, t: f32| round_f32((a - b) / t) as i32;
         let mut d: Vec<i32> = Vec::new();
         for (prev, cur) in self
             .tail
             .chunks_exact(w.max(1))
-            .zip(u.data.chunks_exact(w.max(1)).take(shared))
+            .zip(u.chunks_exact(w.max(1)).take(shared))
         {
             for ((&a, &b), &t) in prev.iter().zip(cur).zip(&self.period_um) {
                 if a.is_finite() && b.is_finite() && t > 0.0 {
@@ -437,9 +487,7 @@ impl Unwrapper {
         if d.is_empty() && self.last.iter().any(|h| h.is_finite()) {
             self.gap_aligned += 1;
             for c in 0..w {
-                let first = (shared..u.rows)
-                    .map(|r| u.data[r * w + c])
-                    .find(|h| h.is_finite());
+                let first = (shared..rows).map(|r| u[r * w + c]).find(|h| h.is_finite());
                 let (a, t) = (self.last[c], self.period_um[c]);
                 if let Some(b) = first {
                     if a.is_finite() && t > 0.0 {

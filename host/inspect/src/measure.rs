@@ -278,22 +278,11 @@ fn robust_surface_from(
     for round in 0..4 {
         let step = if round < 3 { sub } else { 1 };
         let sol = loop {
-            let mut m = nalgebra::SMatrix::<f64, 6, 6>::zeros();
-            let mut v = nalgebra::SVector::<f64, 6>::zeros();
-            let mut n = 0usize;
-            for (p, k) in s.iter().zip(&keep).step_by(step) {
-                if !*k {
-                    continue;
-                }
-                let t = terms(p[0], p[1]);
-                for i in 0..nt {
-                    v[i] += t[i] * p[2];
-                    for j in i..nt {
-                        m[(i, j)] += t[i] * t[j];
-                    }
-                }
-                n += 1;
-            }
+            let (mut m, v, n) = match nt {
+                6 => normal_equations::<6>(s, &keep, step),
+                3 => normal_equations::<3>(s, &keep, step),
+                _ => normal_equations::<1>(s, &keep, step),
+            };
             if n < 2 * nt.max(3) {
                 if nt == 1 || n < 3 {
                     return None;
@@ -346,6 +335,46 @@ fn robust_surface_from(
     Some((coef, rms, kept))
 }
 
+/// The normal equations of the first `NT` terms over the kept samples (every `step`-th):
+/// the upper triangle of the `NT x NT` block of the matrix, the first `NT` entries of the
+/// right-hand side, and the samples summed. Each entry is summed over the samples in their
+/// order; `NT` fixed lets the compiler unroll the terms.
+fn normal_equations<const NT: usize>(
+    s: &[[f64; 3]],
+    keep: &[bool],
+    step: usize,
+) -> (
+    nalgebra::SMatrix<f64, 6, 6>,
+    nalgebra::SVector<f64, 6>,
+    usize,
+) {
+    let mut a = [[0.0f64; NT]; NT];
+    let mut b = [0.0f64; NT];
+    let mut n = 0usize;
+    for (p, k) in s.iter().zip(keep).step_by(step) {
+        if !*k {
+            continue;
+        }
+        let t = terms(p[0], p[1]);
+        for i in 0..NT {
+            b[i] += t[i] * p[2];
+            for j in i..NT {
+                a[i][j] += t[i] * t[j];
+            }
+        }
+        n += 1;
+    }
+    let mut m = nalgebra::SMatrix::<f64, 6, 6>::zeros();
+    let mut v = nalgebra::SVector::<f64, 6>::zeros();
+    for i in 0..NT {
+        v[i] = b[i];
+        for j in i..NT {
+            m[(i, j)] = a[i][j];
+        }
+    }
+    (m, v, n)
+}
+
 /// A [`robust_surface`]'s value at `(dx, dy)`.
 pub(crate) fn surface_at(c: &[f64], dx: f64, dy: f64) -> f64 {
     let t = terms(dx, dy);
@@ -370,30 +399,51 @@ fn mean3x3(r: &[f64], width: usize, a: usize, b: usize) -> (f64, u32) {
 }
 
 /// `f(k)` for `k` in `0..n`, in order, on the machine's threads (at most 8).
+///
+/// The threads take runs of [`PER_PAD_RUN`] pads in turn from a shared counter, so a thread
+/// that drew large pads does not hold the others up; the results are put back in pad order.
 pub fn per_pad<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync) -> Vec<T> {
     let threads = std::thread::available_parallelism()
         .map(|v| v.get())
         .unwrap_or(1)
-        .clamp(1, 8);
-    let chunk = n.div_ceil(threads).max(1);
-    let f = &f;
-    let mut out = Vec::with_capacity(n);
-    std::thread::scope(|sc| {
-        let handles: Vec<_> = (0..n)
-            .step_by(chunk)
-            .map(|start| {
-                sc.spawn(move || (start..(start + chunk).min(n)).map(f).collect::<Vec<T>>())
-            })
-            .collect();
+        .clamp(1, 8)
+        .min(n.div_ceil(PER_PAD_RUN).max(1));
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let (f, next) = (&f, &next);
+    let work = move || {
+        let mut runs: Vec<(usize, Vec<T>)> = Vec::new();
+        loop {
+            let start = next.fetch_add(PER_PAD_RUN, std::sync::atomic::Ordering::Relaxed);
+            if start >= n {
+                break runs;
+            }
+            runs.push((
+                start,
+                (start..(start + PER_PAD_RUN).min(n)).map(f).collect(),
+            ));
+        }
+    };
+    let mut runs: Vec<(usize, Vec<T>)> = std::thread::scope(|sc| {
+        let handles: Vec<_> = (1..threads).map(|_| sc.spawn(work)).collect();
+        let mut runs = work();
         for h in handles {
             match h.join() {
-                Ok(v) => out.extend(v),
+                Ok(v) => runs.extend(v),
                 Err(e) => std::panic::resume_unwind(e),
             }
         }
+        runs
     });
+    runs.sort_unstable_by_key(|(start, _)| *start);
+    let mut out = Vec::with_capacity(n);
+    for (_, v) in runs {
+        out.extend(v);
+    }
     out
 }
+
+/// Pads a thread of [`per_pad`] takes at a time.
+const PER_PAD_RUN: usize = 16;
 
 /// Measures every pad (on the machine's threads), then the bridges between them.
 pub fn measure_all(
@@ -502,24 +552,37 @@ pub fn cell_member(
     if !reach.contains(q, d) {
         return (false, d);
     }
+    (nearest_of(placed, k, near, q, d), d)
+}
+
+/// Whether no opening of `near` is nearer to board point `q` than opening `k`, at signed
+/// distance `d` from `q` (ties to the lower index): the part of [`cell_member`] after the
+/// reach.
+///
+/// A neighbour whose box is farther than `d` along x or y alone is passed over before the
+/// box distance is worked out: `norm(bx, by) >= max(bx, by)` in floating point too
+/// (`sqrt(x * x) == |x|` and the rounding is monotonic), so the box test would pass it over
+/// as well and the answer is the same.
+#[inline]
+fn nearest_of(placed: &Placed, k: usize, near: &[usize], q: Point, d: f64) -> bool {
     // Openings do not overlap: inside this one, no other is nearer.
     if d < 0.0 {
-        return (true, d);
+        return true;
     }
     for &j in near {
         let b = &placed.bboxes[j];
         // Box distance is a lower bound of the outline's distance.
         let bx = (b[0] - q[0]).max(q[0] - b[2]).max(0.0);
         let by = (b[1] - q[1]).max(q[1] - b[3]).max(0.0);
-        if norm(bx, by) > d {
+        if bx > d || by > d || norm(bx, by) > d {
             continue;
         }
         let dj = placed.outlines[j].signed_distance(q);
         if dj < d || (dj == d && j < k) {
-            return (false, d);
+            return false;
         }
     }
-    (true, d)
+    true
 }
 
 /// Measures pad `k`.
@@ -624,7 +687,17 @@ fn local_surface(
             .ceil()
             .max(1.0) as usize;
         let mut samples: Vec<[f64; 3]> = Vec::new();
+        let mut row: Vec<usize> = Vec::with_capacity(near.len());
         for i in ri.clone().step_by(stride) {
+            // The openings whose box comes within the guard of this row (one x) along x:
+            // every other one passes `bare`'s box test on every pixel of the row.
+            row_near(
+                placed,
+                &near,
+                map.grid.centre(i, 0).0,
+                m.surface_guard_mm,
+                &mut row,
+            );
             for j in rj.clone().step_by(stride) {
                 let h = map.heights.data[i * map.grid.width + j];
                 if !h.is_finite() {
@@ -636,7 +709,7 @@ fn local_surface(
                 if d < m.surface_guard_mm || d > reach {
                     continue;
                 }
-                if bare(placed, &near, q, m.surface_guard_mm) {
+                if bare(placed, &row, q, m.surface_guard_mm) {
                     samples.push([x - c[0], y - c[1], f64::from(h)]);
                 }
             }
@@ -651,6 +724,17 @@ fn local_surface(
     None
 }
 
+/// Into `out`, the openings of `near` (in their order) whose box comes within `limit` (mm)
+/// of the board row at `x` (mm) along x alone: the box distance of every other one to any
+/// point of the row exceeds `limit`.
+fn row_near(placed: &Placed, near: &[usize], x: f64, limit: f64, out: &mut Vec<usize>) {
+    out.clear();
+    out.extend(near.iter().copied().filter(|&n| {
+        let b = &placed.bboxes[n];
+        (b[0] - x).max(x - b[2]).max(0.0) <= limit
+    }));
+}
+
 /// Whether board point `q` (mm) is at least `guard` (mm) from the openings `near` and from
 /// every fiducial.
 fn bare(placed: &Placed, near: &[usize], q: Point, guard: f64) -> bool {
@@ -659,7 +743,12 @@ fn bare(placed: &Placed, near: &[usize], q: Point, guard: f64) -> bool {
         let b = &placed.bboxes[n];
         let bx = (b[0] - x).max(x - b[2]).max(0.0);
         let by = (b[1] - y).max(y - b[3]).max(0.0);
-        norm(bx, by) >= guard || placed.outlines[n].signed_distance(q) >= guard
+        // `norm(bx, by) >= max(bx, by)` in floating point too: the first two tests only
+        // spare the square root.
+        bx >= guard
+            || by >= guard
+            || norm(bx, by) >= guard
+            || placed.outlines[n].signed_distance(q) >= guard
     }) && placed
         .fiducials
         .iter()
@@ -719,11 +808,17 @@ impl Cell {
             in_cell: vec![false; h_w * w_w],
             dist: vec![f64::INFINITY; h_w * w_w],
         };
+        // The neighbours of one row (one x): those whose box is within the reach along x.
+        // Every pixel in reach is at most `reach.max` from the opening, so the others are
+        // passed over by [`nearest_of`]'s box test on every pixel of the row anyway.
+        let mut row: Vec<usize> = Vec::with_capacity(near.len());
         for (a, i) in ri.enumerate() {
+            row_near(placed, &near, map.grid.centre(i, 0).0, reach.max, &mut row);
             for (b, j) in rj.clone().enumerate() {
                 let (x, y) = map.grid.centre(i, j);
-                let (inside, d) = cell_member(placed, k, &near, reach, [x, y]);
-                if !inside {
+                let q = [x, y];
+                let d = placed.outlines[k].signed_distance(q);
+                if !reach.contains(q, d) || !nearest_of(placed, k, &row, q, d) {
                     continue;
                 }
                 cell.in_cell[a * w_w + b] = true;
@@ -930,4 +1025,95 @@ fn flood(
         }
     }
     hit
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dpsa_gerber::pads::Rigid;
+    use proptest::prelude::*;
+
+    /// A rounded rectangle or a disc from generated numbers.
+    fn opening(v: (f64, f64, f64, f64, f64, bool)) -> Pad {
+        let (x, y, w, h, rot, disc) = v;
+        let outline = if disc {
+            Outline::Circle {
+                centre: [x, y],
+                diameter: w,
+            }
+        } else {
+            Outline::RoundRect {
+                centre: [x, y],
+                size: [w, h],
+                radius: 0.2 * w.min(h),
+                rotation_deg: rot,
+            }
+        };
+        Pad {
+            index: 0,
+            outline,
+            component: None,
+            pin: None,
+            aperture: None,
+        }
+    }
+
+    /// Cell membership by its definition: within reach, and inside the opening or no other
+    /// opening (of all) nearer, ties to the lower index.
+    fn member_by_definition(placed: &Placed, k: usize, reach: &Reach, q: Point) -> bool {
+        let d = placed.outlines[k].signed_distance(q);
+        reach.contains(q, d)
+            && (d < 0.0
+                || (0..placed.outlines.len()).filter(|&j| j != k).all(|j| {
+                    let dj = placed.outlines[j].signed_distance(q);
+                    dj > d || (dj == d && j > k)
+                }))
+    }
+
+    proptest! {
+        /// The cell test over one row's neighbours ([`row_near`], [`nearest_of`], as
+        /// `Cell::new` runs it) agrees with [`cell_member`] and with the definition, and
+        /// `bare` over a row's neighbours with `bare` over them all, on every pixel of the
+        /// pads' windows in random layouts.
+        #[test]
+        fn row_neighbours_keep_cells_and_bare_board(
+            ops in prop::collection::vec(
+                (0.0..4.0f64, 0.0..4.0f64, 0.1..1.6f64, 0.1..1.0f64, -90.0..90.0f64, any::<bool>()),
+                2..9,
+            ),
+            pitch in 0.02..0.05f64,
+            guard in 0.05..0.3f64,
+        ) {
+            let pads: Vec<Pad> = ops.into_iter().map(opening).collect();
+            let placed = Placed::new(&pads, &Rigid::IDENTITY, &[], 0.0);
+            let program = Program::new("paste.gbr");
+            let mut row = Vec::new();
+            for k in 0..pads.len() {
+                let reach = Reach::new(&placed, k, &program);
+                let near = placed.near(placed.bboxes[k], 2.0 * reach.max, k);
+                let others: Vec<usize> = (0..pads.len()).filter(|&j| j != k).collect();
+                let b = reach.bbox;
+                let cols = ((b[3] - b[1]) / pitch).ceil() as usize + 1;
+                for i in 0..((b[2] - b[0]) / pitch).ceil() as usize + 1 {
+                    let x = b[0] + (i as f64 + 0.5) * pitch;
+                    row_near(&placed, &near, x, reach.max, &mut row);
+                    for jj in 0..cols {
+                        let q = [x, b[1] + (jj as f64 + 0.5) * pitch];
+                        let d = placed.outlines[k].signed_distance(q);
+                        let fast = reach.contains(q, d) && nearest_of(&placed, k, &row, q, d);
+                        prop_assert_eq!(fast, cell_member(&placed, k, &near, &reach, q).0);
+                        prop_assert_eq!(fast, member_by_definition(&placed, k, &reach, q));
+                    }
+                    row_near(&placed, &others, x, guard, &mut row);
+                    for jj in 0..cols {
+                        let q = [x, b[1] + (jj as f64 + 0.5) * pitch];
+                        prop_assert_eq!(
+                            bare(&placed, &row, q, guard),
+                            bare(&placed, &others, q, guard)
+                        );
+                    }
+                }
+            }
+        }
+    }
 }
