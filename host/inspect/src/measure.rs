@@ -400,7 +400,7 @@ fn mean3x3(r: &[f64], width: usize, a: usize, b: usize) -> (f64, u32) {
 
 /// `f(k)` for `k` in `0..n`, in order, on the machine's threads (at most 8).
 ///
-/// The threads take runs of [`PER_PAD_RUN`] pads in turn from a shared counter, so a thread
+/// The threads take runs of `PER_PAD_RUN` (16) pads in turn from a shared counter, so a thread
 /// that drew large pads does not hold the others up; the results are put back in pad order.
 pub fn per_pad<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync) -> Vec<T> {
     let threads = std::thread::available_parallelism()
