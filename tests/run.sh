@@ -23,6 +23,14 @@ if ! ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1; then
     as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq postgresql
 fi
 
+# The FPGA front end's co-simulation (fpga/tests) builds the RTL with Debian's Verilator; it
+# fails without it.
+if ! have verilator; then
+    echo "== verilator not found: installing Debian's verilator"
+    as_root apt-get update -qq
+    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq verilator
+fi
+
 if [ ! -d ../shared/data/real ]; then
     echo "error: ../shared/data/real (real fringe stacks used by the tests) is missing" >&2
     exit 1

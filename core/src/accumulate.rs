@@ -9,7 +9,7 @@
 //! frame buffer would take.
 //!
 //! The kernels ([`block`] for u16 lines, [`block_packed`] for Mono12p) work on pairs of
-//! neighbouring pixels with the M7's dual 16-bit instructions ([`crate::dsp`]); [`pixel_v`] is
+//! neighbouring pixels with the M7's dual 16-bit instructions (`src/dsp.rs`); [`pixel_v`] is
 //! their scalar definition, and [`crate::offload`] the seam where a front end can take the
 //! stage over. On an x86-64 host with AVX2 the pipeline runs both kernels sixteen pixels at a
 //! time in AVX2 ([`block_packed_with`], [`block_with`]: the same sums; about 6 times the

@@ -243,6 +243,18 @@ impl Gate {
     fn slow(&self, x: i32, y: i32) -> bool {
         self.modulated_exact(x, y)
     }
+
+    /// The fast-path bound `fast` (`hi >= fast` proves a pixel modulated): a window register
+    /// of a front end that runs the gate ([`crate::offload`]).
+    pub fn fast(&self) -> u32 {
+        self.fast
+    }
+
+    /// The threshold on `C^2 = v_2^2 + v_3^2`: a window register of a front end that runs
+    /// the gate ([`crate::offload`]).
+    pub fn thr2(&self) -> u64 {
+        self.thr2
+    }
 }
 
 /// `ceil(sqrt(v))` (bitwise; once per window).
@@ -287,6 +299,12 @@ impl Scale {
             k: lsb_per_turn.to_bits().min(i32::MAX as u32) as i32,
             min_c2: m.saturating_mul(m),
         }
+    }
+
+    /// Height LSBs per turn, the Q16.16 bits (`< 2^31`): the factor a front end that runs
+    /// the height stage multiplies by ([`Scale::height`], [`crate::offload`]).
+    pub fn lsb_per_turn_bits(&self) -> i32 {
+        self.k
     }
 
     /// The pixel's phase `Phi = atan2(v_3, v_2)` if it is valid (not saturated, modulated).

@@ -113,7 +113,7 @@ extern crate alloc;
 #[cfg(feature = "std")]
 extern crate std;
 
-pub(crate) mod accumulate;
+pub mod accumulate;
 pub mod bench;
 pub mod crc32;
 #[cfg(feature = "defmt")]
@@ -129,7 +129,7 @@ pub mod phase;
 pub mod pipeline;
 pub mod row;
 pub mod sink;
-pub(crate) mod solve;
+pub mod solve;
 
 pub use fixed;
 pub use frames::{Config, Trigger};

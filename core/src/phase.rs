@@ -31,6 +31,12 @@ pub const ATAN2_MAX_ERR_RAD: f64 = 2.0e-5;
 
 include!(concat!(env!("OUT_DIR"), "/atan_table.rs"));
 
+/// The `atan` table of [`atan2`] (`atan(i / 256)` in binary-angle units, `i = 0..=256`, and a
+/// guard entry): a front end that computes the phase the same way loads the same table.
+pub fn atan_table() -> &'static [u32] {
+    &ATAN
+}
+
 /// Converts radians to a binary angle (host-side helper; rounds to nearest, wraps).
 pub fn from_rad(rad: f64) -> u32 {
     let turns = rad / (2.0 * core::f64::consts::PI);

@@ -19,6 +19,8 @@ pub mod decode;
 #[cfg(feature = "sim")]
 pub mod demo;
 #[cfg(feature = "sim")]
+pub mod fpga_bench;
+#[cfg(feature = "sim")]
 pub mod frame_bench;
 #[cfg(feature = "sim")]
 pub mod grr;
@@ -126,6 +128,11 @@ pub enum Cmd {
     /// with the entropy of its predictor's residuals and the noise floor.
     #[cfg(feature = "sim")]
     CodecBench(codec_bench::Args),
+    /// Synthesise the FPGA front end for a Lattice ECP5 LFE5U-85F (yosys, nextpnr-ecp5;
+    /// installs them if missing), co-simulate it against the core, and print fmax,
+    /// resources and the rates they give; as JSON with --json.
+    #[cfg(feature = "sim")]
+    FpgaBench(fpga_bench::Args),
     /// Benchmark the recording frame formats (16-bit PNG, compressed .zfr) on a recording's
     /// frames: size and encode/decode speed, as JSON.
     #[cfg(feature = "sim")]
