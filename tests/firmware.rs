@@ -5,6 +5,9 @@
 //!   byte for byte the one `dpsa reconstruct` writes on the host, and it decodes into rows that
 //!   show what the scene was made to contain; the same with a per-column height scale (the
 //!   feed's height-scale table), whose heights are the uniform run's scaled by `T_z(c) / T_z`.
+//! - With the FPGA front end: on the same recordings, the rows computed by the RTL's Verilator
+//!   model (`fpga/`) give the core's stream on the host, and the firmware fed with them (the
+//!   fabric log) emits it byte for byte; a log of another recording is refused.
 //! - Bad input: a truncated feed, a corrupt header, a corrupt reference table and a corrupt,
 //!   out-of-range or truncated height-scale table make the firmware exit with a failure status and a logged error naming the fault, never a
 //!   panic or a hang.
@@ -15,6 +18,8 @@
 
 use dpsa_core::frames::feed;
 use dpsa_core::packets;
+use dpsa_fpga::front::Fabric;
+use dpsa_fpga::model::Model;
 use dpsa_sim::heightmap::{flags, HeightMap};
 use dpsa_sim::reconstruct;
 use dpsa_sim::simulation::scene::Scene;
@@ -345,6 +350,18 @@ fn per_column_height_scale_is_bit_exact() {
     assert!(worst <= 1.03, "per-column heights off by {worst} LSB");
 }
 
+/// The small scene with a latch jump of +1e12 counts at frame 20 and a reversal at frame 45.
+fn jump_and_reversal() -> Sim {
+    let mut sim = simulate(&small_scene(), 5);
+    let frames = &mut sim.rec.manifest.frames;
+    assert!(frames.len() > 60, "{} frames", frames.len());
+    for f in frames.iter_mut().skip(20) {
+        f.latch += 1_000_000_000_000;
+    }
+    frames[45].latch = frames[43].latch - 50;
+    sim
+}
+
 /// `--intra-period` reaches the firmware through the recording header: predicted rows are
 /// bit-exact too, and make a different (smaller) stream.
 /// Encoder faults: a latch jump of +1e12 counts at frame 20 and a reversal at frame 45. The
@@ -353,13 +370,7 @@ fn per_column_height_scale_is_bit_exact() {
 #[test]
 fn encoder_jump_and_reversal_are_bit_exact_and_bounded() {
     let Some(elf) = elf() else { return };
-    let mut sim = simulate(&small_scene(), 5);
-    let frames = &mut sim.rec.manifest.frames;
-    assert!(frames.len() > 60, "{} frames", frames.len());
-    for f in frames.iter_mut().skip(20) {
-        f.latch += 1_000_000_000_000;
-    }
-    frames[45].latch = frames[43].latch - 50;
+    let sim = jump_and_reversal();
     let map = host_and_target("encoder jump and reversal", &sim, &elf);
     let (_, host) = reconstruct::run(&sim.rec, Vec::new(), false).unwrap();
     let (_, rep) = dpsa_sim::stream::decode_stream(&host, 0.25);
@@ -411,6 +422,106 @@ fn predicted_rows_are_bit_exact() {
 }
 
 // ---------------------------------------------------------------------------------------------
+// With the FPGA front end: the RTL's Verilator model computes the rows (`dpsa_fpga::front`).
+
+/// The recording through the RTL's model as the pipeline's front end: the fabric log (in
+/// `dir`), the host's stream with it, and the rows the model computed.
+fn fabric_run(sim: &Sim, intra_period: u32, dir: &Path) -> (PathBuf, Vec<u8>, u64) {
+    let core = reconstruct::config(&sim.rec.manifest).unwrap();
+    let model = Model::repo().unwrap_or_else(|e| panic!("the RTL's Verilator model: {e}"));
+    let mut fabric = Fabric::new(&model, core.cfg, &core.ref_phase, core.columns()).unwrap();
+    let log = dir.join("fabric.dpsf");
+    let file = std::io::BufWriter::new(std::fs::File::create(&log).unwrap());
+    fabric.log_to(Box::new(file), sim.rec.run_id()).unwrap();
+    let res = reconstruct::run_front_end(&sim.rec, Vec::new(), intra_period, &mut fabric, false);
+    let stream = match res {
+        Ok((_, s)) => s,
+        Err(e) => panic!("front-end run: {e} ({:?})", fabric.error()),
+    };
+    let rows = fabric.rows;
+    fabric.finish().unwrap();
+    (log, stream, rows)
+}
+
+/// The firmware with the front end on one recording: the host's stream through the RTL is the
+/// core's, and the firmware fed by the RTL's fabric log emits the same bytes, every computed
+/// row taken from the fabric.
+fn front_end_is_bit_exact(what: &str, sim: &Sim, intra_period: u32, elf: &Path) -> u64 {
+    let (_, host) = reconstruct::run_with(&sim.rec, Vec::new(), intra_period, false).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let (log, through_rtl, rows) = fabric_run(sim, intra_period, dir.path());
+    assert_identical(&format!("{what}: host with the RTL"), &host, &through_rtl);
+    let opts = RunOptions {
+        intra_period,
+        echo: ECHO,
+        ..RunOptions::default()
+    };
+    let out = target::run_with_fabric(&sim.rec, elf, opts, Some(&log))
+        .unwrap_or_else(|e| panic!("{what}: firmware run with the front end failed: {e:#}"));
+    assert_identical(
+        &format!("{what}: firmware with the front end"),
+        &host,
+        &out.stream,
+    );
+    let said = format!("front end: {rows} rows from the fabric");
+    assert!(
+        out.outcome.log.iter().any(|l| l.message == said),
+        "{what}: the firmware did not take all {rows} rows from the fabric"
+    );
+    rows
+}
+
+/// The firmware's test recordings (the default, jitter, defects and full-frame scenes, a
+/// per-column height scale, an encoder jump and reversal, predicted rows) with the rows
+/// computed by the RTL: every stream is the core's, byte for byte.
+#[test]
+fn the_front_end_is_bit_exact_on_the_firmware_recordings() {
+    let Some(elf) = elf() else { return };
+    let mut rows = 0;
+    rows += front_end_is_bit_exact("default scene", &simulate(&Scene::default(), 1), 1, &elf);
+    for name in ["jitter.toml", "defects.toml", "fullframe.toml"] {
+        let scene = scene_file(name);
+        rows += front_end_is_bit_exact(name, &simulate(&scene, scene.seed), 1, &elf);
+    }
+    let mut sim = simulate(&small_scene(), 6);
+    sim.rec.manifest.calibration.height_per_turn_um_per_column =
+        Some(per_column_tz(sim.rec.width()));
+    rows += front_end_is_bit_exact("per-column height scale", &sim, 1, &elf);
+    rows += front_end_is_bit_exact("encoder jump and reversal", &jump_and_reversal(), 1, &elf);
+    rows += front_end_is_bit_exact("intra period 8", &simulate(&small_scene(), 4), 8, &elf);
+    assert!(rows > 5_000, "{rows} rows through the RTL");
+}
+
+/// A fabric log that is not the feed's (another recording, a truncated log) stops the
+/// firmware with an error naming it, never a stream built from the wrong rows.
+#[test]
+fn a_fabric_log_of_another_recording_is_refused() {
+    let Some(elf) = elf() else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let sim = simulate(&small_scene(), 8);
+    let (log, _, _) = fabric_run(&sim, 1, dir.path());
+    let other = simulate(&small_scene(), 9);
+    assert_ne!(sim.rec.run_id(), other.rec.run_id());
+    let opts = RunOptions {
+        echo: ECHO,
+        ..RunOptions::default()
+    };
+    let err = target::run_with_fabric(&other.rec, &elf, opts, Some(&log)).unwrap_err();
+    let msg = format!("{err:#}");
+    assert!(
+        msg.contains("fabric log") && msg.contains("run id"),
+        "{msg}"
+    );
+    let bytes = std::fs::read(&log).unwrap();
+    let cut = dir.path().join("cut.dpsf");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let err = target::run_with_fabric(&sim.rec, &elf, opts, Some(&cut)).unwrap_err();
+    let msg = format!("{err:#}");
+    assert!(msg.contains("fabric log"), "{msg}");
+    assert!(!msg.to_lowercase().contains("panic"), "{msg}");
+}
+
+// ---------------------------------------------------------------------------------------------
 // Bad input.
 
 /// A feed of a small scene, and its header.
@@ -453,7 +564,7 @@ fn assert_refused(elf: &Path, dir: &Path, what: &str, bytes: &[u8], needles: &[&
     let rec = dir.join(format!("{what}.dpsr"));
     let out = dir.join(format!("{what}.dpsa"));
     std::fs::write(&rec, bytes).unwrap();
-    let err = target::run_files(elf, &rec, &out, None, ECHO).expect_err(what);
+    let err = target::run_files(elf, &rec, &out, None, None, ECHO).expect_err(what);
     let msg = format!("{err:#}");
     for n in needles {
         assert!(

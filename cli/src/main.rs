@@ -57,7 +57,7 @@ fn main() {
         #[cfg(feature = "sim")]
         Cmd::CodecBench(a) => commands::codec_bench::run(a, progress),
         #[cfg(feature = "sim")]
-        Cmd::FpgaBench(a) => commands::fpga_bench::run(a),
+        Cmd::FpgaBench(a) => commands::fpga_bench::run(a, progress),
         #[cfg(feature = "sim")]
         Cmd::TargetRun(a) => commands::target_run::run(a, progress),
         #[cfg(feature = "sim")]

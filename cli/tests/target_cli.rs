@@ -185,6 +185,69 @@ fn bench_json_has_every_figure() {
     );
 }
 
+/// `--front-end`: the rows come from the RTL's Verilator model (fpga/), the firmware takes
+/// them from its fabric log: the stream is `dpsa reconstruct`'s byte for byte, the per-pixel
+/// stages are not the MCU's (`null`), and the MCU's share is below the M7-only total.
+#[test]
+fn front_end_run_is_the_hosts_stream_and_the_mcus_share() {
+    if skip_firmware() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let rec = small_recording(dir.path());
+    let (fe, m7, host) = (
+        dir.path().join("fe.dpsa"),
+        dir.path().join("m7.dpsa"),
+        dir.path().join("host.dpsa"),
+    );
+    let run = |out: &Path, front_end: bool| -> Value {
+        let mut args = vec![
+            "--quiet",
+            "target-run",
+            &rec,
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend(["--bench", "--json"]);
+        if front_end {
+            args.push("--front-end");
+        }
+        let o = dpsa(&args);
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        serde_json::from_str(&text(&o.stdout)).unwrap()
+    };
+    let with = run(&fe, true);
+    let without = run(&m7, false);
+    let o = dpsa(&[
+        "--quiet",
+        "reconstruct",
+        &rec,
+        "--out",
+        host.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let host = std::fs::read(&host).unwrap();
+    assert_eq!(std::fs::read(&fe).unwrap(), host, "front end vs host");
+    assert_eq!(std::fs::read(&m7).unwrap(), host, "M7 only vs host");
+    assert!(num(&with, "front_end.rows") > 100.0, "{with}");
+    assert_eq!(with["front_end"]["stream_equals_core"], Value::Bool(true));
+    assert!(
+        with["instructions_per_pixel"]["accumulate"].is_null(),
+        "{with}"
+    );
+    assert!(
+        with["instructions_per_pixel"]["phase_height"].is_null(),
+        "{with}"
+    );
+    assert!(without["front_end"].is_null());
+    let (a, b) = (
+        num(&with, "instructions_per_pixel.total"),
+        num(&without, "instructions_per_pixel.total"),
+    );
+    // The per-pixel stages (about 110 instructions a pixel) left the MCU.
+    assert!(a > 0.0 && a < b - 50.0, "front end {a}, M7 only {b}");
+}
+
 #[test]
 fn target_run_refuses_bad_invocations() {
     let help = text(&dpsa(&["target-run", "--help"]).stdout);
@@ -196,6 +259,7 @@ fn target_run_refuses_bad_invocations() {
         "--json",
         "--cal",
         "--camera",
+        "--front-end",
     ] {
         assert!(help.contains(opt), "target-run --help lacks {opt}: {help}");
     }

@@ -504,6 +504,12 @@ impl<'a> Pool<'a> {
         Some((slot, dst))
     }
 
+    /// Takes a slot without writing it: the line lives elsewhere (a front end's own pool,
+    /// [`crate::offload::FrontEnd::keep`]); `None` when the pool is exhausted.
+    pub fn take_slot(&mut self) -> Option<u16> {
+        self.take().map(|(slot, _)| slot)
+    }
+
     /// Takes a slot and stores `line` (`W` samples) in it, packed (each sample clamped to
     /// 4095) in a packed pool; `None` when the pool is exhausted.
     pub fn store(&mut self, line: &[u16]) -> Option<u16> {

@@ -6,6 +6,7 @@
 use crate::frames::feed::{self, FeedError};
 use crate::frames::{Config, ConfigError, Trigger};
 use crate::height::{ColumnScaleError, Invalid, MAX_COLUMN_SHIFT};
+use crate::offload::FrontEndError;
 use crate::packets::codec::CodecError;
 use crate::packets::PacketError;
 use crate::pipeline::{Error, Layout, NewError};
@@ -126,6 +127,7 @@ impl<E: Format> Format for Error<E> {
             }
             Error::Finished => write!(f, "begin_frame after finish"),
             Error::LineFormat => write!(f, "line format does not fit the line pool"),
+            Error::FrontEnd(e) => write!(f, "front end: {}", e),
         }
     }
 }
@@ -142,6 +144,19 @@ impl Format for SolveError {
                 f,
                 "window noise gain above max_noise_gain (ill-conditioned shifts)"
             ),
+        }
+    }
+}
+
+impl Format for FrontEndError {
+    fn format(&self, f: Formatter<'_>) {
+        match self {
+            FrontEndError::WrongRow { asked, got } => write!(
+                f,
+                "delivered board row {=i64} when row {=i64} was due",
+                got, asked
+            ),
+            FrontEndError::Failed => write!(f, "no row came (the front end failed or stopped)"),
         }
     }
 }

@@ -7,6 +7,7 @@
 use crate::frames::feed::{FeedError, VERSION as FEED_VERSION};
 use crate::frames::ConfigError;
 use crate::height::{ColumnScaleError, Invalid, MAX_COLUMN_SHIFT};
+use crate::offload::FrontEndError;
 use crate::packets::codec::CodecError;
 use crate::packets::{PacketError, VERSION as PACKET_VERSION};
 use crate::pipeline::{Error, NewError};
@@ -133,6 +134,7 @@ impl<E: Display> Display for Error<E> {
                 "a packed line for a 16-bit line pool, or a 16-bit line for a packed pool \
                  without its scratch line (Layout::scratch_bytes)",
             ),
+            Error::FrontEnd(e) => write!(f, "front end: {e}"),
         }
     }
 }
@@ -171,6 +173,19 @@ impl Display for Invalid {
 }
 
 impl StdError for Invalid {}
+
+impl Display for FrontEndError {
+    fn fmt(&self, f: &mut Formatter<'_>) -> fmt::Result {
+        match self {
+            FrontEndError::WrongRow { asked, got } => {
+                write!(f, "delivered board row {got} when row {asked} was due")
+            }
+            FrontEndError::Failed => f.write_str("no row came (the front end failed or stopped)"),
+        }
+    }
+}
+
+impl StdError for FrontEndError {}
 
 impl Display for PacketError {
     fn fmt(&self, f: &mut Formatter<'_>) -> fmt::Result {

@@ -34,9 +34,80 @@
 //! the height against the reference phase `rho + phi_0(c)`, the validity mask and the row
 //! flags: exactly what [`crate::pipeline::Pipeline`] runs after its own accumulate stage, so an
 //! offloaded row is bit-identical to a row computed on the core (tested below).
+//!
+//! ## A front end that takes every per-pixel stage ([`FrontEnd`])
+//!
+//! The FPGA front end (`fpga/`, `docs/fpga.md`) goes further: it keeps the camera's lines in
+//! its own line pool and computes whole rows (accumulate, gate, phase, height, validity). The
+//! MCU keeps everything that is not per pixel: the registration of frames by their encoder
+//! latches, the window solve, which rows are admitted, killed or flagged, the stream. The
+//! pipeline runs that split with [`crate::pipeline::Pipeline::push_to_front_end`]: for each
+//! line it decides exactly as on the core, but instead of copying a line into its pool it
+//! tells the front end which pool slot keeps it ([`FrontEnd::keep`]; the slot bookkeeping,
+//! and so the `OVERFLOW` decisions, stay the pipeline's), and instead of computing a
+//! completed row it hands the front end a [`RowJob`] ([`FrontEnd::row`]). A front end is
+//! correct when its rows equal the core's: the pipeline's tests run a software front end
+//! through this seam against the pipeline's own rows, and `fpga/` runs the RTL through it.
 
 use crate::accumulate::{Coef, SATURATED, V};
-use crate::height::Scale;
+use crate::height::{Gate, Scale};
+
+/// A camera line as the pipeline receives it.
+#[derive(Clone, Copy, Debug)]
+pub enum Line<'l> {
+    /// `W` samples as u16.
+    Wide(&'l [u16]),
+    /// Mono12p bytes as a 12-bit camera sends them ([`crate::frames::mono12p`]).
+    Packed(&'l [u8]),
+}
+
+/// A completed row for a [`FrontEnd`]: which kept lines, which window, which row phase.
+#[derive(Clone, Copy, Debug)]
+pub struct RowJob<'j> {
+    /// Board row.
+    pub row: i64,
+    /// The pool slots of observations `0 .. n - 1` (the last observation is the line
+    /// delivered with the job).
+    pub slots: &'j [u16],
+    /// The window's coefficients (the registers the MCU writes once per frame).
+    pub coef: &'j Coef,
+    /// The window's modulation gate, in the coefficients' units.
+    pub gate: &'j Gate,
+    /// The row phase `rho` ([`crate::Config::row_phase`]).
+    pub rho: u32,
+}
+
+/// Why a front end gave no row.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FrontEndError {
+    /// The front end's row is not the row asked for (a lost or reordered completion).
+    WrongRow {
+        /// The row asked for.
+        asked: i64,
+        /// The row the front end delivered.
+        got: i64,
+    },
+    /// The front end failed or stopped (no row came).
+    Failed,
+}
+
+/// A front end that takes over the per-pixel stages of whole rows (see the module docs).
+pub trait FrontEnd {
+    /// The line just delivered is an observation of a row still open: keep it in pool slot
+    /// `slot` until a [`RowJob`] names it (a slot may be reused after that row).
+    fn keep(&mut self, slot: u16, line: Line<'_>);
+    /// Computes the row of `job`, `last` being its final observation: heights into `heights`
+    /// (`W`, zero where invalid) and validity bits into `valid` (`ceil(W/8)` bytes, both
+    /// zeroed on entry); returns the row flags of its pixels ([`crate::flags::SATURATED`],
+    /// [`crate::flags::LOW_MODULATION`]), as [`finish_row`] does.
+    fn row(
+        &mut self,
+        job: &RowJob<'_>,
+        last: Line<'_>,
+        heights: &mut [i16],
+        valid: &mut [u8],
+    ) -> Result<u16, FrontEndError>;
+}
 
 /// The reference model of the front end's per-pixel output (see the module docs): exact i64
 /// sums, reduced to i32 (exact for non-saturated samples).

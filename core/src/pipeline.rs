@@ -22,6 +22,7 @@ use crate::frames::registration::{self, Kind, Registry, Step};
 use crate::frames::{mono12p, Config, ConfigError, Trigger};
 use crate::height::{ColumnScale, ColumnScaleError, Gate, Scale};
 use crate::lanes::Kernel;
+use crate::offload::{FrontEnd, FrontEndError, Line, RowJob};
 use crate::row::{flags, Gap, Row, RowHeader, StreamInfo};
 use crate::sink::Sink;
 use crate::solve::{SolveError, Window, MAX_N};
@@ -206,6 +207,8 @@ pub enum Error<E> {
     /// [`Pipeline::push_packed_line`] on a 16-bit pool, or [`Pipeline::push_line`] on a
     /// packed pool whose [`Memory::scratch`] is shorter than [`Layout::scratch_bytes`].
     LineFormat,
+    /// The front end gave no row ([`Pipeline::push_to_front_end`]).
+    FrontEnd(FrontEndError),
 }
 
 /// The streaming D-PSA pipeline.
@@ -433,7 +436,7 @@ impl<'a> Pipeline<'a> {
         line: &[u16],
         sink: &mut S,
     ) -> Result<(), Error<S::Error>> {
-        self.push(r, Line::Wide(line), sink)
+        self.push(r, Line::Wide(line), None, sink)
     }
 
     /// Delivers image row `r` of the open frame as a 12-bit camera sends it: Mono12p,
@@ -446,13 +449,32 @@ impl<'a> Pipeline<'a> {
         line: &[u8],
         sink: &mut S,
     ) -> Result<(), Error<S::Error>> {
-        self.push(r, Line::Packed(line), sink)
+        self.push(r, Line::Packed(line), None, sink)
+    }
+
+    /// Delivers image row `r` of the open frame ([`Line::Wide`] as [`Pipeline::push_line`],
+    /// [`Line::Packed`] as [`Pipeline::push_packed_line`]) to a pipeline whose per-pixel
+    /// stages run in the front end `fe` ([`crate::offload`]): every decision is the one the
+    /// pipeline makes on its own (admission, pool slots, flags, rows emitted), but a kept line
+    /// goes to [`FrontEnd::keep`] instead of this pool's memory and a completed row is
+    /// [`FrontEnd::row`]'s. The rows equal the pipeline's own when the front end's rows do.
+    /// A front end that gives no row ([`Error::FrontEnd`]) ends what this stream can be
+    /// trusted with: the row is not emitted.
+    pub fn push_to_front_end<S: Sink>(
+        &mut self,
+        r: u16,
+        line: Line<'_>,
+        fe: &mut dyn FrontEnd,
+        sink: &mut S,
+    ) -> Result<(), Error<S::Error>> {
+        self.push(r, line, Some(fe), sink)
     }
 
     fn push<S: Sink>(
         &mut self,
         r: u16,
         line: Line<'_>,
+        fe: Option<&mut dyn FrontEnd>,
         sink: &mut S,
     ) -> Result<(), Error<S::Error>> {
         if !self.open {
@@ -505,9 +527,10 @@ impl<'a> Pipeline<'a> {
             return Ok(());
         }
         if j + 1 < n {
-            let stored = match line {
-                Line::Wide(l) => self.pool.store(l),
-                Line::Packed(b) => self.pool.store_packed(b),
+            let stored = match (fe, line) {
+                (Some(fe), line) => self.pool.take_slot().inspect(|&l| fe.keep(l, line)),
+                (None, Line::Wide(l)) => self.pool.store(l),
+                (None, Line::Packed(b)) => self.pool.store_packed(b),
             };
             match stored {
                 Some(l) => {
@@ -531,7 +554,28 @@ impl<'a> Pipeline<'a> {
         let w0 = f + 1 - n as u32;
         let (o0, latch0) = (self.reg.admission(w0).offset, self.reg.admission(w0).latch);
         let rho = self.cfg.row_phase(b - o0);
-        let row_flags = self.compute(s, &win.0, &win.1, rho, line);
+        let row_flags = match fe {
+            None => self.compute(s, &win.0, &win.1, rho, line),
+            Some(fe) => {
+                let slot = self.reg.slots[s];
+                let job = RowJob {
+                    row: b,
+                    slots: &slot.lines[..n - 1],
+                    coef: &win.0,
+                    gate: &win.1,
+                    rho,
+                };
+                match fe.row(&job, line, self.heights, self.valid) {
+                    Ok(f) => f,
+                    Err(e) => {
+                        self.release(s);
+                        self.heights.fill(0);
+                        self.valid.fill(0);
+                        return Err(Error::FrontEnd(e));
+                    }
+                }
+            }
+        };
         self.release(s);
         let header = self.header(b, latch0, row_flags);
         let res = sink.row(&Row {
@@ -718,13 +762,6 @@ impl<'a> Pipeline<'a> {
         };
         rows.run(n, coef, gate, &self.scale, self.heights, self.valid)
     }
-}
-
-/// A line as delivered: `W` u16 samples, or Mono12p bytes.
-#[derive(Clone, Copy)]
-enum Line<'l> {
-    Wide(&'l [u16]),
-    Packed(&'l [u8]),
 }
 
 /// The `n` lines of a completed row, as the pool keeps them.
@@ -1293,6 +1330,193 @@ mod tests {
         let any = |f: u16| out.0.iter().any(|r| r.0.flags & f != 0);
         assert!(any(flags::ENCODER_REVERSAL));
         assert!(any(flags::FRAME_GAP));
+    }
+
+    /// A software front end: its own line pool by slot, the offload seam's reference model per
+    /// pixel ([`crate::offload::front_end_pixel`]) and [`crate::offload::finish_row`].
+    struct Mirror {
+        cfg: Config,
+        refp: Vec<u32>,
+        pool: Vec<Vec<u16>>,
+        rows: usize,
+        /// Deliver this row as another (a fault), once.
+        misdeliver: Option<i64>,
+    }
+
+    impl Mirror {
+        fn samples(&self, line: Line<'_>) -> Vec<u16> {
+            match line {
+                // A 12-bit pool keeps samples clamped to 4095, as the pool's Mono12p does.
+                Line::Wide(l) if Layout::of(&self.cfg).packed => {
+                    l.iter().map(|&x| x.min(4095)).collect()
+                }
+                Line::Wide(l) => l.to_vec(),
+                Line::Packed(b) => {
+                    let mut l = vec![0u16; self.cfg.width as usize];
+                    mono12p::unpack(b, &mut l);
+                    l
+                }
+            }
+        }
+    }
+
+    impl FrontEnd for Mirror {
+        fn keep(&mut self, slot: u16, line: Line<'_>) {
+            let l = self.samples(line);
+            if self.pool.len() <= slot as usize {
+                self.pool.resize(slot as usize + 1, Vec::new());
+            }
+            self.pool[slot as usize] = l;
+        }
+
+        fn row(
+            &mut self,
+            job: &RowJob<'_>,
+            last: Line<'_>,
+            heights: &mut [i16],
+            valid: &mut [u8],
+        ) -> Result<u16, FrontEndError> {
+            if self.misdeliver == Some(job.row) {
+                self.misdeliver = None;
+                return Err(FrontEndError::WrongRow {
+                    asked: job.row,
+                    got: job.row + 1,
+                });
+            }
+            let last = self.samples(last);
+            let lines: Vec<&[u16]> = job
+                .slots
+                .iter()
+                .map(|&s| &self.pool[s as usize][..])
+                .chain([&last[..]])
+                .collect();
+            let v: Vec<accumulate::V> = (0..self.cfg.width as usize)
+                .map(|c| {
+                    let x: Vec<u16> = lines.iter().map(|l| l[c]).collect();
+                    crate::offload::front_end_pixel(job.coef, &x, self.cfg.saturation)
+                })
+                .collect();
+            self.rows += 1;
+            let scale = Scale::new(&self.cfg);
+            let f = crate::offload::finish_row(
+                &scale, job.coef, &v, job.rho, &self.refp, heights, valid,
+            );
+            Ok(f)
+        }
+    }
+
+    /// Rows through a front end ([`Pipeline::push_to_front_end`]) equal the pipeline's own,
+    /// bit for bit and flag for flag, lines delivered wide and packed, through a reversal, a
+    /// lost frame, a truncated frame, an encoder jump, a stall and saturated samples; a front
+    /// end that delivers the wrong row stops the stream with [`Error::FrontEnd`].
+    #[test]
+    fn a_front_end_gives_the_pipelines_rows() {
+        let c = cfg();
+        let refp: Vec<u32> = (0..W).map(|c| from_rad(phi0(c))).collect();
+        let mut latches: Vec<i64> = vec![
+            0, 80, 160, 240, 320, 400, 300, 380, 460, 540, 620, 700, 780, 860, 940, 1020,
+        ];
+        latches.extend((0..8).map(|k| 1_000_000 + k * 90));
+        latches.extend([1_000_630; 5]);
+        latches.extend((0..8).map(|k| 1_000_720 + k * 90));
+        let seqs: Vec<u32> = (0..latches.len() as u32)
+            .map(|k| if k >= 12 { k + 1 } else { k })
+            .collect();
+        let frames: Vec<Vec<Vec<u16>>> = latches
+            .iter()
+            .map(|&e| {
+                let mut f = frame(c.offset(e));
+                f[35][5] = 5000;
+                f[36][9] = 4095;
+                f
+            })
+            .collect();
+        let go = |fe: Option<&mut Mirror>, packed: bool| {
+            let mut m = State::new(&c);
+            let mut p = Pipeline::new(c, &refp, m.memory()).unwrap();
+            let mut sink = Collect::default();
+            let mut fe = fe;
+            let mut b = vec![0u8; mono12p::packed_len(W)];
+            let mut err = None;
+            'frames: for (k, &e) in latches.iter().enumerate() {
+                let t = Trigger {
+                    seq: seqs[k],
+                    latch: e,
+                };
+                p.begin_frame(t, &mut sink).unwrap();
+                let lines = if k == 3 { 5 } else { H as usize };
+                for (r, l) in frames[k].iter().enumerate().take(lines) {
+                    mono12p::pack(l, &mut b);
+                    let line = if packed {
+                        Line::Packed(&b)
+                    } else {
+                        Line::Wide(l)
+                    };
+                    let res = match fe.as_deref_mut() {
+                        Some(fe) => p.push_to_front_end(r as u16, line, fe, &mut sink),
+                        None if packed => p.push_packed_line(r as u16, &b, &mut sink),
+                        None => p.push_line(r as u16, l, &mut sink),
+                    };
+                    if let Err(e) = res {
+                        err = Some(e);
+                        break 'frames;
+                    }
+                }
+                p.end_frame(&mut sink).unwrap();
+            }
+            if err.is_none() {
+                p.finish(&mut sink).unwrap();
+            }
+            (sink.0, err)
+        };
+        let mirror = || Mirror {
+            cfg: c,
+            refp: refp.clone(),
+            pool: Vec::new(),
+            rows: 0,
+            misdeliver: None,
+        };
+        for packed in [false, true] {
+            let (core, e) = go(None, packed);
+            assert_eq!(e, None);
+            let mut fe = mirror();
+            let (front, e) = go(Some(&mut fe), packed);
+            assert_eq!(e, None);
+            assert_eq!(front, core, "packed {packed}");
+            let valid_rows = core.iter().filter(|r| r.0.flags & flags::ROW_INVALID == 0);
+            assert_eq!(
+                fe.rows,
+                valid_rows.count(),
+                "every computed row came from the front end"
+            );
+            assert!(fe.rows > 50);
+            let any = |f: u16| core.iter().any(|r| r.0.flags & f != 0);
+            for f in [
+                flags::ENCODER_REVERSAL,
+                flags::FRAME_GAP,
+                flags::ENCODER_FAULT,
+                flags::ILL_CONDITIONED,
+                flags::SATURATED,
+            ] {
+                assert!(any(f), "flag {f:#x} exercised");
+            }
+        }
+        let mut fe = mirror();
+        let (core, _) = go(None, false);
+        let due = core.iter().find(|r| r.0.flags == 0).unwrap().0.row;
+        fe.misdeliver = Some(due);
+        let (front, e) = go(Some(&mut fe), false);
+        assert_eq!(
+            e,
+            Some(Error::FrontEnd(FrontEndError::WrongRow {
+                asked: due,
+                got: due + 1
+            }))
+        );
+        assert!(
+            front.iter().all(|r| r.0.row < due),
+            "the row was not emitted"
+        );
     }
 
     #[test]

@@ -4,7 +4,7 @@
 
 use crate::frames::Trigger;
 use crate::packets::{self, codec, PacketError};
-use crate::row::{Gap, Row, StreamInfo};
+use crate::row::{Gap, Row, RowHeader, StreamInfo};
 
 /// Receives the pipeline's output in increasing board-row order: every board row exactly
 /// once, either as a row or inside a gap record; [`Sink::start`] before anything else and
@@ -119,6 +119,28 @@ impl<'a, L: Link> PacketSink<'a, L> {
         &mut self.link
     }
 
+    /// Where a row's payload goes in the packet buffer: [`codec::max_len`]`(W)` bytes after the
+    /// packet header, the place a front end's row codec delivers a payload to before
+    /// [`PacketSink::row_coded`].
+    pub fn payload_mut(&mut self) -> &mut [u8] {
+        let w = self.enc.width();
+        let end = (packets::HEADER_LEN + codec::max_len(w)).min(self.buf.len());
+        &mut self.buf[packets::HEADER_LEN.min(end)..end]
+    }
+
+    /// Sends a row whose payload (`len` bytes) was coded elsewhere and put in place through
+    /// [`PacketSink::payload_mut`]: framed and counted as [`Sink::row`] does with its own
+    /// encoder. The front end's codec must code every row of the stream, in order, with this
+    /// sink's intra period (the stream header announces it).
+    pub fn row_coded(&mut self, header: &RowHeader, len: usize) -> Result<(), SinkError<L::Error>> {
+        let n =
+            packets::frame_coded(header, self.seq(), len, self.buf).map_err(SinkError::Encode)?;
+        self.send(n)?;
+        self.totals.rows += 1;
+        self.cover(header.row, header.row);
+        Ok(())
+    }
+
     /// Flushes the link.
     pub fn flush(&mut self) -> Result<(), L::Error> {
         self.link.flush()
@@ -199,5 +221,96 @@ impl<L: Link> Sink for PacketSink<'_, L> {
         let len =
             packets::encode_end(&t, camera, n, width, seq, self.buf).map_err(SinkError::Encode)?;
         self.send(len)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+    use crate::row::RowHeader;
+    use std::vec;
+    use std::vec::Vec;
+
+    struct Bytes(Vec<u8>);
+    impl Link for Bytes {
+        type Error = ();
+        fn send(&mut self, p: &[u8]) -> Result<(), ()> {
+            self.0.extend_from_slice(p);
+            Ok(())
+        }
+        fn flush(&mut self) -> Result<(), ()> {
+            Ok(())
+        }
+    }
+
+    /// Rows whose payloads a separate encoder coded (as a front end's codec does), framed by
+    /// `row_coded`, make the stream `row` makes with the sink's own encoder, byte for byte,
+    /// predicted rows included; a payload longer than `codec::max_len` is refused.
+    #[test]
+    fn rows_coded_elsewhere_make_the_same_stream() {
+        let w: usize = 37;
+        let rows: Vec<(Vec<i16>, Vec<u8>)> = (0..12)
+            .map(|r| {
+                let h = (0..w)
+                    .map(|c| ((r * 7 + c * c) % 300) as i16 - 100)
+                    .collect();
+                let v = (0..w.div_ceil(8))
+                    .map(|i| if r % 5 == 0 { 0 } else { 0xF7 ^ i as u8 })
+                    .collect();
+                (h, v)
+            })
+            .collect();
+        let info = StreamInfo {
+            width: w as u16,
+            n: 4,
+            ..StreamInfo::default()
+        };
+        let header = |r: usize| RowHeader {
+            row: r as i64 + 100,
+            width: w as u16,
+            n: 4,
+            flags: if r % 5 == 0 { 2 } else { 0 },
+            ..RowHeader::default()
+        };
+        for period in [1, 4] {
+            let run = |coded: bool| -> Vec<u8> {
+                let (mut rh, mut rv) = (vec![0i16; w], vec![0u8; w.div_ceil(8)]);
+                let enc = codec::Encoder::new(&mut rh, &mut rv, w, period).unwrap();
+                let mut buf = vec![0u8; packets::max_packet_len(w)];
+                let mut sink = PacketSink::new(Bytes(Vec::new()), enc, &mut buf);
+                let (mut fh, mut fv) = (vec![0i16; w], vec![0u8; w.div_ceil(8)]);
+                let mut front = codec::Encoder::new(&mut fh, &mut fv, w, period).unwrap();
+                let mut payload = vec![0u8; codec::max_len(w)];
+                sink.start(&info).unwrap();
+                for (r, (h, v)) in rows.iter().enumerate() {
+                    if coded {
+                        let len = front.encode(h, v, &mut payload).unwrap();
+                        sink.payload_mut()[..len].copy_from_slice(&payload[..len]);
+                        sink.row_coded(&header(r), len).unwrap();
+                    } else {
+                        let row = Row {
+                            header: header(r),
+                            heights: h,
+                            valid: v,
+                        };
+                        sink.row(&row).unwrap();
+                    }
+                }
+                sink.end().unwrap();
+                assert_eq!(sink.rows(), rows.len() as u64);
+                sink.into_link().0
+            };
+            assert_eq!(run(true), run(false), "intra period {period}");
+        }
+        let (mut rh, mut rv) = (vec![0i16; w], vec![0u8; w.div_ceil(8)]);
+        let enc = codec::Encoder::new(&mut rh, &mut rv, w, 1).unwrap();
+        let mut buf = vec![0u8; packets::max_packet_len(w)];
+        let mut sink = PacketSink::new(Bytes(Vec::new()), enc, &mut buf);
+        assert_eq!(
+            sink.row_coded(&header(0), codec::max_len(w) + 1),
+            Err(SinkError::Encode(PacketError::BufferTooSmall))
+        );
+        assert_eq!(sink.packets(), 0);
     }
 }

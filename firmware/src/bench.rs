@@ -68,6 +68,20 @@ pub struct Stages {
     pub pixels: u64,
     pub accumulate: u64,
     pub phase_height: u64,
+    /// The front end ran the per-pixel stages (nothing timed here).
+    pub front_end: bool,
+}
+
+impl Stages {
+    /// No stage timed (the front end runs them).
+    pub fn none() -> Stages {
+        Stages {
+            pixels: 0,
+            accumulate: 0,
+            phase_height: 0,
+            front_end: true,
+        }
+    }
 }
 
 /// Runs the two stages of the core's per-pixel loop (`accumulate::block` and `Scale::row`,
@@ -93,6 +107,7 @@ pub fn stages<C: Clock>(
         pixels: 0,
         accumulate: 0,
         phase_height: 0,
+        front_end: false,
     };
     let Some(win) = meter.window else { return s };
     let Some(coef) = bench::Coef::of(&win, cfg.saturation) else {
@@ -228,7 +243,7 @@ pub fn report<C: Clock>(
     // (every lane class pair, then random words): must be 0 (the host refuses the report).
     let dsp_random = 20_000;
     let dsp_mismatches = bench::check_against_twins(dsp_random, 0x9E37_79B9);
-    let lines: [(&str, u64); 22] = [
+    let lines: [(&str, u64); 23] = [
         ("calib_loop_instructions", calib_instr),
         ("calib_ticks", calib_ticks),
         ("rows_out", sink.rows),
@@ -257,6 +272,7 @@ pub fn report<C: Clock>(
         ("dsp_checks", bench::checks(dsp_random) as u64),
         ("dsp_mismatches", dsp_mismatches as u64),
         ("mono12p", header.mono12p as u64),
+        ("front_end", u64::from(st.front_end)),
     ];
     for (k, v) in lines {
         let _ = writeln!(t, "{k} {v}");

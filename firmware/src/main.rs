@@ -21,6 +21,7 @@ use board::qemu::{self, Feed, Output, SysTickClock};
 use board::{Clock, LineSource, Triggered};
 use defmt_semihosting as _;
 use dpsa_core::height::ColumnScale;
+use dpsa_core::offload::Line;
 use dpsa_core::packets::codec;
 use dpsa_core::pipeline::{Memory, Pipeline};
 use sink::TimedSink;
@@ -142,6 +143,18 @@ fn run() -> Result<(), Failed> {
         .map_err(|e| fail("pipeline", e))?;
     let mut meter = bench::Meter::new();
     let line_len = header.line_len();
+    // With the FPGA front end (`fabric=LOG`): the per-pixel stages are the fabric's, the rest
+    // (registration, windows, flags, encoding, the link) stays here.
+    let mut fabric = match &args.fabric {
+        Some(p) => Some(
+            qemu::FabricLog::open(p, w, header.run_id, &clock)
+                .map_err(|e| fail("fabric log", e))?,
+        ),
+        None => None,
+    };
+    if fabric.is_some() {
+        defmt::info!("front end: the FPGA's rows (fabric log)");
+    }
 
     let mut frames = 0u32;
     loop {
@@ -162,12 +175,26 @@ fn run() -> Result<(), Failed> {
                 .read_line(&mut qemu::as_bytes_mut(line)[..line_len])
                 .map_err(|e| fail("camera", e))?;
             let t1 = clock.ticks();
-            if header.mono12p {
-                pipe.push_packed_line(r, &qemu::as_bytes_mut(line)[..line_len], &mut sink)
-            } else {
-                pipe.push_line(r, &line[..w], &mut sink)
+            match (fabric.as_mut(), header.mono12p) {
+                (None, true) => {
+                    pipe.push_packed_line(r, &qemu::as_bytes_mut(line)[..line_len], &mut sink)
+                }
+                (None, false) => pipe.push_line(r, &line[..w], &mut sink),
+                (Some(fe), true) => {
+                    let l = Line::Packed(&qemu::as_bytes_mut(line)[..line_len]);
+                    pipe.push_to_front_end(r, l, fe, &mut sink)
+                }
+                (Some(fe), false) => {
+                    pipe.push_to_front_end(r, Line::Wide(&line[..w]), fe, &mut sink)
+                }
             }
-            .map_err(|e| fail("push_line", e))?;
+            .map_err(|e| {
+                if let Some(e) = fabric.as_ref().and_then(|f| f.error) {
+                    fail("fabric log", e)
+                } else {
+                    fail("push_line", e)
+                }
+            })?;
             let t2 = clock.ticks();
             meter.io += t1 - t;
             meter.pipe += t2 - t1;
@@ -182,6 +209,12 @@ fn run() -> Result<(), Failed> {
     pipe.finish(&mut sink).map_err(|e| fail("finish", e))?;
     meter.pipe += clock.ticks() - t;
     sink.sink.flush().map_err(|e| fail("link", e))?;
+    // The fabric log's reads happened inside the pipeline calls: host I/O, not the MCU's work.
+    if let Some(f) = &fabric {
+        meter.pipe -= f.io_ticks;
+        meter.io += f.io_ticks;
+        defmt::info!("front end: {=u64} rows from the fabric", f.rows);
+    }
     let ticks = sink.ticks();
     let rows = ticks.rows;
     defmt::info!("{=u32} frames in, {=u64} rows out", frames, rows);
@@ -190,9 +223,14 @@ fn run() -> Result<(), Failed> {
     }
 
     if let Some(path) = &args.bench {
-        let stages = bench::stages(
-            &cfg, &layout, &meter, ref_phase, columns, lines, heights, valid, &clock,
-        );
+        // With the front end the pool holds no lines (they stay in the fabric): the per-pixel
+        // stages are not the MCU's and are not timed.
+        let stages = match fabric {
+            Some(_) => bench::Stages::none(),
+            None => bench::stages(
+                &cfg, &layout, &meter, ref_phase, columns, lines, heights, valid, &clock,
+            ),
+        };
         write_bench(path, &header, &meter, &ticks, &stages, &clock)?;
     }
     Ok(())

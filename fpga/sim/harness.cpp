@@ -78,6 +78,8 @@ struct Harness {
     void flush() {
         if (!out.empty() && std::fwrite(out.data(), 1, out.size(), stdout) != out.size())
             fail("stdout closed");
+        // A pipe is block-buffered: the other end may be waiting for exactly these bytes.
+        if (std::fflush(stdout) != 0) fail("stdout closed");
         out.clear();
     }
 

@@ -486,3 +486,100 @@ pub fn run(model: &Model, seed: u64, pixels: u64, per_window: u64) -> Result<Rep
     }
     Ok(rep)
 }
+
+/// Pixels per batch a [`Session`] sends before it reads their outputs (the pipes then never
+/// hold more than 24 KiB one way and 16 KiB the other).
+const SESSION_BATCH: usize = 1024;
+
+/// One running model, row by row: a window's registers, then its pixels, their outputs back
+/// ([`crate::front::Fabric`] runs whole rows through it).
+pub struct Session {
+    child: std::process::Child,
+    stdin: std::process::ChildStdin,
+    stdout: std::process::ChildStdout,
+    buf: Vec<u8>,
+}
+
+impl Session {
+    /// Starts `model`.
+    pub fn start(model: &Model) -> Result<Session, ModelError> {
+        let mut child = model.spawn()?;
+        let (Some(stdin), Some(stdout)) = (child.stdin.take(), child.stdout.take()) else {
+            return Err(ModelError::Run("the model's pipes are missing".into()));
+        };
+        Ok(Session {
+            child,
+            stdin,
+            stdout,
+            buf: Vec::new(),
+        })
+    }
+
+    fn failed(&mut self, what: &str, e: std::io::Error) -> ModelError {
+        let _ = self.child.kill();
+        let mut err = String::new();
+        if let Some(mut s) = self.child.stderr.take() {
+            let _ = s.read_to_string(&mut err);
+        }
+        ModelError::Run(format!("{what}: {e} {err}"))
+    }
+
+    /// Loads window `w` and runs `px` through it; their outputs, in order, into `out`.
+    pub fn pixels(
+        &mut self,
+        w: &Window,
+        px: &[Pixel],
+        out: &mut Vec<Out>,
+    ) -> Result<(), ModelError> {
+        out.clear();
+        let mut rec = [0u8; 16];
+        for (i, batch) in px.chunks(SESSION_BATCH).enumerate() {
+            self.buf.clear();
+            if i == 0 {
+                w.encode(&mut self.buf);
+            }
+            self.buf.extend(2u32.to_le_bytes());
+            self.buf.extend((batch.len() as u32).to_le_bytes());
+            for p in batch {
+                p.encode(&mut self.buf);
+            }
+            if let Err(e) = self
+                .stdin
+                .write_all(&self.buf)
+                .and_then(|_| self.stdin.flush())
+            {
+                return Err(self.failed("writing to the model", e));
+            }
+            for _ in batch {
+                if let Err(e) = self.stdout.read_exact(&mut rec) {
+                    return Err(self.failed("reading the model's output", e));
+                }
+                out.push(Out::decode(&rec));
+            }
+        }
+        Ok(())
+    }
+
+    /// Ends the model's run: it must exit cleanly.
+    pub fn finish(mut self) -> Result<(), ModelError> {
+        if let Err(e) = self
+            .stdin
+            .write_all(&0u32.to_le_bytes())
+            .and_then(|_| self.stdin.flush())
+        {
+            return Err(self.failed("writing to the model", e));
+        }
+        drop(self.stdin);
+        let status = self.child.wait()?;
+        if !status.success() {
+            let mut err = String::new();
+            if let Some(mut s) = self.child.stderr.take() {
+                let _ = s.read_to_string(&mut err);
+            }
+            return Err(ModelError::Run(format!(
+                "the model exited with {status}: {err}"
+            )));
+        }
+        Ok(())
+    }
+}

@@ -4,10 +4,13 @@
 //!
 //! - [`model`]: the Verilator model of the RTL, built and run as a child process.
 //! - [`cosim`]: the records it speaks, the vectors, the core's answers, the comparison.
+//! - [`front`]: the model as the pipeline's front end ([`dpsa_core::offload::FrontEnd`]), and the
+//!   fabric log the firmware reads under QEMU.
 //! - [`mod@bench`]: `dpsa fpga-bench`: synthesis figures, co-simulation counts, rates.
 
 pub mod bench;
 pub mod cosim;
+pub mod front;
 pub mod model;
 
 use std::path::PathBuf;

@@ -132,7 +132,14 @@ impl Model {
         std::fs::create_dir_all(&tmp)?;
         let log = tmp.join("build.log");
         let abs = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
-        let hex = abs(&src.atan_hex);
+        // The model reads its table at run time from the path it was built with: a copy kept
+        // in the cache beside it (named by the key, which covers the table's bytes), so a model
+        // never depends on the source folder living on (the mutation tests' folders do not).
+        let hex = abs(&cache.join(format!("{key:016x}.atan.hex")));
+        std::fs::copy(&src.atan_hex, &hex).map_err(|source| ModelError::Source {
+            path: src.atan_hex.clone(),
+            source,
+        })?;
         let mut cmd = Command::new("verilator");
         cmd.args(["--cc", "--exe", "--build", "-O3", "-j", "2"])
             .args(["--top-module", "dpsa_pixel", "-Wall"])

@@ -8,6 +8,11 @@
 //    MCU would write them between rows. WIN_PER_LANE = 0: one set shared by
 //    all lanes; 1: one set per lane, each written when its bit of the lane
 //    mask register (address 16) is set, so the copies are distinct FFs.
+//    With one shared set, each lane reads it through its own registered copy
+//    (kept: synthesis must not merge the copies), so the set's fan-out is one
+//    register per lane and each copy can sit beside its lane. The copy adds a
+//    clock between a bus write and the lane, which the MCU's writes between
+//    rows absorb.
 //  * Pixel inputs (x, ref_phase, k) of each lane come from a 192-bit
 //    scrambler register of that lane: every clock each bit is loaded with the
 //    XOR of two other state bits and one (registered) wdata pin, so all pixel
@@ -107,8 +112,15 @@ module dpsa_synth_top #(
       // the window register set of this lane
       wire [3:0]   n;    wire [127:0] q2, q3; wire [15:0] sat; wire [31:0] fast;
       wire [63:0]  thr2; wire [31:0] half;    wire [4:0]  sh;  wire [31:0] rho;
-      assign {n, q2, q3, sat, fast, thr2, half, sh, rho} =
-        win_all[WIN_W*(WIN_PER_LANE ? l : 0) +: WIN_W];
+      wire [WIN_W-1:0] win_l;
+      if (WIN_PER_LANE) begin : own
+        assign win_l = win_all[WIN_W*l +: WIN_W];
+      end else begin : copy
+        reg [WIN_W-1:0] win_r;
+        (* keep *) always @(posedge clk) win_r <= win_all[0 +: WIN_W];
+        assign win_l = win_r;
+      end
+      assign {n, q2, q3, sat, fast, thr2, half, sh, rho} = win_l;
       reg [PIX_W-1:0] px;
       integer i;
       always @(posedge clk)

@@ -26,10 +26,26 @@ pub struct Args {
     /// Print one JSON object.
     #[arg(long)]
     json: bool,
+    /// Skip the firmware run with the front end (QEMU): the MCU's share and the board time
+    /// are then `null`.
+    #[arg(long)]
+    no_firmware: bool,
 }
 
-pub fn run(a: Args) -> Result<()> {
-    let r = dpsa_fpga::bench::run(a.lanes, a.freq, a.width, a.cosim_pixels, &a.out)?;
+pub fn run(a: Args, progress: bool) -> Result<()> {
+    let mut r = dpsa_fpga::bench::run(a.lanes, a.freq, a.width, a.cosim_pixels, &a.out)?;
+    if !a.no_firmware {
+        let m = mcu_share(progress)?;
+        if m.width as u32 != a.width {
+            anyhow::bail!(
+                "the firmware ran at width {} but the board figures are for --width {}",
+                m.width,
+                a.width
+            );
+        }
+        let p = &m.instructions_per_pixel;
+        r.set_mcu(p.total, p.encode, m.realtime.board_seconds);
+    }
     if a.json {
         out!("{}", serde_json::to_string_pretty(&r)?);
         return Ok(());
@@ -61,8 +77,52 @@ pub fn run(a: Args) -> Result<()> {
         r.cosim_pixels,
         r.cosim_mismatches
     );
+    if let (Some(i), Some(e), Some(mb), Some(b)) = (
+        r.mcu_instructions_per_pixel,
+        r.mcu_encode_instructions_per_pixel,
+        r.mcu_board_s,
+        r.board_s,
+    ) {
+        out!(
+            "MCU with the fabric {i:.1} instructions per pixel (of which encode {e:.1}; goal {:.0}), {mb:.3} s a board at 600 MHz",
+            r.goal_mcu_instructions_per_pixel
+        );
+        out!("paper board         {b:.3} s (the slower of fabric and MCU)");
+    }
     for m in &r.not_measured {
         out!("not measured        {m}");
     }
     Ok(())
+}
+
+/// The MCU's share with the front end: the default scene (W = 2048, n = 4, 12-bit), its rows
+/// computed by the RTL's model, the firmware under QEMU taking them from the fabric log and
+/// measuring itself (`dpsa target-run R --front-end --bench`).
+fn mcu_share(progress: bool) -> Result<dpsa_sim::target::BenchReport> {
+    use dpsa_sim::target;
+    let dir = tempfile::Builder::new()
+        .prefix("dpsa-fpga-bench")
+        .tempdir()?;
+    let scene = dpsa_sim::simulation::scene::Scene::default();
+    dpsa_sim::simulation::simulate::simulate(&scene, 1, dir.path(), false)?;
+    let rec = dpsa_sim::simulation::recording::Recording::open(dir.path())?;
+    let fe = super::target_run::front_end_run(&rec, 1, progress)?;
+    let elf = target::firmware_elf(true)?;
+    let sizes = target::elf_sizes(&target::read_elf(&elf)?)?;
+    let opts = target::RunOptions {
+        bench: true,
+        echo: target::Echo {
+            log: false,
+            progress,
+        },
+        ..target::RunOptions::default()
+    };
+    let run = target::run_with_fabric(&rec, &elf, opts, Some(&fe.log))?;
+    if run.stream != fe.core_stream {
+        anyhow::bail!("the firmware's stream with the front end differs from the core's");
+    }
+    let raw = run
+        .bench
+        .ok_or_else(|| anyhow::anyhow!("the firmware wrote no bench figures"))?;
+    Ok(target::bench_report(&raw, &sizes)?)
 }

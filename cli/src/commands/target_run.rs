@@ -38,6 +38,74 @@ pub struct Args {
     /// Camera of `--cal` (default: the manifest's camera id).
     #[arg(long, requires = "cal")]
     camera: Option<u8>,
+    /// The frame grabber with its FPGA front end (`docs/fpga.md`): the RTL's Verilator model
+    /// computes every row on the host first, through the core's front-end seam, and must give
+    /// the core's own stream byte for byte (else the run stops); the firmware then takes the
+    /// rows from that fabric log as from the fabric's DMA, and its bench figures are the
+    /// MCU's share. Needs `verilator`.
+    #[arg(long, conflicts_with = "link")]
+    front_end: bool,
+}
+
+/// What the front end's host run found.
+pub(crate) struct FrontEndRun {
+    /// The fabric log (in `_dir`).
+    pub(crate) log: PathBuf,
+    _dir: tempfile::TempDir,
+    rows: u64,
+    pixels: u64,
+    /// The core's own stream of the recording (the firmware's must equal it).
+    pub(crate) core_stream: Vec<u8>,
+}
+
+/// Runs the recording through the RTL's model as the pipeline's front end, writing the fabric
+/// log, and checks its stream against the core's.
+pub(crate) fn front_end_run(
+    rec: &dpsa_sim::simulation::recording::Recording,
+    intra_period: u32,
+    progress: bool,
+) -> Result<FrontEndRun> {
+    let core = dpsa_sim::reconstruct::config(&rec.manifest)?;
+    let model = dpsa_fpga::model::Model::repo()?;
+    let dir = tempfile::Builder::new().prefix("dpsa-fabric").tempdir()?;
+    let log = dir.path().join("fabric.dpsf");
+    let file = std::fs::File::create(&log)
+        .with_context(|| format!("creating the fabric log {}", log.display()))?;
+    let mut fabric =
+        dpsa_fpga::front::Fabric::new(&model, core.cfg, &core.ref_phase, core.columns())?;
+    fabric.log_to(Box::new(std::io::BufWriter::new(file)), rec.run_id())?;
+    let res =
+        dpsa_sim::reconstruct::run_front_end(rec, Vec::new(), intra_period, &mut fabric, progress);
+    let stream = match res {
+        Ok((_, s)) => s,
+        Err(e) => match fabric.error() {
+            Some(why) => anyhow::bail!("the front end's model failed: {why} ({e})"),
+            None => return Err(e.into()),
+        },
+    };
+    let (rows, pixels) = (fabric.rows, fabric.pixels);
+    fabric.finish()?;
+    let (_, core_stream) = dpsa_sim::reconstruct::run_with(rec, Vec::new(), intra_period, false)?;
+    if stream != core_stream {
+        let at = stream
+            .iter()
+            .zip(&core_stream)
+            .position(|(a, b)| a != b)
+            .unwrap_or(stream.len().min(core_stream.len()));
+        anyhow::bail!(
+            "the front end's stream differs from the core's at byte {at} ({} against {} bytes): \
+             the RTL's rows are not the core's",
+            stream.len(),
+            core_stream.len()
+        );
+    }
+    Ok(FrontEndRun {
+        log,
+        _dir: dir,
+        rows,
+        pixels,
+        core_stream,
+    })
 }
 
 /// Runs the firmware on the recording, writes the stream to `--out` and prints a summary (or
@@ -82,7 +150,21 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
         },
         link: a.link,
     };
-    let run = target::run(&rec, &elf, opts)?;
+    let fe = if a.front_end {
+        Some(front_end_run(&rec, a.intra_period, progress)?)
+    } else {
+        None
+    };
+    let run = target::run_with_fabric(&rec, &elf, opts, fe.as_ref().map(|f| f.log.as_path()))?;
+    if let Some(fe) = &fe {
+        if run.stream != fe.core_stream {
+            anyhow::bail!(
+                "the firmware's stream with the front end differs from the core's ({} against {} bytes)",
+                run.stream.len(),
+                fe.core_stream.len()
+            );
+        }
+    }
     if let Some(link) = a.link {
         out!(
             "target: the stream went to {link} over the board's UART; {:.1} s in QEMU",
@@ -117,6 +199,14 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
             "triggers": rep.stream.triggers,
             "file": a.out.as_ref().map(|p| p.display().to_string()),
         });
+        if let Some(fe) = &fe {
+            v["front_end"] = serde_json::json!({
+                "rows": fe.rows,
+                "pixels": fe.pixels,
+                "model": "fpga/rtl (Verilator)",
+                "stream_equals_core": true,
+            });
+        }
         v["elf"] = serde_json::json!(elf.display().to_string());
         v["qemu_seconds"] = serde_json::json!(seconds);
         out!("{}", serde_json::to_string_pretty(&v)?);
@@ -127,6 +217,14 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
         .as_ref()
         .map(|p| format!(" -> {}", p.display()))
         .unwrap_or_default();
+    if let Some(fe) = &fe {
+        out!(
+            "front end: {} rows ({} pixels) from the RTL's model; the host's and the firmware's \
+             streams with it equal the core's byte for byte",
+            fe.rows,
+            fe.pixels
+        );
+    }
     let mut text = format!(
         "target: {} packets ({} corrupt), {} bytes{dest}; {seconds:.1} s in QEMU\n",
         rep.ok,

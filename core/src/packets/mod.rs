@@ -206,6 +206,24 @@ pub fn encode(
     Ok(frame_row(&row.header, CODEC_COMPRESSED, seq, plen, buf))
 }
 
+/// Frames a compressed row payload of `plen` bytes that is already in place at
+/// `buf[HEADER_LEN..]` (coded elsewhere: a front end's row codec, `docs/fpga.md`) as a version
+/// 2 row packet (codec 1, sequence number `seq`); returns the packet length. Refused when
+/// `plen` is above [`codec::max_len`]`(W)` or `buf` is shorter than
+/// [`max_packet_len`]`(W)`.
+pub fn frame_coded(
+    header: &RowHeader,
+    seq: u32,
+    plen: usize,
+    buf: &mut [u8],
+) -> Result<usize, PacketError> {
+    let w = header.width as usize;
+    if buf.len() < max_packet_len(w) || plen > codec::max_len(w) {
+        return Err(PacketError::BufferTooSmall);
+    }
+    Ok(frame_row(header, CODEC_COMPRESSED, seq, plen, buf))
+}
+
 /// Frames a row into `buf` with a raw payload (codec 0, version 2); returns the packet length.
 pub fn encode_raw(row: &Row<'_>, seq: u32, buf: &mut [u8]) -> Result<usize, PacketError> {
     let plen = raw_payload(row, HEADER_LEN, buf)?;

@@ -21,6 +21,7 @@ use cortex_m::peripheral::{syst::SystClkSource, SYST};
 use cortex_m_rt::exception;
 use dpsa_core::frames::feed::{self, FeedError, Header};
 use dpsa_core::frames::Trigger;
+use dpsa_core::offload::{FrontEnd, FrontEndError, Line as OffloadLine, RowJob};
 use dpsa_core::sink::Link;
 use semihosting::fs::File;
 use semihosting::io::{Read, Seek, SeekFrom, Write};
@@ -56,8 +57,10 @@ pub enum Error {
     LineOrder { frame: u32, line: u32 },
     /// The encoder was read with no latched trigger.
     NoTrigger,
-    /// The command line is not `dpsa-firmware FEED OUT [BENCH]`.
+    /// The command line is not `dpsa-firmware FEED OUT [BENCH] [fabric=LOG]`.
     Usage,
+    /// The fabric log is not one for this feed (bad magic, version, width or run id).
+    FabricLog,
     /// A path longer than the board's buffer.
     PathTooLong,
 }
@@ -87,7 +90,11 @@ impl defmt::Format for Error {
                 )
             }
             Error::NoTrigger => defmt::write!(f, "encoder read without a trigger"),
-            Error::Usage => defmt::write!(f, "usage: dpsa-firmware FEED OUT [BENCH]"),
+            Error::Usage => defmt::write!(f, "usage: dpsa-firmware FEED OUT [BENCH] [fabric=LOG]"),
+            Error::FabricLog => defmt::write!(
+                f,
+                "the fabric log is not one for this feed (magic, version, width or run id)"
+            ),
             Error::PathTooLong => defmt::write!(f, "path too long"),
         }
     }
@@ -130,11 +137,13 @@ impl Path {
     }
 }
 
-/// The command line: feed, packet stream, optional benchmark file.
+/// The command line: feed, packet stream, optional benchmark file, optional fabric log (the
+/// FPGA front end's rows, [`FabricLog`]).
 pub struct Args {
     pub feed: Path,
     pub out: Path,
     pub bench: Option<Path>,
+    pub fabric: Option<Path>,
 }
 
 impl Args {
@@ -144,6 +153,7 @@ impl Args {
             feed: Path::empty(),
             out: Path::empty(),
             bench: None,
+            fabric: None,
         }
     }
 
@@ -157,6 +167,13 @@ impl Args {
         let mut given = 0;
         for a in (&args).skip(1) {
             let s = a.map_err(|_| Error::Usage)?;
+            if let Some(log) = s.strip_prefix("fabric=") {
+                if given < 2 || self.fabric.is_some() {
+                    return Err(Error::Usage);
+                }
+                self.fabric.insert(Path::empty()).set(log)?;
+                continue;
+            }
             match given {
                 0 => self.feed.set(s)?,
                 1 => self.out.set(s)?,
@@ -544,4 +561,96 @@ pub fn write_text(path: &Path, text: &[u8]) -> Result<(), Error> {
 /// Ends the QEMU run with an exit status.
 pub fn exit(code: i32) -> ! {
     semihosting::process::exit(code)
+}
+
+/// The FPGA front end of this board (`docs/fpga.md`): the rows its completion DMA would write,
+/// read from the fabric log that `dpsa target-run --front-end` made with the RTL's Verilator
+/// model (format: `dpsa_fpga::front`). The camera's lines stay in the fabric's pool, so
+/// [`FrontEnd::keep`] has nothing to do; a row is the next record, which must be the row the
+/// pipeline asks for. Its reads are host I/O, counted apart ([`FabricLog::io_ticks`]).
+pub struct FabricLog<'c, C: Clock> {
+    file: File,
+    width: usize,
+    clock: &'c C,
+    /// Ticks spent reading the log (host I/O, not the MCU's work).
+    pub io_ticks: u64,
+    /// Rows read.
+    pub rows: u64,
+    /// The host error behind a [`FrontEndError::Failed`], if any.
+    pub error: Option<Error>,
+}
+
+/// The fabric log's header: magic, version 1, width, the recording's run id.
+const FABRIC_MAGIC: [u8; 4] = *b"DPSF";
+
+impl<'c, C: Clock> FabricLog<'c, C> {
+    /// Opens the log and checks its header against the feed's width and run id.
+    pub fn open(path: &Path, width: usize, run_id: u64, clock: &'c C) -> Result<Self, Error> {
+        let mut file = File::open(path.c_str()).map_err(io)?;
+        let mut h = [0u8; 16];
+        let mut pos = 0;
+        read_exact(&mut file, &mut h, &mut pos)?;
+        let version = u16::from_le_bytes([h[4], h[5]]);
+        let w = u16::from_le_bytes([h[6], h[7]]) as usize;
+        let mut id = [0u8; 8];
+        id.copy_from_slice(&h[8..16]);
+        if h[..4] != FABRIC_MAGIC || version != 1 || w != width || u64::from_le_bytes(id) != run_id
+        {
+            return Err(Error::FabricLog);
+        }
+        Ok(FabricLog {
+            file,
+            width,
+            clock,
+            io_ticks: 0,
+            rows: 0,
+            error: None,
+        })
+    }
+
+    fn read(&mut self, heights: &mut [i16], valid: &mut [u8]) -> Result<(i64, u16), Error> {
+        let w = self.width;
+        let mut head = [0u8; 12];
+        let mut pos = 0;
+        read_exact(&mut self.file, &mut head, &mut pos)?;
+        let hb: &mut [u8] = bytemuck::cast_slice_mut(&mut heights[..w]);
+        read_exact(&mut self.file, hb, &mut pos)?;
+        read_exact(&mut self.file, &mut valid[..w.div_ceil(8)], &mut pos)?;
+        let mut row = [0u8; 8];
+        row.copy_from_slice(&head[..8]);
+        Ok((
+            i64::from_le_bytes(row),
+            u16::from_le_bytes([head[8], head[9]]),
+        ))
+    }
+}
+
+impl<C: Clock> FrontEnd for FabricLog<'_, C> {
+    fn keep(&mut self, _slot: u16, _line: OffloadLine<'_>) {}
+
+    fn row(
+        &mut self,
+        job: &RowJob<'_>,
+        _last: OffloadLine<'_>,
+        heights: &mut [i16],
+        valid: &mut [u8],
+    ) -> Result<u16, FrontEndError> {
+        let t0 = self.clock.ticks();
+        let r = self.read(heights, valid);
+        self.io_ticks += self.clock.ticks() - t0;
+        match r {
+            Ok((row, flags)) if row == job.row => {
+                self.rows += 1;
+                Ok(flags)
+            }
+            Ok((got, _)) => Err(FrontEndError::WrongRow {
+                asked: job.row,
+                got,
+            }),
+            Err(e) => {
+                self.error = Some(e);
+                Err(FrontEndError::Failed)
+            }
+        }
+    }
 }

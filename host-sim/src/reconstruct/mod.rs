@@ -12,6 +12,7 @@ use crate::progress::progress_bar;
 use crate::simulation::recording::Recording;
 use crate::{Result, SimError};
 use dpsa_core::{
+    offload::{FrontEnd, Line},
     packets::{self, codec},
     pipeline::{Pipeline, State},
     sink::{Link, PacketSink},
@@ -62,6 +63,33 @@ pub fn run_link<L: Link>(
 where
     L::Error: std::fmt::Display,
 {
+    run_link_with(rec, link, intra_period, progress, None)
+}
+
+/// [`run_with`] with the per-pixel stages in the front end `fe`
+/// ([`dpsa_core::offload::FrontEnd`], `Pipeline::push_to_front_end`): the frame grabber with
+/// its FPGA front end, the core keeping the registration, the windows and the stream.
+pub fn run_front_end<W: Write>(
+    rec: &Recording,
+    out: W,
+    intra_period: u32,
+    fe: &mut dyn FrontEnd,
+    progress: bool,
+) -> Result<(RunStats, W)> {
+    let (stats, link) = run_link_with(rec, IoLink(out), intra_period, progress, Some(fe))?;
+    Ok((stats, link.0))
+}
+
+fn run_link_with<L: Link>(
+    rec: &Recording,
+    link: L,
+    intra_period: u32,
+    progress: bool,
+    mut fe: Option<&mut dyn FrontEnd>,
+) -> Result<(RunStats, L)>
+where
+    L::Error: std::fmt::Display,
+{
     if intra_period < 1 {
         return Err(SimError::Refused(
             "the codec intra period must be at least 1 (got 0)".into(),
@@ -90,8 +118,11 @@ where
         pipe.begin_frame(entry.trigger(), &mut sink)
             .map_err(|e| SimError::Core(format!("frame {k}: {e}")))?;
         for (r, line) in frame.data.chunks_exact(w).enumerate() {
-            pipe.push_line(r as u16, line, &mut sink)
-                .map_err(|e| SimError::Core(format!("frame {k} line {r}: {e}")))?;
+            match fe.as_deref_mut() {
+                None => pipe.push_line(r as u16, line, &mut sink),
+                Some(fe) => pipe.push_to_front_end(r as u16, Line::Wide(line), fe, &mut sink),
+            }
+            .map_err(|e| SimError::Core(format!("frame {k} line {r}: {e}")))?;
         }
         pipe.end_frame(&mut sink)
             .map_err(|e| SimError::Core(format!("frame {k}: {e}")))?;

@@ -60,12 +60,13 @@ pub fn parse_bench(text: &str) -> Result<BTreeMap<String, i64>> {
 /// Instructions per output pixel, by stage.
 #[derive(Clone, Debug, Serialize)]
 pub struct PerPixel {
-    /// The whole pipeline (accumulate, solve, phase, height, mask, encode), I/O excluded.
+    /// The whole pipeline (accumulate, solve, phase, height, mask, encode), I/O excluded; with
+    /// the FPGA front end, the MCU's part only (the fabric log's reads are I/O).
     pub total: f64,
-    /// Raw samples into the line pool and `v = P i` per pixel.
-    pub accumulate: f64,
-    /// Phase, height and the validity mask.
-    pub phase_height: f64,
+    /// `v = P i` per pixel (`null` with the front end: the fabric's).
+    pub accumulate: Option<f64>,
+    /// Phase, height and the validity mask (`null` with the front end: the fabric's).
+    pub phase_height: Option<f64>,
     /// Packet framing and row compression.
     pub encode: f64,
 }
@@ -164,6 +165,10 @@ pub struct BenchReport {
     pub ram_bytes: Ram,
     /// The real-time model (assumed clock and IPC; see [`Realtime`]).
     pub realtime: Realtime,
+    /// The run had the FPGA front end (`dpsa target-run --front-end`): the figures are the
+    /// MCU's share (the JSON's `front_end` object, added by `target-run`, says so).
+    #[serde(skip)]
+    pub front_end: bool,
     /// Bytes the firmware occupies in flash.
     pub flash_bytes: u64,
     /// Retired instructions per SysTick tick, calibrated by the firmware (40 on mps2 at
@@ -229,7 +234,14 @@ pub fn bench_report(raw: &BTreeMap<String, i64>, elf: &ElfSizes) -> Result<Bench
     let ipt = positive("calib_loop_instructions")? / positive("calib_ticks")?;
     let ticks = |k: &str| -> Result<f64> { Ok(unsigned(k)? as f64 * ipt) };
     let pixels = positive("pixels_out")?;
-    let stage = positive("stage_pixels")?;
+    // With the front end the per-pixel stages ran in the fabric: none timed on the MCU.
+    let front_end = raw.get("front_end").copied().unwrap_or(0) != 0;
+    let stage = |k: &str| -> Result<Option<f64>> {
+        if front_end {
+            return Ok(None);
+        }
+        Ok(Some(ticks(k)? / positive("stage_pixels")?))
+    };
     let solves = positive("solves")?;
     let total = ticks("ticks_total")? / pixels;
     let (state_total, stack) = (
@@ -239,8 +251,8 @@ pub fn bench_report(raw: &BTreeMap<String, i64>, elf: &ElfSizes) -> Result<Bench
     Ok(BenchReport {
         instructions_per_pixel: PerPixel {
             total,
-            accumulate: ticks("ticks_accumulate")? / stage,
-            phase_height: ticks("ticks_phase_height")? / stage,
+            accumulate: stage("ticks_accumulate")?,
+            phase_height: stage("ticks_phase_height")?,
             encode: ticks("ticks_encode")? / pixels,
         },
         instructions_per_window_solve: ticks("ticks_solve")? / solves,
@@ -252,6 +264,7 @@ pub fn bench_report(raw: &BTreeMap<String, i64>, elf: &ElfSizes) -> Result<Bench
             total: state_total + stack + elf.static_ram,
         },
         realtime: Realtime::model(total, positive("width")?),
+        front_end,
         flash_bytes: elf.flash,
         instructions_per_tick: ipt,
         width: get("width"),
@@ -271,17 +284,19 @@ impl BenchReport {
     /// A few lines for people.
     pub fn summary(&self) -> String {
         let p = &self.instructions_per_pixel;
+        let stage = |x: Option<f64>| x.map_or("in the fabric".to_string(), |x| format!("{x:.1}"));
         let r = &self.ram_bytes;
         let s = &self.elf_sections;
         format!(
             "Cortex-M7 (QEMU, {:.2} instructions per SysTick tick), W = {}, n = {}, {} pixels out\n\
-             instructions per pixel: {:.1} total (accumulate {:.1}, phase + height {:.1}, encode {:.1})\n\
+             instructions per pixel{}: {:.1} total (accumulate {}, phase + height {}, encode {:.1})\n\
              instructions per window solve: {:.0} ({} solves)\n\
              flash {} bytes (text {}, rodata {}, data {}, itcm {}); static RAM {} bytes (data {}, bss {}, uninit {})\n\
              core state {} bytes, all config-sized buffers {} bytes, stack high water {} bytes; RAM total {} bytes\n\
              real time (assumed {:.0} MHz, IPC {:.1}): {:.1} Mpx/s per camera, {:.2} s per {:.0} x {:.0} mm board with {} cameras",
             self.instructions_per_tick, self.width, self.n, self.pixels_out,
-            p.total, p.accumulate, p.phase_height, p.encode,
+            if self.front_end { " on the MCU, with the FPGA front end" } else { "" },
+            p.total, stage(p.accumulate), stage(p.phase_height), p.encode,
             self.instructions_per_window_solve, self.solves,
             self.flash_bytes, s.text, s.rodata, s.data, s.itcm, r.static_, s.data, s.bss, s.uninit,
             r.state, r.state_total, r.stack_high_water, r.total,
@@ -334,8 +349,8 @@ mod tests {
         assert_eq!(r.instructions_per_tick, 40.0);
         assert_eq!(r.instructions_per_pixel.total, 20.0);
         assert_eq!(r.instructions_per_pixel.encode, 2.0);
-        assert_eq!(r.instructions_per_pixel.accumulate, 4.0);
-        assert_eq!(r.instructions_per_pixel.phase_height, 8.0);
+        assert_eq!(r.instructions_per_pixel.accumulate, Some(4.0));
+        assert_eq!(r.instructions_per_pixel.phase_height, Some(8.0));
         assert_eq!(r.instructions_per_window_solve, 300.0);
         assert_eq!((r.flash_bytes, r.ram_bytes.static_), (9, 7));
         assert_eq!(r.ram_bytes.total, 1000 + 24 + 7);

@@ -81,6 +81,18 @@ impl Default for RunOptions {
 
 /// Runs the firmware `elf` under QEMU on the recording `rec`: exports it to a temporary feed, runs QEMU and returns the packet stream (and the measurements with `bench`).
 pub fn run(rec: &Recording, elf: &Path, opts: RunOptions) -> Result<TargetOutput> {
+    run_with_fabric(rec, elf, opts, None)
+}
+
+/// [`run`] with the FPGA front end: the firmware takes its rows from the fabric log `fabric`
+/// (`dpsa_fpga::front`, written by the RTL's model on the same recording) instead of
+/// computing them.
+pub fn run_with_fabric(
+    rec: &Recording,
+    elf: &Path,
+    opts: RunOptions,
+    fabric: Option<&Path>,
+) -> Result<TargetOutput> {
     let dir = tempfile::Builder::new()
         .prefix("dpsa-target")
         .tempdir()
@@ -93,6 +105,11 @@ pub fn run(rec: &Recording, elf: &Path, opts: RunOptions) -> Result<TargetOutput
         let mut w = BufWriter::with_capacity(1 << 20, file);
         write_feed_to(rec, opts.intra_period, &mut w, opts.echo.progress)?;
         w.flush()?;
+    }
+    if let (Some(_), Some(_)) = (opts.link, fabric) {
+        return Err(crate::SimError::Refused(
+            "the front end's fabric log and the line's link are not run together".into(),
+        ));
     }
     if let Some(link) = opts.link {
         let outcome = run_link(elf, &feed_path, link, opts.echo)?;
@@ -107,6 +124,7 @@ pub fn run(rec: &Recording, elf: &Path, opts: RunOptions) -> Result<TargetOutput
         &feed_path,
         &out_path,
         opts.bench.then_some(bench_path.as_path()),
+        fabric,
         opts.echo,
     )?;
     let stream = std::fs::read(&out_path).at(|| "reading the packet stream the firmware wrote")?;

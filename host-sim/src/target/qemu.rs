@@ -392,19 +392,24 @@ pub fn qemu_with(
     })
 }
 
-/// Runs the firmware on a feed file: `dpsa-firmware FEED OUT [BENCH]`. The
-/// paths go on the semihosting command line as they are (absolute, without whitespace). A
-/// failed run is an error carrying the firmware's error lines.
+/// Runs the firmware on a feed file: `dpsa-firmware FEED OUT [BENCH] [fabric=LOG]` (`LOG`:
+/// the FPGA front end's rows, `dpsa_fpga::front`). The paths go on the semihosting command
+/// line as they are (absolute, without whitespace). A failed run is an error carrying the
+/// firmware's error lines.
 pub fn run_files(
     elf: &Path,
     feed: &Path,
     out: &Path,
     bench: Option<&Path>,
+    fabric: Option<&Path>,
     echo: Echo,
 ) -> Result<Outcome> {
     let mut args = vec![arg_path(&absolute(feed)?)?, arg_path(&absolute(out)?)?];
     if let Some(b) = bench {
         args.push(arg_path(&absolute(b)?)?);
+    }
+    if let Some(f) = fabric {
+        args.push(format!("fabric={}", arg_path(&absolute(f)?)?));
     }
     let o = qemu(elf, &args, Some(out), echo)?;
     if !o.success() {

@@ -1,0 +1,277 @@
+//! The RTL as the pipeline's front end: [`Fabric`] runs every completed row through the
+//! Verilator model of `dpsa_pixel` ([`dpsa_core::offload::FrontEnd`]), and writes what the
+//! fabric hands the MCU, row by row, into a *fabric log* that the firmware reads under QEMU in
+//! place of the fabric's DMA (`dpsa target-run --front-end`, `docs/fpga.md`).
+//!
+//! ## What the model is given
+//!
+//! As on the board: the lines the MCU names ([`FrontEnd::keep`], kept here by pool slot, as
+//! the fabric's line pool keeps them: a 12-bit pool clamps samples to 4095 as the core's
+//! Mono12p pool does), the window registers of each row (the coefficients, saturation level,
+//! modulation gate, the height's rounding) and the row phase, and per column the reference
+//! phase and the height scale (Q16.16 LSB per turn, or the column's mantissa). Nothing of the
+//! core's per-pixel arithmetic runs here: the heights are the model's.
+//!
+//! ## The fabric log (`.dpsf`; integers little-endian)
+//!
+//! A 16-byte header: `"DPSF"`, version `1` (u16), `W` (u16), the recording's run id (u64: the
+//! firmware refuses a log made from another recording than its feed). Then one record per
+//! row the front end computed, in the order the pipeline asked for them: board row (i64), row
+//! flags (u16: `SATURATED`, `LOW_MODULATION` of its pixels), 2 bytes zero, `W` heights (i16,
+//! 0 where invalid), `ceil(W/8)` validity bytes (bit `c % 8` of byte `c / 8`): the words the
+//! fabric's completion DMA writes ([`record_len`] bytes a row).
+
+use std::io::Write;
+
+use dpsa_core::accumulate::Coef;
+use dpsa_core::frames::{mono12p, Config};
+use dpsa_core::height::{ColumnScale, Scale};
+use dpsa_core::offload::{FrontEnd, FrontEndError, Line, RowJob};
+use dpsa_core::row::flags;
+use dpsa_core::solve::MAX_N;
+
+use crate::cosim::{HeightScale, Out, Pixel, Session, Window, LOW_MODULATION, SATURATED, VALID};
+use crate::model::{Model, ModelError};
+
+/// The fabric log's first four bytes.
+pub const LOG_MAGIC: [u8; 4] = *b"DPSF";
+/// The fabric log's version.
+pub const LOG_VERSION: u16 = 1;
+/// Bytes of the fabric log's header.
+pub const LOG_HEADER_LEN: usize = 16;
+
+/// Bytes of one row record of the fabric log for rows of `width` pixels.
+pub fn record_len(width: usize) -> usize {
+    12 + 2 * width + width.div_ceil(8)
+}
+
+/// The Verilator model as a front end (see the module docs).
+pub struct Fabric {
+    session: Session,
+    cfg: Config,
+    scale: Scale,
+    height: HeightScale,
+    ref_phase: Vec<u32>,
+    /// Per column: Q16.16 LSB per turn, or the column's mantissa.
+    k: Vec<u32>,
+    /// Whether the pool keeps 12-bit (Mono12p) lines.
+    packed: bool,
+    pool: Vec<Vec<u16>>,
+    log: Option<Box<dyn Write>>,
+    /// Rows and pixels computed.
+    pub rows: u64,
+    /// Pixels computed.
+    pub pixels: u64,
+    error: Option<String>,
+    outs: Vec<Out>,
+    px: Vec<Pixel>,
+}
+
+impl Fabric {
+    /// A front end for `cfg` with its reference-phase table and optional per-column height
+    /// scale.
+    pub fn new(
+        model: &Model,
+        cfg: Config,
+        ref_phase: &[u32],
+        columns: Option<ColumnScale<'_>>,
+    ) -> Result<Fabric, ModelError> {
+        let w = cfg.width as usize;
+        if ref_phase.len() < w {
+            return Err(ModelError::Run(format!(
+                "the reference-phase table has {} entries for width {w}",
+                ref_phase.len()
+            )));
+        }
+        let scale = Scale::new(&cfg);
+        let (height, k) = match &columns {
+            None => (
+                HeightScale::Uniform,
+                vec![scale.lsb_per_turn_bits() as u32; w],
+            ),
+            Some(t) => {
+                let m = t.mantissa();
+                if m.len() < w {
+                    return Err(ModelError::Run(format!(
+                        "the height-scale table has {} entries for width {w}",
+                        m.len()
+                    )));
+                }
+                (
+                    HeightScale::Column { shift: t.shift() },
+                    m[..w].iter().map(|&x| x as u32).collect(),
+                )
+            }
+        };
+        Ok(Fabric {
+            session: Session::start(model)?,
+            cfg,
+            scale,
+            height,
+            ref_phase: ref_phase[..w].to_vec(),
+            k,
+            packed: dpsa_core::Layout::of(&cfg).packed,
+            pool: Vec::new(),
+            log: None,
+            rows: 0,
+            pixels: 0,
+            error: None,
+            outs: Vec::new(),
+            px: Vec::new(),
+        })
+    }
+
+    /// Writes the fabric log of this run to `log` (its header now, a record per row), for
+    /// the recording `run_id`.
+    pub fn log_to(&mut self, mut log: Box<dyn Write>, run_id: u64) -> Result<(), ModelError> {
+        let mut h = [0u8; LOG_HEADER_LEN];
+        h[..4].copy_from_slice(&LOG_MAGIC);
+        h[4..6].copy_from_slice(&LOG_VERSION.to_le_bytes());
+        h[6..8].copy_from_slice(&self.cfg.width.to_le_bytes());
+        h[8..16].copy_from_slice(&run_id.to_le_bytes());
+        log.write_all(&h)?;
+        self.log = Some(log);
+        Ok(())
+    }
+
+    /// The first failure of the model or the log, if any (a failed row is reported to the
+    /// pipeline as [`FrontEndError::Failed`]; this says why).
+    pub fn error(&self) -> Option<&str> {
+        self.error.as_deref()
+    }
+
+    /// Ends the model's run and flushes the log.
+    pub fn finish(mut self) -> Result<(), ModelError> {
+        if let Some(mut log) = self.log.take() {
+            log.flush()?;
+        }
+        self.session.finish()
+    }
+
+    fn samples(&self, line: Line<'_>) -> Vec<u16> {
+        let w = self.cfg.width as usize;
+        match line {
+            Line::Wide(l) if self.packed => {
+                l[..w.min(l.len())].iter().map(|&x| x.min(4095)).collect()
+            }
+            Line::Wide(l) => l[..w.min(l.len())].to_vec(),
+            Line::Packed(b) => {
+                let mut l = vec![0u16; w];
+                if b.len() >= mono12p::packed_len(w) {
+                    mono12p::unpack(b, &mut l);
+                }
+                l
+            }
+        }
+    }
+
+    fn compute(
+        &mut self,
+        job: &RowJob<'_>,
+        last: Line<'_>,
+        heights: &mut [i16],
+        valid: &mut [u8],
+    ) -> Result<u16, String> {
+        let w = self.cfg.width as usize;
+        let n = job.coef.n;
+        if job.slots.len() + 1 != n || n > MAX_N {
+            return Err(format!(
+                "a row of {} kept lines for n = {n}",
+                job.slots.len()
+            ));
+        }
+        let last = self.samples(last);
+        let mut lines: Vec<&[u16]> = Vec::with_capacity(n);
+        for &s in job.slots {
+            match self.pool.get(s as usize) {
+                Some(l) if l.len() == w => lines.push(l),
+                _ => return Err(format!("pool slot {s} holds no line")),
+            }
+        }
+        if last.len() != w {
+            return Err(format!("a final line of {} samples", last.len()));
+        }
+        lines.push(&last);
+        let coef: Coef = *job.coef;
+        let win = Window {
+            coef,
+            sat: self.cfg.saturation,
+            scale: self.scale,
+            gate: *job.gate,
+            height: self.height,
+            rho: job.rho,
+        };
+        self.px.clear();
+        for c in 0..w {
+            let mut x = [0u16; MAX_N];
+            for (j, l) in lines.iter().enumerate() {
+                x[j] = l[c];
+            }
+            self.px.push(Pixel {
+                x,
+                ref_phase: self.ref_phase[c],
+                k: self.k[c],
+            });
+        }
+        self.session
+            .pixels(&win, &self.px, &mut self.outs)
+            .map_err(|e| e.to_string())?;
+        let mut fl = 0u16;
+        for (c, o) in self.outs.iter().enumerate() {
+            if o.flags & VALID != 0 {
+                heights[c] = o.h;
+                valid[c / 8] |= 1 << (c % 8);
+            } else {
+                heights[c] = 0;
+            }
+            if o.flags & SATURATED != 0 {
+                fl |= flags::SATURATED;
+            }
+            if o.flags & LOW_MODULATION != 0 {
+                fl |= flags::LOW_MODULATION;
+            }
+        }
+        self.rows += 1;
+        self.pixels += w as u64;
+        if let Some(log) = self.log.as_mut() {
+            let mut rec = Vec::with_capacity(record_len(w));
+            rec.extend(job.row.to_le_bytes());
+            rec.extend(fl.to_le_bytes());
+            rec.extend([0u8; 2]);
+            for h in &heights[..w] {
+                rec.extend(h.to_le_bytes());
+            }
+            rec.extend(&valid[..w.div_ceil(8)]);
+            log.write_all(&rec)
+                .map_err(|e| format!("writing the fabric log: {e}"))?;
+        }
+        Ok(fl)
+    }
+}
+
+impl FrontEnd for Fabric {
+    fn keep(&mut self, slot: u16, line: Line<'_>) {
+        let l = self.samples(line);
+        let s = slot as usize;
+        if self.pool.len() <= s {
+            self.pool.resize(s + 1, Vec::new());
+        }
+        self.pool[s] = l;
+    }
+
+    fn row(
+        &mut self,
+        job: &RowJob<'_>,
+        last: Line<'_>,
+        heights: &mut [i16],
+        valid: &mut [u8],
+    ) -> Result<u16, FrontEndError> {
+        if self.error.is_some() {
+            return Err(FrontEndError::Failed);
+        }
+        self.compute(job, last, heights, valid).map_err(|e| {
+            self.error = Some(e);
+            FrontEndError::Failed
+        })
+    }
+}
