@@ -17,8 +17,9 @@
 //! advice, unless `DPSA_SKIP_FIRMWARE=1` is set.
 
 use dpsa_core::frames::feed;
+use dpsa_core::offload::RowCoder;
 use dpsa_core::packets;
-use dpsa_fpga::front::Fabric;
+use dpsa_fpga::front::{Coder, Fabric};
 use dpsa_fpga::model::Model;
 use dpsa_sim::heightmap::{flags, HeightMap};
 use dpsa_sim::reconstruct;
@@ -424,101 +425,188 @@ fn predicted_rows_are_bit_exact() {
 // ---------------------------------------------------------------------------------------------
 // With the FPGA front end: the RTL's Verilator model computes the rows (`dpsa_fpga::front`).
 
-/// The recording through the RTL's model as the pipeline's front end: the fabric log (in
-/// `dir`), the host's stream with it, and the rows the model computed.
-fn fabric_run(sim: &Sim, intra_period: u32, dir: &Path) -> (PathBuf, Vec<u8>, u64) {
+/// The front end's logs of one run: computed rows, and the row codec's payloads.
+struct Logs {
+    rows: PathBuf,
+    payloads: Option<PathBuf>,
+}
+
+impl Logs {
+    fn fabric(&self) -> target::FabricLogs<'_> {
+        target::FabricLogs {
+            rows: &self.rows,
+            payloads: self.payloads.as_deref(),
+        }
+    }
+}
+
+/// The recording through the RTL's models as the pipeline's front end (the pixel units, and
+/// the row codec when `codec`): their logs (in `dir`), the host's stream with them, and the
+/// rows the pixel model computed.
+fn fabric_run(sim: &Sim, intra_period: u32, codec: bool, dir: &Path) -> (Logs, Vec<u8>, u64) {
     let core = reconstruct::config(&sim.rec.manifest).unwrap();
+    let create = |name: &str| -> Box<dyn std::io::Write> {
+        Box::new(std::io::BufWriter::new(
+            std::fs::File::create(dir.join(name)).unwrap(),
+        ))
+    };
     let model = Model::repo().unwrap_or_else(|e| panic!("the RTL's Verilator model: {e}"));
     let mut fabric = Fabric::new(&model, core.cfg, &core.ref_phase, core.columns()).unwrap();
-    let log = dir.join("fabric.dpsf");
-    let file = std::io::BufWriter::new(std::fs::File::create(&log).unwrap());
-    fabric.log_to(Box::new(file), sim.rec.run_id()).unwrap();
-    let res = reconstruct::run_front_end(&sim.rec, Vec::new(), intra_period, &mut fabric, false);
+    fabric
+        .log_to(create("fabric.dpsf"), sim.rec.run_id())
+        .unwrap();
+    let mut coder = codec.then(|| {
+        let model = Model::codec_repo().unwrap_or_else(|e| panic!("the codec's model: {e}"));
+        let mut c = Coder::new(&model, core.cfg.width as usize, intra_period).unwrap();
+        c.log_to(create("payloads.dpsp"), sim.rec.run_id()).unwrap();
+        c
+    });
+    let res = reconstruct::run_front_end(
+        &sim.rec,
+        Vec::new(),
+        intra_period,
+        &mut fabric,
+        coder.as_mut().map(|c| c as &mut dyn RowCoder),
+        false,
+    );
     let stream = match res {
         Ok((_, s)) => s,
-        Err(e) => panic!("front-end run: {e} ({:?})", fabric.error()),
+        Err(e) => panic!(
+            "front-end run: {e} ({:?}, {:?})",
+            fabric.error(),
+            coder.as_ref().map(|c| c.error())
+        ),
     };
     let rows = fabric.rows;
     fabric.finish().unwrap();
-    (log, stream, rows)
+    if let Some(c) = coder {
+        c.finish().unwrap();
+    }
+    let logs = Logs {
+        rows: dir.join("fabric.dpsf"),
+        payloads: codec.then(|| dir.join("payloads.dpsp")),
+    };
+    (logs, stream, rows)
 }
 
 /// The firmware with the front end on one recording: the host's stream through the RTL is the
-/// core's, and the firmware fed by the RTL's fabric log emits the same bytes, every computed
-/// row taken from the fabric.
-fn front_end_is_bit_exact(what: &str, sim: &Sim, intra_period: u32, elf: &Path) -> u64 {
+/// core's, and the firmware fed by the RTL's logs emits the same bytes, every computed row (and
+/// with `codec` every payload) taken from the fabric.
+fn front_end_is_bit_exact(
+    what: &str,
+    sim: &Sim,
+    intra_period: u32,
+    codec: bool,
+    elf: &Path,
+) -> u64 {
     let (_, host) = reconstruct::run_with(&sim.rec, Vec::new(), intra_period, false).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let (log, through_rtl, rows) = fabric_run(sim, intra_period, dir.path());
+    let (logs, through_rtl, rows) = fabric_run(sim, intra_period, codec, dir.path());
     assert_identical(&format!("{what}: host with the RTL"), &host, &through_rtl);
     let opts = RunOptions {
         intra_period,
         echo: ECHO,
         ..RunOptions::default()
     };
-    let out = target::run_with_fabric(&sim.rec, elf, opts, Some(&log))
+    let out = target::run_with_fabric(&sim.rec, elf, opts, Some(logs.fabric()))
         .unwrap_or_else(|e| panic!("{what}: firmware run with the front end failed: {e:#}"));
     assert_identical(
         &format!("{what}: firmware with the front end"),
         &host,
         &out.stream,
     );
-    let said = format!("front end: {rows} rows from the fabric");
+    let said = |m: &str| out.outcome.log.iter().any(|l| l.message == m);
     assert!(
-        out.outcome.log.iter().any(|l| l.message == said),
+        said(&format!("front end: {rows} rows from the fabric")),
         "{what}: the firmware did not take all {rows} rows from the fabric"
     );
+    let (mut pos, mut row_packets) = (0, 0);
+    while pos < host.len() {
+        let (p, len) = packets::decode(&host[pos..]).expect("packet");
+        row_packets += usize::from(p.kind == packets::Kind::Row);
+        pos += len;
+    }
+    let payloads = format!("front end: {row_packets} payloads from the fabric's row codec");
+    assert_eq!(said(&payloads), codec, "{what}: {payloads}");
     rows
 }
 
 /// The firmware's test recordings (the default, jitter, defects and full-frame scenes, a
 /// per-column height scale, an encoder jump and reversal, predicted rows) with the rows
-/// computed by the RTL: every stream is the core's, byte for byte.
+/// computed and coded by the RTL: every stream is the core's, byte for byte; the default
+/// scene also with the rows coded on the MCU.
 #[test]
 fn the_front_end_is_bit_exact_on_the_firmware_recordings() {
     let Some(elf) = elf() else { return };
     let mut rows = 0;
-    rows += front_end_is_bit_exact("default scene", &simulate(&Scene::default(), 1), 1, &elf);
+    let default = simulate(&Scene::default(), 1);
+    rows += front_end_is_bit_exact("default scene", &default, 1, true, &elf);
+    front_end_is_bit_exact("default scene, MCU codec", &default, 1, false, &elf);
     for name in ["jitter.toml", "defects.toml", "fullframe.toml"] {
         let scene = scene_file(name);
-        rows += front_end_is_bit_exact(name, &simulate(&scene, scene.seed), 1, &elf);
+        rows += front_end_is_bit_exact(name, &simulate(&scene, scene.seed), 1, true, &elf);
     }
     let mut sim = simulate(&small_scene(), 6);
     sim.rec.manifest.calibration.height_per_turn_um_per_column =
         Some(per_column_tz(sim.rec.width()));
-    rows += front_end_is_bit_exact("per-column height scale", &sim, 1, &elf);
-    rows += front_end_is_bit_exact("encoder jump and reversal", &jump_and_reversal(), 1, &elf);
-    rows += front_end_is_bit_exact("intra period 8", &simulate(&small_scene(), 4), 8, &elf);
+    rows += front_end_is_bit_exact("per-column height scale", &sim, 1, true, &elf);
+    let sim = jump_and_reversal();
+    rows += front_end_is_bit_exact("encoder jump and reversal", &sim, 1, true, &elf);
+    let sim = simulate(&small_scene(), 4);
+    rows += front_end_is_bit_exact("intra period 8", &sim, 8, true, &elf);
     assert!(rows > 5_000, "{rows} rows through the RTL");
 }
 
-/// A fabric log that is not the feed's (another recording, a truncated log) stops the
-/// firmware with an error naming it, never a stream built from the wrong rows.
+/// Logs that are not the feed's (another recording's, truncated ones) stop the firmware with an
+/// error naming them, never a stream built from the wrong rows or payloads.
 #[test]
 fn a_fabric_log_of_another_recording_is_refused() {
     let Some(elf) = elf() else { return };
     let dir = tempfile::tempdir().unwrap();
     let sim = simulate(&small_scene(), 8);
-    let (log, _, _) = fabric_run(&sim, 1, dir.path());
+    let (logs, _, _) = fabric_run(&sim, 1, true, dir.path());
     let other = simulate(&small_scene(), 9);
     assert_ne!(sim.rec.run_id(), other.rec.run_id());
     let opts = RunOptions {
         echo: ECHO,
         ..RunOptions::default()
     };
-    let err = target::run_with_fabric(&other.rec, &elf, opts, Some(&log)).unwrap_err();
-    let msg = format!("{err:#}");
-    assert!(
-        msg.contains("fabric log") && msg.contains("run id"),
-        "{msg}"
+    let refused = |rec: &Sim, logs: target::FabricLogs<'_>, needles: &[&str]| {
+        let err = target::run_with_fabric(&rec.rec, &elf, opts, Some(logs)).unwrap_err();
+        let msg = format!("{err:#}");
+        for n in needles {
+            assert!(msg.contains(n), "{n:?} not in: {msg}");
+        }
+        assert!(!msg.to_lowercase().contains("panic"), "{msg}");
+    };
+    refused(&other, logs.fabric(), &["fabric log", "run id"]);
+    let cut = |p: &Path, name: &str| -> PathBuf {
+        let bytes = std::fs::read(p).unwrap();
+        let out = dir.path().join(name);
+        std::fs::write(&out, &bytes[..bytes.len() / 2]).unwrap();
+        out
+    };
+    let rows = cut(&logs.rows, "cut.dpsf");
+    let payloads = logs.payloads.clone().unwrap();
+    let fabric = |rows: &Path, payloads: &Path| -> Logs {
+        Logs {
+            rows: rows.to_path_buf(),
+            payloads: Some(payloads.to_path_buf()),
+        }
+    };
+    refused(&sim, fabric(&rows, &payloads).fabric(), &["fabric log"]);
+    let short = cut(&payloads, "cut.dpsp");
+    refused(&sim, fabric(&logs.rows, &short).fabric(), &["row codec"]);
+    // The payload log of another recording.
+    let other_dir = dir.path().join("other");
+    std::fs::create_dir(&other_dir).unwrap();
+    let (other_logs, _, _) = fabric_run(&other, 1, true, &other_dir);
+    let theirs = other_logs.payloads.unwrap();
+    refused(
+        &sim,
+        fabric(&logs.rows, &theirs).fabric(),
+        &["payload log", "run id"],
     );
-    let bytes = std::fs::read(&log).unwrap();
-    let cut = dir.path().join("cut.dpsf");
-    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
-    let err = target::run_with_fabric(&sim.rec, &elf, opts, Some(&cut)).unwrap_err();
-    let msg = format!("{err:#}");
-    assert!(msg.contains("fabric log"), "{msg}");
-    assert!(!msg.to_lowercase().contains("panic"), "{msg}");
 }
 
 // ---------------------------------------------------------------------------------------------

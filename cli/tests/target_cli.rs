@@ -185,8 +185,8 @@ fn bench_json_has_every_figure() {
     );
 }
 
-/// `--front-end`: the rows come from the RTL's Verilator model (fpga/), the firmware takes
-/// them from its fabric log: the stream is `dpsa reconstruct`'s byte for byte, the per-pixel
+/// `--front-end`: the rows come from the RTL's Verilator models (fpga/: pixel units and row
+/// codec), the firmware takes them from their logs: the stream is `dpsa reconstruct`'s byte for byte, the per-pixel
 /// stages are not the MCU's (`null`), and the MCU's share is below the M7-only total.
 #[test]
 fn front_end_run_is_the_hosts_stream_and_the_mcus_share() {
@@ -231,6 +231,8 @@ fn front_end_run_is_the_hosts_stream_and_the_mcus_share() {
     assert_eq!(std::fs::read(&m7).unwrap(), host, "M7 only vs host");
     assert!(num(&with, "front_end.rows") > 100.0, "{with}");
     assert_eq!(with["front_end"]["stream_equals_core"], Value::Bool(true));
+    assert_eq!(with["front_end"]["codec"], Value::from("fabric"));
+    assert!(num(&with, "front_end.coded_rows") >= num(&with, "front_end.rows"));
     assert!(
         with["instructions_per_pixel"]["accumulate"].is_null(),
         "{with}"

@@ -212,6 +212,7 @@ impl<E: Format> Format for SinkError<E> {
         match self {
             SinkError::Encode(e) => write!(f, "packet encode: {}", e),
             SinkError::Link(e) => write!(f, "link: {}", e),
+            SinkError::FrontEnd(e) => write!(f, "front end's row codec: {}", e),
         }
     }
 }

@@ -240,6 +240,7 @@ impl<E: Display> Display for SinkError<E> {
         match self {
             SinkError::Encode(e) => write!(f, "packet encode: {e}"),
             SinkError::Link(e) => write!(f, "link: {e}"),
+            SinkError::FrontEnd(e) => write!(f, "front end's row codec: {e}"),
         }
     }
 }
@@ -249,6 +250,7 @@ impl<E: StdError + 'static> StdError for SinkError<E> {
         match self {
             SinkError::Encode(e) => Some(e),
             SinkError::Link(e) => Some(e),
+            SinkError::FrontEnd(e) => Some(e),
         }
     }
 }

@@ -91,6 +91,15 @@ pub enum FrontEndError {
     Failed,
 }
 
+/// A front end's row codec: it codes every row the pipeline emits, in order, into the payload
+/// the stream's own codec would make ([`crate::packets::codec::Encoder`] with the stream's
+/// intra period), so the MCU only frames it ([`crate::sink::CodedSink`]).
+pub trait RowCoder {
+    /// Codes `row` into `payload` (at least [`crate::packets::codec::max_len`]`(W)` bytes);
+    /// returns its length.
+    fn code(&mut self, row: &crate::Row<'_>, payload: &mut [u8]) -> Result<usize, FrontEndError>;
+}
+
 /// A front end that takes over the per-pixel stages of whole rows (see the module docs).
 pub trait FrontEnd {
     /// The line just delivered is an observation of a row still open: keep it in pool slot

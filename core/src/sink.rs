@@ -3,6 +3,7 @@
 //! frame grabber's output link on the target.
 
 use crate::frames::Trigger;
+use crate::offload::{FrontEndError, RowCoder};
 use crate::packets::{self, codec, PacketError};
 use crate::row::{Gap, Row, RowHeader, StreamInfo};
 
@@ -51,6 +52,8 @@ pub enum SinkError<E> {
     Encode(PacketError),
     /// The link failed.
     Link(E),
+    /// A front end's row codec gave no payload ([`CodedSink`]).
+    FrontEnd(FrontEndError),
 }
 
 /// A [`Sink`] that frames the pipeline's output into a version 2 packet stream over `L`: the
@@ -224,6 +227,45 @@ impl<L: Link> Sink for PacketSink<'_, L> {
     }
 }
 
+/// A [`PacketSink`] whose rows a front end's row codec codes ([`RowCoder`], `docs/fpga.md`):
+/// each row's payload comes from the coder into [`PacketSink::payload_mut`] and is framed by
+/// [`PacketSink::row_coded`]; the stream's other records are the sink's own. The stream equals
+/// the sink's own when the coder's payloads equal its encoder's.
+pub struct CodedSink<'s, 'a, L> {
+    /// The sink that frames and sends.
+    pub sink: &'s mut PacketSink<'a, L>,
+    /// The row codec.
+    pub coder: &'s mut dyn RowCoder,
+}
+
+impl<L: Link> Sink for CodedSink<'_, '_, L> {
+    type Error = SinkError<L::Error>;
+
+    fn row(&mut self, row: &Row<'_>) -> Result<(), Self::Error> {
+        let len = self
+            .coder
+            .code(row, self.sink.payload_mut())
+            .map_err(SinkError::FrontEnd)?;
+        self.sink.row_coded(&row.header, len)
+    }
+
+    fn start(&mut self, info: &StreamInfo) -> Result<(), Self::Error> {
+        self.sink.start(info)
+    }
+
+    fn trigger(&mut self, trigger: &Trigger) -> Result<(), Self::Error> {
+        self.sink.trigger(trigger)
+    }
+
+    fn gap(&mut self, gap: &Gap) -> Result<(), Self::Error> {
+        self.sink.gap(gap)
+    }
+
+    fn end(&mut self) -> Result<(), Self::Error> {
+        self.sink.end()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     extern crate std;
@@ -244,8 +286,18 @@ mod tests {
         }
     }
 
+    /// A row codec in software: the core's encoder.
+    struct Soft<'e, 'b>(&'e mut codec::Encoder<'b>);
+    impl RowCoder for Soft<'_, '_> {
+        fn code(&mut self, row: &Row<'_>, payload: &mut [u8]) -> Result<usize, FrontEndError> {
+            self.0
+                .encode(row.heights, row.valid, payload)
+                .map_err(|_| FrontEndError::Failed)
+        }
+    }
+
     /// Rows whose payloads a separate encoder coded (as a front end's codec does), framed by
-    /// `row_coded`, make the stream `row` makes with the sink's own encoder, byte for byte,
+    /// `row_coded` (by hand, and through [`CodedSink`]), make the stream `row` makes with the sink's own encoder, byte for byte,
     /// predicted rows included; a payload longer than `codec::max_len` is refused.
     #[test]
     fn rows_coded_elsewhere_make_the_same_stream() {
@@ -284,10 +336,22 @@ mod tests {
                 let mut payload = vec![0u8; codec::max_len(w)];
                 sink.start(&info).unwrap();
                 for (r, (h, v)) in rows.iter().enumerate() {
-                    if coded {
+                    if coded && r % 2 == 0 {
                         let len = front.encode(h, v, &mut payload).unwrap();
                         sink.payload_mut()[..len].copy_from_slice(&payload[..len]);
                         sink.row_coded(&header(r), len).unwrap();
+                    } else if coded {
+                        let row = Row {
+                            header: header(r),
+                            heights: h,
+                            valid: v,
+                        };
+                        let mut coder = Soft(&mut front);
+                        let mut cs = CodedSink {
+                            sink: &mut sink,
+                            coder: &mut coder,
+                        };
+                        cs.row(&row).unwrap();
                     } else {
                         let row = Row {
                             header: header(r),

@@ -125,8 +125,20 @@ fn run() -> Result<(), Failed> {
     )
     .ok_or_else(|| fail("codec", "width not supported"))?;
     let bench_on = args.bench.is_some();
+    // The fabric's row codec (`payloads=LOG`, with `fabric=LOG`): the MCU frames its payloads.
+    let mut payloads = match (&args.fabric, &args.payloads) {
+        (_, None) => None,
+        (None, Some(_)) => return Err(fail("command line", "payloads=LOG needs fabric=LOG")),
+        (Some(_), Some(p)) => Some(
+            qemu::FabricPayloads::open(p, w, header.run_id, &clock)
+                .map_err(|e| fail("payload log", e))?,
+        ),
+    };
     let mut sink = TimedSink::new(link, enc, &mut packet[..], bench_on.then_some(&clock));
     sink.set_run_id(header.run_id);
+    if let Some(p) = payloads.as_mut() {
+        sink.set_coder(p);
+    }
     let mem = Memory {
         lines: &mut lines[..layout.pool_units()],
         scratch: &mut scratch[..],
@@ -209,13 +221,24 @@ fn run() -> Result<(), Failed> {
     pipe.finish(&mut sink).map_err(|e| fail("finish", e))?;
     meter.pipe += clock.ticks() - t;
     sink.sink.flush().map_err(|e| fail("link", e))?;
-    // The fabric log's reads happened inside the pipeline calls: host I/O, not the MCU's work.
+    let mut ticks = sink.ticks();
+    drop(sink);
+    // The logs' reads happened inside the pipeline calls (the payloads' inside the sink's):
+    // host I/O, not the MCU's work.
     if let Some(f) = &fabric {
         meter.pipe -= f.io_ticks;
         meter.io += f.io_ticks;
         defmt::info!("front end: {=u64} rows from the fabric", f.rows);
     }
-    let ticks = sink.ticks();
+    if let Some(p) = &payloads {
+        meter.pipe -= p.io_ticks;
+        meter.io += p.io_ticks;
+        ticks.encode -= p.io_ticks;
+        defmt::info!(
+            "front end: {=u64} payloads from the fabric's row codec",
+            p.rows
+        );
+    }
     let rows = ticks.rows;
     defmt::info!("{=u32} frames in, {=u64} rows out", frames, rows);
     if frames != header.frames {

@@ -1,10 +1,13 @@
 //! Packets -> link, timed for the benchmark: the core's [`PacketSink`] (the same code as
 //! `dpsa reconstruct` runs on the host) over the board's link, wrapped so that a benchmark run
-//! can split the sink's time into encoding and sending.
+//! can split the sink's time into encoding and sending. With the FPGA front end's row codec
+//! ([`TimedSink::set_coder`]) the rows' payloads come from the fabric and the encode time is
+//! the framing alone (the payload log's reads are I/O; `main` moves them out).
 
 use crate::board::Clock;
+use dpsa_core::offload::RowCoder;
 use dpsa_core::row::{Gap, StreamInfo};
-use dpsa_core::sink::{Link, PacketSink, SinkError};
+use dpsa_core::sink::{CodedSink, Link, PacketSink, SinkError};
 use dpsa_core::{Row, Sink, Trigger};
 
 /// Ticks spent in the sink, split into encoding and sending (benchmark only).
@@ -53,6 +56,8 @@ pub struct TimedSink<'a, L, C> {
     pub sink: PacketSink<'a, Timed<'a, L, C>>,
     clock: Option<&'a C>,
     encode: u64,
+    /// The FPGA front end's row codec, when the fabric codes the rows (`CodedSink`).
+    coder: Option<&'a mut dyn RowCoder>,
 }
 
 impl<'a, L: Link, C: Clock> TimedSink<'a, L, C> {
@@ -73,7 +78,13 @@ impl<'a, L: Link, C: Clock> TimedSink<'a, L, C> {
             sink: PacketSink::new(link, enc, buf),
             clock,
             encode: 0,
+            coder: None,
         }
+    }
+
+    /// The rows' payloads come from the front end's row codec: this sink frames them.
+    pub fn set_coder(&mut self, coder: &'a mut dyn RowCoder) {
+        self.coder = Some(coder);
     }
 
     /// The run identity of the stream header (the feed's).
@@ -95,7 +106,14 @@ impl<L: Link, C: Clock> Sink for TimedSink<'_, L, C> {
 
     fn row(&mut self, row: &Row<'_>) -> Result<(), Self::Error> {
         let t0 = self.clock.map_or(0, |c| c.ticks());
-        self.sink.row(row)?;
+        match self.coder.as_deref_mut() {
+            None => self.sink.row(row)?,
+            Some(coder) => CodedSink {
+                sink: &mut self.sink,
+                coder,
+            }
+            .row(row)?,
+        }
         self.encode += self.sink.link().started - t0;
         Ok(())
     }

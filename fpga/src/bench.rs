@@ -43,7 +43,8 @@ pub enum BenchError {
 pub struct Synth {
     /// The device and package.
     pub part: String,
-    /// Pixel units in parallel.
+    /// Pixel units in parallel (0 for the codec).
+    #[serde(default)]
     pub lanes: u32,
     /// nextpnr's achieved maximum frequency of the pixel clock, MHz.
     pub fmax_mhz: f64,
@@ -73,8 +74,11 @@ pub struct Report {
     pub synth: Synth,
     /// Output pixels per clock (`lanes`).
     pub pixels_per_clock: u32,
-    /// Output heights per second per camera, millions.
+    /// Output heights per second per camera, millions: the pixel units' rate, or the row
+    /// codec's when it is slower and measured ([`Report::set_codec`]).
     pub mpx_s_per_camera: f64,
+    /// The row codec in the fabric (`null` until [`Report::set_codec`]).
+    pub codec: Option<CodecFigures>,
     /// The goal, Mpx/s per camera (twice the paper's rate).
     pub goal_mpx_s_per_camera: f64,
     /// Pixels per camera row assumed for the board.
@@ -104,17 +108,32 @@ pub struct Report {
 /// The paper board: 220 mm along the conveyor at 28 um per pixel.
 pub const BOARD_ROWS: u32 = 7858;
 
-/// Runs the synthesis script (`lanes` units, timing target `freq_mhz`, logs in `out`).
+/// The row codec in the fabric (`dpsa_codec`): its synthesis and its measured clocks.
+#[derive(Clone, Debug, Serialize)]
+pub struct CodecFigures {
+    /// Synthesis of `dpsa_codec` alone (`run.sh --design codec`).
+    #[serde(flatten)]
+    pub synth: Synth,
+    /// Clocks per pixel the codec's model took on the default scene (first pixel in to last
+    /// word out, every row; it takes one pixel a clock and then writes the payload out).
+    pub clocks_per_pixel: f64,
+    /// Pixels per second it codes at its Fmax, millions.
+    pub mpx_s: f64,
+}
+
+/// Runs the synthesis script for the pixel units (`lanes` of them) or, with `lanes == 0`, the
+/// row codec; timing target `freq_mhz`, logs in `out`.
 pub fn synth(lanes: u32, freq_mhz: u32, out: &Path) -> Result<Synth, BenchError> {
     let script = crate::fpga_dir().join("synth").join("run.sh");
-    let res = Command::new("bash")
-        .arg(&script)
-        .args([
-            "--lanes",
-            &lanes.to_string(),
-            "--freq",
-            &freq_mhz.to_string(),
-        ])
+    let mut cmd = Command::new("bash");
+    cmd.arg(&script);
+    if lanes == 0 {
+        cmd.args(["--design", "codec"]);
+    } else {
+        cmd.args(["--lanes", &lanes.to_string()]);
+    }
+    let res = cmd
+        .args(["--freq", &freq_mhz.to_string()])
         .arg("--out")
         .arg(out)
         .stderr(std::process::Stdio::inherit())
@@ -144,6 +163,7 @@ pub fn run(
     Ok(Report {
         pixels_per_clock: lanes,
         mpx_s_per_camera: mpx,
+        codec: None,
         goal_mpx_s_per_camera: 32.0,
         width,
         board_rows: BOARD_ROWS,
@@ -165,6 +185,22 @@ pub fn run(
 }
 
 impl Report {
+    /// The row codec's synthesis and its measured clocks per pixel: the camera's rate becomes
+    /// the slower of pixel units and codec, and the fabric's board time follows.
+    pub fn set_codec(&mut self, synth: Synth, clocks_per_pixel: f64) {
+        let mpx_s = synth.fmax_mhz / clocks_per_pixel;
+        self.mpx_s_per_camera = self.mpx_s_per_camera.min(mpx_s);
+        self.fabric_board_s = BOARD_ROWS as f64 * self.width as f64 / (self.mpx_s_per_camera * 1e6);
+        if let Some(b) = self.board_s.as_mut() {
+            *b = b.max(self.fabric_board_s);
+        }
+        self.codec = Some(CodecFigures {
+            synth,
+            clocks_per_pixel,
+            mpx_s,
+        });
+    }
+
     /// The MCU's measured share with the front end: `instructions_per_pixel` in all, of which
     /// `encode`; `mcu_board_s` its time for the paper board. Sets `board_s`.
     pub fn set_mcu(&mut self, instructions_per_pixel: f64, encode: f64, mcu_board_s: f64) {

@@ -20,15 +20,23 @@
 //! flags (u16: `SATURATED`, `LOW_MODULATION` of its pixels), 2 bytes zero, `W` heights (i16,
 //! 0 where invalid), `ceil(W/8)` validity bytes (bit `c % 8` of byte `c / 8`): the words the
 //! fabric's completion DMA writes ([`record_len`] bytes a row).
+//!
+//! ## The row codec and its payload log (`.dpsp`)
+//!
+//! [`Coder`] runs every row the pipeline emits (computed or not) through the Verilator model
+//! of `dpsa_codec` ([`dpsa_core::offload::RowCoder`]), so the MCU only frames the payloads
+//! (`dpsa_core::sink::CodedSink`). It writes them to the payload log: the header as above with
+//! `"DPSP"`, then per row: board row (i64), payload length (u32), the payload.
 
 use std::io::Write;
 
 use dpsa_core::accumulate::Coef;
 use dpsa_core::frames::{mono12p, Config};
 use dpsa_core::height::{ColumnScale, Scale};
-use dpsa_core::offload::{FrontEnd, FrontEndError, Line, RowJob};
+use dpsa_core::offload::{FrontEnd, FrontEndError, Line, RowCoder, RowJob};
 use dpsa_core::row::flags;
 use dpsa_core::solve::MAX_N;
+use dpsa_core::Row;
 
 use crate::cosim::{HeightScale, Out, Pixel, Session, Window, LOW_MODULATION, SATURATED, VALID};
 use crate::model::{Model, ModelError};
@@ -39,6 +47,18 @@ pub const LOG_MAGIC: [u8; 4] = *b"DPSF";
 pub const LOG_VERSION: u16 = 1;
 /// Bytes of the fabric log's header.
 pub const LOG_HEADER_LEN: usize = 16;
+
+/// The payload log's first four bytes.
+pub const PAYLOAD_MAGIC: [u8; 4] = *b"DPSP";
+
+fn log_header(magic: [u8; 4], width: u16, run_id: u64) -> [u8; LOG_HEADER_LEN] {
+    let mut h = [0u8; LOG_HEADER_LEN];
+    h[..4].copy_from_slice(&magic);
+    h[4..6].copy_from_slice(&LOG_VERSION.to_le_bytes());
+    h[6..8].copy_from_slice(&width.to_le_bytes());
+    h[8..16].copy_from_slice(&run_id.to_le_bytes());
+    h
+}
 
 /// Bytes of one row record of the fabric log for rows of `width` pixels.
 pub fn record_len(width: usize) -> usize {
@@ -124,12 +144,7 @@ impl Fabric {
     /// Writes the fabric log of this run to `log` (its header now, a record per row), for
     /// the recording `run_id`.
     pub fn log_to(&mut self, mut log: Box<dyn Write>, run_id: u64) -> Result<(), ModelError> {
-        let mut h = [0u8; LOG_HEADER_LEN];
-        h[..4].copy_from_slice(&LOG_MAGIC);
-        h[4..6].copy_from_slice(&LOG_VERSION.to_le_bytes());
-        h[6..8].copy_from_slice(&self.cfg.width.to_le_bytes());
-        h[8..16].copy_from_slice(&run_id.to_le_bytes());
-        log.write_all(&h)?;
+        log.write_all(&log_header(LOG_MAGIC, self.cfg.width, run_id))?;
         self.log = Some(log);
         Ok(())
     }
@@ -270,6 +285,93 @@ impl FrontEnd for Fabric {
             return Err(FrontEndError::Failed);
         }
         self.compute(job, last, heights, valid).map_err(|e| {
+            self.error = Some(e);
+            FrontEndError::Failed
+        })
+    }
+}
+
+/// The row codec's Verilator model as the front end's coder (see the module docs).
+pub struct Coder {
+    session: crate::codec::Session,
+    width: usize,
+    log: Option<Box<dyn Write>>,
+    payload: Vec<u8>,
+    /// Rows coded.
+    pub rows: u64,
+    /// Payload bytes.
+    pub bytes: u64,
+    /// Clocks the model took, summed over the rows (first pixel in to last word out).
+    pub clocks: u64,
+    error: Option<String>,
+}
+
+impl Coder {
+    /// A coder for rows of `width` pixels with intra period `intra_period` (the stream's).
+    pub fn new(model: &Model, width: usize, intra_period: u32) -> Result<Coder, ModelError> {
+        Ok(Coder {
+            session: crate::codec::Session::start(model, width, intra_period)?,
+            width,
+            log: None,
+            payload: Vec::new(),
+            rows: 0,
+            bytes: 0,
+            clocks: 0,
+            error: None,
+        })
+    }
+
+    /// Writes the payload log to `log` for the recording `run_id`.
+    pub fn log_to(&mut self, mut log: Box<dyn Write>, run_id: u64) -> Result<(), ModelError> {
+        log.write_all(&log_header(PAYLOAD_MAGIC, self.width as u16, run_id))?;
+        self.log = Some(log);
+        Ok(())
+    }
+
+    /// The first failure of the model or the log, if any.
+    pub fn error(&self) -> Option<&str> {
+        self.error.as_deref()
+    }
+
+    /// Ends the model's run and flushes the log.
+    pub fn finish(mut self) -> Result<(), ModelError> {
+        if let Some(mut log) = self.log.take() {
+            log.flush()?;
+        }
+        self.session.finish()
+    }
+
+    fn code_row(&mut self, row: &Row<'_>, payload: &mut [u8]) -> Result<usize, String> {
+        self.session
+            .row(row.heights, row.valid, &mut self.payload)
+            .map_err(|e| e.to_string())?;
+        let len = self.payload.len();
+        let room = payload.len();
+        let dst = payload
+            .get_mut(..len)
+            .ok_or_else(|| format!("a payload of {len} bytes for a buffer of {room}"))?;
+        dst.copy_from_slice(&self.payload);
+        self.rows += 1;
+        self.bytes += len as u64;
+        self.clocks += u64::from(self.session.clocks);
+        if let Some(log) = self.log.as_mut() {
+            let mut rec = Vec::with_capacity(12 + len);
+            rec.extend(row.header.row.to_le_bytes());
+            rec.extend((len as u32).to_le_bytes());
+            rec.extend(&self.payload);
+            log.write_all(&rec)
+                .map_err(|e| format!("writing the payload log: {e}"))?;
+        }
+        Ok(len)
+    }
+}
+
+impl RowCoder for Coder {
+    fn code(&mut self, row: &Row<'_>, payload: &mut [u8]) -> Result<usize, FrontEndError> {
+        if self.error.is_some() {
+            return Err(FrontEndError::Failed);
+        }
+        self.code_row(row, payload).map_err(|e| {
             self.error = Some(e);
             FrontEndError::Failed
         })

@@ -1,5 +1,6 @@
-//! The Verilator model of `dpsa_pixel`: built once per source fingerprint, run as a child
-//! process that speaks the records of [`crate::cosim`] on its stdin and stdout.
+//! The Verilator models of the RTL's top modules (`dpsa_pixel`, `dpsa_codec`): built once per
+//! source fingerprint, run as a child process that speaks the records of [`crate::cosim`]
+//! (pixel pipeline) or [`crate::codec`] (row-codec encoder) on its stdin and stdout.
 //!
 //! Why a process and not an in-process model: Verilator compiles the RTL to C++; a small
 //! harness (`fpga/sim/harness.cpp`) around it reads and writes plain binary records, so the
@@ -44,39 +45,70 @@ pub enum ModelError {
 /// The files a model is built from.
 #[derive(Clone, Debug)]
 pub struct Sources {
-    /// Verilog files (the top module is `dpsa_pixel`).
+    /// The top module (`dpsa_pixel` or `dpsa_codec`).
+    pub top: String,
+    /// Verilog files.
     pub rtl: Vec<PathBuf>,
-    /// The `$readmemh` table the RTL loads (`ATAN_HEX`).
-    pub atan_hex: PathBuf,
+    /// Files the RTL loads (`$readmemh`), each with the parameter that names it (for
+    /// `dpsa_pixel`: `ATAN_HEX`).
+    pub data: Vec<(String, PathBuf)>,
     /// The C++ harness.
     pub harness: PathBuf,
 }
 
+/// The `.v` files in `dir` whose names start (or, `keep = false`, do not start) with `prefix`.
+fn verilog_files(dir: &Path, prefix: &str, keep: bool) -> Vec<PathBuf> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map(|d| {
+            d.filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.extension().is_some_and(|x| x == "v"))
+                .filter(|p| {
+                    let name = p.file_name().map(|n| n.to_string_lossy().into_owned());
+                    name.is_some_and(|n| n.starts_with(prefix)) == keep
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    files.sort();
+    files
+}
+
 impl Sources {
-    /// The repository's own sources (`fpga/rtl`, `fpga/sim`).
+    /// The repository's pixel pipeline (`fpga/rtl`, `fpga/sim/harness.cpp`).
     pub fn repo() -> Sources {
         Sources::in_dir(&crate::fpga_dir().join("rtl"))
     }
 
-    /// The RTL in `rtl` (every `.v` file there and its `atan.hex`), with the repository's
-    /// harness: how a test builds a mutated copy of the RTL.
+    /// The pixel pipeline in `rtl` (every `.v` file there but the codec's, and its
+    /// `atan.hex`), with the repository's harness: how a test builds a mutated copy of the RTL.
     pub fn in_dir(rtl: &Path) -> Sources {
-        let mut files: Vec<PathBuf> = std::fs::read_dir(rtl)
-            .map(|d| {
-                d.filter_map(|e| e.ok().map(|e| e.path()))
-                    .filter(|p| p.extension().is_some_and(|x| x == "v"))
-                    .collect()
-            })
-            .unwrap_or_default();
-        files.sort();
         Sources {
-            rtl: files,
-            atan_hex: rtl.join("atan.hex"),
+            top: "dpsa_pixel".into(),
+            rtl: verilog_files(rtl, "dpsa_codec", false),
+            data: vec![("ATAN_HEX".into(), rtl.join("atan.hex"))],
             harness: crate::fpga_dir().join("sim").join("harness.cpp"),
         }
     }
 
-    /// FNV-1a over every file's name and bytes: the build cache's key.
+    /// The repository's row-codec encoder (`fpga/rtl/dpsa_codec*.v`,
+    /// `fpga/sim/codec_harness.cpp`).
+    pub fn codec_repo() -> Sources {
+        Sources::codec_in_dir(&crate::fpga_dir().join("rtl"))
+    }
+
+    /// The row-codec encoder in `rtl` (its `dpsa_codec*.v` files) with the repository's codec
+    /// harness.
+    pub fn codec_in_dir(rtl: &Path) -> Sources {
+        Sources {
+            top: "dpsa_codec".into(),
+            rtl: verilog_files(rtl, "dpsa_codec", true),
+            data: Vec::new(),
+            harness: crate::fpga_dir().join("sim").join("codec_harness.cpp"),
+        }
+    }
+
+    /// FNV-1a over a version of the build's layout, the top module's name, the parameters'
+    /// names and every file's name and bytes: the build cache's key.
     fn fingerprint(&self) -> Result<u64, ModelError> {
         let mut h: u64 = 0xcbf2_9ce4_8422_2325;
         let mut eat = |b: &[u8]| {
@@ -85,7 +117,14 @@ impl Sources {
                 h = h.wrapping_mul(0x0000_0100_0000_01b3);
             }
         };
-        for p in self.rtl.iter().chain([&self.atan_hex, &self.harness]) {
+        // The build's layout (its own copies of the data files), then the sources.
+        eat(b"dpsa-fpga model 2");
+        eat(self.top.as_bytes());
+        for (param, _) in &self.data {
+            eat(param.as_bytes());
+        }
+        let files = self.data.iter().map(|(_, p)| p);
+        for p in self.rtl.iter().chain(files).chain([&self.harness]) {
             let bytes = std::fs::read(p).map_err(|source| ModelError::Source {
                 path: p.clone(),
                 source,
@@ -132,21 +171,22 @@ impl Model {
         std::fs::create_dir_all(&tmp)?;
         let log = tmp.join("build.log");
         let abs = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
-        // The model reads its table at run time from the path it was built with: a copy kept
-        // in the cache beside it (named by the key, which covers the table's bytes), so a model
-        // never depends on the source folder living on (the mutation tests' folders do not).
-        let hex = abs(&cache.join(format!("{key:016x}.atan.hex")));
-        std::fs::copy(&src.atan_hex, &hex).map_err(|source| ModelError::Source {
-            path: src.atan_hex.clone(),
-            source,
-        })?;
         let mut cmd = Command::new("verilator");
         cmd.args(["--cc", "--exe", "--build", "-O3", "-j", "2"])
-            .args(["--top-module", "dpsa_pixel", "-Wall"])
-            .arg(format!("-GATAN_HEX=\"{}\"", hex.display()))
-            .arg("-Mdir")
-            .arg(&tmp)
-            .args(["-o", "model"]);
+            .args(["--top-module", &src.top, "-Wall"]);
+        // The data files are read when the model starts, so the model keeps its own copies
+        // (a test's mutated sources live in a temporary folder that is gone by the time a
+        // later run finds the model in the cache): copied into the build folder, named by
+        // their final place.
+        for (i, (param, file)) in src.data.iter().enumerate() {
+            let name = format!("data{i}-{param}");
+            std::fs::copy(file, tmp.join(&name)).map_err(|source| ModelError::Source {
+                path: file.clone(),
+                source,
+            })?;
+            cmd.arg(format!("-G{param}=\"{}\"", abs(&dir.join(&name)).display()));
+        }
+        cmd.arg("-Mdir").arg(&tmp).args(["-o", "model"]);
         for f in &src.rtl {
             cmd.arg(abs(f));
         }
@@ -167,9 +207,14 @@ impl Model {
         Ok(Model { exe })
     }
 
-    /// The repository's model, in the workspace's `target/fpga-model`.
+    /// The repository's pixel-pipeline model, in the workspace's `target/fpga-model`.
     pub fn repo() -> Result<Model, ModelError> {
         Model::build(&Sources::repo(), &cache_dir())
+    }
+
+    /// The repository's row-codec encoder model, in the workspace's `target/fpga-model`.
+    pub fn codec_repo() -> Result<Model, ModelError> {
+        Model::build(&Sources::codec_repo(), &cache_dir())
     }
 
     /// Starts the model with piped stdin and stdout.

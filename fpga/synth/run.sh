@@ -5,7 +5,9 @@
 #
 # Flow:  yosys synth_ecp5  ->  nextpnr-ecp5  ->  ecppack
 # Design: fpga/rtl/*.v wrapped by fpga/synth/synth_top.v (top dpsa_synth_top,
-#         parameter LANES = dpsa_pixel instances in parallel).
+#         parameter LANES = dpsa_pixel instances in parallel); with --design codec
+#         the row codec's encoder instead: fpga/rtl/dpsa_codec*.v wrapped by
+#         fpga/synth/codec_top.v (top dpsa_codec_synth_top).
 #
 # Installs what is missing:
 #   * yosys                       via `apt-get install -y yosys` (Debian)
@@ -16,7 +18,7 @@
 #
 # Usage: fpga/synth/run.sh [--lanes N] [--freq MHZ] [--out DIR] [--seed S]
 #                          [--rtl DIR] [--abc9] [--window-per-lane]
-#                          [--no-bitstream]
+#                          [--no-bitstream] [--design pixel|codec]
 #   --lanes N        dpsa_pixel instances (default 2)
 #   --freq MHZ       nextpnr timing target in MHz (default 150)
 #   --out DIR        logs and artefacts (default target/fpga-synth)
@@ -26,6 +28,9 @@
 #   --window-per-lane  one window register set per lane instead of one shared
 #                    set (synth_top.v parameter WIN_PER_LANE)
 #   --no-bitstream   skip ecppack
+#   --design D       pixel (default: dpsa_pixel lanes) or codec (dpsa_codec;
+#                    --lanes and --window-per-lane are ignored, and the JSON
+#                    line has "design":"codec" and no "lanes")
 #
 # Output: exactly one JSON line on stdout, e.g.
 #   {"part":"LFE5U-85F-CABGA381","lanes":2,"fmax_mhz":...,"luts":...,"ffs":...,
@@ -52,6 +57,7 @@ RTL="$REPO/fpga/rtl"
 ABC9=""
 WIN_PER_LANE=0
 BITSTREAM=1
+DESIGN=pixel
 
 die() { echo "run.sh: error: $*" >&2; exit 1; }
 say() { echo "run.sh: $*" >&2; }
@@ -66,6 +72,7 @@ while [ $# -gt 0 ]; do
     --abc9)  ABC9="-abc9"; shift ;;
     --window-per-lane) WIN_PER_LANE=1; shift ;;
     --no-bitstream) BITSTREAM=0; shift ;;
+    --design) DESIGN="${2:?--design needs a value}"; shift 2 ;;
     -h|--help) sed -n '2,/^set -euo/p' "$0" | sed '$d; s/^# \{0,1\}//' >&2; exit 0 ;;
     *) die "unknown argument '$1' (see --help)" ;;
   esac
@@ -73,15 +80,26 @@ done
 [[ "$LANES" =~ ^[1-9][0-9]*$ ]] || die "--lanes must be a positive integer"
 [[ "$FREQ" =~ ^[0-9]+(\.[0-9]+)?$ ]] || die "--freq must be a number (MHz)"
 [[ "$SEED" =~ ^[0-9]+$ ]] || die "--seed must be a non-negative integer"
+[[ "$DESIGN" = pixel || "$DESIGN" = codec ]] || die "--design must be pixel or codec"
 
 [ -d "$RTL" ] || die "RTL directory $RTL does not exist"
 RTL="$(cd "$RTL" && pwd)"
-TOP_V="$REPO/fpga/synth/synth_top.v"
+if [ "$DESIGN" = codec ]; then
+  TOP_V="$REPO/fpga/synth/codec_top.v"
+  TOP=dpsa_codec_synth_top
+else
+  TOP_V="$REPO/fpga/synth/synth_top.v"
+  TOP=dpsa_synth_top
+fi
 [ -f "$TOP_V" ] || die "$TOP_V is missing"
 mkdir -p "$OUT"
 OUT="$(cd "$OUT" && pwd)"
 shopt -s nullglob
-RTL_V=("$RTL"/*.v)
+if [ "$DESIGN" = codec ]; then
+  RTL_V=("$RTL"/dpsa_codec*.v)
+else
+  RTL_V=("$RTL"/*.v)
+fi
 shopt -u nullglob
 [ ${#RTL_V[@]} -gt 0 ] || die "no Verilog files in $RTL"
 
@@ -118,9 +136,14 @@ run_step() {
 T_START=$(date +%s.%N)
 
 # yosys runs inside the RTL directory so that $readmemh("atan.hex") resolves.
+if [ "$DESIGN" = codec ]; then
+  PARAMS=""
+else
+  PARAMS="-chparam LANES $LANES -chparam WIN_PER_LANE $WIN_PER_LANE"
+fi
 YS="read_verilog -defer $TOP_V ${RTL_V[*]};
-hierarchy -check -top dpsa_synth_top -chparam LANES $LANES -chparam WIN_PER_LANE $WIN_PER_LANE;
-synth_ecp5 $ABC9 -top dpsa_synth_top -json $OUT/synth.json;
+hierarchy -check -top $TOP $PARAMS;
+synth_ecp5 $ABC9 -top $TOP -json $OUT/synth.json;
 tee -o $OUT/synth_stat.txt stat"
 ( cd "$RTL" && run_step yosys "$OUT/yosys.log" yosys -p "$YS" )
 
@@ -144,7 +167,7 @@ T_END=$(date +%s.%N)
 
 # ---- summary -----------------------------------------------------------------
 # The JSON line goes to stdout; the critical path and DSP count to stderr.
-python3 - "$OUT/report.json" "$LANES" "$T_START" "$T_END" <<'PY' || die "could not parse $OUT/report.json"
+python3 - "$OUT/report.json" "$LANES" "$T_START" "$T_END" "$DESIGN" <<'PY' || die "could not parse $OUT/report.json"
 import json, sys
 rep = json.load(open(sys.argv[1]))
 lanes, t0, t1 = int(sys.argv[2]), float(sys.argv[3]), float(sys.argv[4])
@@ -168,6 +191,9 @@ res = {
     "bram_total": u("DP16KD", "available"),
     "seconds": round(t1 - t0, 1),
 }
+if sys.argv[5] == "codec":
+    del res["lanes"]
+    res = {"design": "codec", **res}
 
 for cp in rep.get("critical_paths", []):
     if not (is_clk(cp["from"]) and is_clk(cp["to"])) or not cp["path"]:

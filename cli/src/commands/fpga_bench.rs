@@ -34,8 +34,10 @@ pub struct Args {
 
 pub fn run(a: Args, progress: bool) -> Result<()> {
     let mut r = dpsa_fpga::bench::run(a.lanes, a.freq, a.width, a.cosim_pixels, &a.out)?;
+    let codec = dpsa_fpga::bench::synth(0, a.freq, &a.out.join("codec"))?;
     if !a.no_firmware {
-        let m = mcu_share(progress)?;
+        let (m, clocks_per_pixel) = mcu_share(progress)?;
+        r.set_codec(codec, clocks_per_pixel);
         if m.width as u32 != a.width {
             anyhow::bail!(
                 "the firmware ran at width {} but the board figures are for --width {}",
@@ -45,6 +47,12 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
         }
         let p = &m.instructions_per_pixel;
         r.set_mcu(p.total, p.encode, m.realtime.board_seconds);
+    } else {
+        r.not_measured.push(format!(
+            "codec: the row codec synthesises at {:.1} MHz; its clocks per pixel come from the \
+             firmware run (--no-firmware)",
+            codec.fmax_mhz
+        ));
     }
     if a.json {
         out!("{}", serde_json::to_string_pretty(&r)?);
@@ -61,6 +69,13 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
     out!("flip-flops          {}", s.ffs);
     out!("DSP (18x18)         {} of {}", s.dsp, s.dsp_total);
     out!("block RAM (18 kbit) {} of {}", s.bram, s.bram_total);
+    if let Some(c) = &r.codec {
+        let cs = &c.synth;
+        out!(
+            "row codec           {:.1} MHz, {} LUT4, {} flip-flops, {} DSP, {} block RAM; {:.3} clocks a pixel: {:.1} Mpx/s",
+            cs.fmax_mhz, cs.luts, cs.ffs, cs.dsp, cs.bram, c.clocks_per_pixel, c.mpx_s
+        );
+    }
     out!(
         "per camera          {:.1} Mpx/s (goal {:.0})",
         r.mpx_s_per_camera,
@@ -98,7 +113,7 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
 /// The MCU's share with the front end: the default scene (W = 2048, n = 4, 12-bit), its rows
 /// computed by the RTL's model, the firmware under QEMU taking them from the fabric log and
 /// measuring itself (`dpsa target-run R --front-end --bench`).
-fn mcu_share(progress: bool) -> Result<dpsa_sim::target::BenchReport> {
+fn mcu_share(progress: bool) -> Result<(dpsa_sim::target::BenchReport, f64)> {
     use dpsa_sim::target;
     let dir = tempfile::Builder::new()
         .prefix("dpsa-fpga-bench")
@@ -106,7 +121,7 @@ fn mcu_share(progress: bool) -> Result<dpsa_sim::target::BenchReport> {
     let scene = dpsa_sim::simulation::scene::Scene::default();
     dpsa_sim::simulation::simulate::simulate(&scene, 1, dir.path(), false)?;
     let rec = dpsa_sim::simulation::recording::Recording::open(dir.path())?;
-    let fe = super::target_run::front_end_run(&rec, 1, progress)?;
+    let fe = super::target_run::front_end_run(&rec, 1, true, progress)?;
     let elf = target::firmware_elf(true)?;
     let sizes = target::elf_sizes(&target::read_elf(&elf)?)?;
     let opts = target::RunOptions {
@@ -117,12 +132,19 @@ fn mcu_share(progress: bool) -> Result<dpsa_sim::target::BenchReport> {
         },
         ..target::RunOptions::default()
     };
-    let run = target::run_with_fabric(&rec, &elf, opts, Some(&fe.log))?;
+    let run = target::run_with_fabric(&rec, &elf, opts, Some(fe.logs()))?;
     if run.stream != fe.core_stream {
         anyhow::bail!("the firmware's stream with the front end differs from the core's");
     }
     let raw = run
         .bench
         .ok_or_else(|| anyhow::anyhow!("the firmware wrote no bench figures"))?;
-    Ok(target::bench_report(&raw, &sizes)?)
+    let (rows, _, clocks) = fe
+        .coded
+        .ok_or_else(|| anyhow::anyhow!("the fabric's row codec did not run"))?;
+    let w = rec.manifest.camera.width as f64;
+    Ok((
+        target::bench_report(&raw, &sizes)?,
+        clocks as f64 / (rows as f64 * w),
+    ))
 }

@@ -42,15 +42,24 @@ pub struct Args {
     /// computes every row on the host first, through the core's front-end seam, and must give
     /// the core's own stream byte for byte (else the run stops); the firmware then takes the
     /// rows from that fabric log as from the fabric's DMA, and its bench figures are the
-    /// MCU's share. Needs `verilator`.
+    /// MCU's share. The rows are coded by the fabric's row codec (its model too) unless
+    /// `--mcu-codec`. Needs `verilator`.
     #[arg(long, conflicts_with = "link")]
     front_end: bool,
+    /// With `--front-end`: code the rows on the MCU (the core's encoder) instead of in the
+    /// fabric, to measure what the codec costs the MCU.
+    #[arg(long, requires = "front_end")]
+    mcu_codec: bool,
 }
 
 /// What the front end's host run found.
 pub(crate) struct FrontEndRun {
     /// The fabric log (in `_dir`).
     pub(crate) log: PathBuf,
+    /// The payload log of the fabric's row codec (in `_dir`), unless the MCU codes.
+    pub(crate) payloads: Option<PathBuf>,
+    /// Rows the fabric's codec coded, their payload bytes and the codec's clocks.
+    pub(crate) coded: Option<(u64, u64, u64)>,
     _dir: tempfile::TempDir,
     rows: u64,
     pixels: u64,
@@ -58,33 +67,73 @@ pub(crate) struct FrontEndRun {
     pub(crate) core_stream: Vec<u8>,
 }
 
+impl FrontEndRun {
+    /// The logs for the firmware.
+    pub(crate) fn logs(&self) -> target::FabricLogs<'_> {
+        target::FabricLogs {
+            rows: &self.log,
+            payloads: self.payloads.as_deref(),
+        }
+    }
+}
+
 /// Runs the recording through the RTL's model as the pipeline's front end, writing the fabric
 /// log, and checks its stream against the core's.
 pub(crate) fn front_end_run(
     rec: &dpsa_sim::simulation::recording::Recording,
     intra_period: u32,
+    fabric_codec: bool,
     progress: bool,
 ) -> Result<FrontEndRun> {
+    use dpsa_fpga::{front, model::Model};
     let core = dpsa_sim::reconstruct::config(&rec.manifest)?;
-    let model = dpsa_fpga::model::Model::repo()?;
     let dir = tempfile::Builder::new().prefix("dpsa-fabric").tempdir()?;
-    let log = dir.path().join("fabric.dpsf");
-    let file = std::fs::File::create(&log)
-        .with_context(|| format!("creating the fabric log {}", log.display()))?;
+    let create = |name: &str| -> Result<Box<dyn std::io::Write>> {
+        let path = dir.path().join(name);
+        let file = std::fs::File::create(&path)
+            .with_context(|| format!("creating the front end's log {}", path.display()))?;
+        Ok(Box::new(std::io::BufWriter::new(file)))
+    };
     let mut fabric =
-        dpsa_fpga::front::Fabric::new(&model, core.cfg, &core.ref_phase, core.columns())?;
-    fabric.log_to(Box::new(std::io::BufWriter::new(file)), rec.run_id())?;
-    let res =
-        dpsa_sim::reconstruct::run_front_end(rec, Vec::new(), intra_period, &mut fabric, progress);
+        front::Fabric::new(&Model::repo()?, core.cfg, &core.ref_phase, core.columns())?;
+    fabric.log_to(create("fabric.dpsf")?, rec.run_id())?;
+    let mut coder = match fabric_codec {
+        false => None,
+        true => {
+            let w = core.cfg.width as usize;
+            let mut c = front::Coder::new(&Model::codec_repo()?, w, intra_period)?;
+            c.log_to(create("payloads.dpsp")?, rec.run_id())?;
+            Some(c)
+        }
+    };
+    let res = dpsa_sim::reconstruct::run_front_end(
+        rec,
+        Vec::new(),
+        intra_period,
+        &mut fabric,
+        coder
+            .as_mut()
+            .map(|c| c as &mut dyn dpsa_core::offload::RowCoder),
+        progress,
+    );
     let stream = match res {
         Ok((_, s)) => s,
-        Err(e) => match fabric.error() {
-            Some(why) => anyhow::bail!("the front end's model failed: {why} ({e})"),
-            None => return Err(e.into()),
+        Err(e) => match (fabric.error(), coder.as_ref().and_then(|c| c.error())) {
+            (Some(why), _) => anyhow::bail!("the front end's pixel model failed: {why} ({e})"),
+            (_, Some(why)) => anyhow::bail!("the front end's codec model failed: {why} ({e})"),
+            _ => return Err(e.into()),
         },
     };
     let (rows, pixels) = (fabric.rows, fabric.pixels);
     fabric.finish()?;
+    let coded = match coder {
+        None => None,
+        Some(c) => {
+            let figures = (c.rows, c.bytes, c.clocks);
+            c.finish()?;
+            Some(figures)
+        }
+    };
     let (_, core_stream) = dpsa_sim::reconstruct::run_with(rec, Vec::new(), intra_period, false)?;
     if stream != core_stream {
         let at = stream
@@ -94,13 +143,15 @@ pub(crate) fn front_end_run(
             .unwrap_or(stream.len().min(core_stream.len()));
         anyhow::bail!(
             "the front end's stream differs from the core's at byte {at} ({} against {} bytes): \
-             the RTL's rows are not the core's",
+             the RTL's rows or payloads are not the core's",
             stream.len(),
             core_stream.len()
         );
     }
     Ok(FrontEndRun {
-        log,
+        log: dir.path().join("fabric.dpsf"),
+        payloads: fabric_codec.then(|| dir.path().join("payloads.dpsp")),
+        coded,
         _dir: dir,
         rows,
         pixels,
@@ -151,11 +202,12 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
         link: a.link,
     };
     let fe = if a.front_end {
-        Some(front_end_run(&rec, a.intra_period, progress)?)
+        Some(front_end_run(&rec, a.intra_period, !a.mcu_codec, progress)?)
     } else {
         None
     };
-    let run = target::run_with_fabric(&rec, &elf, opts, fe.as_ref().map(|f| f.log.as_path()))?;
+    let logs = fe.as_ref().map(|f| f.logs());
+    let run = target::run_with_fabric(&rec, &elf, opts, logs)?;
     if let Some(fe) = &fe {
         if run.stream != fe.core_stream {
             anyhow::bail!(
@@ -204,6 +256,10 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
                 "rows": fe.rows,
                 "pixels": fe.pixels,
                 "model": "fpga/rtl (Verilator)",
+                "codec": if fe.coded.is_some() { "fabric" } else { "mcu" },
+                "coded_rows": fe.coded.map(|c| c.0),
+                "payload_bytes": fe.coded.map(|c| c.1),
+                "codec_clocks": fe.coded.map(|c| c.2),
                 "stream_equals_core": true,
             });
         }
@@ -219,10 +275,15 @@ pub fn run(a: Args, progress: bool) -> Result<()> {
         .unwrap_or_default();
     if let Some(fe) = &fe {
         out!(
-            "front end: {} rows ({} pixels) from the RTL's model; the host's and the firmware's \
-             streams with it equal the core's byte for byte",
+            "front end: {} rows ({} pixels) from the RTL's model, coded by the {}; the host's and \
+             the firmware's streams with it equal the core's byte for byte",
             fe.rows,
-            fe.pixels
+            fe.pixels,
+            if fe.coded.is_some() {
+                "fabric's row codec"
+            } else {
+                "MCU"
+            }
         );
     }
     let mut text = format!(

@@ -21,8 +21,9 @@ use cortex_m::peripheral::{syst::SystClkSource, SYST};
 use cortex_m_rt::exception;
 use dpsa_core::frames::feed::{self, FeedError, Header};
 use dpsa_core::frames::Trigger;
-use dpsa_core::offload::{FrontEnd, FrontEndError, Line as OffloadLine, RowJob};
+use dpsa_core::offload::{FrontEnd, FrontEndError, Line as OffloadLine, RowCoder, RowJob};
 use dpsa_core::sink::Link;
+use dpsa_core::Row;
 use semihosting::fs::File;
 use semihosting::io::{Read, Seek, SeekFrom, Write};
 
@@ -57,7 +58,7 @@ pub enum Error {
     LineOrder { frame: u32, line: u32 },
     /// The encoder was read with no latched trigger.
     NoTrigger,
-    /// The command line is not `dpsa-firmware FEED OUT [BENCH] [fabric=LOG]`.
+    /// The command line is not `dpsa-firmware FEED OUT [BENCH] [fabric=LOG [payloads=LOG]]`.
     Usage,
     /// The fabric log is not one for this feed (bad magic, version, width or run id).
     FabricLog,
@@ -90,7 +91,10 @@ impl defmt::Format for Error {
                 )
             }
             Error::NoTrigger => defmt::write!(f, "encoder read without a trigger"),
-            Error::Usage => defmt::write!(f, "usage: dpsa-firmware FEED OUT [BENCH] [fabric=LOG]"),
+            Error::Usage => defmt::write!(
+                f,
+                "usage: dpsa-firmware FEED OUT [BENCH] [fabric=LOG [payloads=LOG]]"
+            ),
             Error::FabricLog => defmt::write!(
                 f,
                 "the fabric log is not one for this feed (magic, version, width or run id)"
@@ -144,6 +148,7 @@ pub struct Args {
     pub out: Path,
     pub bench: Option<Path>,
     pub fabric: Option<Path>,
+    pub payloads: Option<Path>,
 }
 
 impl Args {
@@ -154,6 +159,7 @@ impl Args {
             out: Path::empty(),
             bench: None,
             fabric: None,
+            payloads: None,
         }
     }
 
@@ -172,6 +178,13 @@ impl Args {
                     return Err(Error::Usage);
                 }
                 self.fabric.insert(Path::empty()).set(log)?;
+                continue;
+            }
+            if let Some(log) = s.strip_prefix("payloads=") {
+                if given < 2 || self.payloads.is_some() {
+                    return Err(Error::Usage);
+                }
+                self.payloads.insert(Path::empty()).set(log)?;
                 continue;
             }
             match given {
@@ -582,6 +595,19 @@ pub struct FabricLog<'c, C: Clock> {
 
 /// The fabric log's header: magic, version 1, width, the recording's run id.
 const FABRIC_MAGIC: [u8; 4] = *b"DPSF";
+/// The payload log's magic (the same header).
+const PAYLOAD_MAGIC: [u8; 4] = *b"DPSP";
+
+fn check_log_header(h: &[u8; 16], magic: [u8; 4], width: usize, run_id: u64) -> Result<(), Error> {
+    let version = u16::from_le_bytes([h[4], h[5]]);
+    let w = u16::from_le_bytes([h[6], h[7]]) as usize;
+    let mut id = [0u8; 8];
+    id.copy_from_slice(&h[8..16]);
+    if h[..4] != magic || version != 1 || w != width || u64::from_le_bytes(id) != run_id {
+        return Err(Error::FabricLog);
+    }
+    Ok(())
+}
 
 impl<'c, C: Clock> FabricLog<'c, C> {
     /// Opens the log and checks its header against the feed's width and run id.
@@ -590,14 +616,7 @@ impl<'c, C: Clock> FabricLog<'c, C> {
         let mut h = [0u8; 16];
         let mut pos = 0;
         read_exact(&mut file, &mut h, &mut pos)?;
-        let version = u16::from_le_bytes([h[4], h[5]]);
-        let w = u16::from_le_bytes([h[6], h[7]]) as usize;
-        let mut id = [0u8; 8];
-        id.copy_from_slice(&h[8..16]);
-        if h[..4] != FABRIC_MAGIC || version != 1 || w != width || u64::from_le_bytes(id) != run_id
-        {
-            return Err(Error::FabricLog);
-        }
+        check_log_header(&h, FABRIC_MAGIC, width, run_id)?;
         Ok(FabricLog {
             file,
             width,
@@ -645,6 +664,73 @@ impl<C: Clock> FrontEnd for FabricLog<'_, C> {
             }
             Ok((got, _)) => Err(FrontEndError::WrongRow {
                 asked: job.row,
+                got,
+            }),
+            Err(e) => {
+                self.error = Some(e);
+                Err(FrontEndError::Failed)
+            }
+        }
+    }
+}
+
+/// The FPGA front end's row codec (`docs/fpga.md`): each row's payload as the fabric's payload
+/// DMA would deliver it, read from the payload log that `dpsa target-run --front-end` made with
+/// the codec's Verilator model. It must be the payload of the row the sink frames. Its reads
+/// are host I/O, counted apart ([`FabricPayloads::io_ticks`]).
+pub struct FabricPayloads<'c, C: Clock> {
+    file: File,
+    clock: &'c C,
+    /// Ticks spent reading the log (host I/O, not the MCU's work).
+    pub io_ticks: u64,
+    /// Payloads read.
+    pub rows: u64,
+    /// The host error behind a [`FrontEndError::Failed`], if any.
+    pub error: Option<Error>,
+}
+
+impl<'c, C: Clock> FabricPayloads<'c, C> {
+    /// Opens the log and checks its header against the feed's width and run id.
+    pub fn open(path: &Path, width: usize, run_id: u64, clock: &'c C) -> Result<Self, Error> {
+        let mut file = File::open(path.c_str()).map_err(io)?;
+        let mut h = [0u8; 16];
+        let mut pos = 0;
+        read_exact(&mut file, &mut h, &mut pos)?;
+        check_log_header(&h, PAYLOAD_MAGIC, width, run_id)?;
+        Ok(FabricPayloads {
+            file,
+            clock,
+            io_ticks: 0,
+            rows: 0,
+            error: None,
+        })
+    }
+
+    fn read(&mut self, payload: &mut [u8]) -> Result<(i64, usize), Error> {
+        let mut head = [0u8; 12];
+        let mut pos = 0;
+        read_exact(&mut self.file, &mut head, &mut pos)?;
+        let mut row = [0u8; 8];
+        row.copy_from_slice(&head[..8]);
+        let len = u32::from_le_bytes([head[8], head[9], head[10], head[11]]) as usize;
+        let dst = payload.get_mut(..len).ok_or(Error::FabricLog)?;
+        read_exact(&mut self.file, dst, &mut pos)?;
+        Ok((i64::from_le_bytes(row), len))
+    }
+}
+
+impl<C: Clock> RowCoder for FabricPayloads<'_, C> {
+    fn code(&mut self, row: &Row<'_>, payload: &mut [u8]) -> Result<usize, FrontEndError> {
+        let t0 = self.clock.ticks();
+        let r = self.read(payload);
+        self.io_ticks += self.clock.ticks() - t0;
+        match r {
+            Ok((got, len)) if got == row.header.row => {
+                self.rows += 1;
+                Ok(len)
+            }
+            Ok((got, _)) => Err(FrontEndError::WrongRow {
+                asked: row.header.row,
                 got,
             }),
             Err(e) => {

@@ -12,10 +12,10 @@ use crate::progress::progress_bar;
 use crate::simulation::recording::Recording;
 use crate::{Result, SimError};
 use dpsa_core::{
-    offload::{FrontEnd, Line},
+    offload::{FrontEnd, Line, RowCoder},
     packets::{self, codec},
     pipeline::{Pipeline, State},
-    sink::{Link, PacketSink},
+    sink::{CodedSink, Link, PacketSink, Sink},
 };
 use std::io::Write;
 
@@ -63,20 +63,22 @@ pub fn run_link<L: Link>(
 where
     L::Error: std::fmt::Display,
 {
-    run_link_with(rec, link, intra_period, progress, None)
+    run_link_with(rec, link, intra_period, progress, None, None)
 }
 
 /// [`run_with`] with the per-pixel stages in the front end `fe`
 /// ([`dpsa_core::offload::FrontEnd`], `Pipeline::push_to_front_end`): the frame grabber with
 /// its FPGA front end, the core keeping the registration, the windows and the stream.
+/// With `coder`, the front end's row codec codes every row ([`RowCoder`], `CodedSink`).
 pub fn run_front_end<W: Write>(
     rec: &Recording,
     out: W,
     intra_period: u32,
     fe: &mut dyn FrontEnd,
+    coder: Option<&mut dyn RowCoder>,
     progress: bool,
 ) -> Result<(RunStats, W)> {
-    let (stats, link) = run_link_with(rec, IoLink(out), intra_period, progress, Some(fe))?;
+    let (stats, link) = run_link_with(rec, IoLink(out), intra_period, progress, Some(fe), coder)?;
     Ok((stats, link.0))
 }
 
@@ -85,7 +87,8 @@ fn run_link_with<L: Link>(
     link: L,
     intra_period: u32,
     progress: bool,
-    mut fe: Option<&mut dyn FrontEnd>,
+    fe: Option<&mut dyn FrontEnd>,
+    coder: Option<&mut dyn RowCoder>,
 ) -> Result<(RunStats, L)>
 where
     L::Error: std::fmt::Display,
@@ -111,37 +114,62 @@ where
     sink.set_run_id(rec.run_id());
     let frames = &rec.manifest.frames;
     let bar = progress_bar(progress, frames.len() as u64, "reconstruct");
-    let mut high = 0;
-    for (k, entry) in frames.iter().enumerate() {
-        let frame = rec.frame(k)?;
-        let w = frame.width;
-        pipe.begin_frame(entry.trigger(), &mut sink)
-            .map_err(|e| SimError::Core(format!("frame {k}: {e}")))?;
-        for (r, line) in frame.data.chunks_exact(w).enumerate() {
-            match fe.as_deref_mut() {
-                None => pipe.push_line(r as u16, line, &mut sink),
-                Some(fe) => pipe.push_to_front_end(r as u16, Line::Wide(line), fe, &mut sink),
-            }
-            .map_err(|e| SimError::Core(format!("frame {k} line {r}: {e}")))?;
+    let high = match coder {
+        None => drive(rec, &mut pipe, fe, &mut sink, &bar)?,
+        Some(coder) => {
+            let mut coded = CodedSink {
+                sink: &mut sink,
+                coder,
+            };
+            drive(rec, &mut pipe, fe, &mut coded, &bar)?
         }
-        pipe.end_frame(&mut sink)
-            .map_err(|e| SimError::Core(format!("frame {k}: {e}")))?;
-        high = high.max(pipe.pool_used());
-        bar.inc(1);
-    }
-    pipe.finish(&mut sink)
-        .map_err(|e| SimError::Core(format!("finish: {e}")))?;
+    };
     bar.finish_and_clear();
     sink.flush()
         .map_err(|e| SimError::Core(format!("flushing the packet stream: {e}")))?;
     let stats = RunStats {
-        frames: frames.len(),
+        frames: rec.manifest.frames.len(),
         packets: sink.packets(),
         bytes: sink.bytes(),
         state_bytes: core.layout().bytes(),
         pool_high_water: high,
     };
     Ok((stats, sink.into_link()))
+}
+
+/// Every frame of `rec` through `pipe` (its per-pixel stages in `fe` when given) into `sink`;
+/// returns the most line slots in use at the end of any frame.
+fn drive<S: Sink>(
+    rec: &Recording,
+    pipe: &mut Pipeline<'_>,
+    mut fe: Option<&mut dyn FrontEnd>,
+    sink: &mut S,
+    bar: &indicatif::ProgressBar,
+) -> Result<usize>
+where
+    S::Error: std::fmt::Display,
+{
+    let mut high = 0;
+    for (k, entry) in rec.manifest.frames.iter().enumerate() {
+        let frame = rec.frame(k)?;
+        let w = frame.width;
+        pipe.begin_frame(entry.trigger(), sink)
+            .map_err(|e| SimError::Core(format!("frame {k}: {e}")))?;
+        for (r, line) in frame.data.chunks_exact(w).enumerate() {
+            match fe.as_deref_mut() {
+                None => pipe.push_line(r as u16, line, sink),
+                Some(fe) => pipe.push_to_front_end(r as u16, Line::Wide(line), fe, sink),
+            }
+            .map_err(|e| SimError::Core(format!("frame {k} line {r}: {e}")))?;
+        }
+        pipe.end_frame(sink)
+            .map_err(|e| SimError::Core(format!("frame {k}: {e}")))?;
+        high = high.max(pipe.pool_used());
+        bar.inc(1);
+    }
+    pipe.finish(sink)
+        .map_err(|e| SimError::Core(format!("finish: {e}")))?;
+    Ok(high)
 }
 
 /// Runs the fixed-point core on a recording and hands each row to `each` as it leaves the

@@ -84,14 +84,14 @@ pub fn run(rec: &Recording, elf: &Path, opts: RunOptions) -> Result<TargetOutput
     run_with_fabric(rec, elf, opts, None)
 }
 
-/// [`run`] with the FPGA front end: the firmware takes its rows from the fabric log `fabric`
-/// (`dpsa_fpga::front`, written by the RTL's model on the same recording) instead of
-/// computing them.
+/// [`run`] with the FPGA front end: the firmware takes its rows from the fabric's logs
+/// (`dpsa_fpga::front`, written by the RTL's models on the same recording) instead of
+/// computing them (and, with a payload log, framing the fabric's payloads instead of coding).
 pub fn run_with_fabric(
     rec: &Recording,
     elf: &Path,
     opts: RunOptions,
-    fabric: Option<&Path>,
+    fabric: Option<FabricLogs<'_>>,
 ) -> Result<TargetOutput> {
     let dir = tempfile::Builder::new()
         .prefix("dpsa-target")

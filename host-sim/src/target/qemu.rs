@@ -392,8 +392,19 @@ pub fn qemu_with(
     })
 }
 
-/// Runs the firmware on a feed file: `dpsa-firmware FEED OUT [BENCH] [fabric=LOG]` (`LOG`:
-/// the FPGA front end's rows, `dpsa_fpga::front`). The paths go on the semihosting command
+/// The FPGA front end's logs for a firmware run (`dpsa_fpga::front`): the rows it computed,
+/// and the payloads of its row codec when it codes the rows too.
+#[derive(Clone, Copy, Debug)]
+pub struct FabricLogs<'p> {
+    /// The fabric log (computed rows).
+    pub rows: &'p Path,
+    /// The payload log (every row's payload), if the fabric codes the rows.
+    pub payloads: Option<&'p Path>,
+}
+
+/// Runs the firmware on a feed file: `dpsa-firmware FEED OUT [BENCH] [fabric=LOG
+/// [payloads=LOG]]` (the FPGA front end's rows and its row codec's payloads,
+/// `dpsa_fpga::front`). The paths go on the semihosting command
 /// line as they are (absolute, without whitespace). A failed run is an error carrying the
 /// firmware's error lines.
 pub fn run_files(
@@ -401,7 +412,7 @@ pub fn run_files(
     feed: &Path,
     out: &Path,
     bench: Option<&Path>,
-    fabric: Option<&Path>,
+    fabric: Option<FabricLogs<'_>>,
     echo: Echo,
 ) -> Result<Outcome> {
     let mut args = vec![arg_path(&absolute(feed)?)?, arg_path(&absolute(out)?)?];
@@ -409,7 +420,10 @@ pub fn run_files(
         args.push(arg_path(&absolute(b)?)?);
     }
     if let Some(f) = fabric {
-        args.push(format!("fabric={}", arg_path(&absolute(f)?)?));
+        args.push(format!("fabric={}", arg_path(&absolute(f.rows)?)?));
+        if let Some(p) = f.payloads {
+            args.push(format!("payloads={}", arg_path(&absolute(p)?)?));
+        }
     }
     let o = qemu(elf, &args, Some(out), echo)?;
     if !o.success() {
