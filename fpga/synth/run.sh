@@ -4,7 +4,7 @@
 # resource usage.
 #
 # Flow:  yosys synth_ecp5  ->  nextpnr-ecp5  ->  ecppack
-# Design: fpga/rtl/*.v wrapped by fpga/synth/synth_top.v (top dpsa_synth_top,
+# Design: fpga/rtl/*.v but dpsa_codec*.v, wrapped by fpga/synth/synth_top.v (top dpsa_synth_top,
 #         parameter LANES = dpsa_pixel instances in parallel); with --design codec
 #         the row codec's encoder instead: fpga/rtl/dpsa_codec*.v wrapped by
 #         fpga/synth/codec_top.v (top dpsa_codec_synth_top).
@@ -98,7 +98,12 @@ shopt -s nullglob
 if [ "$DESIGN" = codec ]; then
   RTL_V=("$RTL"/dpsa_codec*.v)
 else
-  RTL_V=("$RTL"/*.v)
+  # The pixel units' files only (the codec's are another design: reading them too changes
+  # the netlist's order and so the placement, though none of their logic is kept).
+  RTL_V=()
+  for f in "$RTL"/*.v; do
+    case "$(basename "$f")" in dpsa_codec*) ;; *) RTL_V+=("$f") ;; esac
+  done
 fi
 shopt -u nullglob
 [ ${#RTL_V[@]} -gt 0 ] || die "no Verilog files in $RTL"
