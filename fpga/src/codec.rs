@@ -34,7 +34,7 @@ use dpsa_core::packets::codec::{max_len, Encoder};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::model::{Model, ModelError};
+use crate::model::{Model, ModelError, Running};
 
 /// Widths every run covers first (the corner cases of the packing and of `MAX_WIDTH`).
 pub const WIDTHS: [usize; 12] = [1, 2, 7, 8, 9, 31, 33, 63, 64, 65, 2048, 8192];
@@ -449,9 +449,10 @@ pub struct Report {
 /// Runs streams of [`stream`] (seeded with `seed`, about `per_stream` pixels each) through
 /// `model` and the core until `pixels` pixels went through.
 pub fn run(model: &Model, seed: u64, pixels: u64, per_stream: usize) -> Result<Report, ModelError> {
-    let mut child = model.spawn()?;
-    let mut stdin = child.stdin.take().expect("piped");
-    let mut stdout = child.stdout.take().expect("piped");
+    let mut running = model.start()?;
+    let Some(mut stdin) = running.take_stdin() else {
+        return Err(ModelError::Run("the model's input is closed".into()));
+    };
     let (tx, rx) = sync_channel::<(Vec<Expect>, u64, u64)>(4);
     let writer = std::thread::spawn(move || -> std::io::Result<()> {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -490,14 +491,14 @@ pub fn run(model: &Model, seed: u64, pixels: u64, per_stream: usize) -> Result<R
         rep.resets += resets;
         rep.period_changes += changes;
         for e in expect {
-            if let Err(err) = stdout.read_exact(&mut hdr) {
+            if let Err(err) = running.stdout().read_exact(&mut hdr) {
                 read_err = Some(err);
                 break 'streams;
             }
             let word = |i: usize| u32::from_le_bytes([hdr[i], hdr[i + 1], hdr[i + 2], hdr[i + 3]]);
             let (len, clocks, status) = (word(0) as usize, u64::from(word(4)), word(8));
             let mut got = vec![0u8; len];
-            if let Err(err) = stdout.read_exact(&mut got) {
+            if let Err(err) = running.stdout().read_exact(&mut got) {
                 read_err = Some(err);
                 break 'streams;
             }
@@ -560,34 +561,13 @@ pub fn run(model: &Model, seed: u64, pixels: u64, per_stream: usize) -> Result<R
     drop(rx);
     rep.widths = widths.len() as u64;
     let wrote = writer.join();
-    let status = child.wait()?;
-    let mut err = String::new();
-    if let Some(mut e) = child.stderr.take() {
-        let _ = e.read_to_string(&mut err);
-    }
-    if let Some(e) = read_err {
-        return Err(ModelError::Run(format!(
-            "reading the model's output: {e} {err}"
-        )));
-    }
-    match wrote {
-        Ok(Ok(())) => {}
-        Ok(Err(e)) => return Err(ModelError::Run(format!("writing to the model: {e} {err}"))),
-        Err(_) => return Err(ModelError::Run("the vector writer panicked".into())),
-    }
-    if !status.success() {
-        return Err(ModelError::Run(format!(
-            "the model exited with {status}: {err}"
-        )));
-    }
+    running.finish(read_err, Some(wrote))?;
     Ok(rep)
 }
 
 /// One running codec model, row by row: the row codec of [`crate::front::Coder`].
 pub struct Session {
-    child: std::process::Child,
-    stdin: std::process::ChildStdin,
-    stdout: std::process::ChildStdout,
+    running: Running,
     width: usize,
     buf: Vec<u8>,
     /// Clocks of the last row (first pixel offered to last word accepted).
@@ -598,20 +578,7 @@ impl Session {
     /// Starts `model` on a stream of rows of `width` pixels with intra period `k` (as
     /// [`Encoder::new`]).
     pub fn start(model: &Model, width: usize, k: u32) -> Result<Session, ModelError> {
-        let mut child = model.spawn()?;
-        let (Some(stdin), Some(stdout)) = (child.stdin.take(), child.stdout.take()) else {
-            return Err(ModelError::Run(
-                "the codec model's pipes are missing".into(),
-            ));
-        };
-        let mut s = Session {
-            child,
-            stdin,
-            stdout,
-            width,
-            buf: Vec::new(),
-            clocks: 0,
-        };
+        let mut running = model.start()?;
         let mut b = Vec::new();
         Op::Stream {
             width,
@@ -619,24 +586,13 @@ impl Session {
             stall: false,
         }
         .encode(&mut b);
-        s.send(&b)?;
-        Ok(s)
-    }
-
-    fn failed(&mut self, what: &str, e: std::io::Error) -> ModelError {
-        let _ = self.child.kill();
-        let mut err = String::new();
-        if let Some(mut s) = self.child.stderr.take() {
-            let _ = s.read_to_string(&mut err);
-        }
-        ModelError::Run(format!("{what}: {e} {err}"))
-    }
-
-    fn send(&mut self, b: &[u8]) -> Result<(), ModelError> {
-        match self.stdin.write_all(b).and_then(|_| self.stdin.flush()) {
-            Ok(()) => Ok(()),
-            Err(e) => Err(self.failed("writing to the codec model", e)),
-        }
+        running.send(&b)?;
+        Ok(Session {
+            running,
+            width,
+            buf: b,
+            clocks: 0,
+        })
     }
 
     /// Codes one row (`width` heights, `ceil(width / 8)` validity bytes); its payload into
@@ -651,51 +607,31 @@ impl Session {
         if heights.len() < w || valid.len() < nb {
             return Err(ModelError::Run(format!("a row shorter than the width {w}")));
         }
-        let mut b = std::mem::take(&mut self.buf);
-        b.clear();
-        b.extend(4u32.to_le_bytes());
+        self.buf.clear();
+        self.buf.extend(4u32.to_le_bytes());
         for h in &heights[..w] {
-            b.extend(h.to_le_bytes());
+            self.buf.extend(h.to_le_bytes());
         }
-        b.extend(&valid[..nb]);
-        b.extend(5u32.to_le_bytes());
-        let sent = self.send(&b);
-        self.buf = b;
-        sent?;
+        self.buf.extend(&valid[..nb]);
+        self.buf.extend(5u32.to_le_bytes());
+        self.running.send(&self.buf)?;
         let mut hdr = [0u8; 12];
-        if let Err(e) = self.stdout.read_exact(&mut hdr) {
-            return Err(self.failed("reading the codec model's output", e));
-        }
+        self.running.read(&mut hdr)?;
         let word = |i: usize| u32::from_le_bytes([hdr[i], hdr[i + 1], hdr[i + 2], hdr[i + 3]]);
         let (len, clocks, status) = (word(0) as usize, word(4), word(8));
         if len > max_len(w) || status != 0 {
-            let _ = self.child.kill();
-            return Err(ModelError::Run(format!(
+            return Err(self.running.refuse(format!(
                 "the codec model gave a payload of {len} bytes with status {status:#x}"
             )));
         }
         out.resize(len, 0);
-        if let Err(e) = self.stdout.read_exact(out) {
-            return Err(self.failed("reading the codec model's payload", e));
-        }
+        self.running.read(out)?;
         self.clocks = clocks;
         Ok(())
     }
 
     /// Ends the model's run: it must exit cleanly.
-    pub fn finish(mut self) -> Result<(), ModelError> {
-        self.send(&0u32.to_le_bytes())?;
-        drop(self.stdin);
-        let status = self.child.wait()?;
-        if !status.success() {
-            let mut err = String::new();
-            if let Some(mut s) = self.child.stderr.take() {
-                let _ = s.read_to_string(&mut err);
-            }
-            return Err(ModelError::Run(format!(
-                "the codec model exited with {status}: {err}"
-            )));
-        }
-        Ok(())
+    pub fn finish(self) -> Result<(), ModelError> {
+        self.running.finish(None, None)
     }
 }

@@ -33,7 +33,7 @@ use dpsa_core::solve::{Window as Solved, MAX_N};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::model::{Model, ModelError};
+use crate::model::{Model, ModelError, Running};
 
 /// Output flag: the pixel has a height.
 pub const VALID: u16 = 1;
@@ -389,9 +389,10 @@ pub struct Report {
 /// Runs `pixels` pixels of [`Vectors::new`]`(seed)` (windows of `per_window` pixels, `n`
 /// cycling over 3..=8, classes cycling) through `model` and the core.
 pub fn run(model: &Model, seed: u64, pixels: u64, per_window: u64) -> Result<Report, ModelError> {
-    let mut child = model.spawn()?;
-    let mut stdin = child.stdin.take().expect("piped");
-    let mut stdout = child.stdout.take().expect("piped");
+    let mut running = model.start()?;
+    let Some(mut stdin) = running.take_stdin() else {
+        return Err(ModelError::Run("the model's input is closed".into()));
+    };
     let per_window = per_window.max(1);
     // The writer sends each chunk's windows and expected outputs ahead (bounded: a few chunks).
     let (tx, rx) = sync_channel::<Vec<(Window, Pixel, Out)>>(4);
@@ -429,7 +430,7 @@ pub fn run(model: &Model, seed: u64, pixels: u64, per_window: u64) -> Result<Rep
     let mut read_err = None;
     'chunks: for chunk in rx.iter() {
         for (w, px, want) in chunk {
-            if let Err(e) = stdout.read_exact(&mut rec) {
+            if let Err(e) = running.stdout().read_exact(&mut rec) {
                 read_err = Some(e);
                 break 'chunks;
             }
@@ -464,26 +465,7 @@ pub fn run(model: &Model, seed: u64, pixels: u64, per_window: u64) -> Result<Rep
     }
     drop(rx);
     let wrote = writer.join();
-    let status = child.wait()?;
-    let mut err = String::new();
-    if let Some(mut e) = child.stderr.take() {
-        let _ = e.read_to_string(&mut err);
-    }
-    if let Some(e) = read_err {
-        return Err(ModelError::Run(format!(
-            "reading the model's output: {e} {err}"
-        )));
-    }
-    match wrote {
-        Ok(Ok(())) => {}
-        Ok(Err(e)) => return Err(ModelError::Run(format!("writing to the model: {e} {err}"))),
-        Err(_) => return Err(ModelError::Run("the vector writer panicked".into())),
-    }
-    if !status.success() {
-        return Err(ModelError::Run(format!(
-            "the model exited with {status}: {err}"
-        )));
-    }
+    running.finish(read_err, Some(wrote))?;
     Ok(rep)
 }
 
@@ -494,34 +476,17 @@ const SESSION_BATCH: usize = 1024;
 /// One running model, row by row: a window's registers, then its pixels, their outputs back
 /// ([`crate::front::Fabric`] runs whole rows through it).
 pub struct Session {
-    child: std::process::Child,
-    stdin: std::process::ChildStdin,
-    stdout: std::process::ChildStdout,
+    running: Running,
     buf: Vec<u8>,
 }
 
 impl Session {
     /// Starts `model`.
     pub fn start(model: &Model) -> Result<Session, ModelError> {
-        let mut child = model.spawn()?;
-        let (Some(stdin), Some(stdout)) = (child.stdin.take(), child.stdout.take()) else {
-            return Err(ModelError::Run("the model's pipes are missing".into()));
-        };
         Ok(Session {
-            child,
-            stdin,
-            stdout,
+            running: model.start()?,
             buf: Vec::new(),
         })
-    }
-
-    fn failed(&mut self, what: &str, e: std::io::Error) -> ModelError {
-        let _ = self.child.kill();
-        let mut err = String::new();
-        if let Some(mut s) = self.child.stderr.take() {
-            let _ = s.read_to_string(&mut err);
-        }
-        ModelError::Run(format!("{what}: {e} {err}"))
     }
 
     /// Loads window `w` and runs `px` through it; their outputs, in order, into `out`.
@@ -543,17 +508,9 @@ impl Session {
             for p in batch {
                 p.encode(&mut self.buf);
             }
-            if let Err(e) = self
-                .stdin
-                .write_all(&self.buf)
-                .and_then(|_| self.stdin.flush())
-            {
-                return Err(self.failed("writing to the model", e));
-            }
+            self.running.send(&self.buf)?;
             for _ in batch {
-                if let Err(e) = self.stdout.read_exact(&mut rec) {
-                    return Err(self.failed("reading the model's output", e));
-                }
+                self.running.read(&mut rec)?;
                 out.push(Out::decode(&rec));
             }
         }
@@ -561,25 +518,7 @@ impl Session {
     }
 
     /// Ends the model's run: it must exit cleanly.
-    pub fn finish(mut self) -> Result<(), ModelError> {
-        if let Err(e) = self
-            .stdin
-            .write_all(&0u32.to_le_bytes())
-            .and_then(|_| self.stdin.flush())
-        {
-            return Err(self.failed("writing to the model", e));
-        }
-        drop(self.stdin);
-        let status = self.child.wait()?;
-        if !status.success() {
-            let mut err = String::new();
-            if let Some(mut s) = self.child.stderr.take() {
-                let _ = s.read_to_string(&mut err);
-            }
-            return Err(ModelError::Run(format!(
-                "the model exited with {status}: {err}"
-            )));
-        }
-        Ok(())
+    pub fn finish(self) -> Result<(), ModelError> {
+        self.running.finish(None, None)
     }
 }

@@ -217,13 +217,114 @@ impl Model {
         Model::build(&Sources::codec_repo(), &cache_dir())
     }
 
-    /// Starts the model with piped stdin and stdout.
-    pub(crate) fn spawn(&self) -> Result<std::process::Child, ModelError> {
-        Ok(Command::new(&self.exe)
+    /// Starts the model with piped stdin, stdout and stderr.
+    pub(crate) fn start(&self) -> Result<Running, ModelError> {
+        let mut child = Command::new(&self.exe)
             .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
-            .spawn()?)
+            .spawn()?;
+        let (Some(stdin), Some(stdout)) = (child.stdin.take(), child.stdout.take()) else {
+            let _ = child.kill();
+            return Err(ModelError::Run("the model's pipes are missing".into()));
+        };
+        Ok(Running {
+            child,
+            stdin: Some(stdin),
+            stdout,
+        })
+    }
+}
+
+/// A running model: its pipes, and how a run ends (the model's stderr in every error).
+pub(crate) struct Running {
+    child: std::process::Child,
+    /// `None` once handed to a writer thread ([`Running::take_stdin`]) or closed.
+    stdin: Option<std::process::ChildStdin>,
+    stdout: std::process::ChildStdout,
+}
+
+impl Running {
+    /// Stops the model and describes the failure, with what it printed on stderr.
+    fn failed(&mut self, what: &str, e: impl std::fmt::Display) -> ModelError {
+        let _ = self.child.kill();
+        ModelError::Run(format!("{what}: {e} {}", self.stderr()))
+    }
+
+    fn stderr(&mut self) -> String {
+        let mut err = String::new();
+        if let Some(mut s) = self.child.stderr.take() {
+            let _ = std::io::Read::read_to_string(&mut s, &mut err);
+        }
+        err
+    }
+
+    /// Sends `b` (and flushes).
+    pub(crate) fn send(&mut self, b: &[u8]) -> Result<(), ModelError> {
+        use std::io::Write;
+        let res = match self.stdin.as_mut() {
+            Some(s) => s.write_all(b).and_then(|_| s.flush()),
+            None => Err(std::io::ErrorKind::BrokenPipe.into()),
+        };
+        res.map_err(|e| self.failed("writing to the model", e))
+    }
+
+    /// Reads exactly `b.len()` bytes of output.
+    pub(crate) fn read(&mut self, b: &mut [u8]) -> Result<(), ModelError> {
+        std::io::Read::read_exact(&mut self.stdout, b)
+            .map_err(|e| self.failed("reading the model's output", e))
+    }
+
+    /// Stops the model with `why` (its output made no sense).
+    pub(crate) fn refuse(&mut self, why: String) -> ModelError {
+        let _ = self.child.kill();
+        ModelError::Run(why)
+    }
+
+    /// The input pipe, for a writer thread (the batch runs write ahead while they read).
+    pub(crate) fn take_stdin(&mut self) -> Option<std::process::ChildStdin> {
+        self.stdin.take()
+    }
+
+    /// The output pipe.
+    pub(crate) fn stdout(&mut self) -> &mut std::process::ChildStdout {
+        &mut self.stdout
+    }
+
+    /// Ends the run: the end record (tag 0) if this side still holds the input, then the
+    /// model must exit cleanly. `read`: the first error reading its output, `wrote`: how a
+    /// writer thread ended, if the run had them.
+    pub(crate) fn finish(
+        mut self,
+        read: Option<std::io::Error>,
+        wrote: Option<std::thread::Result<std::io::Result<()>>>,
+    ) -> Result<(), ModelError> {
+        if self.stdin.is_some() {
+            self.send(&0u32.to_le_bytes())?;
+            self.stdin = None;
+        }
+        let status = self.child.wait()?;
+        if let Some(e) = read {
+            let err = self.stderr();
+            return Err(ModelError::Run(format!(
+                "reading the model's output: {e} {err}"
+            )));
+        }
+        match wrote {
+            None | Some(Ok(Ok(()))) => {}
+            Some(Ok(Err(e))) => {
+                let err = self.stderr();
+                return Err(ModelError::Run(format!("writing to the model: {e} {err}")));
+            }
+            Some(Err(_)) => return Err(ModelError::Run("the vector writer panicked".into())),
+        }
+        if !status.success() {
+            let err = self.stderr();
+            return Err(ModelError::Run(format!(
+                "the model exited with {status}: {err}"
+            )));
+        }
+        Ok(())
     }
 }
 
