@@ -163,6 +163,11 @@ fn bench_json_has_every_figure() {
         num(&v, "flash_bytes") >= num(&v, "elf_sections.text") + num(&v, "elf_sections.itcm"),
         "{v}"
     );
+    // The frame grabber's flash budget (README, firmware table): 64 KiB, whatever the geometry.
+    assert!(
+        num(&v, "flash_bytes") <= 65_536.0,
+        "the firmware's flash is over its 64 KiB budget: {v}"
+    );
     assert_eq!(
         std::fs::metadata(&stream).unwrap().len() as f64,
         num(&v, "stream.bytes")

@@ -130,6 +130,7 @@ pub mod pipeline;
 pub mod row;
 pub mod sink;
 pub mod solve;
+mod wide;
 
 pub use fixed;
 pub use frames::{Config, Trigger};

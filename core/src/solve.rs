@@ -22,6 +22,7 @@
 //! times the noise gain for random non-uniform shift sets.
 
 use crate::phase::sincos;
+use crate::wide;
 use fixed::types::U8F8;
 
 /// Largest number of observations per board row.
@@ -96,7 +97,7 @@ impl Window {
         // L = n / (2 g^2) on A; on the scaled sums (n^2 2^48 A) with g = g_q8 / 256:
         // Lq = n^3 2^48 2^16 / (2 g_q8^2) = n^3 2^63 / g_q8^2.
         let n3 = (nn * nn * nn) as i128;
-        let lq = (n3 << 63) / (g * g);
+        let lq = wide::div((n3 << 63) as u128, (g * g) as u128) as i128;
         let (a, b, d) = (suu as i128, suw as i128, sww as i128);
         if a < lq || d < lq || (a - lq) * (d - lq) < b * b {
             return Err(SolveError::IllConditioned);
@@ -118,19 +119,12 @@ impl Window {
             let (uj, wj) = (u[j] as i128, w[j] as i128);
             let num2 = (d * uj - b * wj) * nn as i128;
             let num3 = (a * wj - b * uj) * nn as i128;
-            win.p2[j] = to_i32(div_round(num2, dq)).ok_or(SolveError::IllConditioned)?;
-            win.p3[j] = to_i32(div_round(num3, dq)).ok_or(SolveError::IllConditioned)?;
+            win.p2[j] =
+                to_i32(wide::div_round(num2, dq as u128)).ok_or(SolveError::IllConditioned)?;
+            win.p3[j] =
+                to_i32(wide::div_round(num3, dq as u128)).ok_or(SolveError::IllConditioned)?;
         }
         Ok(win)
-    }
-}
-
-/// Rounded division, halves away from zero; `den > 0`.
-fn div_round(num: i128, den: i128) -> i128 {
-    if num >= 0 {
-        (num + den / 2) / den
-    } else {
-        -((-num + den / 2) / den)
     }
 }
 

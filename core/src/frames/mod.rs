@@ -134,8 +134,8 @@ impl Config {
     pub fn offset(&self, latch: i64) -> i64 {
         let q = (self.counts_per_pixel.to_bits() as i128).max(1);
         let num = ((latch as i128) << 17) + q;
-        num.div_euclid(2 * q)
-            .clamp(-(MAX_OFFSET as i128), MAX_OFFSET as i128) as i64
+        crate::wide::div_floor(num, 2 * q as u128).clamp(-(MAX_OFFSET as i128), MAX_OFFSET as i128)
+            as i64
     }
 
     /// FNV-1a 64 of the configuration and the reference-phase table, the stream header's
