@@ -483,8 +483,10 @@ impl Sampler<'_> {
         let (b, c) = match self.places {
             Some((pl, inv)) => match row_at(&pl.along, inv, b, hint) {
                 Some(b) => {
-                    // `b >= 0` (a row of `along`): truncation is its floor.
-                    let i = b as usize;
+                    // `b >= 0` (a row of `along`): truncation is its floor. Through i64: the
+                    // saturating f64 -> u64 conversion is several instructions more on x86-64,
+                    // and `b` is far below 2^63.
+                    let i = b as i64 as usize;
                     let f = b - i as f64;
                     let a0 = pl.across.get(i).copied().unwrap_or(0.0);
                     let a1 = pl.across.get(i + 1).copied().unwrap_or(a0);
@@ -500,8 +502,9 @@ impl Sampler<'_> {
             return Pixel::Invalid;
         }
         // Both non-negative here: truncation is the floor (no libm `floor` call in the
-        // hot loop; the x86-64 baseline has no rounding instruction).
-        let (b0, c0) = (b as usize, c as usize);
+        // hot loop; the x86-64 baseline has no rounding instruction), and far below 2^63
+        // (through i64, as above).
+        let (b0, c0) = (b as i64 as usize, c as i64 as usize);
         let (b1, c1) = ((b0 + 1).min(rows - 1), (c0 + 1).min(w - 1));
         let (fb, fc) = (b - b0 as f64, c - c0 as f64);
         let lost = |r: usize| src.lost_rows.get(row0 + r).copied().unwrap_or(false);
