@@ -117,7 +117,7 @@ fn decodes_cleanly(what: &str, stream: &Path, png: &Path) -> u64 {
 fn reconstruct_and_decode_every_documented_intra_period() {
     let dir = tempfile::tempdir().unwrap();
     let rec = small_recording(dir.path());
-    // The reference: the core's rows as they leave it, each decoded from its own packet.
+    // The reference: the core's rows as they leave it, before any coding.
     let recording = Recording::open(&rec).unwrap();
     let mut core_rows: Vec<HeightRow> = Vec::new();
     dpsa_sim::reconstruct::reconstruct_rows(&recording, false, |r| {
@@ -163,8 +163,8 @@ fn reconstruct_and_decode_every_documented_intra_period() {
         assert_eq!(map.rows.len(), core_rows.len(), "K {k}");
         for (a, b) in map.rows.iter().zip(&core_rows) {
             assert_eq!(
-                (a.row, a.flags, &a.valid, &a.heights),
-                (b.row, b.flags, &b.valid, &b.heights),
+                (a.row, a.latch, a.flags, &a.valid, &a.heights),
+                (b.row, b.latch, b.flags, &b.valid, &b.heights),
                 "K {k}"
             );
         }

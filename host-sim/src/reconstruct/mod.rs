@@ -17,6 +17,7 @@ use dpsa_core::{
     pipeline::{Pipeline, State},
     sink::{CodedSink, Link, PacketSink, Sink},
 };
+use dpsa_stream::config::CoreConfig;
 use std::io::Write;
 
 /// Summary of one reconstruction run.
@@ -98,43 +99,52 @@ where
             "the codec intra period must be at least 1 (got 0)".into(),
         ));
     }
+    with_pipeline(rec, |core, pipe| {
+        let w = core.cfg.width as usize;
+        let mut reference = codec::ReferenceRow::new(w);
+        let enc = reference
+            .encoder(intra_period)
+            .ok_or_else(|| SimError::Core(format!("width {w} is not supported by the codec")))?;
+        let mut buf = vec![0u8; packets::max_packet_len(w)];
+        let mut sink = PacketSink::new(link, enc, &mut buf);
+        sink.set_run_id(rec.run_id());
+        let frames = &rec.manifest.frames;
+        let bar = progress_bar(progress, frames.len() as u64, "reconstruct");
+        let high = match coder {
+            None => drive(rec, pipe, fe, &mut sink, &bar)?,
+            Some(coder) => {
+                let mut coded = CodedSink {
+                    sink: &mut sink,
+                    coder,
+                };
+                drive(rec, pipe, fe, &mut coded, &bar)?
+            }
+        };
+        bar.finish_and_clear();
+        sink.flush()
+            .map_err(|e| SimError::Core(format!("flushing the packet stream: {e}")))?;
+        let stats = RunStats {
+            frames: rec.manifest.frames.len(),
+            packets: sink.packets(),
+            bytes: sink.bytes(),
+            state_bytes: core.layout().bytes(),
+            pool_high_water: high,
+        };
+        Ok((stats, sink.into_link()))
+    })
+}
+
+/// The core's pipeline for `rec` (its configuration, tables and state), handed to `f`.
+fn with_pipeline<T>(
+    rec: &Recording,
+    f: impl FnOnce(&CoreConfig, &mut Pipeline<'_>) -> Result<T>,
+) -> Result<T> {
     let core = config(&rec.manifest)?;
-    let cfg = core.cfg;
-    let mut state = State::new(&cfg);
+    let mut state = State::new(&core.cfg);
     let mut pipe =
-        Pipeline::with_column_scale(cfg, &core.ref_phase, core.columns(), state.memory())
+        Pipeline::with_column_scale(core.cfg, &core.ref_phase, core.columns(), state.memory())
             .map_err(|e| SimError::Core(format!("cannot build the pipeline: {e}")))?;
-    let w = cfg.width as usize;
-    let mut reference = codec::ReferenceRow::new(w);
-    let enc = reference
-        .encoder(intra_period)
-        .ok_or_else(|| SimError::Core(format!("width {w} is not supported by the codec")))?;
-    let mut buf = vec![0u8; packets::max_packet_len(w)];
-    let mut sink = PacketSink::new(link, enc, &mut buf);
-    sink.set_run_id(rec.run_id());
-    let frames = &rec.manifest.frames;
-    let bar = progress_bar(progress, frames.len() as u64, "reconstruct");
-    let high = match coder {
-        None => drive(rec, &mut pipe, fe, &mut sink, &bar)?,
-        Some(coder) => {
-            let mut coded = CodedSink {
-                sink: &mut sink,
-                coder,
-            };
-            drive(rec, &mut pipe, fe, &mut coded, &bar)?
-        }
-    };
-    bar.finish_and_clear();
-    sink.flush()
-        .map_err(|e| SimError::Core(format!("flushing the packet stream: {e}")))?;
-    let stats = RunStats {
-        frames: rec.manifest.frames.len(),
-        packets: sink.packets(),
-        bytes: sink.bytes(),
-        state_bytes: core.layout().bytes(),
-        pool_high_water: high,
-    };
-    Ok((stats, sink.into_link()))
+    f(&core, &mut pipe)
 }
 
 /// Every frame of `rec` through `pipe` (its per-pixel stages in `fe` when given) into `sink`;
@@ -173,56 +183,65 @@ where
 }
 
 /// Runs the fixed-point core on a recording and hands each row to `each` as it leaves the
-/// core, decoded from its own packet (so the rows are exactly what the stream carries), in
-/// increasing board-row order; nothing is kept. Gap records (rows no frame showed) are not
-/// rows and are not handed over. `each` failing stops the run with its error.
+/// core, in increasing board-row order; nothing is kept. Gap records (rows no frame showed)
+/// are not rows and are not handed over. `each` failing stops the run with its error.
+///
+/// The rows are taken from the pipeline as its sink receives them, not coded into packets and
+/// decoded again: the row codec is lossless, so they are the rows the core's stream carries
+/// (`reconstruct_and_decode_every_documented_intra_period` in `cli/tests/intra_period.rs`
+/// holds that, header and pixels, for every intra period), and the round trip cost about a
+/// third of the host core's time (issue 22). Returns the frames fed.
 pub fn reconstruct_rows(
     rec: &Recording,
     progress: bool,
     each: impl FnMut(HeightRow) -> Result<()>,
-) -> Result<RunStats> {
-    let w = rec.manifest.camera.width as usize;
-    let link = RowLink {
-        reference: codec::ReferenceRow::new(w),
-        each,
-    };
-    Ok(run_link(rec, link, packets::STREAM_INTRA_PERIOD, progress)?.0)
-}
-
-/// A [`Link`] that decodes every row packet it is given and passes the row on.
-struct RowLink<F> {
-    reference: codec::ReferenceRow,
-    each: F,
-}
-
-impl<F: FnMut(HeightRow) -> Result<()>> Link for RowLink<F> {
-    type Error = String;
-    fn send(&mut self, bytes: &[u8]) -> std::result::Result<(), String> {
-        let (p, _) = packets::decode(bytes)
-            .map_err(|e| format!("internal error: the core's own packet does not decode: {e}"))?;
-        if p.kind != packets::Kind::Row {
-            return Ok(());
+) -> Result<usize> {
+    with_pipeline(rec, |_, pipe| {
+        let bar = progress_bar(progress, rec.manifest.frames.len() as u64, "reconstruct");
+        let mut sink = RowSink { each, error: None };
+        let run = drive(rec, pipe, None, &mut sink, &bar);
+        bar.finish_and_clear();
+        // `each`'s own error, not the pipeline's report of a failed sink.
+        if let Some(e) = sink.error {
+            return Err(e);
         }
-        let w = p.header.width as usize;
-        let mut heights = vec![0i16; w];
-        let mut bits = vec![0u8; w.div_ceil(8)];
-        let mut dec = self
-            .reference
-            .decoder()
-            .ok_or_else(|| format!("width {w} is not supported by the codec"))?;
-        p.unpack(&mut dec, &mut heights, &mut bits)
-            .map_err(|e| format!("internal error: the core's own row does not decode: {e}"))?;
-        let row = HeightRow {
-            row: p.header.row,
-            latch: p.header.latch,
-            flags: p.header.flags,
-            heights,
-            valid: (0..w).map(|c| bits[c / 8] & (1 << (c % 8)) != 0).collect(),
-        };
-        (self.each)(row).map_err(|e| crate::error::chain(&e))
+        run?;
+        Ok(rec.manifest.frames.len())
+    })
+}
+
+/// A [`Sink`] that hands every row on as a [`HeightRow`].
+struct RowSink<F> {
+    each: F,
+    /// What `each` reported when it failed (the pipeline stops at the failed row).
+    error: Option<SimError>,
+}
+
+/// A [`RowSink`]'s failure as the pipeline reports it (the error itself is kept in the sink).
+#[derive(Debug)]
+struct RowsStopped;
+
+impl std::fmt::Display for RowsStopped {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("the rows' consumer stopped")
     }
-    fn flush(&mut self) -> std::result::Result<(), String> {
-        Ok(())
+}
+
+impl<F: FnMut(HeightRow) -> Result<()>> Sink for RowSink<F> {
+    type Error = RowsStopped;
+    fn row(&mut self, row: &dpsa_core::Row<'_>) -> std::result::Result<(), RowsStopped> {
+        let w = row.header.width as usize;
+        let r = HeightRow {
+            row: row.header.row,
+            latch: row.header.latch,
+            flags: row.header.flags,
+            heights: row.heights[..w.min(row.heights.len())].to_vec(),
+            valid: (0..w).map(|c| row.is_valid(c)).collect(),
+        };
+        (self.each)(r).map_err(|e| {
+            self.error = Some(e);
+            RowsStopped
+        })
     }
 }
 
@@ -242,4 +261,79 @@ pub fn reconstruct_map(rec: &Recording, progress: bool) -> Result<(RunStats, Vec
         )));
     }
     Ok((stats, bytes, map))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::simulation::scene::{Scene, Stall};
+    use crate::simulation::simulate::simulate;
+
+    /// A small recording with jitter, a stall and saturated deposits (rows of every flag the
+    /// scene can make).
+    fn recording(dir: &std::path::Path) -> Recording {
+        let scene = Scene {
+            width: 40,
+            board_length: 300,
+            deposits: 10,
+            jitter_pct: 30.0,
+            saturation: Some(2500),
+            stalls: vec![Stall {
+                frame: 12,
+                frames: 3,
+            }],
+            ..Scene::default()
+        };
+        let out = dir.join("rec");
+        simulate(&scene, 3, &out, false).unwrap();
+        Recording::open(&out).unwrap()
+    }
+
+    /// The rows handed on are those of the core's own stream, decoded: header and pixels.
+    #[test]
+    fn the_rows_are_the_streams_rows() {
+        let dir = tempfile::tempdir().unwrap();
+        let rec = recording(dir.path());
+        let mut rows = Vec::new();
+        let frames = reconstruct_rows(&rec, false, |r| {
+            rows.push(r);
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(frames, rec.manifest.frames.len());
+        let (_, bytes) = reconstruct_bytes(&rec, false).unwrap();
+        let (map, rep) =
+            crate::stream::decode_stream(&bytes, rec.manifest.calibration.height_lsb_um);
+        assert_eq!(rep.corrupt, 0);
+        assert!(rows.len() > 200, "{} rows", rows.len());
+        assert_eq!(map.rows.len(), rows.len());
+        for (a, b) in map.rows.iter().zip(&rows) {
+            assert_eq!(
+                (a.row, a.latch, a.flags, &a.valid, &a.heights),
+                (b.row, b.latch, b.flags, &b.valid, &b.heights)
+            );
+        }
+        // Saturated and invalid pixels and flagged rows are among them.
+        assert!(rows.iter().any(|r| r.flags != 0), "no flagged row");
+        assert!(rows.iter().any(|r| r.valid.iter().any(|v| !v)));
+    }
+
+    /// A consumer that fails stops the run with its own error, and is given no row after.
+    #[test]
+    fn a_failing_consumer_stops_the_run_with_its_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let rec = recording(dir.path());
+        let mut seen = 0;
+        let e = reconstruct_rows(&rec, false, |_| {
+            seen += 1;
+            if seen == 5 {
+                Err(SimError::refused("the fifth row"))
+            } else {
+                Ok(())
+            }
+        })
+        .unwrap_err();
+        assert_eq!(seen, 5);
+        assert!(e.to_string().contains("the fifth row"), "{e}");
+    }
 }

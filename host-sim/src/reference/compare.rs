@@ -519,7 +519,7 @@ impl Comparison {
 
 /// Fixed-point core vs f64 reference vs PSP baseline vs ground truth on one recording, in
 /// memory bounded by the pipeline window: the core runs in its own thread and hands over its
-/// rows as they leave it (decoded from its own packets, through a queue of
+/// rows as they leave it (the rows its stream carries, through a queue of
 /// [`ROW_QUEUE`] rows); the reference and the PSP baseline are evaluated row by row from one
 /// window of frames; the truth is read row by row ([`CameraTruthReader`]). Each board row is folded
 /// into the [`Comparer`] and dropped.
