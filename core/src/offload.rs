@@ -61,6 +61,28 @@ pub enum Line<'l> {
     Packed(&'l [u8]),
 }
 
+impl Line<'_> {
+    /// The samples a front end keeps of this line, into `out` (`W` of them): a 12-bit pool
+    /// (`packed_pool`, [`crate::Layout::packed`]) holds wide samples clamped to 4095, as the
+    /// pool's Mono12p does; packed bytes are unpacked. A line shorter than `out` leaves the
+    /// rest of `out` at 0.
+    pub fn samples_into(&self, out: &mut [u16], packed_pool: bool) {
+        out.fill(0);
+        match *self {
+            Line::Wide(l) => {
+                for (o, &x) in out.iter_mut().zip(l) {
+                    *o = if packed_pool { x.min(4095) } else { x };
+                }
+            }
+            Line::Packed(b) => {
+                if b.len() >= crate::frames::mono12p::packed_len(out.len()) {
+                    crate::frames::mono12p::unpack(b, out);
+                }
+            }
+        }
+    }
+}
+
 /// A completed row for a [`FrontEnd`]: which kept lines, which window, which row phase.
 #[derive(Clone, Copy, Debug)]
 pub struct RowJob<'j> {

@@ -1345,18 +1345,9 @@ mod tests {
 
     impl Mirror {
         fn samples(&self, line: Line<'_>) -> Vec<u16> {
-            match line {
-                // A 12-bit pool keeps samples clamped to 4095, as the pool's Mono12p does.
-                Line::Wide(l) if Layout::of(&self.cfg).packed => {
-                    l.iter().map(|&x| x.min(4095)).collect()
-                }
-                Line::Wide(l) => l.to_vec(),
-                Line::Packed(b) => {
-                    let mut l = vec![0u16; self.cfg.width as usize];
-                    mono12p::unpack(b, &mut l);
-                    l
-                }
-            }
+            let mut l = vec![0u16; self.cfg.width as usize];
+            line.samples_into(&mut l, Layout::of(&self.cfg).packed);
+            l
         }
     }
 

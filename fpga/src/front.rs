@@ -31,7 +31,7 @@
 use std::io::Write;
 
 use dpsa_core::accumulate::Coef;
-use dpsa_core::frames::{mono12p, Config};
+use dpsa_core::frames::Config;
 use dpsa_core::height::{ColumnScale, Scale};
 use dpsa_core::offload::{FrontEnd, FrontEndError, Line, RowCoder, RowJob};
 use dpsa_core::row::flags;
@@ -60,6 +60,59 @@ fn log_header(magic: [u8; 4], width: u16, run_id: u64) -> [u8; LOG_HEADER_LEN] {
     h
 }
 
+/// What [`Fabric`] and [`Coder`] share: the log they write (when asked) and their first
+/// failure, which sticks (a stage that failed fails every later call at once, and
+/// `error` says why).
+#[derive(Default)]
+struct Trail {
+    log: Option<Box<dyn Write>>,
+    error: Option<String>,
+}
+
+impl Trail {
+    /// Writes the log's `header` to `log` and keeps it for the records.
+    fn start(&mut self, mut log: Box<dyn Write>, header: &[u8]) -> Result<(), ModelError> {
+        log.write_all(header)?;
+        self.log = Some(log);
+        Ok(())
+    }
+
+    /// Whether records are written (build one only then).
+    fn logging(&self) -> bool {
+        self.log.is_some()
+    }
+
+    /// Appends one record to the log, `what` naming it in the error.
+    fn record(&mut self, rec: &[u8], what: &str) -> Result<(), String> {
+        match self.log.as_mut() {
+            Some(log) => log
+                .write_all(rec)
+                .map_err(|e| format!("writing {what}: {e}")),
+            None => Ok(()),
+        }
+    }
+
+    fn failed(&self) -> bool {
+        self.error.is_some()
+    }
+
+    /// A call's result as the pipeline sees it, its failure kept.
+    fn stick<T>(&mut self, r: Result<T, String>) -> Result<T, FrontEndError> {
+        r.map_err(|e| {
+            self.error = Some(e);
+            FrontEndError::Failed
+        })
+    }
+
+    /// Flushes and closes the log.
+    fn flush(&mut self) -> Result<(), ModelError> {
+        if let Some(mut log) = self.log.take() {
+            log.flush()?;
+        }
+        Ok(())
+    }
+}
+
 /// Bytes of one row record of the fabric log for rows of `width` pixels.
 pub fn record_len(width: usize) -> usize {
     12 + 2 * width + width.div_ceil(8)
@@ -77,12 +130,11 @@ pub struct Fabric {
     /// Whether the pool keeps 12-bit (Mono12p) lines.
     packed: bool,
     pool: Vec<Vec<u16>>,
-    log: Option<Box<dyn Write>>,
+    trail: Trail,
     /// Rows and pixels computed.
     pub rows: u64,
     /// Pixels computed.
     pub pixels: u64,
-    error: Option<String>,
     outs: Vec<Out>,
     px: Vec<Pixel>,
 }
@@ -132,10 +184,9 @@ impl Fabric {
             k,
             packed: dpsa_core::Layout::of(&cfg).packed,
             pool: Vec::new(),
-            log: None,
+            trail: Trail::default(),
             rows: 0,
             pixels: 0,
-            error: None,
             outs: Vec::new(),
             px: Vec::new(),
         })
@@ -143,41 +194,27 @@ impl Fabric {
 
     /// Writes the fabric log of this run to `log` (its header now, a record per row), for
     /// the recording `run_id`.
-    pub fn log_to(&mut self, mut log: Box<dyn Write>, run_id: u64) -> Result<(), ModelError> {
-        log.write_all(&log_header(LOG_MAGIC, self.cfg.width, run_id))?;
-        self.log = Some(log);
-        Ok(())
+    pub fn log_to(&mut self, log: Box<dyn Write>, run_id: u64) -> Result<(), ModelError> {
+        self.trail
+            .start(log, &log_header(LOG_MAGIC, self.cfg.width, run_id))
     }
 
     /// The first failure of the model or the log, if any (a failed row is reported to the
     /// pipeline as [`FrontEndError::Failed`]; this says why).
     pub fn error(&self) -> Option<&str> {
-        self.error.as_deref()
+        self.trail.error.as_deref()
     }
 
     /// Ends the model's run and flushes the log.
     pub fn finish(mut self) -> Result<(), ModelError> {
-        if let Some(mut log) = self.log.take() {
-            log.flush()?;
-        }
+        self.trail.flush()?;
         self.session.finish()
     }
 
     fn samples(&self, line: Line<'_>) -> Vec<u16> {
-        let w = self.cfg.width as usize;
-        match line {
-            Line::Wide(l) if self.packed => {
-                l[..w.min(l.len())].iter().map(|&x| x.min(4095)).collect()
-            }
-            Line::Wide(l) => l[..w.min(l.len())].to_vec(),
-            Line::Packed(b) => {
-                let mut l = vec![0u16; w];
-                if b.len() >= mono12p::packed_len(w) {
-                    mono12p::unpack(b, &mut l);
-                }
-                l
-            }
-        }
+        let mut l = vec![0u16; self.cfg.width as usize];
+        line.samples_into(&mut l, self.packed);
+        l
     }
 
     fn compute(
@@ -248,7 +285,7 @@ impl Fabric {
         }
         self.rows += 1;
         self.pixels += w as u64;
-        if let Some(log) = self.log.as_mut() {
+        if self.trail.logging() {
             let mut rec = Vec::with_capacity(record_len(w));
             rec.extend(job.row.to_le_bytes());
             rec.extend(fl.to_le_bytes());
@@ -257,8 +294,7 @@ impl Fabric {
                 rec.extend(h.to_le_bytes());
             }
             rec.extend(&valid[..w.div_ceil(8)]);
-            log.write_all(&rec)
-                .map_err(|e| format!("writing the fabric log: {e}"))?;
+            self.trail.record(&rec, "the fabric log")?;
         }
         Ok(fl)
     }
@@ -281,13 +317,11 @@ impl FrontEnd for Fabric {
         heights: &mut [i16],
         valid: &mut [u8],
     ) -> Result<u16, FrontEndError> {
-        if self.error.is_some() {
+        if self.trail.failed() {
             return Err(FrontEndError::Failed);
         }
-        self.compute(job, last, heights, valid).map_err(|e| {
-            self.error = Some(e);
-            FrontEndError::Failed
-        })
+        let r = self.compute(job, last, heights, valid);
+        self.trail.stick(r)
     }
 }
 
@@ -295,7 +329,7 @@ impl FrontEnd for Fabric {
 pub struct Coder {
     session: crate::codec::Session,
     width: usize,
-    log: Option<Box<dyn Write>>,
+    trail: Trail,
     payload: Vec<u8>,
     /// Rows coded.
     pub rows: u64,
@@ -303,7 +337,6 @@ pub struct Coder {
     pub bytes: u64,
     /// Clocks the model took, summed over the rows (first pixel in to last word out).
     pub clocks: u64,
-    error: Option<String>,
 }
 
 impl Coder {
@@ -312,32 +345,28 @@ impl Coder {
         Ok(Coder {
             session: crate::codec::Session::start(model, width, intra_period)?,
             width,
-            log: None,
+            trail: Trail::default(),
             payload: Vec::new(),
             rows: 0,
             bytes: 0,
             clocks: 0,
-            error: None,
         })
     }
 
     /// Writes the payload log to `log` for the recording `run_id`.
-    pub fn log_to(&mut self, mut log: Box<dyn Write>, run_id: u64) -> Result<(), ModelError> {
-        log.write_all(&log_header(PAYLOAD_MAGIC, self.width as u16, run_id))?;
-        self.log = Some(log);
-        Ok(())
+    pub fn log_to(&mut self, log: Box<dyn Write>, run_id: u64) -> Result<(), ModelError> {
+        self.trail
+            .start(log, &log_header(PAYLOAD_MAGIC, self.width as u16, run_id))
     }
 
     /// The first failure of the model or the log, if any.
     pub fn error(&self) -> Option<&str> {
-        self.error.as_deref()
+        self.trail.error.as_deref()
     }
 
     /// Ends the model's run and flushes the log.
     pub fn finish(mut self) -> Result<(), ModelError> {
-        if let Some(mut log) = self.log.take() {
-            log.flush()?;
-        }
+        self.trail.flush()?;
         self.session.finish()
     }
 
@@ -354,13 +383,12 @@ impl Coder {
         self.rows += 1;
         self.bytes += len as u64;
         self.clocks += u64::from(self.session.clocks);
-        if let Some(log) = self.log.as_mut() {
+        if self.trail.logging() {
             let mut rec = Vec::with_capacity(12 + len);
             rec.extend(row.header.row.to_le_bytes());
             rec.extend((len as u32).to_le_bytes());
             rec.extend(&self.payload);
-            log.write_all(&rec)
-                .map_err(|e| format!("writing the payload log: {e}"))?;
+            self.trail.record(&rec, "the payload log")?;
         }
         Ok(len)
     }
@@ -368,12 +396,10 @@ impl Coder {
 
 impl RowCoder for Coder {
     fn code(&mut self, row: &Row<'_>, payload: &mut [u8]) -> Result<usize, FrontEndError> {
-        if self.error.is_some() {
+        if self.trail.failed() {
             return Err(FrontEndError::Failed);
         }
-        self.code_row(row, payload).map_err(|e| {
-            self.error = Some(e);
-            FrontEndError::Failed
-        })
+        let r = self.code_row(row, payload);
+        self.trail.stick(r)
     }
 }
