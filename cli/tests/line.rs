@@ -618,6 +618,58 @@ fn sigterm_finishes_the_board_in_progress_then_exits() {
     assert_offline(board_of(&boards, sent["run_ids"][0].as_str().unwrap()));
 }
 
+/// The cameras' addresses of a line configuration (`listen = "..."`), in camera order.
+fn listen_addrs(cfg: &Path) -> Vec<String> {
+    std::fs::read_to_string(cfg)
+        .unwrap()
+        .lines()
+        .filter_map(|l| l.trim().strip_prefix("listen = \""))
+        .map(|l| l.trim_end_matches('"').to_string())
+        .collect()
+}
+
+/// Cameras do not connect at the same instant: a camera of the board in progress that
+/// connects after `SIGTERM` is still taken, and the board ends whole.
+#[test]
+fn sigterm_still_takes_a_late_camera_of_the_board_in_progress() {
+    use std::io::Write;
+    let f = fixture();
+    let dir = f.dir.join("sigterm-late");
+    let cfg = line_config(&dir, |t| t);
+    let addrs = listen_addrs(&cfg);
+    assert_eq!(addrs.len(), 3, "{addrs:?}");
+    let stream = |i: usize| std::fs::read(f.streams.join(format!("cam{i}.dpsa"))).unwrap();
+    let send = |i: usize| {
+        // The line may not listen yet just after its start.
+        let t0 = Instant::now();
+        let mut c = loop {
+            match std::net::TcpStream::connect(&addrs[i]) {
+                Ok(c) => break c,
+                Err(e) if t0.elapsed() > Duration::from_secs(30) => panic!("camera {i}: {e}"),
+                Err(_) => std::thread::sleep(Duration::from_millis(50)),
+            }
+        };
+        c.write_all(&stream(i)).unwrap();
+        c.shutdown(std::net::Shutdown::Write).unwrap();
+        c
+    };
+    let run = start(&cfg, None);
+    // Camera 0's whole stream: the board is open, waiting for the others.
+    let c0 = send(0);
+    wait_for_state(&cfg, "open");
+    signal(&run, "-TERM");
+    // The line looks at its signals every 100 ms: it is stopping when the others come.
+    std::thread::sleep(Duration::from_millis(500));
+    let late: Vec<_> = (1..3).map(send).collect();
+    let summary = wait(run, 60, &cfg);
+    drop((c0, late));
+    assert_eq!(summary["boards"], 1, "{summary}");
+    assert_eq!(summary["incomplete"], 0, "{summary}");
+    let boards = stored(&cfg);
+    assert_eq!(boards.len(), 1, "{boards:?}");
+    assert_offline(&boards[0]);
+}
+
 /// `SIGINT` twice: the line exits at once (status 130); the board in progress is found open
 /// at the next start and recorded incomplete.
 #[test]
@@ -662,12 +714,7 @@ fn three_qemu_frame_grabbers_feed_the_line() {
     let f = fixture();
     let dir = f.dir.join("qemu");
     let cfg = line_config(&dir, |t| t);
-    let text = std::fs::read_to_string(&cfg).unwrap();
-    let addrs: Vec<String> = text
-        .lines()
-        .filter_map(|l| l.trim().strip_prefix("listen = \""))
-        .map(|l| l.trim_end_matches('"').to_string())
-        .collect();
+    let addrs = listen_addrs(&cfg);
     let run = start(&cfg, Some(1));
     let grabbers: Vec<_> = addrs
         .iter()

@@ -2,8 +2,11 @@
 //! thread per connection ([`crate::link`]), the boards on this thread ([`crate::boards`]), the
 //! store on the keeper's ([`crate::keeper`]).
 //!
-//! Stopping: `SIGTERM` (or a first `SIGINT`) stops taking new connections, lets the boards in
-//! progress end (finished, or incomplete by their timeouts), stores them and exits; a second
+//! Stopping: `SIGTERM` (or a first `SIGINT`) takes no new board (a stream of a board not yet
+//! begun is dropped), lets the boards in progress end (finished, or incomplete by their
+//! timeouts), stores them and exits. The ports stay open until then: a camera of a board in
+//! progress may connect after the signal (cameras do not connect at the same instant) and its
+//! stream is taken. A second
 //! `SIGINT` exits at once: what is stored stays (every board is one transaction; WAL), a board
 //! in progress is found `open` on the next start and recorded incomplete.
 
@@ -159,20 +162,15 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
         .spawn(move || keeper.run(job_rx))
         .map_err(|e| LineError::Io(format!("cannot start the keeper: {e}")))?;
 
-    let accepting = Arc::new(AtomicBool::new(true));
     let stop_links = Arc::new(AtomicBool::new(false));
     let (tx, rx) = mpsc::channel::<Event>();
     let conn_ids = Arc::new(AtomicUsize::new(1));
     let mut acceptors = Vec::new();
     for (l, setup) in listeners.into_iter().zip(links) {
-        let (tx, accepting, stop_links, conn_ids) = (
-            tx.clone(),
-            Arc::clone(&accepting),
-            Arc::clone(&stop_links),
-            Arc::clone(&conn_ids),
-        );
+        let (tx, stop_links, conn_ids) =
+            (tx.clone(), Arc::clone(&stop_links), Arc::clone(&conn_ids));
         acceptors.push(std::thread::spawn(move || {
-            accept(l, setup, tx, &accepting, &stop_links, &conn_ids)
+            accept(l, setup, tx, &stop_links, &conn_ids)
         }));
     }
     drop(tx);
@@ -192,11 +190,10 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
             || opts.boards.is_some_and(|n| ended(&tally) >= n);
         if asked && !stopping {
             stopping = true;
-            accepting.store(false, Ordering::Relaxed);
             boards.close_doors();
             tracing::info!(
                 open = boards.open(),
-                "stopping: no new connection; the boards in progress end first"
+                "stopping: no new board; the boards in progress end first"
             );
         }
         if stopping && boards.open() == 0 {
@@ -243,14 +240,15 @@ fn accept(
     l: TcpListener,
     setup: LinkSetup,
     tx: mpsc::Sender<Event>,
-    accepting: &AtomicBool,
     stop: &Arc<AtomicBool>,
     conn_ids: &AtomicUsize,
 ) {
     let live = Arc::new(AtomicUsize::new(0));
     let setup = Arc::new(setup);
     let mut handlers = Vec::new();
-    while accepting.load(Ordering::Relaxed) {
+    // Until the line stops: while it is stopping, a connection may still bring a camera of a
+    // board in progress (a new board's stream is dropped by `Boards`).
+    while !stop.load(Ordering::Relaxed) {
         match l.accept() {
             Ok((sock, peer)) => {
                 let conn = conn_ids.fetch_add(1, Ordering::Relaxed) as u64;
