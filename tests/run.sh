@@ -31,6 +31,14 @@ if ! have verilator; then
     as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq verilator
 fi
 
+# The SPC statistics are checked against an independent numpy implementation
+# (host/spc/tests/reference.py), run with Debian's Python.
+if ! /usr/bin/python3 -c 'import numpy' >/dev/null 2>&1; then
+    echo "== numpy for /usr/bin/python3 not found: installing Debian's python3-numpy"
+    as_root apt-get update -qq
+    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq python3 python3-numpy
+fi
+
 if [ ! -d ../shared/data/real ]; then
     echo "error: ../shared/data/real (real fringe stacks used by the tests) is missing" >&2
     exit 1
@@ -47,9 +55,9 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 bash firmware/build.sh --install --clippy
 (cd fuzz && cargo fmt --check && cargo check --quiet)   # the fuzz target builds on dpsa-core alone
 
-echo "== the production binary: dpsa without the simulator (program, pads, board --streams, inspect, decode, line)"
+echo "== the production binary: dpsa without the simulator (program, pads, board --streams, inspect, decode, line, spc)"
 cargo build -p dpsa --no-default-features --locked --quiet
-for c in program pads board inspect decode line; do
+for c in program pads board inspect decode line spc; do
     if ! target/debug/dpsa help "$c" >/dev/null; then
         echo "error: the production binary has no \`$c\` command" >&2
         exit 1

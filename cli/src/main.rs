@@ -48,6 +48,7 @@ fn main() {
         // 0 clean, 2 damaged or incomplete, 3 nothing decodable (commands/decode.rs).
         Cmd::Decode(a) => commands::decode::run(a).map(exit_unless_zero),
         Cmd::Line(a) => commands::line::run(a),
+        Cmd::Spc(a) => commands::spc::run(a),
         #[cfg(feature = "sim")]
         Cmd::FrameBench(a) => commands::frame_bench::run(a),
         #[cfg(feature = "sim")]

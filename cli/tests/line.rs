@@ -316,6 +316,41 @@ fn boards_back_to_back_are_stored_as_the_offline_inspection() {
         );
     }
     assert_eq!(std::fs::read_dir(dir.join("data/cfx")).unwrap().count(), 3);
+    // `dpsa spc` reads what the line stored: the three boards, and the board chart's mean of
+    // the measured volumes equal to the stored pad rows' (pads the inspection could not
+    // measure left out).
+    let spc = ok(
+        &dpsa([
+            "spc".as_ref(),
+            "--store".as_ref(),
+            dir.join("data/line.sqlite").as_os_str(),
+            "--program".as_ref(),
+            f.board.join("program.toml").as_os_str(),
+            "--json".as_ref(),
+        ]),
+        "spc",
+    );
+    let spc: Value = serde_json::from_str(&spc).unwrap();
+    assert_eq!(spc["boards"], 3, "{spc}");
+    assert_eq!(spc["with_program"], true);
+    let vols: Vec<f64> = boards
+        .iter()
+        .flat_map(|b| b["pad_rows"].as_array().unwrap().clone())
+        .filter(|p| p["class"] != "not_measurable")
+        .filter_map(|p| p["volume_pct"].as_f64())
+        .collect();
+    let mean = vols.iter().sum::<f64>() / vols.len() as f64;
+    let vol = spc["board"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["metric"] == "Volume")
+        .unwrap();
+    assert_eq!(vol["n"], vols.len(), "{vol}");
+    assert!(
+        (vol["mean"].as_f64().unwrap() - mean).abs() < 1e-9 * mean,
+        "{vol} {mean}"
+    );
 }
 
 /// A camera that falls silent in the first board: that board is incomplete with the camera

@@ -38,6 +38,7 @@ pub mod program;
 pub mod reconstruct;
 #[cfg(feature = "sim")]
 pub mod simulate;
+pub mod spc;
 #[cfg(feature = "sim")]
 pub mod target_run;
 
@@ -124,6 +125,10 @@ pub enum Cmd {
     /// and stored (`run`); its configuration (`init`); simulated frame grabbers (`send`); the
     /// boards stored (`boards`); the store's benchmark (`store-bench`).
     Line(line::Args),
+    /// Statistical process control of the print from the line's store: per pad, component,
+    /// package family and board the capability (Cp, Cpk, Pp, Ppk), I-MR and X-bar/S charts,
+    /// Western Electric and Nelson rules, alarms; tables (CSV) and charts (SVG, PNG).
+    Spc(spc::Args),
     /// Benchmark the row codec against lz4, zstd, heatshrink and PNG on the same height rows,
     /// with the entropy of its predictor's residuals and the noise floor.
     #[cfg(feature = "sim")]

@@ -72,18 +72,8 @@ impl Placed {
             .collect();
         let bboxes: Vec<[f64; 4]> = outlines.iter().map(|o| o.outline.bbox()).collect();
         // The opening's smaller and larger size (its width and length), mm.
-        let (min_size, max_size): (Vec<f64>, Vec<f64>) = pads
-            .iter()
-            .map(|p| match &p.outline {
-                Outline::Circle { diameter, .. } => (*diameter, *diameter),
-                Outline::RoundRect { size, .. } => (size[0].min(size[1]), size[0].max(size[1])),
-                Outline::Polygon { .. } => {
-                    let b = p.outline.bbox();
-                    let (w, h) = (b[2] - b[0], b[3] - b[1]);
-                    (w.min(h), w.max(h))
-                }
-            })
-            .unzip();
+        let (min_size, max_size): (Vec<f64>, Vec<f64>) =
+            pads.iter().map(|p| opening_size(&p.outline)).unzip();
         let fids: Vec<(Point, f64)> = fiducials
             .iter()
             .map(|&f| (t.apply(f), fid_diameter / 2.0))
@@ -458,6 +448,20 @@ pub fn measure_all(
     });
     bridges(map, placed, program, &mut out);
     out
+}
+
+/// An opening's smaller and larger size (its width and length), mm: a circle's diameter, a
+/// rectangle's sides, a polygon's bounding box. Offsets are judged against the smaller.
+pub fn opening_size(outline: &Outline) -> (f64, f64) {
+    match outline {
+        Outline::Circle { diameter, .. } => (*diameter, *diameter),
+        Outline::RoundRect { size, .. } => (size[0].min(size[1]), size[0].max(size[1])),
+        Outline::Polygon { .. } => {
+            let b = outline.bbox();
+            let (w, h) = (b[2] - b[0], b[3] - b[1]);
+            (w.min(h), w.max(h))
+        }
+    }
 }
 
 /// How far inside the opening's edge its height is taken, mm: the wall width, at most a

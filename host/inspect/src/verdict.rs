@@ -46,7 +46,7 @@ impl Class {
     ];
 
     /// The class as the reports write it (snake case, as serialized).
-    pub fn name(self) -> &'static str {
+    pub const fn name(self) -> &'static str {
         match self {
             Class::NotMeasurable => "not_measurable",
             Class::Missing => "missing",
@@ -73,7 +73,7 @@ pub enum Level {
 
 impl Level {
     /// The level as the reports write it (`pass`, `warn`, `fail`).
-    pub fn name(self) -> &'static str {
+    pub const fn name(self) -> &'static str {
         match self {
             Level::Pass => "pass",
             Level::Warn => "warn",

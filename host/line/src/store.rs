@@ -678,6 +678,13 @@ pub struct StoredBoard {
     pub cameras: Vec<CameraLoss>,
 }
 
+/// Which of a line's boards to list: of one product (`None`: any), inspected only or all.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Which {
+    product: Option<String>,
+    inspected: bool,
+}
+
 /// One board of a pad's history ([`Store::pad_history`]): `(board id, run id, level,
 /// volume_pct)`.
 pub type HistoryEntry = (i64, u64, String, Option<f64>);
@@ -920,7 +927,22 @@ impl Store {
 
     /// This line's boards, newest (last begun) first, at most `limit`.
     pub fn boards(&mut self, limit: usize) -> Result<Vec<StoredBoard>, StoreError> {
-        on_backend!(&mut self.db, d => d.boards(&self.line, limit))
+        let all = Which::default();
+        on_backend!(&mut self.db, d => d.boards(&self.line, &all, limit))
+    }
+
+    /// This line's inspected boards (of `product`, or of any), newest first, at most `limit`
+    /// (through the index on line, product, state and id).
+    pub fn inspected_boards(
+        &mut self,
+        product: Option<&str>,
+        limit: usize,
+    ) -> Result<Vec<StoredBoard>, StoreError> {
+        let which = Which {
+            product: product.map(str::to_owned),
+            inspected: true,
+        };
+        on_backend!(&mut self.db, d => d.boards(&self.line, &which, limit))
     }
 
     /// One board's pads in pad order (none for a board not inspected, or pruned); the board
@@ -1101,6 +1123,7 @@ pub(crate) mod tests {
         recover_turns_open_boards_incomplete_and_leaves_finished_ones,
         check_finds_rows_written_past_the_constraints,
         pad_history_is_newest_first_and_only_inspected_boards,
+        inspected_boards_are_one_products_newest_first,
         prune_deletes_pads_and_keeps_boards_and_pad_stats,
         a_newer_schema_is_refused,
         opening_a_store_again_changes_nothing,
@@ -1574,6 +1597,38 @@ pub(crate) mod tests {
         assert_eq!(store.pad_history("a", 99, 10).unwrap(), []);
         assert_eq!(store.pad_history("a", u32::MAX, 10).unwrap(), []);
         assert_eq!(store.pad_history("b", 0, 10).unwrap()[0].0, b1);
+    }
+
+    fn inspected_boards_are_one_products_newest_first(b: Backend) {
+        let (_p, mut store) = fresh(b);
+        let a1 = inspect(&mut store, 1, "a", 3, 100.0);
+        let b1 = inspect(&mut store, 2, "b", 3, 50.0);
+        let _open = store.begin_board(&start(3, "a", 3.0)).unwrap();
+        let a2 = inspect(&mut store, 4, "a", 3, 110.0);
+        let gone = store.begin_board(&start(5, "a", 5.0)).unwrap();
+        store
+            .finish_board(
+                gone,
+                5.5,
+                &[],
+                &Outcome::Incomplete {
+                    reason: "cut".to_owned(),
+                },
+            )
+            .unwrap();
+        let ids = |v: Vec<StoredBoard>| v.into_iter().map(|x| x.id).collect::<Vec<_>>();
+        assert_eq!(
+            ids(store.inspected_boards(Some("a"), 10).unwrap()),
+            [a2, a1]
+        );
+        assert_eq!(ids(store.inspected_boards(Some("a"), 1).unwrap()), [a2]);
+        assert_eq!(ids(store.inspected_boards(None, 10).unwrap()), [a2, b1, a1]);
+        assert_eq!(
+            ids(store.inspected_boards(Some("c"), 10).unwrap()),
+            Vec::<i64>::new()
+        );
+        // `boards` still lists every state.
+        assert_eq!(store.boards(10).unwrap().len(), 5);
     }
 
     /// `(pad, boards, sum_volume_pct, fails)` of every aggregate row, by line and pad.

@@ -191,6 +191,29 @@ pub fn apply_components(
     Ok(Some(naming))
 }
 
+/// The package of each top-side component in the program's `[components]` placement file,
+/// by reference (`U7` to `QFN-32`); empty without `[components]`.
+pub fn component_packages(
+    program: &Program,
+    program_path: &Path,
+) -> Result<BTreeMap<String, String>, TeachError> {
+    let (Some(cf), Some(path)) = (
+        program.components.as_ref(),
+        program.components_path(program_path),
+    ) else {
+        return Ok(BTreeMap::new());
+    };
+    let comps = placement::read_file(&path, cf).map_err(|error| TeachError::Placement {
+        path: path.display().to_string(),
+        error,
+    })?;
+    Ok(comps
+        .into_iter()
+        .filter(|c| c.side == Side::Top)
+        .filter_map(|c| Some((c.reference, c.package?)))
+        .collect())
+}
+
 /// The family overrides: one per (package, aperture class) whose pads are all of one family
 /// with its own defaults; pads of a mixed group get one override each (by name), first.
 fn family_overrides(

@@ -20,7 +20,7 @@
 use super::schema::{self, Dialect, Step};
 use super::{
     parse_run_id, real, run_id_text, BoardStart, CameraLoss, HistoryEntry, Outcome, PadRow, PgUrl,
-    StoreError, StoredBoard, PRUNE_BOARDS_PER_TRANSACTION,
+    StoreError, StoredBoard, Which, PRUNE_BOARDS_PER_TRANSACTION,
 };
 use postgres::binary_copy::BinaryCopyInWriter;
 use postgres::error::SqlState;
@@ -584,6 +584,7 @@ impl Pg {
     pub(super) fn boards(
         &mut self,
         line: &str,
+        which: &Which,
         limit: usize,
     ) -> Result<Vec<StoredBoard>, StoreError> {
         self.ready()?;
@@ -600,10 +601,13 @@ impl Pg {
             statements,
             "SELECT id, run_id, product, program_hash, calibration_hash, started_unix_s, \
              ended_unix_s, state, verdict, incomplete_reason, pads, line \
-             FROM boards WHERE line = $1 ORDER BY id DESC LIMIT $2",
+             FROM boards WHERE line = $1 AND ($2::text IS NULL OR product = $2) \
+             AND (NOT $3 OR state = 'inspected') ORDER BY id DESC LIMIT $4",
         )
         .map_err(&err)?;
-        let rows = client.query(&s, &[&line, &limit]).map_err(&err)?;
+        let rows = client
+            .query(&s, &[&line, &which.product, &which.inspected, &limit])
+            .map_err(&err)?;
         let cams = prepared(
             client,
             statements,

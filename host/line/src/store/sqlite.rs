@@ -3,7 +3,7 @@
 use super::schema::{self, Dialect, Step};
 use super::{
     parse_run_id, real, run_id_text, BoardStart, CameraLoss, HistoryEntry, Outcome, PadRow,
-    StoreError, StoredBoard, PRUNE_BOARDS_PER_TRANSACTION,
+    StoreError, StoredBoard, Which, PRUNE_BOARDS_PER_TRANSACTION,
 };
 use rusqlite::{params, Connection, OptionalExtension, TransactionBehavior};
 use std::path::Path;
@@ -419,6 +419,7 @@ impl Sqlite {
     pub(super) fn boards(
         &mut self,
         line: &str,
+        which: &Which,
         limit: usize,
     ) -> Result<Vec<StoredBoard>, StoreError> {
         let limit = i64::try_from(limit).unwrap_or(i64::MAX);
@@ -427,11 +428,12 @@ impl Sqlite {
             .prepare_cached(
                 "SELECT id, run_id, product, program_hash, calibration_hash, started_unix_s, \
                  ended_unix_s, state, verdict, incomplete_reason, pads, line \
-                 FROM boards WHERE line = ?1 ORDER BY id DESC LIMIT ?2",
+                 FROM boards WHERE line = ?1 AND (?2 IS NULL OR product = ?2) \
+                 AND (?3 = 0 OR state = 'inspected') ORDER BY id DESC LIMIT ?4",
             )
             .map_err(self.err())?;
         let rows = s
-            .query_map(params![line, limit], |r| {
+            .query_map(params![line, which.product, which.inspected, limit], |r| {
                 Ok((
                     r.get::<_, String>(1)?,
                     StoredBoard {

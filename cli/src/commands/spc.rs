@@ -1,0 +1,259 @@
+//! `dpsa spc`: statistical process control of the print from the line's store.
+
+use super::out;
+use anyhow::{bail, Context, Result};
+use dpsa_spc::rules::Rule;
+use dpsa_spc::study::{analyse, Metric, Options, ScopeKind, Series};
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The line's store: its SQLite file (DATA/line.sqlite) or a PostgreSQL URL.
+    #[arg(long)]
+    store: String,
+    /// The line whose boards are read.
+    #[arg(long, default_value = dpsa_line::store::DEFAULT_LINE)]
+    line: String,
+    /// The product (default: the newest inspected board's).
+    #[arg(long)]
+    product: Option<String>,
+    /// The inspection program the boards were inspected under: the limits (Cp, Cpk), the
+    /// components and the package families. Without it: the pads' stored names, no limits.
+    #[arg(long)]
+    program: Option<PathBuf>,
+    /// The newest this many inspected boards.
+    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u32).range(2..=100_000))]
+    last: u32,
+    /// The first this many boards of the study set every chart's centre and limits (phase I;
+    /// the later ones are judged against them); 0: every board (retrospective).
+    #[arg(long, default_value_t = 25)]
+    baseline: u32,
+    /// The run rules read on every chart: `we` (Western Electric 1-4), `nelson` (1-8),
+    /// `all`, or a list such as `WE1,N2,N3`.
+    #[arg(long, default_value = "we")]
+    rules: String,
+    /// The scopes whose charts raise alarms: a list of board, family, component, pad.
+    #[arg(long, default_value = "board,family")]
+    alarms: String,
+    /// Output directory: the tables (CSV), alarms and charts (SVG, PNG). New, empty or an
+    /// earlier `dpsa spc` output (replaced whole).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Components and pads of lowest volume Cpk charted besides those with an alarm.
+    #[arg(long, default_value_t = 10)]
+    worst: usize,
+    /// Print the report as JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+const DIR_KIND: dpsa_formats::files::DirKind = dpsa_formats::files::DirKind {
+    format: "dpsa-spc",
+    noun: "SPC output",
+    ours: |_| false,
+};
+
+fn rules(text: &str) -> Result<Vec<Rule>> {
+    Ok(match text.to_ascii_lowercase().as_str() {
+        "we" => Rule::WESTERN_ELECTRIC.to_vec(),
+        "nelson" => Rule::NELSON.to_vec(),
+        "all" => Rule::ALL.to_vec(),
+        list => {
+            let mut v = Vec::new();
+            for id in list.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+                match Rule::from_id(id) {
+                    Some(r) if !v.contains(&r) => v.push(r),
+                    Some(_) => {}
+                    None => {
+                        bail!("--rules: {id:?} is no rule (WE1-WE4, N1-N8, or we, nelson, all)")
+                    }
+                }
+            }
+            if v.is_empty() {
+                bail!("--rules: no rule given");
+            }
+            v
+        }
+    })
+}
+
+fn scopes(text: &str) -> Result<Vec<ScopeKind>> {
+    text.split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            ScopeKind::from_id(s).with_context(|| {
+                format!("--alarms: {s:?} is no scope (board, family, component, pad)")
+            })
+        })
+        .collect()
+}
+
+fn idx(v: Option<f64>) -> String {
+    v.map_or("-".to_owned(), |x| format!("{x:.2}"))
+}
+
+fn line(s: &Series) -> String {
+    let lim = s.limits.map_or("no limits".to_owned(), |l| {
+        format!("limits {} .. {}", idx(l.lsl), idx(l.usl))
+    });
+    format!(
+        "{:<12} n {:>7}  mean {:>8}  sigma {:>7} / {:>7}  Cp {:>5}  Cpk {:>5}  Ppk {:>5}  {lim}{}",
+        s.metric.id(),
+        s.n,
+        idx(s.mean),
+        idx(s.sigma_within),
+        idx(s.sigma_overall),
+        idx(s.cp.p),
+        idx(s.cp.k),
+        idx(s.pp.k),
+        s.note
+            .as_ref()
+            .map_or(String::new(), |n| format!("  ({n})")),
+    )
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let location = dpsa_line::store::Location::from_arg(&a.store)
+        .map_err(anyhow::Error::msg)
+        .context("--store")?;
+    let opts = Options {
+        rules: rules(&a.rules)?,
+        alarm_scopes: scopes(&a.alarms)?,
+        baseline: (a.baseline > 0).then_some(a.baseline as usize),
+    };
+    if let Some(o) = &a.out {
+        // Refused before the study, not after it.
+        dpsa_formats::files::check_output_dir(o, DIR_KIND)?;
+        if let (Some(p), dpsa_line::store::Location::Sqlite(s)) = (&a.program, &location) {
+            for input in [p, s] {
+                if input.starts_with(o) {
+                    bail!("--out {} holds an input ({})", o.display(), input.display());
+                }
+            }
+        }
+    }
+    let src = dpsa_spc::load::Source {
+        store: &location,
+        line: &a.line,
+        product: a.product.as_deref(),
+        program: a.program.as_deref(),
+        last: a.last as usize,
+    };
+    let loaded = dpsa_spc::load::load(&src)?;
+    let report = analyse(&loaded.study, &loaded.product, &opts);
+    let written = match &a.out {
+        Some(o) => {
+            let dir = dpsa_formats::files::OutputDir::create(o, DIR_KIND)?;
+            let w = dpsa_spc::output::write(dir.path(), &loaded.study, &report, a.worst)?;
+            let summary = serde_json::json!({
+                "product": loaded.product,
+                "program_hash": loaded.program_hash,
+                "with_program": loaded.with_program,
+                "boards_other_program": loaded.other_program,
+                "boards_pruned": loaded.pruned,
+                "report": &report,
+            });
+            dpsa_formats::files::write_bytes(
+                &dir.path().join("spc.json"),
+                serde_json::to_string_pretty(&summary)?.as_bytes(),
+            )?;
+            dir.commit()?;
+            Some(w)
+        }
+        None => None,
+    };
+    let open: Vec<_> = report.alarms.iter().filter(|x| x.open).collect();
+    if a.json {
+        let mut worst: Vec<&Series> = report
+            .pads
+            .iter()
+            .filter(|s| s.metric == Metric::Volume && s.cp.k.is_some())
+            .collect();
+        worst.sort_by(|x, y| x.cp.k.unwrap_or(0.0).total_cmp(&y.cp.k.unwrap_or(0.0)));
+        worst.truncate(a.worst);
+        let v = serde_json::json!({
+            "product": loaded.product,
+            "line": a.line,
+            "program_hash": loaded.program_hash,
+            "with_program": loaded.with_program,
+            "boards": report.boards.len(),
+            "first_run_id": report.boards.first().map(|b| &b.run_id),
+            "last_run_id": report.boards.last().map(|b| &b.run_id),
+            "boards_other_program": loaded.other_program,
+            "boards_pruned": loaded.pruned,
+            "rules": report.rules,
+            "baseline_boards": report.baseline.map(|b| b.min(report.boards.len())),
+            "board": report.board,
+            "families": report.families,
+            "alarms": report.alarms,
+            "open_alarms": open.len(),
+            "worst_pads_by_volume_cpk": worst,
+            "written": written,
+        });
+        out!("{}", serde_json::to_string_pretty(&v)?);
+        return Ok(());
+    }
+    let b = &report.boards;
+    out!(
+        "{} boards of {} on {} ({} to {}), program {}{}",
+        b.len(),
+        loaded.product,
+        a.line,
+        b.first().map_or("", |x| &x.run_id),
+        b.last().map_or("", |x| &x.run_id),
+        loaded.program_hash,
+        if loaded.with_program {
+            ""
+        } else {
+            " (not given: no limits, no families)"
+        }
+    );
+    if loaded.other_program > 0 || loaded.pruned > 0 {
+        out!(
+            "left out: {} boards inspected under another program, {} whose pads were pruned",
+            loaded.other_program,
+            loaded.pruned
+        );
+    }
+    out!(
+        "board (X-bar/S, the board's pads the subgroup; limits from {}; sigma within / overall):",
+        match report.baseline {
+            Some(k) if k < b.len() => format!("the first {k} boards"),
+            _ => "every board".to_owned(),
+        }
+    );
+    for s in &report.board {
+        out!("  {}", line(s));
+    }
+    let rules: Vec<&str> = report.rules.iter().map(|r| r.id()).collect();
+    out!(
+        "alarms ({}; {}): {} episodes, {} open",
+        rules.join(" "),
+        a.alarms,
+        report.alarms.len(),
+        open.len()
+    );
+    for x in open.iter().take(20) {
+        let pads: Vec<String> = x.pads.iter().map(|(n, v)| format!("{n} {v:.1}")).collect();
+        out!(
+            "  {} {} {}: {} ({}) since {}; pads {}",
+            x.kind.id(),
+            x.name,
+            x.metric.id(),
+            x.rule,
+            x.rule_text,
+            x.since_run_id,
+            pads.join(", ")
+        );
+    }
+    if let (Some(o), Some(w)) = (&a.out, written) {
+        out!(
+            "wrote {}: tables, {} values, {} charts (SVG and PNG)",
+            o.display(),
+            w.values,
+            w.charts
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,395 @@
+//! `dpsa spc` on a store of a known print process: the mini pill's program (a real KiCad
+//! paste layer and placement file, 102 pads in five package families), 40 boards written
+//! straight into the store with in-control variation, and a step down of 12 % in the volume
+//! of one package's pads from board 30 on (an aperture row clogging). The alarm must name
+//! that package, from the step on; the figures must be those of the stored values.
+
+use dpsa_line::store::{BoardStart, CameraLoss, Location, Outcome, PadRow, Store};
+use rand::SeedableRng;
+use rand_distr::{Distribution, Normal};
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const BOARDS: usize = 40;
+const STEP_AT: usize = 30;
+const CLOGGED: &str = "LQFP-48_7x7mm_P0.5mm";
+
+fn dpsa(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_dpsa"))
+        .args(args)
+        .output()
+        .expect("run dpsa")
+}
+
+fn ok(args: &[&str]) -> String {
+    let o = dpsa(args);
+    assert!(
+        o.status.success(),
+        "dpsa {args:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    String::from_utf8(o.stdout).unwrap()
+}
+
+fn data(p: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../tests/data")
+        .join(p)
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// The pads of the program: (stored name, package).
+fn pads(program: &Path) -> Vec<(String, Option<String>)> {
+    let mut prog = dpsa_inspect::program::Program::load(program).unwrap();
+    let (mut pads, _) = dpsa_inspect::run::paste_layer_pads(&prog, program).unwrap();
+    dpsa_inspect::teach::apply_components(&mut prog, program, &mut pads).unwrap();
+    let packages = dpsa_inspect::teach::component_packages(&prog, program).unwrap();
+    pads.iter()
+        .map(|p| {
+            let pkg = p.component.as_ref().and_then(|c| packages.get(c).cloned());
+            (dpsa_inspect::report::cfx_pad(p), pkg)
+        })
+        .collect()
+}
+
+struct Fixture {
+    dir: tempfile::TempDir,
+    program: PathBuf,
+    store: PathBuf,
+    /// volume_pct of every pad on every board, as stored.
+    volumes: Vec<Vec<f64>>,
+    pads: Vec<(String, Option<String>)>,
+}
+
+fn fixture() -> Fixture {
+    let dir = tempfile::tempdir().unwrap();
+    let program = dir.path().join("program.toml");
+    let paste = data("gerber/stm32-mini-pill/pcb-F_Paste.gbr");
+    ok(&[
+        "program",
+        "--paste",
+        s(&paste),
+        "--outline",
+        s(&data("teach/stm32-mini-pill/pcb-Edge_Cuts.gbr")),
+        "--placement",
+        s(&data("teach/stm32-mini-pill/pcb-top.pos")),
+        "--out",
+        s(&program),
+    ]);
+    let pads = pads(&program);
+    assert_eq!(pads.len(), 102);
+    assert!(
+        pads.iter()
+            .filter(|p| p.1.as_deref() == Some(CLOGGED))
+            .count()
+            >= 40
+    );
+    let hash = {
+        let prog = dpsa_inspect::program::Program::load(&program).unwrap();
+        let a = std::fs::read(&program).unwrap();
+        let b = std::fs::read(prog.paste_layer_path(&program)).unwrap();
+        dpsa_line::config::fnv_hex(&[&a, &b])
+    };
+    let store_path = dir.path().join("data/line.sqlite");
+    let mut store = Store::open(&Location::Sqlite(store_path.clone()), "line-1").unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let noise = Normal::new(0.0, 4.0).unwrap();
+    let mut volumes = Vec::new();
+    for b in 0..BOARDS {
+        let id = store
+            .begin_board(&BoardStart {
+                run_id: 0x1000 + b as u64,
+                product: "mini-pill".into(),
+                program_hash: hash.clone(),
+                calibration_hash: "00000000000000aa".into(),
+                started_unix_s: 1_700_000_000.0 + 10.0 * b as f64,
+            })
+            .unwrap();
+        let mut rows = Vec::new();
+        let mut vols = Vec::new();
+        for (k, (name, pkg)) in pads.iter().enumerate() {
+            let step = if b >= STEP_AT && pkg.as_deref() == Some(CLOGGED) {
+                -12.0
+            } else {
+                0.0
+            };
+            let v = 100.0 + step + noise.sample(&mut rng);
+            vols.push(v);
+            rows.push(PadRow {
+                pad: k as u32,
+                name: name.clone(),
+                level: "pass".into(),
+                class: None,
+                volume_um3: Some(v * 1e4),
+                volume_pct: Some(v),
+                area_mm2: Some(0.1),
+                area_pct: Some(100.0 + noise.sample(&mut rng)),
+                height_um: Some(100.0),
+                height_pct: Some(100.0 + noise.sample(&mut rng)),
+                offset_x_um: Some(noise.sample(&mut rng)),
+                offset_y_um: Some(noise.sample(&mut rng)),
+                coverage: 1.0,
+                uncertainty_um3: None,
+            });
+        }
+        volumes.push(vols);
+        let cams: Vec<CameraLoss> = Vec::new();
+        store
+            .finish_board(
+                id,
+                1_700_000_005.0 + 10.0 * b as f64,
+                &cams,
+                &Outcome::Inspected {
+                    verdict: "pass".into(),
+                    pads: rows,
+                },
+            )
+            .unwrap();
+    }
+    drop(store);
+    Fixture {
+        dir,
+        program,
+        store: store_path,
+        volumes,
+        pads,
+    }
+}
+
+/// Every file under `dir`.
+fn walk(dir: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap().flatten() {
+        let p = e.path();
+        if p.is_dir() {
+            out.extend(walk(&p));
+        } else {
+            out.push(p);
+        }
+    }
+    out
+}
+
+#[test]
+fn a_clogging_package_raises_its_alarm_and_the_figures_are_the_stored_values() {
+    let f = fixture();
+    let out = f.dir.path().join("spc");
+    let text = ok(&[
+        "spc",
+        "--store",
+        s(&f.store),
+        "--program",
+        s(&f.program),
+        "--out",
+        s(&out),
+        "--json",
+    ]);
+    let v: Value = serde_json::from_str(&text).unwrap();
+    // `DPSA_SPC_KEEP=DIR` keeps this output for a look (the charts in docs/spc.md).
+    if let Some(keep) = std::env::var_os("DPSA_SPC_KEEP") {
+        let keep = PathBuf::from(keep);
+        let _ = std::fs::remove_dir_all(&keep);
+        std::fs::create_dir_all(&keep).unwrap();
+        for e in walk(&out) {
+            let to = keep.join(e.strip_prefix(&out).unwrap());
+            std::fs::create_dir_all(to.parent().unwrap()).unwrap();
+            std::fs::copy(&e, to).unwrap();
+        }
+    }
+    assert_eq!(v["boards"], BOARDS);
+    assert_eq!(v["with_program"], true);
+    assert_eq!(v["product"], "mini-pill");
+    // The clogged package's volume alarms, open, from the step on, naming its pads.
+    let alarms = v["alarms"].as_array().unwrap();
+    let clog: Vec<&Value> = alarms
+        .iter()
+        .filter(|a| a["kind"] == "family" && a["name"] == CLOGGED && a["metric"] == "Volume")
+        .collect();
+    assert!(!clog.is_empty(), "no alarm on {CLOGGED}: {alarms:?}");
+    let run = |b: usize| format!("{:016x}", 0x1000 + b);
+    let first: Vec<&str> = clog
+        .iter()
+        .map(|a| a["first_fired_run_id"].as_str().unwrap())
+        .collect();
+    assert!(clog.iter().any(|a| a["open"] == true), "{clog:?}");
+    assert!(
+        first
+            .iter()
+            .any(|r| *r >= run(STEP_AT).as_str() && *r <= run(STEP_AT + 2).as_str()),
+        "first fired {first:?}, the step is at {}",
+        run(STEP_AT)
+    );
+    let named: Vec<String> = f
+        .pads
+        .iter()
+        .filter(|p| p.1.as_deref() == Some(CLOGGED))
+        .map(|p| p.0.clone())
+        .collect();
+    for a in &clog {
+        for p in a["pads"].as_array().unwrap() {
+            assert!(named.contains(&p[0].as_str().unwrap().to_owned()), "{p}");
+        }
+    }
+    // The board's volume figures are those of the stored values: mean and overall sigma.
+    let all: Vec<f64> = f.volumes.iter().flatten().copied().collect();
+    let mean = all.iter().sum::<f64>() / all.len() as f64;
+    let sd = (all.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (all.len() - 1) as f64).sqrt();
+    let board = v["board"].as_array().unwrap();
+    let vol = board.iter().find(|s| s["metric"] == "Volume").unwrap();
+    assert_eq!(vol["n"], all.len());
+    assert!((vol["mean"].as_f64().unwrap() - mean).abs() < 1e-9 * mean);
+    assert!((vol["sigma_overall"].as_f64().unwrap() - sd).abs() < 1e-9 * sd);
+    // The board's pads have different windows (the families' overrides): no board Ppk. The
+    // clogged family's Ppk is its values' against its pads' fail window.
+    assert!(vol["limits"].is_null() && vol["pp"]["k"].is_null(), "{vol}");
+    let fam: Vec<f64> = f
+        .volumes
+        .iter()
+        .flat_map(|b| {
+            b.iter()
+                .zip(&f.pads)
+                .filter(|(_, p)| p.1.as_deref() == Some(CLOGGED))
+                .map(|(v, _)| *v)
+        })
+        .collect();
+    let fm = fam.iter().sum::<f64>() / fam.len() as f64;
+    let fsd = (fam.iter().map(|x| (x - fm).powi(2)).sum::<f64>() / (fam.len() - 1) as f64).sqrt();
+    let window = {
+        let prog = dpsa_inspect::program::Program::load(&f.program).unwrap();
+        let (pads, _) = dpsa_inspect::run::paste_layer_pads(&prog, &f.program).unwrap();
+        let mut prog = prog;
+        let mut pads = pads;
+        dpsa_inspect::teach::apply_components(&mut prog, &f.program, &mut pads).unwrap();
+        let k = f
+            .pads
+            .iter()
+            .position(|p| p.1.as_deref() == Some(CLOGGED))
+            .unwrap();
+        prog.windows_for(&pads[k]).volume_pct.fail
+    };
+    let fs = v["families"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["name"] == CLOGGED && s["metric"] == "Volume")
+        .unwrap();
+    assert_eq!(fs["limits"]["lsl"].as_f64(), Some(window[0]));
+    assert_eq!(fs["limits"]["usl"].as_f64(), Some(window[1]));
+    let ppk = ((window[1] - fm).min(fm - window[0])) / (3.0 * fsd);
+    assert!(
+        (fs["pp"]["k"].as_f64().unwrap() - ppk).abs() < 1e-9 * ppk.abs(),
+        "{fs} {ppk}"
+    );
+    // The files: tables, every value, charts that decode, the alarm's chart among them.
+    for t in [
+        "board.csv",
+        "families.csv",
+        "components.csv",
+        "pads.csv",
+        "boards.csv",
+        "alarms.csv",
+        "spc.json",
+    ] {
+        assert!(out.join(t).is_file(), "{t}");
+    }
+    let values = std::fs::read_to_string(out.join("values.csv")).unwrap();
+    assert_eq!(values.lines().count(), 1 + BOARDS * f.pads.len());
+    let chart = out.join(format!("charts/family-{CLOGGED}-volume_pct.png"));
+    let img = image::open(&chart).unwrap_or_else(|e| panic!("{}: {e}", chart.display()));
+    assert_eq!(image::GenericImageView::dimensions(&img), (1100, 700));
+    let svg = std::fs::read_to_string(out.join(format!("charts/family-{CLOGGED}-volume_pct.svg")))
+        .unwrap();
+    assert!(
+        svg.contains("WE1") || svg.contains("WE2") || svg.contains("WE3") || svg.contains("WE4")
+    );
+    // Run again: the earlier output is replaced whole.
+    ok(&[
+        "spc",
+        "--store",
+        s(&f.store),
+        "--program",
+        s(&f.program),
+        "--out",
+        s(&out),
+        "--last",
+        "20",
+    ]);
+    let values = std::fs::read_to_string(out.join("values.csv")).unwrap();
+    assert_eq!(values.lines().count(), 1 + 20 * f.pads.len());
+}
+
+/// Without the program: the stored names and components, no limits and no families.
+#[test]
+fn without_the_program_there_are_charts_but_no_capability() {
+    let f = fixture();
+    let text = ok(&["spc", "--store", s(&f.store), "--json", "--rules", "nelson"]);
+    let v: Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(v["with_program"], false);
+    assert_eq!(v["families"].as_array().unwrap().len(), 0);
+    let vol = v["board"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["metric"] == "Volume")
+        .unwrap()
+        .clone();
+    assert!(vol["cp"]["k"].is_null() && vol["mean"].is_number());
+    assert_eq!(v["rules"].as_array().unwrap().len(), 8);
+}
+
+#[test]
+fn bad_requests_are_refused_with_a_reason() {
+    let f = fixture();
+    let st = s(&f.store);
+    let cases: Vec<(Vec<&str>, &str)> = vec![
+        (
+            vec!["spc", "--store", "/nonexistent/line.sqlite"],
+            "no store at",
+        ),
+        (
+            vec!["spc", "--store", st, "--product", "nope"],
+            "no inspected board of product",
+        ),
+        (vec!["spc", "--store", st, "--rules", "N9"], "is no rule"),
+        (
+            vec!["spc", "--store", st, "--alarms", "shelf"],
+            "is no scope",
+        ),
+        (vec!["spc", "--store", st, "--last", "1"], "--last"),
+        (
+            vec!["spc", "--store", "ftp://x"],
+            "neither a PostgreSQL URL",
+        ),
+    ];
+    for (args, said) in cases {
+        let o = dpsa(&args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && err.contains(said), "{args:?}: {err}");
+    }
+    // Another program's boards are never mixed in.
+    let other = f.dir.path().join("other.toml");
+    let text = std::fs::read_to_string(&f.program)
+        .unwrap()
+        .replace("stencil_um = 100.0", "stencil_um = 120.0");
+    std::fs::write(&other, text).unwrap();
+    let o = dpsa(&["spc", "--store", st, "--program", s(&other)]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        !o.status.success() && err.contains("under this program"),
+        "{err}"
+    );
+    // An output directory holding something else is refused before any work.
+    let busy = f.dir.path().join("busy");
+    std::fs::create_dir_all(&busy).unwrap();
+    std::fs::write(busy.join("keep.txt"), "mine").unwrap();
+    let o = dpsa(&["spc", "--store", st, "--out", s(&busy)]);
+    assert!(!o.status.success());
+    assert_eq!(
+        std::fs::read_to_string(busy.join("keep.txt")).unwrap(),
+        "mine"
+    );
+}

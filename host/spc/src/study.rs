@@ -1,0 +1,667 @@
+//! A study: the pads of one program over a run of boards, analysed per pad, component,
+//! package family and board, with the alarms the run rules raise.
+//!
+//! Each pad has one value per board and measure: its I-MR chart ([`crate::chart::individuals`])
+//! over the boards that measured it. A group of pads (a component, a package family, every
+//! pad of the board) has one subgroup per board, the values of its pads on that board: its
+//! X-bar/S chart ([`crate::chart::means_and_deviations`]). The measures are in % of nominal
+//! (volume, area, height), so that pads of different sizes share a scale, and in um for the
+//! offsets.
+//!
+//! **Which charts raise alarms.** A board of 6,000 pads has 30,000 pad charts: even the single
+//! rule "beyond 3 sigma", right 99.73 % of the time on a process in control, would raise about
+//! 80 false alarms a board. Alarms are therefore raised on the charts of the scopes asked for
+//! ([`Options::alarm_scopes`]: by default the board and the package families, a few tens of
+//! charts), and every chart's firings are counted and reported (`dpsa spc`'s tables) so that
+//! a pad or component that keeps firing is seen without paging anyone. An alarm names the
+//! pads that pull its chart furthest on the board where it last fired.
+
+use crate::capability::{Indices, SpecLimits};
+use crate::chart::{individuals, means_and_deviations, Chart, ChartError};
+use crate::rules::{episodes, fires, Rule};
+use std::collections::BTreeMap;
+
+/// A measure of a pad.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
+pub enum Metric {
+    /// Volume, % of opening area x stencil thickness.
+    Volume,
+    /// Mean height, % of the stencil thickness.
+    Height,
+    /// Area above the paste threshold, % of the opening.
+    Area,
+    /// Offset of the deposit from the opening along the board's x, um.
+    OffsetX,
+    /// Along y, um.
+    OffsetY,
+}
+
+impl Metric {
+    /// Every measure.
+    pub const ALL: [Metric; 5] = [
+        Metric::Volume,
+        Metric::Height,
+        Metric::Area,
+        Metric::OffsetX,
+        Metric::OffsetY,
+    ];
+
+    /// Its name in tables and files: the store's column.
+    pub fn id(self) -> &'static str {
+        match self {
+            Metric::Volume => "volume_pct",
+            Metric::Height => "height_pct",
+            Metric::Area => "area_pct",
+            Metric::OffsetX => "offset_x_um",
+            Metric::OffsetY => "offset_y_um",
+        }
+    }
+
+    /// Its axis label.
+    pub fn label(self) -> &'static str {
+        match self {
+            Metric::Volume => "volume, % of nominal",
+            Metric::Height => "height, % of stencil",
+            Metric::Area => "area, % of opening",
+            Metric::OffsetX => "offset x, um",
+            Metric::OffsetY => "offset y, um",
+        }
+    }
+
+    /// Index into [`Metric::ALL`].
+    pub fn index(self) -> usize {
+        self as usize
+    }
+}
+
+/// What a scope is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ScopeKind {
+    /// Every pad of the board.
+    Board,
+    /// A package family's pads.
+    Family,
+    /// A component's pads.
+    Component,
+    /// One pad.
+    Pad,
+}
+
+impl ScopeKind {
+    /// Its name.
+    pub fn id(self) -> &'static str {
+        match self {
+            ScopeKind::Board => "board",
+            ScopeKind::Family => "family",
+            ScopeKind::Component => "component",
+            ScopeKind::Pad => "pad",
+        }
+    }
+
+    /// The kind by name.
+    pub fn from_id(id: &str) -> Option<ScopeKind> {
+        [
+            ScopeKind::Board,
+            ScopeKind::Family,
+            ScopeKind::Component,
+            ScopeKind::Pad,
+        ]
+        .into_iter()
+        .find(|k| k.id() == id)
+    }
+}
+
+/// A pad as the study knows it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PadSpec {
+    /// Its name (`R12-1`).
+    pub name: String,
+    /// Its component, if known.
+    pub component: Option<String>,
+    /// Its package family, if known.
+    pub family: Option<String>,
+    /// Specification limits per measure ([`Metric::index`]).
+    pub limits: [SpecLimits; 5],
+}
+
+/// A board of the study.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct BoardRef {
+    /// The store's board id.
+    pub id: i64,
+    /// Its run id (16 hex digits).
+    pub run_id: String,
+    /// When it ended, Unix seconds.
+    pub ended_unix_s: f64,
+}
+
+/// The study's data: pads, boards oldest first, and every value.
+#[derive(Clone, Debug)]
+pub struct Study {
+    pads: Vec<PadSpec>,
+    boards: Vec<BoardRef>,
+    /// `values[m][pad * boards + b]`: NaN where not measured.
+    values: [Vec<f64>; 5],
+}
+
+/// Why a study cannot be made.
+#[derive(Clone, Debug, PartialEq)]
+pub enum StudyError {
+    /// A board's values are for another number of pads.
+    PadCount {
+        /// The board.
+        board: i64,
+        /// Its pads.
+        got: usize,
+        /// The program's.
+        want: usize,
+    },
+}
+
+impl std::fmt::Display for StudyError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            StudyError::PadCount { board, got, want } => write!(
+                f,
+                "board {board} has values for {got} pads, the program has {want}"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for StudyError {}
+
+impl Study {
+    /// An empty study of `pads`.
+    pub fn new(pads: Vec<PadSpec>) -> Study {
+        Study {
+            pads,
+            boards: Vec::new(),
+            values: Default::default(),
+        }
+    }
+
+    /// Adds a board (after the ones added before): `values[pad][metric]`, `None` or NaN where
+    /// not measured. Values are re-laid per pad when the study is analysed.
+    pub fn push(&mut self, board: BoardRef, values: &[[Option<f64>; 5]]) -> Result<(), StudyError> {
+        if values.len() != self.pads.len() {
+            return Err(StudyError::PadCount {
+                board: board.id,
+                got: values.len(),
+                want: self.pads.len(),
+            });
+        }
+        self.boards.push(board);
+        for (m, col) in self.values.iter_mut().enumerate() {
+            col.extend(
+                values
+                    .iter()
+                    .map(|v| v[m].filter(|x| x.is_finite()).unwrap_or(f64::NAN)),
+            );
+        }
+        Ok(())
+    }
+
+    /// The pads.
+    pub fn pads(&self) -> &[PadSpec] {
+        &self.pads
+    }
+
+    /// The boards, oldest first.
+    pub fn boards(&self) -> &[BoardRef] {
+        &self.boards
+    }
+
+    /// Value of `pad` on board `b` (NaN: not measured).
+    pub fn value(&self, m: Metric, pad: usize, b: usize) -> f64 {
+        self.values[m.index()][b * self.pads.len() + pad]
+    }
+
+    /// The pads of a scope, by its kind and name (the board's: every pad).
+    pub fn members(&self, kind: ScopeKind, name: &str) -> Vec<usize> {
+        (0..self.pads.len())
+            .filter(|&p| {
+                let s = &self.pads[p];
+                match kind {
+                    ScopeKind::Board => true,
+                    ScopeKind::Family => s.family.as_deref() == Some(name),
+                    ScopeKind::Component => s.component.as_deref() == Some(name),
+                    ScopeKind::Pad => s.name == name,
+                }
+            })
+            .collect()
+    }
+
+    /// The limits the pads `members` share for `m` (`None` when they differ).
+    fn shared_limits(&self, members: &[usize], m: Metric) -> Option<SpecLimits> {
+        let first = self.pads.get(*members.first()?)?.limits[m.index()];
+        members
+            .iter()
+            .all(|&p| self.pads[p].limits[m.index()] == first)
+            .then_some(first)
+    }
+
+    /// The chart of a scope's measure with its limits from the first `baseline` boards (all
+    /// when `None`), and the boards (indices into [`Study::boards`]) of its points.
+    pub fn chart(
+        &self,
+        kind: ScopeKind,
+        members: &[usize],
+        m: Metric,
+        baseline: Option<usize>,
+    ) -> (Result<Chart, ChartError>, Vec<usize>, Option<SpecLimits>) {
+        let limits = self.shared_limits(members, m);
+        let nb = self.boards.len();
+        if kind == ScopeKind::Pad && members.len() == 1 {
+            let p = members[0];
+            let (boards, x): (Vec<usize>, Vec<f64>) = (0..nb)
+                .map(|b| (b, self.value(m, p, b)))
+                .filter(|(_, v)| v.is_finite())
+                .unzip();
+            let baseline = baseline_points(&boards, baseline);
+            return (
+                individuals(&x, limits.unwrap_or_default(), baseline),
+                boards,
+                limits,
+            );
+        }
+        let mut boards = Vec::new();
+        let mut groups: Vec<Vec<f64>> = Vec::new();
+        for b in 0..nb {
+            let g: Vec<f64> = members
+                .iter()
+                .map(|&p| self.value(m, p, b))
+                .filter(|v| v.is_finite())
+                .collect();
+            if !g.is_empty() {
+                boards.push(b);
+                groups.push(g);
+            }
+        }
+        let refs: Vec<&[f64]> = groups.iter().map(|g| &g[..]).collect();
+        let baseline = baseline_points(&boards, baseline);
+        (
+            means_and_deviations(&refs, limits.unwrap_or_default(), baseline),
+            boards,
+            limits,
+        )
+    }
+}
+
+/// A chart's baseline in its points: those on the first `boards` boards of the study (`None`:
+/// all).
+fn baseline_points(points: &[usize], boards: Option<usize>) -> Option<usize> {
+    boards.map(|k| points.iter().filter(|&&b| b < k).count())
+}
+
+/// How to analyse.
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// The rules read on every chart.
+    pub rules: Vec<Rule>,
+    /// The scopes whose charts raise alarms.
+    pub alarm_scopes: Vec<ScopeKind>,
+    /// The boards (the study's first) every chart's centre and limits come from; `None`: all
+    /// (a retrospective study, where a lasting change pulls the centre to itself).
+    pub baseline: Option<usize>,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            rules: Rule::WESTERN_ELECTRIC.to_vec(),
+            alarm_scopes: vec![ScopeKind::Board, ScopeKind::Family],
+            baseline: None,
+        }
+    }
+}
+
+/// One chart's summary.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Series {
+    /// The scope's kind.
+    pub kind: ScopeKind,
+    /// Its name (the board's: the product).
+    pub name: String,
+    /// Pads in it.
+    pub pads: usize,
+    /// The measure.
+    pub metric: Metric,
+    /// Points (boards) on its chart.
+    pub points: usize,
+    /// Values behind them.
+    pub n: usize,
+    /// Mean of every value.
+    pub mean: Option<f64>,
+    /// The chart's centre line (its baseline's mean).
+    pub centre: Option<f64>,
+    /// The sigma its limits are set with (its baseline's within sigma).
+    pub sigma_limits: Option<f64>,
+    /// Within sigma.
+    pub sigma_within: Option<f64>,
+    /// Overall sigma.
+    pub sigma_overall: Option<f64>,
+    /// The limits its pads share (`None`: they differ, or there are none).
+    pub limits: Option<SpecLimits>,
+    /// `Cp, Cpu, Cpl, Cpk`.
+    pub cp: Indices,
+    /// `Pp, Ppu, Ppl, Ppk`.
+    pub pp: Indices,
+    /// Firings per rule (rules that fired at least once).
+    pub firings: BTreeMap<Rule, usize>,
+    /// Why there is no chart (too few boards, no spread ...).
+    pub note: Option<String>,
+}
+
+/// An alarm: a rule that fired on a chart, over an episode of boards.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Alarm {
+    /// The chart's scope.
+    pub kind: ScopeKind,
+    /// Its name.
+    pub name: String,
+    /// The measure.
+    pub metric: Metric,
+    /// The rule.
+    pub rule: Rule,
+    /// What the rule means.
+    pub rule_text: &'static str,
+    /// The first board of the pattern (run id).
+    pub since_run_id: String,
+    /// The board where the rule first fired.
+    pub first_fired_run_id: String,
+    /// The last board where it fired.
+    pub last_fired_run_id: String,
+    /// Whether it still fires on the study's last board.
+    pub open: bool,
+    /// The pads that pull the chart furthest on the last board it fired on: name and value,
+    /// furthest from the chart's centre first (at most five).
+    pub pads: Vec<(String, f64)>,
+}
+
+/// What a study found.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Report {
+    /// The boards, oldest first.
+    pub boards: Vec<BoardRef>,
+    /// The rules read.
+    pub rules: Vec<Rule>,
+    /// The boards the limits come from (`None`: all).
+    pub baseline: Option<usize>,
+    /// The board-wide charts, one per measure.
+    pub board: Vec<Series>,
+    /// Per package family and measure.
+    pub families: Vec<Series>,
+    /// Per component and measure.
+    pub components: Vec<Series>,
+    /// Per pad and measure.
+    pub pads: Vec<Series>,
+    /// Every alarm, oldest episode first.
+    pub alarms: Vec<Alarm>,
+}
+
+/// The scopes of a study: `(kind, name, members)`, the board first.
+pub fn scopes(study: &Study, product: &str) -> Vec<(ScopeKind, String, Vec<usize>)> {
+    let mut out = vec![(
+        ScopeKind::Board,
+        product.to_owned(),
+        (0..study.pads.len()).collect(),
+    )];
+    let mut families: BTreeMap<&str, Vec<usize>> = BTreeMap::new();
+    let mut components: BTreeMap<&str, Vec<usize>> = BTreeMap::new();
+    for (p, s) in study.pads.iter().enumerate() {
+        if let Some(f) = &s.family {
+            families.entry(f).or_default().push(p);
+        }
+        if let Some(c) = &s.component {
+            components.entry(c).or_default().push(p);
+        }
+    }
+    out.extend(
+        families
+            .into_iter()
+            .map(|(n, m)| (ScopeKind::Family, n.to_owned(), m)),
+    );
+    out.extend(
+        components
+            .into_iter()
+            .map(|(n, m)| (ScopeKind::Component, n.to_owned(), m)),
+    );
+    out.extend(
+        study
+            .pads
+            .iter()
+            .enumerate()
+            .map(|(p, s)| (ScopeKind::Pad, s.name.clone(), vec![p])),
+    );
+    out
+}
+
+/// Analyses `study` (of `product`).
+pub fn analyse(study: &Study, product: &str, opts: &Options) -> Report {
+    let mut report = Report {
+        boards: study.boards.clone(),
+        rules: opts.rules.clone(),
+        baseline: opts.baseline,
+        board: Vec::new(),
+        families: Vec::new(),
+        components: Vec::new(),
+        pads: Vec::new(),
+        alarms: Vec::new(),
+    };
+    for (kind, name, members) in scopes(study, product) {
+        for m in Metric::ALL {
+            let (chart, boards, limits) = study.chart(kind, &members, m, opts.baseline);
+            let mut s = Series {
+                kind,
+                name: name.clone(),
+                pads: members.len(),
+                metric: m,
+                points: boards.len(),
+                n: 0,
+                mean: None,
+                centre: None,
+                sigma_limits: None,
+                sigma_within: None,
+                sigma_overall: None,
+                limits,
+                cp: Indices::default(),
+                pp: Indices::default(),
+                firings: BTreeMap::new(),
+                note: None,
+            };
+            match chart {
+                Err(e) => s.note = Some(e.to_string()),
+                Ok(c) => {
+                    s.n = c.n;
+                    s.mean = Some(c.mean);
+                    s.centre = Some(c.centre);
+                    s.sigma_limits = Some(c.sigma_limits);
+                    s.sigma_within = Some(c.sigma_within);
+                    s.sigma_overall = c.sigma_overall.is_finite().then_some(c.sigma_overall);
+                    s.cp = c.cp;
+                    s.pp = c.pp;
+                    if c.sigma_limits == 0.0 {
+                        s.note = Some("no spread within: no run rule can be read".to_owned());
+                    }
+                    for &rule in &opts.rules {
+                        let at = fires(rule, &c.points, &c.z);
+                        if at.is_empty() {
+                            continue;
+                        }
+                        s.firings.insert(rule, at.len());
+                        if opts.alarm_scopes.contains(&kind) {
+                            for e in episodes(rule, &at) {
+                                let last = boards[e.last_fired];
+                                report.alarms.push(Alarm {
+                                    kind,
+                                    name: name.clone(),
+                                    metric: m,
+                                    rule,
+                                    rule_text: rule.text(),
+                                    since_run_id: study.boards[boards[e.since]].run_id.clone(),
+                                    first_fired_run_id: study.boards[boards[e.first_fired]]
+                                        .run_id
+                                        .clone(),
+                                    last_fired_run_id: study.boards[last].run_id.clone(),
+                                    open: e.last_fired + 1 == c.points.len()
+                                        && last + 1 == study.boards.len(),
+                                    pads: pulling(study, &members, m, last, c.centre),
+                                });
+                            }
+                        }
+                    }
+                }
+            }
+            match kind {
+                ScopeKind::Board => report.board.push(s),
+                ScopeKind::Family => report.families.push(s),
+                ScopeKind::Component => report.components.push(s),
+                ScopeKind::Pad => report.pads.push(s),
+            }
+        }
+    }
+    report
+}
+
+/// The pads of `members` furthest from `centre` on board `b` (at most five).
+fn pulling(
+    study: &Study,
+    members: &[usize],
+    m: Metric,
+    b: usize,
+    centre: f64,
+) -> Vec<(String, f64)> {
+    let mut v: Vec<(usize, f64)> = members
+        .iter()
+        .map(|&p| (p, study.value(m, p, b)))
+        .filter(|(_, x)| x.is_finite())
+        .collect();
+    v.sort_by(|a, b| (b.1 - centre).abs().total_cmp(&(a.1 - centre).abs()));
+    v.truncate(5);
+    v.into_iter()
+        .map(|(p, x)| (study.pads[p].name.clone(), x))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pad(name: &str, comp: &str, fam: &str) -> PadSpec {
+        let l = SpecLimits {
+            lsl: Some(55.0),
+            usl: Some(145.0),
+        };
+        PadSpec {
+            name: name.to_owned(),
+            component: Some(comp.to_owned()),
+            family: Some(fam.to_owned()),
+            limits: [
+                l,
+                l,
+                l,
+                SpecLimits {
+                    lsl: Some(-50.0),
+                    usl: Some(50.0),
+                },
+                SpecLimits {
+                    lsl: Some(-50.0),
+                    usl: Some(50.0),
+                },
+            ],
+        }
+    }
+
+    fn board(i: usize) -> BoardRef {
+        BoardRef {
+            id: i as i64,
+            run_id: format!("{i:016x}"),
+            ended_unix_s: i as f64,
+        }
+    }
+
+    /// A study whose family `0402` steps down by 10 % at board 30 raises an alarm on that
+    /// family's volume, open, naming a pad of it, and none on the family that stayed.
+    #[test]
+    fn a_step_in_one_family_raises_its_alarm() {
+        let pads = vec![
+            pad("R1-1", "R1", "0402"),
+            pad("R1-2", "R1", "0402"),
+            pad("U1-1", "U1", "QFN"),
+            pad("U1-2", "U1", "QFN"),
+        ];
+        let mut s = Study::new(pads);
+        // A fixed, non-random wobble (the test must not depend on a seed).
+        let wobble = |b: usize, p: usize| ((b * 7 + p * 3) % 11) as f64 * 0.4 - 2.0;
+        for b in 0..40 {
+            let step = if b >= 30 { -10.0 } else { 0.0 };
+            let vals: Vec<[Option<f64>; 5]> = (0..4)
+                .map(|p| {
+                    let v = 100.0 + wobble(b, p) + if p < 2 { step } else { 0.0 };
+                    [
+                        Some(v),
+                        Some(100.0 + wobble(b, p)),
+                        Some(100.0),
+                        Some(wobble(b, p)),
+                        None,
+                    ]
+                })
+                .collect();
+            s.push(board(b), &vals).unwrap();
+        }
+        let r = analyse(&s, "demo", &Options::default());
+        let fam: Vec<&Alarm> = r
+            .alarms
+            .iter()
+            .filter(|a| a.kind == ScopeKind::Family && a.metric == Metric::Volume)
+            .collect();
+        assert!(fam.iter().all(|a| a.name == "0402"), "{fam:?}");
+        assert!(fam.iter().any(|a| a.open && a.rule == Rule::We1));
+        assert!(fam
+            .iter()
+            .any(|a| a.pads.iter().any(|(n, _)| n.starts_with("R1"))));
+        // Area never moved: a note, no chart rules.
+        let area = r.board.iter().find(|s| s.metric == Metric::Area).unwrap();
+        assert!(area.note.is_some() && area.firings.is_empty());
+        // Offset y was never measured.
+        let oy = r.pads.iter().find(|s| s.metric == Metric::OffsetY).unwrap();
+        assert_eq!(oy.points, 0);
+        assert!(oy.note.is_some());
+        assert_eq!(r.pads.len(), 4 * 5);
+        assert_eq!(r.components.len(), 2 * 5);
+    }
+
+    #[test]
+    fn a_board_of_the_wrong_pad_count_is_refused() {
+        let mut s = Study::new(vec![pad("A-1", "A", "f")]);
+        let e = s.push(board(0), &[]).unwrap_err();
+        assert!(e.to_string().contains("0 pads"));
+    }
+
+    #[test]
+    fn mixed_limits_give_no_capability() {
+        let mut a = pad("A-1", "A", "f");
+        let b = pad("A-2", "A", "f");
+        a.limits[0].usl = Some(150.0);
+        let mut s = Study::new(vec![a, b]);
+        for i in 0..5 {
+            let v = [Some(100.0 + i as f64), None, None, None, None];
+            s.push(
+                board(i),
+                &[v, [Some(99.0 - i as f64), None, None, None, None]],
+            )
+            .unwrap();
+        }
+        let r = analyse(&s, "p", &Options::default());
+        let c = r
+            .components
+            .iter()
+            .find(|s| s.metric == Metric::Volume)
+            .unwrap();
+        assert_eq!(c.limits, None);
+        assert_eq!(c.cp.k, None);
+        assert!(c.mean.is_some());
+    }
+}
