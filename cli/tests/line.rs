@@ -344,7 +344,7 @@ fn boards_back_to_back_are_stored_as_the_offline_inspection() {
         .as_array()
         .unwrap()
         .iter()
-        .find(|s| s["metric"] == "Volume")
+        .find(|s| s["metric"] == "volume_pct")
         .unwrap();
     assert_eq!(vol["n"], vols.len(), "{vol}");
     assert!(

@@ -14,6 +14,12 @@ use std::process::{Command, Output};
 const BOARDS: usize = 40;
 const STEP_AT: usize = 30;
 const CLOGGED: &str = "LQFP-48_7x7mm_P0.5mm";
+/// From this board on the print is shifted along x (the stencil moved at a change-over) ...
+const SHIFT_AT: usize = 33;
+/// ... by this much, um.
+const SHIFT_UM: f64 = 25.0;
+/// And it is turned throughout by this much, mrad (9.2 um over the board's 32 mm).
+const TURN_MRAD: f64 = 0.3;
 
 fn dpsa(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_dpsa"))
@@ -42,8 +48,8 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
-/// The pads of the program: (stored name, package).
-fn pads(program: &Path) -> Vec<(String, Option<String>)> {
+/// The pads of the program: (stored name, package, the opening's centre in mm).
+fn pads(program: &Path) -> Vec<(String, Option<String>, [f64; 2])> {
     let mut prog = dpsa_inspect::program::Program::load(program).unwrap();
     let (mut pads, _) = dpsa_inspect::run::paste_layer_pads(&prog, program).unwrap();
     dpsa_inspect::teach::apply_components(&mut prog, program, &mut pads).unwrap();
@@ -51,7 +57,7 @@ fn pads(program: &Path) -> Vec<(String, Option<String>)> {
     pads.iter()
         .map(|p| {
             let pkg = p.component.as_ref().and_then(|c| packages.get(c).cloned());
-            (dpsa_inspect::report::cfx_pad(p), pkg)
+            (dpsa_inspect::report::cfx_pad(p), pkg, p.outline.centroid())
         })
         .collect()
 }
@@ -62,7 +68,7 @@ struct Fixture {
     store: PathBuf,
     /// volume_pct of every pad on every board, as stored.
     volumes: Vec<Vec<f64>>,
-    pads: Vec<(String, Option<String>)>,
+    pads: Vec<(String, Option<String>, [f64; 2])>,
 }
 
 fn fixture() -> Fixture {
@@ -99,6 +105,8 @@ fn fixture() -> Fixture {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
     let noise = Normal::new(0.0, 4.0).unwrap();
     let mut volumes = Vec::new();
+    let n = pads.len() as f64;
+    let centre = [0, 1].map(|k| pads.iter().map(|p| p.2[k]).sum::<f64>() / n);
     for b in 0..BOARDS {
         let id = store
             .begin_board(&BoardStart {
@@ -111,7 +119,9 @@ fn fixture() -> Fixture {
             .unwrap();
         let mut rows = Vec::new();
         let mut vols = Vec::new();
-        for (k, (name, pkg)) in pads.iter().enumerate() {
+        let tx = if b >= SHIFT_AT { SHIFT_UM } else { 0.0 };
+        for (k, (name, pkg, at)) in pads.iter().enumerate() {
+            let q = [at[0] - centre[0], at[1] - centre[1]];
             let step = if b >= STEP_AT && pkg.as_deref() == Some(CLOGGED) {
                 -12.0
             } else {
@@ -130,8 +140,8 @@ fn fixture() -> Fixture {
                 area_pct: Some(100.0 + noise.sample(&mut rng)),
                 height_um: Some(100.0),
                 height_pct: Some(100.0 + noise.sample(&mut rng)),
-                offset_x_um: Some(noise.sample(&mut rng)),
-                offset_y_um: Some(noise.sample(&mut rng)),
+                offset_x_um: Some(tx - TURN_MRAD * q[1] + noise.sample(&mut rng)),
+                offset_y_um: Some(TURN_MRAD * q[0] + noise.sample(&mut rng)),
                 coverage: 1.0,
                 uncertainty_um3: None,
             });
@@ -207,7 +217,7 @@ fn a_clogging_package_raises_its_alarm_and_the_figures_are_the_stored_values() {
     let alarms = v["alarms"].as_array().unwrap();
     let clog: Vec<&Value> = alarms
         .iter()
-        .filter(|a| a["kind"] == "family" && a["name"] == CLOGGED && a["metric"] == "Volume")
+        .filter(|a| a["kind"] == "family" && a["name"] == CLOGGED && a["metric"] == "volume_pct")
         .collect();
     assert!(!clog.is_empty(), "no alarm on {CLOGGED}: {alarms:?}");
     let run = |b: usize| format!("{:016x}", 0x1000 + b);
@@ -234,12 +244,41 @@ fn a_clogging_package_raises_its_alarm_and_the_figures_are_the_stored_values() {
             assert!(named.contains(&p[0].as_str().unwrap().to_owned()), "{p}");
         }
     }
+    // The print's placement on every board: the shift from its board on, the turn throughout,
+    // each within 4 of its stated uncertainties; the print's x alarms from the shift on.
+    let prints = v["prints"].as_array().unwrap();
+    assert_eq!(prints.len(), BOARDS);
+    let turn_mdeg = TURN_MRAD.to_degrees();
+    for (b, p) in prints.iter().enumerate() {
+        let want = if b >= SHIFT_AT { SHIFT_UM } else { 0.0 };
+        let u = p["uncertainty"].as_array().unwrap();
+        let (x, ux) = (p["x_um"].as_f64().unwrap(), u[0].as_f64().unwrap());
+        let (r, ur) = (p["rotation_mdeg"].as_f64().unwrap(), u[2].as_f64().unwrap());
+        assert!((x - want).abs() < 4.0 * ux && ux < 2.0, "board {b}: {p}");
+        assert!((r - turn_mdeg).abs() < 4.0 * ur, "board {b}: {p}");
+    }
+    let shift: Vec<&Value> = alarms
+        .iter()
+        .filter(|a| a["kind"] == "print" && a["metric"] == "print_x_um")
+        .collect();
+    assert!(
+        shift
+            .iter()
+            .any(|a| a["open"] == true && a["first_fired_run_id"] == run(SHIFT_AT)),
+        "{shift:?}"
+    );
+    assert!(
+        shift
+            .iter()
+            .all(|a| a["first_fired_run_id"].as_str().unwrap() >= run(SHIFT_AT).as_str()),
+        "{shift:?}"
+    );
     // The board's volume figures are those of the stored values: mean and overall sigma.
     let all: Vec<f64> = f.volumes.iter().flatten().copied().collect();
     let mean = all.iter().sum::<f64>() / all.len() as f64;
     let sd = (all.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (all.len() - 1) as f64).sqrt();
     let board = v["board"].as_array().unwrap();
-    let vol = board.iter().find(|s| s["metric"] == "Volume").unwrap();
+    let vol = board.iter().find(|s| s["metric"] == "volume_pct").unwrap();
     assert_eq!(vol["n"], all.len());
     assert!((vol["mean"].as_f64().unwrap() - mean).abs() < 1e-9 * mean);
     assert!((vol["sigma_overall"].as_f64().unwrap() - sd).abs() < 1e-9 * sd);
@@ -275,7 +314,7 @@ fn a_clogging_package_raises_its_alarm_and_the_figures_are_the_stored_values() {
         .as_array()
         .unwrap()
         .iter()
-        .find(|s| s["name"] == CLOGGED && s["metric"] == "Volume")
+        .find(|s| s["name"] == CLOGGED && s["metric"] == "volume_pct")
         .unwrap();
     assert_eq!(fs["limits"]["lsl"].as_f64(), Some(window[0]));
     assert_eq!(fs["limits"]["usl"].as_f64(), Some(window[1]));
@@ -298,6 +337,9 @@ fn a_clogging_package_raises_its_alarm_and_the_figures_are_the_stored_values() {
     }
     let values = std::fs::read_to_string(out.join("values.csv")).unwrap();
     assert_eq!(values.lines().count(), 1 + BOARDS * f.pads.len());
+    let offsets = std::fs::read_to_string(out.join("print_offsets.csv")).unwrap();
+    assert_eq!(offsets.lines().count(), 1 + BOARDS);
+    assert!(out.join("charts/print-print_x_um.png").is_file());
     let chart = out.join(format!("charts/family-{CLOGGED}-volume_pct.png"));
     let img = image::open(&chart).unwrap_or_else(|e| panic!("{}: {e}", chart.display()));
     assert_eq!(image::GenericImageView::dimensions(&img), (1100, 700));
@@ -334,7 +376,7 @@ fn without_the_program_there_are_charts_but_no_capability() {
         .as_array()
         .unwrap()
         .iter()
-        .find(|s| s["metric"] == "Volume")
+        .find(|s| s["metric"] == "volume_pct")
         .unwrap()
         .clone();
     assert!(vol["cp"]["k"].is_null() && vol["mean"].is_number());

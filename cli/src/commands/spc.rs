@@ -32,8 +32,8 @@ pub struct Args {
     /// `all`, or a list such as `WE1,N2,N3`.
     #[arg(long, default_value = "we")]
     rules: String,
-    /// The scopes whose charts raise alarms: a list of board, family, component, pad.
-    #[arg(long, default_value = "board,family")]
+    /// The scopes whose charts raise alarms: a list of board, family, component, pad, print.
+    #[arg(long, default_value = "board,family,print")]
     alarms: String,
     /// Output directory: the tables (CSV), alarms and charts (SVG, PNG). New, empty or an
     /// earlier `dpsa spc` output (replaced whole).
@@ -83,7 +83,7 @@ fn scopes(text: &str) -> Result<Vec<ScopeKind>> {
         .filter(|s| !s.is_empty())
         .map(|s| {
             ScopeKind::from_id(s).with_context(|| {
-                format!("--alarms: {s:?} is no scope (board, family, component, pad)")
+                format!("--alarms: {s:?} is no scope (board, family, component, pad, print)")
             })
         })
         .collect()
@@ -186,6 +186,8 @@ pub fn run(a: Args) -> Result<()> {
             "baseline_boards": report.baseline.map(|b| b.min(report.boards.len())),
             "board": report.board,
             "families": report.families,
+            "print": report.print,
+            "prints": report.prints,
             "alarms": report.alarms,
             "open_alarms": open.len(),
             "worst_pads_by_volume_cpk": worst,
@@ -225,6 +227,23 @@ pub fn run(a: Args) -> Result<()> {
     );
     for s in &report.board {
         out!("  {}", line(s));
+    }
+    match report.prints.last() {
+        Some(Some(p)) => out!(
+            "print on the newest board: x {:.1} +- {:.1} um, y {:.1} +- {:.1} um, rotation {:.2} +- \
+             {:.2} mdeg, stretch {:.0} +- {:.0} ppm ({} pads, {} set aside)",
+            p.x_um,
+            p.uncertainty[0],
+            p.y_um,
+            p.uncertainty[1],
+            p.rotation_mdeg,
+            p.uncertainty[2],
+            p.stretch_ppm,
+            p.uncertainty[3],
+            p.pads,
+            p.outliers
+        ),
+        _ => out!("print offset: none (it needs the program's pad places and measured offsets)"),
     }
     let rules: Vec<&str> = report.rules.iter().map(|r| r.id()).collect();
     out!(

@@ -6,7 +6,9 @@
 //! sigma, `Cp`/`Cpk` and `Pp`/`Ppk` against the program's limits ([`capability`]); control
 //! charts, I-MR per pad and X-bar/S with the board as the subgroup ([`chart`]); Western
 //! Electric's and Nelson's run rules ([`rules`]); and alarms (which rule, which pads or
-//! components, since which board: [`study`]). [`plot`] draws the charts as SVG and PNG.
+//! components, since which board: [`study`]); and the print's placement on each board (shift,
+//! turn, stretch, robustly fitted to every pad's offset, with its uncertainty: [`mod@print`]).
+//! [`plot`] draws the charts as SVG and PNG.
 //!
 //! It reads no store itself (the `dpsa spc` command does, through `dpsa-line`): the
 //! statistics are plain functions of numbers, tested against an independent numpy
@@ -19,5 +21,6 @@ pub mod constants;
 pub mod load;
 pub mod output;
 pub mod plot;
+pub mod print;
 pub mod rules;
 pub mod study;

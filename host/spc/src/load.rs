@@ -154,6 +154,7 @@ fn program_pads(path: &Path) -> Result<(Vec<PadSpec>, String), LoadError> {
                     offset,
                     offset,
                 ],
+                at_mm: Some(p.outline.centroid()),
             }
         })
         .collect();
@@ -230,6 +231,7 @@ pub fn load(src: &Source) -> Result<Loaded, LoadError> {
                         component: component_of(&r.name),
                         family: None,
                         limits: Default::default(),
+                        at_mm: None,
                     })
                     .collect(),
             )

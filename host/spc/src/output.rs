@@ -157,6 +157,7 @@ pub fn write(
     write_series(dir, "families.csv", &report.families, &rules)?;
     write_series(dir, "components.csv", &report.components, &rules)?;
     write_series(dir, "pads.csv", &report.pads, &rules)?;
+    write_series(dir, "print.csv", &report.print, &rules)?;
     let mut written = Written::default();
     // Per board: the board subgroup's mean and deviation of each measure.
     {
@@ -168,7 +169,7 @@ pub fn write(
             "run_id".to_owned(),
             "ended_unix_s".to_owned(),
         ];
-        for m in Metric::ALL {
+        for m in Metric::PAD {
             header.extend([
                 format!("{}_n", m.id()),
                 format!("{}_mean", m.id()),
@@ -183,7 +184,7 @@ pub fn write(
                 br.run_id.clone(),
                 format!("{}", br.ended_unix_s),
             ];
-            for m in Metric::ALL {
+            for m in Metric::PAD {
                 let v: Vec<f64> = (0..pads)
                     .map(|p| study.value(m, p, b))
                     .filter(|x| x.is_finite())
@@ -206,11 +207,11 @@ pub fn write(
         let mut w = csv::Writer::from_path(dir.join(file)).map_err(&e)?;
         let mut header: Vec<&str> =
             vec!["board_id", "run_id", "pad", "name", "component", "family"];
-        header.extend(Metric::ALL.map(Metric::id));
+        header.extend(Metric::PAD.map(Metric::id));
         w.write_record(&header).map_err(&e)?;
         for (b, br) in study.boards().iter().enumerate() {
             for (p, spec) in study.pads().iter().enumerate() {
-                let vals = Metric::ALL.map(|m| study.value(m, p, b));
+                let vals = Metric::PAD.map(|m| study.value(m, p, b));
                 if vals.iter().all(|v| !v.is_finite()) {
                     continue;
                 }
@@ -232,6 +233,51 @@ pub fn write(
                 w.write_record(&rec).map_err(&e)?;
                 written.values += 1;
             }
+        }
+        w.flush().map_err(|io| e(io.into()))?;
+    }
+    {
+        let file = "print_offsets.csv";
+        let e = csv_err(file);
+        let mut w = csv::Writer::from_path(dir.join(file)).map_err(&e)?;
+        w.write_record([
+            "board_id",
+            "run_id",
+            "x_um",
+            "y_um",
+            "rotation_mdeg",
+            "stretch_ppm",
+            "u_x_um",
+            "u_y_um",
+            "u_rotation_mdeg",
+            "u_stretch_ppm",
+            "centre_x_mm",
+            "centre_y_mm",
+            "pads",
+            "outliers",
+            "scale_um",
+        ])
+        .map_err(&e)?;
+        for (br, p) in study.boards().iter().zip(study.prints()) {
+            let mut rec = vec![br.id.to_string(), br.run_id.clone()];
+            match p {
+                Some(p) => {
+                    rec.extend(
+                        [p.x_um, p.y_um, p.rotation_mdeg, p.stretch_ppm]
+                            .iter()
+                            .chain(&p.uncertainty)
+                            .chain(&p.centre_mm)
+                            .map(|v| format!("{v}")),
+                    );
+                    rec.extend([
+                        p.pads.to_string(),
+                        p.outliers.to_string(),
+                        format!("{}", p.scale_um),
+                    ]);
+                }
+                None => rec.extend(std::iter::repeat_n(String::new(), 13)),
+            }
+            w.write_record(&rec).map_err(&e)?;
         }
         w.flush().map_err(|io| e(io.into()))?;
     }
@@ -276,7 +322,12 @@ pub fn write(
     std::fs::create_dir_all(&charts)
         .map_err(|io| OutputError::Dir(charts.display().to_string(), io))?;
     let mut wanted: BTreeSet<(ScopeKind, String, Metric)> = BTreeSet::new();
-    for s in report.board.iter().chain(&report.families) {
+    for s in report
+        .board
+        .iter()
+        .chain(&report.families)
+        .chain(&report.print)
+    {
         wanted.insert((s.kind, s.name.clone(), s.metric));
     }
     for a in &report.alarms {
@@ -300,16 +351,23 @@ pub fn write(
         let members = study.members(kind, &name);
         let (chart, _, _) = study.chart(kind, &members, m, report.baseline);
         let Ok(chart) = chart else { continue };
-        let base = format!("{}-{}-{}", kind.id(), file_part(&name), m.id());
+        let base = match kind {
+            ScopeKind::Print => format!("print-{}", m.id()),
+            k => format!("{}-{}-{}", k.id(), file_part(&name), m.id()),
+        };
         let scope = match kind {
             ScopeKind::Board => format!("board ({} pads)", members.len()),
             ScopeKind::Pad => format!("pad {name}"),
+            ScopeKind::Print => "the print's placement (every pad's offset, robust fit)".to_owned(),
             k => format!("{} {name} ({} pads)", k.id(), members.len()),
         };
         let idx = |i: Option<f64>| i.map_or("-".to_owned(), |v| format!("{v:.2}"));
-        let (cp, cpk) = (idx(chart.cp.p), idx(chart.cp.k));
+        let capability = match (chart.cp.p, chart.cp.k) {
+            (None, None) => String::new(),
+            (p, k) => format!(" · Cp {} · Cpk {}", idx(p), idx(k)),
+        };
         let caption = Caption {
-            title: format!("{scope} · {} · Cp {cp} · Cpk {cpk}", m.label()),
+            title: format!("{scope} · {}{capability}", m.label()),
             y_label: m.label().to_owned(),
             x_label: format!("{first} to {last}"),
         };

@@ -94,6 +94,30 @@ pub fn draw(
     Ok(())
 }
 
+/// The corner of the upper chart with the fewest points (a third of the width, a third of
+/// the height), where the legend hides none or the fewest.
+fn emptiest_corner(pts: &[(f64, f64)], n: usize, lo: f64, hi: f64) -> SeriesLabelPosition {
+    let (w, h) = (n as f64, hi - lo);
+    let count = |right: bool, top: bool| {
+        pts.iter()
+            .filter(|&&(x, y)| {
+                let fx = (x - 0.5) / w.max(1.0);
+                let fy = (y - lo) / h.max(f64::MIN_POSITIVE);
+                (if right { fx > 0.6 } else { fx < 0.4 }) && (if top { fy > 0.6 } else { fy < 0.4 })
+            })
+            .count()
+    };
+    [
+        (SeriesLabelPosition::UpperRight, count(true, true)),
+        (SeriesLabelPosition::UpperLeft, count(false, true)),
+        (SeriesLabelPosition::LowerRight, count(true, false)),
+        (SeriesLabelPosition::LowerLeft, count(false, false)),
+    ]
+    .into_iter()
+    .min_by_key(|&(_, c)| c)
+    .map_or(SeriesLabelPosition::UpperRight, |(p, _)| p)
+}
+
 /// Labels on the board axis: one per board up to 20, else about 10.
 fn x_labels(n: usize) -> usize {
     if n <= 20 {
@@ -312,7 +336,7 @@ where
         .background_style(WHITE.mix(0.85))
         .border_style(BLACK)
         .label_font(("sans-serif", 14))
-        .position(SeriesLabelPosition::UpperRight)
+        .position(emptiest_corner(&pts, n, lo, hi))
         .draw()
         .map_err(err)?;
     // The lower chart.

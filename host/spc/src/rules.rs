@@ -22,8 +22,8 @@
 //! eight (J. Quality Technology 16, 1984) overlap: WE1-3 are N1, N5 and N6; WE4 is the
 //! 8-point form of N2.
 
-/// A run rule.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
+/// A run rule (serialised by its short name, [`Rule::id`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Rule {
     /// Western Electric 1: beyond 3 sigma.
     We1,
@@ -135,6 +135,12 @@ impl Rule {
             Rule::N4 => 14,
             Rule::N7 => 15,
         }
+    }
+}
+
+impl serde::Serialize for Rule {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.id())
     }
 }
 

@@ -18,11 +18,12 @@
 
 use crate::capability::{Indices, SpecLimits};
 use crate::chart::{individuals, means_and_deviations, Chart, ChartError};
+use crate::print::{self, PadOffset, PrintOffset};
 use crate::rules::{episodes, fires, Rule};
 use std::collections::BTreeMap;
 
-/// A measure of a pad.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
+/// A measure of a pad, or of the print (serialised by its name in tables, [`Metric::id`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Metric {
     /// Volume, % of opening area x stencil thickness.
     Volume,
@@ -34,16 +35,32 @@ pub enum Metric {
     OffsetX,
     /// Along y, um.
     OffsetY,
+    /// The print's translation along x at the pattern's centre, um ([`crate::print`]).
+    PrintX,
+    /// Along y, um.
+    PrintY,
+    /// The print's rotation, millidegrees.
+    PrintRotation,
+    /// The print's stretch, ppm.
+    PrintStretch,
 }
 
 impl Metric {
-    /// Every measure.
-    pub const ALL: [Metric; 5] = [
+    /// A pad's measures.
+    pub const PAD: [Metric; 5] = [
         Metric::Volume,
         Metric::Height,
         Metric::Area,
         Metric::OffsetX,
         Metric::OffsetY,
+    ];
+
+    /// The print's, one value a board.
+    pub const PRINT: [Metric; 4] = [
+        Metric::PrintX,
+        Metric::PrintY,
+        Metric::PrintRotation,
+        Metric::PrintStretch,
     ];
 
     /// Its name in tables and files: the store's column.
@@ -54,6 +71,10 @@ impl Metric {
             Metric::Area => "area_pct",
             Metric::OffsetX => "offset_x_um",
             Metric::OffsetY => "offset_y_um",
+            Metric::PrintX => "print_x_um",
+            Metric::PrintY => "print_y_um",
+            Metric::PrintRotation => "print_rotation_mdeg",
+            Metric::PrintStretch => "print_stretch_ppm",
         }
     }
 
@@ -65,12 +86,22 @@ impl Metric {
             Metric::Area => "area, % of opening",
             Metric::OffsetX => "offset x, um",
             Metric::OffsetY => "offset y, um",
+            Metric::PrintX => "print x, um",
+            Metric::PrintY => "print y, um",
+            Metric::PrintRotation => "print rotation, mdeg",
+            Metric::PrintStretch => "print stretch, ppm",
         }
     }
 
-    /// Index into [`Metric::ALL`].
-    pub fn index(self) -> usize {
-        self as usize
+    /// Index into [`Metric::PAD`] of a pad's measure; `None` for the print's.
+    pub fn pad_index(self) -> Option<usize> {
+        Metric::PAD.iter().position(|&m| m == self)
+    }
+}
+
+impl serde::Serialize for Metric {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.id())
     }
 }
 
@@ -86,6 +117,8 @@ pub enum ScopeKind {
     Component,
     /// One pad.
     Pad,
+    /// The print's placement on the board ([`crate::print`]).
+    Print,
 }
 
 impl ScopeKind {
@@ -96,6 +129,7 @@ impl ScopeKind {
             ScopeKind::Family => "family",
             ScopeKind::Component => "component",
             ScopeKind::Pad => "pad",
+            ScopeKind::Print => "print",
         }
     }
 
@@ -106,9 +140,18 @@ impl ScopeKind {
             ScopeKind::Family,
             ScopeKind::Component,
             ScopeKind::Pad,
+            ScopeKind::Print,
         ]
         .into_iter()
         .find(|k| k.id() == id)
+    }
+
+    /// Its measures.
+    pub fn metrics(self) -> &'static [Metric] {
+        match self {
+            ScopeKind::Print => &Metric::PRINT,
+            _ => &Metric::PAD,
+        }
     }
 }
 
@@ -121,8 +164,10 @@ pub struct PadSpec {
     pub component: Option<String>,
     /// Its package family, if known.
     pub family: Option<String>,
-    /// Specification limits per measure ([`Metric::index`]).
+    /// Specification limits per measure ([`Metric::pad_index`]).
     pub limits: [SpecLimits; 5],
+    /// The opening's centre, design frame, mm (for the print's placement; `None`: unknown).
+    pub at_mm: Option<[f64; 2]>,
 }
 
 /// A board of the study.
@@ -141,8 +186,10 @@ pub struct BoardRef {
 pub struct Study {
     pads: Vec<PadSpec>,
     boards: Vec<BoardRef>,
-    /// `values[m][pad * boards + b]`: NaN where not measured.
+    /// `values[m][b * pads + pad]`: NaN where not measured.
     values: [Vec<f64>; 5],
+    /// The print's placement on each board (`None`: too few pads with an offset and a place).
+    prints: Vec<Option<PrintOffset>>,
 }
 
 /// Why a study cannot be made.
@@ -179,6 +226,7 @@ impl Study {
             pads,
             boards: Vec::new(),
             values: Default::default(),
+            prints: Vec::new(),
         }
     }
 
@@ -200,7 +248,28 @@ impl Study {
                     .map(|v| v[m].filter(|x| x.is_finite()).unwrap_or(f64::NAN)),
             );
         }
+        let (ox, oy) = (
+            Metric::OffsetX.pad_index().unwrap_or(3),
+            Metric::OffsetY.pad_index().unwrap_or(4),
+        );
+        let offsets: Vec<PadOffset> = self
+            .pads
+            .iter()
+            .zip(values)
+            .filter_map(|(spec, v)| {
+                Some(PadOffset {
+                    at_mm: spec.at_mm?,
+                    offset_um: [v[ox]?, v[oy]?],
+                })
+            })
+            .collect();
+        self.prints.push(print::fit(&offsets));
         Ok(())
+    }
+
+    /// The print's placement on each board, as the boards.
+    pub fn prints(&self) -> &[Option<PrintOffset>] {
+        &self.prints
     }
 
     /// The pads.
@@ -213,9 +282,21 @@ impl Study {
         &self.boards
     }
 
-    /// Value of `pad` on board `b` (NaN: not measured).
+    /// Value of `pad` on board `b` (NaN: not measured); the print's measures are the board's
+    /// (`pad` not read).
     pub fn value(&self, m: Metric, pad: usize, b: usize) -> f64 {
-        self.values[m.index()][b * self.pads.len() + pad]
+        if let Some(k) = m.pad_index() {
+            return self.values[k][b * self.pads.len() + pad];
+        }
+        let Some(Some(p)) = self.prints.get(b) else {
+            return f64::NAN;
+        };
+        match m {
+            Metric::PrintX => p.x_um,
+            Metric::PrintY => p.y_um,
+            Metric::PrintRotation => p.rotation_mdeg,
+            _ => p.stretch_ppm,
+        }
     }
 
     /// The pads of a scope, by its kind and name (the board's: every pad).
@@ -228,6 +309,7 @@ impl Study {
                     ScopeKind::Family => s.family.as_deref() == Some(name),
                     ScopeKind::Component => s.component.as_deref() == Some(name),
                     ScopeKind::Pad => s.name == name,
+                    ScopeKind::Print => false,
                 }
             })
             .collect()
@@ -235,10 +317,11 @@ impl Study {
 
     /// The limits the pads `members` share for `m` (`None` when they differ).
     fn shared_limits(&self, members: &[usize], m: Metric) -> Option<SpecLimits> {
-        let first = self.pads.get(*members.first()?)?.limits[m.index()];
+        let k = m.pad_index()?;
+        let first = self.pads.get(*members.first()?)?.limits[k];
         members
             .iter()
-            .all(|&p| self.pads[p].limits[m.index()] == first)
+            .all(|&p| self.pads[p].limits[k] == first)
             .then_some(first)
     }
 
@@ -253,8 +336,8 @@ impl Study {
     ) -> (Result<Chart, ChartError>, Vec<usize>, Option<SpecLimits>) {
         let limits = self.shared_limits(members, m);
         let nb = self.boards.len();
-        if kind == ScopeKind::Pad && members.len() == 1 {
-            let p = members[0];
+        if kind == ScopeKind::Print || (kind == ScopeKind::Pad && members.len() == 1) {
+            let p = members.first().copied().unwrap_or(0);
             let (boards, x): (Vec<usize>, Vec<f64>) = (0..nb)
                 .map(|b| (b, self.value(m, p, b)))
                 .filter(|(_, v)| v.is_finite())
@@ -311,7 +394,7 @@ impl Default for Options {
     fn default() -> Self {
         Options {
             rules: Rule::WESTERN_ELECTRIC.to_vec(),
-            alarm_scopes: vec![ScopeKind::Board, ScopeKind::Family],
+            alarm_scopes: vec![ScopeKind::Board, ScopeKind::Family, ScopeKind::Print],
             baseline: None,
         }
     }
@@ -397,6 +480,10 @@ pub struct Report {
     pub components: Vec<Series>,
     /// Per pad and measure.
     pub pads: Vec<Series>,
+    /// The print's placement: one chart per measure (none without pad places and offsets).
+    pub print: Vec<Series>,
+    /// The print's placement on each board (as `boards`).
+    pub prints: Vec<Option<PrintOffset>>,
     /// Every alarm, oldest episode first.
     pub alarms: Vec<Alarm>,
 }
@@ -435,6 +522,9 @@ pub fn scopes(study: &Study, product: &str) -> Vec<(ScopeKind, String, Vec<usize
             .enumerate()
             .map(|(p, s)| (ScopeKind::Pad, s.name.clone(), vec![p])),
     );
+    if study.prints.iter().any(Option::is_some) {
+        out.push((ScopeKind::Print, "print".to_owned(), Vec::new()));
+    }
     out
 }
 
@@ -448,10 +538,12 @@ pub fn analyse(study: &Study, product: &str, opts: &Options) -> Report {
         families: Vec::new(),
         components: Vec::new(),
         pads: Vec::new(),
+        print: Vec::new(),
+        prints: study.prints.clone(),
         alarms: Vec::new(),
     };
     for (kind, name, members) in scopes(study, product) {
-        for m in Metric::ALL {
+        for &m in kind.metrics() {
             let (chart, boards, limits) = study.chart(kind, &members, m, opts.baseline);
             let mut s = Series {
                 kind,
@@ -519,6 +611,7 @@ pub fn analyse(study: &Study, product: &str, opts: &Options) -> Report {
                 ScopeKind::Family => report.families.push(s),
                 ScopeKind::Component => report.components.push(s),
                 ScopeKind::Pad => report.pads.push(s),
+                ScopeKind::Print => report.print.push(s),
             }
         }
     }
@@ -571,6 +664,7 @@ mod tests {
                     usl: Some(50.0),
                 },
             ],
+            at_mm: None,
         }
     }
 
