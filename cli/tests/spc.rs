@@ -337,6 +337,43 @@ fn a_clogging_package_raises_its_alarm_and_the_figures_are_the_stored_values() {
     }
     let values = std::fs::read_to_string(out.join("values.csv")).unwrap();
     assert_eq!(values.lines().count(), 1 + BOARDS * f.pads.len());
+    // The printer's correction: the shift and the turn taken out, y (never moved) held.
+    let m: Value =
+        serde_json::from_slice(&std::fs::read(out.join("printer_correction.json")).unwrap())
+            .unwrap();
+    assert_eq!(m["MessageName"], "dpsa.SPI.PrinterCorrectionProposed");
+    let body = &m["MessageBody"];
+    assert_eq!(body["BasedOn"]["LastRunId"], run(BOARDS - 1));
+    // The estimate is the printed error within 4 of its uncertainties; the correction follows
+    // it to within the dead band (5 um, 5 mdeg) and is then held.
+    let (c, e, u) = (
+        &body["Correction"],
+        &body["Estimate"],
+        &body["EstimateUncertainty"],
+    );
+    let g = |v: &Value, k: &str| v[k].as_f64().unwrap();
+    assert!(
+        (g(e, "X_um") - SHIFT_UM).abs() < 4.0 * g(u, "X_um"),
+        "{body}"
+    );
+    assert!(
+        (g(e, "Theta_mdeg") - turn_mdeg).abs() < 4.0 * g(u, "Theta_mdeg"),
+        "{body}"
+    );
+    assert!(
+        (g(c, "X_um") - g(e, "X_um")).abs() <= 5.0 && g(c, "X_um") > 15.0,
+        "{body}"
+    );
+    assert!(
+        (g(c, "Theta_mdeg") - g(e, "Theta_mdeg")).abs() <= 5.0,
+        "{body}"
+    );
+    assert_eq!(c["Y_um"].as_f64(), Some(0.0), "{body}");
+    assert_eq!(body["Held"]["Y"], true);
+    assert_eq!(
+        v["printer"]["MessageBody"]["Correction"],
+        body["Correction"]
+    );
     let offsets = std::fs::read_to_string(out.join("print_offsets.csv")).unwrap();
     assert_eq!(offsets.lines().count(), 1 + BOARDS);
     assert!(out.join("charts/print-print_x_um.png").is_file());

@@ -142,6 +142,29 @@ pub fn run(a: Args) -> Result<()> {
     };
     let loaded = dpsa_spc::load::load(&src)?;
     let report = analyse(&loaded.study, &loaded.product, &opts);
+    let loop_cfg = dpsa_spc::printer::LoopConfig::default();
+    let proposal = dpsa_spc::printer::offline_proposal(&report.prints, &loop_cfg);
+    let printer_message = proposal.as_ref().map(|p| {
+        let stretch = report
+            .prints
+            .iter()
+            .rev()
+            .flatten()
+            .next()
+            .map(|x| x.stretch_ppm);
+        dpsa_spc::printer::message(
+            p,
+            &loop_cfg,
+            &format!("dpsa/{}", a.line),
+            &a.line,
+            &loaded.product,
+            report.boards.first().map_or("", |b| &b.run_id),
+            report.boards.last().map_or("", |b| &b.run_id),
+            report.boards.len(),
+            stretch,
+            &dpsa_inspect::report::iso_now(),
+        )
+    });
     let written = match &a.out {
         Some(o) => {
             let dir = dpsa_formats::files::OutputDir::create(o, DIR_KIND)?;
@@ -158,6 +181,12 @@ pub fn run(a: Args) -> Result<()> {
                 &dir.path().join("spc.json"),
                 serde_json::to_string_pretty(&summary)?.as_bytes(),
             )?;
+            if let Some(m) = &printer_message {
+                dpsa_formats::files::write_bytes(
+                    &dir.path().join("printer_correction.json"),
+                    serde_json::to_string_pretty(m)?.as_bytes(),
+                )?;
+            }
             dir.commit()?;
             Some(w)
         }
@@ -188,6 +217,7 @@ pub fn run(a: Args) -> Result<()> {
             "families": report.families,
             "print": report.print,
             "prints": report.prints,
+            "printer": printer_message,
             "alarms": report.alarms,
             "open_alarms": open.len(),
             "worst_pads_by_volume_cpk": worst,
@@ -244,6 +274,16 @@ pub fn run(a: Args) -> Result<()> {
             p.outliers
         ),
         _ => out!("print offset: none (it needs the program's pad places and measured offsets)"),
+    }
+    if let Some(p) = &proposal {
+        out!(
+            "printer correction proposed (as if none was applied during these boards): x {:.1} \
+             um, y {:.1} um, theta {:.2} mdeg: {}",
+            p.correction.x_um,
+            p.correction.y_um,
+            p.correction.rotation_mdeg,
+            p.reason
+        );
     }
     let rules: Vec<&str> = report.rules.iter().map(|r| r.id()).collect();
     out!(

@@ -123,7 +123,7 @@ fn uuid(seed: u64, n: u64) -> String {
 }
 
 /// UTC time as ISO 8601 (civil date from days since 1970).
-pub(crate) fn iso_now() -> String {
+pub fn iso_now() -> String {
     let secs = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map(|d| d.as_secs())

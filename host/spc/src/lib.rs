@@ -7,7 +7,8 @@
 //! charts, I-MR per pad and X-bar/S with the board as the subgroup ([`chart`]); Western
 //! Electric's and Nelson's run rules ([`rules`]); and alarms (which rule, which pads or
 //! components, since which board: [`study`]); and the print's placement on each board (shift,
-//! turn, stretch, robustly fitted to every pad's offset, with its uncertainty: [`mod@print`]).
+//! turn, stretch, robustly fitted to every pad's offset, with its uncertainty: [`mod@print`])
+//! and the correction it proposes to the printer ([`printer`]).
 //! [`plot`] draws the charts as SVG and PNG.
 //!
 //! It reads no store itself (the `dpsa spc` command does, through `dpsa-line`): the
@@ -22,5 +23,6 @@ pub mod load;
 pub mod output;
 pub mod plot;
 pub mod print;
+pub mod printer;
 pub mod rules;
 pub mod study;
