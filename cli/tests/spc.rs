@@ -418,6 +418,12 @@ fn without_the_program_there_are_charts_but_no_capability() {
         .clone();
     assert!(vol["cp"]["k"].is_null() && vol["mean"].is_number());
     assert_eq!(v["rules"].as_array().unwrap().len(), 8);
+    let arl = &v["rules_in_control_arl"];
+    assert!((arl["N1"].as_f64().unwrap() - 370.4).abs() < 0.05, "{arl}");
+    assert!(
+        arl["N3"].is_null() && arl["N8"].as_f64().unwrap() > 10_000.0,
+        "{arl}"
+    );
 }
 
 #[test]

@@ -212,6 +212,11 @@ pub fn run(a: Args) -> Result<()> {
             "boards_other_program": loaded.other_program,
             "boards_pruned": loaded.pruned,
             "rules": report.rules,
+            "rules_in_control_arl": report
+                .rules
+                .iter()
+                .map(|r| (r.id(), dpsa_spc::arl::in_control_arl(*r)))
+                .collect::<std::collections::BTreeMap<_, _>>(),
             "baseline_boards": report.baseline.map(|b| b.min(report.boards.len())),
             "board": report.board,
             "families": report.families,

@@ -16,6 +16,7 @@
 //! implementation of `tests/REFERENCE.md` to 1e-9 relative and against published worked
 //! examples. Why by hand and not an SPC crate: `docs/spc.md`.
 
+pub mod arl;
 pub mod capability;
 pub mod chart;
 pub mod constants;
