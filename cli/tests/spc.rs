@@ -212,6 +212,17 @@ fn a_clogging_package_raises_its_alarm_and_the_figures_are_the_stored_values() {
     }
     assert_eq!(v["boards"], BOARDS);
     assert_eq!(v["with_program"], true);
+    // The stencil: the fine apertures (area ratio under 0.8 at the program's stencil) counted
+    // as here; none clogged (the LQFP's step is a row of larger apertures), no smears.
+    let fine = {
+        let prog = dpsa_inspect::program::Program::load(&f.program).unwrap();
+        let (pads, _) = dpsa_inspect::run::paste_layer_pads(&prog, &f.program).unwrap();
+        pads.iter()
+            .filter(|p| p.outline.area() / (p.outline.perimeter() * prog.stencil_um / 1000.0) < 0.8)
+            .count()
+    };
+    assert_eq!(v["stencil"]["fine_pads"], fine, "{}", v["stencil"]);
+    assert_eq!(v["stencil"]["recommend"], false, "{}", v["stencil"]);
     assert_eq!(v["product"], "mini-pill");
     // The clogged package's volume alarms, open, from the step on, naming its pads.
     let alarms = v["alarms"].as_array().unwrap();

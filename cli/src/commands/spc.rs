@@ -121,6 +121,7 @@ pub fn run(a: Args) -> Result<()> {
         rules: rules(&a.rules)?,
         alarm_scopes: scopes(&a.alarms)?,
         baseline: (a.baseline > 0).then_some(a.baseline as usize),
+        stencil: Default::default(),
     };
     if let Some(o) = &a.out {
         // Refused before the study, not after it.
@@ -223,6 +224,7 @@ pub fn run(a: Args) -> Result<()> {
             "print": report.print,
             "prints": report.prints,
             "printer": printer_message,
+            "stencil": report.stencil,
             "alarms": report.alarms,
             "open_alarms": open.len(),
             "worst_pads_by_volume_cpk": worst,
@@ -288,6 +290,18 @@ pub fn run(a: Args) -> Result<()> {
             p.correction.y_um,
             p.correction.rotation_mdeg,
             p.reason
+        );
+    }
+    if let Some(c) = &report.stencil {
+        out!(
+            "stencil: {} ({}; {} fine apertures)",
+            if c.recommend {
+                "CLEAN"
+            } else {
+                "no clean needed"
+            },
+            c.reasons.join("; "),
+            c.fine_pads
         );
     }
     let rules: Vec<&str> = report.rules.iter().map(|r| r.id()).collect();

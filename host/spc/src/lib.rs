@@ -8,7 +8,8 @@
 //! Electric's and Nelson's run rules ([`rules`]); and alarms (which rule, which pads or
 //! components, since which board: [`study`]); and the print's placement on each board (shift,
 //! turn, stretch, robustly fitted to every pad's offset, with its uncertainty: [`mod@print`])
-//! and the correction it proposes to the printer ([`printer`]).
+//! and the correction it proposes to the printer ([`printer`]); when to clean the stencil
+//! ([`stencil`]); how often each rule fires by chance ([`arl`]).
 //! [`plot`] draws the charts as SVG and PNG.
 //!
 //! It reads no store itself (the `dpsa spc` command does, through `dpsa-line`): the
@@ -26,4 +27,5 @@ pub mod plot;
 pub mod print;
 pub mod printer;
 pub mod rules;
+pub mod stencil;
 pub mod study;

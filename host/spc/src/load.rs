@@ -74,6 +74,19 @@ const STUDY_BYTES_PER_VALUE: u64 = 5 * 8;
 /// Most memory a study takes: 1 GiB, about 4,400 boards of 6,000 pads.
 const MAX_STUDY_BYTES: u64 = 1 << 30;
 
+/// The classes of paste where it should not be: under the stencil, for the stencil's
+/// cleaning ([`crate::stencil`]).
+const SMEARS: [&str; 2] = [
+    dpsa_inspect::verdict::Class::Bridge.name(),
+    dpsa_inspect::verdict::Class::Shape.name(),
+];
+
+/// An aperture's area ratio: its area over its wall's (`perimeter x stencil thickness`).
+fn area_ratio(outline: &dpsa_gerber::pads::Outline, stencil_um: f64) -> Option<f64> {
+    let wall = outline.perimeter() * stencil_um / 1000.0;
+    (wall > 0.0 && wall.is_finite()).then(|| outline.area() / wall)
+}
+
 /// What to load.
 #[derive(Clone, Debug)]
 pub struct Source<'a> {
@@ -155,6 +168,7 @@ fn program_pads(path: &Path) -> Result<(Vec<PadSpec>, String), LoadError> {
                     offset,
                 ],
                 at_mm: Some(p.outline.centroid()),
+                area_ratio: area_ratio(&p.outline, program.stencil_um),
             }
         })
         .collect();
@@ -232,6 +246,7 @@ pub fn load(src: &Source) -> Result<Loaded, LoadError> {
                         family: None,
                         limits: Default::default(),
                         at_mm: None,
+                        area_ratio: None,
                     })
                     .collect(),
             )
@@ -283,6 +298,10 @@ pub fn load(src: &Source) -> Result<Loaded, LoadError> {
                 id: b.id,
                 run_id,
                 ended_unix_s: b.ended_unix_s.unwrap_or(f64::NAN),
+                smears: rows
+                    .iter()
+                    .filter(|r| matches!(r.class.as_deref(), Some(c) if SMEARS.contains(&c)))
+                    .count(),
             },
             &values,
         )?;

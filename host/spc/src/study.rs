@@ -20,6 +20,7 @@ use crate::capability::{Indices, SpecLimits};
 use crate::chart::{individuals, means_and_deviations, Chart, ChartError};
 use crate::print::{self, PadOffset, PrintOffset};
 use crate::rules::{episodes, fires, Rule};
+use crate::stencil::{self, BoardStencil, Cleaning, StencilConfig};
 use std::collections::BTreeMap;
 
 /// A measure of a pad, or of the print (serialised by its name in tables, [`Metric::id`]).
@@ -168,6 +169,8 @@ pub struct PadSpec {
     pub limits: [SpecLimits; 5],
     /// The opening's centre, design frame, mm (for the print's placement; `None`: unknown).
     pub at_mm: Option<[f64; 2]>,
+    /// The aperture's area ratio, area over wall area (for clogging; `None`: unknown).
+    pub area_ratio: Option<f64>,
 }
 
 /// A board of the study.
@@ -179,6 +182,8 @@ pub struct BoardRef {
     pub run_id: String,
     /// When it ended, Unix seconds.
     pub ended_unix_s: f64,
+    /// Its pads judged `bridge` or `shape` (paste under the stencil).
+    pub smears: usize,
 }
 
 /// The study's data: pads, boards oldest first, and every value.
@@ -388,6 +393,8 @@ pub struct Options {
     /// The boards (the study's first) every chart's centre and limits come from; `None`: all
     /// (a retrospective study, where a lasting change pulls the centre to itself).
     pub baseline: Option<usize>,
+    /// When to recommend cleaning the stencil.
+    pub stencil: StencilConfig,
 }
 
 impl Default for Options {
@@ -396,6 +403,7 @@ impl Default for Options {
             rules: Rule::WESTERN_ELECTRIC.to_vec(),
             alarm_scopes: vec![ScopeKind::Board, ScopeKind::Family, ScopeKind::Print],
             baseline: None,
+            stencil: StencilConfig::default(),
         }
     }
 }
@@ -486,6 +494,8 @@ pub struct Report {
     pub prints: Vec<Option<PrintOffset>>,
     /// Every alarm, oldest episode first.
     pub alarms: Vec<Alarm>,
+    /// Whether to clean the stencil, and why (`None`: no aperture's area ratio known).
+    pub stencil: Option<Cleaning>,
 }
 
 /// The scopes of a study: `(kind, name, members)`, the board first.
@@ -541,6 +551,7 @@ pub fn analyse(study: &Study, product: &str, opts: &Options) -> Report {
         print: Vec::new(),
         prints: study.prints.clone(),
         alarms: Vec::new(),
+        stencil: stencil_of(study, &opts.stencil),
     };
     for (kind, name, members) in scopes(study, product) {
         for &m in kind.metrics() {
@@ -618,6 +629,34 @@ pub fn analyse(study: &Study, product: &str, opts: &Options) -> Report {
     report
 }
 
+/// The stencil's assessment from the fine apertures' volumes and the smears of every board.
+fn stencil_of(study: &Study, cfg: &StencilConfig) -> Option<Cleaning> {
+    if study.pads.iter().all(|p| p.area_ratio.is_none()) {
+        return None;
+    }
+    let fine: Vec<usize> = (0..study.pads.len())
+        .filter(|&p| {
+            study.pads[p]
+                .area_ratio
+                .is_some_and(|r| r < cfg.fine_area_ratio)
+        })
+        .collect();
+    let boards: Vec<BoardStencil> = (0..study.boards.len())
+        .map(|b| {
+            let v: Vec<f64> = fine
+                .iter()
+                .map(|&p| study.value(Metric::Volume, p, b))
+                .filter(|x| x.is_finite())
+                .collect();
+            BoardStencil {
+                fine_volume_pct: (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64),
+                smears: study.boards[b].smears,
+            }
+        })
+        .collect();
+    Some(stencil::assess(&boards, fine.len(), cfg))
+}
+
 /// The pads of `members` furthest from `centre` on board `b` (at most five).
 fn pulling(
     study: &Study,
@@ -665,6 +704,7 @@ mod tests {
                 },
             ],
             at_mm: None,
+            area_ratio: None,
         }
     }
 
@@ -673,6 +713,7 @@ mod tests {
             id: i as i64,
             run_id: format!("{i:016x}"),
             ended_unix_s: i as f64,
+            smears: 0,
         }
     }
 
