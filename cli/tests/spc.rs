@@ -478,6 +478,10 @@ fn bad_requests_are_refused_with_a_reason() {
         !o.status.success() && err.contains("under this program"),
         "{err}"
     );
+    // An output directory holding the store (or the program) is refused, whatever its kind.
+    let o = dpsa(&["spc", "--store", st, "--out", s(f.store.parent().unwrap())]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && f.store.is_file(), "{err}");
     // An output directory holding something else is refused before any work.
     let busy = f.dir.path().join("busy");
     std::fs::create_dir_all(&busy).unwrap();

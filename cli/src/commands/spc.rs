@@ -126,13 +126,14 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(o) = &a.out {
         // Refused before the study, not after it.
         dpsa_formats::files::check_output_dir(o, DIR_KIND)?;
-        if let (Some(p), dpsa_line::store::Location::Sqlite(s)) = (&a.program, &location) {
-            for input in [p, s] {
-                if input.starts_with(o) {
-                    bail!("--out {} holds an input ({})", o.display(), input.display());
-                }
-            }
+        // Nor may it be, hold or lie inside an input (symlinks resolved): the store and the
+        // program.
+        use dpsa_formats::files::Input;
+        let mut inputs: Vec<Input> = a.program.iter().map(|p| Input::File(p)).collect();
+        if let dpsa_line::store::Location::Sqlite(s) = &location {
+            inputs.push(Input::File(s));
         }
+        dpsa_formats::files::refuse_overwrite_dir("--out", o, &inputs)?;
     }
     let src = dpsa_spc::load::Source {
         store: &location,

@@ -768,6 +768,71 @@ mod tests {
         assert_eq!(r.components.len(), 2 * 5);
     }
 
+    /// 1,000 boards of a process in control (every pad independent, normal): the point rule
+    /// fires on the board and family charts (X-bar/S, limits from the first 25 boards) as
+    /// often as its in-control run length says, within 4 Poisson sigmas. The pad charts
+    /// (I-MR, limits from 25 moving ranges) are counted and stated: their limits' estimation
+    /// error makes them fire more than nominal.
+    #[test]
+    fn in_control_boards_fire_at_the_nominal_rate() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let noise = Normal::new(0.0, 4.0).unwrap();
+        let pads: Vec<PadSpec> = (0..60)
+            .map(|p| {
+                pad(
+                    &format!("C{}.{}", p / 2, p % 2),
+                    &format!("C{}", p / 2),
+                    ["a", "b", "c"][p % 3],
+                )
+            })
+            .collect();
+        let mut s = Study::new(pads);
+        let boards = 1000;
+        for b in 0..boards {
+            let vals: Vec<[Option<f64>; 5]> = (0..60)
+                .map(|_| [Some(100.0 + noise.sample(&mut rng)), None, None, None, None])
+                .collect();
+            s.push(board(b), &vals).unwrap();
+        }
+        let opts = Options {
+            rules: vec![Rule::We1],
+            alarm_scopes: vec![],
+            baseline: Some(25),
+            ..Options::default()
+        };
+        let r = analyse(&s, "p", &opts);
+        let count = |v: &[Series]| -> (usize, usize) {
+            let c: Vec<&Series> = v.iter().filter(|x| x.metric == Metric::Volume).collect();
+            (
+                c.len(),
+                c.iter()
+                    .map(|x| x.firings.get(&Rule::We1).copied().unwrap_or(0))
+                    .sum(),
+            )
+        };
+        let arl = crate::arl::in_control_arl(Rule::We1).unwrap();
+        let (charts_b, fired_b) = count(&r.board);
+        let (charts_f, fired_f) = count(&r.families);
+        let charts = (charts_b + charts_f) as f64;
+        // Firings in the baseline too (they are judged against limits they helped set): every
+        // point counts, at a rate of about 1 / ARL.
+        let expected = charts * boards as f64 / arl;
+        let fired = (fired_b + fired_f) as f64;
+        let (pc, pf) = count(&r.pads);
+        eprintln!(
+            "in control, {boards} boards: board and family charts fired {fired} times, {expected:.1} \
+             expected; pad charts {pf} against {:.1} nominal ({:.2} x)",
+            pc as f64 * boards as f64 / arl,
+            pf as f64 / (pc as f64 * boards as f64 / arl)
+        );
+        assert!(
+            (fired - expected).abs() < 4.0 * expected.sqrt() + 1.0,
+            "{fired} vs {expected}"
+        );
+    }
+
     #[test]
     fn a_board_of_the_wrong_pad_count_is_refused() {
         let mut s = Study::new(vec![pad("A-1", "A", "f")]);
