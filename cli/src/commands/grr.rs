@@ -1,4 +1,4 @@
-//! `dpsa grr`: gauge repeatability of the inspection on a simulated board.
+//! `dpsa grr`: a gauge R&R study (AIAG, ANOVA) of the inspection on a simulated board.
 
 use super::out;
 use anyhow::Result;
@@ -7,14 +7,17 @@ use std::path::PathBuf;
 #[derive(clap::Args)]
 pub struct Args {
     /// Array scene with a paste layer (e.g. `scenes/array-paste.toml`); give it a
-    /// `[print] seed` so that every repeat sees the same printed board (without one the
+    /// `[print] seed` so that every run sees the same printed board (without one the
     /// study uses the scene's `seed`).
     #[arg(long)]
     scene: PathBuf,
-    /// Runs of the same board (10 or more for a study).
-    #[arg(long, default_value_t = 10)]
+    /// Set-ups of the machine (the appraisers): each its own calibration and placement.
+    #[arg(long, default_value_t = 3)]
+    setups: u32,
+    /// Measurements under each set-up (the trials), fresh camera noise each.
+    #[arg(long, default_value_t = 3)]
     repeats: u32,
-    /// Seed of the calibration and the first run (run `r` uses `seed + 1 + r`).
+    /// Seed of the first set-up (set-up `a` uses `seed + 1000 a`, its runs the next ones).
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Working directory for the recordings (removed as the study goes; default: a new
@@ -36,24 +39,54 @@ pub fn run(a: Args) -> Result<()> {
             tmp.path().to_path_buf()
         }
     };
-    let r = dpsa_sim::inspection::grr::grr(&a.scene, a.repeats, a.seed, &work)?;
+    let r = dpsa_sim::inspection::grr::grr(&a.scene, a.setups, a.repeats, a.seed, &work)?;
     if a.json {
         out!("{}", serde_json::to_string_pretty(&r)?);
     } else {
+        let v = &r.volume;
+        let opt = |x: Option<f64>| x.map_or("-".to_owned(), |x| format!("{x:.1}"));
         out!(
-            "{} pads x {} repeats: volume sigma median {:.3} %, p95 {:.3} %, pooled {:.3} % of the opening volume; %GR&R {:.2} % of the {:.0} % volume window (6 sigma); height sigma median {:.3} um; {} of {} pads called the same every time ({:.0} s)",
+            "{} pads x {} set-ups x {} repeats ({:.0} s)\n\
+             volume, % of the opening volume: repeatability (EV) {:.3}, reproducibility (AV) {:.3} \
+             (calibration and placement {:.3}, pad x set-up {:.3}), GR&R {:.3}, pads (PV) {:.2}\n\
+             %GR&R {} % of the {:.0} % volume window (6 GRR), {} % of the total variation; ndc {}\n\
+             per pad: volume sigma median {:.3} %, p95 {:.3} %; height sigma median {:.3} um; \
+             {} of {} pads called the same every time",
             r.pads,
+            r.setups,
             r.repeats,
+            r.seconds,
+            v.repeatability,
+            v.reproducibility,
+            v.appraiser,
+            v.interaction,
+            v.grr,
+            v.part,
+            opt(v.pct_tolerance),
+            r.tolerance_pct,
+            opt(v.pct_total),
+            v.ndc.map_or("-".to_owned(), |n| n.to_string()),
             r.volume_sigma_pct_median,
             r.volume_sigma_pct_p95,
-            r.volume_sigma_pct_pooled,
-            r.grr_pct,
-            r.tolerance_pct,
             r.height_sigma_um_median,
             r.calls_consistent,
             r.pads,
-            r.seconds
         );
+        for f in &r.families {
+            out!(
+                "  {:<11} {:>4} pads: volume sigma {:.2} % within a set-up ({:.2} % over all), stated {:.2} % (x{:.2}); height {:.2} um ({:.2}), stated {:.2} um (x{:.2})",
+                f.family,
+                f.pads,
+                f.volume_sigma_pct,
+                f.volume_sigma_all_pct,
+                f.volume_u_pct,
+                f.volume_ratio,
+                f.height_sigma_um,
+                f.height_sigma_all_um,
+                f.height_u_um,
+                f.height_ratio
+            );
+        }
     }
     Ok(())
 }

@@ -136,6 +136,10 @@ pub struct ScenePlacement {
     pub offset_sigma_mm: f64,
     /// Placement rotation, sigma, degrees (0..=1).
     pub rotation_sigma_deg: f64,
+    /// Draw the placement error from this seed instead of the run's: every run places the
+    /// board the same way (the noise stays the run's), as `dpsa grr` repeats a placement.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
 }
 
 impl Default for ScenePlacement {
@@ -145,6 +149,7 @@ impl Default for ScenePlacement {
             orientation_deg: 0.0,
             offset_sigma_mm: 0.1,
             rotation_sigma_deg: 0.1,
+            seed: None,
         }
     }
 }
@@ -166,7 +171,7 @@ impl ScenePlacement {
     /// The design-to-board transform of a board of `length x width` mm: the nominal one
     /// followed by the placement error drawn from `seed`.
     pub fn design_to_board(&self, length_mm: f64, width_mm: f64, seed: u64) -> Rigid {
-        let mut rng = crate::simulation::simulate::rng(seed, 0x706c_6163);
+        let mut rng = crate::simulation::simulate::rng(self.seed.unwrap_or(seed), 0x706c_6163);
         let n3 = crate::array::print::normal3;
         let (dx, dy) = (
             self.offset_sigma_mm * n3(&mut rng),
@@ -1000,6 +1005,7 @@ mod tests {
                 orientation_deg: deg,
                 offset_sigma_mm: 0.0,
                 rotation_sigma_deg: 0.0,
+                seed: None,
             };
             let t = p.nominal();
             let o = t.apply(corner);

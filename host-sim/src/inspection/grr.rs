@@ -1,55 +1,260 @@
-//! `dpsa grr`: a gauge repeatability study (AIAG style, one operator: the machine).
+//! `dpsa grr`: a gauge R&R study of the inspection in the AIAG form (ANOVA method).
 //!
-//! The same printed board (the scene's print: the same deposits every time) goes through the
-//! machine `repeats` times, each with fresh camera noise and a fresh placement on the conveyor
-//! (offset and rotation drawn again), and is inspected each time. Per pad, the standard
-//! deviation of the measured volume (percentage points of the opening volume) over the
-//! repeats is its repeatability; `%GR&R = 6 sigma / (upper - lower fail limit of the volume
-//! window) x 100`, per pad and for the pooled sigma (the rms of the pads' sigmas), which is
-//! `grr_pct`. Only pads measured in every repeat count. The calibration is recorded and
-//! computed once, as on a machine.
+//! The same printed board (the scene's print: the same deposits every time) is measured
+//! under `setups` set-ups of the machine, `repeats` times each. A set-up is what changes
+//! between one loading of a machine and another: its own calibration (a calibration recording
+//! simulated and computed afresh) and the board's own placement on the conveyor (offset and
+//! rotation drawn afresh). Within a set-up only the camera noise is fresh. So, in AIAG terms,
+//! the parts are the pads, the appraisers the set-ups and the trials the repeats:
+//! repeatability is the scatter of one set-up, reproducibility the scatter across
+//! calibrations and placements ([`dpsa_spc::msa`]).
+//!
+//! The volume is in % of the opening volume; `%GR&R = 6 GRR / (upper - lower fail limit of
+//! the default volume window) x 100`. Only pads measured in every run count. Per pad, the
+//! standard deviation of its volume over all runs (its own GR&R) gives the median and the
+//! quantiles of `volume_sigma_pct_*`. Per package family, the observed scatter is set
+//! against the standard uncertainty each single measurement stated (`docs/spc.md`,
+//! "Uncertainty").
 
 use crate::array::{record, record::ArrayRecording, scene::ArrayScene};
 use crate::calibration;
 use crate::{At, Result, SimError};
 use dpsa_inspect::run::inspect_dir;
+use dpsa_spc::msa::{gauge_rr, Gauge};
 use serde::Serialize;
+use std::collections::BTreeMap;
 use std::path::Path;
 
-/// What `dpsa grr --json` prints: the study's repeatability figures.
+/// What `dpsa grr --json` prints.
 #[derive(Clone, Debug, Serialize)]
 pub struct GrrReport {
     /// The scene file, as given.
     pub scene: String,
-    /// Times the board went through the machine.
+    /// Set-ups of the machine (a calibration and a placement each): the appraisers.
+    pub setups: u32,
+    /// Measurements under each set-up: the trials.
     pub repeats: u32,
-    /// Pads measured in every repeat.
+    /// Pads measured in every run: the parts.
     pub pads: usize,
-    /// Median over the pads of the volume's standard deviation, % of opening volume.
-    pub volume_sigma_pct_median: f64,
-    /// 95th percentile over the pads of the volume's standard deviation, % of opening
-    /// volume.
-    pub volume_sigma_pct_p95: f64,
-    /// Largest volume standard deviation of any pad, % of opening volume.
-    pub volume_sigma_pct_max: f64,
-    /// Pooled (rms) sigma, % of opening volume.
-    pub volume_sigma_pct_pooled: f64,
-    /// Height's standard deviation, median over the pads, um.
-    pub height_sigma_um_median: f64,
-    /// The volume window's width (fail limits), % of opening volume.
-    pub tolerance_pct: f64,
-    /// 6 x pooled sigma / tolerance x 100.
+    /// The volume's gauge study, % of the opening volume.
+    pub volume: Gauge,
+    /// The height's gauge study, um (no tolerance: `pct_tolerance` null).
+    pub height: Gauge,
+    /// `volume.pct_tolerance`: 6 GRR over the volume window's fail width, %.
     pub grr_pct: f64,
-    /// Per pad %GR&R: median and 95th percentile.
+    /// The volume window's fail width, % of the opening volume.
+    pub tolerance_pct: f64,
+    /// Per pad, the standard deviation of its volume over every run (% of the opening
+    /// volume): the median over the pads.
+    pub volume_sigma_pct_median: f64,
+    /// ... its 95th percentile.
+    pub volume_sigma_pct_p95: f64,
+    /// ... its largest.
+    pub volume_sigma_pct_max: f64,
+    /// Per pad %GR&R (6 x its sigma over the tolerance): median.
     pub grr_pct_pad_median: f64,
-    /// Per pad %GR&R: 95th percentile.
+    /// ... and 95th percentile.
     pub grr_pct_pad_p95: f64,
-    /// Pads whose call (level and class) was the same in every repeat.
+    /// Height's standard deviation per pad over every run, median over the pads, um.
+    pub height_sigma_um_median: f64,
+    /// Pads whose call (level and class) was the same in every run.
     pub calls_consistent: usize,
-    /// The placements drawn: shift (mm) and rotation (deg) the registration found.
+    /// Per package family: the observed scatter against the stated uncertainty.
+    pub families: Vec<FamilyCheck>,
+    /// The machine's pixel scatter, from the first set-up's first two maps.
+    pub pixels: PixelStudy,
+    /// Every run's placement as the registration found it: shift (mm), rotation (deg).
     pub placements: Vec<([f64; 2], f64)>,
-    /// Wall time of the whole study (calibration included), s.
+    /// Wall time of the whole study (calibrations included), s.
     pub seconds: f64,
+}
+
+/// One package family's stated uncertainty against its observed scatter, pooled (rms) over
+/// the family's pads measured in every run. The stated one is the rms of every single
+/// measurement's standard uncertainty; the observed ones are the scatter within a set-up
+/// (repeatability: what the stated uncertainty predicts) and over every run (with the
+/// set-ups' calibrations and placements, which it does not claim to cover).
+#[derive(Clone, Debug, Serialize)]
+pub struct FamilyCheck {
+    /// The family (`dpsa program`'s families).
+    pub family: String,
+    /// Its pads measured in every run.
+    pub pads: usize,
+    /// Volume: observed within a set-up, % of the opening volume.
+    pub volume_sigma_pct: f64,
+    /// Volume: observed over every run.
+    pub volume_sigma_all_pct: f64,
+    /// Volume: stated.
+    pub volume_u_pct: f64,
+    /// `volume_u_pct / volume_sigma_pct`.
+    pub volume_ratio: f64,
+    /// Of the stated volume variance, the local surface's share.
+    pub volume_u_surface_share: f64,
+    /// Height: observed within a set-up, um.
+    pub height_sigma_um: f64,
+    /// Height: observed over every run, um.
+    pub height_sigma_all_um: f64,
+    /// Height: stated, um.
+    pub height_u_um: f64,
+    /// `height_u_um / height_sigma_um`.
+    pub height_ratio: f64,
+}
+
+/// The machine's pixel scatter from two maps of the same board under one set-up (the same
+/// calibration and placement, so the same pixels): their difference over `sqrt 2` is one
+/// map's error. Per map row and [`SEGMENT`] columns (about a camera's share of the row), the
+/// common shift along the motion that best explains the difference on the walls (slope over
+/// 5 um a pixel along the motion) is fitted; the rest is modelled pixel by pixel as noise
+/// plus a lateral scatter times the slope, `e^2 = noise^2 + (lateral g)^2`, by least squares
+/// on the squares (three rounds, each refitting the shifts). The shifts' own variance is
+/// theirs minus what the noise puts in their fit. The four figures are the program's
+/// `measure.lateral_sigma_um`, `row_sigma_um` and `row_correlation` (`docs/spc.md`,
+/// "Uncertainty"), and the bare pixel noise.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct PixelStudy {
+    /// Pixels compared.
+    pub pixels: usize,
+    /// Row segments whose shift was fitted.
+    pub rows: usize,
+    /// A pixel's noise where the board is flat, um.
+    pub noise_um: f64,
+    /// A pixel's lateral scatter (both axes), um.
+    pub lateral_sigma_um: f64,
+    /// The scatter of a whole row segment's place along the motion, um.
+    pub row_sigma_um: f64,
+    /// The correlation of neighbouring rows' shifts.
+    pub row_correlation: f64,
+}
+
+/// Columns of a row segment in [`PixelStudy`].
+pub const SEGMENT: usize = 128;
+
+/// Fits `e^2 = c0 + c1 g^2` by least squares over the pairs `(g^2, e^2)`.
+fn fit_squares(pairs: &[(f64, f64)]) -> (f64, f64) {
+    let n = pairs.len() as f64;
+    let (sx, sy) = pairs
+        .iter()
+        .fold((0.0, 0.0), |(a, b), (x, y)| (a + x, b + y));
+    let (mx, my) = (sx / n, sy / n);
+    let (mut sxx, mut sxy) = (0.0, 0.0);
+    for (x, y) in pairs {
+        sxx += (x - mx) * (x - mx);
+        sxy += (x - mx) * (y - my);
+    }
+    let c1 = if sxx > 0.0 { sxy / sxx } else { 0.0 };
+    (my - c1 * mx, c1)
+}
+
+/// [`PixelStudy`] of maps `a` and `b` (heights, um, the same grid) at `pitch_mm`.
+pub fn pixel_study(
+    a: &dpsa_formats::grid::Grid,
+    b: &dpsa_formats::grid::Grid,
+    pitch_mm: f64,
+) -> PixelStudy {
+    let (rows, w) = (a.rows, a.width);
+    if b.rows != rows || b.width != w || rows < 3 || w < 3 {
+        return PixelStudy::default();
+    }
+    let at = |g: &dpsa_formats::grid::Grid, i: usize, j: usize| f64::from(g.data[i * w + j]);
+    let mean = |i: usize, j: usize| 0.5 * (at(a, i, j) + at(b, i, j));
+    // Per pixel: the difference (one map's error) and the mean map's slopes.
+    let mut d = vec![f64::NAN; rows * w];
+    let mut gx = vec![f64::NAN; rows * w];
+    let mut gy = vec![f64::NAN; rows * w];
+    for i in 1..rows - 1 {
+        for j in 1..w - 1 {
+            let k = i * w + j;
+            d[k] = (at(a, i, j) - at(b, i, j)) / std::f64::consts::SQRT_2;
+            gx[k] = 0.5 * (mean(i + 1, j) - mean(i - 1, j));
+            gy[k] = 0.5 * (mean(i, j + 1) - mean(i, j - 1));
+        }
+    }
+    let ok: Vec<bool> = (0..rows * w)
+        .map(|k| d[k].is_finite() && gx[k].is_finite() && gy[k].is_finite())
+        .collect();
+    let g2 = |k: usize| gx[k] * gx[k] + gy[k] * gy[k];
+    let pixels = ok.iter().filter(|v| **v).count();
+    if pixels < 1000 {
+        return PixelStudy::default();
+    }
+    let mut c = fit_squares(
+        &(0..rows * w)
+            .filter(|&k| ok[k])
+            .map(|k| (g2(k), d[k] * d[k]))
+            .collect::<Vec<_>>(),
+    );
+    let segs = w.div_ceil(SEGMENT);
+    let mut shift = vec![f64::NAN; rows * segs];
+    let mut row_var = 0.0;
+    for _ in 0..3 {
+        let mut r = d.clone();
+        let mut noise_in_shift = Vec::new();
+        shift.fill(f64::NAN);
+        for i in 0..rows {
+            for s in 0..segs {
+                let cols = s * SEGMENT..((s + 1) * SEGMENT).min(w);
+                let (mut gd, mut gg, mut gge, mut n) = (0.0, 0.0, 0.0, 0);
+                for j in cols.clone() {
+                    let k = i * w + j;
+                    if ok[k] && gx[k].abs() > 5.0 {
+                        gd += gx[k] * d[k];
+                        gg += gx[k] * gx[k];
+                        gge += gx[k] * gx[k] * (c.0 + c.1 * g2(k)).max(0.0);
+                        n += 1;
+                    }
+                }
+                if n < 5 {
+                    continue;
+                }
+                let delta = gd / gg;
+                shift[i * segs + s] = delta;
+                noise_in_shift.push(gge / (gg * gg));
+                for j in cols {
+                    let k = i * w + j;
+                    if ok[k] {
+                        r[k] -= gx[k] * delta;
+                    }
+                }
+            }
+        }
+        let fitted: Vec<f64> = shift.iter().copied().filter(|v| v.is_finite()).collect();
+        if fitted.len() < 10 {
+            break;
+        }
+        row_var = (var(&fitted) - noise_in_shift.iter().sum::<f64>() / noise_in_shift.len() as f64)
+            .max(0.0);
+        c = fit_squares(
+            &(0..rows * w)
+                .filter(|&k| ok[k])
+                .map(|k| (g2(k), r[k] * r[k]))
+                .collect::<Vec<_>>(),
+        );
+    }
+    let fitted: Vec<f64> = shift.iter().copied().filter(|v| v.is_finite()).collect();
+    let m = fitted.iter().sum::<f64>() / fitted.len().max(1) as f64;
+    let (mut cov, mut n) = (0.0, 0);
+    for i in 1..rows {
+        for s in 0..segs {
+            let (p, q) = (shift[(i - 1) * segs + s], shift[i * segs + s]);
+            if p.is_finite() && q.is_finite() {
+                cov += (p - m) * (q - m);
+                n += 1;
+            }
+        }
+    }
+    let um = pitch_mm * 1000.0;
+    PixelStudy {
+        pixels,
+        rows: fitted.len(),
+        noise_um: c.0.max(0.0).sqrt(),
+        lateral_sigma_um: c.1.max(0.0).sqrt() * um,
+        row_sigma_um: row_var.sqrt() * um,
+        row_correlation: if n > 0 && row_var > 0.0 {
+            (cov / n as f64 / row_var).clamp(-1.0, 1.0)
+        } else {
+            0.0
+        },
+    }
 }
 
 fn quantile(v: &[f64], q: f64) -> f64 {
@@ -61,11 +266,38 @@ fn quantile(v: &[f64], q: f64) -> f64 {
     s[((s.len() - 1) as f64 * q).round() as usize]
 }
 
-/// Runs the study in `work` (created; its board recordings are removed as it goes).
-pub fn grr(scene_path: &Path, repeats: u32, seed: u64, work: &Path) -> Result<GrrReport> {
-    if !(2..=1000).contains(&repeats) {
+/// Sample variance (ddof 1) of `v`.
+fn var(v: &[f64]) -> f64 {
+    let n = v.len() as f64;
+    let m = v.iter().sum::<f64>() / n;
+    v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0)
+}
+
+/// One run's figures per pad.
+struct Run {
+    volume: Vec<f64>,
+    height: Vec<f64>,
+    /// Stated variances: volume, its surface part, height.
+    stated: Vec<[f64; 3]>,
+    calls: Vec<String>,
+}
+
+/// Runs the study in `work` (created; its recordings are removed as it goes).
+pub fn grr(
+    scene_path: &Path,
+    setups: u32,
+    repeats: u32,
+    seed: u64,
+    work: &Path,
+) -> Result<GrrReport> {
+    if !(2..=20).contains(&setups) {
         return Err(SimError::Refused(format!(
-            "--repeats {repeats}: need 2 to 1000"
+            "--setups {setups}: need 2 to 20"
+        )));
+    }
+    if !(2..=100).contains(&repeats) {
+        return Err(SimError::Refused(format!(
+            "--repeats {repeats}: need 2 to 100"
         )));
     }
     let t0 = std::time::Instant::now();
@@ -77,89 +309,185 @@ pub fn grr(scene_path: &Path, repeats: u32, seed: u64, work: &Path) -> Result<Gr
         )));
     }
     std::fs::create_dir_all(work).at(|| format!("creating {}", work.display()))?;
-    let cal_dir = work.join("calibration");
-    record::simulate_calibration(&scene, seed, &cal_dir)?;
-    let cal = calibration::calibrate(&ArrayRecording::open(&cal_dir)?, calibration::FX_BUDGET_UM)?;
-    let _ = std::fs::remove_dir_all(&cal_dir);
-    let mut volumes: Vec<Vec<f64>> = Vec::new();
-    let mut heights: Vec<Vec<f64>> = Vec::new();
-    let mut calls: Vec<Vec<String>> = Vec::new();
+    let mut runs: Vec<Run> = Vec::new();
     let mut placements = Vec::new();
     let mut tolerance = f64::NAN;
-    for r in 0..repeats {
-        let board = work.join("board");
-        let map = work.join("map");
-        let _ = std::fs::remove_dir_all(&board);
-        let _ = std::fs::remove_dir_all(&map);
-        record::simulate_board(&scene, seed + 1 + u64::from(r), &board)?;
-        crate::board::run::run(&board, &cal, &map)?;
-        let program_path = board.join("program.toml");
-        let (report, insp) = inspect_dir(&map, &program_path, None, 1)?;
-        let program = super::program::Program::load(&program_path)
-            .map_err(dpsa_inspect::InspectError::from)?;
-        tolerance = program.windows.volume_pct.fail[1] - program.windows.volume_pct.fail[0];
-        placements.push((
-            report.registration.shift_mm,
-            report.registration.rotation_deg,
-        ));
-        if volumes.is_empty() {
-            volumes = vec![Vec::new(); insp.measurements.len()];
-            heights = vec![Vec::new(); insp.measurements.len()];
-            calls = vec![Vec::new(); insp.measurements.len()];
-        }
-        if insp.measurements.len() != volumes.len() {
-            return Err(SimError::refused("the pad count changed between repeats"));
-        }
-        for (k, m) in insp.measurements.iter().enumerate() {
-            let v = if m.unmeasurable.is_none() {
-                m.volume_pct
-            } else {
-                f64::NAN
+    let mut family: Vec<&'static str> = Vec::new();
+    let mut first_maps: Vec<dpsa_inspect::map::BoardMap> = Vec::new();
+    for a in 0..setups {
+        // The set-up: its own calibration and its own placement.
+        let setup_seed = seed.wrapping_add(1000 * u64::from(a));
+        let cal_dir = work.join("calibration");
+        let _ = std::fs::remove_dir_all(&cal_dir);
+        record::simulate_calibration(&scene, setup_seed, &cal_dir)?;
+        let cal =
+            calibration::calibrate(&ArrayRecording::open(&cal_dir)?, calibration::FX_BUDGET_UM)?;
+        let _ = std::fs::remove_dir_all(&cal_dir);
+        let mut placed = scene.clone();
+        placed.placement.seed = Some(setup_seed.wrapping_add(0x5eed));
+        for t in 0..repeats {
+            let board = work.join("board");
+            let map = work.join("map");
+            let _ = std::fs::remove_dir_all(&board);
+            let _ = std::fs::remove_dir_all(&map);
+            record::simulate_board(&placed, setup_seed + 1 + u64::from(t), &board)?;
+            crate::board::run::run(&board, &cal, &map)?;
+            let program_path = board.join("program.toml");
+            let (report, insp) = inspect_dir(&map, &program_path, None, 1)?;
+            if a == 0 && t < 2 {
+                first_maps.push(dpsa_inspect::map::BoardMap::open(&map)?);
+            }
+            let program = super::program::Program::load(&program_path)
+                .map_err(dpsa_inspect::InspectError::from)?;
+            tolerance = program.windows.volume_pct.fail[1] - program.windows.volume_pct.fail[0];
+            placements.push((
+                report.registration.shift_mm,
+                report.registration.rotation_deg,
+            ));
+            if family.is_empty() {
+                let (pads, _) = dpsa_inspect::run::paste_layer_pads(&program, &program_path)?;
+                let packages = dpsa_inspect::teach::component_packages(&program, &program_path)
+                    .unwrap_or_default();
+                family = dpsa_inspect::teach::families::classify(&pads, &packages);
+            }
+            if let Some(first) = runs.first() {
+                if first.volume.len() != insp.measurements.len() {
+                    return Err(SimError::refused("the pad count changed between runs"));
+                }
+            }
+            let mut run = Run {
+                volume: Vec::new(),
+                height: Vec::new(),
+                stated: Vec::new(),
+                calls: Vec::new(),
             };
-            volumes[k].push(v);
-            heights[k].push(m.height_um);
-            let c = &insp.calls[k];
-            calls[k].push(format!("{:?}{:?}", c.level, c.class));
+            for (m, c) in insp.measurements.iter().zip(&insp.calls) {
+                let ok = m.unmeasurable.is_none();
+                run.volume.push(if ok { m.volume_pct } else { f64::NAN });
+                run.height.push(if ok { m.height_um } else { f64::NAN });
+                run.stated.push([
+                    m.volume_u_pct.powi(2),
+                    m.volume_u_surface_pct.powi(2),
+                    m.height_u_um.powi(2),
+                ]);
+                run.calls.push(format!("{:?}{:?}", c.level, c.class));
+            }
+            runs.push(run);
+            let _ = std::fs::remove_dir_all(&board);
+            let _ = std::fs::remove_dir_all(&map);
         }
-        let _ = std::fs::remove_dir_all(&board);
-        let _ = std::fs::remove_dir_all(&map);
     }
-    let sd = |v: &[f64]| {
-        let n = v.len() as f64;
-        let m = v.iter().sum::<f64>() / n;
-        (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1.0)).sqrt()
+    let n_pads = runs[0].volume.len();
+    let all_finite = |k: usize| {
+        runs.iter().all(|r| {
+            r.volume[k].is_finite()
+                && r.height[k].is_finite()
+                && r.stated[k].iter().all(|v| v.is_finite())
+        })
+    };
+    let pads: Vec<usize> = (0..n_pads).filter(|&k| all_finite(k)).collect();
+    if pads.len() < 2 {
+        return Err(SimError::refused(
+            "fewer than 2 pads were measured in every run",
+        ));
+    }
+    let (a_n, r_n) = (setups as usize, repeats as usize);
+    // Values in the study's order: pad, set-up, trial (runs are set-up after set-up).
+    let order = |f: &dyn Fn(&Run, usize) -> f64| -> Vec<f64> {
+        pads.iter()
+            .flat_map(|&k| runs.iter().map(move |r| (r, k)))
+            .map(|(r, k)| f(r, k))
+            .collect()
+    };
+    let msa_err = |e: dpsa_spc::msa::MsaError| SimError::Refused(format!("gauge study: {e}"));
+    let volume = gauge_rr(
+        &order(&|r, k| r.volume[k]),
+        pads.len(),
+        a_n,
+        r_n,
+        Some(tolerance),
+    )
+    .map_err(msa_err)?;
+    let height =
+        gauge_rr(&order(&|r, k| r.height[k]), pads.len(), a_n, r_n, None).map_err(msa_err)?;
+    // Per pad: variance over every run, and within the set-ups (pooled).
+    let within = |vals: &[f64]| {
+        (0..a_n)
+            .map(|a| var(&vals[a * r_n..(a + 1) * r_n]))
+            .sum::<f64>()
+            / a_n as f64
     };
     let mut sig = Vec::new();
     let mut hsig = Vec::new();
-    for (v, h) in volumes.iter().zip(&heights) {
-        if v.iter().all(|x| x.is_finite()) && h.iter().all(|x| x.is_finite()) {
-            sig.push(sd(v));
-            hsig.push(sd(h));
+    // Per family: [volume within, volume all, height within, height all], stated sums, pads.
+    let mut fam: BTreeMap<&str, ([f64; 4], [f64; 3], usize)> = BTreeMap::new();
+    for &k in &pads {
+        let v: Vec<f64> = runs.iter().map(|r| r.volume[k]).collect();
+        let h: Vec<f64> = runs.iter().map(|r| r.height[k]).collect();
+        sig.push(var(&v).sqrt());
+        hsig.push(var(&h).sqrt());
+        let e = fam
+            .entry(family.get(k).copied().unwrap_or("?"))
+            .or_default();
+        e.0[0] += within(&v);
+        e.0[1] += var(&v);
+        e.0[2] += within(&h);
+        e.0[3] += var(&h);
+        for r in &runs {
+            for (acc, s) in e.1.iter_mut().zip(r.stated[k]) {
+                *acc += s / runs.len() as f64;
+            }
         }
+        e.2 += 1;
     }
-    if sig.is_empty() {
-        return Err(SimError::refused("no pad was measured in every repeat"));
-    }
-    let pooled = (sig.iter().map(|s| s * s).sum::<f64>() / sig.len() as f64).sqrt();
+    let families = fam
+        .into_iter()
+        .map(|(f, (o, s, n))| {
+            let n = n as f64;
+            let o = o.map(|v| (v / n).sqrt());
+            let (vs, hs) = ((s[0] / n).sqrt(), (s[2] / n).sqrt());
+            FamilyCheck {
+                family: f.to_owned(),
+                pads: n as usize,
+                volume_sigma_pct: o[0],
+                volume_sigma_all_pct: o[1],
+                volume_u_pct: vs,
+                volume_ratio: vs / o[0],
+                volume_u_surface_share: s[1] / s[0],
+                height_sigma_um: o[2],
+                height_sigma_all_um: o[3],
+                height_u_um: hs,
+                height_ratio: hs / o[2],
+            }
+        })
+        .collect();
     let per_pad: Vec<f64> = sig.iter().map(|s| 600.0 * s / tolerance).collect();
-    let consistent = calls
+    let consistent = pads
         .iter()
-        .filter(|c| c.iter().all(|x| x == &c[0]))
+        .filter(|&&k| runs.iter().all(|r| r.calls[k] == runs[0].calls[k]))
         .count();
     Ok(GrrReport {
         scene: scene_path.display().to_string(),
+        setups,
         repeats,
-        pads: sig.len(),
+        pads: pads.len(),
+        grr_pct: volume.pct_tolerance.unwrap_or(f64::NAN),
+        volume,
+        height,
+        tolerance_pct: tolerance,
         volume_sigma_pct_median: quantile(&sig, 0.5),
         volume_sigma_pct_p95: quantile(&sig, 0.95),
         volume_sigma_pct_max: quantile(&sig, 1.0),
-        volume_sigma_pct_pooled: pooled,
-        height_sigma_um_median: quantile(&hsig, 0.5),
-        tolerance_pct: tolerance,
-        grr_pct: 600.0 * pooled / tolerance,
         grr_pct_pad_median: quantile(&per_pad, 0.5),
         grr_pct_pad_p95: quantile(&per_pad, 0.95),
+        height_sigma_um_median: quantile(&hsig, 0.5),
         calls_consistent: consistent,
+        families,
+        pixels: pixel_study(
+            &first_maps[0].heights,
+            &first_maps[1].heights,
+            first_maps[0].grid.pitch_mm,
+        ),
         placements,
         seconds: t0.elapsed().as_secs_f64(),
     })

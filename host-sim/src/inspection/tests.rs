@@ -11,6 +11,7 @@ use super::verdict::{judge, Class, Level};
 use crate::board::resample::BoardGrid;
 use crate::board::Grid;
 use crate::error::chain;
+use dpsa_inspect::noise::NoiseModel;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 
@@ -248,7 +249,8 @@ fn registration_measurement_and_verdicts_on_a_known_board() {
     }
     assert!(reg.residual_um < 3.0, "{reg:?}");
     let placed = Placed::new(&s.pads, &reg.transform, &s.program.fiducials.points_mm, 1.0);
-    let m = measure_all(&s.map, &s.pads, &placed, &reg.transform, &s.program);
+    let noise = NoiseModel::measure(&s.map, &placed, s.program.measure.surface_guard_mm);
+    let m = measure_all(&s.map, &s.pads, &placed, &reg.transform, &s.program, &noise);
     for p in &s.pads {
         let k = p.index;
         let truth: f64 = s
@@ -311,7 +313,8 @@ fn pads_off_the_map_or_on_invalid_pixels_are_not_measurable() {
     }
     s.pads.push(pad(9, rr([30.0, 3.0], 0.5, 0.5)));
     let placed = Placed::new(&s.pads, &reg.transform, &s.program.fiducials.points_mm, 1.0);
-    let m = measure_all(&s.map, &s.pads, &placed, &reg.transform, &s.program);
+    let noise = NoiseModel::measure(&s.map, &placed, s.program.measure.surface_guard_mm);
+    let m = measure_all(&s.map, &s.pads, &placed, &reg.transform, &s.program, &noise);
     for k in [1, 9] {
         let call = judge(&m[k], &s.program.windows);
         assert_eq!(

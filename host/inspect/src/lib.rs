@@ -14,6 +14,8 @@
 //! | [`register`] | fiducials found on the map, the design-to-board transform |
 //! | [`register_paste`] | the transform from the paste pattern itself, for boards without fiducials |
 //! | [`measure`] | per pad: local surface, volume, area, height, offset, shape, coverage, bridges |
+//! | [`noise`] | the map's pixel noise and its correlation between neighbours, from the bare board |
+//! | [`uncertainty`] | per pad: the standard uncertainty of the volume and height |
 //! | [`verdict`] | pass / warning / fail with the defect class |
 //! | [`run`] | `dpsa inspect` end to end, its JSON report |
 //! | [`report`] | the files: pads.csv, IPC-CFX UnitsInspected, overview, defect gallery |
@@ -22,12 +24,14 @@
 pub mod error;
 pub mod map;
 pub mod measure;
+pub mod noise;
 pub mod program;
 pub mod register;
 pub mod register_paste;
 pub mod report;
 pub mod run;
 pub mod teach;
+pub mod uncertainty;
 pub mod verdict;
 
 pub use error::InspectError;

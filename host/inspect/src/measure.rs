@@ -33,7 +33,9 @@
 //!   joins them (4-connected), searched in the two openings' joint box.
 
 use crate::map::BoardMap;
+use crate::noise::NoiseModel;
 use crate::program::Program;
+use crate::uncertainty::{CellCounts, Uncertainty};
 use dpsa_gerber::pads::{norm, Outline, Pad, Point, Prepared, Rigid};
 use serde::Serialize;
 
@@ -205,6 +207,21 @@ pub struct PadMeasurement {
     pub surface_pixels: usize,
     /// Their rms about the surface, um.
     pub surface_rms_um: f64,
+    /// Standard uncertainty of the volume, um^3 (NaN when not measured; see
+    /// [`crate::uncertainty`]).
+    pub volume_u_um3: f64,
+    /// The volume's standard uncertainty, % of the opening volume.
+    pub volume_u_pct: f64,
+    /// Of it, the part from the local surface (the rest is the cell pixels' noise), % of the
+    /// opening volume.
+    pub volume_u_surface_pct: f64,
+    /// Standard uncertainty of the height, um.
+    pub height_u_um: f64,
+    /// The height's standard uncertainty, % of the stencil thickness.
+    pub height_u_pct: f64,
+    /// Pixel noise on the paste (the opening's interior), um: from neighbouring pixels'
+    /// differences there, or the bare board's where the interior is too small to tell.
+    pub paste_sigma_um: f64,
     /// Local surface about the opening's centroid (board mm, heights um): the coefficients of
     /// `1, dx, dy, dx^2, dx dy, dy^2` of a quadratic (only the first three for a plane, the
     /// first for a level, where the bare board does not pin the curvature); empty when none
@@ -226,7 +243,7 @@ fn terms(dx: f64, dy: f64) -> [f64; 6] {
 /// iteratively trimmed at `max(3 robust sigma, 3 um)`; its value at `(dx, dy)` is
 /// [`surface_at`]. A quadratic whose samples do not pin its curvature (a thin or one-sided
 /// region) falls back to a plane, and a plane to the level alone.
-pub(crate) fn robust_surface(s: &[[f64; 3]], quadratic: bool) -> Option<(Vec<f64>, f64, usize)> {
+pub(crate) fn robust_surface(s: &[[f64; 3]], quadratic: bool) -> Option<SurfaceFit> {
     // Paste lies above the board, never below: start from the lower half (a plane through
     // the samples below their median) and keep what lies within START_BAND_UM above it, so
     // that paste covering much of the region (an offset deposit, a smear) cannot lift the
@@ -238,9 +255,9 @@ pub(crate) fn robust_surface(s: &[[f64; 3]], quadratic: bool) -> Option<(Vec<f64
         let (_, med, _) = zs.select_nth_unstable_by(mid, f64::total_cmp);
         let med = *med;
         let low: Vec<[f64; 3]> = s.iter().copied().filter(|p| p[2] <= med).collect();
-        if let Some((c, _, _)) = robust_surface_from(&low, false, vec![true; low.len()]) {
+        if let Some(f) = robust_surface_from(&low, false, vec![true; low.len()]) {
             for (k, p) in keep.iter_mut().zip(s) {
-                let r = p[2] - surface_at(&c, p[0], p[1]);
+                let r = p[2] - surface_at(&f.coef, p[0], p[1]);
                 *k = r <= START_BAND_UM;
             }
         }
@@ -251,14 +268,47 @@ pub(crate) fn robust_surface(s: &[[f64; 3]], quadratic: bool) -> Option<(Vec<f64
 /// Above the lower half's plane, samples within this are the board's at the start, um.
 pub(crate) const START_BAND_UM: f64 = 15.0;
 
+/// A fitted local surface.
+#[derive(Clone, Debug)]
+pub(crate) struct SurfaceFit {
+    /// Coefficients of [`terms`] (1, 3 or 6).
+    pub coef: Vec<f64>,
+    /// Rms of the kept samples about it, um.
+    pub rms: f64,
+    /// Samples kept by the trimming.
+    pub kept: usize,
+    /// The inverse of the final fit's normal matrix (`coef.len()` squared, row-major): the
+    /// coefficients' covariance is this times the samples' noise variance (uncorrelated).
+    pub inv: Vec<f64>,
+    /// Which samples the final fit kept.
+    pub keep: Vec<bool>,
+}
+
+impl SurfaceFit {
+    /// Variance of the surface's mean over points whose mean [`terms`] are `t`, per unit
+    /// noise variance: `t' inv t`.
+    pub fn mean_variance(&self, t: &[f64; 6]) -> f64 {
+        self.weight(t, t).max(0.0)
+    }
+
+    /// The weight of a sample with terms `x` in the surface's mean over points whose mean
+    /// terms are `t`: `t' inv x` (the mean is the sum of the kept samples' heights times
+    /// their weights).
+    pub fn weight(&self, t: &[f64; 6], x: &[f64; 6]) -> f64 {
+        let n = self.coef.len();
+        self.inv
+            .chunks_exact(n)
+            .zip(t)
+            .map(|(row, ti)| ti * row.iter().zip(x).map(|(a, xj)| a * xj).sum::<f64>())
+            .sum()
+    }
+}
+
 /// [`robust_surface`] from a given first selection.
-fn robust_surface_from(
-    s: &[[f64; 3]],
-    quadratic: bool,
-    mut keep: Vec<bool>,
-) -> Option<(Vec<f64>, f64, usize)> {
+fn robust_surface_from(s: &[[f64; 3]], quadratic: bool, mut keep: Vec<bool>) -> Option<SurfaceFit> {
     let mut nt = if quadratic { 6 } else { 3 };
     let mut coef = vec![0.0; nt];
+    let mut inv_final: Vec<f64> = Vec::new();
     let mut rms = 0.0;
     let mut kept = 0;
     let mut res: Vec<f64> = vec![0.0; s.len()];
@@ -291,6 +341,7 @@ fn robust_surface_from(
             let diag: f64 = (0..nt).map(|i| sub[(i, i)]).product();
             match sub.clone().try_inverse() {
                 Some(inv) if sub.determinant().abs() > 1e-9 * diag => {
+                    inv_final = inv.transpose().iter().copied().collect();
                     let sol = inv * v.rows(0, nt);
                     break sol.iter().copied().collect::<Vec<f64>>();
                 }
@@ -322,7 +373,13 @@ fn robust_surface_from(
             *k = r.abs() <= limit;
         }
     }
-    Some((coef, rms, kept))
+    Some(SurfaceFit {
+        coef,
+        rms,
+        kept,
+        inv: inv_final,
+        keep,
+    })
 }
 
 /// The normal equations of the first `NT` terms over the kept samples (every `step`-th):
@@ -442,9 +499,10 @@ pub fn measure_all(
     placed: &Placed,
     t: &Rigid,
     program: &Program,
+    noise: &NoiseModel,
 ) -> Vec<PadMeasurement> {
     let mut out = per_pad(pads.len(), |k| {
-        measure_pad(map, pads, placed, t, program, k)
+        measure_pad(map, pads, placed, t, program, noise, k)
     });
     bridges(map, placed, program, &mut out);
     out
@@ -596,6 +654,7 @@ pub(crate) fn measure_pad(
     placed: &Placed,
     t: &Rigid,
     program: &Program,
+    noise: &NoiseModel,
     k: usize,
 ) -> PadMeasurement {
     let bb = placed.bboxes[k];
@@ -606,6 +665,12 @@ pub(crate) fn measure_pad(
         pad: k,
         opening_mm2,
         offset_um: [f64::NAN; 2],
+        volume_u_um3: f64::NAN,
+        volume_u_pct: f64::NAN,
+        volume_u_surface_pct: f64::NAN,
+        height_u_um: f64::NAN,
+        height_u_pct: f64::NAN,
+        paste_sigma_um: f64::NAN,
         ..Default::default()
     };
     if !map.covers(bb) {
@@ -617,16 +682,16 @@ pub(crate) fn measure_pad(
     let px_area = p * p;
     let reach = Reach::new(placed, k, program);
     let inset = height_inset(program, placed.min_size[k]);
-    let Some((plane, rms, kept)) = local_surface(map, placed, program, k, c) else {
+    let Some((fit, stride, samples)) = local_surface(map, placed, program, k, c) else {
         pm.unmeasurable = Some(Unmeasurable::NoSurface);
         return pm;
     };
-    pm.surface = plane.clone();
-    pm.surface_rms_um = rms;
-    pm.surface_pixels = kept;
-    let cell = Cell::new(map, placed, k, &reach, &plane, c);
+    pm.surface = fit.coef.clone();
+    pm.surface_rms_um = fit.rms;
+    pm.surface_pixels = fit.kept;
+    let cell = Cell::new(map, placed, k, &reach, &fit.coef, c);
     let thr_area = stencil * m.area_threshold_pct / 100.0;
-    let s = cell.sums(map, thr_area, m.shape_threshold_um, m.wall_mm, inset);
+    let s = cell.sums(map, thr_area, m.shape_threshold_um, m.wall_mm, inset, c);
     pm.coverage = if s.open_n > 0 {
         s.open_valid as f64 / s.open_n as f64
     } else {
@@ -649,6 +714,38 @@ pub(crate) fn measure_pad(
         pm.height_um
     };
     pm.shape_pct = 100.0 * s.shape_n as f64 * px_area / opening_mm2;
+    let mut s = s;
+    let overlap = cell.overlap(map, &samples, &fit, c, &s, noise);
+    let u = Uncertainty::of(
+        &fit,
+        stride,
+        CellCounts {
+            cell_n: s.cell_n,
+            cell_t: s.cell_t,
+            paste_n: s.area_n,
+            int_n: s.hn,
+            int_t: s.int_t,
+            diff2: &mut s.diff2,
+            cell_g2: s.cell_g2,
+            int_g2: s.int_g2,
+            cell_row_g2: s.cell_row_g2 + 2.0 * m.row_correlation * s.cell_row_g1,
+            int_row_g2: s.int_row_g2 + 2.0 * m.row_correlation * s.int_row_g1,
+            cell_edges: s.cell_edges,
+            int_edges: s.int_edges,
+            overlap,
+            lateral_px: m.lateral_sigma_um / (p * 1000.0),
+            row_px: m.row_sigma_um / (p * 1000.0),
+        },
+        noise,
+    );
+    pm.paste_sigma_um = u.paste_sigma_um;
+    pm.volume_u_um3 = u.volume_sum.sqrt() * px_area * 1e6;
+    pm.volume_u_pct = 100.0 * u.volume_sum.sqrt() * px_area / opening_volume;
+    pm.volume_u_surface_pct = 100.0 * u.volume_surface.sqrt() * px_area / opening_volume;
+    pm.height_u_um = u.height.sqrt();
+
+    pm.height_u_pct = 100.0 * pm.height_u_um / stencil;
+
     if s.sw > 0.0 {
         let (dx, dy) = (s.sx / s.sw - c[0], s.sy / s.sw - c[1]);
         // Into the design frame's axes.
@@ -667,14 +764,15 @@ pub(crate) fn measure_pad(
 /// Pad `k`'s local surface about its centroid `c` (board mm): a robust quadratic through the
 /// bare board around it (at least `surface_guard_mm` from every opening and fiducial, within
 /// `surface_reach_mm` of this one, grown to 2, 4 and 8 times that until at least
-/// [`MIN_SURFACE_PIXELS`] qualify); coefficients, rms (um) and pixels kept, or None.
+/// [`MIN_SURFACE_PIXELS`] qualify): the fit, the stride of its samples (pixels) and the
+/// samples (about `c`, mm, and the height), or None.
 fn local_surface(
     map: &BoardMap,
     placed: &Placed,
     program: &Program,
     k: usize,
     c: Point,
-) -> Option<(Vec<f64>, f64, usize)> {
+) -> Option<(SurfaceFit, usize, Vec<[f64; 3]>)> {
     let m = &program.measure;
     let o = &placed.outlines[k];
     let bb = placed.bboxes[k];
@@ -719,9 +817,8 @@ fn local_surface(
             }
         }
         if samples.len() >= MIN_SURFACE_PIXELS {
-            let surface = robust_surface(&samples, true);
-            if surface.is_some() {
-                return surface;
+            if let Some(fit) = robust_surface(&samples, true) {
+                return Some((fit, stride, samples));
             }
         }
     }
@@ -789,6 +886,31 @@ struct Sums {
     hsum: f64,
     hn: usize,
     hmax: f64,
+    /// Pixels of the cell (each adds to `vol`) and their [`terms`] summed (about the
+    /// centroid).
+    cell_n: usize,
+    cell_t: [f64; 6],
+    /// The interior's valid pixels' [`terms`] summed.
+    int_t: [f64; 6],
+    /// Squared differences of neighbouring valid interior pixels (along rows and columns),
+    /// um^2.
+    diff2: Vec<f64>,
+    /// Squared slopes (um per pixel, central differences) summed over the cell's valid
+    /// pixels, and over the interior's.
+    cell_g2: f64,
+    int_g2: f64,
+    /// Over the cell's rows (map rows run across the motion), the square of the row's summed
+    /// slope along the motion ((um per pixel)^2), summed; and over the interior's rows.
+    cell_row_g2: f64,
+    int_row_g2: f64,
+    /// The products of neighbouring rows' summed slopes, summed (cell, interior).
+    cell_row_g1: f64,
+    int_row_g1: f64,
+    /// Cell pixels whose next pixel down a column (and along a row) is not in the cell: the
+    /// cell's extent across each axis, for the pairs of neighbours it holds; the same for the
+    /// interior.
+    cell_edges: [usize; 2],
+    int_edges: [usize; 2],
 }
 
 impl Cell {
@@ -836,10 +958,68 @@ impl Cell {
         cell
     }
 
+    /// How the local surface's samples share noise with the cell: over the fit's kept
+    /// samples, each one's weight in the surface's mean over the cell times the sum of its
+    /// noise's correlation coefficients with the cell's pixels (samples within the cell's
+    /// reach of the bare board count; farther ones have none).
+    fn overlap(
+        &self,
+        map: &BoardMap,
+        samples: &[[f64; 3]],
+        fit: &SurfaceFit,
+        c: Point,
+        s: &Sums,
+        noise: &NoiseModel,
+    ) -> f64 {
+        let mut t = s.cell_t;
+        for v in &mut t {
+            *v /= s.cell_n.max(1) as f64;
+        }
+        let (h_w, w_w) = (self.ri.len() as i64, self.cols as i64);
+        let l = crate::noise::LAGS as i64;
+        let mut sum = 0.0;
+        for (p, keep) in samples.iter().zip(&fit.keep) {
+            if !keep {
+                continue;
+            }
+            let (i, j) = map.pixel_of([p[0] + c[0], p[1] + c[1]]);
+            let (a, b) = (i - self.ri.start as i64, j - self.rj.start as i64);
+            if a < -l || b < -l || a >= h_w + l || b >= w_w + l {
+                continue;
+            }
+            let mut k = 0.0;
+            for di in -l..=l {
+                for dj in -l..=l {
+                    let (aa, bb) = (a + di, b + dj);
+                    if aa >= 0
+                        && bb >= 0
+                        && aa < h_w
+                        && bb < w_w
+                        && self.in_cell[(aa * w_w + bb) as usize]
+                    {
+                        k += noise.at(di, dj);
+                    }
+                }
+            }
+            if k != 0.0 {
+                sum += fit.weight(&t, &terms(p[0], p[1])) * k;
+            }
+        }
+        sum
+    }
+
     /// The sums over the cell: paste above `thr_area` (um) for area and offset, above
     /// `thr_shape` (um) beyond `wall` (mm) for the shape, the interior `inset` (mm) inside
     /// the edge for the height.
-    fn sums(&self, map: &BoardMap, thr_area: f64, thr_shape: f64, wall: f64, inset: f64) -> Sums {
+    fn sums(
+        &self,
+        map: &BoardMap,
+        thr_area: f64,
+        thr_shape: f64,
+        wall: f64,
+        inset: f64,
+        c: Point,
+    ) -> Sums {
         let (h_w, w_w) = (self.ri.len(), self.cols);
         let r = &self.r;
         let mut s = Sums {
@@ -854,8 +1034,40 @@ impl Cell {
             hsum: 0.0,
             hn: 0,
             hmax: f64::NEG_INFINITY,
+            cell_n: 0,
+            cell_t: [0.0; 6],
+            int_t: [0.0; 6],
+            diff2: Vec::new(),
+            cell_g2: 0.0,
+            int_g2: 0.0,
+            cell_row_g2: 0.0,
+            int_row_g2: 0.0,
+            cell_row_g1: 0.0,
+            int_row_g1: 0.0,
+            cell_edges: [0; 2],
+            int_edges: [0; 2],
         };
+        // Squared slope at a valid pixel, (um per pixel)^2: central differences where both
+        // neighbours are valid, else one-sided, else 0 along that axis.
+        let slope = |a: usize, b: usize| {
+            let at = |aa: usize, bb: usize| r[aa * w_w + bb];
+            let d = |lo: f64, mid: f64, hi: f64| match (lo.is_finite(), hi.is_finite()) {
+                (true, true) => 0.5 * (hi - lo),
+                (true, false) => mid - lo,
+                (false, true) => hi - mid,
+                _ => 0.0,
+            };
+            let mid = at(a, b);
+            let up = if a > 0 { at(a - 1, b) } else { f64::NAN };
+            let down = if a + 1 < h_w { at(a + 1, b) } else { f64::NAN };
+            let left = if b > 0 { at(a, b - 1) } else { f64::NAN };
+            let right = if b + 1 < w_w { at(a, b + 1) } else { f64::NAN };
+            (d(up, mid, down), d(left, mid, right))
+        };
+        let interior = |idx: usize| self.dist[idx] <= -inset && r[idx].is_finite();
+        let (mut prev_gx, mut prev_int_gx) = (0.0, 0.0);
         for a in 0..h_w {
+            let (mut row_gx, mut int_row_gx) = (0.0, 0.0);
             for b in 0..w_w {
                 let idx = a * w_w + b;
                 if !self.in_cell[idx] {
@@ -882,6 +1094,25 @@ impl Cell {
                 };
                 s.vol += v;
                 let (x, y) = map.grid.centre(self.ri.start + a, self.rj.start + b);
+                let t = terms(x - c[0], y - c[1]);
+                s.cell_n += 1;
+                for (acc, t) in s.cell_t.iter_mut().zip(t) {
+                    *acc += t;
+                }
+                let (gx, gy) = if r[idx].is_finite() {
+                    slope(a, b)
+                } else {
+                    (0.0, 0.0)
+                };
+                let g2 = gx * gx + gy * gy;
+                s.cell_g2 += g2;
+                row_gx += gx;
+                if a + 1 >= h_w || !self.in_cell[idx + w_w] {
+                    s.cell_edges[0] += 1;
+                }
+                if b + 1 >= w_w || !self.in_cell[idx + 1] {
+                    s.cell_edges[1] += 1;
+                }
                 if v > thr_area {
                     s.area_n += 1;
                     s.sw += v;
@@ -891,9 +1122,26 @@ impl Cell {
                 if v > thr_shape && d > wall {
                     s.shape_n += 1;
                 }
-                if d <= -inset && r[idx].is_finite() {
+                if interior(idx) {
                     s.hsum += r[idx];
                     s.hn += 1;
+                    s.int_g2 += g2;
+                    int_row_gx += gx;
+                    if a + 1 >= h_w || !interior(idx + w_w) {
+                        s.int_edges[0] += 1;
+                    }
+                    if b + 1 >= w_w || !interior(idx + 1) {
+                        s.int_edges[1] += 1;
+                    }
+                    for (acc, t) in s.int_t.iter_mut().zip(t) {
+                        *acc += t;
+                    }
+                    if b + 1 < w_w && interior(idx + 1) {
+                        s.diff2.push((r[idx + 1] - r[idx]).powi(2));
+                    }
+                    if a + 1 < h_w && interior(idx + w_w) {
+                        s.diff2.push((r[idx + w_w] - r[idx]).powi(2));
+                    }
                     // 3 x 3 mean for the maximum.
                     let (sum, n) = mean3x3(r, w_w, a, b);
                     if n >= 5 {
@@ -901,6 +1149,11 @@ impl Cell {
                     }
                 }
             }
+            s.cell_row_g2 += row_gx * row_gx;
+            s.int_row_g2 += int_row_gx * int_row_gx;
+            s.cell_row_g1 += row_gx * prev_gx;
+            s.int_row_g1 += int_row_gx * prev_int_gx;
+            (prev_gx, prev_int_gx) = (row_gx, int_row_gx);
         }
         s
     }

@@ -27,6 +27,7 @@
 //! [windows]                        # the default window of every pad
 //! volume_pct = { warn = [65.0, 135.0], fail = [55.0, 145.0] }
 //! # ... area_pct, height_pct, offset_pct, shape_pct, missing_pct, bridge_height_pct
+//! guard_band_k = 2.0               # value +- k u straddling a fail limit: "warn: uncertain"
 //!
 //! [components]                     # pad names from a pick-and-place file (`dpsa program`)
 //! file = "board-top.pos"           # relative to this file
@@ -121,6 +122,11 @@ pub struct Windows {
     pub missing_pct: f64,
     /// A bridge is paste above this % of the stencil thickness joining two openings.
     pub bridge_height_pct: f64,
+    /// Guard band: a volume or height whose interval `value +- guard_band_k x u` (u its
+    /// stated standard uncertainty) straddles a failure limit is called "warn: uncertain"
+    /// instead of a pass or a fail that the measurement cannot back. 2 (about 95 %) by
+    /// default; 0 turns it off.
+    pub guard_band_k: f64,
 }
 
 impl Default for Windows {
@@ -148,6 +154,7 @@ impl Default for Windows {
             },
             missing_pct: 10.0,
             bridge_height_pct: 30.0,
+            guard_band_k: 2.0,
         }
     }
 }
@@ -269,6 +276,17 @@ pub struct Measure {
     pub wall_mm: f64,
     /// Openings closer than this are checked for bridges, mm.
     pub bridge_reach_mm: f64,
+    /// The machine's lateral scatter of a measured point, um: on a slope `g` a pixel's height
+    /// scatters by `lateral_sigma_um x g` besides its noise (the walls of deposits). Used
+    /// for each pad's stated uncertainty only (`dpsa grr` measures it: `lateral_sigma_um`).
+    pub lateral_sigma_um: f64,
+    /// The machine's scatter of whole rows along the motion, um (encoder and trigger): every
+    /// pixel of a row moves together, so a deposit's front and back walls count it once per
+    /// row, not per pixel. Used for the stated uncertainty only (`dpsa grr`: `row_sigma_um`).
+    pub row_sigma_um: f64,
+    /// The correlation of neighbouring rows' shifts (0..1): a deposit's wall spans two or
+    /// three rows, which move partly together (`dpsa grr`: `row_correlation`).
+    pub row_correlation: f64,
 }
 
 impl Default for Measure {
@@ -283,6 +301,9 @@ impl Default for Measure {
             surface_reach_mm: 0.6,
             wall_mm: 0.06,
             bridge_reach_mm: 0.6,
+            lateral_sigma_um: 2.6,
+            row_sigma_um: 3.7,
+            row_correlation: 0.34,
         }
     }
 }
@@ -396,6 +417,7 @@ impl Windows {
             5.0,
             200.0,
         )?;
+        check_range(&format!("{at}guard_band_k"), self.guard_band_k, 0.0, 5.0)?;
         Ok(())
     }
 
@@ -558,6 +580,9 @@ impl Program {
             5.0,
         )?;
         check_range("measure.surface_guard_mm", m.surface_guard_mm, 0.0, 2.0)?;
+        check_range("measure.lateral_sigma_um", m.lateral_sigma_um, 0.0, 100.0)?;
+        check_range("measure.row_sigma_um", m.row_sigma_um, 0.0, 100.0)?;
+        check_range("measure.row_correlation", m.row_correlation, 0.0, 1.0)?;
         check_range("measure.surface_reach_mm", m.surface_reach_mm, 0.1, 10.0)?;
         check_range("measure.wall_mm", m.wall_mm, 0.0, 1.0)?;
         check_range("measure.bridge_reach_mm", m.bridge_reach_mm, 0.0, 5.0)?;

@@ -171,7 +171,7 @@ fn window_surface(map: &BoardMap, win: &Window, q0: Point) -> Result<Vec<f64>, S
         ));
     }
     match robust_surface(&samples, true) {
-        Some((surface, _, _)) => Ok(surface),
+        Some(fit) => Ok(fit.coef),
         None => Err("no board surface in its window".into()),
     }
 }
@@ -310,7 +310,7 @@ fn ring_surface(map: &BoardMap, win: &Window, c: Point, diameter: f64) -> Option
                     .then_some([x - c[0], y - c[1], f64::from(h)])
             })
             .collect();
-    robust_surface(&ring, true).map(|(surface, _, _)| surface)
+    robust_surface(&ring, true).map(|fit| fit.coef)
 }
 
 /// The disc's centre `c` made sub-pixel (three rounds of partial-pixel weights

@@ -60,7 +60,7 @@ fn num(v: f64, digits: usize) -> String {
 /// figure is NaN).
 pub fn csv(pads: &[Pad], i: &Inspection) -> String {
     let mut s = String::from(
-        "ComponentPad,Component,Pin,PadClass,X_mm,Y_mm,Result,Level,Class,PasteVolume_um3,VolumePct,PasteHeight_um,HeightPct,HeightMax_um,Area_mm2,AreaPct,PasteXOffset_um,PasteYOffset_um,OffsetPct,ShapePct,Coverage,BridgedTo,Findings\n",
+        "ComponentPad,Component,Pin,PadClass,X_mm,Y_mm,Result,Level,Class,PasteVolume_um3,VolumePct,VolumeU_pct,PasteHeight_um,HeightU_um,HeightPct,HeightMax_um,Area_mm2,AreaPct,PasteXOffset_um,PasteYOffset_um,OffsetPct,ShapePct,Coverage,BridgedTo,Findings\n",
     );
     for ((p, m), c) in pads.iter().zip(&i.measurements).zip(&i.calls) {
         let cen = p.outline.centroid();
@@ -72,7 +72,7 @@ pub fn csv(pads: &[Pad], i: &Inspection) -> String {
             .collect();
         let _ = writeln!(
             s,
-            "{},{},{},{},{:.4},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.4},{},{}",
+            "{},{},{},{},{:.4},{:.4},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{:.4},{},{}",
             csv_field(&cfx_pad(p)),
             csv_field(p.component.as_deref().unwrap_or("")),
             csv_field(p.pin.as_deref().unwrap_or("")),
@@ -84,7 +84,9 @@ pub fn csv(pads: &[Pad], i: &Inspection) -> String {
             c.class.map(|k| k.name()).unwrap_or(""),
             num(m.volume_um3, 0),
             num(m.volume_pct, 2),
+            num(m.volume_u_pct, 2),
             num(m.height_um, 2),
+            num(m.height_u_um, 2),
             num(m.height_pct, 2),
             num(m.height_max_um, 2),
             num(m.area_mm2, 5),

@@ -7,6 +7,7 @@
 use crate::error::InspectError;
 use crate::map::BoardMap;
 use crate::measure::{measure_all, PadMeasurement, Placed};
+use crate::noise::NoiseModel;
 use crate::program::Program;
 use crate::register::{register, RegisterError, Registration};
 use crate::verdict::{judge, Call, Class, Level};
@@ -19,6 +20,8 @@ use std::time::Instant;
 pub struct Inspection {
     /// Where the design lies on the map.
     pub registration: Registration,
+    /// The map's pixel noise and its correlation, from its bare board.
+    pub noise: NoiseModel,
     /// One per pad, in the layer's order.
     pub measurements: Vec<PadMeasurement>,
     /// One per pad, in the layer's order.
@@ -51,7 +54,8 @@ pub fn inspect(
         &program.fiducials.points_mm,
         program.fiducials.diameter_mm,
     );
-    let measurements = measure_all(map, pads, &placed, &t, program);
+    let noise = NoiseModel::measure(map, &placed, program.measure.surface_guard_mm);
+    let measurements = measure_all(map, pads, &placed, &t, program, &noise);
     let calls: Vec<Call> = measurements
         .iter()
         .zip(pads)
@@ -60,6 +64,7 @@ pub fn inspect(
     let inspect_s = t0.elapsed().as_secs_f64();
     Ok(Inspection {
         registration,
+        noise,
         measurements,
         calls,
         inspect_s,
@@ -157,6 +162,9 @@ pub struct InspectionReport {
     pub calls: Calls,
     /// How the design was registered.
     pub registration: RegistrationReport,
+    /// The map's pixel noise on its bare board and its correlation between neighbours (what
+    /// each pad's stated uncertainty starts from).
+    pub noise: NoiseModel,
     /// An evaluation's keys (the simulator's `truth` and `detection`), in their place.
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     pub evaluation: Option<Evaluation>,
@@ -276,6 +284,7 @@ impl InspectionReport {
             program: program.into(),
             pads: c,
             calls,
+            noise: i.noise.clone(),
             registration: RegistrationReport {
                 method: i.registration.method,
                 residual_um: i.registration.residual_um,

@@ -31,11 +31,15 @@ pub enum Class {
     Excess,
     /// Paste outside the grown opening beyond `shape_pct` (smear, misshapen deposit).
     Shape,
+    /// The volume or height lies so near a failure limit that its uncertainty interval
+    /// (`guard_band_k` standard uncertainties each way) straddles it: neither a pass nor a
+    /// fail can be backed (always a warning).
+    Uncertain,
 }
 
 impl Class {
     /// Every class, in the order of [`Class`]'s declaration.
-    pub const ALL: [Class; 7] = [
+    pub const ALL: [Class; 8] = [
         Class::NotMeasurable,
         Class::Missing,
         Class::Bridge,
@@ -43,6 +47,7 @@ impl Class {
         Class::Insufficient,
         Class::Excess,
         Class::Shape,
+        Class::Uncertain,
     ];
 
     /// The class as the reports write it (snake case, as serialized).
@@ -55,6 +60,7 @@ impl Class {
             Class::Insufficient => "insufficient",
             Class::Excess => "excess",
             Class::Shape => "shape",
+            Class::Uncertain => "uncertain",
         }
     }
 }
@@ -110,6 +116,16 @@ fn two_sided(v: f64, w: &Window) -> (Level, i8) {
     }
 }
 
+/// Whether `v +- k u` straddles a failure limit of `w` (never without a finite `u` or with
+/// `k` 0).
+fn straddles(v: f64, u: f64, k: f64, w: &Window) -> bool {
+    if !(k > 0.0 && u.is_finite() && u > 0.0 && v.is_finite()) {
+        return false;
+    }
+    let (lo, hi) = (v - k * u, v + k * u);
+    w.fail.iter().any(|&limit| lo < limit && limit < hi)
+}
+
 fn upper(v: f64, u: &Upper) -> Level {
     if v > u.fail {
         Level::Fail
@@ -142,17 +158,25 @@ pub fn judge(m: &PadMeasurement, w: &Windows) -> Call {
                 Class::Excess
             }
         };
+        let k = w.guard_band_k;
         let (lv, side) = two_sided(m.volume_pct, &w.volume_pct);
-        if lv != Level::Pass {
+        if straddles(m.volume_pct, m.volume_u_pct, k, &w.volume_pct) {
+            f.push((Level::Warn, Class::Uncertain));
+        } else if lv != Level::Pass {
             f.push((lv, side_class(side)));
         }
         let off = upper(m.offset_pct, &w.offset_pct);
         if off != Level::Pass {
             f.push((off, Class::Offset));
         }
-        for (v, win) in [(m.height_pct, &w.height_pct), (m.area_pct, &w.area_pct)] {
+        for (v, u, win) in [
+            (m.height_pct, m.height_u_pct, &w.height_pct),
+            (m.area_pct, f64::NAN, &w.area_pct),
+        ] {
             let (lv, side) = two_sided(v, win);
-            if lv != Level::Pass {
+            if straddles(v, u, k, win) {
+                f.push((Level::Warn, Class::Uncertain));
+            } else if lv != Level::Pass {
                 f.push((lv, side_class(side)));
             }
         }
@@ -190,6 +214,72 @@ mod tests {
             shape_pct: 1.0,
             ..Default::default()
         }
+    }
+
+    /// A value whose `+- k u` interval holds a failure limit is "warn: uncertain" whichever
+    /// side it lies on; clear of the limit, or with the guard band off or no uncertainty,
+    /// the windows decide as without it.
+    #[test]
+    fn guard_band_marks_what_the_uncertainty_cannot_decide() {
+        let call = |volume: f64, u: f64, height: f64, hu: f64, k: f64| {
+            let mut m = good();
+            (m.volume_pct, m.volume_u_pct, m.height_pct, m.height_u_pct) = (volume, u, height, hu);
+            let w = Windows {
+                guard_band_k: k,
+                ..Windows::default()
+            };
+            let c = judge(&m, &w);
+            (c.level, c.class)
+        };
+        let uncertain = (Level::Warn, Some(Class::Uncertain));
+        // The default volume window fails below 55 and above 145; k = 2.
+        assert_eq!(
+            call(56.0, 1.0, 92.0, 0.5, 2.0),
+            uncertain,
+            "a pass it cannot back"
+        );
+        assert_eq!(
+            call(54.0, 1.0, 92.0, 0.5, 2.0),
+            uncertain,
+            "a fail it cannot back"
+        );
+        assert_eq!(
+            call(146.0, 1.0, 92.0, 0.5, 2.0),
+            uncertain,
+            "the upper limit too"
+        );
+        assert_eq!(
+            call(58.0, 1.0, 92.0, 0.5, 2.0),
+            (Level::Warn, Some(Class::Insufficient)),
+            "[56, 60] is clear of 55"
+        );
+        assert_eq!(
+            call(52.0, 1.0, 92.0, 0.5, 2.0),
+            (Level::Fail, Some(Class::Insufficient)),
+            "[50, 54] is a sure fail"
+        );
+        assert_eq!(
+            call(54.0, 1.0, 92.0, 0.5, 0.0),
+            (Level::Fail, Some(Class::Insufficient)),
+            "guard band off"
+        );
+        assert_eq!(
+            call(54.0, f64::NAN, 92.0, 0.5, 2.0),
+            (Level::Fail, Some(Class::Insufficient)),
+            "no uncertainty: the value alone"
+        );
+        // The height (fail below 40 %): the same.
+        assert_eq!(call(95.0, 1.0, 41.0, 1.0, 2.0), uncertain);
+        assert_eq!(
+            call(95.0, 1.0, 43.0, 1.0, 2.0),
+            (Level::Warn, Some(Class::Insufficient))
+        );
+        // A sure failure elsewhere still fails the pad.
+        let mut m = good();
+        (m.volume_pct, m.volume_u_pct, m.offset_pct) = (56.0, 1.0, 40.0);
+        let c = judge(&m, &Windows::default());
+        assert_eq!((c.level, c.class), (Level::Fail, Some(Class::Offset)));
+        assert!(c.findings.contains(&(Level::Warn, Class::Uncertain)));
     }
 
     #[test]

@@ -276,7 +276,7 @@ impl Keeper {
                 offset_x_um: opt(m.offset_um[0]),
                 offset_y_um: opt(m.offset_um[1]),
                 coverage: m.coverage,
-                uncertainty_um3: None,
+                uncertainty_um3: opt(m.volume_u_um3),
             })
             .collect();
         let worst = i.calls.iter().map(|c| c.level).max_by_key(|l| match l {

@@ -117,7 +117,7 @@
 //! | `height_pct` | REAL NULL | height, % of nominal |
 //! | `offset_x_um`, `offset_y_um` | REAL NULL | offset of the deposit from the opening, um |
 //! | `coverage` | REAL NOT NULL | share of the opening's pixels that were valid, 0..=1 |
-//! | `uncertainty_um3` | REAL NULL | volume uncertainty, um³ (not computed yet: NULL) |
+//! | `uncertainty_um3` | REAL NULL | the volume's standard uncertainty, um³ (`docs/spc.md`, "Uncertainty"); NULL where not measured |
 //!
 //! Primary key `(board_id, pad)`. On SQLite the table is WITHOUT ROWID: the rows sit in the
 //! primary key's B-tree itself, in the order they are written, which keeps inserts append-only
@@ -623,7 +623,7 @@ pub struct PadRow {
     pub offset_y_um: Option<f64>,
     /// Share of the opening's pixels that were valid, 0..=1.
     pub coverage: f64,
-    /// Volume uncertainty, um³: not computed yet, always `None` for now.
+    /// The volume's standard uncertainty, um³ (`None` where not measured).
     pub uncertainty_um3: Option<f64>,
 }
 

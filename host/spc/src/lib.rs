@@ -9,7 +9,8 @@
 //! components, since which board: [`study`]); and the print's placement on each board (shift,
 //! turn, stretch, robustly fitted to every pad's offset, with its uncertainty: [`mod@print`])
 //! and the correction it proposes to the printer ([`printer`]); when to clean the stencil
-//! ([`stencil`]); how often each rule fires by chance ([`arl`]).
+//! ([`stencil`]); how often each rule fires by chance ([`arl`]); and the measurement system
+//! itself, a gauge R&R by ANOVA ([`msa`]).
 //! [`plot`] draws the charts as SVG and PNG.
 //!
 //! It reads no store itself (the `dpsa spc` command does, through `dpsa-line`): the
@@ -22,6 +23,7 @@ pub mod capability;
 pub mod chart;
 pub mod constants;
 pub mod load;
+pub mod msa;
 pub mod output;
 pub mod plot;
 pub mod print;

@@ -320,3 +320,95 @@ fn the_statistics_agree_with_the_numpy_reference() {
         );
     }
 }
+
+/// Gauge R&R by ANOVA against the reference: studies of many shapes (2 to 40 parts, 2 to 4
+/// appraisers, 2 to 5 trials) with part spread, appraiser offsets, interaction and noise in
+/// different proportions, with and without a tolerance, and shapes that cannot be analysed.
+#[test]
+fn gauge_rr_agrees_with_the_numpy_reference() {
+    use dpsa_spc::msa::gauge_rr;
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(25);
+    let normal = Normal::new(0.0, 1.0).unwrap();
+    // Values, parts, appraisers, trials, tolerance.
+    type Study = (Vec<f64>, usize, usize, usize, Option<f64>);
+    let mut studies: Vec<Study> = Vec::new();
+    for k in 0..40 {
+        let (p, a, r) = (
+            [2, 5, 10, 40][k % 4],
+            [2, 3, 4][k % 3],
+            [2, 3, 5][(k / 4) % 3],
+        );
+        let (sp, sa, si, se) = (
+            [0.0, 1.0, 10.0][k % 3],
+            [0.0, 0.5, 3.0][(k / 3) % 3],
+            [0.0, 0.3][(k / 9) % 2],
+            [0.01, 1.0][(k / 2) % 2],
+        );
+        let parts: Vec<f64> = (0..p)
+            .map(|_| 100.0 + sp * normal.sample(&mut rng))
+            .collect();
+        let apps: Vec<f64> = (0..a).map(|_| sa * normal.sample(&mut rng)).collect();
+        let mut x = Vec::new();
+        for pp in &parts {
+            for aa in &apps {
+                let i = si * normal.sample(&mut rng);
+                for _ in 0..r {
+                    x.push(pp + aa + i + se * normal.sample(&mut rng));
+                }
+            }
+        }
+        studies.push((x, p, a, r, (k % 5 != 0).then_some(90.0)));
+    }
+    studies.push((vec![1.0; 6], 1, 2, 3, None));
+    studies.push((vec![1.0, 2.0, 3.0, 4.0], 2, 2, 1, None));
+    let input = json!({"cases": studies.iter().map(|(x, p, a, r, t)| json!({
+        "kind": "msa", "x": x, "parts": p, "appraisers": a, "trials": r, "tolerance": t,
+    })).collect::<Vec<_>>()});
+    let out = run_reference(&input);
+    let results = out["results"].as_array().unwrap();
+    assert_eq!(results.len(), studies.len());
+    for (k, ((x, p, a, r, t), res)) in studies.iter().zip(results).enumerate() {
+        let what = format!("study {k}");
+        let Ok(g) = gauge_rr(x, *p, *a, *r, *t) else {
+            assert!(
+                res["grr"].is_null(),
+                "{what}: an error here, a result in numpy"
+            );
+            continue;
+        };
+        for (i, (m, d)) in g.ms.iter().zip(g.df).enumerate() {
+            close(&format!("{what} ms {i}"), Some(*m), &res["ms"][i], 0.0);
+            close(&format!("{what} df {i}"), Some(d), &res["df"][i], 0.0);
+        }
+        for (name, v) in [
+            ("repeatability", g.repeatability),
+            ("reproducibility", g.reproducibility),
+            ("appraiser", g.appraiser),
+            ("interaction", g.interaction),
+            ("grr", g.grr),
+            ("part", g.part),
+            ("total", g.total),
+        ] {
+            close(&format!("{what} {name}"), Some(v), &res[name], 1e-12);
+        }
+        close(
+            &format!("{what} pct_tolerance"),
+            g.pct_tolerance,
+            &res["pct_tolerance"],
+            0.0,
+        );
+        close(
+            &format!("{what} pct_total"),
+            g.pct_total,
+            &res["pct_total"],
+            0.0,
+        );
+        assert_eq!(
+            g.ndc,
+            res["ndc"].as_u64(),
+            "{what} ndc: {:?} against {}",
+            g.ndc,
+            res["ndc"]
+        );
+    }
+}

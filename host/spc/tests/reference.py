@@ -280,6 +280,47 @@ def subgroups(case):
                   lcl, ucl, z, disp, rules)
 
 
+# ---------------------------------------------------------------- gauge R&R
+
+def msa(case):
+    P, A, r = case["parts"], case["appraisers"], case["trials"]
+    keys = ["df", "ms", "repeatability", "reproducibility", "appraiser", "interaction", "grr",
+            "part", "total", "pct_tolerance", "pct_total", "ndc"]
+    x = np.asarray(case["x"], dtype=float)
+    if min(P, A, r) < 2 or x.size != P * A * r:
+        return {k: None for k in keys}
+    X = x.reshape(P, A, r)
+    grand = X.mean()
+    m_p = X.mean(axis=(1, 2))
+    m_a = X.mean(axis=(0, 2))
+    m_pa = X.mean(axis=2)
+    ss = np.array([
+        A * r * np.sum((m_p - grand) ** 2),
+        P * r * np.sum((m_a - grand) ** 2),
+        r * np.sum((m_pa - m_p[:, None] - m_a[None, :] + grand) ** 2),
+        np.sum((X - m_pa[:, :, None]) ** 2),
+    ])
+    df = np.array([P - 1, A - 1, (P - 1) * (A - 1), P * A * (r - 1)], dtype=float)
+    ms = ss / df
+    ev2 = ms[3]
+    inter2 = max((ms[2] - ms[3]) / r, 0.0)
+    app2 = max((ms[1] - ms[2]) / (P * r), 0.0)
+    pv2 = max((ms[0] - ms[2]) / (A * r), 0.0)
+    av2 = app2 + inter2
+    grr = math.sqrt(ev2 + av2)
+    total = math.sqrt(ev2 + av2 + pv2)
+    tol = case.get("tolerance")
+    return {
+        "df": df.tolist(), "ms": ms.tolist(),
+        "repeatability": math.sqrt(ev2), "reproducibility": math.sqrt(av2),
+        "appraiser": math.sqrt(app2), "interaction": math.sqrt(inter2),
+        "grr": grr, "part": math.sqrt(pv2), "total": total,
+        "pct_tolerance": 600.0 * grr / tol if tol is not None and tol > 0 else None,
+        "pct_total": 100.0 * grr / total if total > 0 else None,
+        "ndc": math.floor(1.41 * math.sqrt(pv2) / grr) if grr > 0 else None,
+    }
+
+
 # ---------------------------------------------------------------- I/O
 
 def clean(obj):
@@ -301,6 +342,8 @@ def main():
             out.append(individuals(case))
         elif case["kind"] == "subgroups":
             out.append(subgroups(case))
+        elif case["kind"] == "msa":
+            out.append(msa(case))
         else:
             raise ValueError("unknown case kind: %r" % case["kind"])
     json.dump(clean({"results": out}), sys.stdout, allow_nan=False)

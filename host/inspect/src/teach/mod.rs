@@ -11,7 +11,7 @@
 //! Nothing here needs the simulator. `docs/inspection.md`, "Teach: dpsa program", explains
 //! each rule.
 
-pub(crate) mod families;
+pub mod families;
 pub mod fiducials;
 pub mod names;
 pub(crate) mod outline;
