@@ -50,6 +50,8 @@ fn main() {
         Cmd::Line(a) => commands::line::run(a),
         Cmd::Spc(a) => commands::spc::run(a),
         #[cfg(feature = "sim")]
+        Cmd::PrintProcess(a) => commands::print_process::run(a),
+        #[cfg(feature = "sim")]
         Cmd::FrameBench(a) => commands::frame_bench::run(a),
         #[cfg(feature = "sim")]
         Cmd::BoardBench(a) => commands::board_bench::run(a),

@@ -493,3 +493,160 @@ fn bad_requests_are_refused_with_a_reason() {
         "mine"
     );
 }
+
+/// `dpsa print-process` then `dpsa spc`: each injected change of a known print process raises
+/// its alarm within the number of boards `docs/spc.md` states ("A known process"), counted
+/// from the first board it touches; the stencil's clean is found where it was made.
+#[test]
+fn a_known_print_process_raises_each_alarm_within_its_delay() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let mini = d.join("mini.toml");
+    ok(&[
+        "program",
+        "--paste",
+        s(&data("gerber/stm32-mini-pill/pcb-F_Paste.gbr")),
+        "--outline",
+        s(&data("teach/stm32-mini-pill/pcb-Edge_Cuts.gbr")),
+        "--placement",
+        s(&data("teach/stm32-mini-pill/pcb-top.pos")),
+        "--out",
+        s(&mini),
+    ]);
+    // The small board's layer: 68 fine apertures (BGA and 0201 openings, area ratio < 0.8).
+    let small = d.join("small.toml");
+    let layer = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/array-small.paste.gbr");
+    ok(&["program", "--paste", s(&layer), "--out", s(&small)]);
+    const AT: usize = 30;
+    let run = |name: &str, program: &Path, change: &str| -> Value {
+        let process = d.join(format!("{name}.toml"));
+        std::fs::write(
+            &process,
+            format!("boards = 60\nseed = 1\nproduct = \"{name}\"\n{change}"),
+        )
+        .unwrap();
+        let store = d.join(format!("{name}.sqlite"));
+        let text = ok(&[
+            "print-process",
+            "--process",
+            s(&process),
+            "--program",
+            s(program),
+            "--store",
+            s(&store),
+            "--json",
+        ]);
+        let w: Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(w["boards"], 60);
+        // A second run does not write over the store.
+        let again = dpsa(&[
+            "print-process",
+            "--process",
+            s(&process),
+            "--program",
+            s(program),
+            "--store",
+            s(&store),
+        ]);
+        assert!(!again.status.success());
+        assert!(String::from_utf8_lossy(&again.stderr).contains("exists"));
+        let text = ok(&[
+            "spc",
+            "--store",
+            s(&store),
+            "--program",
+            s(program),
+            "--json",
+        ]);
+        serde_json::from_str(&text).unwrap()
+    };
+    // The first board (from AT on) an alarm of this chart fired on, if any.
+    let first_after = |v: &Value, kind: &str, name: Option<&str>, metric: &str| {
+        v["alarms"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|a| {
+                a["kind"] == kind && a["metric"] == metric && name.is_none_or(|n| a["name"] == n)
+            })
+            .map(|a| {
+                let id = a["first_fired_run_id"].as_str().unwrap();
+                (u64::from_str_radix(id, 16).unwrap() - 0x5100_0000) as usize
+            })
+            .filter(|b| *b >= AT)
+            .min()
+    };
+    // Name, program, the change, the chart (scope, family, measure), boards it may take.
+    type Case<'a> = (
+        &'a str,
+        &'a Path,
+        &'a str,
+        &'a str,
+        Option<&'a str>,
+        &'a str,
+        usize,
+    );
+    let cases: [Case; 4] = [
+        (
+            "step",
+            &mini,
+            "[[change]]\nkind = \"step\"\nat = 30\nshift_um = [25.0, 0.0]\n",
+            "print",
+            None,
+            "print_x_um",
+            1,
+        ),
+        (
+            "drift",
+            &mini,
+            "[[change]]\nkind = \"drift\"\nfrom = 30\num_per_board = [0.0, 1.5]\n",
+            "print",
+            None,
+            "print_y_um",
+            6,
+        ),
+        (
+            "viscosity",
+            &mini,
+            "[[change]]\nkind = \"viscosity\"\nfrom = 30\npct_per_board = -0.5\n",
+            "board",
+            None,
+            "volume_pct",
+            6,
+        ),
+        (
+            "clogging",
+            &small,
+            "[[change]]\nkind = \"clogging\"\nfrom = 30\npct_per_print = 1.0\n",
+            "family",
+            Some("C 0.27"),
+            "volume_pct",
+            5,
+        ),
+    ];
+    for (name, program, change, kind, family, metric, delay) in cases {
+        let v = run(name, program, change);
+        let b = first_after(&v, kind, family, metric);
+        assert!(
+            b.is_some_and(|b| b <= AT + delay),
+            "{name}: the {kind} {metric} alarm first fired on board {b:?} from {AT} on, \
+             stated within {delay}"
+        );
+        if name == "clogging" {
+            assert_eq!(v["stencil"]["recommend"], true, "{}", v["stencil"]);
+            assert_eq!(v["stencil"]["fine_pads"], 68);
+        }
+    }
+    // Clogging from the start and a clean before board 30: the clean is found there, and
+    // the clogging since is still seen.
+    let v = run(
+        "clean",
+        &small,
+        "[[change]]\nkind = \"clogging\"\nfrom = 0\npct_per_print = 0.5\n\
+         [[change]]\nkind = \"clean\"\nat = 30\n",
+    );
+    let st = &v["stencil"];
+    assert_eq!(st["clean_found"], true, "{st}");
+    assert_eq!(st["since_board"], AT, "{st}");
+    assert_eq!(st["recommend"], true, "{st}");
+}

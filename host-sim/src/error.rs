@@ -36,6 +36,9 @@ pub enum SimError {
     /// The board map could not be built or written.
     #[error(transparent)]
     Board(#[from] BoardError),
+    /// The line's store refused or failed (`dpsa print-process`).
+    #[error(transparent)]
+    Store(#[from] dpsa_line::store::StoreError),
     /// The inspection failed (program, paste layer, registration, report).
     #[error(transparent)]
     Inspect(#[from] InspectError),

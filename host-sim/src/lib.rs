@@ -16,6 +16,7 @@
 //! | [`calibration`] | `dpsa calibrate`: per-camera fringe frequency, reference phase, height per turn, flat field, lateral mapping and encoder scale from flat planes and a target |
 //! | [`board`] | the board map: cameras' rows unwrapped, placed in millimetres and blended |
 //! | [`inspection`] | the production inspection (crate `dpsa-inspect`) and the simulator's evaluation of it against the print truth |
+//! | [`process`] | the print process over a run of boards (drift, step, clogging and cleans, viscosity), written into a line's store |
 //! | [`target`] | the firmware: feed export, build, ELF sizes, QEMU with its defmt log, its bench figures |
 //! | [`benches`] | `codec-bench`: our row codec against general-purpose compressors and the entropy bound |
 //! | [`stack`] | ordinary phase-shifting image stacks (real camera images) through the same kernel |
@@ -31,6 +32,7 @@ pub mod board;
 pub mod calibration;
 pub mod error;
 pub mod inspection;
+pub mod process;
 pub mod reconstruct;
 pub mod reference;
 pub mod simulation;

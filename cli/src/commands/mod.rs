@@ -33,6 +33,8 @@ pub mod pads;
 pub mod pads_bench;
 #[cfg(feature = "sim")]
 pub mod phase;
+#[cfg(feature = "sim")]
+pub mod print_process;
 pub mod program;
 #[cfg(feature = "sim")]
 pub mod reconstruct;
@@ -111,8 +113,10 @@ pub enum Cmd {
     /// layer (fiducials), the outline (board corner) and a pick-and-place file (pad names);
     /// per-family default windows; prints what it found.
     Program(Box<program::Args>),
-    /// Gauge repeatability (GR&R) of the inspection: the same printed board N times through
-    /// the simulated array with fresh noise and placement, inspected each time.
+    /// Gauge R&R of the inspection in the AIAG form: the same printed board under several
+    /// set-ups of the simulated machine (calibration and placement), several times each;
+    /// repeatability, reproducibility, %GR&R, ndc, and each pad's stated uncertainty against
+    /// the scatter.
     #[cfg(feature = "sim")]
     Grr(grr::Args),
     /// Phase of an ordinary phase-shifting image stack (PNG, JPEG, TIFF; 8 or 16 bit), fixed-point
@@ -129,6 +133,11 @@ pub enum Cmd {
     /// package family and board the capability (Cp, Cpk, Pp, Ppk), I-MR and X-bar/S charts,
     /// Western Electric and Nelson rules, alarms; tables (CSV) and charts (SVG, PNG).
     Spc(spc::Args),
+    /// A simulated print process over a run of boards (in-control scatter, steps, drift,
+    /// clogging and cleans, viscosity) written into a new line store, for trying `dpsa spc`
+    /// on a process whose changes are known.
+    #[cfg(feature = "sim")]
+    PrintProcess(print_process::Args),
     /// Benchmark the row codec against lz4, zstd, heatshrink and PNG on the same height rows,
     /// with the entropy of its predictor's residuals and the noise floor.
     #[cfg(feature = "sim")]

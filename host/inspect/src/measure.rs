@@ -233,6 +233,25 @@ pub struct PadMeasurement {
     pub bridged_to: Vec<usize>,
 }
 
+impl PadMeasurement {
+    /// Pad `pad` of opening area `opening_mm2` before anything is measured: no offset and no
+    /// uncertainty (NaN), every other figure 0.
+    pub fn new(pad: usize, opening_mm2: f64) -> PadMeasurement {
+        PadMeasurement {
+            pad,
+            opening_mm2,
+            offset_um: [f64::NAN; 2],
+            volume_u_um3: f64::NAN,
+            volume_u_pct: f64::NAN,
+            volume_u_surface_pct: f64::NAN,
+            height_u_um: f64::NAN,
+            height_u_pct: f64::NAN,
+            paste_sigma_um: f64::NAN,
+            ..Default::default()
+        }
+    }
+}
+
 /// The terms of a surface at `(dx, dy)`: `1, dx, dy` and, for a quadratic, `dx^2, dx dy, dy^2`.
 #[inline]
 fn terms(dx: f64, dy: f64) -> [f64; 6] {
@@ -661,18 +680,7 @@ pub(crate) fn measure_pad(
     let stencil = program.stencil_um;
     let m = &program.measure;
     let opening_mm2 = pads[k].outline.area();
-    let mut pm = PadMeasurement {
-        pad: k,
-        opening_mm2,
-        offset_um: [f64::NAN; 2],
-        volume_u_um3: f64::NAN,
-        volume_u_pct: f64::NAN,
-        volume_u_surface_pct: f64::NAN,
-        height_u_um: f64::NAN,
-        height_u_pct: f64::NAN,
-        paste_sigma_um: f64::NAN,
-        ..Default::default()
-    };
+    let mut pm = PadMeasurement::new(k, opening_mm2);
     if !map.covers(bb) {
         pm.unmeasurable = Some(Unmeasurable::OutsideMap);
         return pm;

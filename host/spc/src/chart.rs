@@ -87,6 +87,20 @@ pub enum Kind {
     MeanDeviation,
 }
 
+/// Where the limits of a chart of subgroup means come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MeanLimits {
+    /// From the pooled within-subgroup sigma over `sqrt(n)` (Shewhart's X-bar chart): right
+    /// when the subgroups differ by nothing but the within scatter.
+    Within,
+    /// From the moving ranges of the subgroup means (`MR-bar / d2(2)`, the same for every
+    /// point), the S chart still from the within sigma: the three-way chart (Wheeler), right
+    /// when every board has its own common-cause level (the paste roll, the squeegee
+    /// stroke), which the within sigma of a board's thousands of pads does not see.
+    Between,
+}
+
 /// The lower chart: moving ranges (I-MR) or subgroup deviations (X-bar/S). Per point; `None`
 /// where there is none (the first board of an I-MR chart has no moving range, a subgroup of
 /// one pad no deviation).
@@ -113,8 +127,12 @@ pub struct Chart {
     pub baseline: usize,
     /// The centre line: the mean of the baseline's values.
     pub centre: f64,
-    /// The sigma the limits are set with: the baseline's within sigma.
+    /// The sigma the limits are set with: the baseline's within sigma (I-MR and X-bar/S
+    /// from within, a point's is this over `sqrt(size)`), or the baseline means' sigma from
+    /// their moving ranges (X-bar/S from between, a point's whatever its size).
     pub sigma_limits: f64,
+    /// For subgroup means: where the limits come from (`None` for I-MR).
+    pub mean_limits: Option<MeanLimits>,
     /// The mean of every value.
     pub mean: f64,
     /// Short-term sigma (moving ranges, or pooled within subgroups).
@@ -224,6 +242,7 @@ pub fn individuals(
         baseline: b,
         centre,
         sigma_limits,
+        mean_limits: None,
         mean,
         sigma_within: sigma,
         sigma_overall,
@@ -259,6 +278,7 @@ pub fn means_and_deviations(
     groups: &[&[f64]],
     limits: SpecLimits,
     baseline: Option<usize>,
+    mean_limits: MeanLimits,
 ) -> Result<Chart, ChartError> {
     check_finite(groups)?;
     if let Some(g) = groups.iter().position(|g| g.is_empty()) {
@@ -277,7 +297,19 @@ pub fn means_and_deviations(
         need: 1,
     };
     let sigma = pooled(&stats).ok_or(no_dof.clone())?;
-    let sigma_limits = pooled(&stats[..b]).ok_or(no_dof)?;
+    // The S chart's sigma: the baseline's within.
+    let sigma_s = pooled(&stats[..b]).ok_or(no_dof)?;
+    let sigma_limits = match mean_limits {
+        MeanLimits::Within => sigma_s,
+        MeanLimits::Between => {
+            let mr: f64 = stats[..b]
+                .windows(2)
+                .map(|w| (w[1].1 - w[0].1).abs())
+                .sum::<f64>()
+                / (b - 1) as f64;
+            mr / d2_of_two()
+        }
+    };
     let (_, centre, _) = mean_sd(groups[..b].iter().flat_map(|g| g.iter().copied()));
     let (n, mean, sigma_overall) = mean_sd(groups.iter().flat_map(|g| g.iter().copied()));
     let mut chart = Chart {
@@ -286,6 +318,7 @@ pub fn means_and_deviations(
         baseline: b,
         centre,
         sigma_limits,
+        mean_limits: Some(mean_limits),
         mean,
         sigma_within: sigma,
         sigma_overall,
@@ -299,7 +332,10 @@ pub fn means_and_deviations(
         pp: indices(mean, sigma_overall, limits),
     };
     for &(m, xbar, s) in &stats {
-        let se = sigma_limits / (m as f64).sqrt();
+        let se = match mean_limits {
+            MeanLimits::Within => sigma_limits / (m as f64).sqrt(),
+            MeanLimits::Between => sigma_limits,
+        };
         chart.points.push(xbar);
         chart.sizes.push(m);
         chart.lcl.push(centre - 3.0 * se);
@@ -310,7 +346,7 @@ pub fn means_and_deviations(
         let d = &mut chart.dispersion;
         match c4(m as u64) {
             Some(c) => {
-                let (mid, half) = (c * sigma_limits, 3.0 * sigma_limits * (1.0 - c * c).sqrt());
+                let (mid, half) = (c * sigma_s, 3.0 * sigma_s * (1.0 - c * c).sqrt());
                 d.points.push(Some(s));
                 d.centre.push(Some(mid));
                 d.lcl.push(Some((mid - half).max(0.0)));
@@ -360,7 +396,8 @@ mod tests {
             .map(|k| base.iter().map(|v| v + k as f64 * 0.3).collect())
             .collect();
         let refs: Vec<&[f64]> = groups.iter().map(|g| &g[..]).collect();
-        let c = means_and_deviations(&refs, SpecLimits::default(), None).unwrap();
+        let c =
+            means_and_deviations(&refs, SpecLimits::default(), None, MeanLimits::Within).unwrap();
         let (_, _, s) = mean_sd(base.iter().copied());
         // sigma = pooled / c4(dof + 1) with pooled = s; the table's A3 uses S / c4(5).
         let sigma_table = s / c4(5).unwrap();
@@ -376,7 +413,7 @@ mod tests {
     #[test]
     fn unequal_subgroups_have_their_own_limits() {
         let g: [&[f64]; 3] = [&[1.0, 2.0, 3.0], &[2.0], &[1.0, 3.0, 2.0, 2.5, 1.5]];
-        let c = means_and_deviations(&g, SpecLimits::default(), None).unwrap();
+        let c = means_and_deviations(&g, SpecLimits::default(), None, MeanLimits::Within).unwrap();
         assert!(c.ucl[1] - c.mean > c.ucl[0] - c.mean);
         assert!(c.ucl[0] - c.mean > c.ucl[2] - c.mean);
         assert_eq!(c.dispersion.points[1], None);
@@ -408,13 +445,13 @@ mod tests {
         }
         let g: Vec<Vec<f64>> = x.chunks(4).map(|c| c.to_vec()).collect();
         let refs: Vec<&[f64]> = g.iter().map(|v| &v[..]).collect();
-        let m = means_and_deviations(&refs, l, Some(5)).unwrap();
+        let m = means_and_deviations(&refs, l, Some(5), MeanLimits::Within).unwrap();
         assert!(m.z[9].unwrap() < -3.0 && m.z[..5].iter().all(|z| z.unwrap().abs() < 3.0));
         let singles: Vec<&[f64]> = x.iter().map(std::slice::from_ref).collect();
         let mut mixed = singles.clone();
         mixed.push(&[1.0, 2.0]);
         assert!(matches!(
-            means_and_deviations(&mixed, l, Some(3)),
+            means_and_deviations(&mixed, l, Some(3), MeanLimits::Within),
             Err(ChartError::TooFew { .. })
         ));
     }
@@ -432,22 +469,22 @@ mod tests {
         );
         let one: [&[f64]; 1] = [&[1.0, 2.0]];
         assert!(matches!(
-            means_and_deviations(&one, l, None),
+            means_and_deviations(&one, l, None, MeanLimits::Within),
             Err(ChartError::TooFew { .. })
         ));
         let singles: [&[f64]; 3] = [&[1.0], &[2.0], &[3.0]];
         assert!(matches!(
-            means_and_deviations(&singles, l, None),
+            means_and_deviations(&singles, l, None, MeanLimits::Within),
             Err(ChartError::TooFew { .. })
         ));
         let empty: [&[f64]; 2] = [&[1.0, 2.0], &[]];
         assert!(matches!(
-            means_and_deviations(&empty, l, None),
+            means_and_deviations(&empty, l, None, MeanLimits::Within),
             Err(ChartError::TooFew { .. })
         ));
         let inf: [&[f64]; 2] = [&[1.0, 2.0], &[f64::INFINITY]];
         assert_eq!(
-            means_and_deviations(&inf, l, None),
+            means_and_deviations(&inf, l, None, MeanLimits::Within),
             Err(ChartError::NotFinite { at: (1, 0) })
         );
         for e in [

@@ -17,7 +17,7 @@
 //! pads that pull its chart furthest on the board where it last fired.
 
 use crate::capability::{Indices, SpecLimits};
-use crate::chart::{individuals, means_and_deviations, Chart, ChartError};
+use crate::chart::{individuals, means_and_deviations, Chart, ChartError, MeanLimits};
 use crate::print::{self, PadOffset, PrintOffset};
 use crate::rules::{episodes, fires, Rule};
 use crate::stencil::{self, BoardStencil, Cleaning, StencilConfig};
@@ -370,7 +370,12 @@ impl Study {
         let refs: Vec<&[f64]> = groups.iter().map(|g| &g[..]).collect();
         let baseline = baseline_points(&boards, baseline);
         (
-            means_and_deviations(&refs, limits.unwrap_or_default(), baseline),
+            means_and_deviations(
+                &refs,
+                limits.unwrap_or_default(),
+                baseline,
+                MeanLimits::Between,
+            ),
             boards,
             limits,
         )

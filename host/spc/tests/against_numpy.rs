@@ -10,7 +10,7 @@
 //! command installs), or the interpreter named by `DPSA_NUMPY_PYTHON`.
 
 use dpsa_spc::capability::{Indices, SpecLimits};
-use dpsa_spc::chart::{individuals, means_and_deviations, Chart};
+use dpsa_spc::chart::{individuals, means_and_deviations, Chart, MeanLimits};
 use dpsa_spc::rules::{fires, Rule};
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
@@ -20,7 +20,7 @@ use std::process::{Command, Stdio};
 
 enum Case {
     Individuals(Vec<f64>, SpecLimits, Option<usize>),
-    Subgroups(Vec<Vec<f64>>, SpecLimits, Option<usize>),
+    Subgroups(Vec<Vec<f64>>, SpecLimits, Option<usize>, MeanLimits),
 }
 
 fn limits_json(l: SpecLimits) -> (Value, Value) {
@@ -34,9 +34,14 @@ impl Case {
                 let (lsl, usl) = limits_json(*l);
                 json!({"kind": "individuals", "x": x, "lsl": lsl, "usl": usl, "baseline": b})
             }
-            Case::Subgroups(g, l, b) => {
+            Case::Subgroups(g, l, b, m) => {
                 let (lsl, usl) = limits_json(*l);
-                json!({"kind": "subgroups", "x": g, "lsl": lsl, "usl": usl, "baseline": b})
+                let m = match m {
+                    MeanLimits::Within => "within",
+                    MeanLimits::Between => "between",
+                };
+                json!({"kind": "subgroups", "x": g, "lsl": lsl, "usl": usl, "baseline": b,
+                       "mean_limits": m})
             }
         }
     }
@@ -44,9 +49,9 @@ impl Case {
     fn chart(&self) -> Option<Chart> {
         match self {
             Case::Individuals(x, l, b) => individuals(x, *l, *b).ok(),
-            Case::Subgroups(g, l, b) => {
+            Case::Subgroups(g, l, b, m) => {
                 let refs: Vec<&[f64]> = g.iter().map(|v| &v[..]).collect();
-                means_and_deviations(&refs, *l, *b).ok()
+                means_and_deviations(&refs, *l, *b, *m).ok()
             }
         }
     }
@@ -143,15 +148,54 @@ fn cases() -> Vec<Case> {
             })
             .collect();
         let baseline = (k % 3 == 0).then_some((groups / 2).max(2));
-        out.push(Case::Subgroups(g, limit_sets[k % 4], baseline));
+        let m = if k % 2 == 0 {
+            MeanLimits::Within
+        } else {
+            MeanLimits::Between
+        };
+        out.push(Case::Subgroups(g, limit_sets[k % 4], baseline, m));
+    }
+    // Boards with their own level (a paste roll): limits from the means' moving ranges.
+    for k in 0..10 {
+        let g: Vec<Vec<f64>> = (0..[5, 25, 60][k % 3])
+            .map(|i| {
+                let level = 1.5 * normal.sample(&mut rng) + if i > 20 { 3.0 } else { 0.0 };
+                noise(50 + 17 * (i % 4), 4.0, &mut rng)
+                    .into_iter()
+                    .map(|v| v + level)
+                    .collect()
+            })
+            .collect();
+        out.push(Case::Subgroups(
+            g,
+            limit_sets[k % 4],
+            (k % 2 == 0).then_some(4),
+            MeanLimits::Between,
+        ));
     }
     // One subgroup of many values (a whole board's pads), and a long run of boards.
     let big: Vec<Vec<f64>> = (0..25).map(|_| noise(6000, 8.0, &mut rng)).collect();
-    out.push(Case::Subgroups(big, limit_sets[0], Some(10)));
+    out.push(Case::Subgroups(
+        big.clone(),
+        limit_sets[0],
+        Some(10),
+        MeanLimits::Within,
+    ));
+    out.push(Case::Subgroups(
+        big,
+        limit_sets[0],
+        Some(10),
+        MeanLimits::Between,
+    ));
     // A baseline of subgroups of one value each: no degree of freedom for the limits.
     let mut head: Vec<Vec<f64>> = vec![vec![99.0], vec![101.0], vec![100.5]];
     head.extend((0..5).map(|_| noise(4, 3.0, &mut rng)));
-    out.push(Case::Subgroups(head, limit_sets[0], Some(3)));
+    out.push(Case::Subgroups(
+        head,
+        limit_sets[0],
+        Some(3),
+        MeanLimits::Between,
+    ));
     // No spread, and too little data: undefined in both.
     out.push(Case::Individuals(vec![100.0; 12], limit_sets[0], None));
     out.push(Case::Individuals(vec![100.0], limit_sets[0], None));
@@ -159,11 +203,13 @@ fn cases() -> Vec<Case> {
         vec![vec![1.0], vec![2.0], vec![3.0]],
         limit_sets[0],
         None,
+        MeanLimits::Within,
     ));
     out.push(Case::Subgroups(
         vec![vec![1.0, 2.0, 4.0]],
         limit_sets[0],
         None,
+        MeanLimits::Between,
     ));
     out
 }

@@ -253,19 +253,27 @@ def subgroups(case):
     centre = float(np.mean(basev))                             # their grand mean
     sigma_limits = pooled_sd(groups[:b], dof_b) / c4(dof_b + 1)
 
+    # The S chart always from the baseline's within sigma; the means' limits from it over
+    # sqrt(n_i) ("within") or from the baseline means' moving ranges ("between").
+    sigma_s = sigma_limits
+    between = case.get("mean_limits", "within") == "between"
+    if between:
+        mb = np.array(xbar[:b])
+        sigma_limits = float(np.mean(np.abs(np.diff(mb)))) / D2_2
+
     lcl, ucl = [], []
     sc, sl, su = [], [], []
     z = []
     for g, xb in zip(groups, xbar):
         ni = len(g)
-        sx = sigma_limits / math.sqrt(ni)
+        sx = sigma_limits if between else sigma_limits / math.sqrt(ni)
         lcl.append(centre - 3.0 * sx)
         ucl.append(centre + 3.0 * sx)
         z.append((xb - centre) / sx if sigma_limits != 0 else None)
         if ni >= 2:                      # s chart limits for this subgroup size
             c = c4(ni)
-            s_centre = c * sigma_limits
-            half = 3.0 * sigma_limits * math.sqrt(1.0 - c * c)
+            s_centre = c * sigma_s
+            half = 3.0 * sigma_s * math.sqrt(1.0 - c * c)
             sc.append(s_centre)
             sl.append(max(0.0, s_centre - half))
             su.append(s_centre + half)
