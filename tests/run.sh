@@ -5,6 +5,8 @@
 # what is missing; needs ../shared/data/real beside the repo.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# One clean build: incremental state would only take disk (gigabytes over the workspace).
+export CARGO_INCREMENTAL=0
 
 have() { command -v "$1" >/dev/null 2>&1; }
 as_root() { if [ "$(id -u)" = 0 ]; then "$@"; else sudo "$@"; fi; }
@@ -93,3 +95,4 @@ cargo bench --workspace --locked --no-run
 passed=$(grep '^test result:' "$log" | grep -Eo '[0-9]+ passed' | awk '{s += $1} END {print s + 0}')
 failed=$(grep '^test result:' "$log" | grep -Eo '[0-9]+ failed' | awk '{s += $1} END {print s + 0}')
 echo "tests: $passed passed, $failed failed"
+echo "target: $(du -sh target 2>/dev/null | cut -f1) on disk"
