@@ -249,6 +249,7 @@ fn stored(cfg: &Path) -> Vec<Value> {
             "--config".as_ref(),
             cfg.as_os_str(),
             "--pads".as_ref(),
+            "--prints".as_ref(),
         ]),
         "line boards",
     );
@@ -315,7 +316,8 @@ fn boards_back_to_back_are_stored_as_the_offline_inspection() {
             run
         );
     }
-    assert_eq!(std::fs::read_dir(dir.join("data/cfx")).unwrap().count(), 3);
+    // A UnitsInspected message and a printer proposal per board, nothing else.
+    assert_eq!(std::fs::read_dir(dir.join("data/cfx")).unwrap().count(), 6);
     // `dpsa spc` reads what the line stored: the three boards, and the board chart's mean of
     // the measured volumes equal to the stored pad rows' (pads the inspection could not
     // measure left out).
@@ -350,6 +352,218 @@ fn boards_back_to_back_are_stored_as_the_offline_inspection() {
     assert!(
         (vol["mean"].as_f64().unwrap() - mean).abs() < 1e-9 * mean,
         "{vol} {mean}"
+    );
+}
+
+/// A stored placement (`dpsa line boards --prints`) as the loop takes it.
+fn placement(v: &Value) -> dpsa_inspect::print::PrintOffset {
+    let f = |k: &str| v[k].as_f64().unwrap_or_else(|| panic!("{k} of {v}"));
+    let a = |k: &str, i: usize| v[k][i].as_f64().unwrap_or(f64::NAN);
+    dpsa_inspect::print::PrintOffset {
+        x_um: f("x_um"),
+        y_um: f("y_um"),
+        rotation_mdeg: f("rotation_mdeg"),
+        stretch_ppm: f("stretch_ppm"),
+        uncertainty: [0, 1, 2, 3].map(|i| a("uncertainty", i)),
+        centre_mm: [a("centre_mm", 0), a("centre_mm", 1)],
+        pads: v["pads"].as_u64().unwrap() as usize,
+        outliers: v["outliers"].as_u64().unwrap() as usize,
+        scale_um: f("scale_um"),
+    }
+}
+
+/// The loop back to the printer, live: every board's placement and the correction proposed
+/// after it stored with the board and spooled beside its CFX message; the proposals those a
+/// loop replayed over the stored placements gives (dead band 0, so it moves every board, and
+/// a conveyor of 1 board set in LINE.toml), across a restart of the service in the middle
+/// (the loop resumed from the store goes on as if it had never stopped); the placements those
+/// `dpsa spc` fits again from the stored pads.
+#[test]
+fn the_loop_back_to_the_printer_is_stored_spooled_and_resumed() {
+    let f = fixture();
+    let dir = f.dir.join("printer");
+    let cfg = line_config(&dir, |t| {
+        format!(
+            "{t}\n[printer]\ndelay_boards = 1\ndead_band_um = 0.0\ndead_band_mdeg = 0.0\n\
+             dead_band_sigmas = 0.0\n"
+        )
+    });
+    let mut runs = Vec::new();
+    for (n, seed) in [(3, "21"), (2, "22")] {
+        let run = start(&cfg, Some(n));
+        let sent = send(
+            &cfg,
+            &["--rate", "max", "--boards", &n.to_string(), "--seed", seed],
+        );
+        let summary = wait(run, 120, &cfg);
+        assert_eq!(summary["boards"], n, "{summary}");
+        runs.extend(
+            sent["run_ids"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|r| r.as_str().unwrap().to_owned()),
+        );
+    }
+    let mut boards = stored(&cfg);
+    boards.reverse();
+    assert_eq!(
+        boards
+            .iter()
+            .map(|b| b["run_id"].as_str().unwrap())
+            .collect::<Vec<_>>(),
+        runs
+    );
+    let mut replay = dpsa_line::printer::Loop::new(dpsa_line::printer::LoopConfig {
+        delay: 1,
+        dead_band: [0.0, 0.0],
+        sigmas: 0.0,
+        ..Default::default()
+    });
+    let mut moved = 0;
+    for (k, b) in boards.iter().enumerate() {
+        let run = b["run_id"].as_str().unwrap();
+        let p = &b["print"];
+        let m = placement(&p["placement"]);
+        assert!(m.pads > 100, "{p}");
+        let want = replay.board(Some(&m)).correction;
+        let got = &p["proposal"]["correction"];
+        for (key, w) in [
+            ("x_um", want.x_um),
+            ("y_um", want.y_um),
+            ("rotation_mdeg", want.rotation_mdeg),
+        ] {
+            let g = got[key].as_f64().unwrap();
+            assert!(
+                (g - w).abs() <= 1e-9 * w.abs().max(1.0),
+                "board {k} {key}: {g} against {w}"
+            );
+        }
+        moved += usize::from(p["proposal"]["held"] != serde_json::json!([true, true, true]));
+        let msg: Value = serde_json::from_slice(
+            &std::fs::read(dir.join("data/cfx").join(format!("{run}.printer.json"))).unwrap(),
+        )
+        .unwrap();
+        assert_eq!(msg["MessageName"], "dpsa.SPI.PrinterCorrectionProposed");
+        let body = &msg["MessageBody"];
+        assert_eq!(body["Correction"]["X_um"], got["x_um"], "{msg}");
+        assert_eq!(
+            body["Correction"]["Theta_mdeg"], got["rotation_mdeg"],
+            "{msg}"
+        );
+        assert_eq!(body["BasedOn"]["LastRunId"], run);
+        // The boards weighing 1 % or more (5 at gain 0.6), across the restart too.
+        let n = (k + 1).min(5);
+        assert_eq!(body["BasedOn"]["Boards"], n, "{msg}");
+        assert_eq!(
+            body["BasedOn"]["FirstRunId"],
+            runs[k + 1 - n].as_str(),
+            "{msg}"
+        );
+        assert_eq!(body["Loop"]["delay"], 1);
+    }
+    assert!(moved >= 4, "the loop never moved: {boards:?}");
+    // `dpsa spc` fits the placements again from the stored pads: the same.
+    let spc = ok(
+        &dpsa([
+            "spc".as_ref(),
+            "--store".as_ref(),
+            dir.join("data/line.sqlite").as_os_str(),
+            "--program".as_ref(),
+            f.board.join("program.toml").as_os_str(),
+            "--json".as_ref(),
+        ]),
+        "spc",
+    );
+    let spc: Value = serde_json::from_str(&spc).unwrap();
+    let prints = spc["prints"].as_array().unwrap();
+    assert_eq!(prints.len(), boards.len());
+    for (s, b) in prints.iter().zip(&boards) {
+        let m = &b["print"]["placement"];
+        for key in ["x_um", "y_um", "rotation_mdeg", "stretch_ppm"] {
+            let (a, c) = (s[key].as_f64().unwrap(), m[key].as_f64().unwrap());
+            assert!(
+                (a - c).abs() <= 1e-9 * c.abs().max(1.0),
+                "{key}: spc {a}, line {c}"
+            );
+        }
+    }
+}
+
+/// The loop closed through the line: a print process (a 60 um, -30 um, 0.7 mrad misprint from
+/// the first board, in-control scatter around it) printed and imaged board by board by the
+/// simulator, sent to the line as the cameras' streams, and the simulated printer applying the
+/// line's own corrections (a conveyor of one board between them). The print is within 10 um of
+/// the pads from the first board the correction could reach on, within 5 boards, never
+/// overshooting by more than 20 %, and stays there; the line measures each print within 3 um
+/// of what the simulator printed (its truth).
+#[test]
+fn the_printer_loop_closes_through_the_line() {
+    let dir = fixture().dir.join("closed-loop");
+    let cfg = line_config(&dir, |t| format!("{t}\n[printer]\ndelay_boards = 1\n"));
+    let process = dir.join("process.toml");
+    std::fs::write(
+        &process,
+        "boards = 8\nseed = 3\n\n[in_control]\nprint_offset_um = 2.0\n\
+         print_rotation_mrad = 0.02\nboard_volume_pct = 1.0\n\n[[change]]\nkind = \"step\"\n\
+         at = 0\nshift_um = [60.0, -30.0]\nturn_mrad = 0.7\n",
+    )
+    .unwrap();
+    let run = start(&cfg, Some(8));
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/array-paste.toml");
+    let out = ok(
+        &dpsa([
+            "print-process".as_ref(),
+            "--process".as_ref(),
+            process.as_os_str(),
+            "--line".as_ref(),
+            cfg.as_os_str(),
+            "--scene".as_ref(),
+            scene.as_os_str(),
+            "--printer-applies".as_ref(),
+            "--json".as_ref(),
+        ]),
+        "print-process --line",
+    );
+    let summary = wait(run, 120, &cfg);
+    assert_eq!(summary["boards"], 8, "{summary}");
+    let r: Value = serde_json::from_str(&out).unwrap();
+    let boards = r["boards"].as_array().unwrap();
+    assert_eq!(boards.len(), 8);
+    let v = |b: &Value, k: &str, i: usize| b[k][i].as_f64().unwrap();
+    let mut within = None;
+    let mut overshoot = [0.0f64; 2];
+    for (k, b) in boards.iter().enumerate() {
+        // The line's measurement of the print against the simulator's.
+        for i in 0..2 {
+            let (printed, seen) = (v(b, "printed", i), v(b, "placement", i));
+            assert!(
+                (printed - seen).abs() <= 3.0,
+                "board {k}: printed {printed}, measured {seen}"
+            );
+        }
+        let off = v(b, "printed", 0).hypot(v(b, "printed", 1));
+        if off <= 10.0 && within.is_none() {
+            within = Some(k);
+        }
+        if within.is_some() {
+            assert!(
+                off <= 10.0,
+                "board {k}: {off} um off after the loop closed: {r}"
+            );
+        }
+        overshoot[0] = overshoot[0].max(-v(b, "printed", 0));
+        overshoot[1] = overshoot[1].max(v(b, "printed", 1));
+    }
+    // Boards 0 and 1 were printed before any correction could reach the printer.
+    let within = within.unwrap_or_else(|| panic!("never within 10 um: {r}"));
+    assert!(
+        (2..5).contains(&within),
+        "within 10 um from board {within}: {r}"
+    );
+    assert!(
+        overshoot[0] <= 12.0 && overshoot[1] <= 6.0,
+        "overshoot {overshoot:?}: {r}"
     );
 }
 
@@ -399,6 +613,15 @@ fn a_silent_camera_makes_its_board_incomplete_and_the_next_board_is_whole() {
     assert!(!dir
         .join("data/cfx")
         .join(format!("{}.json", runs[0]))
+        .exists());
+    // It was printed all the same: the loop back to the printer counts it, with no placement
+    // (held), and proposes nothing to the spool.
+    assert!(first["print"]["placement"].is_null(), "{first}");
+    let reason = first["print"]["proposal"]["reason"].as_str().unwrap();
+    assert!(reason.contains("no placement"), "{first}");
+    assert!(!dir
+        .join("data/cfx")
+        .join(format!("{}.printer.json", runs[0]))
         .exists());
     assert_offline(board_of(&boards, runs[1]));
 }
@@ -581,6 +804,28 @@ fn a_bad_configuration_names_its_key() {
             assert!(!o.status.success(), "{extra}");
             assert!(e.contains(key) && !e.contains("s3cret"), "{extra}: {e}");
         }
+    }
+    // The loop back to the printer's keys.
+    for (i, (extra, key)) in [
+        ("gain = 2.0", "printer.gain"),
+        ("delay_boards = 1000", "printer.delay_boards"),
+        ("max_step_um = nan", "printer.max_step_um"),
+        ("dead_band = 5.0", "unknown field `dead_band`"),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let cfg = line_config(&dir.join(format!("printer{i}")), |t| {
+            format!("{t}\n[printer]\n{extra}\n")
+        });
+        let o = dpsa([
+            "line".as_ref(),
+            "run".as_ref(),
+            "--config".as_ref(),
+            cfg.as_os_str(),
+        ]);
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && e.contains(key), "{extra}: {e}");
     }
     let good = line_config(&dir.join("good"), |t| t);
     let o = dpsa([

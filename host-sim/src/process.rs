@@ -267,6 +267,90 @@ impl ProcessSpec {
 }
 
 /// An aperture's area ratio: its area over its wall's at a stencil `stencil_um` thick.
+/// What the printer does to one board, before any pad's own scatter.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct BoardPrint {
+    /// The print's shift, um.
+    pub shift_um: [f64; 2],
+    /// Its turn about the pads' centre, mrad.
+    pub turn_mrad: f64,
+    /// Every deposit's volume change, %.
+    pub volume_pct: f64,
+    /// Clogged apertures: (volume lost %, the area ratio under which an aperture loses it).
+    pub clog: Vec<(f64, f64)>,
+}
+
+impl ProcessSpec {
+    /// Every board's print (the images' process: the pads' own scatter is the simulator's),
+    /// from the spec's seed.
+    pub fn board_prints(&self) -> Vec<BoardPrint> {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(self.seed ^ 0x7072_696e_7465_7273);
+        (0..self.boards)
+            .map(|b| {
+                let z: [f64; 4] = std::array::from_fn(|_| StandardNormal.sample(&mut rng));
+                self.board_print(b, z)
+            })
+            .collect()
+    }
+
+    /// Board `b`'s print: its in-control placement and common volume from the four standard
+    /// normal draws `z` (shift x, shift y, turn, volume), then the changes in force.
+    pub fn board_print(&self, b: usize, z: [f64; 4]) -> BoardPrint {
+        let c = &self.in_control;
+        let mut shift = [c.print_offset_um * z[0], c.print_offset_um * z[1]];
+        let mut turn = c.print_rotation_mrad * z[2];
+        let mut volume = c.board_volume_pct * z[3];
+        let last_clean = self
+            .changes
+            .iter()
+            .filter_map(|ch| match ch {
+                Change::Clean { at } if *at <= b => Some(*at),
+                _ => None,
+            })
+            .max();
+        let mut clog: Vec<(f64, f64)> = Vec::new();
+        for ch in &self.changes {
+            match ch {
+                Change::Step {
+                    at,
+                    shift_um,
+                    turn_mrad,
+                } if b >= *at => {
+                    shift[0] += shift_um[0];
+                    shift[1] += shift_um[1];
+                    turn += turn_mrad;
+                }
+                Change::Drift { from, um_per_board } if b >= *from => {
+                    let k = (b - from + 1) as f64;
+                    shift[0] += k * um_per_board[0];
+                    shift[1] += k * um_per_board[1];
+                }
+                Change::Viscosity {
+                    from,
+                    pct_per_board,
+                } if b >= *from => volume += (b - from + 1) as f64 * pct_per_board,
+                Change::Clogging {
+                    from,
+                    pct_per_print,
+                    fine_area_ratio,
+                } if b >= *from => {
+                    let since = last_clean.map_or(*from, |c| c.max(*from));
+                    if b >= since {
+                        clog.push(((b - since + 1) as f64 * pct_per_print, *fine_area_ratio));
+                    }
+                }
+                _ => {}
+            }
+        }
+        BoardPrint {
+            shift_um: shift,
+            turn_mrad: turn,
+            volume_pct: volume,
+            clog,
+        }
+    }
+}
+
 fn area_ratio(outline: &dpsa_gerber::pads::Outline, stencil_um: f64) -> f64 {
     outline.area() / (outline.perimeter() * stencil_um / 1000.0)
 }
@@ -336,52 +420,12 @@ pub fn print_process(
         store: store.display().to_string(),
     };
     for b in 0..spec.boards {
-        // The board's print: placement and common volume, then the changes.
-        let mut shift = [c.print_offset_um * normal(), c.print_offset_um * normal()];
-        let mut turn = c.print_rotation_mrad * normal();
-        let mut volume = c.board_volume_pct * normal();
-        let last_clean = spec
-            .changes
-            .iter()
-            .filter_map(|ch| match ch {
-                Change::Clean { at } if *at <= b => Some(*at),
-                _ => None,
-            })
-            .max();
-        let mut clog: Vec<(f64, f64)> = Vec::new();
-        for ch in &spec.changes {
-            match ch {
-                Change::Step {
-                    at,
-                    shift_um,
-                    turn_mrad,
-                } if b >= *at => {
-                    shift[0] += shift_um[0];
-                    shift[1] += shift_um[1];
-                    turn += turn_mrad;
-                }
-                Change::Drift { from, um_per_board } if b >= *from => {
-                    let k = (b - from + 1) as f64;
-                    shift[0] += k * um_per_board[0];
-                    shift[1] += k * um_per_board[1];
-                }
-                Change::Viscosity {
-                    from,
-                    pct_per_board,
-                } if b >= *from => volume += (b - from + 1) as f64 * pct_per_board,
-                Change::Clogging {
-                    from,
-                    pct_per_print,
-                    fine_area_ratio,
-                } if b >= *from => {
-                    let since = last_clean.map_or(*from, |c| c.max(*from));
-                    if b >= since {
-                        clog.push(((b - since + 1) as f64 * pct_per_print, *fine_area_ratio));
-                    }
-                }
-                _ => {}
-            }
-        }
+        let BoardPrint {
+            shift_um: shift,
+            turn_mrad: turn,
+            volume_pct: volume,
+            clog,
+        } = spec.board_print(b, [normal(), normal(), normal(), normal()]);
         let id = st.begin_board(&BoardStart {
             run_id: 0x5100_0000 + b as u64,
             product: spec.product.clone(),

@@ -123,6 +123,10 @@ struct BoardsArgs {
     /// With every pad of each board.
     #[arg(long)]
     pads: bool,
+    /// With each board's print: the placement measured on it and the printer correction the
+    /// loop proposed after it (`print`, null for a board the line stored without one).
+    #[arg(long)]
+    prints: bool,
     /// The store, over the configuration's `store`: a PostgreSQL URL or the path of an
     /// SQLite file. The boards listed are the configuration's line's.
     #[arg(long, value_name = "URL_OR_PATH")]
@@ -310,7 +314,7 @@ fn stream_files(dir: &Path, cameras: usize) -> Result<Option<Vec<Vec<u8>>>> {
 
 /// Each camera of the board recording `dir` through the core with calibration `cal`.
 #[cfg(feature = "sim")]
-fn core_streams(dir: &Path, cal: &Path, cameras: usize) -> Result<Vec<Vec<u8>>> {
+pub(crate) fn core_streams(dir: &Path, cal: &Path, cameras: usize) -> Result<Vec<Vec<u8>>> {
     (0..cameras)
         .map(|i| {
             let mut rec = super::open(&dir.join(format!("cam{i}")))?;
@@ -413,11 +417,27 @@ fn boards(a: BoardsArgs) -> Result<()> {
         None => cfg.store,
     };
     let mut store = dpsa_line::store::Store::open(&location, &cfg.line)?;
+    let boards = store.boards(a.last)?;
+    // The print rows of the products listed, by board id (each product's newest, as many as
+    // boards are listed).
+    let mut prints = std::collections::HashMap::new();
+    if a.prints {
+        let products: std::collections::BTreeSet<&str> =
+            boards.iter().map(|b| b.product.as_str()).collect();
+        for p in products {
+            for r in store.prints(p, a.last)? {
+                prints.insert(r.board_id, r.print);
+            }
+        }
+    }
     let mut list = Vec::new();
-    for b in store.boards(a.last)? {
+    for b in boards {
         let mut v = serde_json::to_value(&b)?;
         if a.pads {
             v["pad_rows"] = serde_json::to_value(store.pads(b.id)?)?;
+        }
+        if a.prints {
+            v["print"] = serde_json::to_value(prints.get(&b.id))?;
         }
         list.push(v);
     }

@@ -144,8 +144,8 @@ pub fn run(a: Args) -> Result<()> {
     };
     let loaded = dpsa_spc::load::load(&src)?;
     let report = analyse(&loaded.study, &loaded.product, &opts);
-    let loop_cfg = dpsa_spc::printer::LoopConfig::default();
-    let proposal = dpsa_spc::printer::offline_proposal(&report.prints, &loop_cfg);
+    let loop_cfg = dpsa_line::printer::LoopConfig::default();
+    let proposal = dpsa_line::printer::offline_proposal(&report.prints, &loop_cfg);
     let printer_message = proposal.as_ref().map(|p| {
         let stretch = report
             .prints
@@ -154,7 +154,7 @@ pub fn run(a: Args) -> Result<()> {
             .flatten()
             .next()
             .map(|x| x.stretch_ppm);
-        dpsa_spc::printer::message(
+        dpsa_line::printer::message(
             p,
             &loop_cfg,
             &format!("dpsa/{}", a.line),

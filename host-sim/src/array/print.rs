@@ -401,6 +401,27 @@ pub struct PrintParams {
     /// Print offset (stencil against the pads), one per board, sigma per axis, mm (0..=0.1;
     /// truncated at 3 sigma).
     pub offset_sigma_mm: f64,
+    /// The print offset of this board (stencil against the pads, design frame, mm, each axis
+    /// -0.5..=0.5): a printer's placement error as a print process sets it; absent, drawn
+    /// from `offset_sigma_mm`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub offset_mm: Option<Point>,
+    /// The print's rotation about the paste pattern's centre (the mean of the openings'
+    /// centres), counter-clockwise, mrad (-10..=10): each deposit is moved by the turn at its
+    /// opening's centre (not turned itself: a mrad over a pad's size is under a um).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub rotation_mrad: f64,
+    /// Every deposit's volume changed by this, percent (-50..=50): the paste's viscosity, the
+    /// squeegee's pressure.
+    #[serde(skip_serializing_if = "is_zero")]
+    pub volume_pct: f64,
+    /// Clogged apertures: the openings whose area ratio is below `clogging_area_ratio` print
+    /// this much less paste, percent (0..=80).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub clogging_pct: f64,
+    /// See `clogging_pct` (0.3..=2; default 0.8: the fine-pitch apertures, which clog first).
+    #[serde(skip_serializing_if = "is_default_clogging_area_ratio")]
+    pub clogging_area_ratio: f64,
     /// Per-pad volume scatter, rms, percent (0..=20; truncated at 3 sigma).
     pub height_scatter_pct: f64,
     /// Per-pad position scatter, sigma per axis, mm (0..=0.05; truncated at 3 sigma).
@@ -430,6 +451,11 @@ impl Default for PrintParams {
             dog_ear_height_um: 6.0,
             dog_ear_sigma_mm: 0.03,
             offset_sigma_mm: 0.01,
+            offset_mm: None,
+            rotation_mrad: 0.0,
+            volume_pct: 0.0,
+            clogging_pct: 0.0,
+            clogging_area_ratio: DEFAULT_CLOGGING_AREA_RATIO,
             height_scatter_pct: 3.0,
             position_sigma_mm: 0.006,
             fiducial_height_um: 35.0,
@@ -439,6 +465,17 @@ impl Default for PrintParams {
             seed: None,
         }
     }
+}
+
+/// The area ratio below which an aperture clogs (`PrintParams::clogging_area_ratio`).
+pub const DEFAULT_CLOGGING_AREA_RATIO: f64 = 0.8;
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
+}
+
+fn is_default_clogging_area_ratio(v: &f64) -> bool {
+    *v == DEFAULT_CLOGGING_AREA_RATIO
 }
 
 /// Why a print cannot be made.
@@ -486,6 +523,14 @@ impl PrintParams {
         range(self.dog_ear_sigma_mm, 0.005, 0.2, "dog_ear_sigma_mm")?;
         range(self.offset_sigma_mm, 0.0, 0.1, "offset_sigma_mm")?;
         range(self.height_scatter_pct, 0.0, 20.0, "height_scatter_pct")?;
+        if let Some(o) = self.offset_mm {
+            range(o[0], -0.5, 0.5, "offset_mm")?;
+            range(o[1], -0.5, 0.5, "offset_mm")?;
+        }
+        range(self.rotation_mrad, -10.0, 10.0, "rotation_mrad")?;
+        range(self.volume_pct, -50.0, 50.0, "volume_pct")?;
+        range(self.clogging_pct, 0.0, 80.0, "clogging_pct")?;
+        range(self.clogging_area_ratio, 0.3, 2.0, "clogging_area_ratio")?;
         range(self.position_sigma_mm, 0.0, 0.05, "position_sigma_mm")?;
         range(self.fiducial_height_um, 1.0, 200.0, "fiducial_height_um")?;
         range(self.fiducial_edge_mm, 0.0, 0.1, "fiducial_edge_mm")?;
@@ -839,16 +884,37 @@ pub fn print(
     check_inputs(pads, params)?;
     let mut rng = crate::simulation::simulate::rng(seed, 0x7072_696e);
     let t_um = params.stencil_um;
-    let offset = [
+    // Drawn always, so that a given offset leaves every other draw as it was.
+    let drawn = [
         params.offset_sigma_mm * normal3(&mut rng),
         params.offset_sigma_mm * normal3(&mut rng),
     ];
+    let offset = params.offset_mm.unwrap_or(drawn);
     let (defect, partner) = assign_defects(pads, &params.defects, &mut rng)?;
+    // The turn moves each opening's deposit by `theta x` its distance from the pattern's
+    // centre (mrad x mm = um).
+    let turn = params.rotation_mrad * 1e-3;
+    let centre = if turn == 0.0 || pads.is_empty() {
+        [0.0; 2]
+    } else {
+        let n = pads.len() as f64;
+        let c = pads.iter().map(|p| p.outline.centroid());
+        c.fold([0.0; 2], |a, q| [a[0] + q[0] / n, a[1] + q[1] / n])
+    };
 
     let mut drafts: Vec<Draft> = Vec::new();
     let mut printed: Vec<PrintedPad> = Vec::with_capacity(pads.len());
     for (i, pad) in pads.iter().enumerate() {
-        let (own, pp) = print_pad(i, pad, defect[i], offset, params, &mut rng);
+        let q = pad.outline.centroid();
+        let at = if turn == 0.0 {
+            offset
+        } else {
+            [
+                offset[0] - turn * (q[1] - centre[1]),
+                offset[1] + turn * (q[0] - centre[0]),
+            ]
+        };
+        let (own, pp) = print_pad(i, pad, defect[i], at, params, &mut rng);
         let first = drafts.len();
         drafts.extend(own);
         printed.push(PrintedPad {
@@ -976,6 +1042,13 @@ fn print_pad(
     let te = transfer_efficiency(ar);
     let v_open = o.area() * t_um;
     let scatter_v = 1.0 + params.height_scatter_pct / 100.0 * normal3(rng);
+    // The board's level and a clogged aperture's loss (exactly 1 when neither is set).
+    let clogged = if ar < params.clogging_area_ratio {
+        params.clogging_pct
+    } else {
+        0.0
+    };
+    let level = (1.0 + params.volume_pct / 100.0) * (1.0 - clogged / 100.0);
     let scatter_p = [
         params.position_sigma_mm * normal3(rng),
         params.position_sigma_mm * normal3(rng),
@@ -984,7 +1057,7 @@ fn print_pad(
     let slumped = o.offset(params.slump_mm).unwrap_or_else(|| o.clone());
     let mut shift = [offset[0] + scatter_p[0], offset[1] + scatter_p[1]];
     let mut own: Vec<Draft> = Vec::new();
-    let mut volume = te * scatter_v * v_open;
+    let mut volume = te * scatter_v * v_open * level;
     let mut footprint = slumped.clone();
     let mut ears = false;
     match defect {
@@ -1300,6 +1373,82 @@ mod tests {
     fn small() -> (Vec<Pad>, Vec<Point>) {
         let l = generate(LayoutBoard::Small);
         (l.pads, l.fiducials)
+    }
+
+    /// A print process's knobs: the given offset and turn move every deposit by exactly the
+    /// shift and turn at its opening (no scatter), the board's level and a clogged aperture's
+    /// loss scale its volume, and every other draw is the plain print's.
+    #[test]
+    fn a_set_offset_turn_level_and_clogging_print_as_set() {
+        let (pads, fids) = small();
+        // No scatter of position, no dog-ears (their volume is their own).
+        let plain = PrintParams {
+            position_sigma_mm: 0.0,
+            dog_ear_fraction: 0.0,
+            ..PrintParams::default()
+        };
+        let set = PrintParams {
+            offset_mm: Some([0.06, -0.03]),
+            rotation_mrad: 0.7,
+            volume_pct: -8.0,
+            clogging_pct: 20.0,
+            ..plain.clone()
+        };
+        let t = Rigid {
+            rotation_rad: 0.0,
+            tx: 1.0,
+            ty: 2.0,
+        };
+        let a = print(&pads, &fids, &plain, &t, 3).unwrap();
+        let b = print(&pads, &fids, &set, &t, 3).unwrap();
+        assert_eq!(b.print_offset_mm, [0.06, -0.03]);
+        let n = pads.len() as f64;
+        let centre = pads.iter().fold([0.0; 2], |s, p| {
+            let c = p.outline.centroid();
+            [s[0] + c[0] / n, s[1] + c[1] / n]
+        });
+        let mut clogged = 0;
+        for ((pa, pb), pad) in a.pads.iter().zip(&b.pads).zip(&pads) {
+            if pa.defect != Defect::None {
+                continue;
+            }
+            let q = pad.outline.centroid();
+            let want = [
+                0.06 - 0.7e-3 * (q[1] - centre[1]),
+                -0.03 + 0.7e-3 * (q[0] - centre[0]),
+            ];
+            // The plain print's own offset (its drawn one) taken off.
+            for (k, w) in want.into_iter().enumerate() {
+                let moved = pb.offset_mm[k] - (pa.offset_mm[k] - a.print_offset_mm[k]);
+                assert!((moved - w).abs() < 1e-9, "{}: {moved} vs {w}", pb.name);
+            }
+            let loss = if pa.area_ratio < DEFAULT_CLOGGING_AREA_RATIO {
+                clogged += 1;
+                0.8
+            } else {
+                1.0
+            };
+            let ratio = pb.volume_factor / pa.volume_factor;
+            assert!((ratio - 0.92 * loss).abs() < 1e-9, "{}: {ratio}", pb.name);
+        }
+        assert!(clogged > 0, "no fine aperture on the small board");
+        assert!(set.validate().is_ok());
+        for bad in [
+            PrintParams {
+                offset_mm: Some([0.6, 0.0]),
+                ..plain.clone()
+            },
+            PrintParams {
+                rotation_mrad: f64::NAN,
+                ..plain.clone()
+            },
+            PrintParams {
+                clogging_pct: 90.0,
+                ..plain.clone()
+            },
+        ] {
+            assert!(bad.validate().is_err(), "{bad:?}");
+        }
     }
 
     #[test]

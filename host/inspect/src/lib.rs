@@ -15,6 +15,7 @@
 //! | [`register_paste`] | the transform from the paste pattern itself, for boards without fiducials |
 //! | [`measure`] | per pad: local surface, volume, area, height, offset, shape, coverage, bridges |
 //! | [`noise`] | the map's pixel noise and its correlation between neighbours, from the bare board |
+//! | [`mod@print`] | the print's placement on the board (shift, turn, stretch) from every pad's offset |
 //! | [`uncertainty`] | per pad: the standard uncertainty of the volume and height |
 //! | [`verdict`] | pass / warning / fail with the defect class |
 //! | [`run`] | `dpsa inspect` end to end, its JSON report |
@@ -25,6 +26,7 @@ pub mod error;
 pub mod map;
 pub mod measure;
 pub mod noise;
+pub mod print;
 pub mod program;
 pub mod register;
 pub mod register_paste;

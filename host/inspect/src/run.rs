@@ -8,6 +8,7 @@ use crate::error::InspectError;
 use crate::map::BoardMap;
 use crate::measure::{measure_all, PadMeasurement, Placed};
 use crate::noise::NoiseModel;
+use crate::print::PrintOffset;
 use crate::program::Program;
 use crate::register::{register, RegisterError, Registration};
 use crate::verdict::{judge, Call, Class, Level};
@@ -26,6 +27,9 @@ pub struct Inspection {
     pub measurements: Vec<PadMeasurement>,
     /// One per pad, in the layer's order.
     pub calls: Vec<Call>,
+    /// The print's placement on the board from every pad's offset (`None`: fewer than three
+    /// pads with an offset).
+    pub print: Option<PrintOffset>,
     /// Register + measure + judge, s (not reading or writing).
     pub inspect_s: f64,
     /// Of which the registration, s.
@@ -61,12 +65,14 @@ pub fn inspect(
         .zip(pads)
         .map(|(m, p)| judge(m, &program.windows_for(p)))
         .collect();
+    let print = crate::print::of_board(pads, &measurements);
     let inspect_s = t0.elapsed().as_secs_f64();
     Ok(Inspection {
         registration,
         noise,
         measurements,
         calls,
+        print,
         inspect_s,
         register_s,
     })
@@ -165,6 +171,10 @@ pub struct InspectionReport {
     /// The map's pixel noise on its bare board and its correlation between neighbours (what
     /// each pad's stated uncertainty starts from).
     pub noise: NoiseModel,
+    /// The print's placement on the board (translation at the pattern's centre, rotation,
+    /// stretch, their uncertainties; null when it could not be fitted). Registered by the
+    /// paste pattern itself it reads near zero whatever the printer did.
+    pub print: Option<PrintOffset>,
     /// An evaluation's keys (the simulator's `truth` and `detection`), in their place.
     #[serde(flatten, skip_serializing_if = "Option::is_none")]
     pub evaluation: Option<Evaluation>,
@@ -285,6 +295,7 @@ impl InspectionReport {
             pads: c,
             calls,
             noise: i.noise.clone(),
+            print: i.print,
             registration: RegistrationReport {
                 method: i.registration.method,
                 residual_um: i.registration.residual_um,

@@ -5,6 +5,7 @@
 //! Paths are relative to the file's directory. Every key is documented in `docs/line.md`; an
 //! unknown key, a missing one or a value out of range is refused with a sentence naming it.
 
+use crate::printer::LoopConfig;
 use crate::store::Location;
 use crate::LineError;
 use dpsa_formats::calibration::CalFile;
@@ -47,6 +48,99 @@ pub struct LineFile {
     /// Where finished boards' CFX messages go.
     #[serde(default, skip_serializing_if = "CfxEntry::is_default")]
     pub cfx: CfxEntry,
+    /// The loop back to the printer (`docs/spc.md`): its settings.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub printer: Option<PrinterEntry>,
+}
+
+/// `[printer]`: the loop back to the printer; every key optional, the defaults those of
+/// [`LoopConfig::default`].
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PrinterEntry {
+    /// Weight of the newest board in the estimate of the printer's error, (0, 1].
+    pub gain: f64,
+    /// Boards printed but not yet measured when a board is measured (the conveyor's), 0..=100.
+    pub delay_boards: usize,
+    /// Dead band of the translation, um, and of the rotation, millidegrees.
+    pub dead_band_um: f64,
+    /// See `dead_band_um`.
+    pub dead_band_mdeg: f64,
+    /// The dead band's width in the estimate's standard uncertainties, at least.
+    pub dead_band_sigmas: f64,
+    /// Largest change at one proposal, um and millidegrees.
+    pub max_step_um: f64,
+    /// See `max_step_um`.
+    pub max_step_mdeg: f64,
+    /// Largest correction from zero, um and millidegrees.
+    pub max_total_um: f64,
+    /// See `max_total_um`.
+    pub max_total_mdeg: f64,
+}
+
+impl Default for PrinterEntry {
+    fn default() -> Self {
+        let d = LoopConfig::default();
+        PrinterEntry {
+            gain: d.gain,
+            delay_boards: d.delay,
+            dead_band_um: d.dead_band[0],
+            dead_band_mdeg: d.dead_band[1],
+            dead_band_sigmas: d.sigmas,
+            max_step_um: d.max_step[0],
+            max_step_mdeg: d.max_step[1],
+            max_total_um: d.max_total[0],
+            max_total_mdeg: d.max_total[1],
+        }
+    }
+}
+
+impl PrinterEntry {
+    /// The loop's settings, each key checked.
+    fn check(&self, path: &Path) -> Result<LoopConfig, LineError> {
+        let key = |s: &str| format!("printer.{s}");
+        if !(self.gain.is_finite() && self.gain > 0.0 && self.gain <= 1.0) {
+            return Err(bad(
+                path,
+                &key("gain"),
+                format!("{} is not in (0, 1]", self.gain),
+            ));
+        }
+        if self.delay_boards > 100 {
+            return Err(bad(
+                path,
+                &key("delay_boards"),
+                format!("{} boards is more than 100", self.delay_boards),
+            ));
+        }
+        for (name, v, min) in [
+            ("dead_band_um", self.dead_band_um, 0.0),
+            ("dead_band_mdeg", self.dead_band_mdeg, 0.0),
+            ("dead_band_sigmas", self.dead_band_sigmas, 0.0),
+        ] {
+            if !(v.is_finite() && v >= min && v <= 10_000.0) {
+                return Err(bad(path, &key(name), format!("{v} is not in [0, 10000]")));
+            }
+        }
+        for (name, v) in [
+            ("max_step_um", self.max_step_um),
+            ("max_step_mdeg", self.max_step_mdeg),
+            ("max_total_um", self.max_total_um),
+            ("max_total_mdeg", self.max_total_mdeg),
+        ] {
+            if !(v.is_finite() && v > 0.0 && v <= 10_000.0) {
+                return Err(bad(path, &key(name), format!("{v} is not in (0, 10000]")));
+            }
+        }
+        Ok(LoopConfig {
+            gain: self.gain,
+            delay: self.delay_boards,
+            dead_band: [self.dead_band_um, self.dead_band_mdeg],
+            sigmas: self.dead_band_sigmas,
+            max_step: [self.max_step_um, self.max_step_mdeg],
+            max_total: [self.max_total_um, self.max_total_mdeg],
+        })
+    }
 }
 
 /// `[[camera]]`: where a camera's frame grabber connects.
@@ -153,6 +247,8 @@ pub struct LineConfig {
     pub timeouts: Timeouts,
     /// Per camera: the configuration hash its streams must carry.
     pub config_hashes: Vec<u64>,
+    /// The loop back to the printer.
+    pub printer: LoopConfig,
 }
 
 /// FNV-1a 64 of some byte strings, as 16 hex digits.
@@ -359,6 +455,7 @@ impl LineConfig {
                     .map_err(|e| bad(path, "calibration", e))
             })
             .collect::<Result<Vec<u64>, LineError>>()?;
+        let printer = f.printer.clone().unwrap_or_default().check(path)?;
         let data = at(&f.data);
         let spool = f.cfx.spool.as_deref().map_or_else(|| data.join("cfx"), at);
         for (key, d) in [("data", &data), ("cfx.spool", &spool)] {
@@ -378,6 +475,7 @@ impl LineConfig {
             default_product,
             timeouts: t,
             config_hashes,
+            printer,
         })
     }
 }
@@ -434,6 +532,7 @@ pub fn init(
         }],
         timeouts: Timeouts::default(),
         cfx: CfxEntry::default(),
+        printer: None,
     };
     let text = format!(
         "# dpsa line: one line's configuration (docs/line.md lists every key).\n\

@@ -3,11 +3,21 @@
 //! a finished board's map is inspected against its product's program, and the board, its
 //! cameras' losses and every pad are stored in one transaction, then its CFX message is
 //! spooled; an incomplete board is stored with its reason and gets no message.
+//!
+//! Every finished board also goes through its product's loop back to the printer
+//! ([`crate::printer`]): the print's placement measured on it (none on an incomplete board,
+//! which was printed all the same and so counts in the loop's delay), the correction the loop
+//! proposes after it, stored with the board in the same transaction (`prints`) and, for an
+//! inspected board, spooled as `RUNID.printer.json` beside its CFX message. The loop of a
+//! product is resumed from the store's last rows when the service starts, so a restart
+//! neither forgets a correction in flight nor issues one twice.
 
 use crate::config::Product;
-use crate::store::{BoardStart, CameraLoss, Outcome, PadRow, Store};
+use crate::printer::{Loop, LoopConfig, Proposal};
+use crate::store::{BoardStart, CameraLoss, Outcome, PadRow, PrintRow, Store};
 use dpsa_formats::grid::{BoardGrid, Grid};
 use dpsa_inspect::map::BoardMap;
+use dpsa_inspect::print::PrintOffset;
 use dpsa_inspect::verdict::Level;
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -124,6 +134,32 @@ pub struct Keeper {
     pub calibration_hash: String,
     /// What was stored so far.
     pub tally: Arc<Mutex<Tally>>,
+    /// The loop back to the printer's settings.
+    pub printer: LoopConfig,
+    /// Each product's loop (by index into `products`), resumed from the store at its first
+    /// board.
+    pub loops: HashMap<usize, PrinterLoop>,
+}
+
+/// One product's loop back to the printer and the run ids of its newest boards.
+#[derive(Clone, Debug)]
+pub struct PrinterLoop {
+    /// The loop.
+    pub state: Loop,
+    /// Run ids of the newest boards it took, oldest first (as many as its memory).
+    pub recent: std::collections::VecDeque<u64>,
+}
+
+impl PrinterLoop {
+    /// Takes board `run_id`'s placement; the proposal after it.
+    fn board(&mut self, run_id: u64, placement: Option<&PrintOffset>) -> Proposal {
+        let p = self.state.board(placement);
+        self.recent.push_back(run_id);
+        while self.recent.len() > self.state.memory() {
+            self.recent.pop_front();
+        }
+        p
+    }
 }
 
 impl Keeper {
@@ -165,21 +201,23 @@ impl Keeper {
                     let Some((id, product)) = open.remove(&run_id) else {
                         continue;
                     };
-                    let (outcome, cfx) = self.inspect(product, run_id, grid, heights);
+                    let (outcome, cfx, placement) = self.inspect(product, run_id, grid, heights);
                     let verdict = match &outcome {
                         Outcome::Inspected { verdict, .. } => verdict.clone(),
                         Outcome::Incomplete { .. } => "incomplete".into(),
                     };
                     let run = format!("{run_id:016x}");
-                    match self
-                        .store
-                        .finish_board(id, crate::boards::unix_now(), &losses, &outcome)
-                    {
-                        Ok(()) => {
-                            // The message only for a board stored.
+                    match self.finish(id, run_id, product, &losses, &outcome, placement) {
+                        Ok((next, row)) => {
+                            // The messages only for a board stored.
                             if let Some(m) = cfx {
                                 if let Err(e) = crate::cfx::spool(&self.spool, run_id, &m) {
                                     tracing::error!(%run, "CFX message not spooled: {e}");
+                                }
+                                let m = self.printer_message(product, &next, &row);
+                                let name = format!("{run}.printer.json");
+                                if let Err(e) = crate::cfx::spool_named(&self.spool, &name, &m) {
+                                    tracing::error!(%run, "printer proposal not spooled: {e}");
                                 }
                             }
                             let latency = last_row_at.elapsed().as_secs_f64();
@@ -199,15 +237,13 @@ impl Keeper {
                     reason,
                     losses,
                 } => {
-                    let Some((id, _)) = open.remove(&run_id) else {
+                    let Some((id, product)) = open.remove(&run_id) else {
                         continue;
                     };
                     let outcome = Outcome::Incomplete { reason };
-                    match self
-                        .store
-                        .finish_board(id, crate::boards::unix_now(), &losses, &outcome)
-                    {
-                        Ok(()) => self.keep(Kept {
+                    // Printed all the same: the loop counts it (no placement, held).
+                    match self.finish(id, run_id, product, &losses, &outcome, None) {
+                        Ok(_) => self.keep(Kept {
                             run_id,
                             verdict: "incomplete".into(),
                             latency_s: None,
@@ -220,6 +256,98 @@ impl Keeper {
                 }
             }
         }
+    }
+
+    /// Ends board `id` in the store with its print row: the placement and what `product`'s
+    /// loop proposes after it. The loop moves on only once the board is stored; the loop
+    /// after the board and the row stored.
+    fn finish(
+        &mut self,
+        id: i64,
+        run_id: u64,
+        product: usize,
+        losses: &[CameraLoss],
+        outcome: &Outcome,
+        placement: Option<PrintOffset>,
+    ) -> Result<(PrinterLoop, PrintRow), crate::store::StoreError> {
+        let mut next = self.printer_loop(product);
+        let row = PrintRow {
+            placement,
+            proposal: next.board(run_id, placement.as_ref()),
+        };
+        self.store.finish_board_with_print(
+            id,
+            crate::boards::unix_now(),
+            losses,
+            outcome,
+            Some(&row),
+        )?;
+        self.loops.insert(product, next.clone());
+        Ok((next, row))
+    }
+
+    /// A copy of `product`'s loop, resumed from the store's newest rows of the product on
+    /// this line the first time (a loop the store cannot give starts afresh, and says so).
+    fn printer_loop(&mut self, product: usize) -> PrinterLoop {
+        if let Some(l) = self.loops.get(&product) {
+            return l.clone();
+        }
+        let fresh = Loop::new(self.printer.clone());
+        let want = (self.printer.delay + 1).max(fresh.memory());
+        let id = &self.products[product].id;
+        let l = match self.store.prints(id, want) {
+            Ok(mut rows) => {
+                rows.reverse();
+                let history: Vec<Proposal> =
+                    rows.iter().map(|r| r.print.proposal.clone()).collect();
+                let state = Loop::resume(self.printer.clone(), &history);
+                let keep = rows.len().saturating_sub(state.memory());
+                if let Some(last) = history.last() {
+                    tracing::info!(
+                        product = %id,
+                        correction = ?last.correction,
+                        "the loop back to the printer resumed from the store"
+                    );
+                }
+                PrinterLoop {
+                    recent: rows[keep..].iter().map(|r| r.run_id).collect(),
+                    state,
+                }
+            }
+            Err(e) => {
+                tracing::error!(product = %id, "the printer loop starts afresh: {e}");
+                PrinterLoop {
+                    state: fresh,
+                    recent: Default::default(),
+                }
+            }
+        };
+        self.loops.insert(product, l.clone());
+        l
+    }
+
+    /// The proposal after a board as the message the spool gets ([`crate::printer::message`]):
+    /// based on the boards that weigh 1 % or more in the loop's estimate.
+    fn printer_message(
+        &self,
+        product: usize,
+        l: &PrinterLoop,
+        row: &PrintRow,
+    ) -> serde_json::Value {
+        let line = self.store.line();
+        let hex = |r: &u64| format!("{r:016x}");
+        crate::printer::message(
+            &row.proposal,
+            l.state.config(),
+            &format!("dpsa/{line}"),
+            line,
+            &self.products[product].id,
+            &l.recent.front().map(hex).unwrap_or_default(),
+            &l.recent.back().map(hex).unwrap_or_default(),
+            l.recent.len(),
+            row.placement.map(|p| p.stretch_ppm),
+            &dpsa_inspect::report::iso_now(),
+        )
     }
 
     fn keep(&self, k: Kept) {
@@ -237,7 +365,7 @@ impl Keeper {
         run_id: u64,
         grid: BoardGrid,
         heights: Grid,
-    ) -> (Outcome, Option<serde_json::Value>) {
+    ) -> (Outcome, Option<serde_json::Value>, Option<PrintOffset>) {
         let p = &self.products[product];
         let map = BoardMap {
             board_id: Some(dpsa_formats::BoardId(run_id)),
@@ -251,6 +379,7 @@ impl Keeper {
                     Outcome::Incomplete {
                         reason: format!("the design could not be registered on the map: {e}"),
                     },
+                    None,
                     None,
                 )
             }
@@ -288,7 +417,7 @@ impl Keeper {
         let unit = format!("{run_id:016x}");
         let recipe = p.program.name.clone().unwrap_or_else(|| p.id.clone());
         let msg = dpsa_inspect::report::cfx(&p.pads, &i, &p.program, &unit, &recipe);
-        (Outcome::Inspected { verdict, pads }, Some(msg))
+        (Outcome::Inspected { verdict, pads }, Some(msg), i.print)
     }
 }
 

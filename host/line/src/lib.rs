@@ -10,7 +10,8 @@
 //!   board map as they arrive (`dpsa_board::assemble::Stitcher`); a board ends when every
 //!   camera's end packet came, or is incomplete (a camera cut off or silent, a board too long).
 //! - [`keeper`]: the finished map inspected against the product's program, the board and
-//!   every pad stored ([`store`]), the CFX message spooled ([`cfx`]).
+//!   every pad stored ([`store`]), the CFX message spooled ([`cfx`]); the print's placement
+//!   fed to the loop back to the printer ([`printer`]), its proposal stored and spooled.
 //! - [`service`]: `dpsa line run`: the listeners, the threads, the signals; [`memory`]: the
 //!   allocator told to keep the service's memory flat.
 //! - [`send`]: `dpsa line send`: simulated frame grabbers replaying recorded streams;
@@ -23,6 +24,7 @@ pub mod keeper;
 pub mod link;
 pub mod link_bench;
 pub mod memory;
+pub mod printer;
 pub mod send;
 pub mod service;
 pub mod store;

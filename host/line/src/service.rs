@@ -151,6 +151,8 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
         products: cfg.products,
         spool: cfg.spool.clone(),
         calibration_hash: cfg.calibration_hash.clone(),
+        printer: cfg.printer.clone(),
+        loops: Default::default(),
         tally: Arc::clone(&tally),
     };
     // Two jobs queued at most: a board map waiting for the keeper holds the boards' thread

@@ -37,7 +37,7 @@
 //! in, or, where SQLite cannot alter in place, two texts side by side that end in the same
 //! tables (a test compares the two backends' tables, columns and indexes).
 //!
-//! # Schema, version 2
+//! # Schema, version 3
 //!
 //! Versioned: SQLite's `PRAGMA user_version`; on PostgreSQL the one row of a table
 //! `schema_version`. [`Store::open`] brings an older store up to [`SCHEMA_VERSION`] by
@@ -46,7 +46,9 @@
 //! transaction (the version read again under the write lock); on PostgreSQL all of them are
 //! one transaction under an advisory lock, so two lines starting at once on a new database do
 //! not both migrate it. Version 1 was one line's store; version 2 added `line` to `boards`
-//! and `pad_stats`, made a run id unique per line and the aggregates per line. A version-1
+//! and `pad_stats`, made a run id unique per line and the aggregates per line; version 3 added
+//! `prints` (a store of version 2 gains it empty: the loop back to the printer starts afresh).
+//! A version-1
 //! SQLite file migrates in place (its `boards` and `pad_stats` copied into the new tables,
 //! `pads` untouched); its boards become line `line-1`'s ([`DEFAULT_LINE`]), so a line of
 //! another name that takes the file over renames them first (`UPDATE boards SET line = 'smt-3'
@@ -142,6 +144,35 @@
 //! | `class` | TEXT NULL | the deciding class |
 //!
 //! Primary key `(board_id, pad)`, WITHOUT ROWID (SQLite).
+//!
+//! ## `prints`: one row per board the line finished, the print and the loop back to the printer (version 3)
+//!
+//! | column | type | meaning |
+//! | --- | --- | --- |
+//! | `board_id` | INTEGER PRIMARY KEY | `boards.id` (ON DELETE CASCADE) |
+//! | `x_um`, `y_um`, `rotation_mdeg`, `stretch_ppm` | REAL NULL | the print's placement on the board (`dpsa_inspect::print`): translation at the pattern's centre, rotation counter-clockwise, stretch; NULL, with every placement column, when it could not be fitted or the board was never inspected |
+//! | `u_x_um`, `u_y_um`, `u_rotation_mdeg`, `u_stretch_ppm` | REAL NULL | their standard uncertainties |
+//! | `scale_um` | REAL NULL | the robust scale of the pads' residuals |
+//! | `centre_x_mm`, `centre_y_mm` | REAL NULL | the pattern's centre the translation is at, design mm |
+//! | `pads_used`, `outliers` | INTEGER NULL | pads the fit used and set aside |
+//! | `correction_x_um`, `correction_y_um`, `correction_rotation_mdeg` | REAL NOT NULL | the correction proposed to the printer after the board (absolute: its offset setting) |
+//! | `change_x_um`, `change_y_um`, `change_rotation_mdeg` | REAL NOT NULL | its change from the one before |
+//! | `estimate_x_um`, `estimate_y_um`, `estimate_rotation_mdeg` | REAL NULL | the loop's estimate of the printer's own error; NULL before its first placement |
+//! | `u_estimate_x_um`, `u_estimate_y_um`, `u_estimate_rotation_mdeg` | REAL NULL | its standard uncertainty |
+//! | `held`, `limited` | INTEGER NOT NULL | axes held in the dead band and axes at a limit, bit 0 x, bit 1 y, bit 2 rotation |
+//! | `reason` | TEXT NOT NULL | what the loop did and why, for a person |
+//!
+//! Written in [`Store::finish_board_with_print`]'s transaction with the board (an incomplete
+//! board gets a row too, without a placement: it was printed, and the loop counts it in its
+//! delay). The line's loop resumes from a product's newest rows ([`Store::prints`]); an
+//! engineer's chart of the printer is one join:
+//!
+//! ```sql
+//! SELECT b.run_id, p.x_um, p.y_um, p.rotation_mdeg, p.correction_x_um, p.correction_y_um,
+//!        p.correction_rotation_mdeg, p.reason
+//! FROM prints AS p JOIN boards AS b ON b.id = p.board_id
+//! WHERE b.line = 'line-1' AND b.product = 'ctrl-b' ORDER BY p.board_id DESC LIMIT 50;
+//! ```
 //!
 //! ## `alarms`: statistical process control alarms (empty for now)
 //!
@@ -258,6 +289,8 @@
 //! FROM pad_stats WHERE product = 'ctrl-b' GROUP BY pad ORDER BY pad;
 //! ```
 
+use crate::printer::{Correction, Proposal};
+use dpsa_inspect::print::PrintOffset;
 use std::path::PathBuf;
 
 /// A run id as JSON: 16 lowercase hex digits, as the logs, the CFX spool and the `boards`
@@ -645,6 +678,168 @@ pub enum Outcome {
     },
 }
 
+/// The print of one finished board and what the loop back to the printer proposed after it
+/// (table `prints`, version 3).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct PrintRow {
+    /// The print's placement measured on the board (`None`: it could not be fitted, or the
+    /// board was never inspected).
+    pub placement: Option<PrintOffset>,
+    /// The correction the loop proposed after the board (its estimate NaN before the loop's
+    /// first placement).
+    pub proposal: Proposal,
+}
+
+/// A stored [`PrintRow`] with its board ([`Store::prints`]).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct StoredPrint {
+    /// The store's id of the board.
+    pub board_id: i64,
+    /// Its run id.
+    #[serde(serialize_with = "hex_id")]
+    pub run_id: u64,
+    /// The placement and the proposal.
+    #[serde(flatten)]
+    pub print: PrintRow,
+}
+
+/// `prints`' columns after `board_id`, in the order of [`PrintValues`]: the reals, the two
+/// counts, the two flag sets, the reason.
+pub(crate) const PRINT_COLUMNS: &str = "x_um, y_um, rotation_mdeg, stretch_ppm, u_x_um, u_y_um, \
+     u_rotation_mdeg, u_stretch_ppm, scale_um, centre_x_mm, centre_y_mm, correction_x_um, \
+     correction_y_um, correction_rotation_mdeg, change_x_um, change_y_um, \
+     change_rotation_mdeg, estimate_x_um, estimate_y_um, estimate_rotation_mdeg, \
+     u_estimate_x_um, u_estimate_y_um, u_estimate_rotation_mdeg, pads_used, outliers, held, \
+     limited, reason";
+
+/// Reals of a print row.
+pub(crate) const PRINT_REALS: usize = 23;
+
+/// Parameters of a print row's insert: the board's id and [`PRINT_COLUMNS`].
+const PRINT_PARAMS: usize = 1 + PRINT_REALS + 5;
+
+/// The insert of a print row, parameters `1..=PRINT_PARAMS` written `{mark}N` (`?` or `$`).
+fn insert_print_sql(mark: char) -> String {
+    let marks: Vec<String> = (1..=PRINT_PARAMS).map(|k| format!("{mark}{k}")).collect();
+    format!(
+        "INSERT INTO prints (board_id, {PRINT_COLUMNS}) VALUES ({})",
+        marks.join(", ")
+    )
+}
+
+/// A line's print rows of a product, newest first: walks `prints` backwards by its key and
+/// joins each row's board by its key (a restart reads a few rows, however old the line).
+fn select_prints_sql(mark: char) -> String {
+    format!(
+        "SELECT b.id, b.run_id, {} FROM prints AS p JOIN boards AS b ON b.id = p.board_id \
+         WHERE b.line = {mark}1 AND b.product = {mark}2 ORDER BY p.board_id DESC LIMIT {mark}3",
+        PRINT_COLUMNS
+            .split(',')
+            .map(|c| format!("p.{}", c.trim()))
+            .collect::<Vec<_>>()
+            .join(", ")
+    )
+}
+
+/// A [`PrintRow`] as `prints`' columns hold it (NaN as NULL), for both backends.
+#[derive(Debug, Clone)]
+pub(crate) struct PrintValues {
+    /// Placement (4), its uncertainties (4), scale, centre (2); correction (3), change (3),
+    /// estimate (3) and its uncertainty (3).
+    pub(crate) reals: [Option<f64>; PRINT_REALS],
+    /// Pads used and outliers of the placement.
+    pub(crate) counts: [Option<i32>; 2],
+    /// Held and limited axes, bit 0 x, bit 1 y, bit 2 rotation.
+    pub(crate) flags: [i32; 2],
+    /// The proposal's reason.
+    pub(crate) reason: String,
+}
+
+fn axis_bits(v: [bool; 3]) -> i32 {
+    v.iter().enumerate().map(|(k, &b)| i32::from(b) << k).sum()
+}
+
+impl PrintValues {
+    pub(crate) fn of(r: &PrintRow) -> PrintValues {
+        let mut reals = [None; PRINT_REALS];
+        if let Some(p) = &r.placement {
+            let v = [
+                p.x_um,
+                p.y_um,
+                p.rotation_mdeg,
+                p.stretch_ppm,
+                p.uncertainty[0],
+                p.uncertainty[1],
+                p.uncertainty[2],
+                p.uncertainty[3],
+                p.scale_um,
+                p.centre_mm[0],
+                p.centre_mm[1],
+            ];
+            for (d, s) in reals.iter_mut().zip(v) {
+                *d = real(Some(s));
+            }
+        }
+        let q = &r.proposal;
+        for (k, c) in [
+            &q.correction,
+            &q.change,
+            &q.estimate,
+            &q.estimate_uncertainty,
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            for (j, v) in c.as_array().into_iter().enumerate() {
+                reals[11 + 3 * k + j] = real(Some(v));
+            }
+        }
+        let count = |n: usize| Some(i32::try_from(n).unwrap_or(i32::MAX));
+        PrintValues {
+            reals,
+            counts: match &r.placement {
+                Some(p) => [count(p.pads), count(p.outliers)],
+                None => [None, None],
+            },
+            flags: [axis_bits(q.held), axis_bits(q.limited)],
+            reason: q.reason.clone(),
+        }
+    }
+
+    pub(crate) fn row(self) -> PrintRow {
+        let r = self.reals.map(|v| v.unwrap_or(f64::NAN));
+        let placement = self.counts[0].map(|pads| PrintOffset {
+            x_um: r[0],
+            y_um: r[1],
+            rotation_mdeg: r[2],
+            stretch_ppm: r[3],
+            uncertainty: [r[4], r[5], r[6], r[7]],
+            scale_um: r[8],
+            centre_mm: [r[9], r[10]],
+            pads: pads.max(0) as usize,
+            outliers: self.counts[1].unwrap_or(0).max(0) as usize,
+        });
+        let c = |k: usize| Correction {
+            x_um: r[11 + 3 * k],
+            y_um: r[12 + 3 * k],
+            rotation_mdeg: r[13 + 3 * k],
+        };
+        let bits = |v: i32| [0, 1, 2].map(|k| v >> k & 1 == 1);
+        PrintRow {
+            placement,
+            proposal: Proposal {
+                correction: c(0),
+                change: c(1),
+                estimate: c(2),
+                estimate_uncertainty: c(3),
+                held: bits(self.flags[0]),
+                limited: bits(self.flags[1]),
+                reason: self.reason,
+            },
+        }
+    }
+}
+
 /// A board as the store holds it.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct StoredBoard {
@@ -903,8 +1098,60 @@ impl Store {
         cameras: &[CameraLoss],
         outcome: &Outcome,
     ) -> Result<(), StoreError> {
+        self.finish_board_with_print(id, ended_unix_s, cameras, outcome, None)
+    }
+
+    /// [`Store::finish_board`] with the board's print row (`prints`) in the same transaction:
+    /// its placement (an inspected board's only) and the loop's proposal after it, whose
+    /// correction and change must be finite.
+    pub fn finish_board_with_print(
+        &mut self,
+        id: i64,
+        ended_unix_s: f64,
+        cameras: &[CameraLoss],
+        outcome: &Outcome,
+        print: Option<&PrintRow>,
+    ) -> Result<(), StoreError> {
         self.validate_finish(id, ended_unix_s, cameras, outcome)?;
-        on_backend!(&mut self.db, d => d.finish_board(&self.line, id, ended_unix_s, cameras, outcome))
+        if let Some(p) = print {
+            let q = &p.proposal;
+            if !q
+                .correction
+                .as_array()
+                .iter()
+                .chain(&q.change.as_array())
+                .all(|v| v.is_finite())
+            {
+                return Err(self.invalid(format!(
+                    "board {id}: a printer correction that is not finite ({:?})",
+                    q.correction
+                )));
+            }
+            if let Some(m) = &p.placement {
+                if matches!(outcome, Outcome::Incomplete { .. }) {
+                    return Err(self.invalid(format!(
+                        "board {id}: a print placement on a board never inspected"
+                    )));
+                }
+                if ![m.x_um, m.y_um, m.rotation_mdeg, m.stretch_ppm]
+                    .iter()
+                    .all(|v| v.is_finite())
+                {
+                    return Err(self.invalid(format!(
+                        "board {id}: a print placement that is not finite ({m:?})"
+                    )));
+                }
+            }
+        }
+        let values = print.map(PrintValues::of);
+        on_backend!(&mut self.db, d => d.finish_board(&self.line, id, ended_unix_s, cameras, outcome, values.as_ref()))
+    }
+
+    /// This line's print rows of `product` (the print's placement on each board and the
+    /// printer correction proposed after it), newest first, at most `limit`: what the loop
+    /// back to the printer resumes from, and what a chart of the printer shows.
+    pub fn prints(&mut self, product: &str, limit: usize) -> Result<Vec<StoredPrint>, StoreError> {
+        on_backend!(&mut self.db, d => d.prints(&self.line, product, limit))
     }
 
     /// After a restart: every board of this store's line still open (the service died in
@@ -1132,7 +1379,152 @@ pub(crate) mod tests {
         a_version_1_store_migrates_to_version_2,
         programs_opening_a_new_store_at_once_migrate_it_once,
         the_benchmark_runs_small,
+        print_rows_round_trip_and_are_the_lines_newest_first,
     );
+
+    /// A print row: board `k`'s placement (none for odd `k`) and a proposal.
+    fn print_row(k: u32) -> PrintRow {
+        let f = f64::from(k);
+        let placement = (k % 2 == 0).then(|| PrintOffset {
+            x_um: 10.0 + f,
+            y_um: -3.25 * f,
+            rotation_mdeg: 0.5,
+            stretch_ppm: -12.0,
+            uncertainty: [0.3, 0.31, 0.02, f64::NAN],
+            centre_mm: [40.0, 30.0],
+            pads: 190 + k as usize,
+            outliers: 3,
+            scale_um: 4.5,
+        });
+        let c = |x: f64| Correction {
+            x_um: x,
+            y_um: -x,
+            rotation_mdeg: x / 10.0,
+        };
+        PrintRow {
+            placement,
+            proposal: Proposal {
+                correction: c(f),
+                change: c(1.0),
+                estimate: if k == 0 { c(f64::NAN) } else { c(f + 0.5) },
+                estimate_uncertainty: if k == 0 { c(f64::NAN) } else { c(0.2) },
+                held: [k % 2 == 0, false, true],
+                limited: [false, k == 3, false],
+                reason: format!("board {k}"),
+            },
+        }
+    }
+
+    /// Print rows come back as written (NaN as NULL as NaN), newest first, of this line and
+    /// product only; a placement on a board never inspected and a correction that is not
+    /// finite are refused, the board left open.
+    fn print_rows_round_trip_and_are_the_lines_newest_first(b: Backend) {
+        let (p, mut store) = fresh(b);
+        let mut other = Store::open(&p.location, "line-2").unwrap();
+        let same = |a: &PrintRow, b: &PrintRow| {
+            // NaN as NULL as NaN; -0 may come back +0 (SQLite).
+            let bits = |v: f64| (!v.is_nan()).then_some(v);
+            let pa = |r: &PrintRow| {
+                r.placement.map(|m| {
+                    (
+                        [m.x_um, m.y_um, m.rotation_mdeg, m.stretch_ppm, m.scale_um].map(bits),
+                        m.uncertainty.map(bits),
+                        m.centre_mm.map(bits),
+                        m.pads,
+                        m.outliers,
+                    )
+                })
+            };
+            let q = |r: &PrintRow| {
+                let p = &r.proposal;
+                (
+                    [
+                        &p.correction,
+                        &p.change,
+                        &p.estimate,
+                        &p.estimate_uncertainty,
+                    ]
+                    .map(|c| c.as_array().map(bits)),
+                    p.held,
+                    p.limited,
+                    p.reason.clone(),
+                )
+            };
+            pa(a) == pa(b) && q(a) == q(b)
+        };
+        let mut ids = Vec::new();
+        for k in 0..5u32 {
+            let run = 0x100 + u64::from(k);
+            let id = store
+                .begin_board(&start(run, "mini", f64::from(k)))
+                .unwrap();
+            let outcome = if k == 1 {
+                Outcome::Incomplete {
+                    reason: "camera 2 silent".into(),
+                }
+            } else {
+                Outcome::Inspected {
+                    verdict: "pass".into(),
+                    pads: vec![pad(0, "pass", Some(100.0))],
+                }
+            };
+            store
+                .finish_board_with_print(
+                    id,
+                    f64::from(k) + 0.5,
+                    &cams(),
+                    &outcome,
+                    Some(&print_row(k)),
+                )
+                .unwrap();
+            ids.push(id);
+        }
+        // Another product and another line's board of the same product.
+        let id = store.begin_board(&start(0x200, "maxi", 9.0)).unwrap();
+        let ok = Outcome::Inspected {
+            verdict: "pass".into(),
+            pads: vec![pad(0, "pass", Some(100.0))],
+        };
+        store
+            .finish_board_with_print(id, 9.5, &cams(), &ok, Some(&print_row(4)))
+            .unwrap();
+        let id = other.begin_board(&start(0x300, "mini", 9.0)).unwrap();
+        other
+            .finish_board_with_print(id, 9.5, &cams(), &ok, Some(&print_row(4)))
+            .unwrap();
+
+        let rows = store.prints("mini", 10).unwrap();
+        assert_eq!(
+            rows.iter().map(|r| r.run_id).collect::<Vec<_>>(),
+            [0x104, 0x103, 0x102, 0x101, 0x100]
+        );
+        for (r, k) in rows.iter().zip((0..5u32).rev()) {
+            assert_eq!(r.board_id, ids[k as usize]);
+            assert!(same(&r.print, &print_row(k)), "board {k}: {:?}", r.print);
+        }
+        assert_eq!(store.prints("mini", 2).unwrap().len(), 2);
+        assert_eq!(other.prints("mini", 10).unwrap().len(), 1);
+        assert!(store.prints("none", 10).unwrap().is_empty());
+        store.check().unwrap();
+
+        // Refused, and nothing of the board written.
+        let id = store.begin_board(&start(0x105, "mini", 20.0)).unwrap();
+        let incomplete = Outcome::Incomplete {
+            reason: "cut".into(),
+        };
+        let e = store
+            .finish_board_with_print(id, 20.5, &cams(), &incomplete, Some(&print_row(0)))
+            .unwrap_err();
+        assert!(e.to_string().contains("never inspected"), "{e}");
+        let mut bad = print_row(1);
+        bad.proposal.correction.x_um = f64::INFINITY;
+        let e = store
+            .finish_board_with_print(id, 20.5, &cams(), &ok, Some(&bad))
+            .unwrap_err();
+        assert!(e.to_string().contains("not finite"), "{e}");
+        assert_eq!(store.boards(1).unwrap()[0].state, "open");
+        assert_eq!(store.prints("mini", 10).unwrap().len(), 5);
+    }
 
     fn start(run_id: u64, product: &str, t: f64) -> BoardStart {
         BoardStart {
@@ -1897,7 +2289,7 @@ pub(crate) mod tests {
         let tables = store.rows(
             "SELECT name FROM sqlite_schema WHERE type = 'table' AND sql LIKE '%WITHOUT ROWID%'",
         );
-        assert_eq!(tables.len(), 4);
+        assert_eq!(tables.len(), 5);
         for t in tables {
             let t = t[0].text().unwrap();
             for c in store.rows(&format!("SELECT cid, pk FROM pragma_table_info('{t}')")) {
@@ -2135,8 +2527,9 @@ pub(crate) mod tests {
             )
             .unwrap();
         }
+        // At version 2 and on, to the newest.
         let mut store = Store::open(&p.location, DEFAULT_LINE).unwrap();
-        assert_eq!(store.schema_version().unwrap(), 2);
+        assert_eq!(store.schema_version().unwrap(), SCHEMA_VERSION);
         store.check().unwrap();
         let boards = store.boards(10).unwrap();
         assert_eq!(

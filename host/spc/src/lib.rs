@@ -7,8 +7,8 @@
 //! charts, I-MR per pad and X-bar/S with the board as the subgroup ([`chart`]); Western
 //! Electric's and Nelson's run rules ([`rules`]); and alarms (which rule, which pads or
 //! components, since which board: [`study`]); and the print's placement on each board (shift,
-//! turn, stretch, robustly fitted to every pad's offset, with its uncertainty: [`mod@print`])
-//! and the correction it proposes to the printer ([`printer`]); when to clean the stencil
+//! turn, stretch: `dpsa_inspect::print`, fitted by every inspection) and the correction it
+//! proposes to the printer (`dpsa_line::printer`, the loop the line runs live); when to clean the stencil
 //! ([`stencil`]); how often each rule fires by chance ([`arl`]); and the measurement system
 //! itself, a gauge R&R by ANOVA ([`msa`]).
 //! [`plot`] draws the charts as SVG and PNG.
@@ -26,8 +26,6 @@ pub mod load;
 pub mod msa;
 pub mod output;
 pub mod plot;
-pub mod print;
-pub mod printer;
 pub mod rules;
 pub mod stencil;
 pub mod study;

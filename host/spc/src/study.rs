@@ -18,9 +18,9 @@
 
 use crate::capability::{Indices, SpecLimits};
 use crate::chart::{individuals, means_and_deviations, Chart, ChartError, MeanLimits};
-use crate::print::{self, PadOffset, PrintOffset};
 use crate::rules::{episodes, fires, Rule};
 use crate::stencil::{self, BoardStencil, Cleaning, StencilConfig};
+use dpsa_inspect::print::{self, PadOffset, PrintOffset};
 use std::collections::BTreeMap;
 
 /// A measure of a pad, or of the print (serialised by its name in tables, [`Metric::id`]).
@@ -36,7 +36,7 @@ pub enum Metric {
     OffsetX,
     /// Along y, um.
     OffsetY,
-    /// The print's translation along x at the pattern's centre, um ([`crate::print`]).
+    /// The print's translation along x at the pattern's centre, um ([`dpsa_inspect::print`]).
     PrintX,
     /// Along y, um.
     PrintY,
@@ -118,7 +118,7 @@ pub enum ScopeKind {
     Component,
     /// One pad.
     Pad,
-    /// The print's placement on the board ([`crate::print`]).
+    /// The print's placement on the board ([`dpsa_inspect::print`]).
     Print,
 }
 

@@ -19,9 +19,16 @@
 
 use super::schema::{self, Dialect, Step};
 use super::{
-    parse_run_id, real, run_id_text, BoardStart, CameraLoss, HistoryEntry, Outcome, PadRow, PgUrl,
-    StoreError, StoredBoard, Which, PRUNE_BOARDS_PER_TRANSACTION,
+    insert_print_sql, parse_run_id, real, run_id_text, select_prints_sql, BoardStart, CameraLoss,
+    HistoryEntry, Outcome, PadRow, PgUrl, PrintValues, StoreError, StoredBoard, StoredPrint, Which,
+    PRINT_REALS, PRUNE_BOARDS_PER_TRANSACTION,
 };
+use std::sync::LazyLock;
+
+/// A print row's insert and a line's print rows, in PostgreSQL's `$N` (built once: the
+/// statement cache keys on the text).
+static INSERT_PRINT: LazyLock<String> = LazyLock::new(|| insert_print_sql('$'));
+static SELECT_PRINTS: LazyLock<String> = LazyLock::new(|| select_prints_sql('$'));
 use postgres::binary_copy::BinaryCopyInWriter;
 use postgres::error::SqlState;
 use postgres::types::Type;
@@ -360,6 +367,7 @@ impl Pg {
         ended_unix_s: f64,
         cameras: &[CameraLoss],
         outcome: &Outcome,
+        print: Option<&PrintValues>,
     ) -> Result<(), StoreError> {
         self.ready()?;
         let invalid = |why: String| StoreError::Invalid {
@@ -514,7 +522,67 @@ impl Pg {
                     .map_err(&err)?;
             }
         }
+        if let Some(v) = print {
+            let mut p: Vec<&(dyn postgres::types::ToSql + Sync)> = vec![&id];
+            p.extend(
+                v.reals
+                    .iter()
+                    .map(|r| r as &(dyn postgres::types::ToSql + Sync)),
+            );
+            p.extend(
+                v.counts
+                    .iter()
+                    .map(|r| r as &(dyn postgres::types::ToSql + Sync)),
+            );
+            p.extend(
+                v.flags
+                    .iter()
+                    .map(|r| r as &(dyn postgres::types::ToSql + Sync)),
+            );
+            p.push(&v.reason);
+            let s = prepared(&mut tx, statements, INSERT_PRINT.as_str()).map_err(&err)?;
+            tx.execute(&s, &p).map_err(&err)?;
+        }
         tx.commit().map_err(&err)
+    }
+
+    pub(super) fn prints(
+        &mut self,
+        line: &str,
+        product: &str,
+        limit: usize,
+    ) -> Result<Vec<StoredPrint>, StoreError> {
+        self.ready()?;
+        let limit = i64::try_from(limit).unwrap_or(i64::MAX);
+        let Pg {
+            client,
+            statements,
+            name,
+            ..
+        } = self;
+        let err = pg_err(name);
+        let s = prepared(client, statements, SELECT_PRINTS.as_str()).map_err(&err)?;
+        let rows = client.query(&s, &[&line, &product, &limit]).map_err(&err)?;
+        rows.iter()
+            .map(|r| {
+                let mut reals = [None; PRINT_REALS];
+                for (k, v) in reals.iter_mut().enumerate() {
+                    *v = r.get(2 + k);
+                }
+                let at = 2 + PRINT_REALS;
+                let v = PrintValues {
+                    reals,
+                    counts: [r.get(at), r.get(at + 1)],
+                    flags: [r.get(at + 2), r.get(at + 3)],
+                    reason: r.get(at + 4),
+                };
+                Ok(StoredPrint {
+                    board_id: r.get(0),
+                    run_id: parse_run_id(name, r.get(1))?,
+                    print: v.row(),
+                })
+            })
+            .collect()
     }
 
     pub(super) fn recover(

@@ -113,6 +113,7 @@ pub(crate) const MIGRATIONS: &[Step] = &[
         sqlite: Cow::Borrowed(V2_SQLITE),
         postgres: Cow::Borrowed(V2_POSTGRES),
     },
+    Step::Both(Cow::Borrowed(V3)),
 ];
 
 /// Version 1: the tables of the module documentation, one line's.
@@ -359,6 +360,46 @@ CREATE TRIGGER boards_id_fixed BEFORE UPDATE OF id ON boards
     FOR EACH ROW WHEN (OLD.id IS DISTINCT FROM NEW.id) EXECUTE FUNCTION boards_id_fixed();
 ";
 
+/// Version 3: `prints`, a row per board the line finished (inspected or incomplete): the
+/// print's placement measured on it (NULL when it could not be fitted, or the board was never
+/// inspected) and the printer correction the loop proposed after it (`crate::printer`). One
+/// row a board: the plain foreign key on both dialects. The placement's columns are all set or
+/// all NULL; the loop's estimate is NULL until its first placement.
+pub(crate) const V3: &str = "
+CREATE TABLE prints (
+    board_id                 {int64} NOT NULL PRIMARY KEY REFERENCES boards (id) ON DELETE CASCADE,
+    x_um                     {real},
+    y_um                     {real},
+    rotation_mdeg            {real},
+    stretch_ppm              {real},
+    u_x_um                   {real},
+    u_y_um                   {real},
+    u_rotation_mdeg          {real},
+    u_stretch_ppm            {real},
+    scale_um                 {real},
+    centre_x_mm              {real},
+    centre_y_mm              {real},
+    pads_used                INTEGER CHECK (pads_used >= 0),
+    outliers                 INTEGER CHECK (outliers >= 0),
+    correction_x_um          {real} NOT NULL,
+    correction_y_um          {real} NOT NULL,
+    correction_rotation_mdeg {real} NOT NULL,
+    change_x_um              {real} NOT NULL,
+    change_y_um              {real} NOT NULL,
+    change_rotation_mdeg     {real} NOT NULL,
+    estimate_x_um            {real},
+    estimate_y_um            {real},
+    estimate_rotation_mdeg   {real},
+    u_estimate_x_um          {real},
+    u_estimate_y_um          {real},
+    u_estimate_rotation_mdeg {real},
+    held                     INTEGER NOT NULL CHECK (held BETWEEN 0 AND 7),
+    limited                  INTEGER NOT NULL CHECK (limited BETWEEN 0 AND 7),
+    reason                   TEXT NOT NULL,
+    CHECK ((x_um IS NULL) = (pads_used IS NULL))
+){without_rowid};
+";
+
 /// The triggers that keep `pads`' foreign key on PostgreSQL ([`V2_POSTGRES`]), with their
 /// tables (a test finds them in place of the constraint).
 #[cfg(test)]
@@ -440,6 +481,16 @@ pub(crate) const INVARIANTS: &[(&str, &str)] = &[
             WHERE b.id IS NULL OR b.state <> 'inspected' OR b.pads <> p.n
                 OR coalesce(d.n, 0) <> p.flagged",
     ),
+    (
+        "print rows of a board not in the store or still open, with a placement on a board \
+         not inspected, or out of range (held and limited 0..=7, counts >= 0)",
+        "SELECT count(*) FROM prints AS p LEFT JOIN boards AS b ON b.id = p.board_id
+            WHERE b.id IS NULL OR b.state = 'open'
+                OR (p.x_um IS NOT NULL AND b.state <> 'inspected')
+                OR NOT (p.held BETWEEN 0 AND 7 AND p.limited BETWEEN 0 AND 7
+                    AND coalesce(p.pads_used, 0) >= 0 AND coalesce(p.outliers, 0) >= 0
+                    AND (p.x_um IS NULL) = (p.pads_used IS NULL))",
+    ),
 ];
 
 /// The rules only PostgreSQL needs checked: it stores a NaN (SQLite turns one into NULL), its
@@ -454,7 +505,13 @@ pub(crate) const POSTGRES_INVARIANTS: &[(&str, &str)] = &[
                     uncertainty_um3))
               + (SELECT count(*) FROM boards WHERE 'NaN' IN (started_unix_s, ended_unix_s))
               + (SELECT count(*) FROM pad_stats
-                    WHERE 'NaN' IN (sum_volume_pct, sum_sq_volume_pct))",
+                    WHERE 'NaN' IN (sum_volume_pct, sum_sq_volume_pct))
+              + (SELECT count(*) FROM prints WHERE 'NaN' IN (x_um, y_um, rotation_mdeg,
+                    stretch_ppm, u_x_um, u_y_um, u_rotation_mdeg, u_stretch_ppm, scale_um,
+                    centre_x_mm, centre_y_mm, correction_x_um, correction_y_um,
+                    correction_rotation_mdeg, change_x_um, change_y_um, change_rotation_mdeg,
+                    estimate_x_um, estimate_y_um, estimate_rotation_mdeg, u_estimate_x_um,
+                    u_estimate_y_um, u_estimate_rotation_mdeg))",
     ),
     (
         "triggers switched off (foreign keys not kept)",

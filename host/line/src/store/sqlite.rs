@@ -2,8 +2,9 @@
 
 use super::schema::{self, Dialect, Step};
 use super::{
-    parse_run_id, real, run_id_text, BoardStart, CameraLoss, HistoryEntry, Outcome, PadRow,
-    StoreError, StoredBoard, Which, PRUNE_BOARDS_PER_TRANSACTION,
+    insert_print_sql, parse_run_id, real, run_id_text, select_prints_sql, BoardStart, CameraLoss,
+    HistoryEntry, Outcome, PadRow, PrintValues, StoreError, StoredBoard, StoredPrint, Which,
+    PRINT_REALS, PRUNE_BOARDS_PER_TRANSACTION,
 };
 use rusqlite::{params, Connection, OptionalExtension, TransactionBehavior};
 use std::path::Path;
@@ -225,6 +226,7 @@ impl Sqlite {
         ended_unix_s: f64,
         cameras: &[CameraLoss],
         outcome: &Outcome,
+        print: Option<&PrintValues>,
     ) -> Result<(), StoreError> {
         let name = self.name.as_str();
         let err = |e| sql_err(name, e);
@@ -325,7 +327,61 @@ impl Sqlite {
                 .map_err(err)?;
             }
         }
+        if let Some(v) = print {
+            let mut p: Vec<&dyn rusqlite::ToSql> = vec![&id];
+            p.extend(v.reals.iter().map(|r| r as &dyn rusqlite::ToSql));
+            p.extend(v.counts.iter().map(|r| r as &dyn rusqlite::ToSql));
+            p.extend(v.flags.iter().map(|r| r as &dyn rusqlite::ToSql));
+            p.push(&v.reason);
+            tx.prepare_cached(&insert_print_sql('?'))
+                .and_then(|mut s| s.execute(rusqlite::params_from_iter(p)))
+                .map_err(err)?;
+        }
         tx.commit().map_err(err)
+    }
+
+    pub(super) fn prints(
+        &mut self,
+        line: &str,
+        product: &str,
+        limit: usize,
+    ) -> Result<Vec<StoredPrint>, StoreError> {
+        let limit = i64::try_from(limit).unwrap_or(i64::MAX);
+        let name = self.name.as_str();
+        let err = |e| sql_err(name, e);
+        let mut s = self
+            .conn
+            .prepare_cached(&select_prints_sql('?'))
+            .map_err(err)?;
+        let rows = s
+            .query_map(params![line, product, limit], |r| {
+                let mut reals = [None; PRINT_REALS];
+                for (k, v) in reals.iter_mut().enumerate() {
+                    *v = r.get(2 + k)?;
+                }
+                let at = 2 + PRINT_REALS;
+                Ok((
+                    r.get::<_, i64>(0)?,
+                    r.get::<_, String>(1)?,
+                    PrintValues {
+                        reals,
+                        counts: [r.get(at)?, r.get(at + 1)?],
+                        flags: [r.get(at + 2)?, r.get(at + 3)?],
+                        reason: r.get(at + 4)?,
+                    },
+                ))
+            })
+            .map_err(err)?;
+        let mut out = Vec::new();
+        for row in rows {
+            let (board_id, run, v) = row.map_err(err)?;
+            out.push(StoredPrint {
+                board_id,
+                run_id: parse_run_id(name, &run)?,
+                print: v.row(),
+            });
+        }
+        Ok(out)
     }
 
     pub(super) fn recover(

@@ -25,7 +25,23 @@
 //! own shift and turn are taken out before the offsets are measured, and the print offset
 //! reads near zero whatever the printer did.
 
+use crate::measure::PadMeasurement;
+use dpsa_gerber::pads::Pad;
 use nalgebra::{Matrix4, Vector4};
+
+/// The print of an inspected board: every pad's opening (its outline's centroid, design mm)
+/// with the offset its deposit was measured at (pads without one, not measurable, left out).
+pub fn of_board(pads: &[Pad], measurements: &[PadMeasurement]) -> Option<PrintOffset> {
+    let offsets: Vec<PadOffset> = pads
+        .iter()
+        .zip(measurements)
+        .map(|(p, m)| PadOffset {
+            at_mm: p.outline.centroid(),
+            offset_um: m.offset_um,
+        })
+        .collect();
+    fit(&offsets)
+}
 
 /// One pad as the fit takes it.
 #[derive(Clone, Copy, Debug, PartialEq)]

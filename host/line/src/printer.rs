@@ -1,5 +1,5 @@
 //! The loop back to the printer: a correction of the print's placement for the next boards,
-//! from the placement measured on the boards inspected ([`crate::print`]).
+//! from the placement measured on the boards inspected (`dpsa_inspect::print`).
 //!
 //! The printer's own error `p` (where it puts the pattern with no correction) is what the loop
 //! estimates; a board printed with correction `c` shows the placement `m = p - c` (plus noise),
@@ -20,7 +20,7 @@
 //! Translation (x, y, um) and rotation (millidegrees) are corrected; stretch is not something
 //! a printer corrects (it is the stencil against the board), it is only reported.
 
-use crate::print::PrintOffset;
+use dpsa_inspect::print::PrintOffset;
 use std::collections::VecDeque;
 
 /// The loop's settings.
@@ -120,6 +120,48 @@ impl Loop {
             issued: VecDeque::new(),
             current: [0.0; 3],
         }
+    }
+
+    /// The loop as it was after the proposals of `history` (oldest first, the newest last):
+    /// the correction in force is the newest's, the corrections in flight are the last
+    /// `delay + 1` issued, the estimate and its variance the newest's (none before the first
+    /// placement). A loop fed the same boards without a stop proposes the same, to rounding.
+    pub fn resume(cfg: LoopConfig, history: &[Proposal]) -> Loop {
+        let Some(last) = history.last() else {
+            return Loop::new(cfg);
+        };
+        let keep = cfg.delay + 1;
+        let issued: VecDeque<[f64; 3]> = history[history.len().saturating_sub(keep)..]
+            .iter()
+            .map(|p| p.correction.as_array())
+            .collect();
+        let e = last.estimate.as_array();
+        let u = last.estimate_uncertainty.as_array();
+        let estimate = (e.iter().chain(&u).all(|v| v.is_finite())).then(|| (e, u.map(|s| s * s)));
+        Loop {
+            cfg,
+            estimate,
+            issued,
+            current: last.correction.as_array(),
+        }
+    }
+
+    /// How many of the newest boards weigh 1 % or more in the estimate (the damping's memory:
+    /// the newest weighs `gain`, the one before `gain (1 - gain)`, ...), at least 1.
+    pub fn memory(&self) -> usize {
+        let g = self.cfg.gain.clamp(0.0, 1.0);
+        let mut w = g;
+        let mut n = 1;
+        while n < 1000 && w * (1.0 - g) >= 0.01 {
+            w *= 1.0 - g;
+            n += 1;
+        }
+        n
+    }
+
+    /// The loop's settings.
+    pub fn config(&self) -> &LoopConfig {
+        &self.cfg
     }
 
     /// The correction the board measured now was printed with.
@@ -344,6 +386,59 @@ mod tests {
 
     /// The goal: a 60 um print offset within 10 um in at most 5 boards, overshoot at most
     /// 20 %, and held there under noise for 200 boards.
+    /// A loop stopped after any board and resumed from its stored proposals proposes what the
+    /// loop that never stopped proposes, board for board (the line restarted mid-run).
+    #[test]
+    fn a_resumed_loop_goes_on_as_the_one_that_never_stopped() {
+        let cfg = LoopConfig::default();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let noise = Normal::new(0.0, 1.0).unwrap();
+        // The boards' placements in closed loop (printer error 60, -30 um, 40 mdeg), with
+        // boards that gave none.
+        let mut l = Loop::new(cfg.clone());
+        let mut in_force = VecDeque::from(vec![[0.0; 3]; cfg.delay + 1]);
+        let (mut seen, mut said) = (Vec::new(), Vec::new());
+        for k in 0..40 {
+            let c = in_force.pop_front().unwrap();
+            let m = (k % 7 != 3).then(|| PrintOffset {
+                x_um: 60.0 - c[0] + 3.0 * noise.sample(&mut rng),
+                y_um: -30.0 - c[1] + 3.0 * noise.sample(&mut rng),
+                rotation_mdeg: 40.0 - c[2] + 0.3 * noise.sample(&mut rng),
+                stretch_ppm: 0.0,
+                uncertainty: [3.0, 3.0, 0.3, 1.0],
+                centre_mm: [0.0; 2],
+                pads: 100,
+                outliers: 0,
+                scale_um: 3.0,
+            });
+            let p = l.board(m.as_ref());
+            in_force.push_back(p.correction.as_array());
+            seen.push(m);
+            said.push(p);
+        }
+        assert!(
+            said.iter().any(|p| p.held != [true; 3]),
+            "the loop never moved"
+        );
+        for stop in [0, 1, 2, 3, 4, 10, 25, 39] {
+            let mut r = Loop::resume(cfg.clone(), &said[..stop]);
+            for k in stop..40 {
+                let p = r.board(seen[k].as_ref());
+                let (a, b) = (p.correction.as_array(), said[k].correction.as_array());
+                assert!(
+                    (0..3).all(|i| (a[i] - b[i]).abs() <= 1e-9),
+                    "stopped after {stop}, board {k}: {a:?} against {b:?}"
+                );
+                assert_eq!(p.held, said[k].held, "stopped after {stop}, board {k}");
+            }
+        }
+        assert_eq!(
+            l.memory(),
+            5,
+            "gain 0.6: 0.6, 0.24, 0.096, 0.038, 0.015 (then 0.006)"
+        );
+    }
+
     #[test]
     fn a_60_um_offset_is_brought_within_10_um_in_5_boards_and_held() {
         let (mut slowest, mut most) = (0, f64::MIN);
