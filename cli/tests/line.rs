@@ -353,6 +353,58 @@ fn boards_back_to_back_are_stored_as_the_offline_inspection() {
         (vol["mean"].as_f64().unwrap() - mean).abs() < 1e-9 * mean,
         "{vol} {mean}"
     );
+    assert_eq!(
+        spc["stencil"]["clean_recorded"], false,
+        "{}",
+        spc["stencil"]
+    );
+    // An operator records a clean after the third board: `dpsa spc` counts from it (nothing
+    // printed since).
+    let clean: Value = serde_json::from_str(&ok(
+        &dpsa([
+            "line".as_ref(),
+            "clean".as_ref(),
+            "--config".as_ref(),
+            cfg.as_os_str(),
+            "--note".as_ref(),
+            "wiped after board 3".as_ref(),
+        ]),
+        "line clean",
+    ))
+    .unwrap();
+    assert_eq!(clean["source"], "operator");
+    assert_eq!(clean["product"], "array-small");
+    let spc: Value = serde_json::from_str(&ok(
+        &dpsa([
+            "spc".as_ref(),
+            "--store".as_ref(),
+            dir.join("data/line.sqlite").as_os_str(),
+            "--program".as_ref(),
+            f.board.join("program.toml").as_os_str(),
+            "--json".as_ref(),
+        ]),
+        "spc after the clean",
+    ))
+    .unwrap();
+    let st = &spc["stencil"];
+    assert_eq!(st["clean_recorded"], true, "{st}");
+    assert_eq!(st["since_board"], 3, "{st}");
+    assert!(
+        st["reasons"][0]
+            .as_str()
+            .unwrap()
+            .contains("nothing printed since"),
+        "{st}"
+    );
+    let bad = dpsa([
+        "line".as_ref(),
+        "clean".as_ref(),
+        "--config".as_ref(),
+        cfg.as_os_str(),
+        "--product".as_ref(),
+        "nope".as_ref(),
+    ]);
+    assert!(!bad.status.success());
 }
 
 /// A stored placement (`dpsa line boards --prints`) as the loop takes it.

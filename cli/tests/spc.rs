@@ -455,6 +455,26 @@ fn bad_requests_are_refused_with_a_reason() {
             vec!["spc", "--store", st, "--alarms", "shelf"],
             "is no scope",
         ),
+        (
+            vec!["spc", "--store", st, "--alarms", "family:WE9"],
+            "is no rule",
+        ),
+        (
+            vec![
+                "spc",
+                "--store",
+                st,
+                "--rules",
+                "nelson",
+                "--alarms",
+                "board:WE4",
+            ],
+            "the rule is not read",
+        ),
+        (
+            vec!["spc", "--store", st, "--alarms", "board,board:WE1"],
+            "given twice",
+        ),
         (vec!["spc", "--store", st, "--last", "1"], "--last"),
         (
             vec!["spc", "--store", "ftp://x"],

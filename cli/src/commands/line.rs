@@ -27,6 +27,9 @@ enum LineCmd {
     Send(SendArgs),
     /// The boards the line stored, newest first, as JSON.
     Boards(BoardsArgs),
+    /// Record that the stencil was cleaned (now, or --at): `dpsa spc` counts the fine
+    /// apertures' clogging from the last clean. Prints the event as JSON.
+    Clean(CleanArgs),
     /// Benchmark the store: inserts per second, a pad's history, bytes per board; as JSON.
     StoreBench(StoreBenchArgs),
     /// Benchmark the link on loopback: TCP against UDP for one camera's stream, with and
@@ -134,6 +137,28 @@ struct BoardsArgs {
 }
 
 #[derive(clap::Args)]
+struct CleanArgs {
+    /// The line's configuration.
+    #[arg(long)]
+    config: PathBuf,
+    /// The product whose stencil was cleaned (default: the configuration's default product).
+    #[arg(long)]
+    product: Option<String>,
+    /// When, Unix seconds (default: now).
+    #[arg(long)]
+    at: Option<f64>,
+    /// Who says so: `operator`, the printer's name.
+    #[arg(long, default_value = "operator")]
+    source: String,
+    /// A note, for a person.
+    #[arg(long)]
+    note: Option<String>,
+    /// The store, over the configuration's `store`.
+    #[arg(long, value_name = "URL_OR_PATH")]
+    store: Option<String>,
+}
+
+#[derive(clap::Args)]
 #[command(group(clap::ArgGroup::new("where").required(true).args(["dir", "store"])))]
 struct StoreBenchArgs {
     /// A directory for the scratch SQLite store (`store-bench.sqlite`, replaced if there,
@@ -174,6 +199,7 @@ pub fn run(a: Args) -> Result<()> {
         LineCmd::Init(a) => init(a),
         LineCmd::Send(a) => send(a),
         LineCmd::Boards(a) => boards(a),
+        LineCmd::Clean(a) => clean(a),
         LineCmd::StoreBench(a) => store_bench(a),
         LineCmd::LinkBench(a) => {
             if !(a.mb.is_finite() && a.mb > 0.0 && a.mb <= 10_000.0) {
@@ -408,6 +434,42 @@ fn rate(s: &str) -> std::result::Result<String, String> {
             )),
         },
     }
+}
+
+fn clean(a: CleanArgs) -> Result<()> {
+    let cfg = LineConfig::load(&a.config)?;
+    let location = match &a.store {
+        Some(text) => store_arg(text)?,
+        None => cfg.store.clone(),
+    };
+    let product = match a.product {
+        Some(p) if cfg.products.iter().any(|q| q.id == p) => p,
+        Some(p) => bail!(
+            "--product {p:?}: not a product of {} ({})",
+            a.config.display(),
+            cfg.products
+                .iter()
+                .map(|q| q.id.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+        None => cfg.products[cfg.default_product].id.clone(),
+    };
+    let at = match a.at {
+        Some(t) => t,
+        None => dpsa_line::boards::unix_now(),
+    };
+    let mut store = dpsa_line::store::Store::open(&location, &cfg.line)?;
+    let id = store.record_clean(&product, at, &a.source, a.note.as_deref())?;
+    let c = dpsa_line::store::StencilClean {
+        id,
+        product,
+        cleaned_unix_s: at,
+        source: a.source,
+        note: a.note,
+    };
+    out!("{}", serde_json::to_string_pretty(&c)?);
+    Ok(())
 }
 
 fn boards(a: BoardsArgs) -> Result<()> {

@@ -185,6 +185,20 @@ fn through_line(spec: &ProcessSpec, line: &Path, scene: &Path, a: &Args) -> Resu
         if let Some(r) = p.clog.iter().map(|c| c.1).reduce(f64::max) {
             sc.print.clogging_area_ratio = r;
         }
+        // The simulated printer reports its stencil's cleans to the line, as a printer
+        // integration would (`dpsa line clean`).
+        if spec
+            .changes
+            .iter()
+            .any(|c| matches!(c, dpsa_sim::process::Change::Clean { at } if *at == b))
+        {
+            Store::open(&cfg.store, &cfg.line)?.record_clean(
+                &product,
+                dpsa_line::boards::unix_now(),
+                "printer (simulated)",
+                Some(&format!("the print process's clean before board {b}")),
+            )?;
+        }
         let seed = spec.seed.wrapping_mul(1_000_003).wrapping_add(b as u64);
         let dir = work.join(format!("board-{b:04}"));
         if dir.exists() {

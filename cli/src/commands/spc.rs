@@ -32,9 +32,13 @@ pub struct Args {
     /// `all`, or a list such as `WE1,N2,N3`.
     #[arg(long, default_value = "we")]
     rules: String,
-    /// The scopes whose charts raise alarms: a list of board, family, component, pad, print.
-    #[arg(long, default_value = "board,family,print")]
-    alarms: String,
+    /// The scopes whose charts raise alarms: a list of board, family, component, pad, print,
+    /// each on every rule read or, as `SCOPE:RULE+RULE`, on those rules only (the alarm
+    /// policy). Default with `--rules we`: `board:WE1+WE2+WE3,family:WE1,print:WE1+WE2`
+    /// (docs/spc.md, "Alarm policy": the known changes' delays kept, a quarter of the false
+    /// alarms); with other rules `board,family,print`.
+    #[arg(long)]
+    alarms: Option<String>,
     /// Output directory: the tables (CSV), alarms and charts (SVG, PNG). New, empty or an
     /// earlier `dpsa spc` output (replaced whole).
     #[arg(long)]
@@ -77,16 +81,44 @@ fn rules(text: &str) -> Result<Vec<Rule>> {
     })
 }
 
-fn scopes(text: &str) -> Result<Vec<ScopeKind>> {
-    text.split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(|s| {
-            ScopeKind::from_id(s).with_context(|| {
-                format!("--alarms: {s:?} is no scope (board, family, component, pad, print)")
-            })
-        })
-        .collect()
+/// The alarm policy with Western Electric's rules (docs/spc.md, "Alarm policy"): on the 40
+/// family charts of a board rule 1 only, on the print's placement rules 1 and 2, on the board's
+/// five charts rules 1 to 3; WE4 (8 in a row) is read and counted everywhere but raises none.
+const DEFAULT_POLICY: &str = "board:WE1+WE2+WE3,family:WE1,print:WE1+WE2";
+
+/// `--alarms`: `SCOPE[:RULE+RULE...],...`: the scopes that raise alarms, each on every rule
+/// read or on the rules given (which must be read, `--rules`).
+fn scopes(text: &str, read: &[Rule]) -> Result<(Vec<ScopeKind>, dpsa_spc::study::AlarmPolicy)> {
+    let mut kinds = Vec::new();
+    let mut policy = Vec::new();
+    for item in text.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+        let (scope, rules) = match item.split_once(':') {
+            Some((s, r)) => (s.trim(), Some(r)),
+            None => (item, None),
+        };
+        let kind = ScopeKind::from_id(scope).with_context(|| {
+            format!("--alarms: {scope:?} is no scope (board, family, component, pad, print)")
+        })?;
+        if kinds.contains(&kind) {
+            bail!("--alarms: {scope} given twice");
+        }
+        kinds.push(kind);
+        if let Some(r) = rules {
+            let mut v = Vec::new();
+            for id in r.split('+').map(str::trim).filter(|s| !s.is_empty()) {
+                match Rule::from_id(id) {
+                    Some(rule) if read.contains(&rule) => v.push(rule),
+                    Some(_) => bail!("--alarms: {scope}:{id}: the rule is not read (--rules)"),
+                    None => bail!("--alarms: {scope}:{id:?} is no rule (WE1-WE4, N1-N8)"),
+                }
+            }
+            if v.is_empty() {
+                bail!("--alarms: {scope}: no rule after the colon");
+            }
+            policy.push((kind, v));
+        }
+    }
+    Ok((kinds, policy))
 }
 
 fn idx(v: Option<f64>) -> String {
@@ -117,9 +149,17 @@ pub fn run(a: Args) -> Result<()> {
     let location = dpsa_line::store::Location::from_arg(&a.store)
         .map_err(anyhow::Error::msg)
         .context("--store")?;
+    let read = rules(&a.rules)?;
+    let alarms = match &a.alarms {
+        Some(t) => t.clone(),
+        None if read == Rule::WESTERN_ELECTRIC => DEFAULT_POLICY.to_owned(),
+        None => "board,family,print".to_owned(),
+    };
+    let (alarm_scopes, alarm_rules) = scopes(&alarms, &read)?;
     let opts = Options {
-        rules: rules(&a.rules)?,
-        alarm_scopes: scopes(&a.alarms)?,
+        rules: read,
+        alarm_scopes,
+        alarm_rules,
         baseline: (a.baseline > 0).then_some(a.baseline as usize),
         stencil: Default::default(),
     };
@@ -214,6 +254,7 @@ pub fn run(a: Args) -> Result<()> {
             "boards_other_program": loaded.other_program,
             "boards_pruned": loaded.pruned,
             "rules": report.rules,
+            "alarm_policy": alarms,
             "rules_in_control_arl": report
                 .rules
                 .iter()
@@ -309,7 +350,7 @@ pub fn run(a: Args) -> Result<()> {
     out!(
         "alarms ({}; {}): {} episodes, {} open",
         rules.join(" "),
-        a.alarms,
+        alarms,
         report.alarms.len(),
         open.len()
     );

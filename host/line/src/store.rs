@@ -47,7 +47,8 @@
 //! one transaction under an advisory lock, so two lines starting at once on a new database do
 //! not both migrate it. Version 1 was one line's store; version 2 added `line` to `boards`
 //! and `pad_stats`, made a run id unique per line and the aggregates per line; version 3 added
-//! `prints` (a store of version 2 gains it empty: the loop back to the printer starts afresh).
+//! `prints` and `stencil_cleans` (a store of version 2 gains them empty: the loop back to the
+//! printer starts afresh).
 //! A version-1
 //! SQLite file migrates in place (its `boards` and `pad_stats` copied into the new tables,
 //! `pads` untouched); its boards become line `line-1`'s ([`DEFAULT_LINE`]), so a line of
@@ -173,6 +174,21 @@
 //! FROM prints AS p JOIN boards AS b ON b.id = p.board_id
 //! WHERE b.line = 'line-1' AND b.product = 'ctrl-b' ORDER BY p.board_id DESC LIMIT 50;
 //! ```
+//!
+//! ## `stencil_cleans`: the stencil's cleans, as reported (version 3)
+//!
+//! | column | type | meaning |
+//! | --- | --- | --- |
+//! | `id` | INTEGER PRIMARY KEY | |
+//! | `line` | TEXT NOT NULL | the line, not empty |
+//! | `product` | TEXT NOT NULL | the product printed with the stencil, not empty |
+//! | `cleaned_unix_s` | REAL NOT NULL | when it was cleaned |
+//! | `source` | TEXT NOT NULL | who says so (`operator`, the printer's name), not empty |
+//! | `note` | TEXT NULL | for a person |
+//!
+//! Index `stencil_cleans_by_line (line, product, cleaned_unix_s)`. Written by
+//! [`Store::record_clean`] (`dpsa line clean`, a printer integration); `dpsa spc` counts the
+//! fine apertures' clogging from the last clean before its newest board.
 //!
 //! ## `alarms`: statistical process control alarms (empty for now)
 //!
@@ -840,6 +856,22 @@ impl PrintValues {
     }
 }
 
+/// A clean of the stencil, as a printer or an operator reported it (table `stencil_cleans`,
+/// version 3).
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct StencilClean {
+    /// The store's id of the event.
+    pub id: i64,
+    /// The product printed with the stencil.
+    pub product: String,
+    /// When the stencil was cleaned, Unix seconds.
+    pub cleaned_unix_s: f64,
+    /// Who says so: `operator`, the printer's name, ...
+    pub source: String,
+    /// A note, for a person.
+    pub note: Option<String>,
+}
+
 /// A board as the store holds it.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct StoredBoard {
@@ -1147,6 +1179,29 @@ impl Store {
         on_backend!(&mut self.db, d => d.finish_board(&self.line, id, ended_unix_s, cameras, outcome, values.as_ref()))
     }
 
+    /// Records a clean of the stencil `product` is printed with on this line, at
+    /// `cleaned_unix_s`, said by `source` (neither empty); its id. `dpsa spc` counts the
+    /// stencil's clogging from the last recorded clean.
+    pub fn record_clean(
+        &mut self,
+        product: &str,
+        cleaned_unix_s: f64,
+        source: &str,
+        note: Option<&str>,
+    ) -> Result<i64, StoreError> {
+        if !cleaned_unix_s.is_finite() || product.is_empty() || source.is_empty() {
+            return Err(self.invalid(format!(
+                "a stencil clean of product {product:?} at {cleaned_unix_s} s from {source:?}"
+            )));
+        }
+        on_backend!(&mut self.db, d => d.record_clean(&self.line, product, cleaned_unix_s, source, note))
+    }
+
+    /// This line's recorded cleans of `product`'s stencil, newest first, at most `limit`.
+    pub fn cleans(&mut self, product: &str, limit: usize) -> Result<Vec<StencilClean>, StoreError> {
+        on_backend!(&mut self.db, d => d.cleans(&self.line, product, limit))
+    }
+
     /// This line's print rows of `product` (the print's placement on each board and the
     /// printer correction proposed after it), newest first, at most `limit`: what the loop
     /// back to the printer resumes from, and what a chart of the printer shows.
@@ -1380,7 +1435,39 @@ pub(crate) mod tests {
         programs_opening_a_new_store_at_once_migrate_it_once,
         the_benchmark_runs_small,
         print_rows_round_trip_and_are_the_lines_newest_first,
+        stencil_cleans_are_the_lines_and_products_newest_first,
     );
+
+    /// Recorded cleans come back newest first, of this line and product only; a clean without
+    /// a time, a product or a source is refused.
+    fn stencil_cleans_are_the_lines_and_products_newest_first(b: Backend) {
+        let (p, mut store) = fresh(b);
+        let mut other = Store::open(&p.location, "line-2").unwrap();
+        let a = store
+            .record_clean("mini", 100.0, "operator", Some("wiped by hand"))
+            .unwrap();
+        let c = store
+            .record_clean("mini", 300.0, "printer DEK-1", None)
+            .unwrap();
+        store.record_clean("maxi", 200.0, "operator", None).unwrap();
+        other.record_clean("mini", 400.0, "operator", None).unwrap();
+        let got = store.cleans("mini", 10).unwrap();
+        assert_eq!(got.iter().map(|c| c.id).collect::<Vec<_>>(), [c, a]);
+        assert_eq!(got[0].source, "printer DEK-1");
+        assert_eq!(got[1].note.as_deref(), Some("wiped by hand"));
+        assert_eq!(got[1].cleaned_unix_s, 100.0);
+        assert_eq!(store.cleans("mini", 1).unwrap().len(), 1);
+        assert_eq!(other.cleans("mini", 10).unwrap()[0].cleaned_unix_s, 400.0);
+        for (product, t, source) in [
+            ("mini", f64::NAN, "operator"),
+            ("", 1.0, "operator"),
+            ("mini", 1.0, ""),
+        ] {
+            assert!(store.record_clean(product, t, source, None).is_err());
+        }
+        assert_eq!(store.cleans("mini", 10).unwrap().len(), 2);
+        store.check().unwrap();
+    }
 
     /// A print row: board `k`'s placement (none for odd `k`) and a proposal.
     fn print_row(k: u32) -> PrintRow {

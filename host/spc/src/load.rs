@@ -297,6 +297,7 @@ pub fn load(src: &Source) -> Result<Loaded, LoadError> {
             BoardRef {
                 id: b.id,
                 run_id,
+                started_unix_s: b.started_unix_s,
                 ended_unix_s: b.ended_unix_s.unwrap_or(f64::NAN),
                 smears: rows
                     .iter()
@@ -306,7 +307,7 @@ pub fn load(src: &Source) -> Result<Loaded, LoadError> {
             &values,
         )?;
     }
-    let study = match study {
+    let mut study = match study {
         Some(s) if !s.boards().is_empty() => s,
         _ => {
             return Err(LoadError::Nothing(format!(
@@ -315,6 +316,14 @@ pub fn load(src: &Source) -> Result<Loaded, LoadError> {
             )))
         }
     };
+    // The newest recorded clean of the product's stencil on this line.
+    study.set_cleans(
+        store
+            .cleans(&product, 1)?
+            .iter()
+            .map(|c| c.cleaned_unix_s)
+            .collect(),
+    );
     Ok(Loaded {
         study,
         product,

@@ -4,10 +4,12 @@
 //! - **Fine apertures** are those whose area ratio (opening area over its wall area,
 //!   `area / (perimeter x stencil thickness)`) is below [`StencilConfig::fine_area_ratio`]: near
 //!   the 0.66 under which IPC-7525 expects poor release, the first to clog.
-//! - **The last clean** is found in the data: the last board whose fine apertures' mean volume
-//!   rose from the board before by more than [`StencilConfig::clean_step_pct`] and more than 4
-//!   board-to-board sigmas (a clean restores the release at once; nothing else raises every
-//!   fine aperture together). Without one, the study's first board.
+//! - **The last clean** is the last one recorded (a printer's or an operator's report, `dpsa
+//!   line clean`: the first board begun after it). Without a record it is found in the data:
+//!   the last board whose fine apertures' mean volume rose from the board before by more than
+//!   [`StencilConfig::clean_step_pct`] and more than 4 board-to-board sigmas (a clean restores
+//!   the release at once; nothing else raises every fine aperture together). Without either,
+//!   the study's first board.
 //! - **Clogging**: the fine apertures' mean volume now (the last 3 boards) against just after the
 //!   clean (its first 3 boards), and the trend between (least squares, % a board).
 //! - **Smear**: pads judged `bridge` or `shape` a board, over the last 5 boards.
@@ -59,8 +61,10 @@ pub struct Cleaning {
     pub reasons: Vec<String>,
     /// The board after the last clean found (index into the study's boards), or the first.
     pub since_board: usize,
-    /// Whether `since_board` is a clean found in the data (else the study's start).
+    /// Whether `since_board` is a clean, recorded or found in the data (else the study's start).
     pub clean_found: bool,
+    /// Whether that clean was recorded (`dpsa line clean`), not found in the data.
+    pub clean_recorded: bool,
     /// Fine apertures watched.
     pub fine_pads: usize,
     /// Their mean volume just after the clean (its first 3 boards), %.
@@ -78,8 +82,15 @@ fn mean(v: &[f64]) -> Option<f64> {
 }
 
 /// Assesses the stencil from the study's `boards` (oldest first) with `fine_pads` fine
-/// apertures.
-pub fn assess(boards: &[BoardStencil], fine_pads: usize, cfg: &StencilConfig) -> Cleaning {
+/// apertures; `recorded`: the first board after the last recorded clean (`boards.len()` when
+/// the stencil was cleaned after the newest board), which then stands for the one found in the
+/// data.
+pub fn assess(
+    boards: &[BoardStencil],
+    fine_pads: usize,
+    cfg: &StencilConfig,
+    recorded: Option<usize>,
+) -> Cleaning {
     let fine: Vec<(usize, f64)> = boards
         .iter()
         .enumerate()
@@ -98,6 +109,7 @@ pub fn assess(boards: &[BoardStencil], fine_pads: usize, cfg: &StencilConfig) ->
             up > cfg.clean_step_pct && up > 4.0 * sigma
         })
         .map(|w| w[1].0);
+    let clean = recorded.or(clean);
     let since = clean.unwrap_or(0);
     let after: Vec<(usize, f64)> = fine.iter().copied().filter(|(i, _)| *i >= since).collect();
     let head: Vec<f64> = after.iter().take(3).map(|p| p.1).collect();
@@ -127,7 +139,9 @@ pub fn assess(boards: &[BoardStencil], fine_pads: usize, cfg: &StencilConfig) ->
                 "fine apertures (area ratio < {}): volume {a:.1} % after the {} to {b:.1} % now, \
                  down {:.1} points over {} boards ({:+.2} a board): clogging",
                 cfg.fine_area_ratio,
-                if clean.is_some() {
+                if recorded.is_some() {
+                    "last clean (recorded)"
+                } else if clean.is_some() {
                     "last clean"
                 } else {
                     "study's start"
@@ -137,6 +151,9 @@ pub fn assess(boards: &[BoardStencil], fine_pads: usize, cfg: &StencilConfig) ->
                 trend.unwrap_or(0.0)
             ));
         }
+        _ if recorded.is_some_and(|r| r >= boards.len()) => reasons.push(
+            "the stencil was cleaned after the newest board: nothing printed since".to_owned(),
+        ),
         (Some(a), Some(b)) => reasons.push(format!(
             "fine apertures: volume {a:.1} % then, {b:.1} % now (a clean is due at a fall of {} \
              points)",
@@ -157,6 +174,7 @@ pub fn assess(boards: &[BoardStencil], fine_pads: usize, cfg: &StencilConfig) ->
         reasons,
         since_board: since,
         clean_found: clean.is_some(),
+        clean_recorded: recorded.is_some(),
         fine_pads,
         fine_volume_after_clean_pct: v0,
         fine_volume_now_pct: v1,
@@ -194,10 +212,10 @@ mod tests {
                 100.0 - (i - 15) as f64
             }
         };
-        let c = assess(&boards(v, |_| 0, 22), 40, &StencilConfig::default());
+        let c = assess(&boards(v, |_| 0, 22), 40, &StencilConfig::default(), None);
         assert!(c.clean_found && c.since_board == 15, "{c:?}");
         assert!(!c.recommend, "{c:?}");
-        let c = assess(&boards(v, |_| 0, 30), 40, &StencilConfig::default());
+        let c = assess(&boards(v, |_| 0, 30), 40, &StencilConfig::default(), None);
         assert!(c.recommend && c.since_board == 15, "{c:?}");
         eprintln!("{}", c.reasons[0]);
         assert!(c.reasons[0].contains("clogging"), "{c:?}");
@@ -205,10 +223,48 @@ mod tests {
         assert!((t + 1.0).abs() < 0.1, "{t}");
     }
 
+    /// A recorded clean stands for the one the data would give: counted from there, said so;
+    /// one after the newest board leaves nothing to judge.
+    #[test]
+    fn a_recorded_clean_is_counted_from() {
+        let v = |i: usize| 100.0 - (i % 15) as f64;
+        let c = assess(
+            &boards(v, |_| 0, 30),
+            40,
+            &StencilConfig::default(),
+            Some(20),
+        );
+        assert!(
+            c.clean_found && c.clean_recorded && c.since_board == 20,
+            "{c:?}"
+        );
+        assert!(!c.recommend, "5 points since board 20: {c:?}");
+        let c = assess(
+            &boards(v, |_| 0, 30),
+            40,
+            &StencilConfig::default(),
+            Some(30),
+        );
+        assert!(
+            !c.recommend && c.reasons[0].contains("nothing printed since"),
+            "{c:?}"
+        );
+        let c = assess(&boards(v, |_| 0, 30), 40, &StencilConfig::default(), None);
+        assert!(
+            c.clean_found && !c.clean_recorded && c.since_board == 15,
+            "{c:?}"
+        );
+    }
+
     /// A steady print with noise: no clean found, none recommended.
     #[test]
     fn a_steady_print_needs_no_clean() {
-        let c = assess(&boards(|_| 97.0, |_| 0, 60), 40, &StencilConfig::default());
+        let c = assess(
+            &boards(|_| 97.0, |_| 0, 60),
+            40,
+            &StencilConfig::default(),
+            None,
+        );
         assert!(!c.recommend && !c.clean_found, "{c:?}");
         assert_eq!(c.since_board, 0);
     }
@@ -219,12 +275,13 @@ mod tests {
             &boards(|_| 97.0, |i| usize::from(i >= 55) * 2, 60),
             40,
             &StencilConfig::default(),
+            None,
         );
         assert!(
             c.recommend && c.reasons.iter().any(|r| r.contains("under the stencil")),
             "{c:?}"
         );
-        let none = assess(&[], 0, &StencilConfig::default());
+        let none = assess(&[], 0, &StencilConfig::default(), None);
         assert!(!none.recommend && none.reasons[0].contains("no fine aperture"));
     }
 }

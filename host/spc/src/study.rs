@@ -180,6 +180,8 @@ pub struct BoardRef {
     pub id: i64,
     /// Its run id (16 hex digits).
     pub run_id: String,
+    /// When it began, Unix seconds.
+    pub started_unix_s: f64,
     /// When it ended, Unix seconds.
     pub ended_unix_s: f64,
     /// Its pads judged `bridge` or `shape` (paste under the stencil).
@@ -195,6 +197,8 @@ pub struct Study {
     values: [Vec<f64>; 5],
     /// The print's placement on each board (`None`: too few pads with an offset and a place).
     prints: Vec<Option<PrintOffset>>,
+    /// Recorded cleans of the stencil, Unix seconds.
+    cleans: Vec<f64>,
 }
 
 /// Why a study cannot be made.
@@ -232,6 +236,7 @@ impl Study {
             boards: Vec::new(),
             values: Default::default(),
             prints: Vec::new(),
+            cleans: Vec::new(),
         }
     }
 
@@ -270,6 +275,12 @@ impl Study {
             .collect();
         self.prints.push(print::fit(&offsets));
         Ok(())
+    }
+
+    /// The stencil's recorded cleans (Unix seconds): the stencil's assessment counts from the
+    /// last.
+    pub fn set_cleans(&mut self, cleans: Vec<f64>) {
+        self.cleans = cleans;
     }
 
     /// The print's placement on each board, as the boards.
@@ -388,6 +399,9 @@ fn baseline_points(points: &[usize], boards: Option<usize>) -> Option<usize> {
     boards.map(|k| points.iter().filter(|&&b| b < k).count())
 }
 
+/// Per scope, the rules that raise its alarms ([`Options::alarm_rules`]).
+pub type AlarmPolicy = Vec<(ScopeKind, Vec<Rule>)>;
+
 /// How to analyse.
 #[derive(Clone, Debug)]
 pub struct Options {
@@ -395,6 +409,9 @@ pub struct Options {
     pub rules: Vec<Rule>,
     /// The scopes whose charts raise alarms.
     pub alarm_scopes: Vec<ScopeKind>,
+    /// The alarm policy: for a scope listed here, only these rules raise its alarms (the
+    /// others are still read and counted); a scope not listed raises on every rule read.
+    pub alarm_rules: AlarmPolicy,
     /// The boards (the study's first) every chart's centre and limits come from; `None`: all
     /// (a retrospective study, where a lasting change pulls the centre to itself).
     pub baseline: Option<usize>,
@@ -407,9 +424,22 @@ impl Default for Options {
         Options {
             rules: Rule::WESTERN_ELECTRIC.to_vec(),
             alarm_scopes: vec![ScopeKind::Board, ScopeKind::Family, ScopeKind::Print],
+            alarm_rules: Vec::new(),
             baseline: None,
             stencil: StencilConfig::default(),
         }
+    }
+}
+
+impl Options {
+    /// Whether `rule` firing on a chart of `kind` raises an alarm.
+    pub fn raises(&self, kind: ScopeKind, rule: Rule) -> bool {
+        self.alarm_scopes.contains(&kind)
+            && self
+                .alarm_rules
+                .iter()
+                .find(|(k, _)| *k == kind)
+                .is_none_or(|(_, r)| r.contains(&rule))
     }
 }
 
@@ -599,7 +629,7 @@ pub fn analyse(study: &Study, product: &str, opts: &Options) -> Report {
                             continue;
                         }
                         s.firings.insert(rule, at.len());
-                        if opts.alarm_scopes.contains(&kind) {
+                        if opts.raises(kind, rule) {
                             for e in episodes(rule, &at) {
                                 let last = boards[e.last_fired];
                                 report.alarms.push(Alarm {
@@ -659,7 +689,20 @@ fn stencil_of(study: &Study, cfg: &StencilConfig) -> Option<Cleaning> {
             }
         })
         .collect();
-    Some(stencil::assess(&boards, fine.len(), cfg))
+    // The first board begun after the last recorded clean before the newest board began.
+    let recorded = study
+        .cleans
+        .iter()
+        .copied()
+        .fold(None, |a: Option<f64>, t| Some(a.map_or(t, |a| a.max(t))));
+    let recorded = recorded.map(|t| {
+        study
+            .boards
+            .iter()
+            .position(|b| b.started_unix_s > t)
+            .unwrap_or(study.boards.len())
+    });
+    Some(stencil::assess(&boards, fine.len(), cfg, recorded))
 }
 
 /// The pads of `members` furthest from `centre` on board `b` (at most five).
@@ -717,6 +760,7 @@ mod tests {
         BoardRef {
             id: i as i64,
             run_id: format!("{i:016x}"),
+            started_unix_s: i as f64 - 0.5,
             ended_unix_s: i as f64,
             smears: 0,
         }
@@ -724,6 +768,22 @@ mod tests {
 
     /// A study whose family `0402` steps down by 10 % at board 30 raises an alarm on that
     /// family's volume, open, naming a pad of it, and none on the family that stayed.
+    /// The alarm policy: a scope not asked for raises nothing; one listed with rules raises on
+    /// those only; one listed without, on every rule read.
+    #[test]
+    fn the_alarm_policy_picks_rules_per_scope() {
+        let o = Options {
+            alarm_scopes: vec![ScopeKind::Board, ScopeKind::Family],
+            alarm_rules: vec![(ScopeKind::Family, vec![Rule::We1])],
+            ..Options::default()
+        };
+        assert!(o.raises(ScopeKind::Board, Rule::We4));
+        assert!(o.raises(ScopeKind::Family, Rule::We1));
+        assert!(!o.raises(ScopeKind::Family, Rule::We2));
+        assert!(!o.raises(ScopeKind::Print, Rule::We1));
+        assert!(!o.raises(ScopeKind::Pad, Rule::We1));
+    }
+
     #[test]
     fn a_step_in_one_family_raises_its_alarm() {
         let pads = vec![

@@ -20,8 +20,8 @@
 use super::schema::{self, Dialect, Step};
 use super::{
     insert_print_sql, parse_run_id, real, run_id_text, select_prints_sql, BoardStart, CameraLoss,
-    HistoryEntry, Outcome, PadRow, PgUrl, PrintValues, StoreError, StoredBoard, StoredPrint, Which,
-    PRINT_REALS, PRUNE_BOARDS_PER_TRANSACTION,
+    HistoryEntry, Outcome, PadRow, PgUrl, PrintValues, StencilClean, StoreError, StoredBoard,
+    StoredPrint, Which, PRINT_REALS, PRUNE_BOARDS_PER_TRANSACTION,
 };
 use std::sync::LazyLock;
 
@@ -544,6 +544,70 @@ impl Pg {
             tx.execute(&s, &p).map_err(&err)?;
         }
         tx.commit().map_err(&err)
+    }
+
+    pub(super) fn record_clean(
+        &mut self,
+        line: &str,
+        product: &str,
+        cleaned_unix_s: f64,
+        source: &str,
+        note: Option<&str>,
+    ) -> Result<i64, StoreError> {
+        self.ready()?;
+        let Pg {
+            client,
+            statements,
+            name,
+            ..
+        } = self;
+        let err = pg_err(name);
+        let s = prepared(
+            client,
+            statements,
+            "INSERT INTO stencil_cleans (line, product, cleaned_unix_s, source, note) \
+             VALUES ($1, $2, $3, $4, $5) RETURNING id",
+        )
+        .map_err(&err)?;
+        let row = client
+            .query_one(&s, &[&line, &product, &cleaned_unix_s, &source, &note])
+            .map_err(&err)?;
+        Ok(row.get(0))
+    }
+
+    pub(super) fn cleans(
+        &mut self,
+        line: &str,
+        product: &str,
+        limit: usize,
+    ) -> Result<Vec<StencilClean>, StoreError> {
+        self.ready()?;
+        let limit = i64::try_from(limit).unwrap_or(i64::MAX);
+        let Pg {
+            client,
+            statements,
+            name,
+            ..
+        } = self;
+        let err = pg_err(name);
+        let s = prepared(
+            client,
+            statements,
+            "SELECT id, product, cleaned_unix_s, source, note FROM stencil_cleans \
+             WHERE line = $1 AND product = $2 ORDER BY cleaned_unix_s DESC, id DESC LIMIT $3",
+        )
+        .map_err(&err)?;
+        let rows = client.query(&s, &[&line, &product, &limit]).map_err(&err)?;
+        Ok(rows
+            .iter()
+            .map(|r| StencilClean {
+                id: r.get(0),
+                product: r.get(1),
+                cleaned_unix_s: r.get(2),
+                source: r.get(3),
+                note: r.get(4),
+            })
+            .collect())
     }
 
     pub(super) fn prints(

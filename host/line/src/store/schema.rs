@@ -364,7 +364,8 @@ CREATE TRIGGER boards_id_fixed BEFORE UPDATE OF id ON boards
 /// print's placement measured on it (NULL when it could not be fitted, or the board was never
 /// inspected) and the printer correction the loop proposed after it (`crate::printer`). One
 /// row a board: the plain foreign key on both dialects. The placement's columns are all set or
-/// all NULL; the loop's estimate is NULL until its first placement.
+/// all NULL; the loop's estimate is NULL until its first placement. And `stencil_cleans`: the
+/// stencil's cleans as a printer or an operator reported them, per line and product.
 pub(crate) const V3: &str = "
 CREATE TABLE prints (
     board_id                 {int64} NOT NULL PRIMARY KEY REFERENCES boards (id) ON DELETE CASCADE,
@@ -398,6 +399,16 @@ CREATE TABLE prints (
     reason                   TEXT NOT NULL,
     CHECK ((x_um IS NULL) = (pads_used IS NULL))
 ){without_rowid};
+
+CREATE TABLE stencil_cleans (
+    id             {id},
+    line           TEXT NOT NULL CHECK (line <> ''),
+    product        TEXT NOT NULL CHECK (product <> ''),
+    cleaned_unix_s {real} NOT NULL,
+    source         TEXT NOT NULL CHECK (source <> ''),
+    note           TEXT
+);
+CREATE INDEX stencil_cleans_by_line ON stencil_cleans (line, product, cleaned_unix_s);
 ";
 
 /// The triggers that keep `pads`' foreign key on PostgreSQL ([`V2_POSTGRES`]), with their
@@ -506,6 +517,7 @@ pub(crate) const POSTGRES_INVARIANTS: &[(&str, &str)] = &[
               + (SELECT count(*) FROM boards WHERE 'NaN' IN (started_unix_s, ended_unix_s))
               + (SELECT count(*) FROM pad_stats
                     WHERE 'NaN' IN (sum_volume_pct, sum_sq_volume_pct))
+              + (SELECT count(*) FROM stencil_cleans WHERE cleaned_unix_s = 'NaN')
               + (SELECT count(*) FROM prints WHERE 'NaN' IN (x_um, y_um, rotation_mdeg,
                     stretch_ppm, u_x_um, u_y_um, u_rotation_mdeg, u_stretch_ppm, scale_um,
                     centre_x_mm, centre_y_mm, correction_x_um, correction_y_um,

@@ -3,8 +3,8 @@
 use super::schema::{self, Dialect, Step};
 use super::{
     insert_print_sql, parse_run_id, real, run_id_text, select_prints_sql, BoardStart, CameraLoss,
-    HistoryEntry, Outcome, PadRow, PrintValues, StoreError, StoredBoard, StoredPrint, Which,
-    PRINT_REALS, PRUNE_BOARDS_PER_TRANSACTION,
+    HistoryEntry, Outcome, PadRow, PrintValues, StencilClean, StoreError, StoredBoard, StoredPrint,
+    Which, PRINT_REALS, PRUNE_BOARDS_PER_TRANSACTION,
 };
 use rusqlite::{params, Connection, OptionalExtension, TransactionBehavior};
 use std::path::Path;
@@ -338,6 +338,54 @@ impl Sqlite {
                 .map_err(err)?;
         }
         tx.commit().map_err(err)
+    }
+
+    pub(super) fn record_clean(
+        &mut self,
+        line: &str,
+        product: &str,
+        cleaned_unix_s: f64,
+        source: &str,
+        note: Option<&str>,
+    ) -> Result<i64, StoreError> {
+        self.conn
+            .prepare_cached(
+                "INSERT INTO stencil_cleans (line, product, cleaned_unix_s, source, note) \
+                 VALUES (?1, ?2, ?3, ?4, ?5)",
+            )
+            .and_then(|mut s| s.execute(params![line, product, cleaned_unix_s, source, note]))
+            .map_err(self.err())?;
+        Ok(self.conn.last_insert_rowid())
+    }
+
+    pub(super) fn cleans(
+        &mut self,
+        line: &str,
+        product: &str,
+        limit: usize,
+    ) -> Result<Vec<StencilClean>, StoreError> {
+        let limit = i64::try_from(limit).unwrap_or(i64::MAX);
+        let name = self.name.as_str();
+        let err = |e| sql_err(name, e);
+        let mut s = self
+            .conn
+            .prepare_cached(
+                "SELECT id, product, cleaned_unix_s, source, note FROM stencil_cleans \
+                 WHERE line = ?1 AND product = ?2 ORDER BY cleaned_unix_s DESC, id DESC LIMIT ?3",
+            )
+            .map_err(err)?;
+        let rows = s
+            .query_map(params![line, product, limit], |r| {
+                Ok(StencilClean {
+                    id: r.get(0)?,
+                    product: r.get(1)?,
+                    cleaned_unix_s: r.get(2)?,
+                    source: r.get(3)?,
+                    note: r.get(4)?,
+                })
+            })
+            .map_err(err)?;
+        rows.collect::<Result<_, _>>().map_err(err)
     }
 
     pub(super) fn prints(
