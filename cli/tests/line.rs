@@ -321,18 +321,7 @@ fn boards_back_to_back_are_stored_as_the_offline_inspection() {
     // `dpsa spc` reads what the line stored: the three boards, and the board chart's mean of
     // the measured volumes equal to the stored pad rows' (pads the inspection could not
     // measure left out).
-    let spc = ok(
-        &dpsa([
-            "spc".as_ref(),
-            "--store".as_ref(),
-            dir.join("data/line.sqlite").as_os_str(),
-            "--program".as_ref(),
-            f.board.join("program.toml").as_os_str(),
-            "--json".as_ref(),
-        ]),
-        "spc",
-    );
-    let spc: Value = serde_json::from_str(&spc).unwrap();
+    let spc = spc_json(&dir);
     assert_eq!(spc["boards"], 3, "{spc}");
     assert_eq!(spc["with_program"], true);
     let vols: Vec<f64> = boards
@@ -374,18 +363,7 @@ fn boards_back_to_back_are_stored_as_the_offline_inspection() {
     .unwrap();
     assert_eq!(clean["source"], "operator");
     assert_eq!(clean["product"], "array-small");
-    let spc: Value = serde_json::from_str(&ok(
-        &dpsa([
-            "spc".as_ref(),
-            "--store".as_ref(),
-            dir.join("data/line.sqlite").as_os_str(),
-            "--program".as_ref(),
-            f.board.join("program.toml").as_os_str(),
-            "--json".as_ref(),
-        ]),
-        "spc after the clean",
-    ))
-    .unwrap();
+    let spc = spc_json(&dir);
     let st = &spc["stencil"];
     assert_eq!(st["clean_recorded"], true, "{st}");
     assert_eq!(st["since_board"], 3, "{st}");
@@ -405,6 +383,22 @@ fn boards_back_to_back_are_stored_as_the_offline_inspection() {
         "nope".as_ref(),
     ]);
     assert!(!bad.status.success());
+}
+
+/// `dpsa spc --json` of the line's store in `dir` under the fixture's program.
+fn spc_json(dir: &Path) -> Value {
+    let out = ok(
+        &dpsa([
+            "spc".as_ref(),
+            "--store".as_ref(),
+            dir.join("data/line.sqlite").as_os_str(),
+            "--program".as_ref(),
+            fixture().board.join("program.toml").as_os_str(),
+            "--json".as_ref(),
+        ]),
+        "spc",
+    );
+    serde_json::from_str(&out).unwrap()
 }
 
 /// A stored placement (`dpsa line boards --prints`) as the loop takes it.
@@ -516,18 +510,7 @@ fn the_loop_back_to_the_printer_is_stored_spooled_and_resumed() {
     }
     assert!(moved >= 4, "the loop never moved: {boards:?}");
     // `dpsa spc` fits the placements again from the stored pads: the same.
-    let spc = ok(
-        &dpsa([
-            "spc".as_ref(),
-            "--store".as_ref(),
-            dir.join("data/line.sqlite").as_os_str(),
-            "--program".as_ref(),
-            f.board.join("program.toml").as_os_str(),
-            "--json".as_ref(),
-        ]),
-        "spc",
-    );
-    let spc: Value = serde_json::from_str(&spc).unwrap();
+    let spc = spc_json(&dir);
     let prints = spc["prints"].as_array().unwrap();
     assert_eq!(prints.len(), boards.len());
     for (s, b) in prints.iter().zip(&boards) {
