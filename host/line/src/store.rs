@@ -916,6 +916,29 @@ pub(crate) struct Which {
 /// volume_pct)`.
 pub type HistoryEntry = (i64, u64, String, Option<f64>);
 
+/// A reader's check of a store's schema version: this program's, else refused (a reader
+/// never migrates).
+fn check_reader_version(store: &str, found: u32) -> Result<(), StoreError> {
+    if found > SCHEMA_VERSION {
+        return Err(StoreError::NewerSchema {
+            store: store.to_owned(),
+            found,
+            known: SCHEMA_VERSION,
+        });
+    }
+    if found < SCHEMA_VERSION {
+        return Err(StoreError::Invalid {
+            store: store.to_owned(),
+            why: format!(
+                "schema version {found}, older than this program's {SCHEMA_VERSION}: a reader \
+                 does not migrate it; open it once for writing (`dpsa line run` or `dpsa line \
+                 boards`)"
+            ),
+        });
+    }
+    Ok(())
+}
+
 /// A run id as stored: 16 lowercase hex digits.
 fn run_id_text(run_id: u64) -> String {
     format!("{run_id:016x}")
@@ -980,6 +1003,26 @@ impl Store {
     /// closed is opened again before the next call.
     pub fn open(location: &Location, line: &str) -> Result<Store, StoreError> {
         Self::open_with(location, line, MIGRATIONS)
+    }
+
+    /// Opens the store at `location` for reading only (the web pages): nothing is created,
+    /// migrated or written (SQLite's read-only mode; on PostgreSQL every transaction
+    /// read-only), and a store of another schema version is refused: an older one is migrated
+    /// by any program that opens it for writing (`dpsa line run`, `dpsa line boards`).
+    pub fn open_read_only(location: &Location, line: &str) -> Result<Store, StoreError> {
+        check_line_name(line).map_err(|why| StoreError::Invalid {
+            store: location.to_string(),
+            why: format!("line: {why}"),
+        })?;
+        let db = match location {
+            Location::Sqlite(path) => Db::Sqlite(sqlite::Sqlite::open_read_only(path)?),
+            Location::Postgres(url) => Db::Postgres(Box::new(pg::Pg::open_read_only(url)?)),
+        };
+        Ok(Store {
+            db,
+            location: location.clone(),
+            line: line.to_owned(),
+        })
     }
 
     /// [`Store::open`] with another list of migrations (the benchmark compares schemas; tests
@@ -1436,7 +1479,34 @@ pub(crate) mod tests {
         the_benchmark_runs_small,
         print_rows_round_trip_and_are_the_lines_newest_first,
         stencil_cleans_are_the_lines_and_products_newest_first,
+        a_reader_reads_and_never_writes_nor_migrates,
     );
+
+    /// A read-only store reads what was written, refuses every write (the database says no),
+    /// and refuses a store of an older version rather than migrate it; no file is made for a
+    /// store that is not there.
+    fn a_reader_reads_and_never_writes_nor_migrates(b: Backend) {
+        let (p, mut store) = fresh(b);
+        let id = inspect(&mut store, 0x77, "mini", 3, 100.0);
+        let mut r = Store::open_read_only(&p.location, DEFAULT_LINE).unwrap();
+        assert_eq!(r.boards(10).unwrap()[0].id, id);
+        assert_eq!(r.pads(id).unwrap().len(), 3);
+        assert!(r.begin_board(&start(0x78, "mini", 1.0)).is_err());
+        assert!(r.record_clean("mini", 1.0, "operator", None).is_err());
+        assert_eq!(store.boards(10).unwrap().len(), 1);
+        // An older store: refused, left at its version.
+        let old = place(b);
+        drop(Store::open_with(&old.location, DEFAULT_LINE, &MIGRATIONS[..2]).unwrap());
+        let e = Store::open_read_only(&old.location, DEFAULT_LINE).unwrap_err();
+        assert!(e.to_string().contains("does not migrate"), "{e}");
+        let mut again = Store::open_with(&old.location, DEFAULT_LINE, &MIGRATIONS[..2]).unwrap();
+        assert_eq!(again.schema_version().unwrap(), 2);
+        if let Location::Sqlite(path) = &p.location {
+            let none = path.with_file_name("none.sqlite");
+            assert!(Store::open_read_only(&Location::Sqlite(none.clone()), DEFAULT_LINE).is_err());
+            assert!(!none.exists());
+        }
+    }
 
     /// Recorded cleans come back newest first, of this line and product only; a clean without
     /// a time, a product or a source is refused.

@@ -183,6 +183,8 @@ pub(super) struct Pg {
     statements: HashMap<&'static str, Statement>,
     /// The line whose lock this connection holds, to take again after a reconnection.
     claimed: Option<String>,
+    /// Every transaction read-only (a reader's connection), set again after a reconnection.
+    read_only: bool,
 }
 
 impl std::fmt::Debug for Pg {
@@ -234,6 +236,28 @@ impl Pg {
             name,
             statements: HashMap::new(),
             claimed: None,
+            read_only: false,
+        })
+    }
+
+    /// Connects for reading only: every transaction of the session read-only (the server
+    /// refuses a write), the schema at this program's version (never migrated: an older store
+    /// is refused with what to do).
+    pub(super) fn open_read_only(url: &PgUrl) -> Result<Pg, StoreError> {
+        let name = url.to_string();
+        let mut client = connect(url, &name)?;
+        client
+            .batch_execute("SET default_transaction_read_only = on")
+            .map_err(pg_err(&name))?;
+        let found = read_version(&mut client, &name)?;
+        super::check_reader_version(&name, found)?;
+        Ok(Pg {
+            client,
+            url: url.clone(),
+            name,
+            statements: HashMap::new(),
+            claimed: None,
+            read_only: true,
         })
     }
 
@@ -277,6 +301,11 @@ impl Pg {
             tracing::warn!(store = %self.name, "the connection to the store was closed: connecting again");
             self.client = connect(&self.url, &self.name)?;
             self.statements.clear();
+            if self.read_only {
+                self.client
+                    .batch_execute("SET default_transaction_read_only = on")
+                    .map_err(pg_err(&self.name))?;
+            }
             if let Some(line) = self.claimed.take() {
                 self.claim_line(&line)?;
             }

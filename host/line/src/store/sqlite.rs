@@ -140,6 +140,28 @@ impl Sqlite {
         Ok(Sqlite { conn, name })
     }
 
+    /// Opens an existing store file for reading only (SQLite's read-only mode: no write, no
+    /// migration, no file made); its schema must be this program's version.
+    pub(super) fn open_read_only(path: &Path) -> Result<Sqlite, StoreError> {
+        let name = path.display().to_string();
+        if !path.is_file() {
+            return Err(StoreError::Io {
+                store: name,
+                source: std::io::Error::new(std::io::ErrorKind::NotFound, "no store file"),
+            });
+        }
+        let err = |e| sql_err(&name, e);
+        let conn = Connection::open_with_flags(
+            path,
+            rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY | rusqlite::OpenFlags::SQLITE_OPEN_NO_MUTEX,
+        )
+        .map_err(err)?;
+        conn.busy_timeout(BUSY_TIMEOUT).map_err(err)?;
+        let found = user_version(&conn, &name)?;
+        super::check_reader_version(&name, found)?;
+        Ok(Sqlite { conn, name })
+    }
+
     /// Applies the migrations the store lacks, one transaction each. The version is read
     /// again inside each (write-locked) transaction, so two programs opening a new store at
     /// once do not both migrate it. Each step must leave no row pointing to a missing board
