@@ -57,9 +57,9 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 bash firmware/build.sh --install --clippy
 (cd fuzz && cargo fmt --check && cargo check --quiet)   # the fuzz target builds on dpsa-core alone
 
-echo "== the production binary: dpsa without the simulator (program, pads, board --streams, inspect, decode, line, spc)"
+echo "== the production binary: dpsa without the simulator (program, pads, board --streams, inspect, decode, line, spc, serve)"
 cargo build -p dpsa --no-default-features --locked --quiet
-for c in program pads board inspect decode line spc; do
+for c in program pads board inspect decode line spc serve; do
     if ! target/debug/dpsa help "$c" >/dev/null; then
         echo "error: the production binary has no \`$c\` command" >&2
         exit 1

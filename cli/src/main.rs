@@ -49,6 +49,7 @@ fn main() {
         Cmd::Decode(a) => commands::decode::run(a).map(exit_unless_zero),
         Cmd::Line(a) => commands::line::run(a),
         Cmd::Spc(a) => commands::spc::run(a),
+        Cmd::Serve(a) => commands::serve::run(a),
         #[cfg(feature = "sim")]
         Cmd::PrintProcess(a) => commands::print_process::run(a),
         #[cfg(feature = "sim")]

@@ -38,6 +38,7 @@ pub mod print_process;
 pub mod program;
 #[cfg(feature = "sim")]
 pub mod reconstruct;
+pub mod serve;
 #[cfg(feature = "sim")]
 pub mod simulate;
 pub mod spc;
@@ -133,6 +134,9 @@ pub enum Cmd {
     /// package family and board the capability (Cp, Cpk, Pp, Ppk), I-MR and X-bar/S charts,
     /// Western Electric and Nelson rules, alarms; tables (CSV) and charts (SVG, PNG).
     Spc(spc::Args),
+    /// The operator's web pages over the line's store (read-only; loopback unless --bind):
+    /// the line's newest boards, a board's failures and print, a pad's values and history.
+    Serve(serve::Args),
     /// A simulated print process over a run of boards (in-control scatter, steps, drift,
     /// clogging and cleans, viscosity) written into a new line store, for trying `dpsa spc`
     /// on a process whose changes are known.

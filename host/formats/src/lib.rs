@@ -27,5 +27,6 @@ pub mod images;
 pub mod kind;
 pub mod progress;
 pub mod recording;
+pub mod time;
 
 pub use board_id::BoardId;

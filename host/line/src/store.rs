@@ -910,6 +910,8 @@ pub struct StoredBoard {
 pub(crate) struct Which {
     product: Option<String>,
     inspected: bool,
+    /// One board by its id.
+    id: Option<i64>,
 }
 
 /// One board of a pad's history ([`Store::pad_history`]): `(board id, run id, level,
@@ -1276,6 +1278,15 @@ impl Store {
         on_backend!(&mut self.db, d => d.boards(&self.line, &all, limit))
     }
 
+    /// Board `id` if it is this line's.
+    pub fn board(&mut self, id: i64) -> Result<Option<StoredBoard>, StoreError> {
+        let one = Which {
+            id: Some(id),
+            ..Which::default()
+        };
+        Ok(on_backend!(&mut self.db, d => d.boards(&self.line, &one, 1))?.pop())
+    }
+
     /// This line's inspected boards (of `product`, or of any), newest first, at most `limit`
     /// (through the index on line, product, state and id).
     pub fn inspected_boards(
@@ -1286,6 +1297,7 @@ impl Store {
         let which = Which {
             product: product.map(str::to_owned),
             inspected: true,
+            id: None,
         };
         on_backend!(&mut self.db, d => d.boards(&self.line, &which, limit))
     }

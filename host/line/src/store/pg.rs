@@ -763,11 +763,15 @@ impl Pg {
             "SELECT id, run_id, product, program_hash, calibration_hash, started_unix_s, \
              ended_unix_s, state, verdict, incomplete_reason, pads, line \
              FROM boards WHERE line = $1 AND ($2::text IS NULL OR product = $2) \
-             AND (NOT $3 OR state = 'inspected') ORDER BY id DESC LIMIT $4",
+             AND (NOT $3 OR state = 'inspected') AND ($5::bigint IS NULL OR id = $5) \
+             ORDER BY id DESC LIMIT $4",
         )
         .map_err(&err)?;
         let rows = client
-            .query(&s, &[&line, &which.product, &which.inspected, &limit])
+            .query(
+                &s,
+                &[&line, &which.product, &which.inspected, &limit, &which.id],
+            )
             .map_err(&err)?;
         let cams = prepared(
             client,

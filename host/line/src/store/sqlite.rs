@@ -555,30 +555,34 @@ impl Sqlite {
                 "SELECT id, run_id, product, program_hash, calibration_hash, started_unix_s, \
                  ended_unix_s, state, verdict, incomplete_reason, pads, line \
                  FROM boards WHERE line = ?1 AND (?2 IS NULL OR product = ?2) \
-                 AND (?3 = 0 OR state = 'inspected') ORDER BY id DESC LIMIT ?4",
+                 AND (?3 = 0 OR state = 'inspected') AND (?5 IS NULL OR id = ?5) \
+                 ORDER BY id DESC LIMIT ?4",
             )
             .map_err(self.err())?;
         let rows = s
-            .query_map(params![line, which.product, which.inspected, limit], |r| {
-                Ok((
-                    r.get::<_, String>(1)?,
-                    StoredBoard {
-                        id: r.get(0)?,
-                        run_id: 0,
-                        line: r.get(11)?,
-                        product: r.get(2)?,
-                        program_hash: r.get(3)?,
-                        calibration_hash: r.get(4)?,
-                        started_unix_s: r.get(5)?,
-                        ended_unix_s: r.get(6)?,
-                        state: r.get(7)?,
-                        verdict: r.get(8)?,
-                        incomplete_reason: r.get(9)?,
-                        pads: r.get(10)?,
-                        cameras: Vec::new(),
-                    },
-                ))
-            })
+            .query_map(
+                params![line, which.product, which.inspected, limit, which.id],
+                |r| {
+                    Ok((
+                        r.get::<_, String>(1)?,
+                        StoredBoard {
+                            id: r.get(0)?,
+                            run_id: 0,
+                            line: r.get(11)?,
+                            product: r.get(2)?,
+                            program_hash: r.get(3)?,
+                            calibration_hash: r.get(4)?,
+                            started_unix_s: r.get(5)?,
+                            ended_unix_s: r.get(6)?,
+                            state: r.get(7)?,
+                            verdict: r.get(8)?,
+                            incomplete_reason: r.get(9)?,
+                            pads: r.get(10)?,
+                            cameras: Vec::new(),
+                        },
+                    ))
+                },
+            )
             .map_err(self.err())?;
         let mut boards = Vec::new();
         for row in rows {

@@ -1,0 +1,204 @@
+//! The operator's web pages over the line's store (`dpsa serve`, `docs/web.md`).
+//!
+//! Server-rendered HTML from the store, opened read-only for every page
+//! ([`dpsa_line::store::Store::open_read_only`]): the line (its newest boards, yield,
+//! throughput, the printer's last correction), a board (its verdict, cameras, print placement
+//! and every pad that warned or failed, each linked) and a pad (its values and uncertainty,
+//! its history on the line with a chart). No JavaScript, no file from disk: the style sheet is
+//! in the binary.
+//!
+//! - [`html`]: escaping, the page frame, the history chart (inline SVG).
+//! - [`pages`]: what each page reads from the store and how it is laid out.
+//!
+//! Why axum: the tokio team's router on hyper, the framework the Rust ecosystem converges on;
+//! its handlers are plain async functions and its router a value the tests call directly.
+//! The store is synchronous (rusqlite, postgres), so each page runs on tokio's blocking pool.
+//!
+//! Security: the default address is loopback ([`DEFAULT_BIND`]); every response carries a
+//! Content-Security-Policy that allows nothing but this site's style sheet and inline SVG,
+//! `X-Content-Type-Options: nosniff` and `Referrer-Policy: no-referrer`; no route reads a
+//! file (a path with `..` or anything unknown is a 404); the pages never write.
+
+pub mod html;
+pub mod pages;
+
+use axum::extract::{Path, State};
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use axum::Router;
+use dpsa_line::store::Location;
+use std::net::SocketAddr;
+use std::sync::Arc;
+
+/// The address `dpsa serve` listens on unless told otherwise: loopback only.
+pub const DEFAULT_BIND: &str = "127.0.0.1:8080";
+
+/// The Content-Security-Policy of every response.
+pub const CSP: &str = "default-src 'none'; style-src 'self'; img-src 'self' data:; \
+                       frame-ancestors 'none'; base-uri 'none'; form-action 'none'";
+
+/// Why the site could not be served.
+#[derive(Debug, thiserror::Error)]
+pub enum WebError {
+    /// The address could not be bound, or the server failed.
+    #[error("{0}")]
+    Io(#[from] std::io::Error),
+    /// The store.
+    #[error(transparent)]
+    Store(#[from] dpsa_line::store::StoreError),
+}
+
+/// What the pages show: a line's boards in a store.
+#[derive(Clone, Debug)]
+pub struct Site {
+    /// The store.
+    pub store: Location,
+    /// The line whose boards are shown.
+    pub line: String,
+}
+
+/// The site's routes.
+pub fn router(site: Site) -> Router {
+    Router::new()
+        .route("/", get(line))
+        .route("/board/{id}", get(board))
+        .route("/board/{id}/pad/{pad}", get(pad))
+        .route("/style.css", get(style))
+        .fallback(not_found)
+        .with_state(Arc::new(site))
+}
+
+/// Serves `site` on `listener` until `shutdown` completes.
+pub async fn serve_on(
+    listener: tokio::net::TcpListener,
+    site: Site,
+    shutdown: impl std::future::Future<Output = ()> + Send + 'static,
+) -> Result<(), WebError> {
+    axum::serve(listener, router(site))
+        .with_graceful_shutdown(shutdown)
+        .await?;
+    Ok(())
+}
+
+/// `dpsa serve`: checks the store opens read-only, then serves `site` on `bind` until Ctrl-C
+/// or SIGTERM.
+pub fn run(site: Site, bind: SocketAddr) -> Result<(), WebError> {
+    drop(dpsa_line::store::Store::open_read_only(
+        &site.store,
+        &site.line,
+    )?);
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
+    rt.block_on(async move {
+        let listener = tokio::net::TcpListener::bind(bind).await?;
+        tracing::info!(address = %listener.local_addr()?, "serving the line's pages");
+        serve_on(listener, site, async {
+            let mut term =
+                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+            tokio::select! {
+                _ = tokio::signal::ctrl_c() => {}
+                _ = async {
+                    match term.as_mut() {
+                        Some(t) => { t.recv().await; }
+                        None => std::future::pending::<()>().await,
+                    }
+                } => {}
+            }
+        })
+        .await
+    })
+}
+
+/// A response with the site's headers.
+fn respond(status: StatusCode, content_type: &'static str, body: String) -> Response {
+    let mut r = (status, body).into_response();
+    let h = r.headers_mut();
+    h.insert(header::CONTENT_TYPE, HeaderValue::from_static(content_type));
+    h.insert(
+        header::CONTENT_SECURITY_POLICY,
+        HeaderValue::from_static(CSP),
+    );
+    h.insert(
+        header::X_CONTENT_TYPE_OPTIONS,
+        HeaderValue::from_static("nosniff"),
+    );
+    h.insert(
+        header::REFERRER_POLICY,
+        HeaderValue::from_static("no-referrer"),
+    );
+    h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    r
+}
+
+const HTML: &str = "text/html; charset=utf-8";
+
+/// A page rendered on the blocking pool, or its error page.
+async fn page(
+    site: Arc<Site>,
+    render: impl FnOnce(&Site) -> Result<Option<String>, pages::PageError> + Send + 'static,
+) -> Response {
+    let out = tokio::task::spawn_blocking(move || render(&site)).await;
+    match out {
+        Ok(Ok(Some(body))) => respond(StatusCode::OK, HTML, body),
+        Ok(Ok(None)) => not_found().await,
+        Ok(Err(e)) => {
+            tracing::error!("page: {e}");
+            respond(
+                StatusCode::SERVICE_UNAVAILABLE,
+                HTML,
+                html::frame(
+                    "Store unavailable",
+                    &format!(
+                        "<p>The store could not be read: {}</p>",
+                        html::esc(&e.to_string())
+                    ),
+                ),
+            )
+        }
+        Err(e) => respond(
+            StatusCode::INTERNAL_SERVER_ERROR,
+            HTML,
+            html::frame("Error", &html::esc(&e.to_string())),
+        ),
+    }
+}
+
+async fn line(State(site): State<Arc<Site>>) -> Response {
+    page(site, |s| pages::line(s).map(Some)).await
+}
+
+async fn board(State(site): State<Arc<Site>>, Path(id): Path<String>) -> Response {
+    let Ok(id) = id.parse::<i64>() else {
+        return not_found().await;
+    };
+    page(site, move |s| pages::board(s, id)).await
+}
+
+async fn pad(State(site): State<Arc<Site>>, Path((id, pad)): Path<(String, String)>) -> Response {
+    let (Ok(id), Ok(pad)) = (id.parse::<i64>(), pad.parse::<u32>()) else {
+        return not_found().await;
+    };
+    page(site, move |s| pages::pad(s, id, pad)).await
+}
+
+async fn style() -> Response {
+    respond(
+        StatusCode::OK,
+        "text/css; charset=utf-8",
+        html::STYLE.to_owned(),
+    )
+}
+
+async fn not_found() -> Response {
+    respond(
+        StatusCode::NOT_FOUND,
+        HTML,
+        html::frame(
+            "Not found",
+            "<p>No such page. <a href=\"/\">The line</a>.</p>",
+        ),
+    )
+}

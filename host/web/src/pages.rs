@@ -1,0 +1,307 @@
+//! The pages: what each reads from the store (opened read-only for the page) and its layout.
+
+use crate::html::{class, esc, frame, history_svg, num, time};
+use crate::Site;
+use dpsa_line::store::{PadRow, Store, StoreError, StoredBoard, StoredPrint};
+use std::fmt::Write;
+
+/// Why a page could not be made.
+#[derive(Debug, thiserror::Error)]
+pub enum PageError {
+    /// The store.
+    #[error(transparent)]
+    Store(#[from] StoreError),
+}
+
+/// Boards the line page lists.
+pub const LINE_BOARDS: usize = 50;
+
+/// Boards of a pad's history.
+pub const HISTORY_BOARDS: usize = 100;
+
+/// Print rows searched for a board's own (its product's newest).
+const PRINT_ROWS: usize = 1000;
+
+fn open(site: &Site) -> Result<Store, StoreError> {
+    Store::open_read_only(&site.store, &site.line)
+}
+
+/// A board's result: its verdict, or `incomplete`, or `open`.
+fn result(b: &StoredBoard) -> &str {
+    b.verdict.as_deref().unwrap_or(b.state.as_str())
+}
+
+/// A pad's volume uncertainty in points of %: its um^3 over the nominal volume.
+fn volume_u_pct(p: &PadRow) -> Option<f64> {
+    let (u, v, pct) = (p.uncertainty_um3?, p.volume_um3?, p.volume_pct?);
+    (v != 0.0).then(|| u * pct / v)
+}
+
+fn print_row(store: &mut Store, b: &StoredBoard) -> Result<Option<StoredPrint>, StoreError> {
+    Ok(store
+        .prints(&b.product, PRINT_ROWS)?
+        .into_iter()
+        .find(|r| r.board_id == b.id))
+}
+
+/// The line: its newest boards with their results, the yield and the throughput over them,
+/// the printer's newest correction.
+pub fn line(site: &Site) -> Result<String, PageError> {
+    let mut store = open(site)?;
+    let boards = store.boards(LINE_BOARDS)?;
+    let mut body = String::new();
+    let inspected: Vec<&StoredBoard> = boards.iter().filter(|b| b.state == "inspected").collect();
+    let good = inspected
+        .iter()
+        .filter(|b| matches!(b.verdict.as_deref(), Some("pass" | "warn")))
+        .count();
+    let incomplete = boards.iter().filter(|b| b.state == "incomplete").count();
+    let span = match (boards.last(), boards.first()) {
+        (Some(a), Some(z)) if boards.len() > 1 => z.started_unix_s - a.started_unix_s,
+        _ => f64::NAN,
+    };
+    let per_hour = (span > 0.0).then(|| (boards.len() - 1) as f64 * 3600.0 / span);
+    let _ = write!(
+        body,
+        "<p class=\"figures\"><span>boards shown <b>{}</b></span>\
+         <span>yield (pass or warn of inspected) <b>{}</b></span>\
+         <span>incomplete <b>{incomplete}</b></span>\
+         <span>throughput <b>{}</b> boards an hour</span></p>",
+        boards.len(),
+        if inspected.is_empty() {
+            "-".to_owned()
+        } else {
+            format!("{:.1} %", 100.0 * good as f64 / inspected.len() as f64)
+        },
+        num(per_hour, 1),
+    );
+    if let Some(newest) = boards.first() {
+        if let Some(p) = store.prints(&newest.product, 1)?.first() {
+            let c = &p.print.proposal;
+            let _ = write!(
+                body,
+                "<h2>The printer ({})</h2><p>Correction in force after board {:016x}: x {} um, \
+                 y {} um, theta {} mdeg. {}</p>",
+                esc(&newest.product),
+                p.run_id,
+                num(Some(c.correction.x_um), 1),
+                num(Some(c.correction.y_um), 1),
+                num(Some(c.correction.rotation_mdeg), 1),
+                esc(&c.reason)
+            );
+        }
+    }
+    body.push_str(
+        "<h2>Newest boards</h2><table><tr><th class=\"t\">run id</th><th class=\"t\">product\
+         </th><th class=\"t\">started (UTC)</th><th class=\"t\">result</th><th>pads</th>\
+         <th>rows lost</th></tr>",
+    );
+    for b in &boards {
+        let lost: u64 = b.cameras.iter().map(|c| c.missing_rows).sum();
+        let r = result(b);
+        let _ = write!(
+            body,
+            "<tr><td class=\"t\"><a href=\"/board/{id}\">{run:016x}</a></td><td class=\"t\">{p}\
+             </td><td class=\"t\">{t}</td><td class=\"t {c}\">{r}{why}</td><td>{n}</td>\
+             <td>{lost}</td></tr>",
+            id = b.id,
+            run = b.run_id,
+            p = esc(&b.product),
+            t = time(b.started_unix_s),
+            c = class(r),
+            r = esc(r),
+            why = b
+                .incomplete_reason
+                .as_deref()
+                .map(|w| format!(": {}", esc(w)))
+                .unwrap_or_default(),
+            n = b.pads,
+        );
+    }
+    body.push_str("</table>");
+    if boards.is_empty() {
+        body.push_str("<p class=\"note\">No board stored yet.</p>");
+    }
+    Ok(frame(&format!("Line {}", site.line), &body))
+}
+
+/// Board `id` (this line's; `None`: no such board): its result, cameras, print placement and
+/// every pad that warned or failed, failures first, each linked to its page.
+pub fn board(site: &Site, id: i64) -> Result<Option<String>, PageError> {
+    let mut store = open(site)?;
+    let Some(b) = store.board(id)? else {
+        return Ok(None);
+    };
+    let pads = store.pads(id)?;
+    let print = print_row(&mut store, &b)?;
+    let mut body = String::new();
+    let r = result(&b);
+    let count = |l: &str| pads.iter().filter(|p| p.level == l).count();
+    let _ = write!(
+        body,
+        "<p class=\"figures\"><span>result <b class=\"{}\">{}</b></span><span>product <b>{}</b>\
+         </span><span>pads <b>{}</b> ({} pass, {} warn, {} fail)</span><span>started {} UTC\
+         </span></p>",
+        class(r),
+        esc(r),
+        esc(&b.product),
+        b.pads,
+        count("pass"),
+        count("warn"),
+        count("fail"),
+        time(b.started_unix_s)
+    );
+    if let Some(why) = &b.incomplete_reason {
+        let _ = write!(
+            body,
+            "<p class=\"incomplete\">Never inspected: {}</p>",
+            esc(why)
+        );
+    }
+    if let Some(p) = &print {
+        match &p.print.placement {
+            Some(m) => {
+                let _ = write!(
+                    body,
+                    "<h2>The print</h2><p>Placement x {} &plusmn; {} um, y {} &plusmn; {} um, \
+                     rotation {} &plusmn; {} mdeg, stretch {} &plusmn; {} ppm ({} pads, {} set \
+                     aside).",
+                    num(Some(m.x_um), 1),
+                    num(Some(m.uncertainty[0]), 1),
+                    num(Some(m.y_um), 1),
+                    num(Some(m.uncertainty[1]), 1),
+                    num(Some(m.rotation_mdeg), 1),
+                    num(Some(m.uncertainty[2]), 1),
+                    num(Some(m.stretch_ppm), 0),
+                    num(Some(m.uncertainty[3]), 0),
+                    m.pads,
+                    m.outliers
+                );
+            }
+            None => body.push_str("<h2>The print</h2><p>No placement on this board."),
+        }
+        let c = &p.print.proposal;
+        let _ = write!(
+            body,
+            " The printer's correction after it: x {} um, y {} um, theta {} mdeg ({}).</p>",
+            num(Some(c.correction.x_um), 1),
+            num(Some(c.correction.y_um), 1),
+            num(Some(c.correction.rotation_mdeg), 1),
+            esc(&c.reason)
+        );
+    }
+    if !b.cameras.is_empty() {
+        body.push_str(
+            "<h2>Cameras</h2><table><tr><th>camera</th><th>rows</th><th>rows lost</th>\
+             <th>packets lost</th><th>damaged</th></tr>",
+        );
+        for c in &b.cameras {
+            let _ = write!(
+                body,
+                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                c.camera, c.rows, c.missing_rows, c.missing_packets, c.damaged_packets
+            );
+        }
+        body.push_str("</table>");
+    }
+    let mut flagged: Vec<&PadRow> = pads.iter().filter(|p| p.level != "pass").collect();
+    flagged.sort_by_key(|p| (p.level != "fail", p.pad));
+    if b.state == "inspected" {
+        let _ = write!(
+            body,
+            "<h2>Pads that warned or failed ({})</h2>",
+            flagged.len()
+        );
+    }
+    if !flagged.is_empty() {
+        body.push_str(
+            "<table><tr><th class=\"t\">pad</th><th class=\"t\">result</th><th class=\"t\">\
+             class</th><th>volume %</th><th>&plusmn; %</th><th>height um</th><th>area %</th>\
+             <th>offset x um</th><th>offset y um</th><th>coverage</th></tr>",
+        );
+        for p in flagged {
+            let _ = write!(
+                body,
+                "<tr><td class=\"t\"><a href=\"/board/{id}/pad/{k}\">{name}</a></td>\
+                 <td class=\"t {c}\">{l}</td><td class=\"t\">{cl}</td><td>{v}</td><td>{u}</td>\
+                 <td>{h}</td><td>{a}</td><td>{ox}</td><td>{oy}</td><td>{cov}</td></tr>",
+                k = p.pad,
+                name = esc(&p.name),
+                c = class(&p.level),
+                l = esc(&p.level),
+                cl = esc(p.class.as_deref().unwrap_or("")),
+                v = num(p.volume_pct, 1),
+                u = num(volume_u_pct(p), 1),
+                h = num(p.height_um, 1),
+                a = num(p.area_pct, 1),
+                ox = num(p.offset_x_um, 1),
+                oy = num(p.offset_y_um, 1),
+                cov = num(Some(p.coverage), 3),
+            );
+        }
+        body.push_str("</table>");
+    }
+    Ok(Some(frame(&format!("Board {:016x}", b.run_id), &body)))
+}
+
+/// Pad `k` of board `id` (`None`: no such board or pad): its values with their uncertainty
+/// and its history on the line (the product's newest boards), this board marked.
+pub fn pad(site: &Site, id: i64, k: u32) -> Result<Option<String>, PageError> {
+    let mut store = open(site)?;
+    let Some(b) = store.board(id)? else {
+        return Ok(None);
+    };
+    let Some(p) = store.pads(id)?.into_iter().find(|p| p.pad == k) else {
+        return Ok(None);
+    };
+    let mut history = store.pad_history(&b.product, k, HISTORY_BOARDS)?;
+    history.reverse();
+    let mut body = String::new();
+    let _ = write!(
+        body,
+        "<p>Board <a href=\"/board/{id}\">{run:016x}</a> ({prod}), pad index {k}: \
+         <b class=\"{c}\">{l}</b> {cl}</p><table>\
+         <tr><th class=\"t\">measure</th><th>value</th><th>standard uncertainty</th></tr>\
+         <tr><td class=\"t\">volume, % of the opening</td><td>{v}</td><td>{u}</td></tr>\
+         <tr><td class=\"t\">volume, um&sup3;</td><td>{vu}</td><td>{uu}</td></tr>\
+         <tr><td class=\"t\">height, um</td><td>{h}</td><td></td></tr>\
+         <tr><td class=\"t\">height, % of the stencil</td><td>{hp}</td><td></td></tr>\
+         <tr><td class=\"t\">area, mm&sup2;</td><td>{a}</td><td></td></tr>\
+         <tr><td class=\"t\">area, % of the opening</td><td>{ap}</td><td></td></tr>\
+         <tr><td class=\"t\">offset x, um</td><td>{ox}</td><td></td></tr>\
+         <tr><td class=\"t\">offset y, um</td><td>{oy}</td><td></td></tr>\
+         <tr><td class=\"t\">coverage (valid pixels)</td><td>{cov}</td><td></td></tr></table>",
+        run = b.run_id,
+        prod = esc(&b.product),
+        c = class(&p.level),
+        l = esc(&p.level),
+        cl = esc(p.class.as_deref().unwrap_or("")),
+        v = num(p.volume_pct, 1),
+        u = num(volume_u_pct(&p), 2),
+        vu = num(p.volume_um3, 0),
+        uu = num(p.uncertainty_um3, 0),
+        h = num(p.height_um, 1),
+        hp = num(p.height_pct, 1),
+        a = num(p.area_mm2, 4),
+        ap = num(p.area_pct, 1),
+        ox = num(p.offset_x_um, 1),
+        oy = num(p.offset_y_um, 1),
+        cov = num(Some(p.coverage), 3),
+    );
+    let _ = write!(
+        body,
+        "<h2>Volume, % of the opening, over the product's last {} inspected boards on the \
+         line</h2>",
+        history.len()
+    );
+    let values: Vec<Option<f64>> = history.iter().map(|h| h.3).collect();
+    let mark = history.iter().position(|h| h.0 == id);
+    body.push_str(&history_svg(&values, mark, &[]));
+    let fails = history.iter().filter(|h| h.2 == "fail").count();
+    let _ = write!(
+        body,
+        "<p class=\"note\">This board in red; {fails} of {} failed.</p>",
+        history.len()
+    );
+    Ok(Some(frame(&format!("Pad {}", p.name), &body)))
+}
