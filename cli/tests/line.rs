@@ -602,6 +602,80 @@ fn the_printer_loop_closes_through_the_line() {
     );
 }
 
+/// `dpsa line run --web`: the line's pages served while it runs (read-only), the board it
+/// stored on the line page and its own page.
+#[test]
+fn the_line_serves_its_pages_while_it_runs() {
+    let dir = fixture().dir.join("web");
+    let cfg = line_config(&dir, |t| t);
+    let log = std::fs::File::create(cfg.with_extension("log")).unwrap();
+    let child = Command::new(env!("CARGO_BIN_EXE_dpsa"))
+        .args([
+            "line",
+            "run",
+            "--boards",
+            "1",
+            "--web",
+            "127.0.0.1:0",
+            "--config",
+        ])
+        .arg(&cfg)
+        .stdout(Stdio::piped())
+        .stderr(log)
+        .spawn()
+        .unwrap();
+    // The address it chose, from its log.
+    let t0 = Instant::now();
+    let addr = loop {
+        let text = std::fs::read_to_string(cfg.with_extension("log")).unwrap_or_default();
+        if let Some(at) = text.split("http://").nth(1) {
+            break at.split('/').next().unwrap().to_owned();
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "no address logged: {text}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let get = |path: &str| -> (String, String) {
+        use std::io::{Read, Write};
+        let mut s = std::net::TcpStream::connect(&addr).unwrap();
+        write!(
+            s,
+            "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+        )
+        .unwrap();
+        let mut raw = String::new();
+        s.read_to_string(&mut raw).unwrap();
+        let (head, body) = raw.split_once("\r\n\r\n").unwrap();
+        (head.lines().next().unwrap().to_owned(), body.to_owned())
+    };
+    let (status, body) = get("/");
+    assert!(status.contains(" 200 "), "{status}");
+    assert!(body.contains("No board stored yet"), "{body}");
+    let sent = send(&cfg, &["--rate", "max", "--seed", "31"]);
+    let run = sent["run_ids"][0].as_str().unwrap().to_owned();
+    // Stored: on the line page, linked to its page.
+    let t0 = Instant::now();
+    let link = loop {
+        let (_, body) = get("/");
+        if let Some(at) = body.find(&run) {
+            let href = body[..at].rfind("href=\"").unwrap();
+            break body[href + 6..at].trim_end_matches("\">").to_owned();
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "board {run} not on the page"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let (status, page) = get(&link);
+    assert!(status.contains(" 200 "), "{link}: {status}");
+    assert!(page.contains(&format!("Board {run}")), "{page}");
+    let summary = wait(child, 120, &cfg);
+    assert_eq!(summary["boards"], 1, "{summary}");
+}
+
 /// A camera that falls silent in the first board: that board is incomplete with the camera
 /// named, gets no CFX message, and the next board is inspected normally (none of the silent
 /// board's rows in it).

@@ -49,6 +49,10 @@ struct RunArgs {
     /// (postgres://USER:PASSWORD@HOST:PORT/DATABASE) or the path of an SQLite file.
     #[arg(long, value_name = "URL_OR_PATH")]
     store: Option<String>,
+    /// Serve the line's pages (`dpsa serve`'s, read-only) on this address while it runs, e.g.
+    /// 127.0.0.1:8080 (port 0: one chosen, logged).
+    #[arg(long, value_name = "ADDR")]
+    web: Option<SocketAddr>,
 }
 
 #[derive(clap::Args)]
@@ -263,6 +267,21 @@ fn run_line(a: RunArgs) -> Result<()> {
     let mut cfg = LineConfig::load(&a.config)?;
     if let Some(text) = &a.store {
         cfg.store = store_arg(text)?;
+    }
+    if let Some(bind) = a.web {
+        // The store made (or migrated) first: the pages open it read-only.
+        drop(dpsa_line::store::Store::open(&cfg.store, &cfg.line)?);
+        let at = dpsa_web::spawn(
+            dpsa_web::Site {
+                store: cfg.store.clone(),
+                line: cfg.line.clone(),
+            },
+            bind,
+        )?;
+        if !at.ip().is_loopback() {
+            tracing::warn!(address = %at, "the line's pages are served beyond loopback: anyone who reaches them reads them");
+        }
+        tracing::info!(address = %at, "the line's pages: http://{at}/");
     }
     let opts = dpsa_line::service::RunOptions { boards: a.boards };
     let summary = dpsa_line::service::run(cfg, opts)?;

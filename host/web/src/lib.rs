@@ -112,6 +112,34 @@ pub fn run(site: Site, bind: SocketAddr) -> Result<(), WebError> {
     })
 }
 
+/// Serves `site` on `bind` from a thread of its own, for as long as the process runs (the
+/// line service's pages, `dpsa line run --web`): the address it listens on (the port chosen
+/// when `bind`'s is 0). The address is bound before this returns, so a port in use is said at
+/// once.
+pub fn spawn(site: Site, bind: SocketAddr) -> Result<SocketAddr, WebError> {
+    let listener = std::net::TcpListener::bind(bind)?;
+    listener.set_nonblocking(true)?;
+    let at = listener.local_addr()?;
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()?;
+    std::thread::Builder::new()
+        .name("web".into())
+        .spawn(move || {
+            rt.block_on(async move {
+                let served = match tokio::net::TcpListener::from_std(listener) {
+                    Ok(l) => serve_on(l, site, std::future::pending()).await,
+                    Err(e) => Err(e.into()),
+                };
+                if let Err(e) = served {
+                    tracing::error!("the line's pages stopped: {e}");
+                }
+            })
+        })?;
+    Ok(at)
+}
+
 /// A response with the site's headers.
 fn respond(status: StatusCode, content_type: &'static str, body: String) -> Response {
     let mut r = (status, body).into_response();
