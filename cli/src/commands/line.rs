@@ -256,14 +256,7 @@ fn store_bench(a: StoreBenchArgs) -> Result<()> {
 }
 
 fn run_line(a: RunArgs) -> Result<()> {
-    tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
-        .init();
+    super::log_to_stderr();
     let mut cfg = LineConfig::load(&a.config)?;
     if let Some(text) = &a.store {
         cfg.store = store_arg(text)?;

@@ -233,6 +233,19 @@ pub fn apply_cal(rec: &mut Recording, path: &Path, camera: Option<u8>) -> Result
         .map_err(|e| anyhow::anyhow!("the calibrated manifest is invalid: {e}"))
 }
 
+/// The services' log (`line run`, `serve`): timestamped on stderr, `info` unless `RUST_LOG`
+/// says otherwise, colour only on a terminal.
+pub fn log_to_stderr() {
+    tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .init();
+}
+
 /// Prints each warning on stderr as `warning: ...`.
 pub fn warn(warnings: &[String]) {
     for w in warnings {

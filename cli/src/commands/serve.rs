@@ -20,14 +20,7 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
-        .init();
+    super::log_to_stderr();
     let store = Location::from_arg(&a.store).map_err(|why| anyhow::anyhow!("--store: {why}"))?;
     if let Location::Sqlite(p) = &store {
         if !p.is_file() {
