@@ -659,7 +659,8 @@ fn the_line_serves_its_pages_while_it_runs() {
     let t0 = Instant::now();
     let link = loop {
         let (_, body) = get("/");
-        if let Some(at) = body.find(&run) {
+        // Its row's link (the run id also stands in the printer's paragraph).
+        if let Some(at) = body.find(&format!("\">{run}</a>")) {
             let href = body[..at].rfind("href=\"").unwrap();
             break body[href + 6..at].trim_end_matches("\">").to_owned();
         }
