@@ -41,6 +41,14 @@ if ! /usr/bin/python3 -c 'import numpy' >/dev/null 2>&1; then
     as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq python3 python3-numpy
 fi
 
+# The operator's pages are tested in a real browser (host/web/tests/browser.rs): Debian's
+# Chromium, headless, driven over WebDriver by its chromedriver.
+if ! have chromedriver || ! { have chromium || have chromium-browser; }; then
+    echo "== chromium or chromedriver not found: installing Debian's chromium and chromium-driver"
+    as_root apt-get update -qq
+    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver
+fi
+
 if [ ! -d ../shared/data/real ]; then
     echo "error: ../shared/data/real (real fringe stacks used by the tests) is missing" >&2
     exit 1

@@ -673,6 +673,33 @@ fn the_line_serves_its_pages_while_it_runs() {
     let (status, page) = get(&link);
     assert!(status.contains(" 200 "), "{link}: {status}");
     assert!(page.contains(&format!("Board {run}")), "{page}");
+    // The first call listed (the scene prints defects): its page shows the heights the line
+    // kept around it, and the image is a PNG.
+    let at = page
+        .find(&format!("href=\"{link}/pad/"))
+        .expect("a call listed");
+    let pad = page[at + 6..].split('"').next().unwrap().to_owned();
+    let (status, pad_page) = get(&pad);
+    assert!(status.contains(" 200 "), "{pad}: {status}");
+    let png = format!("{pad}/crop.png");
+    assert!(pad_page.contains(&format!("href=\"{png}\"")), "{pad_page}");
+    let bytes = {
+        use std::io::{Read, Write};
+        let mut s = std::net::TcpStream::connect(&addr).unwrap();
+        write!(
+            s,
+            "GET {png} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+        )
+        .unwrap();
+        let mut raw = Vec::new();
+        s.read_to_end(&mut raw).unwrap();
+        raw
+    };
+    assert!(bytes.starts_with(b"HTTP/1.1 200 "), "{png}");
+    assert!(
+        bytes.windows(8).any(|w| w == b"\x89PNG\r\n\x1a\n"),
+        "{png}: no PNG"
+    );
     let summary = wait(child, 120, &cfg);
     assert_eq!(summary["boards"], 1, "{summary}");
 }

@@ -53,6 +53,10 @@ struct RunArgs {
     /// 127.0.0.1:8080 (port 0: one chosen, logged).
     #[arg(long, value_name = "ADDR")]
     web: Option<SocketAddr>,
+    /// A file whose first line is the token every review on the pages must carry (as `dpsa
+    /// serve --token-file`).
+    #[arg(long, value_name = "FILE", requires = "web")]
+    web_token_file: Option<PathBuf>,
 }
 
 #[derive(clap::Args)]
@@ -264,16 +268,15 @@ fn run_line(a: RunArgs) -> Result<()> {
     if let Some(bind) = a.web {
         // The store made (or migrated) first: the pages open it read-only.
         drop(dpsa_line::store::Store::open(&cfg.store, &cfg.line)?);
+        let reviews = super::serve::review_policy(a.web_token_file.as_deref(), bind)?;
         let at = dpsa_web::spawn(
             dpsa_web::Site {
                 store: cfg.store.clone(),
                 line: cfg.line.clone(),
+                reviews,
             },
             bind,
         )?;
-        if !at.ip().is_loopback() {
-            tracing::warn!(address = %at, "the line's pages are served beyond loopback: anyone who reaches them reads them");
-        }
         tracing::info!(address = %at, "the line's pages: http://{at}/");
     }
     let opts = dpsa_line::service::RunOptions { boards: a.boards };

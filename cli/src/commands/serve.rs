@@ -14,9 +14,13 @@ pub struct Args {
     #[arg(long, default_value = dpsa_line::store::DEFAULT_LINE)]
     line: String,
     /// The address to listen on. Loopback unless given: another address shows the line to
-    /// whoever reaches it (the pages only read).
+    /// whoever reaches it (reviews then need --token-file).
     #[arg(long, default_value = dpsa_web::DEFAULT_BIND)]
     bind: SocketAddr,
+    /// A file whose first line is the token every review must carry (16 to 256 bytes).
+    /// Without one, reviews are open on loopback and off on any other address.
+    #[arg(long)]
+    token_file: Option<std::path::PathBuf>,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -30,18 +34,38 @@ pub fn run(a: Args) -> Result<()> {
             );
         }
     }
-    if !a.bind.ip().is_loopback() {
-        eprintln!(
-            "warning: serving on {} (not loopback): anyone who reaches it reads the line's pages",
-            a.bind
-        );
-    }
+    let reviews = review_policy(a.token_file.as_deref(), a.bind)?;
     dpsa_web::run(
         dpsa_web::Site {
             store,
             line: a.line,
+            reviews,
         },
         a.bind,
     )?;
     Ok(())
+}
+
+/// Who may review on the pages served on `bind`: the token of `token_file` if given; without
+/// one, open on loopback and off beyond it (said in the log either way).
+pub fn review_policy(
+    token_file: Option<&std::path::Path>,
+    bind: SocketAddr,
+) -> Result<dpsa_web::review::Policy> {
+    let token = token_file
+        .map(dpsa_web::review::read_token)
+        .transpose()
+        .map_err(|why| anyhow::anyhow!("--token-file: {why}"))?;
+    let policy = dpsa_web::review::Policy {
+        token,
+        beyond_loopback: !bind.ip().is_loopback(),
+    };
+    if policy.beyond_loopback {
+        if policy.needs_token() {
+            tracing::warn!(address = %bind, "the pages are served beyond loopback: anyone who reaches them reads them; reviews need the token");
+        } else {
+            tracing::warn!(address = %bind, "the pages are served beyond loopback: anyone who reaches them reads them; reviews are off (no token)");
+        }
+    }
+    Ok(policy)
 }

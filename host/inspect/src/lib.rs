@@ -19,9 +19,11 @@
 //! | [`uncertainty`] | per pad: the standard uncertainty of the volume and height |
 //! | [`verdict`] | pass / warning / fail with the defect class |
 //! | [`run`] | `dpsa inspect` end to end, its JSON report |
+//! | [`crop`] | a pad's heights above its local surface, cut out for a person to look at |
 //! | [`report`] | the files: pads.csv, IPC-CFX UnitsInspected, overview, defect gallery |
 //! | [`error`] | [`InspectError`]: why an inspection failed |
 
+pub mod crop;
 pub mod error;
 pub mod map;
 pub mod measure;

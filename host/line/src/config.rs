@@ -215,6 +215,8 @@ pub struct Product {
     pub program_path: PathBuf,
     /// The pads of its paste layer (names from its placement file).
     pub pads: Vec<Pad>,
+    /// Each pad's package family (`dpsa_inspect::teach::pad_families`).
+    pub families: Vec<Option<String>>,
     /// The board map's grid.
     pub grid: BoardGrid,
     /// FNV-1a 64 of the program file and its paste layer, 16 hex digits.
@@ -430,11 +432,14 @@ impl LineConfig {
                 .map_err(|e| bad(path, &key("program"), e))?;
             dpsa_inspect::teach::apply_components(&mut program, &program_path, &mut pads)
                 .map_err(|e| bad(path, &key("program"), dpsa_inspect::InspectError::from(e)))?;
+            let families = dpsa_inspect::teach::pad_families(&program, &program_path, &pads)
+                .map_err(|e| bad(path, &key("program"), dpsa_inspect::InspectError::from(e)))?;
             products.push(Product {
                 id: p.id.clone(),
                 program,
                 program_path,
                 pads,
+                families,
                 grid,
                 program_hash: fnv_hex(&[&prog_bytes, &layer_bytes]),
             });

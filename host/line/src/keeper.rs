@@ -14,7 +14,7 @@
 
 use crate::config::Product;
 use crate::printer::{Loop, LoopConfig, Proposal};
-use crate::store::{BoardStart, CameraLoss, Outcome, PadRow, PrintRow, Store};
+use crate::store::{BoardStart, CameraLoss, Outcome, PadImage, PadRow, PrintRow, Store};
 use dpsa_formats::grid::{BoardGrid, Grid};
 use dpsa_inspect::map::BoardMap;
 use dpsa_inspect::print::PrintOffset;
@@ -91,6 +91,10 @@ pub struct Tally {
     /// same figure from a hundred boards on.
     pub rss_by_boards: std::collections::BTreeMap<usize, f64>,
 }
+
+/// Most pad images kept per board (failures first): a board of many calls is a board to
+/// look at as a whole, and its store rows stay bounded (a 1 mm pad's image is about 5 kB).
+pub const MAX_IMAGES: usize = 200;
 
 fn is_power_of_ten(mut n: usize) -> bool {
     while n >= 10 && n % 10 == 0 {
@@ -201,13 +205,14 @@ impl Keeper {
                     let Some((id, product)) = open.remove(&run_id) else {
                         continue;
                     };
-                    let (outcome, cfx, placement) = self.inspect(product, run_id, grid, heights);
+                    let (outcome, cfx, placement, images) =
+                        self.inspect(product, run_id, grid, heights);
                     let verdict = match &outcome {
                         Outcome::Inspected { verdict, .. } => verdict.clone(),
                         Outcome::Incomplete { .. } => "incomplete".into(),
                     };
                     let run = format!("{run_id:016x}");
-                    match self.finish(id, run_id, product, &losses, &outcome, placement) {
+                    match self.finish(id, run_id, product, &losses, &outcome, placement, &images) {
                         Ok((next, row)) => {
                             // The messages only for a board stored.
                             if let Some(m) = cfx {
@@ -242,7 +247,7 @@ impl Keeper {
                     };
                     let outcome = Outcome::Incomplete { reason };
                     // Printed all the same: the loop counts it (no placement, held).
-                    match self.finish(id, run_id, product, &losses, &outcome, None) {
+                    match self.finish(id, run_id, product, &losses, &outcome, None, &[]) {
                         Ok(_) => self.keep(Kept {
                             run_id,
                             verdict: "incomplete".into(),
@@ -258,9 +263,10 @@ impl Keeper {
         }
     }
 
-    /// Ends board `id` in the store with its print row: the placement and what `product`'s
-    /// loop proposes after it. The loop moves on only once the board is stored; the loop
-    /// after the board and the row stored.
+    /// Ends board `id` in the store with its print row (the placement and what `product`'s
+    /// loop proposes after it) and the images of its calls. The loop moves on only once the
+    /// board is stored; the loop after the board and the row stored.
+    #[allow(clippy::too_many_arguments)]
     fn finish(
         &mut self,
         id: i64,
@@ -269,18 +275,20 @@ impl Keeper {
         losses: &[CameraLoss],
         outcome: &Outcome,
         placement: Option<PrintOffset>,
+        images: &[PadImage],
     ) -> Result<(PrinterLoop, PrintRow), crate::store::StoreError> {
         let mut next = self.printer_loop(product);
         let row = PrintRow {
             placement,
             proposal: next.board(run_id, placement.as_ref()),
         };
-        self.store.finish_board_with_print(
+        self.store.finish_board_with_images(
             id,
             crate::boards::unix_now(),
             losses,
             outcome,
             Some(&row),
+            images,
         )?;
         self.loops.insert(product, next.clone());
         Ok((next, row))
@@ -356,16 +364,22 @@ impl Keeper {
         }
     }
 
-    /// Registers, measures and judges every pad of `product` on the map: the stored outcome
-    /// and the CFX message (none when the design cannot be registered: the board is then
-    /// incomplete, never passed).
+    /// Registers, measures and judges every pad of `product` on the map: the stored outcome,
+    /// the CFX message (none when the design cannot be registered: the board is then
+    /// incomplete, never passed), the print's placement and the images of the pads that
+    /// warned or failed (failures first, at most [`MAX_IMAGES`]).
     fn inspect(
         &self,
         product: usize,
         run_id: u64,
         grid: BoardGrid,
         heights: Grid,
-    ) -> (Outcome, Option<serde_json::Value>, Option<PrintOffset>) {
+    ) -> (
+        Outcome,
+        Option<serde_json::Value>,
+        Option<PrintOffset>,
+        Vec<PadImage>,
+    ) {
         let p = &self.products[product];
         let map = BoardMap {
             board_id: Some(dpsa_formats::BoardId(run_id)),
@@ -381,6 +395,7 @@ impl Keeper {
                     },
                     None,
                     None,
+                    Vec::new(),
                 )
             }
         };
@@ -417,7 +432,29 @@ impl Keeper {
         let unit = format!("{run_id:016x}");
         let recipe = p.program.name.clone().unwrap_or_else(|| p.id.clone());
         let msg = dpsa_inspect::report::cfx(&p.pads, &i, &p.program, &unit, &recipe);
-        (Outcome::Inspected { verdict, pads }, Some(msg), i.print)
+        let mut calls: Vec<usize> = (0..p.pads.len())
+            .filter(|&k| i.calls[k].level != Level::Pass)
+            .collect();
+        calls.sort_by_key(|&k| (i.calls[k].level != Level::Fail, k));
+        let t = i.registration.transform;
+        let images = calls
+            .into_iter()
+            .take(MAX_IMAGES)
+            .filter_map(|k| {
+                let crop = dpsa_inspect::crop::pad_crop(&map, &p.pads[k], &i.measurements[k], &t)?;
+                Some(PadImage {
+                    pad: k as u32,
+                    family: p.families.get(k).cloned().flatten(),
+                    crop,
+                })
+            })
+            .collect();
+        (
+            Outcome::Inspected { verdict, pads },
+            Some(msg),
+            i.print,
+            images,
+        )
     }
 }
 

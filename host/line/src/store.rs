@@ -37,7 +37,7 @@
 //! in, or, where SQLite cannot alter in place, two texts side by side that end in the same
 //! tables (a test compares the two backends' tables, columns and indexes).
 //!
-//! # Schema, version 3
+//! # Schema, version 4
 //!
 //! Versioned: SQLite's `PRAGMA user_version`; on PostgreSQL the one row of a table
 //! `schema_version`. [`Store::open`] brings an older store up to [`SCHEMA_VERSION`] by
@@ -48,7 +48,8 @@
 //! not both migrate it. Version 1 was one line's store; version 2 added `line` to `boards`
 //! and `pad_stats`, made a run id unique per line and the aggregates per line; version 3 added
 //! `prints` and `stencil_cleans` (a store of version 2 gains them empty: the loop back to the
-//! printer starts afresh).
+//! printer starts afresh); version 4 added `pad_images` and `reviews` for the operator's pages
+//! (a store of version 3 gains them empty).
 //! A version-1
 //! SQLite file migrates in place (its `boards` and `pad_stats` copied into the new tables,
 //! `pads` untouched); its boards become line `line-1`'s ([`DEFAULT_LINE`]), so a line of
@@ -190,6 +191,52 @@
 //! [`Store::record_clean`] (`dpsa line clean`, a printer integration); `dpsa spc` counts the
 //! fine apertures' clogging from the last clean before its newest board.
 //!
+//! ## `pad_images`: the heights around each pad that warned or failed (version 4)
+//!
+//! | column | type | meaning |
+//! | --- | --- | --- |
+//! | `board_id` | INTEGER NOT NULL | `boards.id` (ON DELETE CASCADE) |
+//! | `pad` | INTEGER NOT NULL | the pad's index; a pad row of the board has it |
+//! | `family` | TEXT NULL | the pad's package family (its component's package, else its aperture class) |
+//! | `x0_mm`, `y0_mm` | REAL NOT NULL | board `x`, `y` of the first sample's centre |
+//! | `pitch_mm` | REAL NOT NULL | sample pitch (the map's), > 0 |
+//! | `nx`, `ny` | INTEGER NOT NULL | samples along `x` and `y`, 1..=256 each |
+//! | `lsb_um` | REAL NOT NULL | the height step, [`IMAGE_LSB_UM`] |
+//! | `heights` | BLOB NOT NULL (BYTEA) | `nx x ny` little-endian `i16` heights above the pad's local surface in `lsb_um` steps, `[ix * ny + iy]`; [`INVALID_SAMPLE`] where the map had none; a CHECK holds its length to `2 nx ny` |
+//! | `outline` | TEXT NOT NULL | the opening on the board, JSON (`dpsa_gerber::pads::Outline`) |
+//!
+//! Primary key `(board_id, pad)`, WITHOUT ROWID (SQLite). Written in
+//! [`Store::finish_board_with_images`]'s transaction (the line keeps at most 200 a board,
+//! failures first; about 12 kB for a 1 mm pad at a 28 um pitch); deleted with the board's pad
+//! rows by [`Store::prune_pads`].
+//!
+//! ## `reviews`: an operator's decision on a call (version 4)
+//!
+//! | column | type | meaning |
+//! | --- | --- | --- |
+//! | `id` | INTEGER PRIMARY KEY | grows with every review |
+//! | `board_id` | INTEGER NOT NULL | `boards.id` (ON DELETE CASCADE), an inspected board |
+//! | `pad` | INTEGER NOT NULL | the pad; it warned or failed (its `defects` row, while kept) |
+//! | `family` | TEXT NULL | the pad's package family, copied from its image when reviewed (the rates outlive the pruned rows) |
+//! | `decision` | TEXT NOT NULL | `confirmed` or `false_call` |
+//! | `reviewer` | TEXT NOT NULL | who, not empty |
+//! | `reviewed_unix_s` | REAL NOT NULL | when |
+//! | `note` | TEXT NULL | what the reviewer wrote |
+//!
+//! Index `reviews_by_board (board_id, pad, id)`. A pad may be reviewed again: the newest
+//! decision counts ([`Store::family_reviews`]). Written by [`Store::add_review`] (`dpsa
+//! serve`'s review form); kept by retention.
+//!
+//! The false-call rate per family over a line, each pad's newest decision once:
+//!
+//! ```sql
+//! SELECT r.family, sum(r.decision = 'false_call') AS false_calls, count(*) AS reviewed
+//! FROM reviews AS r JOIN boards AS b ON b.id = r.board_id
+//! WHERE b.line = 'line-1' AND r.id = (SELECT max(q.id) FROM reviews AS q
+//!     WHERE q.board_id = r.board_id AND q.pad = r.pad)
+//! GROUP BY r.family ORDER BY false_calls * 1.0 / count(*) DESC;
+//! ```
+//!
 //! ## `alarms`: statistical process control alarms (empty for now)
 //!
 //! | column | type | meaning |
@@ -320,9 +367,12 @@ pub mod bench;
 mod pg;
 #[cfg(test)]
 mod pg_test_server;
+mod review;
 mod schema;
 mod sqlite;
 
+use review::ImageValues;
+pub use review::{Decision, FamilyReviews, PadImage, Review, IMAGE_LSB_UM, INVALID_SAMPLE};
 use schema::{Step, MIGRATIONS};
 
 /// The newest schema version this program knows (`PRAGMA user_version` of a store it made).
@@ -704,6 +754,12 @@ pub struct PrintRow {
     /// The correction the loop proposed after the board (its estimate NaN before the loop's
     /// first placement).
     pub proposal: Proposal,
+}
+
+/// What a board's end writes beside its outcome, encoded: its print row and its pads' images.
+pub(crate) struct Beside {
+    pub(crate) print: Option<PrintValues>,
+    pub(crate) images: Vec<ImageValues>,
 }
 
 /// A stored [`PrintRow`] with its board ([`Store::prints`]).
@@ -1189,7 +1245,25 @@ impl Store {
         outcome: &Outcome,
         print: Option<&PrintRow>,
     ) -> Result<(), StoreError> {
+        self.finish_board_with_images(id, ended_unix_s, cameras, outcome, print, &[])
+    }
+
+    /// [`Store::finish_board_with_print`] with the heights around pads of the board
+    /// (`pad_images`: the line keeps those of the pads that warned or failed) in the same
+    /// transaction. Images of a board not inspected, of a pad not among its pad rows, two of
+    /// one pad, or of a size or place that is not one ([`dpsa_inspect::crop::MAX_SIDE`]
+    /// samples a side at most) are refused.
+    pub fn finish_board_with_images(
+        &mut self,
+        id: i64,
+        ended_unix_s: f64,
+        cameras: &[CameraLoss],
+        outcome: &Outcome,
+        print: Option<&PrintRow>,
+        images: &[PadImage],
+    ) -> Result<(), StoreError> {
         self.validate_finish(id, ended_unix_s, cameras, outcome)?;
+        let images = self.image_values(id, outcome, images)?;
         if let Some(p) = print {
             let q = &p.proposal;
             if !q
@@ -1220,8 +1294,100 @@ impl Store {
                 }
             }
         }
-        let values = print.map(PrintValues::of);
-        on_backend!(&mut self.db, d => d.finish_board(&self.line, id, ended_unix_s, cameras, outcome, values.as_ref()))
+        let beside = Beside {
+            print: print.map(PrintValues::of),
+            images,
+        };
+        on_backend!(&mut self.db, d => d.finish_board(&self.line, id, ended_unix_s, cameras, outcome, &beside))
+    }
+
+    /// The rows of board `id`'s `images`, checked against its `outcome`.
+    fn image_values(
+        &self,
+        id: i64,
+        outcome: &Outcome,
+        images: &[PadImage],
+    ) -> Result<Vec<ImageValues>, StoreError> {
+        if images.is_empty() {
+            return Ok(Vec::new());
+        }
+        let Outcome::Inspected { pads, .. } = outcome else {
+            return Err(self.invalid(format!("board {id}: pad images of a board never inspected")));
+        };
+        let known: std::collections::HashSet<u32> = pads.iter().map(|p| p.pad).collect();
+        let mut seen = std::collections::HashSet::new();
+        images
+            .iter()
+            .map(|im| {
+                if !known.contains(&im.pad) || !seen.insert(im.pad) {
+                    return Err(self.invalid(format!(
+                        "board {id}: an image of pad {}, which is not one of its pad rows or \
+                         has another image",
+                        im.pad
+                    )));
+                }
+                ImageValues::of(im).map_err(|why| self.invalid(format!("board {id}: {why}")))
+            })
+            .collect()
+    }
+
+    /// The heights kept around pad `pad` of board `board_id` (any line's), if the line kept
+    /// them (a pad that warned or failed, while its board's pad rows are kept).
+    pub fn pad_image(&mut self, board_id: i64, pad: u32) -> Result<Option<PadImage>, StoreError> {
+        let row = on_backend!(&mut self.db, d => d.pad_image(board_id, pad))?;
+        row.map(|v| {
+            v.image().map_err(|why| StoreError::Corrupt {
+                store: self.location.to_string(),
+                why: format!("board {board_id}: {why}"),
+            })
+        })
+        .transpose()
+    }
+
+    /// Records an operator's `decision` on pad `pad` of this line's inspected board
+    /// `board_id`, by `reviewer` (not empty) at `at_unix_s`, with an optional note; its id. Only
+    /// a pad that warned or failed (its `defects` row) can be reviewed; anything else is
+    /// refused ([`StoreError::Invalid`]). A pad may be reviewed again: the newest decision
+    /// counts.
+    pub fn add_review(
+        &mut self,
+        board_id: i64,
+        pad: u32,
+        decision: Decision,
+        reviewer: &str,
+        at_unix_s: f64,
+        note: Option<&str>,
+    ) -> Result<i64, StoreError> {
+        let reviewer = reviewer.trim();
+        if reviewer.is_empty() || reviewer.len() > 100 || !at_unix_s.is_finite() {
+            return Err(self.invalid(format!(
+                "a review by {reviewer:?} at {at_unix_s} s (a name of 1 to 100 bytes, a time)"
+            )));
+        }
+        if note.is_some_and(|n| n.len() > 2000) {
+            return Err(self.invalid("a review note longer than 2,000 bytes".to_owned()));
+        }
+        let note = note.map(str::trim).filter(|n| !n.is_empty());
+        let line = self.line.clone();
+        match on_backend!(&mut self.db, d => d.add_review(&line, board_id, pad, decision, reviewer, at_unix_s, note))?
+        {
+            Some(id) => Ok(id),
+            None => Err(self.invalid(format!(
+                "board {board_id} pad {pad}: not a call to review (no such inspected board of \
+                 line {line}, or the pad neither warned nor failed, or its rows were pruned)"
+            ))),
+        }
+    }
+
+    /// The reviews of board `board_id` (any line's), by pad, oldest first.
+    pub fn reviews(&mut self, board_id: i64) -> Result<Vec<Review>, StoreError> {
+        on_backend!(&mut self.db, d => d.reviews(board_id))
+    }
+
+    /// This line's reviewed calls per package family (each pad's newest decision once), by
+    /// family.
+    pub fn family_reviews(&mut self) -> Result<Vec<FamilyReviews>, StoreError> {
+        on_backend!(&mut self.db, d => d.family_reviews(&self.line))
     }
 
     /// Records a clean of the stencil `product` is printed with on this line, at
@@ -1475,6 +1641,7 @@ pub(crate) mod tests {
     }
 
     both!(
+        pad_images_and_reviews_round_trip_and_only_calls_are_reviewed,
         round_trip_of_a_board_with_pads_nan_becomes_none,
         state_machine_refuses_what_would_rewrite_a_board,
         recover_turns_open_boards_incomplete_and_leaves_finished_ones,
@@ -1693,6 +1860,166 @@ pub(crate) mod tests {
         assert!(e.to_string().contains("not finite"), "{e}");
         assert_eq!(store.boards(1).unwrap()[0].state, "open");
         assert_eq!(store.prints("mini", 10).unwrap().len(), 5);
+    }
+
+    /// A crop of `nx x ny` samples with an invalid one and one beyond the stored range.
+    fn crop(nx: usize, ny: usize) -> dpsa_inspect::crop::PadCrop {
+        let mut heights_um: Vec<f32> = (0..nx * ny).map(|k| k as f32 * 0.37 - 3.0).collect();
+        if let Some(h) = heights_um.get_mut(1..3) {
+            h.copy_from_slice(&[f32::NAN, 1e6]);
+        }
+        dpsa_inspect::crop::PadCrop {
+            x0_mm: 10.25,
+            y0_mm: -0.5,
+            pitch_mm: 0.028,
+            nx,
+            ny,
+            heights_um,
+            outline: dpsa_gerber::pads::Outline::Circle {
+                centre: [10.5, -0.2],
+                diameter: 0.3,
+            },
+        }
+    }
+
+    /// The images of a board come back as written (to the 0.1 um step; NaN and out of range
+    /// invalid); images of a board never inspected or of an unknown or repeated pad are refused;
+    /// only a pad that warned or failed on this line's inspected board is reviewed; the
+    /// family's rates count each pad's newest decision; pruning takes the images and keeps the
+    /// reviews; the store passes its checks throughout.
+    fn pad_images_and_reviews_round_trip_and_only_calls_are_reviewed(b: Backend) {
+        let (p, mut store) = fresh(b);
+        let mut other = Store::open(&p.location, "line-2").unwrap();
+        let ok = Outcome::Inspected {
+            verdict: "fail".into(),
+            pads: vec![
+                pad(0, "pass", Some(100.0)),
+                pad(1, "fail", Some(20.0)),
+                pad(2, "warn", Some(140.0)),
+            ],
+        };
+        let image = |pad: u32, family: Option<&str>, c: dpsa_inspect::crop::PadCrop| PadImage {
+            pad,
+            family: family.map(str::to_owned),
+            crop: c,
+        };
+        let images = [
+            image(1, Some("bga"), crop(7, 5)),
+            image(2, None, crop(3, 9)),
+        ];
+        let id = store.begin_board(&start(0x10, "mini", 1.0)).unwrap();
+        // Refused: a board never inspected, an unknown pad, one pad twice, a bad size.
+        let incomplete = Outcome::Incomplete {
+            reason: "cut".into(),
+        };
+        for (outcome, imgs) in [
+            (&incomplete, vec![images[0].clone()]),
+            (&ok, vec![image(7, None, crop(2, 2))]),
+            (&ok, vec![images[0].clone(), images[0].clone()]),
+            (&ok, vec![image(1, None, crop(0, 2))]),
+            (&ok, vec![image(1, None, crop(300, 2))]),
+        ] {
+            let e = store
+                .finish_board_with_images(id, 2.0, &cams(), outcome, None, &imgs)
+                .unwrap_err();
+            assert!(matches!(e, StoreError::Invalid { .. }), "{e}");
+        }
+        assert_eq!(store.boards(1).unwrap()[0].state, "open");
+        store
+            .finish_board_with_images(id, 2.0, &cams(), &ok, None, &images)
+            .unwrap();
+        for want in &images {
+            let got = store.pad_image(id, want.pad).unwrap().expect("stored");
+            assert_eq!(got.family, want.family);
+            let (a, w) = (&got.crop, &want.crop);
+            assert_eq!(
+                (a.nx, a.ny, a.x0_mm, a.y0_mm, a.pitch_mm),
+                (w.nx, w.ny, w.x0_mm, w.y0_mm, w.pitch_mm)
+            );
+            assert_eq!(a.outline, w.outline);
+            for (k, (x, y)) in a.heights_um.iter().zip(&w.heights_um).enumerate() {
+                if k == 1 || k == 2 {
+                    assert!(x.is_nan());
+                } else {
+                    assert!((x - y).abs() <= 0.05 + 1e-4, "{k}: {x} {y}");
+                }
+            }
+        }
+        assert!(store.pad_image(id, 0).unwrap().is_none());
+        store.check().unwrap();
+
+        // Reviews: calls only, this line's only.
+        let r1 = store
+            .add_review(
+                id,
+                1,
+                Decision::FalseCall,
+                "ana",
+                5.0,
+                Some("smear on the mask"),
+            )
+            .unwrap();
+        store
+            .add_review(id, 2, Decision::Confirmed, " bo ", 6.0, Some("  "))
+            .unwrap();
+        let r3 = store
+            .add_review(id, 1, Decision::Confirmed, "carl", 7.0, None)
+            .unwrap();
+        assert!(r3 > r1);
+        for (pad, who, t) in [
+            (0, "ana", 8.0),
+            (9, "ana", 8.0),
+            (1, "", 8.0),
+            (1, "ana", f64::NAN),
+        ] {
+            let e = store
+                .add_review(id, pad, Decision::Confirmed, who, t, None)
+                .unwrap_err();
+            assert!(matches!(e, StoreError::Invalid { .. }), "{e}");
+        }
+        assert!(other
+            .add_review(id, 1, Decision::Confirmed, "ana", 8.0, None)
+            .is_err());
+        let got = store.reviews(id).unwrap();
+        assert_eq!(
+            got.iter()
+                .map(|r| (r.pad, r.decision, r.reviewer.as_str(), r.family.as_deref()))
+                .collect::<Vec<_>>(),
+            [
+                (1, Decision::FalseCall, "ana", Some("bga")),
+                (1, Decision::Confirmed, "carl", Some("bga")),
+                (2, Decision::Confirmed, "bo", None),
+            ]
+        );
+        assert_eq!(got[0].note.as_deref(), Some("smear on the mask"));
+        assert_eq!(got[2].note, None);
+        // The newest decision counts: pad 1 is confirmed now.
+        let f = store.family_reviews().unwrap();
+        assert_eq!(f.len(), 2);
+        assert_eq!(
+            (f[0].family.as_deref(), f[0].confirmed, f[0].false_calls),
+            (None, 1, 0)
+        );
+        assert_eq!(
+            (f[1].family.as_deref(), f[1].confirmed, f[1].false_calls),
+            (Some("bga"), 1, 0)
+        );
+        store
+            .add_review(id, 1, Decision::FalseCall, "dora", 9.0, None)
+            .unwrap();
+        assert_eq!(
+            store.family_reviews().unwrap()[1].false_call_rate(),
+            Some(1.0)
+        );
+        assert!(other.family_reviews().unwrap().is_empty());
+        store.check().unwrap();
+
+        // Retention takes the images with the pad rows; the reviews and their families stay.
+        store.prune_pads(100.0).unwrap();
+        assert!(store.pad_image(id, 1).unwrap().is_none());
+        assert_eq!(store.reviews(id).unwrap().len(), 4);
+        assert_eq!(store.family_reviews().unwrap()[1].false_calls, 1);
+        store.check().unwrap();
     }
 
     fn start(run_id: u64, product: &str, t: f64) -> BoardStart {
@@ -2291,12 +2618,13 @@ pub(crate) mod tests {
     }
 
     /// The store's tables, columns and indexes, in terms both dialects share: a column's
-    /// kind (int, real, text) and NOT NULL, the primary key, every other index (its name if
+    /// kind (int, real, text, bytes) and NOT NULL, the primary key, every other index (its name if
     /// made by CREATE INDEX; its columns, UNIQUE, WHERE), the foreign keys.
     fn schema_summary(store: &mut Store) -> Vec<String> {
         let kind = |t: &str| match t.to_ascii_lowercase().as_str() {
             "integer" | "bigint" => "int".to_owned(),
             "real" | "double precision" => "real".to_owned(),
+            "blob" | "bytea" => "bytes".to_owned(),
             "text" => "text".to_owned(),
             other => other.to_owned(),
         };
@@ -2458,7 +2786,7 @@ pub(crate) mod tests {
         let tables = store.rows(
             "SELECT name FROM sqlite_schema WHERE type = 'table' AND sql LIKE '%WITHOUT ROWID%'",
         );
-        assert_eq!(tables.len(), 5);
+        assert_eq!(tables.len(), 6);
         for t in tables {
             let t = t[0].text().unwrap();
             for c in store.rows(&format!("SELECT cid, pk FROM pragma_table_info('{t}')")) {

@@ -135,15 +135,16 @@ fn program_pads(path: &Path) -> Result<(Vec<PadSpec>, String), LoadError> {
         dpsa_inspect::run::paste_layer_pads(&program, path).map_err(|e| bad(e.to_string()))?;
     dpsa_inspect::teach::apply_components(&mut program, path, &mut pads)
         .map_err(|e| bad(e.to_string()))?;
-    let packages =
-        dpsa_inspect::teach::component_packages(&program, path).map_err(|e| bad(e.to_string()))?;
+    let families =
+        dpsa_inspect::teach::pad_families(&program, path, &pads).map_err(|e| bad(e.to_string()))?;
     let two = |w: Window| SpecLimits {
         lsl: Some(w.fail[0]),
         usl: Some(w.fail[1]),
     };
     let specs = pads
         .iter()
-        .map(|p| {
+        .zip(families)
+        .map(|(p, family)| {
             let w = program.windows_for(p);
             let (width_mm, _) = dpsa_inspect::measure::opening_size(&p.outline);
             let off = w.offset_pct.fail / 100.0 * width_mm * 1000.0;
@@ -151,11 +152,6 @@ fn program_pads(path: &Path) -> Result<(Vec<PadSpec>, String), LoadError> {
                 lsl: Some(-off),
                 usl: Some(off),
             };
-            let family = p
-                .component
-                .as_ref()
-                .and_then(|c| packages.get(c).cloned())
-                .or_else(|| p.aperture.clone());
             PadSpec {
                 name: dpsa_inspect::report::cfx_pad(p),
                 component: p.component.clone(),

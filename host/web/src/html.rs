@@ -20,7 +20,17 @@ td.t, th.t { text-align: left; }
 .figures span { display: inline-block; margin-right: 2em; }
 .figures b { font-size: 1.3em; }
 .note { color: #57606a; }
+.pictures { display: flex; flex-wrap: wrap; gap: 1.5em; align-items: flex-start; }
+image.crop { image-rendering: pixelated; }
+form.review { display: flex; flex-wrap: wrap; gap: .8em; align-items: center; margin: .8em 0; }
+form.review input { font: inherit; padding: .2em .4em; }
+form.review button { font: inherit; padding: .3em 1em; cursor: pointer; }
 ";
+
+/// The site's icon (`/icon.svg`): a deposit of paste on a pad.
+pub const ICON: &str = "<svg xmlns=\"http://www.w3.org/2000/svg\" viewBox=\"0 0 16 16\">\
+<rect x=\"1\" y=\"11\" width=\"14\" height=\"3\" fill=\"#b08d57\"/>\
+<path d=\"M3 11 Q4 4 8 4 Q12 4 13 11 Z\" fill=\"#8a8f98\"/></svg>";
 
 /// `text` with `& < > " '` escaped, for element content and quoted attributes.
 pub fn esc(text: &str) -> String {
@@ -43,7 +53,8 @@ pub fn frame(title: &str, body: &str) -> String {
     format!(
         "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">\
          <meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\
-         <title>{t} - dpsa</title><link rel=\"stylesheet\" href=\"/style.css\"></head>\
+         <title>{t} - dpsa</title><link rel=\"stylesheet\" href=\"/style.css\">\
+         <link rel=\"icon\" type=\"image/svg+xml\" href=\"/icon.svg\"></head>\
          <body><header><a href=\"/\">dpsa: the line</a></header><h1>{t}</h1>\n{body}\n\
          </body></html>\n",
         t = esc(title)

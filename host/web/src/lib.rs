@@ -2,31 +2,39 @@
 //!
 //! Server-rendered HTML from the store, opened read-only for every page
 //! ([`dpsa_line::store::Store::open_read_only`]): the line (its newest boards, yield,
-//! throughput, the printer's last correction), a board (its verdict, cameras, print placement
-//! and every pad that warned or failed, each linked) and a pad (its values and uncertainty,
-//! its history on the line with a chart). No JavaScript, no file from disk: the style sheet is
-//! in the binary.
+//! throughput, the printer's last correction, the false calls per family), a board (its
+//! verdict, cameras, print placement and every pad that warned or failed, each linked, with
+//! its review) and a pad (its values and uncertainty, the heights kept around it with the
+//! profile, its history on the line with a chart, its reviews and the review form). No
+//! JavaScript, no file from disk: the style sheet is in the binary.
 //!
 //! - [`html`]: escaping, the page frame, the history chart (inline SVG).
+//! - [`crop`]: a pad's kept heights drawn (an image, axes, colour bar, profile).
 //! - [`pages`]: what each page reads from the store and how it is laid out.
+//! - [`review`]: who may review, and the checks of a review's request.
 //!
 //! Why axum: the tokio team's router on hyper, the framework the Rust ecosystem converges on;
 //! its handlers are plain async functions and its router a value the tests call directly.
 //! The store is synchronous (rusqlite, postgres), so each page runs on tokio's blocking pool.
 //!
 //! Security: the default address is loopback ([`DEFAULT_BIND`]); every response carries a
-//! Content-Security-Policy that allows nothing but this site's style sheet and inline SVG,
-//! `X-Content-Type-Options: nosniff` and `Referrer-Policy: no-referrer`; no route reads a
-//! file (a path with `..` or anything unknown is a 404); the pages never write.
+//! Content-Security-Policy that allows nothing but this site's style sheet, images and forms,
+//! and inline SVG, `X-Content-Type-Options: nosniff` and `Referrer-Policy: same-origin`; no
+//! route reads a file (a path with `..` or anything unknown is a 404); the pages open the
+//! store read-only. The one write is a review ([`review`]): refused from another site, and
+//! with a token required whenever one is set, and always when the pages are served beyond
+//! loopback.
 
+pub mod crop;
 pub mod html;
 pub mod pages;
+pub mod review;
 
-use axum::extract::{Path, State};
-use axum::http::{header, HeaderValue, StatusCode};
+use axum::extract::{DefaultBodyLimit, Path, State};
+use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
-use axum::Router;
+use axum::{Form, Router};
 use dpsa_line::store::Location;
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -36,7 +44,7 @@ pub const DEFAULT_BIND: &str = "127.0.0.1:8080";
 
 /// The Content-Security-Policy of every response.
 pub const CSP: &str = "default-src 'none'; style-src 'self'; img-src 'self' data:; \
-                       frame-ancestors 'none'; base-uri 'none'; form-action 'none'";
+                       frame-ancestors 'none'; base-uri 'none'; form-action 'self'";
 
 /// Why the site could not be served.
 #[derive(Debug, thiserror::Error)]
@@ -56,6 +64,19 @@ pub struct Site {
     pub store: Location,
     /// The line whose boards are shown.
     pub line: String,
+    /// Who may review calls.
+    pub reviews: review::Policy,
+}
+
+impl Site {
+    /// The pages of `line` in `store`, reviews open to anyone who reaches them (loopback).
+    pub fn new(store: Location, line: &str) -> Site {
+        Site {
+            store,
+            line: line.to_owned(),
+            reviews: review::Policy::default(),
+        }
+    }
 }
 
 /// The site's routes.
@@ -64,8 +85,15 @@ pub fn router(site: Site) -> Router {
         .route("/", get(line))
         .route("/board/{id}", get(board))
         .route("/board/{id}/pad/{pad}", get(pad))
+        .route("/board/{id}/pad/{pad}/crop.png", get(crop_png))
+        .route(
+            "/board/{id}/pad/{pad}/review",
+            axum::routing::post(post_review),
+        )
         .route("/style.css", get(style))
+        .route("/icon.svg", get(icon))
         .fallback(not_found)
+        .layer(DefaultBodyLimit::max(review::MAX_BODY))
         .with_state(Arc::new(site))
 }
 
@@ -141,7 +169,7 @@ pub fn spawn(site: Site, bind: SocketAddr) -> Result<SocketAddr, WebError> {
 }
 
 /// A response with the site's headers.
-fn respond(status: StatusCode, content_type: &'static str, body: String) -> Response {
+fn respond(status: StatusCode, content_type: &'static str, body: impl IntoResponse) -> Response {
     let mut r = (status, body).into_response();
     let h = r.headers_mut();
     h.insert(header::CONTENT_TYPE, HeaderValue::from_static(content_type));
@@ -155,7 +183,7 @@ fn respond(status: StatusCode, content_type: &'static str, body: String) -> Resp
     );
     h.insert(
         header::REFERRER_POLICY,
-        HeaderValue::from_static("no-referrer"),
+        HeaderValue::from_static("same-origin"),
     );
     h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
     r
@@ -174,24 +202,23 @@ async fn page(
         Ok(Ok(None)) => not_found().await,
         Ok(Err(e)) => {
             tracing::error!("page: {e}");
-            respond(
+            message(
                 StatusCode::SERVICE_UNAVAILABLE,
-                HTML,
-                html::frame(
-                    "Store unavailable",
-                    &format!(
-                        "<p>The store could not be read: {}</p>",
-                        html::esc(&e.to_string())
-                    ),
-                ),
+                "Store unavailable",
+                &format!("The store could not be read: {e}"),
             )
         }
-        Err(e) => respond(
-            StatusCode::INTERNAL_SERVER_ERROR,
-            HTML,
-            html::frame("Error", &html::esc(&e.to_string())),
-        ),
+        Err(e) => message(StatusCode::INTERNAL_SERVER_ERROR, "Error", &e.to_string()),
     }
+}
+
+/// A page of one sentence (escaped here) with `status`.
+fn message(status: StatusCode, title: &str, text: &str) -> Response {
+    respond(
+        status,
+        HTML,
+        html::frame(title, &format!("<p>{}</p>", html::esc(text))),
+    )
 }
 
 async fn line(State(site): State<Arc<Site>>) -> Response {
@@ -212,12 +239,107 @@ async fn pad(State(site): State<Arc<Site>>, Path((id, pad)): Path<(String, Strin
     page(site, move |s| pages::pad(s, id, pad)).await
 }
 
+/// The pad's kept heights as a PNG (`crop::png`), or a 404.
+async fn crop_png(
+    State(site): State<Arc<Site>>,
+    Path((id, pad)): Path<(String, String)>,
+) -> Response {
+    let (Ok(id), Ok(pad)) = (id.parse::<i64>(), pad.parse::<u32>()) else {
+        return not_found().await;
+    };
+    let out = tokio::task::spawn_blocking(move || pages::crop_png(&site, id, pad)).await;
+    match out {
+        Ok(Ok(Some(bytes))) => respond(StatusCode::OK, "image/png", bytes),
+        Ok(Ok(None)) => not_found().await,
+        Ok(Err(e)) => {
+            tracing::error!("crop: {e}");
+            respond(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "text/plain; charset=utf-8",
+                format!("the store could not be read: {e}"),
+            )
+        }
+        Err(e) => respond(
+            StatusCode::INTERNAL_SERVER_ERROR,
+            "text/plain; charset=utf-8",
+            e.to_string(),
+        ),
+    }
+}
+
+/// A review of a call: checked ([`review::check`]), stored, and the pad's page again (303).
+async fn post_review(
+    State(site): State<Arc<Site>>,
+    Path((id, pad)): Path<(String, String)>,
+    headers: HeaderMap,
+    Form(form): Form<review::ReviewForm>,
+) -> Response {
+    let (Ok(id), Ok(pad)) = (id.parse::<i64>(), pad.parse::<u32>()) else {
+        return not_found().await;
+    };
+    let decision = match review::check(&site.reviews, &headers, &form) {
+        Ok(d) => d,
+        Err(refusal) => {
+            tracing::warn!(board = id, pad, "review refused: {refusal}");
+            return respond(
+                refusal.status(),
+                HTML,
+                html::frame(
+                    "Review refused",
+                    &format!(
+                        "<p>{}</p><p><a href=\"/board/{id}/pad/{pad}\">Back to the pad</a>.</p>",
+                        html::esc(&refusal.to_string())
+                    ),
+                ),
+            );
+        }
+    };
+    let out = tokio::task::spawn_blocking(move || {
+        let mut store = dpsa_line::store::Store::open(&site.store, &site.line)?;
+        store.add_review(
+            id,
+            pad,
+            decision,
+            &form.reviewer,
+            dpsa_line::boards::unix_now(),
+            Some(form.note.as_str()),
+        )
+    })
+    .await;
+    match out {
+        Ok(Ok(rid)) => {
+            tracing::info!(board = id, pad, review = rid, "call reviewed");
+            let mut r = respond(StatusCode::SEE_OTHER, HTML, String::new());
+            if let Ok(v) = HeaderValue::from_str(&format!("/board/{id}/pad/{pad}")) {
+                r.headers_mut().insert(header::LOCATION, v);
+            }
+            r
+        }
+        Ok(Err(dpsa_line::store::StoreError::Invalid { why, .. })) => {
+            message(StatusCode::BAD_REQUEST, "Review refused", &why)
+        }
+        Ok(Err(e)) => {
+            tracing::error!("review: {e}");
+            message(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "Store unavailable",
+                &format!("The review was not stored: {e}"),
+            )
+        }
+        Err(e) => message(StatusCode::INTERNAL_SERVER_ERROR, "Error", &e.to_string()),
+    }
+}
+
 async fn style() -> Response {
     respond(
         StatusCode::OK,
         "text/css; charset=utf-8",
         html::STYLE.to_owned(),
     )
+}
+
+async fn icon() -> Response {
+    respond(StatusCode::OK, "image/svg+xml", html::ICON.to_owned())
 }
 
 async fn not_found() -> Response {

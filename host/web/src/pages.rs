@@ -2,7 +2,7 @@
 
 use crate::html::{class, esc, frame, history_svg, num, time};
 use crate::Site;
-use dpsa_line::store::{PadRow, Store, StoreError, StoredBoard, StoredPrint};
+use dpsa_line::store::{PadRow, Review, Store, StoreError, StoredBoard, StoredPrint};
 use std::fmt::Write;
 
 /// Why a page could not be made.
@@ -11,6 +11,9 @@ pub enum PageError {
     /// The store.
     #[error(transparent)]
     Store(#[from] StoreError),
+    /// A pad's image could not be encoded.
+    #[error("the pad's image could not be encoded: {0}")]
+    Png(#[from] png::EncodingError),
 }
 
 /// Boards the line page lists.
@@ -24,6 +27,21 @@ const PRINT_ROWS: usize = 1000;
 
 fn open(site: &Site) -> Result<Store, StoreError> {
     Store::open_read_only(&site.store, &site.line)
+}
+
+/// A pad's nominal height (the stencil's thickness), um: its height over its height in %.
+fn nominal_um(p: &PadRow) -> Option<f64> {
+    let (h, pct) = (p.height_um?, p.height_pct?);
+    let n = h / pct * 100.0;
+    (pct > 0.0 && n.is_finite() && n > 0.0).then_some(n)
+}
+
+/// A decision as a person reads it.
+fn decision_text(r: &Review) -> &'static str {
+    match r.decision {
+        dpsa_line::store::Decision::Confirmed => "confirmed",
+        dpsa_line::store::Decision::FalseCall => "false call",
+    }
 }
 
 /// A board's result: its verdict, or `incomplete`, or `open`.
@@ -122,6 +140,35 @@ pub fn line(site: &Site) -> Result<String, PageError> {
     if boards.is_empty() {
         body.push_str("<p class=\"note\">No board stored yet.</p>");
     }
+    let families = store.family_reviews()?;
+    body.push_str("<h2>Reviewed calls per package family</h2>");
+    if families.is_empty() {
+        body.push_str(
+            "<p class=\"note\">No call reviewed yet: open a pad that warned or failed and mark \
+             it confirmed or a false call.</p>",
+        );
+    } else {
+        body.push_str(
+            "<table><tr><th class=\"t\">family</th><th>reviewed</th><th>confirmed</th>\
+             <th>false calls</th><th>false-call rate</th></tr>",
+        );
+        for f in &families {
+            let _ = write!(
+                body,
+                "<tr><td class=\"t\">{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                esc(f.family.as_deref().unwrap_or("(none)")),
+                f.confirmed + f.false_calls,
+                f.confirmed,
+                f.false_calls,
+                f.false_call_rate()
+                    .map_or("-".to_owned(), |r| format!("{:.1} %", 100.0 * r)),
+            );
+        }
+        body.push_str(
+            "</table><p class=\"note\">Each pad's newest review counts once, on every board \
+             of the line.</p>",
+        );
+    }
     Ok(frame(&format!("Line {}", site.line), &body))
 }
 
@@ -204,6 +251,7 @@ pub fn board(site: &Site, id: i64) -> Result<Option<String>, PageError> {
         }
         body.push_str("</table>");
     }
+    let reviews = store.reviews(id)?;
     let mut flagged: Vec<&PadRow> = pads.iter().filter(|p| p.level != "pass").collect();
     flagged.sort_by_key(|p| (p.level != "fail", p.pad));
     if b.state == "inspected" {
@@ -217,14 +265,16 @@ pub fn board(site: &Site, id: i64) -> Result<Option<String>, PageError> {
         body.push_str(
             "<table><tr><th class=\"t\">pad</th><th class=\"t\">result</th><th class=\"t\">\
              class</th><th>volume %</th><th>&plusmn; %</th><th>height um</th><th>area %</th>\
-             <th>offset x um</th><th>offset y um</th><th>coverage</th></tr>",
+             <th>offset x um</th><th>offset y um</th><th>coverage</th>\
+             <th class=\"t\">review</th></tr>",
         );
         for p in flagged {
             let _ = write!(
                 body,
                 "<tr><td class=\"t\"><a href=\"/board/{id}/pad/{k}\">{name}</a></td>\
                  <td class=\"t {c}\">{l}</td><td class=\"t\">{cl}</td><td>{v}</td><td>{u}</td>\
-                 <td>{h}</td><td>{a}</td><td>{ox}</td><td>{oy}</td><td>{cov}</td></tr>",
+                 <td>{h}</td><td>{a}</td><td>{ox}</td><td>{oy}</td><td>{cov}</td>\
+                 <td class=\"t\">{rv}</td></tr>",
                 k = p.pad,
                 name = esc(&p.name),
                 c = class(&p.level),
@@ -237,6 +287,10 @@ pub fn board(site: &Site, id: i64) -> Result<Option<String>, PageError> {
                 ox = num(p.offset_x_um, 1),
                 oy = num(p.offset_y_um, 1),
                 cov = num(Some(p.coverage), 3),
+                rv = reviews.iter().rev().find(|r| r.pad == p.pad).map_or(
+                    "-".to_owned(),
+                    |r| format!("{} ({})", decision_text(r), esc(&r.reviewer))
+                ),
             );
         }
         body.push_str("</table>");
@@ -256,6 +310,12 @@ pub fn pad(site: &Site, id: i64, k: u32) -> Result<Option<String>, PageError> {
     };
     let mut history = store.pad_history(&b.product, k, HISTORY_BOARDS)?;
     history.reverse();
+    let image = store.pad_image(id, k)?;
+    let reviews: Vec<Review> = store
+        .reviews(id)?
+        .into_iter()
+        .filter(|r| r.pad == k)
+        .collect();
     let mut body = String::new();
     let _ = write!(
         body,
@@ -288,6 +348,30 @@ pub fn pad(site: &Site, id: i64, k: u32) -> Result<Option<String>, PageError> {
         oy = num(p.offset_y_um, 1),
         cov = num(Some(p.coverage), 3),
     );
+    let nominal = nominal_um(&p);
+    match &image {
+        Some(im) => {
+            let scale = crate::crop::Scale::for_pad(im, nominal);
+            let _ = write!(
+                body,
+                "<h2>Heights above the pad's local surface</h2><div class=\"pictures\">{}{}</div>\
+                 <p class=\"note\">As the line measured this board: board x to the right, y up \
+                 (a Gerber viewer's view); the opening dashed in white, the profile's cut in \
+                 black; grey where the map has no valid height{}.</p>",
+                crate::crop::crop_svg(im, scale, &format!("/board/{id}/pad/{k}/crop.png")),
+                crate::crop::profile_svg(im, nominal),
+                im.family
+                    .as_deref()
+                    .map(|f| format!("; package family {}", esc(f)))
+                    .unwrap_or_default()
+            );
+        }
+        None if p.level != "pass" => body.push_str(
+            "<p class=\"note\">No heights kept for this pad (the line keeps them for the \
+             first 200 calls of a board, while its pad rows are kept).</p>",
+        ),
+        None => {}
+    }
     let _ = write!(
         body,
         "<h2>Volume, % of the opening, over the product's last {} inspected boards on the \
@@ -303,5 +387,67 @@ pub fn pad(site: &Site, id: i64, k: u32) -> Result<Option<String>, PageError> {
         "<p class=\"note\">This board in red; {fails} of {} failed.</p>",
         history.len()
     );
+    if p.level != "pass" {
+        body.push_str("<h2>Review</h2>");
+        if reviews.is_empty() {
+            body.push_str("<p class=\"note\">Not reviewed yet.</p>");
+        } else {
+            body.push_str(
+                "<table><tr><th class=\"t\">when (UTC)</th><th class=\"t\">who</th>\
+                 <th class=\"t\">decision</th><th class=\"t\">note</th></tr>",
+            );
+            for r in &reviews {
+                let _ = write!(
+                    body,
+                    "<tr><td class=\"t\">{}</td><td class=\"t\">{}</td><td class=\"t\">{}</td>\
+                     <td class=\"t\">{}</td></tr>",
+                    time(r.reviewed_unix_s),
+                    esc(&r.reviewer),
+                    decision_text(r),
+                    esc(r.note.as_deref().unwrap_or(""))
+                );
+            }
+            body.push_str("</table><p class=\"note\">The newest decision counts.</p>");
+        }
+        if site.reviews.open() {
+            let _ = write!(
+                body,
+                "<form class=\"review\" method=\"post\" action=\"/board/{id}/pad/{k}/review\">\
+                 <label>reviewer <input name=\"reviewer\" required maxlength=\"100\"></label>\
+                 <label>note <input name=\"note\" maxlength=\"2000\"></label>{tok}\
+                 <button name=\"decision\" value=\"confirmed\">confirmed</button>\
+                 <button name=\"decision\" value=\"false_call\">false call</button></form>",
+                tok = if site.reviews.needs_token() {
+                    "<label>token <input name=\"token\" type=\"password\" required></label>"
+                } else {
+                    ""
+                }
+            );
+        } else {
+            body.push_str(
+                "<p class=\"note\">Reviews are off: these pages are served beyond loopback \
+                 without a token.</p>",
+            );
+        }
+    }
     Ok(Some(frame(&format!("Pad {}", p.name), &body)))
+}
+
+/// The PNG of pad `k`'s kept heights on board `id` (this line's), on the pad page's colour
+/// scale; `None` without one.
+pub fn crop_png(site: &Site, id: i64, k: u32) -> Result<Option<Vec<u8>>, PageError> {
+    let mut store = open(site)?;
+    if store.board(id)?.is_none() {
+        return Ok(None);
+    }
+    let Some(im) = store.pad_image(id, k)? else {
+        return Ok(None);
+    };
+    let nominal = store
+        .pads(id)?
+        .into_iter()
+        .find(|p| p.pad == k)
+        .and_then(|p| nominal_um(&p));
+    let scale = crate::crop::Scale::for_pad(&im, nominal);
+    Ok(Some(crate::crop::png(&im, scale)?))
 }

@@ -2,212 +2,11 @@
 //! by a plain HTTP/1.1 client: what each page shows, the links, the headers, what is refused,
 //! and that serving leaves the store as it was.
 
-use dpsa_inspect::print::PrintOffset;
-use dpsa_line::printer::{Correction, Proposal};
-use dpsa_line::store::{BoardStart, CameraLoss, Location, Outcome, PadRow, PrintRow, Store};
+mod common;
+
+use common::{get, header, request, serve, store};
+use dpsa_line::store::{Location, Store};
 use dpsa_web::Site;
-use std::io::{Read, Write};
-use std::net::TcpStream;
-
-fn pad(k: u32, name: &str, level: &str, volume_pct: Option<f64>) -> PadRow {
-    PadRow {
-        pad: k,
-        name: name.to_owned(),
-        level: level.to_owned(),
-        class: (level != "pass").then(|| "insufficient".to_owned()),
-        volume_um3: volume_pct.map(|v| v * 1e5),
-        volume_pct,
-        area_mm2: Some(0.1),
-        area_pct: Some(99.0),
-        height_um: Some(98.0),
-        height_pct: Some(98.0),
-        offset_x_um: Some(3.0),
-        offset_y_um: Some(-2.0),
-        coverage: 1.0,
-        uncertainty_um3: volume_pct.map(|_| 1.5e5),
-    }
-}
-
-fn print_row(x: f64) -> PrintRow {
-    let c = |v: f64| Correction {
-        x_um: v,
-        y_um: -v,
-        rotation_mdeg: 0.0,
-    };
-    PrintRow {
-        placement: Some(PrintOffset {
-            x_um: x,
-            y_um: -4.0,
-            rotation_mdeg: 1.5,
-            stretch_ppm: 10.0,
-            uncertainty: [0.4, 0.4, 2.0, 40.0],
-            centre_mm: [10.0, 7.0],
-            pads: 3,
-            outliers: 0,
-            scale_um: 2.0,
-        }),
-        proposal: Proposal {
-            correction: c(x),
-            change: c(x),
-            estimate: c(x),
-            estimate_uncertainty: c(0.4),
-            held: [false, false, true],
-            limited: [false; 3],
-            reason: "x +12.5; y -12.5".to_owned(),
-        },
-    }
-}
-
-/// A store of three boards of line `line-1`: two inspected (the second with a warning and a
-/// failure, one pad named to test the escaping), one incomplete; and a board of line `other`.
-fn store(dir: &std::path::Path) -> (Location, Vec<i64>) {
-    let loc = Location::Sqlite(dir.join("line.sqlite"));
-    let mut s = Store::open(&loc, "line-1").unwrap();
-    let cams = vec![CameraLoss {
-        camera: 0,
-        rows: 100,
-        missing_rows: 2,
-        missing_packets: 1,
-        damaged_packets: 0,
-    }];
-    let mut ids = Vec::new();
-    for (k, (run, pads)) in [
-        (
-            0xa1u64,
-            vec![
-                pad(0, "R1-1", "pass", Some(101.0)),
-                pad(1, "R1-2", "pass", Some(99.0)),
-                pad(2, "U<1>-3", "pass", Some(97.0)),
-            ],
-        ),
-        (
-            0xa2,
-            vec![
-                pad(0, "R1-1", "pass", Some(100.0)),
-                pad(1, "R1-2", "warn", Some(72.0)),
-                pad(2, "U<1>-3", "fail", Some(31.0)),
-            ],
-        ),
-    ]
-    .into_iter()
-    .enumerate()
-    {
-        let id = s
-            .begin_board(&BoardStart {
-                run_id: run,
-                product: "mini".into(),
-                program_hash: "p".into(),
-                calibration_hash: "c".into(),
-                started_unix_s: 1_700_000_000.0 + 30.0 * k as f64,
-            })
-            .unwrap();
-        let verdict = if k == 0 { "pass" } else { "fail" };
-        s.finish_board_with_print(
-            id,
-            1_700_000_010.0 + 30.0 * k as f64,
-            &cams,
-            &Outcome::Inspected {
-                verdict: verdict.into(),
-                pads,
-            },
-            Some(&print_row(12.5 * k as f64)),
-        )
-        .unwrap();
-        ids.push(id);
-    }
-    let id = s
-        .begin_board(&BoardStart {
-            run_id: 0xa3,
-            product: "mini".into(),
-            program_hash: "p".into(),
-            calibration_hash: "c".into(),
-            started_unix_s: 1_700_000_060.0,
-        })
-        .unwrap();
-    s.finish_board(
-        id,
-        1_700_000_070.0,
-        &cams,
-        &Outcome::Incomplete {
-            reason: "camera 2 silent for 5 s".into(),
-        },
-    )
-    .unwrap();
-    ids.push(id);
-    let mut other = Store::open(&loc, "other").unwrap();
-    let id = other
-        .begin_board(&BoardStart {
-            run_id: 0xb1,
-            product: "mini".into(),
-            program_hash: "p".into(),
-            calibration_hash: "c".into(),
-            started_unix_s: 1_700_000_000.0,
-        })
-        .unwrap();
-    ids.push(id);
-    (loc, ids)
-}
-
-/// The site on a loopback port in a thread of its own; its address and its stop.
-fn serve(
-    site: Site,
-) -> (
-    String,
-    tokio::sync::oneshot::Sender<()>,
-    std::thread::JoinHandle<()>,
-) {
-    let (tx, rx) = tokio::sync::oneshot::channel::<()>();
-    let (atx, arx) = std::sync::mpsc::channel();
-    let h = std::thread::spawn(move || {
-        let rt = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .enable_all()
-            .build()
-            .unwrap();
-        rt.block_on(async move {
-            let l = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-            atx.send(l.local_addr().unwrap().to_string()).unwrap();
-            dpsa_web::serve_on(l, site, async {
-                let _ = rx.await;
-            })
-            .await
-            .unwrap();
-        });
-    });
-    (arx.recv().unwrap(), tx, h)
-}
-
-/// GET `path`: status, headers (lowercase names), body.
-fn get(addr: &str, path: &str) -> (u16, Vec<(String, String)>, String) {
-    let mut s = TcpStream::connect(addr).unwrap();
-    write!(
-        s,
-        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
-    )
-    .unwrap();
-    let mut raw = Vec::new();
-    s.read_to_end(&mut raw).unwrap();
-    let text = String::from_utf8_lossy(&raw).into_owned();
-    let (head, body) = text.split_once("\r\n\r\n").unwrap();
-    let mut lines = head.lines();
-    let status = lines
-        .next()
-        .unwrap()
-        .split(' ')
-        .nth(1)
-        .unwrap()
-        .parse()
-        .unwrap();
-    let headers = lines
-        .filter_map(|l| l.split_once(':'))
-        .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_owned()))
-        .collect();
-    (status, headers, body.to_owned())
-}
-
-fn header<'a>(h: &'a [(String, String)], name: &str) -> Option<&'a str> {
-    h.iter().find(|(k, _)| k == name).map(|(_, v)| v.as_str())
-}
 
 #[test]
 fn the_pages_show_the_line_a_board_and_a_pad() {
@@ -218,6 +17,7 @@ fn the_pages_show_the_line_a_board_and_a_pad() {
     };
     let before = std::fs::read(file).unwrap();
     let (addr, stop, h) = serve(Site {
+        reviews: Default::default(),
         store: loc.clone(),
         line: "line-1".into(),
     });
@@ -277,6 +77,47 @@ fn the_pages_show_the_line_a_board_and_a_pad() {
     assert!(body.contains("<td>31.0</td>"));
     assert_eq!(body.matches("<circle").count(), 2);
     assert!(body.contains("1 of 2 failed"));
+    // Its kept heights: the image, the colour bar to 1.6 x its nominal height (98 um at 98 %:
+    // 100 um, so 160 um, ticks to 150), the profile with the stencil's line; and the review form.
+    let src = format!("/board/{}/pad/2/crop.png", ids[1]);
+    assert!(body.contains(&format!("href=\"{src}\"")), "{body}");
+    assert!(
+        body.contains(">150</text>") && body.contains("um above"),
+        "{body}"
+    );
+    assert!(body.contains("stencil 100 um"), "{body}");
+    assert!(body.contains("package family QFN-16"));
+    assert!(body.contains("Not reviewed yet"));
+    assert!(body.contains("value=\"false_call\""));
+    assert!(!body.contains("name=\"token\""));
+    let (st, hd, png) = request(&addr, "GET", &src, &[], "");
+    assert_eq!(st, 200);
+    assert_eq!(header(&hd, "content-type"), Some("image/png"));
+    let mut r = png::Decoder::new(std::io::Cursor::new(png))
+        .read_info()
+        .unwrap();
+    let mut buf = vec![0; r.output_buffer_size().unwrap()];
+    let info = r.next_frame(&mut buf).unwrap();
+    assert_eq!((info.width, info.height), (30, 20));
+    // x to the right, y up: the first column invalid (grey), the paste (31 um of 160) in the
+    // middle.
+    assert_eq!(&buf[..3], &dpsa_web::crop::INVALID_RGB);
+    let mid = 3 * (10 * 30 + 15);
+    assert_eq!(
+        &buf[mid..mid + 3],
+        &dpsa_formats::images::colour(31.0 / 160.0)
+    );
+    // A passed pad has no heights kept and no review.
+    let (_, _, passed) = get(&addr, &format!("/board/{}/pad/0", ids[1]));
+    assert!(!passed.contains("crop.png") && !passed.contains("<form"));
+    let (st, _, _) = request(
+        &addr,
+        "GET",
+        &format!("/board/{}/pad/0/crop.png", ids[1]),
+        &[],
+        "",
+    );
+    assert_eq!(st, 404);
 
     // Refused: unknown boards and pads, another line's board, paths that are no page.
     for path in [
@@ -309,6 +150,7 @@ fn the_pages_show_the_line_a_board_and_a_pad() {
 fn a_store_that_is_gone_is_said() {
     let dir = tempfile::tempdir().unwrap();
     let (addr, stop, h) = serve(Site {
+        reviews: Default::default(),
         store: Location::Sqlite(dir.path().join("none.sqlite")),
         line: "line-1".into(),
     });
@@ -318,4 +160,159 @@ fn a_store_that_is_gone_is_said() {
     assert!(!dir.path().join("none.sqlite").exists());
     stop.send(()).unwrap();
     h.join().unwrap();
+}
+
+/// Reviews from the pad's page are stored with who and when, shown on the pad and the board,
+/// and counted per family on the line; a review from another site's page, of a pad that did
+/// not warn or fail, without a reviewer or with a bad decision is refused and stores nothing;
+/// a site with a token takes reviews only with it; beyond loopback without one, none.
+#[test]
+fn reviews_are_stored_from_the_page_and_refused_from_elsewhere() {
+    let dir = tempfile::tempdir().unwrap();
+    let (loc, ids) = store(dir.path());
+    let (addr, stop, h) = serve(Site::new(loc.clone(), "line-1"));
+    let pad2 = format!("/board/{}/pad/2", ids[1]);
+    let post = |path: &str, headers: &[(&str, &str)], body: &str| {
+        request(&addr, "POST", &format!("{path}/review"), headers, body)
+    };
+    let origin = format!("http://{addr}");
+    let same = [
+        ("Origin", origin.as_str()),
+        ("Sec-Fetch-Site", "same-origin"),
+    ];
+    let (st, hd, _) = post(
+        &pad2,
+        &same,
+        "reviewer=Ana+B&note=paste+on+the+mask&decision=false_call",
+    );
+    assert_eq!(st, 303);
+    assert_eq!(header(&hd, "location"), Some(pad2.as_str()));
+    let (st, _, _) = post(
+        &format!("/board/{}/pad/1", ids[1]),
+        &[],
+        "reviewer=bo&decision=confirmed",
+    );
+    assert_eq!(
+        st, 303,
+        "a request without Origin (not a browser's cross-site form)"
+    );
+    // Refused, nothing stored.
+    for (path, headers, body, want) in [
+        (
+            pad2.clone(),
+            vec![("Origin", "http://evil.example")],
+            "reviewer=x&decision=confirmed",
+            403,
+        ),
+        (
+            pad2.clone(),
+            vec![("Sec-Fetch-Site", "cross-site")],
+            "reviewer=x&decision=confirmed",
+            403,
+        ),
+        (pad2.clone(), vec![], "reviewer=x&decision=maybe", 400),
+        (pad2.clone(), vec![], "reviewer=+&decision=confirmed", 400),
+        (pad2.clone(), vec![], "decision=confirmed", 422),
+        (
+            format!("/board/{}/pad/0", ids[1]),
+            vec![],
+            "reviewer=x&decision=confirmed",
+            400,
+        ),
+        (
+            format!("/board/{}/pad/2", ids[0]),
+            vec![],
+            "reviewer=x&decision=confirmed",
+            400,
+        ),
+        (
+            format!("/board/{}/pad/2", ids[3]),
+            vec![],
+            "reviewer=x&decision=confirmed",
+            400,
+        ),
+    ] {
+        let (st, _, _) = post(&path, &headers, body);
+        assert_eq!(st, want, "{path} {headers:?} {body}");
+    }
+    let big = format!("reviewer=x&decision=confirmed&note={}", "a".repeat(20_000));
+    assert_eq!(post(&pad2, &[], &big).0, 413);
+
+    let (_, _, body) = get(&addr, &pad2);
+    assert!(
+        body.contains("Ana B") && body.contains("paste on the mask"),
+        "{body}"
+    );
+    assert!(body.contains("false call"));
+    let (_, _, body) = get(&addr, &format!("/board/{}", ids[1]));
+    assert!(
+        body.contains("false call (Ana B)") && body.contains("confirmed (bo)"),
+        "{body}"
+    );
+    let (_, _, body) = get(&addr, "/");
+    let fam = &body[body.find("Reviewed calls per package family").unwrap()..];
+    assert!(
+        fam.contains("<td class=\"t\">QFN-16</td><td>1</td><td>0</td><td>1</td><td>100.0 %</td>"),
+        "{fam}"
+    );
+    assert!(
+        fam.contains("<td class=\"t\">R_0603</td><td>1</td><td>1</td><td>0</td><td>0.0 %</td>"),
+        "{fam}"
+    );
+    let mut s = Store::open(&loc, "line-1").unwrap();
+    assert_eq!(s.reviews(ids[1]).unwrap().len(), 2);
+    assert!(s.reviews(ids[0]).unwrap().is_empty());
+    s.check().unwrap();
+    stop.send(()).unwrap();
+    h.join().unwrap();
+
+    // With a token: only with it.
+    let mut site = Site::new(loc.clone(), "line-1");
+    site.reviews = dpsa_web::review::Policy {
+        token: Some("0123456789abcdef-token".into()),
+        beyond_loopback: true,
+    };
+    let (addr, stop, h) = serve(site);
+    let post = |body: &str| request(&addr, "POST", &format!("{pad2}/review"), &[], body);
+    let (_, _, page) = get(&addr, &pad2);
+    assert!(page.contains("name=\"token\""));
+    assert_eq!(post("reviewer=c&decision=confirmed").0, 403);
+    assert_eq!(
+        post("reviewer=c&decision=confirmed&token=0123456789abcdef-toke").0,
+        403
+    );
+    assert_eq!(
+        post("reviewer=c&decision=confirmed&token=0123456789abcdef-token").0,
+        303
+    );
+    stop.send(()).unwrap();
+    h.join().unwrap();
+
+    // Beyond loopback without a token: no form, no review.
+    let mut site = Site::new(loc.clone(), "line-1");
+    site.reviews.beyond_loopback = true;
+    let (addr, stop, h) = serve(site);
+    let (_, _, page) = get(&addr, &pad2);
+    assert!(
+        !page.contains("<form") && page.contains("Reviews are off"),
+        "{page}"
+    );
+    let (st, _, _) = request(
+        &addr,
+        "POST",
+        &format!("{pad2}/review"),
+        &[],
+        "reviewer=c&decision=confirmed",
+    );
+    assert_eq!(st, 403);
+    stop.send(()).unwrap();
+    h.join().unwrap();
+    assert_eq!(
+        Store::open(&loc, "line-1")
+            .unwrap()
+            .reviews(ids[1])
+            .unwrap()
+            .len(),
+        3
+    );
 }

@@ -214,6 +214,26 @@ pub fn component_packages(
         .collect())
 }
 
+/// Each pad's package family, as SPC groups pads and the operator's pages count false calls:
+/// its component's package from the placement file, else its aperture class (`C 0.25`, ...);
+/// `None` for a pad with neither.
+pub fn pad_families(
+    program: &Program,
+    program_path: &Path,
+    pads: &[Pad],
+) -> Result<Vec<Option<String>>, TeachError> {
+    let packages = component_packages(program, program_path)?;
+    Ok(pads
+        .iter()
+        .map(|p| {
+            p.component
+                .as_ref()
+                .and_then(|c| packages.get(c).cloned())
+                .or_else(|| p.aperture.clone())
+        })
+        .collect())
+}
+
 /// The family overrides: one per (package, aperture class) whose pads are all of one family
 /// with its own defaults; pads of a mixed group get one override each (by name), first.
 fn family_overrides(

@@ -17,11 +17,15 @@
 //!   the next call; the call during which it broke fails (its transaction is rolled back by
 //!   the server), as any store error does.
 
+use super::review::{
+    family_reviews, Decision, FamilyReviews, ImageValues, Review, FAMILY_REVIEWS_SQL,
+    IMAGE_COLUMNS, INSERT_REVIEW_SQL, REVIEW_COLUMNS,
+};
 use super::schema::{self, Dialect, Step};
 use super::{
-    insert_print_sql, parse_run_id, real, run_id_text, select_prints_sql, BoardStart, CameraLoss,
-    HistoryEntry, Outcome, PadRow, PgUrl, PrintValues, StencilClean, StoreError, StoredBoard,
-    StoredPrint, Which, PRINT_REALS, PRUNE_BOARDS_PER_TRANSACTION,
+    insert_print_sql, parse_run_id, real, run_id_text, select_prints_sql, Beside, BoardStart,
+    CameraLoss, HistoryEntry, Outcome, PadRow, PgUrl, PrintValues, StencilClean, StoreError,
+    StoredBoard, StoredPrint, Which, PRINT_REALS, PRUNE_BOARDS_PER_TRANSACTION,
 };
 use std::sync::LazyLock;
 
@@ -29,6 +33,36 @@ use std::sync::LazyLock;
 /// statement cache keys on the text).
 static INSERT_PRINT: LazyLock<String> = LazyLock::new(|| insert_print_sql('$'));
 static SELECT_PRINTS: LazyLock<String> = LazyLock::new(|| select_prints_sql('$'));
+/// The review statements shared with SQLite, in `$N`.
+static INSERT_REVIEW: LazyLock<String> =
+    LazyLock::new(|| format!("{} RETURNING id", dollars(INSERT_REVIEW_SQL)));
+static FAMILY_REVIEWS: LazyLock<String> = LazyLock::new(|| dollars(FAMILY_REVIEWS_SQL));
+static INSERT_IMAGE: LazyLock<String> = LazyLock::new(|| {
+    format!(
+        "INSERT INTO pad_images (board_id, pad, {IMAGE_COLUMNS}) \
+         VALUES ($1, $2, $3, $4, $5, $6, $7, $8, $9, $10, $11)"
+    )
+});
+static SELECT_IMAGE: LazyLock<String> = LazyLock::new(|| {
+    format!("SELECT {IMAGE_COLUMNS} FROM pad_images WHERE board_id = $1 AND pad = $2")
+});
+static SELECT_REVIEWS: LazyLock<String> = LazyLock::new(|| {
+    format!("SELECT {REVIEW_COLUMNS} FROM reviews WHERE board_id = $1 ORDER BY pad, id")
+});
+
+/// SQLite's `?N` placeholders as PostgreSQL's `$N`.
+fn dollars(sql: &str) -> String {
+    let mut out = String::with_capacity(sql.len());
+    let mut it = sql.chars().peekable();
+    while let Some(c) = it.next() {
+        if c == '?' && it.peek().is_some_and(|d| d.is_ascii_digit()) {
+            out.push('$');
+        } else {
+            out.push(c);
+        }
+    }
+    out
+}
 use postgres::binary_copy::BinaryCopyInWriter;
 use postgres::error::SqlState;
 use postgres::types::Type;
@@ -396,8 +430,9 @@ impl Pg {
         ended_unix_s: f64,
         cameras: &[CameraLoss],
         outcome: &Outcome,
-        print: Option<&PrintValues>,
+        beside: &Beside,
     ) -> Result<(), StoreError> {
+        let (print, images) = (beside.print.as_ref(), beside.images.as_slice());
         self.ready()?;
         let invalid = |why: String| StoreError::Invalid {
             store: self.name.clone(),
@@ -527,6 +562,32 @@ impl Pg {
                     tx.execute(&s, &[&line, &product, &id, &missing])
                         .map_err(&err)?;
                 }
+                let s = prepared(&mut tx, statements, INSERT_IMAGE.as_str()).map_err(&err)?;
+                for v in images {
+                    // Pad indices and sides checked by the store before anything is written.
+                    let (pad, nx, ny) = (
+                        i32::try_from(v.pad).unwrap_or(i32::MAX),
+                        v.nx as i32,
+                        v.ny as i32,
+                    );
+                    tx.execute(
+                        &s,
+                        &[
+                            &id,
+                            &pad,
+                            &v.family,
+                            &v.x0_mm,
+                            &v.y0_mm,
+                            &v.pitch_mm,
+                            &nx,
+                            &ny,
+                            &v.lsb_um,
+                            &v.heights,
+                            &v.outline,
+                        ],
+                    )
+                    .map_err(&err)?;
+                }
                 let s = prepared(
                     &mut tx,
                     statements,
@@ -573,6 +634,131 @@ impl Pg {
             tx.execute(&s, &p).map_err(&err)?;
         }
         tx.commit().map_err(&err)
+    }
+
+    pub(super) fn pad_image(
+        &mut self,
+        board_id: i64,
+        pad: u32,
+    ) -> Result<Option<ImageValues>, StoreError> {
+        self.ready()?;
+        let Pg {
+            client,
+            statements,
+            name,
+            ..
+        } = self;
+        let err = pg_err(name);
+        let Ok(p) = i32::try_from(pad) else {
+            return Ok(None);
+        };
+        let s = prepared(client, statements, SELECT_IMAGE.as_str()).map_err(&err)?;
+        let row = client.query_opt(&s, &[&board_id, &p]).map_err(&err)?;
+        Ok(row.map(|r| {
+            let (nx, ny): (i32, i32) = (r.get(4), r.get(5));
+            ImageValues {
+                pad,
+                family: r.get(0),
+                x0_mm: r.get(1),
+                y0_mm: r.get(2),
+                pitch_mm: r.get(3),
+                nx: u32::try_from(nx).unwrap_or(0),
+                ny: u32::try_from(ny).unwrap_or(0),
+                lsb_um: r.get(6),
+                heights: r.get(7),
+                outline: r.get(8),
+            }
+        }))
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn add_review(
+        &mut self,
+        line: &str,
+        board_id: i64,
+        pad: u32,
+        decision: Decision,
+        reviewer: &str,
+        at_unix_s: f64,
+        note: Option<&str>,
+    ) -> Result<Option<i64>, StoreError> {
+        self.ready()?;
+        let Pg {
+            client,
+            statements,
+            name,
+            ..
+        } = self;
+        let err = pg_err(name);
+        let Ok(p) = i32::try_from(pad) else {
+            return Ok(None);
+        };
+        let s = prepared(client, statements, INSERT_REVIEW.as_str()).map_err(&err)?;
+        let row = client
+            .query_opt(
+                &s,
+                &[
+                    &board_id,
+                    &p,
+                    &decision.name(),
+                    &reviewer,
+                    &at_unix_s,
+                    &note,
+                    &line,
+                ],
+            )
+            .map_err(&err)?;
+        Ok(row.map(|r| r.get(0)))
+    }
+
+    pub(super) fn reviews(&mut self, board_id: i64) -> Result<Vec<Review>, StoreError> {
+        self.ready()?;
+        let Pg {
+            client,
+            statements,
+            name,
+            ..
+        } = self;
+        let err = pg_err(name);
+        let s = prepared(client, statements, SELECT_REVIEWS.as_str()).map_err(&err)?;
+        let rows = client.query(&s, &[&board_id]).map_err(&err)?;
+        rows.iter()
+            .map(|r| {
+                let d: String = r.get(4);
+                let pad: i32 = r.get(2);
+                Ok(Review {
+                    id: r.get(0),
+                    board_id: r.get(1),
+                    pad: u32::try_from(pad).unwrap_or(0),
+                    family: r.get(3),
+                    decision: Decision::from_name(&d).ok_or_else(|| StoreError::Corrupt {
+                        store: name.clone(),
+                        why: format!("a review's decision {d:?}"),
+                    })?,
+                    reviewer: r.get(5),
+                    reviewed_unix_s: r.get(6),
+                    note: r.get(7),
+                })
+            })
+            .collect()
+    }
+
+    pub(super) fn family_reviews(&mut self, line: &str) -> Result<Vec<FamilyReviews>, StoreError> {
+        self.ready()?;
+        let Pg {
+            client,
+            statements,
+            name,
+            ..
+        } = self;
+        let err = pg_err(name);
+        let s = prepared(client, statements, FAMILY_REVIEWS.as_str()).map_err(&err)?;
+        let rows = client.query(&s, &[&line]).map_err(&err)?;
+        Ok(family_reviews(
+            rows.iter()
+                .map(|r| (r.get(0), r.get(1), r.get(2)))
+                .collect(),
+        ))
     }
 
     pub(super) fn record_clean(
@@ -927,6 +1113,8 @@ impl Pg {
         for chunk in ids.chunks(PRUNE_BOARDS_PER_TRANSACTION) {
             let chunk = chunk.to_vec();
             let mut tx = self.client.transaction().map_err(&err)?;
+            tx.execute("DELETE FROM pad_images WHERE board_id = ANY($1)", &[&chunk])
+                .map_err(&err)?;
             tx.execute("DELETE FROM defects WHERE board_id = ANY($1)", &[&chunk])
                 .map_err(&err)?;
             deleted += tx

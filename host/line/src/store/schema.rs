@@ -32,6 +32,8 @@ pub(crate) enum Dialect {
 /// - `real`: a double. SQLite's REAL is 8 bytes, PostgreSQL's REAL only 4.
 /// - `run_id_is_hex`: 16 lowercase hex digits; SQLite has GLOB, PostgreSQL regular
 ///   expressions.
+/// - `blob`, `bytes_of`: bytes and their count. SQLite's BLOB and `length()`, PostgreSQL's
+///   BYTEA and `octet_length()`.
 /// - `without_rowid`: SQLite keeps a WITHOUT ROWID table in its primary key's B-tree;
 ///   PostgreSQL's tables are heaps with the primary key an index beside them (nothing to say).
 pub(crate) const WORDS: &[(&str, &str, &str)] = &[
@@ -47,6 +49,8 @@ pub(crate) const WORDS: &[(&str, &str, &str)] = &[
         "length(run_id) = 16 AND run_id NOT GLOB '*[^0-9a-f]*'",
         "run_id ~ '^[0-9a-f]{16}$'",
     ),
+    ("blob", "BLOB", "BYTEA"),
+    ("bytes_of", "length", "octet_length"),
     ("without_rowid", " WITHOUT ROWID", ""),
 ];
 
@@ -114,6 +118,7 @@ pub(crate) const MIGRATIONS: &[Step] = &[
         postgres: Cow::Borrowed(V2_POSTGRES),
     },
     Step::Both(Cow::Borrowed(V3)),
+    Step::Both(Cow::Borrowed(V4)),
 ];
 
 /// Version 1: the tables of the module documentation, one line's.
@@ -411,6 +416,41 @@ CREATE TABLE stencil_cleans (
 CREATE INDEX stencil_cleans_by_line ON stencil_cleans (line, product, cleaned_unix_s);
 ";
 
+/// Version 4, for the operator's pages: `pad_images`, the heights above the local surface
+/// around each pad that warned or failed (`dpsa_inspect::crop`), stored with the board; and
+/// `reviews`, an operator's decision on such a pad (confirmed, or a false call), who and when,
+/// with the pad's package family copied in so that the false-call rates outlive the pruned pad
+/// rows. A store of version 3 gains both empty.
+pub(crate) const V4: &str = "
+CREATE TABLE pad_images (
+    board_id {int64} NOT NULL REFERENCES boards (id) ON DELETE CASCADE,
+    pad      INTEGER NOT NULL CHECK (pad >= 0),
+    family   TEXT,
+    x0_mm    {real} NOT NULL,
+    y0_mm    {real} NOT NULL,
+    pitch_mm {real} NOT NULL CHECK (pitch_mm > 0),
+    nx       INTEGER NOT NULL CHECK (nx BETWEEN 1 AND 256),
+    ny       INTEGER NOT NULL CHECK (ny BETWEEN 1 AND 256),
+    lsb_um   {real} NOT NULL CHECK (lsb_um > 0),
+    heights  {blob} NOT NULL,
+    outline  TEXT NOT NULL,
+    CHECK ({bytes_of}(heights) = 2 * nx * ny),
+    PRIMARY KEY (board_id, pad)
+){without_rowid};
+
+CREATE TABLE reviews (
+    id              {id},
+    board_id        {int64} NOT NULL REFERENCES boards (id) ON DELETE CASCADE,
+    pad             INTEGER NOT NULL CHECK (pad >= 0),
+    family          TEXT,
+    decision        TEXT NOT NULL CHECK (decision = 'confirmed' OR decision = 'false_call'),
+    reviewer        TEXT NOT NULL CHECK (reviewer <> ''),
+    reviewed_unix_s {real} NOT NULL,
+    note            TEXT
+);
+CREATE INDEX reviews_by_board ON reviews (board_id, pad, id);
+";
+
 /// The triggers that keep `pads`' foreign key on PostgreSQL ([`V2_POSTGRES`]), with their
 /// tables (a test finds them in place of the constraint).
 #[cfg(test)]
@@ -502,6 +542,25 @@ pub(crate) const INVARIANTS: &[(&str, &str)] = &[
                     AND coalesce(p.pads_used, 0) >= 0 AND coalesce(p.outliers, 0) >= 0
                     AND (p.x_um IS NULL) = (p.pads_used IS NULL))",
     ),
+    (
+        "pad images of a board not in the store or not inspected, of a pad the board's rows \
+         do not name, or whose heights are not two bytes a sample",
+        "SELECT count(*) FROM pad_images AS i LEFT JOIN boards AS b ON b.id = i.board_id
+            WHERE b.id IS NULL OR b.state <> 'inspected'
+                OR NOT EXISTS (SELECT 1 FROM pads AS p
+                    WHERE p.board_id = i.board_id AND p.pad = i.pad)
+                OR {bytes_of}(i.heights) <> 2 * i.nx * i.ny",
+    ),
+    (
+        "reviews of a board not in the store or not inspected, or not of a pad that warned \
+         or failed while the board's pad rows are kept",
+        "SELECT count(*) FROM reviews AS r LEFT JOIN boards AS b ON b.id = r.board_id
+            WHERE b.id IS NULL OR b.state <> 'inspected'
+                OR NOT (r.decision = 'confirmed' OR r.decision = 'false_call')
+                OR (EXISTS (SELECT 1 FROM pads AS p WHERE p.board_id = r.board_id)
+                    AND NOT EXISTS (SELECT 1 FROM defects AS d
+                        WHERE d.board_id = r.board_id AND d.pad = r.pad))",
+    ),
 ];
 
 /// The rules only PostgreSQL needs checked: it stores a NaN (SQLite turns one into NULL), its
@@ -518,6 +577,8 @@ pub(crate) const POSTGRES_INVARIANTS: &[(&str, &str)] = &[
               + (SELECT count(*) FROM pad_stats
                     WHERE 'NaN' IN (sum_volume_pct, sum_sq_volume_pct))
               + (SELECT count(*) FROM stencil_cleans WHERE cleaned_unix_s = 'NaN')
+              + (SELECT count(*) FROM pad_images WHERE 'NaN' IN (x0_mm, y0_mm, pitch_mm, lsb_um))
+              + (SELECT count(*) FROM reviews WHERE reviewed_unix_s = 'NaN')
               + (SELECT count(*) FROM prints WHERE 'NaN' IN (x_um, y_um, rotation_mdeg,
                     stretch_ppm, u_x_um, u_y_um, u_rotation_mdeg, u_stretch_ppm, scale_um,
                     centre_x_mm, centre_y_mm, correction_x_um, correction_y_um,

@@ -1,10 +1,14 @@
 //! The store on SQLite: one file, WAL, the schema's version in `PRAGMA user_version`.
 
+use super::review::{
+    family_reviews, Decision, FamilyReviews, ImageValues, Review, FAMILY_REVIEWS_SQL,
+    IMAGE_COLUMNS, INSERT_REVIEW_SQL, REVIEW_COLUMNS,
+};
 use super::schema::{self, Dialect, Step};
 use super::{
-    insert_print_sql, parse_run_id, real, run_id_text, select_prints_sql, BoardStart, CameraLoss,
-    HistoryEntry, Outcome, PadRow, PrintValues, StencilClean, StoreError, StoredBoard, StoredPrint,
-    Which, PRINT_REALS, PRUNE_BOARDS_PER_TRANSACTION,
+    insert_print_sql, parse_run_id, real, run_id_text, select_prints_sql, Beside, BoardStart,
+    CameraLoss, HistoryEntry, Outcome, PadRow, PrintValues, StencilClean, StoreError, StoredBoard,
+    StoredPrint, Which, PRINT_REALS, PRUNE_BOARDS_PER_TRANSACTION,
 };
 use rusqlite::{params, Connection, OptionalExtension, TransactionBehavior};
 use std::path::Path;
@@ -248,8 +252,9 @@ impl Sqlite {
         ended_unix_s: f64,
         cameras: &[CameraLoss],
         outcome: &Outcome,
-        print: Option<&PrintValues>,
+        beside: &Beside,
     ) -> Result<(), StoreError> {
+        let (print, images) = (beside.print.as_ref(), beside.images.as_slice());
         let name = self.name.as_str();
         let err = |e| sql_err(name, e);
         let tx = self
@@ -332,6 +337,19 @@ impl Sqlite {
                     tx.prepare_cached(UPSERT_PAD_STATS)
                         .and_then(|mut s| s.execute(params![product, id, line]))
                         .map_err(err)?;
+                    let mut s = tx
+                        .prepare_cached(&format!(
+                            "INSERT INTO pad_images (board_id, pad, {IMAGE_COLUMNS}) \
+                             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)"
+                        ))
+                        .map_err(err)?;
+                    for v in images {
+                        s.execute(params![
+                            id, v.pad, v.family, v.x0_mm, v.y0_mm, v.pitch_mm, v.nx, v.ny,
+                            v.lsb_um, v.heights, v.outline
+                        ])
+                        .map_err(err)?;
+                    }
                 }
                 tx.prepare_cached(
                     "UPDATE boards SET state = 'inspected', verdict = ?2, ended_unix_s = ?3, \
@@ -360,6 +378,108 @@ impl Sqlite {
                 .map_err(err)?;
         }
         tx.commit().map_err(err)
+    }
+
+    pub(super) fn pad_image(
+        &mut self,
+        board_id: i64,
+        pad: u32,
+    ) -> Result<Option<ImageValues>, StoreError> {
+        let name = self.name.as_str();
+        self.conn
+            .prepare_cached(&format!(
+                "SELECT {IMAGE_COLUMNS} FROM pad_images WHERE board_id = ?1 AND pad = ?2"
+            ))
+            .and_then(|mut s| {
+                s.query_row(params![board_id, pad], |r| {
+                    Ok(ImageValues {
+                        pad,
+                        family: r.get(0)?,
+                        x0_mm: r.get(1)?,
+                        y0_mm: r.get(2)?,
+                        pitch_mm: r.get(3)?,
+                        nx: r.get(4)?,
+                        ny: r.get(5)?,
+                        lsb_um: r.get(6)?,
+                        heights: r.get(7)?,
+                        outline: r.get(8)?,
+                    })
+                })
+                .optional()
+            })
+            .map_err(|e| sql_err(name, e))
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn add_review(
+        &mut self,
+        line: &str,
+        board_id: i64,
+        pad: u32,
+        decision: Decision,
+        reviewer: &str,
+        at_unix_s: f64,
+        note: Option<&str>,
+    ) -> Result<Option<i64>, StoreError> {
+        let n = self
+            .conn
+            .prepare_cached(INSERT_REVIEW_SQL)
+            .and_then(|mut s| {
+                s.execute(params![
+                    board_id,
+                    pad,
+                    decision.name(),
+                    reviewer,
+                    at_unix_s,
+                    note,
+                    line
+                ])
+            })
+            .map_err(self.err())?;
+        Ok((n == 1).then(|| self.conn.last_insert_rowid()))
+    }
+
+    pub(super) fn reviews(&mut self, board_id: i64) -> Result<Vec<Review>, StoreError> {
+        let name = self.name.as_str();
+        let err = |e| sql_err(name, e);
+        let mut s = self
+            .conn
+            .prepare_cached(&format!(
+                "SELECT {REVIEW_COLUMNS} FROM reviews WHERE board_id = ?1 ORDER BY pad, id"
+            ))
+            .map_err(err)?;
+        let rows = s
+            .query_map([board_id], |r| {
+                let d: String = r.get(4)?;
+                Ok(Review {
+                    id: r.get(0)?,
+                    board_id: r.get(1)?,
+                    pad: r.get(2)?,
+                    family: r.get(3)?,
+                    decision: Decision::from_name(&d).ok_or_else(|| {
+                        rusqlite::Error::FromSqlConversionFailure(
+                            4,
+                            rusqlite::types::Type::Text,
+                            format!("a decision {d:?}").into(),
+                        )
+                    })?,
+                    reviewer: r.get(5)?,
+                    reviewed_unix_s: r.get(6)?,
+                    note: r.get(7)?,
+                })
+            })
+            .map_err(err)?;
+        rows.collect::<Result<_, _>>().map_err(err)
+    }
+
+    pub(super) fn family_reviews(&mut self, line: &str) -> Result<Vec<FamilyReviews>, StoreError> {
+        let name = self.name.as_str();
+        let err = |e| sql_err(name, e);
+        let mut s = self.conn.prepare_cached(FAMILY_REVIEWS_SQL).map_err(err)?;
+        let rows = s
+            .query_map([line], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))
+            .map_err(err)?;
+        Ok(family_reviews(rows.collect::<Result<_, _>>().map_err(err)?))
     }
 
     pub(super) fn record_clean(
@@ -731,7 +851,11 @@ impl Sqlite {
                 let mut pads = tx
                     .prepare_cached("DELETE FROM pads WHERE board_id = ?1")
                     .map_err(err)?;
+                let mut images = tx
+                    .prepare_cached("DELETE FROM pad_images WHERE board_id = ?1")
+                    .map_err(err)?;
                 for id in chunk {
+                    images.execute([id]).map_err(err)?;
                     defects.execute([id]).map_err(err)?;
                     deleted += pads.execute([id]).map_err(err)? as u64;
                 }

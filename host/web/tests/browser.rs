@@ -1,0 +1,270 @@
+//! The pages in a real browser: Debian's Chromium, headless, driven over WebDriver by its
+//! chromedriver (fantoccini), against the site served on a loopback port. Each page renders
+//! with nothing in the browser's console (no script error, no resource refused by the
+//! Content-Security-Policy, no image that failed to load); the board's list of calls links to
+//! the right pad's page; a review made in the form is stored; the pad's image is drawn.
+//!
+//! Needs `chromedriver` and Chromium (the test command installs Debian's `chromium` and
+//! `chromium-driver`); fails, saying so, without them.
+
+mod common;
+
+use common::store;
+use dpsa_line::store::{Decision, Store};
+use dpsa_web::Site;
+use fantoccini::wd::WebDriverCompatibleCommand;
+use fantoccini::{Client, ClientBuilder, Locator};
+use serde_json::{json, Value};
+use std::net::TcpListener;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+/// chromedriver on a free loopback port, killed when dropped.
+struct Driver {
+    child: Child,
+    url: String,
+}
+
+impl Drop for Driver {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn driver() -> Driver {
+    let exe = ["chromedriver", "/usr/bin/chromedriver"]
+        .into_iter()
+        .find(|c| {
+            Command::new(c)
+                .arg("--version")
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .status()
+                .is_ok_and(|s| s.success())
+        })
+        .expect(
+            "chromedriver not found: install Debian's chromium and chromium-driver (the test \
+             command does)",
+        );
+    let port = TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let child = Command::new(exe)
+        .arg(format!("--port={port}"))
+        .arg("--allowed-ips=127.0.0.1")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "chromedriver did not start"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    Driver {
+        child,
+        url: format!("http://127.0.0.1:{port}"),
+    }
+}
+
+/// chromedriver's log of the browser's console since the last call (its `se/log` endpoint).
+#[derive(Debug)]
+struct BrowserLog;
+
+impl WebDriverCompatibleCommand for BrowserLog {
+    fn endpoint(
+        &self,
+        base: &url::Url,
+        session: Option<&str>,
+    ) -> Result<url::Url, url::ParseError> {
+        base.join(&format!("session/{}/se/log", session.unwrap_or("")))
+    }
+
+    fn method_and_body(&self, _: &url::Url) -> (http::Method, Option<String>) {
+        (
+            http::Method::POST,
+            Some(json!({"type": "browser"}).to_string()),
+        )
+    }
+}
+
+/// The console's entries since the last call, as `LEVEL message`.
+async fn console(c: &Client) -> Vec<String> {
+    let v = c.issue_cmd(BrowserLog).await.expect("the browser's log");
+    v.as_array()
+        .map(|a| {
+            a.iter()
+                .map(|e| format!("{} {}", e["level"].as_str().unwrap_or("?"), e["message"]))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// Opens `url`, waits for the page to have loaded (images too) and checks the console is
+/// empty.
+async fn open_clean(c: &Client, url: &str) {
+    c.goto(url).await.unwrap();
+    settle(c).await;
+    let log = console(c).await;
+    assert!(log.is_empty(), "{url}: the console says {log:?}");
+}
+
+/// Until the document and its images have loaded.
+async fn settle(c: &Client) {
+    let t0 = Instant::now();
+    loop {
+        let done = c
+            .execute("return document.readyState === 'complete';", vec![])
+            .await
+            .unwrap();
+        if done == Value::Bool(true) {
+            break;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "the page never loaded"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_pages_work_in_chromium() {
+    let dir = tempfile::tempdir().unwrap();
+    let (loc, ids) = store(dir.path());
+    let (addr, stop, h) = common::serve(Site::new(loc.clone(), "line-1"));
+    let d = driver();
+    let mut caps = serde_json::Map::new();
+    caps.insert(
+        "goog:chromeOptions".into(),
+        json!({"args": ["--headless=new", "--no-sandbox", "--disable-gpu",
+                        "--disable-dev-shm-usage", "--window-size=1100,900"]}),
+    );
+    caps.insert("goog:loggingPrefs".into(), json!({"browser": "ALL"}));
+    let c = ClientBuilder::new(hyper_util::client::legacy::connect::HttpConnector::new())
+        .capabilities(caps)
+        .connect(&d.url)
+        .await
+        .expect("a session of headless Chromium");
+    let site = format!("http://{addr}");
+
+    // The line; then an image that fails to load does show in the console (the check can
+    // fail).
+    open_clean(&c, &format!("{site}/")).await;
+    c.execute(
+        "var s = document.createElement('img'); s.src = '/no-such-image.png'; \
+         document.body.appendChild(s);",
+        vec![],
+    )
+    .await
+    .unwrap();
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let log = console(&c).await;
+    assert!(
+        log.iter().any(|l| l.contains("404")),
+        "a failed image load is not in the log: {log:?}"
+    );
+
+    // The line, the board, from the board's list to the pad.
+    open_clean(&c, &format!("{site}/")).await;
+    let title = c.title().await.unwrap();
+    assert_eq!(title, "Line line-1 - dpsa");
+    c.find(Locator::Css(&format!("a[href='/board/{}']", ids[1])))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    settle(&c).await;
+    assert_eq!(
+        c.current_url().await.unwrap().path(),
+        format!("/board/{}", ids[1])
+    );
+    assert!(console(&c).await.is_empty());
+    // The first call listed is the failure, pad 2 (U<1>-3).
+    let first = c
+        .find(Locator::Css("table tr td a[href*='/pad/']"))
+        .await
+        .unwrap();
+    assert_eq!(first.text().await.unwrap(), "U<1>-3");
+    first.click().await.unwrap();
+    settle(&c).await;
+    assert_eq!(
+        c.current_url().await.unwrap().path(),
+        format!("/board/{}/pad/2", ids[1])
+    );
+    assert!(console(&c).await.is_empty());
+    // The pad's image drawn: the crop's PNG decoded by the browser at its size.
+    let size = c
+        .execute(
+            "const i = new Image(); \
+             i.src = document.querySelector('image.crop').href.baseVal; \
+             return i.decode().then(() => [i.naturalWidth, i.naturalHeight]);",
+            vec![],
+        )
+        .await
+        .unwrap();
+    assert_eq!(size, json!([30, 20]));
+
+    // A review from the form.
+    for (field, text) in [
+        ("reviewer", "Operator 7"),
+        ("note", "paste on the mask, pad fine"),
+    ] {
+        c.find(Locator::Css(&format!("input[name='{field}']")))
+            .await
+            .unwrap()
+            .send_keys(text)
+            .await
+            .unwrap();
+    }
+    c.find(Locator::Css("button[value='false_call']"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    settle(&c).await;
+    let src = c.source().await.unwrap();
+    assert_eq!(
+        c.current_url().await.unwrap().path(),
+        format!("/board/{}/pad/2", ids[1]),
+        "{src}"
+    );
+    assert!(console(&c).await.is_empty());
+    assert!(
+        src.contains("Operator 7") && src.contains("false call"),
+        "{src}"
+    );
+    let stored = Store::open(&loc, "line-1")
+        .unwrap()
+        .reviews(ids[1])
+        .unwrap();
+    assert_eq!(stored.len(), 1);
+    assert_eq!(
+        (
+            stored[0].pad,
+            stored[0].decision,
+            stored[0].reviewer.as_str()
+        ),
+        (2, Decision::FalseCall, "Operator 7")
+    );
+    assert_eq!(
+        stored[0].note.as_deref(),
+        Some("paste on the mask, pad fine")
+    );
+    // The line counts it.
+    open_clean(&c, &format!("{site}/")).await;
+    assert!(c.source().await.unwrap().contains("100.0 %"));
+
+    c.close().await.unwrap();
+    drop(d);
+    stop.send(()).unwrap();
+    h.join().unwrap();
+}
