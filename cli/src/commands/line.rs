@@ -274,6 +274,12 @@ fn run_line(a: RunArgs) -> Result<()> {
                 store: cfg.store.clone(),
                 line: cfg.line.clone(),
                 reviews,
+                designs: std::sync::Arc::new(dpsa_web::board_view::Designs::load(
+                    &cfg.products
+                        .iter()
+                        .map(|p| p.program_path.as_path())
+                        .collect::<Vec<_>>(),
+                )?),
             },
             bind,
         )?;

@@ -21,6 +21,10 @@ pub struct Args {
     /// Without one, reviews are open on loopback and off on any other address.
     #[arg(long)]
     token_file: Option<std::path::PathBuf>,
+    /// The inspection program (program.toml) of the boards, to draw them; may be given once
+    /// per program (a board is drawn by the program whose hash it carries).
+    #[arg(long = "program", value_name = "PROG")]
+    programs: Vec<std::path::PathBuf>,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -35,11 +39,14 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     let reviews = review_policy(a.token_file.as_deref(), a.bind)?;
+    let paths: Vec<&std::path::Path> = a.programs.iter().map(|p| p.as_path()).collect();
+    let designs = dpsa_web::board_view::Designs::load(&paths)?;
     dpsa_web::run(
         dpsa_web::Site {
             store,
             line: a.line,
             reviews,
+            designs: std::sync::Arc::new(designs),
         },
         a.bind,
     )?;

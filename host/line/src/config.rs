@@ -272,6 +272,46 @@ fn bad(path: &Path, key: &str, why: impl std::fmt::Display) -> LineError {
     }
 }
 
+/// A program with what the line and the pages take from it: its paste layer's pads (named
+/// from its placement file), each pad's package family, and the hash that boards carry.
+pub struct Design {
+    /// The program.
+    pub program: Program,
+    /// Its paste layer's pads, in the layer's order (a pad row's index).
+    pub pads: Vec<Pad>,
+    /// Each pad's package family (`dpsa_inspect::teach::pad_families`).
+    pub families: Vec<Option<String>>,
+    /// FNV-1a 64 of the program file and its paste layer, 16 hex digits: the stored boards'
+    /// `program_hash`.
+    pub program_hash: String,
+}
+
+impl Design {
+    /// Reads the program at `program_path` and its paste layer (and placement file).
+    pub fn load(program_path: &Path) -> Result<Design, LineError> {
+        let bad = |e: String| LineError::Config {
+            path: program_path.to_path_buf(),
+            why: e,
+        };
+        let prog_bytes = read(program_path, "inspection program", 16 << 20)?;
+        let mut program = Program::load(program_path).map_err(|e| bad(e.to_string()))?;
+        let layer_path = program.paste_layer_path(program_path);
+        let layer_bytes = read(&layer_path, "paste layer", 256 << 20)?;
+        let (mut pads, _) = dpsa_inspect::run::paste_layer_pads(&program, program_path)
+            .map_err(|e| bad(e.to_string()))?;
+        dpsa_inspect::teach::apply_components(&mut program, program_path, &mut pads)
+            .map_err(|e| bad(dpsa_inspect::InspectError::from(e).to_string()))?;
+        let families = dpsa_inspect::teach::pad_families(&program, program_path, &pads)
+            .map_err(|e| bad(dpsa_inspect::InspectError::from(e).to_string()))?;
+        Ok(Design {
+            program,
+            pads,
+            families,
+            program_hash: fnv_hex(&[&prog_bytes, &layer_bytes]),
+        })
+    }
+}
+
 fn read(path: &Path, what: &str, max: u64) -> Result<Vec<u8>, LineError> {
     dpsa_formats::files::read_capped(path, max, what).map_err(LineError::File)
 }
@@ -421,27 +461,15 @@ impl LineConfig {
                 ));
             }
             let program_path = at(&p.program);
-            let prog_bytes = read(&program_path, "inspection program", 16 << 20)
-                .map_err(|e| bad(path, &key("program"), e))?;
-            let mut program =
-                Program::load(&program_path).map_err(|e| bad(path, &key("program"), e))?;
-            let layer_path = program.paste_layer_path(&program_path);
-            let layer_bytes = read(&layer_path, "paste layer", 256 << 20)
-                .map_err(|e| bad(path, &key("program"), e))?;
-            let (mut pads, _) = dpsa_inspect::run::paste_layer_pads(&program, &program_path)
-                .map_err(|e| bad(path, &key("program"), e))?;
-            dpsa_inspect::teach::apply_components(&mut program, &program_path, &mut pads)
-                .map_err(|e| bad(path, &key("program"), dpsa_inspect::InspectError::from(e)))?;
-            let families = dpsa_inspect::teach::pad_families(&program, &program_path, &pads)
-                .map_err(|e| bad(path, &key("program"), dpsa_inspect::InspectError::from(e)))?;
+            let d = Design::load(&program_path).map_err(|e| bad(path, &key("program"), e))?;
             products.push(Product {
                 id: p.id.clone(),
-                program,
+                program: d.program,
                 program_path,
-                pads,
-                families,
+                pads: d.pads,
+                families: d.families,
                 grid,
-                program_hash: fnv_hex(&[&prog_bytes, &layer_bytes]),
+                program_hash: d.program_hash,
             });
         }
         let default_product = products

@@ -68,6 +68,61 @@ pub fn png(image: &PadImage, scale: Scale) -> Result<Vec<u8>, png::EncodingError
     Ok(out)
 }
 
+/// An opening as an SVG element with `attrs`: `to` takes board mm to the drawing (board `y`
+/// up, drawing `y` down), `px_per_mm` its scale.
+pub fn outline_svg(
+    outline: &Outline,
+    to: impl Fn(f64, f64) -> (f64, f64),
+    px_per_mm: f64,
+    attrs: &str,
+) -> String {
+    match outline {
+        Outline::Circle { centre, diameter } => {
+            let (cx, cy) = to(centre[0], centre[1]);
+            format!(
+                "<circle cx=\"{cx:.1}\" cy=\"{cy:.1}\" r=\"{:.2}\" {attrs}/>",
+                diameter / 2.0 * px_per_mm
+            )
+        }
+        Outline::RoundRect {
+            centre,
+            size,
+            radius,
+            rotation_deg,
+        } => {
+            let (cx, cy) = to(centre[0], centre[1]);
+            let (rw, rh) = (size[0] * px_per_mm, size[1] * px_per_mm);
+            let r = radius.clamp(0.0, size[0].min(size[1]) / 2.0) * px_per_mm;
+            // Counter-clockwise on the board is clockwise in the drawing (y flipped).
+            let turn = if *rotation_deg == 0.0 {
+                String::new()
+            } else {
+                format!(
+                    " transform=\"rotate({:.3} {cx:.1} {cy:.1})\"",
+                    -rotation_deg
+                )
+            };
+            format!(
+                "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"{rw:.2}\" height=\"{rh:.2}\" \
+                 rx=\"{r:.2}\"{turn} {attrs}/>",
+                cx - rw / 2.0,
+                cy - rh / 2.0
+            )
+        }
+        Outline::Polygon { exterior, holes } => {
+            let mut d = String::new();
+            for ring in std::iter::once(exterior).chain(holes) {
+                for (k, q) in ring.iter().enumerate() {
+                    let (x, y) = to(q[0], q[1]);
+                    let _ = write!(d, "{}{x:.1},{y:.1} ", if k == 0 { "M" } else { "L" });
+                }
+                d.push('Z');
+            }
+            format!("<path d=\"{d}\" fill-rule=\"evenodd\" {attrs}/>")
+        }
+    }
+}
+
 /// Round steps between `lo` and `hi`: multiples of 1, 2 or 5 x 10^k, about `n` of them.
 pub fn ticks(lo: f64, hi: f64, n: usize) -> Vec<f64> {
     if !(lo.is_finite() && hi.is_finite()) || hi <= lo || n == 0 {
@@ -135,52 +190,12 @@ pub fn crop_svg(image: &PadImage, scale: Scale, src: &str) -> String {
          stroke=\"#57606a\"/>"
     );
     // The opening.
-    let stroke = "fill=\"none\" stroke=\"#ffffff\" stroke-width=\"1.5\" stroke-dasharray=\"4 3\"";
-    match &c.outline {
-        Outline::Circle { centre, diameter } => {
-            let _ = write!(
-                o,
-                "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"{:.1}\" {stroke}/>",
-                sx(centre[0]),
-                sy(centre[1]),
-                diameter / 2.0 / p * s
-            );
-        }
-        Outline::RoundRect {
-            centre,
-            size,
-            radius,
-            rotation_deg,
-        } => {
-            let (cx, cy) = (sx(centre[0]), sy(centre[1]));
-            let (rw, rh) = (size[0] / p * s, size[1] / p * s);
-            let r = radius.clamp(0.0, size[0].min(size[1]) / 2.0) / p * s;
-            let _ = write!(
-                o,
-                "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"{rw:.1}\" height=\"{rh:.1}\" rx=\"{r:.1}\" \
-                 transform=\"rotate({:.3} {cx:.1} {cy:.1})\" {stroke}/>",
-                cx - rw / 2.0,
-                cy - rh / 2.0,
-                -rotation_deg
-            );
-        }
-        Outline::Polygon { exterior, holes } => {
-            let mut d = String::new();
-            for ring in std::iter::once(exterior).chain(holes) {
-                for (k, q) in ring.iter().enumerate() {
-                    let _ = write!(
-                        d,
-                        "{}{:.1},{:.1} ",
-                        if k == 0 { "M" } else { "L" },
-                        sx(q[0]),
-                        sy(q[1])
-                    );
-                }
-                d.push('Z');
-            }
-            let _ = write!(o, "<path d=\"{d}\" {stroke}/>");
-        }
-    }
+    o.push_str(&outline_svg(
+        &c.outline,
+        |x, y| (sx(x), sy(y)),
+        s / p,
+        "fill=\"none\" stroke=\"#ffffff\" stroke-width=\"1.5\" stroke-dasharray=\"4 3\"",
+    ));
     // The cut.
     let yc = c.y0_mm + cut_row(image) as f64 * p;
     let _ = write!(

@@ -20,6 +20,7 @@ td.t, th.t { text-align: left; }
 .figures span { display: inline-block; margin-right: 2em; }
 .figures b { font-size: 1.3em; }
 .note { color: #57606a; }
+.board svg { max-width: 100%; height: auto; }
 .pictures { display: flex; flex-wrap: wrap; gap: 1.5em; align-items: flex-start; }
 image.crop { image-rendering: pixelated; }
 form.review { display: flex; flex-wrap: wrap; gap: .8em; align-items: center; margin: .8em 0; }

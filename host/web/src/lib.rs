@@ -25,6 +25,7 @@
 //! with a token required whenever one is set, and always when the pages are served beyond
 //! loopback.
 
+pub mod board_view;
 pub mod crop;
 pub mod html;
 pub mod pages;
@@ -66,6 +67,8 @@ pub struct Site {
     pub line: String,
     /// Who may review calls.
     pub reviews: review::Policy,
+    /// The programs whose boards are drawn (a board is drawn by the program of its hash).
+    pub designs: Arc<board_view::Designs>,
 }
 
 impl Site {
@@ -75,6 +78,7 @@ impl Site {
             store,
             line: line.to_owned(),
             reviews: review::Policy::default(),
+            designs: Arc::default(),
         }
     }
 }

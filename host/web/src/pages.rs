@@ -198,6 +198,22 @@ pub fn board(site: &Site, id: i64) -> Result<Option<String>, PageError> {
         count("fail"),
         time(b.started_unix_s)
     );
+    if b.state == "inspected" {
+        match crate::board_view::board_svg(&site.designs, &b.program_hash, id, &pads) {
+            Some(svg) => {
+                let _ = write!(
+                    body,
+                    "<h2>The board</h2><div class=\"board\">{svg}</div><p class=\"note\">Every \
+                     opening of the program where the design puts it; the calls coloured, \
+                     ringed, named and linked to their pad's page.</p>"
+                );
+            }
+            None => body.push_str(
+                "<p class=\"note\">The board is not drawn: its program was not given to the \
+                 pages (dpsa serve --program PROG).</p>",
+            ),
+        }
+    }
     if let Some(why) = &b.incomplete_reason {
         let _ = write!(
             body,

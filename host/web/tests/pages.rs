@@ -18,6 +18,7 @@ fn the_pages_show_the_line_a_board_and_a_pad() {
     let before = std::fs::read(file).unwrap();
     let (addr, stop, h) = serve(Site {
         reviews: Default::default(),
+        designs: Default::default(),
         store: loc.clone(),
         line: "line-1".into(),
     });
@@ -151,6 +152,7 @@ fn a_store_that_is_gone_is_said() {
     let dir = tempfile::tempdir().unwrap();
     let (addr, stop, h) = serve(Site {
         reviews: Default::default(),
+        designs: Default::default(),
         store: Location::Sqlite(dir.path().join("none.sqlite")),
         line: "line-1".into(),
     });
@@ -315,4 +317,95 @@ fn reviews_are_stored_from_the_page_and_refused_from_elsewhere() {
             .len(),
         3
     );
+}
+
+/// A board drawn by its program: every opening where the design puts it (x to the right, y
+/// up), the calls over them in their colours, linked and labelled; a board of a program not
+/// given says so instead.
+#[test]
+fn the_board_is_drawn_by_its_program() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("paste.gbr"),
+        "%FSLAX46Y46*%\n%MOMM*%\n%ADD10R,0.6X0.3*%\n%ADD11C,0.4*%\nD10*\n\
+         X1000000Y1000000D03*\nX2000000Y1000000D03*\nD11*\nX3000000Y2000000D03*\nM02*\n",
+    )
+    .unwrap();
+    let prog = dir.path().join("program.toml");
+    std::fs::write(&prog, "paste_layer = \"paste.gbr\"\nstencil_um = 100.0\n").unwrap();
+    let design = dpsa_line::config::Design::load(&prog).unwrap();
+    assert_eq!(design.pads.len(), 3);
+    let hash = design.program_hash.clone();
+    let loc = Location::Sqlite(dir.path().join("line.sqlite"));
+    let mut s = Store::open(&loc, "line-1").unwrap();
+    let mut ids = Vec::new();
+    for (run, h) in [(0xc1u64, hash.as_str()), (0xc2, "another")] {
+        let id = s
+            .begin_board(&dpsa_line::store::BoardStart {
+                run_id: run,
+                product: "mini".into(),
+                program_hash: h.into(),
+                calibration_hash: "c".into(),
+                started_unix_s: 1_700_000_000.0,
+            })
+            .unwrap();
+        s.finish_board(
+            id,
+            1_700_000_001.0,
+            &[],
+            &dpsa_line::store::Outcome::Inspected {
+                verdict: "fail".into(),
+                pads: vec![
+                    common::pad(0, "R1-1", "pass", Some(100.0)),
+                    common::pad(1, "R1-2", "warn", Some(72.0)),
+                    common::pad(2, "U<1>-3", "fail", Some(31.0)),
+                ],
+            },
+        )
+        .unwrap();
+        ids.push(id);
+    }
+    let mut site = Site::new(loc, "line-1");
+    site.designs = std::sync::Arc::new(dpsa_web::board_view::Designs::from(vec![design]));
+    let (addr, stop, h) = serve(site);
+    let (st, _, body) = get(&addr, &format!("/board/{}", ids[0]));
+    assert_eq!(st, 200);
+    // The design spans x 0.7..3.2 and y 0.85..2.2 mm: 368 px a mm from a 40 px margin. Pad 0
+    // (0.6 x 0.3 at (1, 1)) is a rect at (40, 426.4); pad 2 (a 0.4 disc at (3, 2)) a circle
+    // at (886.4, 113.6), y up.
+    let svg = &body[body.find("<svg").unwrap()..];
+    assert!(
+        svg.contains("<rect x=\"40.0\" y=\"426.4\" width=\"220.80\" height=\"110.40\""),
+        "{svg}"
+    );
+    assert!(
+        svg.contains("<circle cx=\"886.4\" cy=\"113.6\" r=\"73.60\""),
+        "{svg}"
+    );
+    // The calls: linked, titled, ringed and named (escaped); the failure drawn after the warning.
+    let fail = svg
+        .find(&format!(
+            "<a href=\"/board/{}/pad/2\"><title>U&lt;1&gt;-3 fail: insufficient</title>",
+            ids[0]
+        ))
+        .expect("the failure linked");
+    let warn = svg
+        .find(&format!(
+            "<a href=\"/board/{}/pad/1\"><title>R1-2 warn: insufficient</title>",
+            ids[0]
+        ))
+        .expect("the warning linked");
+    assert!(warn < fail);
+    assert!(svg.contains(">U&lt;1&gt;-3 insufficient</text>"));
+    assert!(!svg.contains("/pad/0\""), "a passed pad linked");
+    assert!(svg.contains(dpsa_web::board_view::FAIL) && svg.contains(">pass</text>"));
+    assert!(svg.contains(" mm</text>") && !svg.contains("style="));
+    // Another program's board: not drawn, said.
+    let (_, _, other) = get(&addr, &format!("/board/{}", ids[1]));
+    assert!(
+        !other.contains("<svg") && other.contains("its program was not given"),
+        "{other}"
+    );
+    stop.send(()).unwrap();
+    h.join().unwrap();
 }
