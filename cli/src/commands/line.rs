@@ -274,6 +274,7 @@ fn run_line(a: RunArgs) -> Result<()> {
                 store: cfg.store.clone(),
                 line: cfg.line.clone(),
                 reviews,
+                spc: Default::default(),
                 designs: std::sync::Arc::new(dpsa_web::board_view::Designs::load(
                     &cfg.products
                         .iter()

@@ -46,6 +46,7 @@ pub fn run(a: Args) -> Result<()> {
             store,
             line: a.line,
             reviews,
+            spc: Default::default(),
             designs: std::sync::Arc::new(designs),
         },
         a.bind,

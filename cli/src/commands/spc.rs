@@ -26,7 +26,7 @@ pub struct Args {
     last: u32,
     /// The first this many boards of the study set every chart's centre and limits (phase I;
     /// the later ones are judged against them); 0: every board (retrospective).
-    #[arg(long, default_value_t = 25)]
+    #[arg(long, default_value_t = dpsa_spc::study::DEFAULT_BASELINE as u32)]
     baseline: u32,
     /// The run rules read on every chart: `we` (Western Electric 1-4), `nelson` (1-8),
     /// `all`, or a list such as `WE1,N2,N3`.
@@ -84,41 +84,9 @@ fn rules(text: &str) -> Result<Vec<Rule>> {
 /// The alarm policy with Western Electric's rules (docs/spc.md, "Alarm policy"): on the 40
 /// family charts of a board rule 1 only, on the print's placement rules 1 and 2, on the board's
 /// five charts rules 1 to 3; WE4 (8 in a row) is read and counted everywhere but raises none.
-const DEFAULT_POLICY: &str = "board:WE1+WE2+WE3,family:WE1,print:WE1+WE2";
-
-/// `--alarms`: `SCOPE[:RULE+RULE...],...`: the scopes that raise alarms, each on every rule
-/// read or on the rules given (which must be read, `--rules`).
+/// `--alarms`: `SCOPE[:RULE+RULE...],...` (`dpsa_spc::study::parse_policy`).
 fn scopes(text: &str, read: &[Rule]) -> Result<(Vec<ScopeKind>, dpsa_spc::study::AlarmPolicy)> {
-    let mut kinds = Vec::new();
-    let mut policy = Vec::new();
-    for item in text.split(',').map(str::trim).filter(|s| !s.is_empty()) {
-        let (scope, rules) = match item.split_once(':') {
-            Some((s, r)) => (s.trim(), Some(r)),
-            None => (item, None),
-        };
-        let kind = ScopeKind::from_id(scope).with_context(|| {
-            format!("--alarms: {scope:?} is no scope (board, family, component, pad, print)")
-        })?;
-        if kinds.contains(&kind) {
-            bail!("--alarms: {scope} given twice");
-        }
-        kinds.push(kind);
-        if let Some(r) = rules {
-            let mut v = Vec::new();
-            for id in r.split('+').map(str::trim).filter(|s| !s.is_empty()) {
-                match Rule::from_id(id) {
-                    Some(rule) if read.contains(&rule) => v.push(rule),
-                    Some(_) => bail!("--alarms: {scope}:{id}: the rule is not read (--rules)"),
-                    None => bail!("--alarms: {scope}:{id:?} is no rule (WE1-WE4, N1-N8)"),
-                }
-            }
-            if v.is_empty() {
-                bail!("--alarms: {scope}: no rule after the colon");
-            }
-            policy.push((kind, v));
-        }
-    }
-    Ok((kinds, policy))
+    dpsa_spc::study::parse_policy(text, read).map_err(|why| anyhow::anyhow!("--alarms: {why}"))
 }
 
 fn idx(v: Option<f64>) -> String {
@@ -152,7 +120,7 @@ pub fn run(a: Args) -> Result<()> {
     let read = rules(&a.rules)?;
     let alarms = match &a.alarms {
         Some(t) => t.clone(),
-        None if read == Rule::WESTERN_ELECTRIC => DEFAULT_POLICY.to_owned(),
+        None if read == Rule::WESTERN_ELECTRIC => dpsa_spc::study::DEFAULT_POLICY.to_owned(),
         None => "board,family,print".to_owned(),
     };
     let (alarm_scopes, alarm_rules) = scopes(&alarms, &read)?;
@@ -181,6 +149,7 @@ pub fn run(a: Args) -> Result<()> {
         product: a.product.as_deref(),
         program: a.program.as_deref(),
         last: a.last as usize,
+        read_only: false,
     };
     let loaded = dpsa_spc::load::load(&src)?;
     let report = analyse(&loaded.study, &loaded.product, &opts);

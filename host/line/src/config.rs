@@ -275,6 +275,8 @@ fn bad(path: &Path, key: &str, why: impl std::fmt::Display) -> LineError {
 /// A program with what the line and the pages take from it: its paste layer's pads (named
 /// from its placement file), each pad's package family, and the hash that boards carry.
 pub struct Design {
+    /// The program's file, as given.
+    pub path: PathBuf,
     /// The program.
     pub program: Program,
     /// Its paste layer's pads, in the layer's order (a pad row's index).
@@ -304,6 +306,7 @@ impl Design {
         let families = dpsa_inspect::teach::pad_families(&program, program_path, &pads)
             .map_err(|e| bad(dpsa_inspect::InspectError::from(e).to_string()))?;
         Ok(Design {
+            path: program_path.to_path_buf(),
             program,
             pads,
             families,

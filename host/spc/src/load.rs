@@ -100,6 +100,9 @@ pub struct Source<'a> {
     pub program: Option<&'a Path>,
     /// At most this many boards, the newest.
     pub last: usize,
+    /// Open the store for reading only (the operator's pages); else as the line does
+    /// (an older store migrated).
+    pub read_only: bool,
 }
 
 /// A loaded study and what was left out.
@@ -186,7 +189,11 @@ pub fn load(src: &Source) -> Result<Loaded, LoadError> {
             return Err(LoadError::NoStore(p.clone()));
         }
     }
-    let mut store = Store::open(src.store, src.line)?;
+    let mut store = if src.read_only {
+        Store::open_read_only(src.store, src.line)?
+    } else {
+        Store::open(src.store, src.line)?
+    };
     let product = match src.product {
         Some(p) => p.to_owned(),
         None => store

@@ -75,15 +75,9 @@ pub fn draw(
         root.present().map_err(err)?;
     }
     if let Some(p) = png {
-        let mut rgb = vec![0u8; SIZE.0 as usize * SIZE.1 as usize * 3];
-        {
-            let root = BitMapBackend::with_buffer(&mut rgb, SIZE).into_drawing_area();
-            paint(&root, chart, rules, caption)?;
-            root.present().map_err(err)?;
-        }
         image::save_buffer_with_format(
             p,
-            &rgb,
+            &rgb(chart, rules, caption)?,
             SIZE.0,
             SIZE.1,
             image::ExtendedColorType::Rgb8,
@@ -92,6 +86,33 @@ pub fn draw(
         .map_err(err)?;
     }
     Ok(())
+}
+
+/// `chart` painted into an RGB buffer of [`SIZE`] (the font registered).
+fn rgb(chart: &Chart, rules: &[Rule], caption: &Caption) -> Result<Vec<u8>, PlotError> {
+    register_font()?;
+    let mut rgb = vec![0u8; SIZE.0 as usize * SIZE.1 as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut rgb, SIZE).into_drawing_area();
+        paint(&root, chart, rules, caption)?;
+        root.present().map_err(err)?;
+    }
+    Ok(rgb)
+}
+
+/// `chart` as PNG bytes (as [`draw`] writes its file), for a page to serve.
+pub fn png_bytes(chart: &Chart, rules: &[Rule], caption: &Caption) -> Result<Vec<u8>, PlotError> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    image::write_buffer_with_format(
+        &mut out,
+        &rgb(chart, rules, caption)?,
+        SIZE.0,
+        SIZE.1,
+        image::ExtendedColorType::Rgb8,
+        image::ImageFormat::Png,
+    )
+    .map_err(err)?;
+    Ok(out.into_inner())
 }
 
 /// The corner of the upper chart with the fewest points (a third of the width, a third of

@@ -431,7 +431,66 @@ impl Default for Options {
     }
 }
 
+/// Boards whose values set the charts' centres and limits unless told otherwise (`dpsa spc
+/// --baseline`): the study's first 25.
+pub const DEFAULT_BASELINE: usize = 25;
+
+/// The default alarm policy with Western Electric's rules: chosen on the known process
+/// (`docs/spc.md`), the known changes' delays as with every rule, a third of the false alarms.
+pub const DEFAULT_POLICY: &str = "board:WE1+WE2+WE3,family:WE1,print:WE1+WE2";
+
+/// An alarm policy's text, `SCOPE[:RULE+RULE...],...`: the scopes that raise alarms, each on
+/// every rule of `read` or on the rules given (which must be read); or why it is not one.
+pub fn parse_policy(text: &str, read: &[Rule]) -> Result<(Vec<ScopeKind>, AlarmPolicy), String> {
+    let mut kinds = Vec::new();
+    let mut policy = Vec::new();
+    for item in text.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+        let (scope, rules) = match item.split_once(':') {
+            Some((s, r)) => (s.trim(), Some(r)),
+            None => (item, None),
+        };
+        let kind = ScopeKind::from_id(scope).ok_or_else(|| {
+            format!("{scope:?} is no scope (board, family, component, pad, print)")
+        })?;
+        if kinds.contains(&kind) {
+            return Err(format!("{scope} given twice"));
+        }
+        kinds.push(kind);
+        if let Some(r) = rules {
+            let mut v = Vec::new();
+            for id in r.split('+').map(str::trim).filter(|s| !s.is_empty()) {
+                match Rule::from_id(id) {
+                    Some(rule) if read.contains(&rule) => v.push(rule),
+                    Some(_) => return Err(format!("{scope}:{id}: the rule is not read (--rules)")),
+                    None => return Err(format!("{scope}:{id:?} is no rule (WE1-WE4, N1-N8)")),
+                }
+            }
+            if v.is_empty() {
+                return Err(format!("{scope}: no rule after the colon"));
+            }
+            policy.push((kind, v));
+        }
+    }
+    Ok((kinds, policy))
+}
+
 impl Options {
+    /// Western Electric's rules with [`DEFAULT_POLICY`], limits from the first
+    /// [`DEFAULT_BASELINE`] boards: what `dpsa spc` and the operator's pages use unless told
+    /// otherwise.
+    pub fn with_default_policy() -> Options {
+        let rules = Rule::WESTERN_ELECTRIC.to_vec();
+        let (alarm_scopes, alarm_rules) =
+            parse_policy(DEFAULT_POLICY, &rules).unwrap_or_else(|_| (Vec::new(), Vec::new()));
+        Options {
+            rules,
+            alarm_scopes,
+            alarm_rules,
+            baseline: Some(DEFAULT_BASELINE),
+            ..Options::default()
+        }
+    }
+
     /// Whether `rule` firing on a chart of `kind` raises an alarm.
     pub fn raises(&self, kind: ScopeKind, rule: Rule) -> bool {
         self.alarm_scopes.contains(&kind)
@@ -728,6 +787,22 @@ fn pulling(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_default_policy_reads_and_bad_ones_are_refused() {
+        let o = Options::with_default_policy();
+        assert_eq!(
+            o.alarm_scopes,
+            [ScopeKind::Board, ScopeKind::Family, ScopeKind::Print]
+        );
+        assert!(o.raises(ScopeKind::Board, Rule::from_id("WE3").unwrap()));
+        assert!(!o.raises(ScopeKind::Family, Rule::from_id("WE2").unwrap()));
+        assert!(!o.raises(ScopeKind::Pad, Rule::from_id("WE1").unwrap()));
+        let we = &Rule::WESTERN_ELECTRIC;
+        for bad in ["shelf", "board,board", "board:N1", "board:XX", "board:"] {
+            assert!(parse_policy(bad, we).is_err(), "{bad}");
+        }
+    }
 
     fn pad(name: &str, comp: &str, fam: &str) -> PadSpec {
         let l = SpecLimits {

@@ -123,6 +123,11 @@ impl Designs {
             .find(|(d, _)| d.program_hash == program_hash)
     }
 
+    /// The file of the program of hash `program_hash`, if given.
+    pub fn path(&self, program_hash: &str) -> Option<&Path> {
+        self.find(program_hash).map(|(d, _)| d.path.as_path())
+    }
+
     /// Pad `k`'s package family under the program of hash `program_hash`.
     pub fn family(&self, program_hash: &str, k: u32) -> Option<&str> {
         let (d, _) = self.find(program_hash)?;

@@ -21,6 +21,8 @@ td.t, th.t { text-align: left; }
 .figures b { font-size: 1.3em; }
 .note { color: #57606a; }
 .board svg { max-width: 100%; height: auto; }
+img.chart { max-width: 100%; height: auto; border: 1px solid #e3e6ea; }
+header a.nav { font-weight: 400; margin-left: 1.5em; }
 .pictures { display: flex; flex-wrap: wrap; gap: 1.5em; align-items: flex-start; }
 image.crop { image-rendering: pixelated; }
 form.review { display: flex; flex-wrap: wrap; gap: .8em; align-items: center; margin: .8em 0; }
@@ -56,7 +58,8 @@ pub fn frame(title: &str, body: &str) -> String {
          <meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\
          <title>{t} - dpsa</title><link rel=\"stylesheet\" href=\"/style.css\">\
          <link rel=\"icon\" type=\"image/svg+xml\" href=\"/icon.svg\"></head>\
-         <body><header><a href=\"/\">dpsa: the line</a></header><h1>{t}</h1>\n{body}\n\
+         <body><header><a href=\"/\">dpsa: the line</a> <a class=\"nav\" href=\"/spc\">SPC</a>\
+         </header><h1>{t}</h1>\n{body}\n\
          </body></html>\n",
         t = esc(title)
     )

@@ -30,6 +30,7 @@ pub mod crop;
 pub mod html;
 pub mod pages;
 pub mod review;
+pub mod spc;
 
 use axum::extract::{DefaultBodyLimit, Path, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
@@ -69,6 +70,8 @@ pub struct Site {
     pub reviews: review::Policy,
     /// The programs whose boards are drawn (a board is drawn by the program of its hash).
     pub designs: Arc<board_view::Designs>,
+    /// The newest SPC study made, kept until a newer board comes.
+    pub spc: Arc<spc::Cache>,
 }
 
 impl Site {
@@ -79,6 +82,7 @@ impl Site {
             line: line.to_owned(),
             reviews: review::Policy::default(),
             designs: Arc::default(),
+            spc: Arc::default(),
         }
     }
 }
@@ -94,6 +98,9 @@ pub fn router(site: Site) -> Router {
             "/board/{id}/pad/{pad}/review",
             axum::routing::post(post_review),
         )
+        .route("/spc", get(spc_newest))
+        .route("/spc/{product}", get(spc_product))
+        .route("/spc/{product}/chart/{kind}/{k}/{file}", get(spc_chart))
         .route("/style.css", get(style))
         .route("/icon.svg", get(icon))
         .fallback(not_found)
@@ -328,6 +335,60 @@ async fn post_review(
                 StatusCode::SERVICE_UNAVAILABLE,
                 "Store unavailable",
                 &format!("The review was not stored: {e}"),
+            )
+        }
+        Err(e) => message(StatusCode::INTERNAL_SERVER_ERROR, "Error", &e.to_string()),
+    }
+}
+
+async fn spc_newest(State(site): State<Arc<Site>>) -> Response {
+    spc_page(site, None).await
+}
+
+async fn spc_product(State(site): State<Arc<Site>>, Path(product): Path<String>) -> Response {
+    spc_page(site, Some(product)).await
+}
+
+async fn spc_page(site: Arc<Site>, product: Option<String>) -> Response {
+    let out = tokio::task::spawn_blocking(move || spc::page(&site, product.as_deref())).await;
+    match out {
+        Ok(Ok(Some(body))) => respond(StatusCode::OK, HTML, body),
+        Ok(Ok(None)) => not_found().await,
+        Ok(Err(e)) => {
+            tracing::error!("spc: {e}");
+            message(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "SPC unavailable",
+                &format!("The study could not be made: {e}"),
+            )
+        }
+        Err(e) => message(StatusCode::INTERNAL_SERVER_ERROR, "Error", &e.to_string()),
+    }
+}
+
+/// An SPC chart as PNG (`spc::chart_png`), or a 404.
+async fn spc_chart(
+    State(site): State<Arc<Site>>,
+    Path((product, kind, k, file)): Path<(String, String, String, String)>,
+) -> Response {
+    let (Ok(k), Some(metric)) = (
+        k.parse::<usize>(),
+        file.strip_suffix(".png").map(str::to_owned),
+    ) else {
+        return not_found().await;
+    };
+    let out =
+        tokio::task::spawn_blocking(move || spc::chart_png(&site, &product, &kind, k, &metric))
+            .await;
+    match out {
+        Ok(Ok(Some(bytes))) => respond(StatusCode::OK, "image/png", bytes),
+        Ok(Ok(None)) => not_found().await,
+        Ok(Err(e)) => {
+            tracing::error!("spc chart: {e}");
+            message(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "SPC unavailable",
+                &format!("The chart could not be drawn: {e}"),
             )
         }
         Err(e) => message(StatusCode::INTERNAL_SERVER_ERROR, "Error", &e.to_string()),

@@ -2,7 +2,8 @@
 //! chromedriver (fantoccini), against the site served on a loopback port. Each page renders
 //! with nothing in the browser's console (no script error, no resource refused by the
 //! Content-Security-Policy, no image that failed to load); the board's list of calls links to
-//! the right pad's page; a review made in the form is stored; the pad's image is drawn.
+//! the right pad's page; a review made in the form is stored; the pad's image is drawn; the
+//! SPC page opens from the header.
 //!
 //! Needs `chromedriver` and Chromium (the test command installs Debian's `chromium` and
 //! `chromium-driver`); fails, saying so, without them.
@@ -134,6 +135,22 @@ async fn settle(c: &Client) {
     }
 }
 
+/// Clicks the element `css` selects, waits for the page it opens, checks it is `path` with
+/// nothing in the console.
+async fn click_to(c: &Client, css: &str, path: &str) {
+    c.find(Locator::Css(css))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    settle(c).await;
+    let src = c.source().await.unwrap();
+    assert_eq!(c.current_url().await.unwrap().path(), path, "{src}");
+    let log = console(c).await;
+    assert!(log.is_empty(), "{path}: the console says {log:?}");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_pages_work_in_chromium() {
     let dir = tempfile::tempdir().unwrap();
@@ -175,18 +192,12 @@ async fn the_pages_work_in_chromium() {
     open_clean(&c, &format!("{site}/")).await;
     let title = c.title().await.unwrap();
     assert_eq!(title, "Line line-1 - dpsa");
-    c.find(Locator::Css(&format!("a[href='/board/{}']", ids[1])))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
-    settle(&c).await;
-    assert_eq!(
-        c.current_url().await.unwrap().path(),
-        format!("/board/{}", ids[1])
-    );
-    assert!(console(&c).await.is_empty());
+    click_to(
+        &c,
+        &format!("a[href='/board/{}']", ids[1]),
+        &format!("/board/{}", ids[1]),
+    )
+    .await;
     // The first call listed is the failure, pad 2 (U<1>-3).
     let first = c
         .find(Locator::Css("table tr td a[href*='/pad/']"))
@@ -224,20 +235,13 @@ async fn the_pages_work_in_chromium() {
             .await
             .unwrap();
     }
-    c.find(Locator::Css("button[value='false_call']"))
-        .await
-        .unwrap()
-        .click()
-        .await
-        .unwrap();
-    settle(&c).await;
+    click_to(
+        &c,
+        "button[value='false_call']",
+        &format!("/board/{}/pad/2", ids[1]),
+    )
+    .await;
     let src = c.source().await.unwrap();
-    assert_eq!(
-        c.current_url().await.unwrap().path(),
-        format!("/board/{}/pad/2", ids[1]),
-        "{src}"
-    );
-    assert!(console(&c).await.is_empty());
     assert!(
         src.contains("Operator 7") && src.contains("false call"),
         "{src}"
@@ -262,6 +266,9 @@ async fn the_pages_work_in_chromium() {
     // The line counts it.
     open_clean(&c, &format!("{site}/")).await;
     assert!(c.source().await.unwrap().contains("100.0 %"));
+    // The SPC page, from the header's link.
+    click_to(&c, "header a.nav", "/spc").await;
+    assert_eq!(c.title().await.unwrap(), "SPC: mini - dpsa");
 
     c.close().await.unwrap();
     drop(d);

@@ -19,6 +19,7 @@ fn the_pages_show_the_line_a_board_and_a_pad() {
     let (addr, stop, h) = serve(Site {
         reviews: Default::default(),
         designs: Default::default(),
+        spc: Default::default(),
         store: loc.clone(),
         line: "line-1".into(),
     });
@@ -153,6 +154,7 @@ fn a_store_that_is_gone_is_said() {
     let (addr, stop, h) = serve(Site {
         reviews: Default::default(),
         designs: Default::default(),
+        spc: Default::default(),
         store: Location::Sqlite(dir.path().join("none.sqlite")),
         line: "line-1".into(),
     });
@@ -406,6 +408,93 @@ fn the_board_is_drawn_by_its_program() {
         !other.contains("<svg") && other.contains("its program was not given"),
         "{other}"
     );
+    stop.send(()).unwrap();
+    h.join().unwrap();
+}
+
+/// The SPC page studies the product's newest boards as `dpsa spc` does: a volume step on the
+/// last three of 30 boards raises the board's volume alarm (limits from the first 25); the
+/// board's mean volume is the mean of the stored values; its chart is a PNG of the plot's
+/// size; an unknown product or chart is a 404.
+#[test]
+fn the_spc_page_shows_the_study_and_its_alarms() {
+    let dir = tempfile::tempdir().unwrap();
+    let loc = Location::Sqlite(dir.path().join("line.sqlite"));
+    let mut s = Store::open(&loc, "line-1").unwrap();
+    let mut all = Vec::new();
+    for b in 0..30u64 {
+        let id = s
+            .begin_board(&dpsa_line::store::BoardStart {
+                run_id: 0x100 + b,
+                product: "mini".into(),
+                program_hash: "p".into(),
+                calibration_hash: "c".into(),
+                started_unix_s: 1_700_000_000.0 + 10.0 * b as f64,
+            })
+            .unwrap();
+        let pads: Vec<_> = (0..3u32)
+            .map(|k| {
+                let v = 100.0 + ((b as u32 * 7 + k * 3) % 5) as f64 - 2.0
+                    + if b >= 27 { 25.0 } else { 0.0 };
+                all.push(v);
+                common::pad(k, &format!("R{k}-1"), "pass", Some(v))
+            })
+            .collect();
+        s.finish_board(
+            id,
+            1_700_000_005.0 + 10.0 * b as f64,
+            &[],
+            &dpsa_line::store::Outcome::Inspected {
+                verdict: "pass".into(),
+                pads,
+            },
+        )
+        .unwrap();
+    }
+    drop(s);
+    let (addr, stop, h) = serve(Site::new(loc, "line-1"));
+    let (st, _, body) = get(&addr, "/spc");
+    assert_eq!(st, 200, "{body}");
+    assert!(
+        body.contains("SPC: mini") && body.contains("<b>30</b>"),
+        "{body}"
+    );
+    let open = &body[body.find("Open alarms").unwrap()..body.find("The board (").unwrap()];
+    assert!(
+        open.contains("board mini") && open.contains("WE1") && open.contains(">open<"),
+        "{open}"
+    );
+    // The first board the step touches, linked.
+    assert!(open.contains(">000000000000011b</a>"), "{open}");
+    let mean = all.iter().sum::<f64>() / all.len() as f64;
+    let table = &body[body.find("The board (").unwrap()..];
+    assert!(
+        table.contains(&format!("<td>{mean:.2}</td>")),
+        "{mean:.2}: {table}"
+    );
+    let src = body
+        .split("<img class=\"chart\" src=\"")
+        .nth(1)
+        .and_then(|r| r.split('"').next())
+        .expect("the board's volume chart")
+        .to_owned();
+    assert_eq!(src, "/spc/mini/chart/board/0/volume_pct.png");
+    let (st, hd, png) = request(&addr, "GET", &src, &[], "");
+    assert_eq!(st, 200);
+    assert_eq!(header(&hd, "content-type"), Some("image/png"));
+    let r = png::Decoder::new(std::io::Cursor::new(png))
+        .read_info()
+        .unwrap();
+    assert_eq!((r.info().width, r.info().height), dpsa_spc::plot::SIZE);
+    for bad in [
+        "/spc/none",
+        "/spc/mini/chart/board/99/volume_pct.png",
+        "/spc/mini/chart/shelf/0/volume_pct.png",
+        "/spc/mini/chart/board/0/height_pct.png",
+        "/spc/mini/chart/board/0/volume_pct",
+    ] {
+        assert_eq!(get(&addr, bad).0, 404, "{bad}");
+    }
     stop.send(()).unwrap();
     h.join().unwrap();
 }
