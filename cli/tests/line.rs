@@ -670,9 +670,21 @@ fn the_line_serves_its_pages_while_it_runs() {
         );
         std::thread::sleep(Duration::from_millis(100));
     };
-    let (status, page) = get(&link);
-    assert!(status.contains(" 200 "), "{link}: {status}");
-    assert!(page.contains(&format!("Board {run}")), "{page}");
+    // Listed from its start (open); its page once inspected.
+    let t0 = Instant::now();
+    let page = loop {
+        let (status, page) = get(&link);
+        assert!(status.contains(" 200 "), "{link}: {status}");
+        assert!(page.contains(&format!("Board {run}")), "{page}");
+        if page.contains("Pads that warned or failed") {
+            break page;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "board {run} never inspected: {page}"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    };
     // The first call listed (the scene prints defects): its page shows the heights the line
     // kept around it, and the image is a PNG.
     let at = page
