@@ -319,8 +319,10 @@ fn place_label(
             }
         }
     }
-    // Crowded: the first place, over another.
+    // Crowded: the first place, over another, but inside the drawing.
     let (tx, ty) = first.unwrap_or((x + 11.0, y - 7.0));
+    let tx = tx.clamp(2.0, (WIDTH_PX - 2.0 - w).max(2.0));
+    let ty = ty.clamp(2.0 + h - 3.0, (height - 27.0).max(2.0 + h - 3.0));
     placed.push(boxed(tx, ty));
     (tx, ty)
 }
@@ -336,6 +338,16 @@ mod tests {
         assert_eq!(nice_below(47.0), 20.0);
         assert_eq!(nice_below(0.9), 0.5);
         assert_eq!(nice_below(f64::NAN), 1.0);
+    }
+
+    /// Crowded past every place: the label still stays in the drawing.
+    #[test]
+    fn a_crowded_label_stays_in_the_drawing() {
+        let mut placed = vec![[0.0, 0.0, WIDTH_PX, 700.0]];
+        let (tx, ty) = place_label(&mut placed, WIDTH_PX - 5.0, 690.0, 20, 700.0);
+        let b = placed[1];
+        assert!(b[0] >= 2.0 && b[2] <= WIDTH_PX - 2.0, "{tx} {ty} {b:?}");
+        assert!(b[1] >= 2.0 && b[3] <= 700.0 - 24.0, "{tx} {ty} {b:?}");
     }
 
     /// Eight marks close together get labels that overlap none of the others' and stay in
