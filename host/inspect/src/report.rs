@@ -5,8 +5,8 @@
 //! | `pads.csv` | one row per pad; the IPC-CFX `SolderPasteMeasurement` names where they exist (`ComponentPad`, `PasteVolume`, `PasteHeight`, `PasteXOffset`, `PasteYOffset`, `Result`), then ours |
 //! | `report.json` | what `--json` prints |
 //! | `cfx_units_inspected.json` | an IPC-CFX 1.x `UnitsInspected` message (JSON envelope, `InspectionMethod` SPI), one `SolderPasteMeasurement` per pad, the failures as `DefectsFound` |
-//! | `overview.png` | the board's heights in grey with every opening outlined in its verdict's colour: green pass, amber warning, red failure, magenta not measurable |
-//! | `gallery/NNN_class_pad.png` | every failure (at most [`MAX_GALLERY`]): the heights above the pad's local surface around it (false colour, 0 to 1.6 x stencil, the opening outlined in white) over a profile through the opening's centre along the board's x (the stencil thickness dashed) |
+//! | `overview.png` | the board's heights in grey, board x to the right and y up, every opening outlined in its verdict's colour (green pass, amber warning, red failure, magenta not measurable), every call ringed and labelled `REF.PIN class` where no label covers another, the fiducials marked, a title, a legend and a scale bar in mm |
+//! | `gallery/NNN_class_pad.png` | every failure (at most [`MAX_GALLERY`]): its name, class and measures against their fail limits; the heights above the pad's local surface around it (false colour 0 to 1.6 x stencil with a colour bar in um, board x right and y up with axes in mm, the opening dashed in white, the cut in black, no height in dark grey) over the profile along the cut (um against mm, the stencil thickness dashed) |
 
 use crate::error::InspectError;
 use crate::map::BoardMap;
@@ -260,135 +260,507 @@ fn level_colour(c: &Call, m: &PadMeasurement) -> [u8; 3] {
     }
 }
 
-/// `overview.png`: at most `max_px` pixels on the longer side (the map decimated by a whole
-/// factor), the openings put on the board by `t`.
+/// What [`overview`] marks: an opening on the board, its colour, and the label of a call.
+#[derive(Clone, Debug)]
+pub struct Mark {
+    /// The opening on the board, mm.
+    pub outline: dpsa_gerber::pads::Outline,
+    /// Its verdict's colour.
+    pub colour: [u8; 3],
+    /// For a call: its label (`REF.PIN class`), and whether it failed.
+    pub call: Option<(String, bool)>,
+}
+
+/// Where the overview puts the board: `f` map pixels a pixel, board `x` to the right and `y`
+/// up (a Gerber viewer's view), inside margins for the title, legend and scale.
+#[derive(Clone, Copy, Debug)]
+pub struct OverviewFrame {
+    /// Map pixels per image pixel.
+    pub f: usize,
+    /// The map's picture, px: along `x` and along `y`.
+    pub size: (usize, usize),
+    /// Left and top margins, px.
+    pub origin: (usize, usize),
+    /// The whole image, px.
+    pub image: (u32, u32),
+}
+
+impl OverviewFrame {
+    /// The frame of `grid` at most `max_px` map pixels on its longer side.
+    pub fn of(grid: &dpsa_formats::grid::BoardGrid, max_px: usize) -> OverviewFrame {
+        let f = grid.rows.max(grid.width).div_ceil(max_px.max(1)).max(1);
+        let size = (grid.rows.div_ceil(f), grid.width.div_ceil(f));
+        let origin = (12, 40);
+        OverviewFrame {
+            f,
+            size,
+            origin,
+            image: ((size.0 + 24) as u32, (size.1 + origin.1 + 56) as u32),
+        }
+    }
+
+    /// The image pixel of board point `(x, y)` mm on `grid`, fractional.
+    pub fn pixel(&self, grid: &dpsa_formats::grid::BoardGrid, x: f64, y: f64) -> (f64, f64) {
+        let step = grid.pitch_mm * self.f as f64;
+        (
+            self.origin.0 as f64 + (x - grid.x0_mm) / step,
+            self.origin.1 as f64 + self.size.1 as f64 - (y - grid.y0_mm) / step,
+        )
+    }
+}
+
+/// `overview.png`: the board's heights in grey with every opening outlined in its verdict's
+/// colour, board `x` to the right and `y` up, at most `max_px` map pixels on the longer side;
+/// every call ringed and labelled (`REF.PIN class`, placed where no label covers another),
+/// the fiducials marked, a title, a legend and a scale bar in mm.
 pub fn overview(
     map: &BoardMap,
     pads: &[Pad],
     t: &Rigid,
     i: &Inspection,
+    program: &Program,
+    max_px: usize,
+) -> RgbImage {
+    let marks: Vec<Mark> = pads
+        .iter()
+        .zip(&i.measurements)
+        .zip(&i.calls)
+        .map(|((p, m), c)| Mark {
+            outline: p.outline.transformed(t),
+            colour: level_colour(c, m),
+            call: (c.level != Level::Pass).then(|| {
+                let class = c.class.map_or(c.level.name(), |k| k.name());
+                (format!("{} {class}", cfx_pad(p)), c.level == Level::Fail)
+            }),
+        })
+        .collect();
+    let fiducials: Vec<[f64; 2]> = program
+        .fiducials
+        .points_mm
+        .iter()
+        .map(|&q| t.apply(q))
+        .collect();
+    let count = |l: Level| i.calls.iter().filter(|c| c.level == l).count();
+    let title = format!(
+        "{}{} pads: {} pass, {} warn, {} fail",
+        map.board_id
+            .map(|b| format!("board {b}: "))
+            .unwrap_or_default(),
+        pads.len(),
+        count(Level::Pass),
+        count(Level::Warn),
+        count(Level::Fail)
+    );
+    draw_overview(map, &marks, &fiducials, &title, max_px)
+}
+
+/// Most calls labelled on the overview (the rest ringed).
+pub const OVERVIEW_LABELS: usize = 80;
+
+/// The overview of `map` with `marks`, `fiducials` (board mm) and `title` (see [`overview`]).
+pub fn draw_overview(
+    map: &BoardMap,
+    marks: &[Mark],
+    fiducials: &[[f64; 2]],
+    title: &str,
     max_px: usize,
 ) -> RgbImage {
     let g = &map.grid;
-    let f = g.rows.max(g.width).div_ceil(max_px.max(1)).max(1);
-    let (h, w) = (g.rows.div_ceil(f), g.width.div_ceil(f));
+    let fr = OverviewFrame::of(g, max_px);
+    let (f, (nu, nv), (ou, ov)) = (fr.f, fr.size, fr.origin);
     let (lo, hi) = dpsa_formats::board_map::colour_range(&map.heights).unwrap_or((0.0, 1.0));
     let span = (hi - lo).max(1e-3);
-    let mut img: RgbImage = ImageBuffer::from_pixel(w as u32, h as u32, Rgb([30, 30, 60]));
-    for y in 0..h {
-        for x in 0..w {
-            let v = map.heights.at(y * f, x * f);
-            if v.is_finite() {
-                let q = (((v - lo) / span).clamp(0.0, 1.0) * 220.0 + 20.0) as u8;
-                img.put_pixel(x as u32, y as u32, Rgb([q, q, q]));
-            }
+    let mut img: RgbImage = ImageBuffer::from_pixel(fr.image.0, fr.image.1, Rgb([24, 28, 36]));
+    // The heights: image column u is map row u f (board x), image row v is map column
+    // (nv - 1 - v) f (board y up).
+    for v in 0..nv {
+        let j = (nv - 1 - v) * f;
+        for u in 0..nu {
+            let px = map.heights.at(u * f, j.min(g.width.saturating_sub(1)));
+            let q = if px.is_finite() {
+                (((px - lo) / span).clamp(0.0, 1.0) * 200.0 + 30.0) as u8
+            } else {
+                12
+            };
+            img.put_pixel((ou + u) as u32, (ov + v) as u32, Rgb([q, q, q]));
         }
     }
     let step = g.pitch_mm * f as f64;
-    for ((p, m), c) in pads.iter().zip(&i.measurements).zip(&i.calls) {
-        let o = p.outline.transformed(t);
-        let b = o.bbox();
-        let col = level_colour(c, m);
-        let (ri, rj) = map.window([b[0] - step, b[1] - step, b[2] + step, b[3] + step]);
-        let (y0, y1) = (ri.start / f, ri.end.div_ceil(f).min(h));
-        let (x0, x1) = (rj.start / f, rj.end.div_ceil(f).min(w));
-        // Failures get a thicker outline (the deposit stays visible inside).
-        let width = if c.level == Level::Fail { 1.6 } else { 0.6 };
-        for y in y0..y1 {
-            for x in x0..x1 {
-                let px = g.x0_mm + (y as f64 + 0.5) * step;
-                let py = g.y0_mm + (x as f64 + 0.5) * step;
-                let d = o.signed_distance([px, py]);
-                if d.abs() <= width * step {
-                    img.put_pixel(x as u32, y as u32, Rgb(col));
+    // Every opening outlined in its colour (failures thicker).
+    for m in marks {
+        let b = m.outline.bbox();
+        let width = if matches!(m.call, Some((_, true))) {
+            1.6
+        } else {
+            0.6
+        };
+        let (u0, v1) = fr.pixel(g, b[0] - step, b[1] - step);
+        let (u1, v0) = fr.pixel(g, b[2] + step, b[3] + step);
+        for v in (v0.floor().max(ov as f64) as usize)..(v1.ceil() as usize).min(ov + nv) {
+            for u in (u0.floor().max(ou as f64) as usize)..(u1.ceil() as usize).min(ou + nu) {
+                let x = g.x0_mm + ((u - ou) as f64 + 0.5) * step;
+                let y = g.y0_mm + ((ov + nv - v) as f64 - 0.5) * step;
+                if m.outline.signed_distance([x, y]).abs() <= width * step {
+                    img.put_pixel(u as u32, v as u32, Rgb(m.colour));
                 }
             }
         }
     }
+    let white = [255, 255, 255];
+    let dark = [24, 28, 36];
+    let (w, h) = (f64::from(fr.image.0), f64::from(fr.image.1));
+    crate::picture::draw(&mut img, |root| {
+        use plotters::prelude::*;
+        // Fiducials: a cyan ring and cross.
+        let cyan = crate::picture::rgb([0, 210, 230]);
+        for q in fiducials {
+            let (x, y) = fr.pixel(g, q[0], q[1]);
+            let (x, y) = (x as i32, y as i32);
+            root.draw(&Circle::new((x, y), 10, cyan.stroke_width(2)))?;
+            root.draw(&PathElement::new(
+                vec![(x - 14, y), (x + 14, y)],
+                cyan.stroke_width(1),
+            ))?;
+            root.draw(&PathElement::new(
+                vec![(x, y - 14), (x, y + 14)],
+                cyan.stroke_width(1),
+            ))?;
+        }
+        // The calls: failures first, ringed and labelled where no label covers another.
+        let mut calls: Vec<&Mark> = marks.iter().filter(|m| m.call.is_some()).collect();
+        calls.sort_by_key(|m| !matches!(m.call, Some((_, true))));
+        let mut placed = dpsa_formats::labels::Placed::default();
+        let bounds = [2.0, ov as f64, w - 2.0, (ov + nv) as f64];
+        let size = 13.0;
+        for (k, m) in calls.iter().enumerate() {
+            let c = m.outline.centroid();
+            let (x, y) = fr.pixel(g, c[0], c[1]);
+            let colour = crate::picture::rgb(m.colour);
+            root.draw(&Circle::new(
+                (x as i32, y as i32),
+                9,
+                colour.stroke_width(2),
+            ))?;
+            if k >= OVERVIEW_LABELS {
+                continue;
+            }
+            let label = m.call.as_ref().map_or("", |c| c.0.as_str());
+            let lw = crate::picture::text_width(label, size) + 4.0;
+            let (tx, ty) = placed.place(x, y, lw, size + 3.0, bounds);
+            let (lx, ly) = (tx.clamp(x - 300.0, x + 300.0), ty - size / 2.0);
+            root.draw(&PathElement::new(
+                vec![(x as i32, y as i32), (lx as i32, ly as i32)],
+                colour.stroke_width(1),
+            ))?;
+            crate::picture::text(root, (tx as i32, ty as i32), size, white, dark, label)?;
+        }
+        if calls.len() > OVERVIEW_LABELS {
+            crate::picture::text(
+                root,
+                (ou as i32, (ov - 4) as i32),
+                12.0,
+                white,
+                dark,
+                &format!(
+                    "{} more calls ringed, not labelled: see pads.csv",
+                    calls.len() - OVERVIEW_LABELS
+                ),
+            )?;
+        }
+        // Title, legend, scale bar.
+        crate::picture::text(root, (ou as i32, 24), 16.0, white, dark, title)?;
+        let y = (h - 18.0) as i32;
+        let mut x = ou as i32;
+        for (name, c) in [
+            ("pass", [0, 200, 60]),
+            ("warn", [255, 170, 0]),
+            ("fail", [255, 30, 30]),
+            ("not measurable", [230, 0, 230]),
+            ("fiducial", [0, 210, 230]),
+        ] {
+            root.draw(&Rectangle::new(
+                [(x, y - 11), (x + 14, y - 1)],
+                crate::picture::rgb(c).filled(),
+            ))?;
+            crate::picture::text(root, (x + 19, y), 13.0, white, dark, name)?;
+            x += 19 + crate::picture::text_width(name, 13.0) as i32 + 18;
+        }
+        crate::picture::text(
+            root,
+            (x + 10, y),
+            13.0,
+            [200, 200, 200],
+            dark,
+            "x to the right, y up, heights in grey",
+        )?;
+        let mm = dpsa_formats::labels::scale_bar_mm(0.2 * nu as f64 * step);
+        let len = (mm / step).round() as i32;
+        let x1 = (w as i32) - 14;
+        root.draw(&PathElement::new(
+            vec![(x1 - len, y - 4), (x1, y - 4)],
+            WHITE.stroke_width(3),
+        ))?;
+        let label = format!("{mm} mm");
+        let lw = crate::picture::text_width(&label, 13.0) as i32;
+        crate::picture::text(
+            root,
+            (x1 - len / 2 - lw / 2, y - 9),
+            13.0,
+            white,
+            dark,
+            &label,
+        )?;
+        Ok(())
+    });
     img
 }
 
-/// One defect picture: the crop over the profile.
+/// One defect picture (`gallery/`): a title (the pad, its class, its measures against their
+/// fail limits), the heights above the pad's local surface around it (false colour 0 to 1.6 x
+/// the stencil with a colour bar in um, board x to the right and y up, axes in mm, the opening
+/// dashed in white, the profile's cut in black, no height in dark grey) over the profile along
+/// the cut (um against mm, the stencil's thickness dashed).
 pub(crate) fn defect_picture(
     map: &BoardMap,
     p: &Pad,
     m: &PadMeasurement,
+    c: &Call,
     t: &Rigid,
-    stencil: f64,
+    program: &Program,
 ) -> RgbImage {
-    let o = p.outline.transformed(t);
-    let b = o.bbox();
-    let pad_mm = 0.6;
-    let (ri, rj) = map.window([b[0] - pad_mm, b[1] - pad_mm, b[2] + pad_mm, b[3] + pad_mm]);
-    let (ch, cw) = (ri.len().max(1), rj.len().max(1));
-    let s = (240 / ch.max(cw)).clamp(1, 12);
-    let (iw, crop_h, prof_h) = (cw * s, ch * s, 120usize);
-    let mut img: RgbImage = ImageBuffer::from_pixel(
-        iw as u32,
-        (crop_h + prof_h + 4) as u32,
-        Rgb([255, 255, 255]),
-    );
-    let c = o.centroid();
-    let base = |x: f64, y: f64| crate::measure::surface_at(&m.surface, x - c[0], y - c[1]);
-    let top = 1.6 * stencil;
-    for (a, i) in ri.clone().enumerate() {
-        for (bq, j) in rj.clone().enumerate() {
-            let v = map.heights.data[i * map.grid.width + j];
-            let (x, y) = map.grid.centre(i, j);
-            let col = if v.is_finite() {
-                dpsa_formats::images::colour(((f64::from(v) - base(x, y)) / top).clamp(0.0, 1.0))
-            } else {
-                [40, 40, 40]
-            };
-            let edge = o.signed_distance([x, y]).abs() <= 0.5 * map.grid.pitch_mm;
-            for u in 0..s {
-                for w in 0..s {
-                    let px = if edge && (u + w) % 2 == 0 {
+    let stencil = program.stencil_um;
+    let Some(crop) = crate::crop::pad_crop(map, p, m, t) else {
+        // No surface fitted (nothing measurable there): the title alone says so.
+        let mut img: RgbImage = ImageBuffer::from_pixel(520, 60, Rgb([255, 255, 255]));
+        let title = format!(
+            "{} · {} · no surface to measure against",
+            cfx_pad(p),
+            call_name(c)
+        );
+        crate::picture::draw(&mut img, |root| {
+            crate::picture::text(root, (8, 26), 15.0, [0, 0, 0], [255, 255, 255], &title)
+        });
+        return img;
+    };
+    let (nx, ny) = (crop.nx, crop.ny);
+    let s = (300 / nx.max(ny)).clamp(1, 12);
+    let (left, top, bar) = (52usize, 56usize, 70usize);
+    let (cw, ch) = (nx * s, ny * s);
+    let prof_top = top + ch + 44;
+    let prof_h = 140usize;
+    let width = (left + cw + 20 + bar).max(560);
+    let height = prof_top + prof_h + 40;
+    let mut img: RgbImage =
+        ImageBuffer::from_pixel(width as u32, height as u32, Rgb([255, 255, 255]));
+    let top_um = 1.6 * stencil;
+    let colour = |v: f32| {
+        if v.is_finite() {
+            dpsa_formats::images::colour((f64::from(v) / top_um).clamp(0.0, 1.0))
+        } else {
+            [60, 60, 60]
+        }
+    };
+    let o = &crop.outline;
+    let pitch = crop.pitch_mm;
+    // The crop: sample (ix, iy) at image (left + ix s, top + (ny - 1 - iy) s).
+    for ix in 0..nx {
+        for iy in 0..ny {
+            let col = colour(crop.at(ix, iy));
+            let (x, y) = crop.centre(ix, iy);
+            let edge = o.signed_distance([x, y]).abs() <= 0.5 * pitch;
+            for a in 0..s {
+                for b in 0..s {
+                    let px = if edge && (ix + iy) % 2 == 0 {
                         [255, 255, 255]
                     } else {
                         col
                     };
-                    img.put_pixel((bq * s + w) as u32, (a * s + u) as u32, Rgb(px));
+                    img.put_pixel(
+                        (left + ix * s + a) as u32,
+                        (top + (ny - 1 - iy) * s + b) as u32,
+                        Rgb(px),
+                    );
                 }
             }
         }
     }
-    // Profile along the board's x at the opening's centre column (image rows of the crop).
-    let (_, jc) = map.pixel_of(c);
-    let y0 = crop_h + 4;
-    let to_y = |h: f64| {
-        let t = (h / top).clamp(-0.1, 1.0);
-        (y0 + prof_h - 1) as f64 - (t + 0.1) / 1.1 * (prof_h - 1) as f64
+    let cut = {
+        let cy = o.centroid()[1];
+        (((cy - crop.y0_mm) / pitch).round().max(0.0) as usize).min(ny - 1)
     };
-    for xpix in (0..iw).step_by(6) {
-        let yy = to_y(stencil).round() as u32;
-        img.put_pixel(xpix as u32, yy, Rgb([120, 120, 120]));
-    }
-    let horizontal = ch; // samples along the profile
-    let mut last: Option<(u32, u32)> = None;
-    for (a, i) in ri.clone().enumerate() {
-        if jc < 0 || jc as usize >= map.grid.width {
-            break;
+    let windows = program.windows_for(p);
+    let lim = |w: crate::program::Window| format!("{:.0}-{:.0}", w.fail[0], w.fail[1]);
+    let title = format!("{} · {}", cfx_pad(p), call_name(c));
+    let figures = format!(
+        "volume {:.1} % ({}) · height {:.1} um, {:.1} % ({}) · area {:.1} % ({}) · offset {:.0}, {:.0} um",
+        m.volume_pct,
+        lim(windows.volume_pct),
+        m.height_um,
+        m.height_pct,
+        lim(windows.height_pct),
+        m.area_pct,
+        lim(windows.area_pct),
+        m.offset_um[0],
+        m.offset_um[1]
+    );
+    let profile: Vec<(f64, f32)> = (0..nx)
+        .map(|ix| (crop.centre(ix, cut).0, crop.at(ix, cut)))
+        .collect();
+    let (x_lo, x_hi) = (
+        crop.x0_mm - pitch / 2.0,
+        crop.x0_mm + (nx as f64 - 0.5) * pitch,
+    );
+    let (y_lo, y_hi) = (
+        crop.y0_mm - pitch / 2.0,
+        crop.y0_mm + (ny as f64 - 0.5) * pitch,
+    );
+    crate::picture::draw(&mut img, |root| {
+        use plotters::prelude::*;
+        let (ink, paper) = ([20, 24, 30], [255, 255, 255]);
+        let text = |root, at, size, s: &str| crate::picture::text(root, at, size, ink, paper, s);
+        text(root, (8, 20), 15.0, &title)?;
+        text(root, (8, 40), 12.0, &figures)?;
+        let grey = RGBColor(90, 96, 106);
+        // The cut.
+        let cy = (top + (ny - 1 - cut) * s + s / 2) as i32;
+        root.draw(&PathElement::new(
+            vec![(left as i32, cy), ((left + cw) as i32, cy)],
+            BLACK.stroke_width(1),
+        ))?;
+        text(root, ((left + cw + 3) as i32, cy + 5), 11.0, "cut")?;
+        // Axes of the crop, mm.
+        let sx = |x: f64| left as f64 + (x - x_lo) / pitch * s as f64;
+        let sy = |y: f64| top as f64 + (y_hi - y) / pitch * s as f64;
+        root.draw(&Rectangle::new(
+            [
+                (left as i32, top as i32),
+                ((left + cw) as i32, (top + ch) as i32),
+            ],
+            grey.stroke_width(1),
+        ))?;
+        for x in dpsa_formats::labels::ticks(x_lo, x_hi, 4) {
+            let u = sx(x) as i32;
+            root.draw(&PathElement::new(
+                vec![(u, (top + ch) as i32), (u, (top + ch + 4) as i32)],
+                grey.stroke_width(1),
+            ))?;
+            text(
+                root,
+                (u - 12, (top + ch + 17) as i32),
+                11.0,
+                &format!("{x:.1}"),
+            )?;
         }
-        let v = map.heights.data[i * map.grid.width + jc as usize];
-        if !v.is_finite() {
-            last = None;
-            continue;
+        for y in dpsa_formats::labels::ticks(y_lo, y_hi, 4) {
+            let v = sy(y) as i32;
+            root.draw(&PathElement::new(
+                vec![(left as i32 - 4, v), (left as i32, v)],
+                grey.stroke_width(1),
+            ))?;
+            text(root, (4, v + 4), 11.0, &format!("{y:.1}"))?;
         }
-        let (x, y) = map.grid.centre(i, jc as usize);
-        let xp = ((a as f64 + 0.5) / horizontal as f64 * iw as f64) as u32;
-        let yp = to_y(f64::from(v) - base(x, y)).round() as u32;
-        if let Some((lx, ly)) = last {
-            let n = lx.abs_diff(xp).max(ly.abs_diff(yp)).max(1);
-            for k in 0..=n {
-                let xx = lx as f64 + (f64::from(xp) - f64::from(lx)) * f64::from(k) / f64::from(n);
-                let yy = ly as f64 + (f64::from(yp) - f64::from(ly)) * f64::from(k) / f64::from(n);
-                img.put_pixel(xx as u32, yy as u32, Rgb([0, 0, 0]));
+        text(
+            root,
+            ((left + cw / 2) as i32 - 40, (top + ch + 31) as i32),
+            11.0,
+            "board x, mm (y up)",
+        )?;
+        // The colour bar, um.
+        let bx = (left + cw + 24) as i32;
+        for k in 0..ch {
+            let tv = 1.0 - (k as f64 + 0.5) / ch as f64;
+            let c = dpsa_formats::images::colour(tv);
+            root.draw(&PathElement::new(
+                vec![(bx, (top + k) as i32), (bx + 12, (top + k) as i32)],
+                crate::picture::rgb(c).stroke_width(1),
+            ))?;
+        }
+        for um in dpsa_formats::labels::ticks(0.0, top_um, 4) {
+            let v = (top as f64 + (1.0 - um / top_um) * ch as f64) as i32;
+            text(root, (bx + 16, v + 4), 11.0, &format!("{um:.0}"))?;
+        }
+        text(root, (bx, top as i32 - 6), 11.0, "um")?;
+        // The profile along the cut.
+        let (pl, pr) = (left as f64, (width - 14) as f64);
+        let (pt, pb) = (prof_top as f64, (prof_top + prof_h) as f64);
+        let valid: Vec<f64> = profile
+            .iter()
+            .filter(|q| q.1.is_finite())
+            .map(|q| f64::from(q.1))
+            .collect();
+        let lo = valid.iter().fold(0.0f64, |a, &v| a.min(v)) - 5.0;
+        let hi = valid.iter().fold(stencil, |a, &v| a.max(v)) * 1.1;
+        let px = |x: f64| pl + (pr - pl) * (x - x_lo) / (x_hi - x_lo);
+        let py = |v: f64| pb - (pb - pt) * (v - lo) / (hi - lo);
+        root.draw(&Rectangle::new(
+            [(pl as i32, pt as i32), (pr as i32, pb as i32)],
+            grey.stroke_width(1),
+        ))?;
+        for v in dpsa_formats::labels::ticks(lo, hi, 4) {
+            let y = py(v) as i32;
+            root.draw(&PathElement::new(
+                vec![(pl as i32 - 4, y), (pl as i32, y)],
+                grey.stroke_width(1),
+            ))?;
+            text(root, (4, y + 4), 11.0, &format!("{v:.0}"))?;
+        }
+        for x in dpsa_formats::labels::ticks(x_lo, x_hi, 5) {
+            let u = px(x) as i32;
+            root.draw(&PathElement::new(
+                vec![(u, pb as i32), (u, pb as i32 + 4)],
+                grey.stroke_width(1),
+            ))?;
+            text(root, (u - 12, pb as i32 + 17), 11.0, &format!("{x:.1}"))?;
+        }
+        let ys = py(stencil) as i32;
+        let mut x = pl as i32;
+        while x < pr as i32 {
+            root.draw(&PathElement::new(
+                vec![(x, ys), ((x + 5).min(pr as i32), ys)],
+                RGBColor(154, 103, 0).stroke_width(1),
+            ))?;
+            x += 9;
+        }
+        text(
+            root,
+            (pr as i32 - 96, ys - 3),
+            11.0,
+            &format!("stencil {stencil:.0} um"),
+        )?;
+        let mut run: Vec<(i32, i32)> = Vec::new();
+        for &(x, v) in &profile {
+            if v.is_finite() {
+                run.push((px(x) as i32, py(f64::from(v)) as i32));
+            } else if !run.is_empty() {
+                root.draw(&PathElement::new(
+                    std::mem::take(&mut run),
+                    RGBColor(31, 111, 235).stroke_width(2),
+                ))?;
             }
         }
-        last = Some((xp, yp));
-    }
+        if !run.is_empty() {
+            root.draw(&PathElement::new(
+                run,
+                RGBColor(31, 111, 235).stroke_width(2),
+            ))?;
+        }
+        text(
+            root,
+            (pl as i32, pb as i32 + 31),
+            11.0,
+            "um above the local surface, along the cut; board x, mm",
+        )?;
+        Ok(())
+    });
     img
+}
+
+/// A call as a person reads it: `fail insufficient`, `warn offset`.
+fn call_name(c: &Call) -> String {
+    match c.class {
+        Some(k) => format!("{} {}", c.level.name(), k.name()),
+        None => c.level.name().to_owned(),
+    }
 }
 
 /// What the CFX message calls the board and the program.
@@ -459,7 +831,7 @@ pub fn write(
         let o = s.spawn(|| {
             let t = i.registration.transform;
             dpsa_formats::images::save_png(
-                &overview(map, pads, &t, i, 2400),
+                &overview(map, pads, &t, i, program, 2400),
                 &path.join("overview.png"),
             )
         });
@@ -521,9 +893,83 @@ fn write_tables_and_gallery(
                 }
             })
             .collect();
-        let img = defect_picture(map, &pads[k], &i.measurements[k], &t, program.stencil_um);
+        let img = defect_picture(map, &pads[k], &i.measurements[k], &i.calls[k], &t, program);
         dpsa_formats::images::save_png(&img, &gal.join(format!("{n:03}_{class}_{name}.png")))?;
         n += 1;
     }
     Ok(n)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use dpsa_formats::grid::{BoardGrid, Grid};
+    use dpsa_gerber::pads::Outline;
+
+    /// Board x runs to the right and y up: a failure at the board's right top shows there,
+    /// ringed in red; a passing opening is outlined in green; a fiducial is ringed in cyan;
+    /// the image has its margins.
+    #[test]
+    fn the_overview_is_the_design_view_with_its_calls_ringed() {
+        let g = BoardGrid {
+            x0_mm: 0.0,
+            y0_mm: 0.0,
+            pitch_mm: 0.05,
+            rows: 400,
+            width: 300,
+        };
+        let map = BoardMap {
+            board_id: None,
+            grid: g,
+            heights: Grid {
+                width: g.width,
+                rows: g.rows,
+                data: (0..g.rows * g.width).map(|k| (k % 7) as f32).collect(),
+            },
+        };
+        let disc = |x: f64, y: f64| Outline::Circle {
+            centre: [x, y],
+            diameter: 1.0,
+        };
+        let marks = [
+            Mark {
+                outline: disc(18.0, 13.0),
+                colour: [255, 30, 30],
+                call: Some(("U1.1 insufficient".into(), true)),
+            },
+            Mark {
+                outline: disc(3.0, 2.0),
+                colour: [0, 200, 60],
+                call: None,
+            },
+        ];
+        let img = draw_overview(&map, &marks, &[[10.0, 7.5]], "board", 400);
+        let fr = OverviewFrame::of(&g, 400);
+        assert_eq!(fr.f, 1);
+        assert_eq!(img.dimensions(), fr.image);
+        assert_eq!(fr.image, (424, 396));
+        // The failure: right (x 18 of 20 mm) and top (y 13 of 15 mm).
+        let (x, y) = fr.pixel(&g, 18.0, 13.0);
+        assert!(
+            (x - 372.0).abs() < 1e-9 && (y - 80.0).abs() < 1e-9,
+            "{x} {y}"
+        );
+        let red = |u: i64, v: i64| img.get_pixel(u as u32, v as u32).0 == [255, 30, 30];
+        // Its ring (radius 9 px) and its outline (radius 10 px).
+        assert!((-1..=1).any(|d| red(x as i64 + 9 + d, y as i64)), "no ring");
+        assert!(
+            (-1..=1).any(|d| red(x as i64, y as i64 - 10 + d)),
+            "no outline"
+        );
+        // The passing opening: bottom left, outlined in green.
+        let (x, y) = fr.pixel(&g, 3.0, 2.0);
+        let green =
+            (-1..=1).any(|d| img.get_pixel((x as i64 + 10 + d) as u32, y as u32).0 == [0, 200, 60]);
+        assert!(green && y >= 300.0, "{x} {y}");
+        // The fiducial's cyan ring.
+        let (x, y) = fr.pixel(&g, 10.0, 7.5);
+        let cyan = (-1..=1)
+            .any(|d| img.get_pixel((x as i64 + 10 + d) as u32, y as u32).0 == [0, 210, 230]);
+        assert!(cyan, "{x} {y}");
+    }
 }

@@ -196,7 +196,8 @@ pub fn board_svg(
     }
     // Labels: each call marked by a ring (a pad is a few px on a big board) and named where
     // its name overlaps no other (failures placed first).
-    let mut placed: Vec<[f64; 4]> = Vec::new();
+    let mut placed = dpsa_formats::labels::Placed::default();
+    let bounds = [2.0, 2.0, WIDTH_PX - 2.0, f.height - 24.0];
     for p in calls.iter().rev().take(MAX_LABELS) {
         let pad = &design.pads[p.pad as usize];
         let c = pad.outline.centroid();
@@ -207,7 +208,7 @@ pub fn board_svg(
             p.name,
             p.class.as_deref().unwrap_or(p.level.as_str())
         );
-        let (tx, ty) = place_label(&mut placed, x, y, label.chars().count(), f.height);
+        let (tx, ty) = placed.place(x, y, 7.0 * label.chars().count() as f64, 14.0, bounds);
         let _ = write!(
             o,
             "<a href=\"/board/{id}/pad/{k}\"><circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"9\" \
@@ -245,7 +246,7 @@ pub fn board_svg(
         );
         x += 70.0;
     }
-    let mm = nice_below(200.0 / f.scale);
+    let mm = dpsa_formats::labels::scale_bar_mm(200.0 / f.scale);
     let len = mm * f.scale;
     let bx = WIDTH_PX - f.margin - len;
     let _ = write!(
@@ -262,109 +263,4 @@ pub fn board_svg(
         f.margin + 230.0
     );
     Some(o)
-}
-
-/// The largest 1, 2 or 5 x 10^k not above `v` (a scale bar's length).
-fn nice_below(v: f64) -> f64 {
-    if !(v.is_finite() && v > 0.0) {
-        return 1.0;
-    }
-    let mag = 10f64.powf(v.log10().floor());
-    [5.0, 2.0, 1.0]
-        .into_iter()
-        .map(|m| m * mag)
-        .find(|&s| s <= v)
-        .unwrap_or(mag)
-}
-
-/// Where a label of `chars` characters for the mark at `(x, y)` goes: the first of eight
-/// places around the mark, then further out, whose box overlaps none `placed` and stays in
-/// the drawing (`height` px tall); the text's baseline start. Its box is added to `placed`.
-fn place_label(
-    placed: &mut Vec<[f64; 4]>,
-    x: f64,
-    y: f64,
-    chars: usize,
-    height: f64,
-) -> (f64, f64) {
-    let (w, h) = (7.0 * chars as f64, 14.0);
-    let boxed = |tx: f64, ty: f64| [tx, ty - h + 3.0, tx + w, ty + 3.0];
-    let fits = |b: &[f64; 4]| {
-        b[0] >= 2.0
-            && b[2] <= WIDTH_PX - 2.0
-            && b[1] >= 2.0
-            && b[3] <= height - 24.0
-            && placed
-                .iter()
-                .all(|p| b[2] <= p[0] || b[0] >= p[2] || b[3] <= p[1] || b[1] >= p[3])
-    };
-    let mut first = None;
-    for ring in 0..4 {
-        let d = 11.0 + 16.0 * ring as f64;
-        for (dx, dy) in [
-            (d, -d + 4.0),
-            (d, d + 8.0),
-            (-d - w, -d + 4.0),
-            (-d - w, d + 8.0),
-            (-w / 2.0, -d - 2.0),
-            (-w / 2.0, d + 14.0),
-            (d + 2.0, 4.0),
-            (-d - w - 2.0, 4.0),
-        ] {
-            let b = boxed(x + dx, y + dy);
-            first.get_or_insert((x + dx, y + dy));
-            if fits(&b) {
-                placed.push(b);
-                return (x + dx, y + dy);
-            }
-        }
-    }
-    // Crowded: the first place, over another, but inside the drawing.
-    let (tx, ty) = first.unwrap_or((x + 11.0, y - 7.0));
-    let tx = tx.clamp(2.0, (WIDTH_PX - 2.0 - w).max(2.0));
-    let ty = ty.clamp(2.0 + h - 3.0, (height - 27.0).max(2.0 + h - 3.0));
-    placed.push(boxed(tx, ty));
-    (tx, ty)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn scale_bars_are_round_and_not_longer() {
-        assert_eq!(nice_below(4.6), 2.0);
-        assert_eq!(nice_below(5.0), 5.0);
-        assert_eq!(nice_below(47.0), 20.0);
-        assert_eq!(nice_below(0.9), 0.5);
-        assert_eq!(nice_below(f64::NAN), 1.0);
-    }
-
-    /// Crowded past every place: the label still stays in the drawing.
-    #[test]
-    fn a_crowded_label_stays_in_the_drawing() {
-        let mut placed = vec![[0.0, 0.0, WIDTH_PX, 700.0]];
-        let (tx, ty) = place_label(&mut placed, WIDTH_PX - 5.0, 690.0, 20, 700.0);
-        let b = placed[1];
-        assert!(b[0] >= 2.0 && b[2] <= WIDTH_PX - 2.0, "{tx} {ty} {b:?}");
-        assert!(b[1] >= 2.0 && b[3] <= 700.0 - 24.0, "{tx} {ty} {b:?}");
-    }
-
-    /// Eight marks close together get labels that overlap none of the others' and stay in
-    /// the drawing, also at its edge.
-    #[test]
-    fn labels_do_not_overlap() {
-        let mut placed = Vec::new();
-        for k in 0..8 {
-            place_label(&mut placed, 500.0 + 4.0 * k as f64, 300.0, 14, 700.0);
-        }
-        place_label(&mut placed, WIDTH_PX - 3.0, 300.0, 20, 700.0);
-        for (i, a) in placed.iter().enumerate() {
-            assert!(a[0] >= 2.0 && a[2] <= WIDTH_PX - 2.0, "{a:?}");
-            for b in &placed[i + 1..] {
-                let apart = a[2] <= b[0] || a[0] >= b[2] || a[3] <= b[1] || a[1] >= b[3];
-                assert!(apart, "{a:?} {b:?}");
-            }
-        }
-    }
 }

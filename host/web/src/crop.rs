@@ -123,30 +123,7 @@ pub fn outline_svg(
     }
 }
 
-/// Round steps between `lo` and `hi`: multiples of 1, 2 or 5 x 10^k, about `n` of them.
-pub fn ticks(lo: f64, hi: f64, n: usize) -> Vec<f64> {
-    if !(lo.is_finite() && hi.is_finite()) || hi <= lo || n == 0 {
-        return Vec::new();
-    }
-    let raw = (hi - lo) / n as f64;
-    let e = raw.log10().floor() as i32;
-    // A tick is k m 10^e, computed as (k m) / 10^-e below 1 so that 1.2 is 1.2.
-    let at = |k: i64, m: f64| {
-        if e >= 0 {
-            k as f64 * m * 10f64.powi(e)
-        } else {
-            k as f64 * m / 10f64.powi(-e)
-        }
-    };
-    let m = [1.0, 2.0, 5.0, 10.0]
-        .into_iter()
-        .find(|&m| at(1, m) >= raw)
-        .unwrap_or(10.0);
-    let step = at(1, m);
-    let first = (lo / step).ceil() as i64;
-    let last = (hi / step).floor() as i64;
-    (first..=last).map(|k| at(k, m)).collect()
-}
+pub use dpsa_formats::labels::ticks;
 
 /// A tick's label: as few decimals as its step needs.
 fn label(v: f64, step: f64) -> String {
@@ -451,13 +428,9 @@ mod tests {
     }
 
     #[test]
-    fn ticks_are_round_and_inside() {
-        assert_eq!(ticks(0.0, 192.0, 4), [0.0, 50.0, 100.0, 150.0]);
-        assert_eq!(ticks(0.98, 2.03, 4), [1.0, 1.5, 2.0]);
-        assert_eq!(ticks(0.98, 2.03, 8), [1.0, 1.2, 1.4, 1.6, 1.8, 2.0]);
-        assert!(ticks(1.0, 1.0, 4).is_empty());
-        assert!(ticks(f64::NAN, 1.0, 4).is_empty());
+    fn labels_take_the_decimals_of_their_step() {
         assert_eq!(label(1.2000000001, 0.2), "1.2");
+        assert_eq!(label(150.0, 50.0), "150");
     }
 
     /// The PNG decodes to the crop turned so that x runs right and y up, invalid in grey.
