@@ -479,8 +479,11 @@ fn truth_comparison_and_report_files() {
             .arg(&keep)
             .status();
     }
+    // The overview: board x to the right (the map's rows across), y up, with its margins.
     let ov = image::open(dir.path().join("overview.png")).unwrap();
-    assert_eq!(ov.height() as usize, s.map.grid.rows);
+    let frame = dpsa_inspect::report::OverviewFrame::of(&s.map.grid, 2400);
+    assert_eq!(frame.size, (s.map.grid.rows, s.map.grid.width));
+    assert_eq!((ov.width(), ov.height()), frame.image);
 }
 
 /// Without fiducials the design is registered by its paste pattern: the same board as
