@@ -138,12 +138,30 @@ async fn settle(c: &Client) {
 /// Clicks the element `css` selects, waits for the page it opens, checks it is `path` with
 /// nothing in the console.
 async fn click_to(c: &Client, css: &str, path: &str) {
+    // The page before the click carries a mark; the new document does not. Until it is
+    // there, `readyState` is still the old page's (and a form that posts back to its own
+    // page keeps the same path).
+    c.execute("window.dpsaBefore = true;", vec![])
+        .await
+        .unwrap();
     c.find(Locator::Css(css))
         .await
         .unwrap()
         .click()
         .await
         .unwrap();
+    let t0 = Instant::now();
+    loop {
+        let gone = c
+            .execute("return window.dpsaBefore === undefined;", vec![])
+            .await
+            .unwrap();
+        if gone == Value::Bool(true) {
+            break;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(20), "{css}: no new page");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
     settle(c).await;
     let src = c.source().await.unwrap();
     assert_eq!(c.current_url().await.unwrap().path(), path, "{src}");
