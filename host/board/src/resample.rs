@@ -519,6 +519,21 @@ impl Sampler<'_> {
             (r1 + c1, fb * fc),
         ];
         let (hs, vs) = (&heights.data, src.variance.map(|v| &v.data[..]));
+        let period = src.period_um;
+        let edge = c.min(last_c - c) + 0.5;
+        let wt = (edge * self.inv_feather).clamp(1e-3, 1.0) as f32;
+        let t = f64::from(period[c0]) * (1.0 - fc) + f64::from(period[c1]) * fc;
+        if vs.is_none() {
+            // Four valid neighbours (nearly every pixel): the bilinear value as two lerps
+            // along the row, one across, with no division by the weights' sum (1 up to
+            // rounding).
+            let (h00, h01, h10, h11) = (hs[r0 + c0], hs[r0 + c1], hs[r1 + c0], hs[r1 + c1]);
+            if (h00 + h01 + h10 + h11).is_finite() {
+                let top = f64::from(h00) + fc * (f64::from(h01) - f64::from(h00));
+                let bottom = f64::from(h10) + fc * (f64::from(h11) - f64::from(h10));
+                return Pixel::Valid((top + fb * (bottom - top)) as f32, f32::NAN, t as f32, wt);
+            }
+        }
         let (mut sum, mut wsum, mut vsum) = (0.0f64, 0.0f64, 0.0f64);
         // Without a branch per tap: a tap left out adds `0 x 0`, which leaves each sum the
         // same value (none of them is ever -0: it starts at +0 and `x + (-x)` is +0).
@@ -535,19 +550,11 @@ impl Sampler<'_> {
         if wsum < 0.5 {
             return Pixel::Invalid;
         }
-        let period = src.period_um;
-        let t = f64::from(period[c0]) * (1.0 - fc) + f64::from(period[c1]) * fc;
-        let edge = c.min(last_c - c) + 0.5;
         let var = match vs {
             Some(_) => (vsum / (wsum * wsum)) as f32,
             None => f32::NAN,
         };
-        Pixel::Valid(
-            (sum / wsum) as f32,
-            var,
-            t as f32,
-            (edge * self.inv_feather).clamp(1e-3, 1.0) as f32,
-        )
+        Pixel::Valid((sum / wsum) as f32, var, t as f32, wt)
     }
 }
 
