@@ -913,8 +913,9 @@ fn png16(path: &Path) -> (usize, Vec<u16>) {
     (img.width() as usize, img.into_raw())
 }
 
+/// `camera.png`'s camera indices (an indexed PNG: its samples, not its colours).
 fn png8(path: &Path) -> Vec<u8> {
-    image::open(path).unwrap().into_luma8().into_raw()
+    dpsa_formats::images::read_png_indexed(path).unwrap().0
 }
 
 /// A camera's board row and column of every board pixel of a map.

@@ -36,6 +36,10 @@ pub struct Args {
     /// instead of a preview at most 2048 px on its longer side.
     #[arg(long)]
     full_colour: bool,
+    /// Draw `heights.colour.png` of the absolute heights (the board's bow and warp in it)
+    /// instead of the height above the local board surface.
+    #[arg(long)]
+    absolute_colour: bool,
     /// Skip the comparison with the simulator's board truth (about 35 s on the paper board;
     /// `truth` is then null).
     #[cfg(feature = "sim")]
@@ -68,6 +72,7 @@ pub fn run(a: Args, progress: bool) -> Result<i32> {
     let cal = CalFile::load(&a.cal)?;
     let outputs = dpsa_board::output::Outputs {
         full_colour: a.full_colour,
+        absolute_colour: a.absolute_colour,
     };
     #[cfg(feature = "sim")]
     let (r, json, summary) = {

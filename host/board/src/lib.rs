@@ -33,6 +33,7 @@
 
 pub mod assemble;
 pub mod blend;
+pub mod colour;
 pub mod output;
 pub mod places;
 pub mod provenance;

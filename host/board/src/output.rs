@@ -4,8 +4,8 @@
 //! | --- | --- |
 //! | `heights.png` | 16-bit grey: `round(h / lsb_um) + 32768` (clamped to 1..=65535), 0 invalid |
 //! | `heights_um.tiff` | 32-bit float grey, heights in um, NaN invalid (ImageJ, GDAL, numpy + tifffile read it) |
-//! | `heights.colour.png` | false colour over the valid heights' 1st..99th percentile, invalid dark grey, a scale bar in um below; by default a preview at most [`PREVIEW_PX`] on its longer side (each pixel the mean of a `k x k` block of the map, `board.json`'s `files.colour_png_scale`), full size with [`Outputs::full_colour`] |
-//! | `camera.png` | 8-bit grey: the camera index of each pixel, 255 invalid |
+//! | `heights.colour.png` | false colour of the height above the local board surface (the bow removed; the absolute heights with [`Outputs::absolute_colour`]), turned as a Gerber viewer shows the design (x right, y up), axes in mm, a colour bar in um ([`crate::colour`]); by default a preview at most [`PREVIEW_PX`] on its longer side (each pixel the mean of a `k x k` block of the map, `board.json`'s `files.colour_png_scale`), full size with [`Outputs::full_colour`] |
+//! | `camera.png` | 8-bit indexed: each pixel's value is its camera's index (255 invalid), and the palette draws the cameras in distinct colours ([`CAMERA_COLOURS`]), invalid dark grey |
 //! | `board.json` | [`Metadata`] |
 //!
 //! Image row `i` is board `x = x0 + (i + 1/2) pitch` (along the motion), column `j` is
@@ -14,7 +14,7 @@
 use crate::blend::{Blended, NO_CAMERA};
 use crate::resample::BoardGrid;
 use crate::Grid;
-use image::{GrayImage, ImageBuffer, Luma, Rgb, RgbImage};
+
 use serde::Serialize;
 use std::path::Path;
 
@@ -121,8 +121,10 @@ pub struct Files {
     pub heights_png: &'static str,
     /// 32-bit float heights, um (NaN invalid).
     pub heights_tiff: &'static str,
-    /// False colour with a scale bar.
+    /// False colour with axes and a colour bar.
     pub colour_png: &'static str,
+    /// What the false colour shows.
+    pub colour_png_shows: crate::colour::Shows,
     /// Map pixels per pixel of the false-colour image along each axis (1: full size; a
     /// preview's pixel is the mean of the valid heights of its `k x k` block).
     pub colour_png_scale: usize,
@@ -139,14 +141,30 @@ pub const PREVIEW_PX: usize = 2048;
 /// `timing.files_s` of `dpsa board --json`): the TIFF (0.15 s: uncompressed, and what
 /// `dpsa inspect` reads), `heights.png` (0.7 - 0.8 s: 95 MB of 16-bit samples through PNG's
 /// fastest compression, encoded in a thread of its own beside the other files), `camera.png`
-/// (0.15 s), a false-colour preview (0.6 - 0.7 s, most of it the colour scale's percentiles
-/// over the whole map) are always written (about 1.05 s of wall time for all of them); the
-/// full-size false colour (2.6 s) on request.
+/// (0.03 s, indexed), a false-colour preview above the local surface (0.35 - 0.45 s) are
+/// always written (about 0.6 s of wall time for all of them); the full-size false colour on
+/// request.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Outputs {
     /// `heights.colour.png` at the map's full size, not a preview.
     pub full_colour: bool,
+    /// `heights.colour.png` of the absolute heights, not of the height above the local board
+    /// surface.
+    pub absolute_colour: bool,
 }
+
+/// The cameras' colours in `camera.png`'s palette, camera `k` the `k % 8`-th (Okabe and
+/// Ito's eight, told apart with the common colour-vision deficiencies).
+pub const CAMERA_COLOURS: [[u8; 3]; 8] = [
+    [230, 159, 0],
+    [86, 180, 233],
+    [0, 158, 115],
+    [240, 228, 66],
+    [0, 114, 178],
+    [213, 94, 0],
+    [204, 121, 167],
+    [0, 0, 0],
+];
 
 /// The files [`write`](fn@write) writes into its directory.
 pub const FILE_NAMES: [&str; 5] = [
@@ -234,6 +252,11 @@ fn write_files(
         heights_png: "heights.png",
         heights_tiff: "heights_um.tiff",
         colour_png: "heights.colour.png",
+        colour_png_shows: if outputs.absolute_colour {
+            crate::colour::Shows::Absolute
+        } else {
+            crate::colour::Shows::AboveLocalSurface
+        },
         colour_png_scale: colour_scale,
         camera_png: "camera.png",
     };
@@ -273,23 +296,31 @@ fn write_files(
                     write_tiff(&dir.join(files.heights_tiff), h)
                 })?,
                 timed(files.colour_png, &|| {
-                    let range = colour_range(h).unwrap_or((0.0, 1.0));
-                    if colour_scale == 1 {
-                        write_colour(&dir.join(files.colour_png), h, range)
+                    let preview;
+                    let shown = if colour_scale == 1 {
+                        h
                     } else {
-                        write_colour(
-                            &dir.join(files.colour_png),
-                            &block_mean(h, colour_scale),
-                            range,
-                        )
-                    }
+                        preview = block_mean(h, colour_scale);
+                        &preview
+                    };
+                    let v = crate::colour::view(shown, grid, colour_scale, files.colour_png_shows);
+                    Ok(dpsa_formats::images::save_png(
+                        &v.image,
+                        &dir.join(files.colour_png),
+                    )?)
                 })?,
                 timed(files.camera_png, &|| {
-                    let cam: GrayImage = ImageBuffer::from_fn(w, rows, |x, y| {
-                        Luma([b.camera[(y * w + x) as usize]])
-                    });
-                    dpsa_formats::images::save_png(&cam, &dir.join(files.camera_png))?;
-                    Ok(())
+                    let mut palette = vec![[40u8; 3]; 256];
+                    for (k, c) in palette.iter_mut().take(255).enumerate() {
+                        *c = CAMERA_COLOURS[k % CAMERA_COLOURS.len()];
+                    }
+                    Ok(dpsa_formats::images::save_png_indexed(
+                        &dir.join(files.camera_png),
+                        w,
+                        rows,
+                        &b.camera,
+                        &palette,
+                    )?)
                 })?,
             ])
         })();
@@ -350,18 +381,6 @@ pub fn write_tiff(path: &Path, h: &Grid) -> Result<()> {
     })?)
 }
 
-/// Rows of the scale bar under a false-colour map `w` px wide: 24 at the glyphs' own size,
-/// more as they grow with the image (`bar_scale`).
-pub fn bar_rows(w: u32) -> u32 {
-    24 * bar_scale(w)
-}
-
-/// How many pixels each pixel of the scale bar's glyphs and ramp takes: 1 up to 999 px wide,
-/// then one more per 500 px (at most 4), so the labels stay legible on a wide map or preview.
-fn bar_scale(w: u32) -> u32 {
-    (w / 500).clamp(1, 4)
-}
-
 /// The mean of the valid heights of each `k x k` block of `h` (NaN where none is valid); the
 /// last row and column of blocks may be cut short.
 pub fn block_mean(h: &Grid, k: usize) -> Grid {
@@ -393,94 +412,6 @@ pub fn block_mean(h: &Grid, k: usize) -> Grid {
                 }
             })
             .collect(),
-    }
-}
-
-/// False colour over `(lo, hi)` um with a scale bar: a ramp over the image's width and five
-/// labelled ticks (um).
-fn write_colour(path: &Path, h: &Grid, (lo, hi): (f32, f32)) -> Result<()> {
-    let (w, rows) = (h.width as u32, h.rows as u32);
-    let u = bar_scale(w);
-    let mut img: RgbImage = ImageBuffer::from_pixel(w.max(1), rows + bar_rows(w), Rgb([255; 3]));
-    for y in 0..rows {
-        for x in 0..w {
-            let v = h.at(y as usize, x as usize);
-            let px = if v.is_finite() {
-                Rgb(dpsa_formats::images::colour(
-                    f64::from((v - lo) / (hi - lo)).clamp(0.0, 1.0),
-                ))
-            } else {
-                Rgb([40, 40, 40])
-            };
-            img.put_pixel(x, y, px);
-        }
-    }
-    // The ramp.
-    for x in 0..w {
-        let t = f64::from(x) / f64::from(w.saturating_sub(1).max(1));
-        for y in rows + 2 * u..rows + 10 * u {
-            img.put_pixel(x, y, Rgb(dpsa_formats::images::colour(t)));
-        }
-    }
-    // Ticks and labels.
-    for k in 0..5u32 {
-        let x = (k * w.saturating_sub(1)) / 4;
-        for y in rows + 10 * u..rows + 13 * u {
-            for dx in 0..u {
-                if x + dx < w {
-                    img.put_pixel(x + dx, y, Rgb([0; 3]));
-                }
-            }
-        }
-        let value = lo + (hi - lo) * k as f32 / 4.0;
-        let text = format!("{:.0}", value);
-        let text = if k == 4 { format!("{text}um") } else { text };
-        let tw = text.len() as u32 * 4 * u;
-        let x0 = x.saturating_sub(tw / 2).min(w.saturating_sub(tw));
-        draw_text(&mut img, x0, rows + 15 * u, &text, u);
-    }
-    Ok(dpsa_formats::images::save_png(&img, path)?)
-}
-
-/// 3 x 5 pixel glyphs for digits, '-', '.', 'u' and 'm' (rows top to bottom, 3 bits each).
-fn glyph(ch: char) -> Option<[u8; 5]> {
-    Some(match ch {
-        '0' => [7, 5, 5, 5, 7],
-        '1' => [2, 6, 2, 2, 7],
-        '2' => [7, 1, 7, 4, 7],
-        '3' => [7, 1, 7, 1, 7],
-        '4' => [5, 5, 7, 1, 1],
-        '5' => [7, 4, 7, 1, 7],
-        '6' => [7, 4, 7, 5, 7],
-        '7' => [7, 1, 1, 1, 1],
-        '8' => [7, 5, 7, 5, 7],
-        '9' => [7, 5, 7, 1, 7],
-        '-' => [0, 0, 7, 0, 0],
-        '.' => [0, 0, 0, 0, 2],
-        'u' => [0, 5, 5, 5, 7],
-        'm' => [0, 7, 7, 5, 5],
-        _ => return None,
-    })
-}
-
-/// `text` in the 3 x 5 glyphs from `(x0, y0)`, each glyph pixel `u x u` image pixels.
-fn draw_text(img: &mut RgbImage, x0: u32, y0: u32, text: &str, u: u32) {
-    for (i, ch) in text.chars().enumerate() {
-        let Some(g) = glyph(ch) else { continue };
-        for (dy, bits) in g.iter().enumerate() {
-            for dx in 0..3u32 {
-                if bits >> (2 - dx) & 1 == 0 {
-                    continue;
-                }
-                for (sx, sy) in (0..u).flat_map(|sx| (0..u).map(move |sy| (sx, sy))) {
-                    let x = x0 + (i as u32 * 4 + dx) * u + sx;
-                    let y = y0 + dy as u32 * u + sy;
-                    if x < img.width() && y < img.height() {
-                        img.put_pixel(x, y, Rgb([0; 3]));
-                    }
-                }
-            }
-        }
     }
 }
 
@@ -562,7 +493,17 @@ mod tests {
             }
         }
         let colour = image::open(dir.path().join("heights.colour.png")).unwrap();
-        assert_eq!((colour.width(), colour.height()), (40, 30 + bar_rows(40)));
+        let (pw, ph) = (30, 40);
+        assert!(
+            colour.width() > pw && colour.height() > ph,
+            "the map with its margins"
+        );
+        // camera.png: the camera's index per pixel, drawn through the palette.
+        let (idx, palette) =
+            dpsa_formats::images::read_png_indexed(&dir.path().join("camera.png")).unwrap();
+        assert_eq!(idx, b.camera);
+        assert_eq!(palette[0], CAMERA_COLOURS[0]);
+        assert_eq!(palette[usize::from(NO_CAMERA)], [40; 3]);
         let v: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(dir.path().join("board.json")).unwrap())
                 .unwrap();
@@ -611,7 +552,10 @@ mod tests {
                 1,
                 &[0],
                 None,
-                Outputs { full_colour: full },
+                Outputs {
+                    full_colour: full,
+                    absolute_colour: false,
+                },
             )
             .unwrap();
             let names: Vec<&str> = written.seconds.iter().map(|f| f.0).collect();
@@ -622,18 +566,17 @@ mod tests {
             } else {
                 (1, rows.div_ceil(k))
             };
-            assert_eq!(
-                (colour.width() as usize, colour.height() as usize),
-                (want.0, want.1 + bar_rows(want.0 as u32) as usize)
+            // Turned: the map's rows run across the image, inside its margins.
+            assert!(
+                colour.width() as usize > want.1 && colour.height() as usize > want.0,
+                "{want:?} in {:?}",
+                (colour.width(), colour.height())
             );
             assert_eq!(
                 written.meta.files.colour_png_scale,
                 if full { 1 } else { k }
             );
         }
-        // The scale bar's glyphs grow with the image: 1 px per glyph pixel up to 999 px wide,
-        // 3 for the paper board's 1511 px preview, at most 4.
-        assert_eq!([40, 999, 1000, 1511, 6044].map(bar_scale), [1, 1, 2, 3, 4]);
         // Block means: NaN only where the whole block is invalid.
         let m = block_mean(&h, k);
         assert_eq!((m.width, m.rows), (1, rows.div_ceil(k)));

@@ -154,6 +154,60 @@ pub fn save_png16_rows(
     })
 }
 
+/// Writes an 8-bit indexed PNG of `width x rows` atomically: `values` row-major, drawn
+/// through `palette` (one colour per value; a value past its end is the last colour). A reader
+/// that decodes to colours sees the palette's; one that reads the samples ([`read_png_indexed`],
+/// or `PIL.Image.open(f)` without `convert`) gets the values.
+pub fn save_png_indexed(
+    path: &Path,
+    width: u32,
+    rows: u32,
+    values: &[u8],
+    palette: &[[u8; 3]],
+) -> Result<(), FileError> {
+    let flat: Vec<u8> = palette.iter().flatten().copied().collect();
+    crate::files::write_atomic(path, |w| {
+        let mut enc = png::Encoder::new(w, width, rows);
+        enc.set_color(png::ColorType::Indexed);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.set_palette(flat);
+        enc.set_compression(png::Compression::Fast);
+        let mut writer = enc.write_header()?;
+        writer.write_image_data(values)?;
+        writer.finish()?;
+        Ok::<(), png::EncodingError>(())
+    })
+}
+
+/// The samples and palette of an 8-bit indexed PNG ([`save_png_indexed`]).
+pub fn read_png_indexed(path: &Path) -> Result<(Vec<u8>, Vec<[u8; 3]>), png::DecodingError> {
+    let file = std::io::BufReader::new(std::fs::File::open(path)?);
+    let mut decoder = png::Decoder::new(file);
+    decoder.set_transformations(png::Transformations::IDENTITY);
+    let mut reader = decoder.read_info()?;
+    let info = reader.info();
+    if info.color_type != png::ColorType::Indexed || info.bit_depth != png::BitDepth::Eight {
+        return Err(png::DecodingError::IoError(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            "not an 8-bit indexed PNG",
+        )));
+    }
+    let palette = info
+        .palette
+        .as_deref()
+        .unwrap_or(&[])
+        .chunks_exact(3)
+        .map(|c| [c[0], c[1], c[2]])
+        .collect();
+    let size = reader
+        .output_buffer_size()
+        .ok_or(png::DecodingError::LimitsExceeded)?;
+    let mut buf = vec![0; size];
+    let frame = reader.next_frame(&mut buf)?;
+    buf.truncate(frame.buffer_size());
+    Ok((buf, palette))
+}
+
 /// A perceptually ordered blue -> cyan -> green -> yellow -> red ramp, `t` in `[0, 1]`.
 pub fn colour(t: f64) -> [u8; 3] {
     const STOPS: [[f64; 3]; 5] = [

@@ -27,6 +27,7 @@ pub mod heightmap;
 pub mod images;
 pub mod kind;
 pub mod labels;
+pub mod picture;
 pub mod progress;
 pub mod recording;
 pub mod time;

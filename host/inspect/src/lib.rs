@@ -28,7 +28,6 @@ pub mod error;
 pub mod map;
 pub mod measure;
 pub mod noise;
-mod picture;
 pub mod print;
 pub mod program;
 pub mod register;

@@ -409,10 +409,10 @@ pub fn draw_overview(
     let white = [255, 255, 255];
     let dark = [24, 28, 36];
     let (w, h) = (f64::from(fr.image.0), f64::from(fr.image.1));
-    crate::picture::draw(&mut img, |root| {
+    dpsa_formats::picture::draw(&mut img, |root| {
         use plotters::prelude::*;
         // Fiducials: a cyan ring and cross.
-        let cyan = crate::picture::rgb([0, 210, 230]);
+        let cyan = dpsa_formats::picture::rgb([0, 210, 230]);
         for q in fiducials {
             let (x, y) = fr.pixel(g, q[0], q[1]);
             let (x, y) = (x as i32, y as i32);
@@ -435,7 +435,7 @@ pub fn draw_overview(
         for (k, m) in calls.iter().enumerate() {
             let c = m.outline.centroid();
             let (x, y) = fr.pixel(g, c[0], c[1]);
-            let colour = crate::picture::rgb(m.colour);
+            let colour = dpsa_formats::picture::rgb(m.colour);
             root.draw(&Circle::new(
                 (x as i32, y as i32),
                 9,
@@ -445,17 +445,17 @@ pub fn draw_overview(
                 continue;
             }
             let label = m.call.as_ref().map_or("", |c| c.0.as_str());
-            let lw = crate::picture::text_width(label, size) + 4.0;
+            let lw = dpsa_formats::picture::text_width(label, size) + 4.0;
             let (tx, ty) = placed.place(x, y, lw, size + 3.0, bounds);
             let (lx, ly) = (tx.clamp(x - 300.0, x + 300.0), ty - size / 2.0);
             root.draw(&PathElement::new(
                 vec![(x as i32, y as i32), (lx as i32, ly as i32)],
                 colour.stroke_width(1),
             ))?;
-            crate::picture::text(root, (tx as i32, ty as i32), size, white, dark, label)?;
+            dpsa_formats::picture::text(root, (tx as i32, ty as i32), size, white, dark, label)?;
         }
         if calls.len() > OVERVIEW_LABELS {
-            crate::picture::text(
+            dpsa_formats::picture::text(
                 root,
                 (ou as i32, (ov - 4) as i32),
                 12.0,
@@ -468,7 +468,7 @@ pub fn draw_overview(
             )?;
         }
         // Title, legend, scale bar.
-        crate::picture::text(root, (ou as i32, 24), 16.0, white, dark, title)?;
+        dpsa_formats::picture::text(root, (ou as i32, 24), 16.0, white, dark, title)?;
         let y = (h - 18.0) as i32;
         let mut x = ou as i32;
         for (name, c) in [
@@ -480,12 +480,12 @@ pub fn draw_overview(
         ] {
             root.draw(&Rectangle::new(
                 [(x, y - 11), (x + 14, y - 1)],
-                crate::picture::rgb(c).filled(),
+                dpsa_formats::picture::rgb(c).filled(),
             ))?;
-            crate::picture::text(root, (x + 19, y), 13.0, white, dark, name)?;
-            x += 19 + crate::picture::text_width(name, 13.0) as i32 + 18;
+            dpsa_formats::picture::text(root, (x + 19, y), 13.0, white, dark, name)?;
+            x += 19 + dpsa_formats::picture::text_width(name, 13.0) as i32 + 18;
         }
-        crate::picture::text(
+        dpsa_formats::picture::text(
             root,
             (x + 10, y),
             13.0,
@@ -501,8 +501,8 @@ pub fn draw_overview(
             WHITE.stroke_width(3),
         ))?;
         let label = format!("{mm} mm");
-        let lw = crate::picture::text_width(&label, 13.0) as i32;
-        crate::picture::text(
+        let lw = dpsa_formats::picture::text_width(&label, 13.0) as i32;
+        dpsa_formats::picture::text(
             root,
             (x1 - len / 2 - lw / 2, y - 9),
             13.0,
@@ -537,8 +537,8 @@ pub(crate) fn defect_picture(
             cfx_pad(p),
             call_name(c)
         );
-        crate::picture::draw(&mut img, |root| {
-            crate::picture::text(root, (8, 26), 15.0, [0, 0, 0], [255, 255, 255], &title)
+        dpsa_formats::picture::draw(&mut img, |root| {
+            dpsa_formats::picture::text(root, (8, 26), 15.0, [0, 0, 0], [255, 255, 255], &title)
         });
         return img;
     };
@@ -614,10 +614,11 @@ pub(crate) fn defect_picture(
         crop.y0_mm - pitch / 2.0,
         crop.y0_mm + (ny as f64 - 0.5) * pitch,
     );
-    crate::picture::draw(&mut img, |root| {
+    dpsa_formats::picture::draw(&mut img, |root| {
         use plotters::prelude::*;
         let (ink, paper) = ([20, 24, 30], [255, 255, 255]);
-        let text = |root, at, size, s: &str| crate::picture::text(root, at, size, ink, paper, s);
+        let text =
+            |root, at, size, s: &str| dpsa_formats::picture::text(root, at, size, ink, paper, s);
         text(root, (8, 20), 15.0, &title)?;
         text(root, (8, 40), 12.0, &figures)?;
         let grey = RGBColor(90, 96, 106);
@@ -672,7 +673,7 @@ pub(crate) fn defect_picture(
             let c = dpsa_formats::images::colour(tv);
             root.draw(&PathElement::new(
                 vec![(bx, (top + k) as i32), (bx + 12, (top + k) as i32)],
-                crate::picture::rgb(c).stroke_width(1),
+                dpsa_formats::picture::rgb(c).stroke_width(1),
             ))?;
         }
         for um in dpsa_formats::labels::ticks(0.0, top_um, 4) {

@@ -21,11 +21,11 @@ fn register_font() {
 }
 
 /// Why a mark was not drawn.
-pub(crate) type DrawError = Box<dyn std::error::Error>;
+pub type DrawError = Box<dyn std::error::Error>;
 
 /// Draws on `img` through `paint` (errors of the drawing are dropped: a mark missing, never
 /// an image missing).
-pub(crate) fn draw(
+pub fn draw(
     img: &mut RgbImage,
     paint: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<(), DrawError>,
 ) {
@@ -37,13 +37,13 @@ pub(crate) fn draw(
 }
 
 /// An RGB colour for plotters.
-pub(crate) fn rgb(c: [u8; 3]) -> RGBColor {
+pub fn rgb(c: [u8; 3]) -> RGBColor {
     RGBColor(c[0], c[1], c[2])
 }
 
 /// Text at `(x, y)` (its baseline's start), `size` px, in `colour` over a halo of `halo`
 /// one pixel wide (readable over any picture).
-pub(crate) fn text(
+pub fn text(
     root: &DrawingArea<BitMapBackend<'_>, Shift>,
     (x, y): (i32, i32),
     size: f64,
@@ -77,7 +77,7 @@ pub(crate) fn text(
 }
 
 /// The width of `s` at `size` px, as drawn.
-pub(crate) fn text_width(s: &str, size: f64) -> f64 {
+pub fn text_width(s: &str, size: f64) -> f64 {
     register_font();
     ("sans-serif", size)
         .into_font()
