@@ -146,11 +146,13 @@ impl Cam {
         need.end <= done || (self.ended && done == self.unwrapper.pushed())
     }
 
-    /// Drops the held rows before camera row `row`.
+    /// Drops the held rows before camera row `row`, once they are at least as many as the
+    /// rows kept (each row is then moved about once, not once per band; at most twice the
+    /// rows needed are held).
     fn drop_before(&mut self, row: usize) {
         let w = self.held.width;
         let k = row.saturating_sub(self.held0).min(self.held.rows);
-        if k == 0 {
+        if k == 0 || 2 * k < self.held.rows {
             return;
         }
         self.held.data.drain(..k * w);
@@ -347,6 +349,7 @@ impl Stitcher {
             }
             self.lost_pixels += m.lost_pixels;
             self.done = m.rows.end;
+            crate::blend::recycle(m);
         }
     }
 
