@@ -283,10 +283,19 @@ async fn post_review(
     State(site): State<Arc<Site>>,
     Path((id, pad)): Path<(String, String)>,
     headers: HeaderMap,
-    Form(form): Form<review::ReviewForm>,
+    form: Result<Form<review::ReviewForm>, axum::extract::rejection::FormRejection>,
 ) -> Response {
     let (Ok(id), Ok(pad)) = (id.parse::<i64>(), pad.parse::<u32>()) else {
         return not_found().await;
+    };
+    // A form that does not parse (or is over the size limit) gets the site's page and
+    // headers, not the framework's bare text.
+    let form = match form {
+        Ok(Form(f)) => f,
+        Err(e) => {
+            tracing::warn!(board = id, pad, "review form refused: {e}");
+            return message(e.status(), "Review refused", &e.body_text());
+        }
     };
     let decision = match review::check(&site.reviews, &headers, &form) {
         Ok(d) => d,

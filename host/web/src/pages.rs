@@ -62,6 +62,65 @@ fn print_row(store: &mut Store, b: &StoredBoard) -> Result<Option<StoredPrint>, 
         .find(|r| r.board_id == b.id))
 }
 
+/// The open SPC alarms of the newest board's product (from the newest study made; see
+/// [`crate::spc::open_alarms`]), linked to the SPC page.
+fn open_alarms(site: &Site, body: &mut String) {
+    match crate::spc::open_alarms(site) {
+        Ok(crate::spc::LineAlarms::NoBoard) => {}
+        Ok(crate::spc::LineAlarms::Seen(seen)) => {
+            let href = format!("/spc/{}", crate::spc::segment(&seen.product));
+            let _ = write!(
+                body,
+                "<h2>Open alarms ({n}, {p})</h2><p class=\"note\">From the <a href=\"{href}\">SPC \
+                 study</a> up to board {upto}{behind}.</p>",
+                n = seen.open.len(),
+                p = esc(&seen.product),
+                upto = esc(&seen.upto_run_id),
+                behind = if seen.behind {
+                    "; newer boards are stored and a newer study is being made (reload)"
+                } else {
+                    ""
+                },
+            );
+            if !seen.open.is_empty() {
+                body.push_str(
+                    "<table><tr><th class=\"t\">scope</th><th class=\"t\">measure</th>\
+                     <th class=\"t\">rule</th><th class=\"t\">since board</th>\
+                     <th class=\"t\">pads pulling it</th></tr>",
+                );
+                for a in &seen.open {
+                    let pads: Vec<String> = a.pads.iter().map(|(n, _)| esc(n)).collect();
+                    let _ = write!(
+                        body,
+                        "<tr><td class=\"t fail\">{} {}</td><td class=\"t\">{}</td>\
+                         <td class=\"t\">{}: {}</td><td class=\"t\">{}</td>\
+                         <td class=\"t\">{}</td></tr>",
+                        a.kind.id(),
+                        esc(&a.name),
+                        esc(a.metric.label()),
+                        a.rule.id(),
+                        esc(a.rule_text),
+                        esc(&a.since_run_id),
+                        pads.join(", "),
+                    );
+                }
+                body.push_str("</table>");
+            }
+        }
+        Ok(crate::spc::LineAlarms::Making) => body.push_str(
+            "<h2>Open alarms</h2><p class=\"note\">The SPC study of the newest boards is being \
+             made (reload).</p>",
+        ),
+        Err(e) => {
+            let _ = write!(
+                body,
+                "<h2>Open alarms</h2><p class=\"note\">The SPC study could not be made: {}</p>",
+                esc(&e.to_string())
+            );
+        }
+    }
+}
+
 /// The line: its newest boards with their results, the yield and the throughput over them,
 /// the printer's newest correction.
 pub fn line(site: &Site) -> Result<String, PageError> {
@@ -109,6 +168,7 @@ pub fn line(site: &Site) -> Result<String, PageError> {
             );
         }
     }
+    open_alarms(site, &mut body);
     body.push_str(
         "<h2>Newest boards</h2><table><tr><th class=\"t\">run id</th><th class=\"t\">product\
          </th><th class=\"t\">started (UTC)</th><th class=\"t\">result</th><th>pads</th>\

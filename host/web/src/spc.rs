@@ -25,9 +25,10 @@ pub const SPC_BOARDS: usize = 100;
 /// Components listed, lowest volume `Cpk` first.
 pub const WORST_COMPONENTS: usize = 20;
 
-/// The newest study made: its product, the newest board in it, the study and its report.
+/// The newest study made: its product, the newest board in it, the study and its report; and
+/// whether a newer one is being made for the line page ([`open_alarms`]).
 #[derive(Default)]
-pub struct Cache(Mutex<Option<Kept>>);
+pub struct Cache(Mutex<Option<Kept>>, std::sync::atomic::AtomicBool);
 
 /// A kept study: its product, the newest board in it, the study and its report.
 type Kept = (String, i64, Arc<(Loaded, Report)>);
@@ -95,6 +96,76 @@ fn study(site: &Site, product: Option<&str>) -> Result<Option<Arc<(Loaded, Repor
     let s = Arc::new((loaded, report));
     *cache = Some((newest.product.clone(), newest.id, s.clone()));
     Ok(Some(s))
+}
+
+/// The open alarms the line page shows: those of the newest study made.
+#[derive(Clone, Debug)]
+pub struct Seen {
+    /// The study's product.
+    pub product: String,
+    /// The newest board in the study (run id).
+    pub upto_run_id: String,
+    /// Its open alarms.
+    pub open: Vec<dpsa_spc::study::Alarm>,
+    /// Whether a newer board than the study's is stored (a newer study is being made).
+    pub behind: bool,
+}
+
+/// The open alarms of the newest inspected board's product, from the kept study, without
+/// waiting for one: a study of the paper board's 100 boards takes most of a second, and a line
+/// stores a board a second. When the kept study is older than the newest board (or there is
+/// none), a newer one is made in a thread of its own and the page shows the kept one, marked
+/// as behind.
+pub fn open_alarms(site: &Site) -> Result<LineAlarms, SpcError> {
+    use std::sync::atomic::Ordering;
+    let mut store = Store::open_read_only(&site.store, &site.line)?;
+    let Some(newest) = store.inspected_boards(None, 1)?.into_iter().next() else {
+        return Ok(LineAlarms::NoBoard);
+    };
+    let kept = site.spc.0.lock().unwrap_or_else(|p| p.into_inner()).clone();
+    let current = kept
+        .as_ref()
+        .is_some_and(|(p, id, _)| *p == newest.product && *id == newest.id);
+    if !current && !site.spc.1.swap(true, Ordering::AcqRel) {
+        let site = site.clone();
+        std::thread::spawn(move || {
+            if let Err(e) = study(&site, None) {
+                tracing::warn!("spc study for the line page: {e}");
+            }
+            site.spc.1.store(false, Ordering::Release);
+        });
+    }
+    Ok(kept.map_or(LineAlarms::Making, |(product, _, s)| {
+        let report = &s.1;
+        LineAlarms::Seen(Seen {
+            product,
+            upto_run_id: report
+                .boards
+                .last()
+                .map(|b| b.run_id.clone())
+                .unwrap_or_default(),
+            open: report.alarms.iter().filter(|a| a.open).cloned().collect(),
+            behind: !current,
+        })
+    }))
+}
+
+/// What the line page can say of the open alarms.
+#[derive(Clone, Debug)]
+pub enum LineAlarms {
+    /// No inspected board is stored.
+    NoBoard,
+    /// No study is made yet (one is being made).
+    Making,
+    /// The newest study's.
+    Seen(Seen),
+}
+
+/// Waits until no study for the line page is being made (tests).
+pub fn settle(site: &Site) {
+    while site.spc.1.load(std::sync::atomic::Ordering::Acquire) {
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
 }
 
 fn idx(v: Option<f64>) -> String {

@@ -3,7 +3,9 @@
 //! with nothing in the browser's console (no script error, no resource refused by the
 //! Content-Security-Policy, no image that failed to load); the board's list of calls links to
 //! the right pad's page; a review made in the form is stored; the pad's image is drawn; the
-//! SPC page opens from the header.
+//! SPC page opens from the header. Each page is photographed whole: the screenshot is a
+//! picture of the page's width, not blank; with `DPSA_SCREENSHOTS=DIR` they are kept there
+//! (`docs/ui.md` shows them).
 //!
 //! Needs `chromedriver` and Chromium (the test command installs Debian's `chromium` and
 //! `chromium-driver`); fails, saying so, without them.
@@ -116,6 +118,50 @@ async fn open_clean(c: &Client, url: &str) {
     assert!(log.is_empty(), "{url}: the console says {log:?}");
 }
 
+/// A screenshot of the whole page (the window grown to the page's height, at most 3000 px):
+/// a PNG as wide as the window with more than a few colours in it (a page drawn, not blank);
+/// kept as `DIR/NAME.png` when `DPSA_SCREENSHOTS=DIR` is set.
+async fn shot(c: &Client, name: &str) {
+    let height = c
+        .execute("return document.documentElement.scrollHeight;", vec![])
+        .await
+        .unwrap()
+        .as_u64()
+        .unwrap_or(900)
+        .clamp(300, 3000);
+    c.set_window_size(1100, height as u32).await.unwrap();
+    let png_bytes = c.screenshot().await.unwrap();
+    c.set_window_size(1100, 900).await.unwrap();
+    let mut r = png::Decoder::new(std::io::Cursor::new(&png_bytes))
+        .read_info()
+        .unwrap();
+    let mut buf = vec![0; r.output_buffer_size().unwrap()];
+    let info = r.next_frame(&mut buf).unwrap();
+    assert!(
+        info.width >= 1000 && info.height >= 250,
+        "{name}: a screenshot of {} x {}",
+        info.width,
+        info.height
+    );
+    let channels = info.color_type.samples();
+    let colours: std::collections::HashSet<&[u8]> = buf[..info.buffer_size()]
+        .chunks_exact(channels)
+        .step_by(5)
+        .collect();
+    assert!(
+        colours.len() > 30,
+        "{name}: the screenshot has {} colours: blank",
+        colours.len()
+    );
+    if let Some(dir) = std::env::var_os("DPSA_SCREENSHOTS") {
+        std::fs::write(
+            std::path::Path::new(&dir).join(format!("{name}.png")),
+            &png_bytes,
+        )
+        .unwrap();
+    }
+}
+
 /// Until the document and its images have loaded.
 async fn settle(c: &Client) {
     let t0 = Instant::now();
@@ -210,6 +256,7 @@ async fn the_pages_work_in_chromium() {
     open_clean(&c, &format!("{site}/")).await;
     let title = c.title().await.unwrap();
     assert_eq!(title, "Line line-1 - dpsa");
+    shot(&c, "line").await;
     click_to(
         &c,
         &format!("a[href='/board/{}']", ids[1]),
@@ -217,6 +264,7 @@ async fn the_pages_work_in_chromium() {
     )
     .await;
     // The first call listed is the failure, pad 2 (U<1>-3).
+    shot(&c, "board").await;
     let first = c
         .find(Locator::Css("table tr td a[href*='/pad/']"))
         .await
@@ -264,6 +312,7 @@ async fn the_pages_work_in_chromium() {
         src.contains("Operator 7") && src.contains("false call"),
         "{src}"
     );
+    shot(&c, "pad").await;
     let stored = Store::open(&loc, "line-1")
         .unwrap()
         .reviews(ids[1])
@@ -287,6 +336,8 @@ async fn the_pages_work_in_chromium() {
     // The SPC page, from the header's link.
     click_to(&c, "header a.nav", "/spc").await;
     assert_eq!(c.title().await.unwrap(), "SPC: mini - dpsa");
+    settle(&c).await;
+    shot(&c, "spc").await;
 
     c.close().await.unwrap();
     drop(d);

@@ -236,11 +236,23 @@ fn reviews_are_stored_from_the_page_and_refused_from_elsewhere() {
             400,
         ),
     ] {
-        let (st, _, _) = post(&path, &headers, body);
+        let (st, hd, page) = post(&path, &headers, body);
+        let page = String::from_utf8_lossy(&page);
         assert_eq!(st, want, "{path} {headers:?} {body}");
+        // Every refusal is the site's page, with its headers.
+        assert!(
+            header(&hd, "content-security-policy").is_some() && page.contains("<h1>"),
+            "{path} {body}: {hd:?} {page}"
+        );
     }
     let big = format!("reviewer=x&decision=confirmed&note={}", "a".repeat(20_000));
-    assert_eq!(post(&pad2, &[], &big).0, 413);
+    let (st, hd, page) = post(&pad2, &[], &big);
+    let page = String::from_utf8_lossy(&page);
+    assert_eq!(st, 413);
+    assert!(
+        header(&hd, "content-security-policy").is_some() && page.contains("<h1>"),
+        "{hd:?} {page}"
+    );
 
     let (_, _, body) = get(&addr, &pad2);
     assert!(
@@ -420,38 +432,7 @@ fn the_board_is_drawn_by_its_program() {
 fn the_spc_page_shows_the_study_and_its_alarms() {
     let dir = tempfile::tempdir().unwrap();
     let loc = Location::Sqlite(dir.path().join("line.sqlite"));
-    let mut s = Store::open(&loc, "line-1").unwrap();
-    let mut all = Vec::new();
-    for b in 0..30u64 {
-        let id = s
-            .begin_board(&dpsa_line::store::BoardStart {
-                run_id: 0x100 + b,
-                product: "mini".into(),
-                program_hash: "p".into(),
-                calibration_hash: "c".into(),
-                started_unix_s: 1_700_000_000.0 + 10.0 * b as f64,
-            })
-            .unwrap();
-        let pads: Vec<_> = (0..3u32)
-            .map(|k| {
-                let v = 100.0 + ((b as u32 * 7 + k * 3) % 5) as f64 - 2.0
-                    + if b >= 27 { 25.0 } else { 0.0 };
-                all.push(v);
-                common::pad(k, &format!("R{k}-1"), "pass", Some(v))
-            })
-            .collect();
-        s.finish_board(
-            id,
-            1_700_000_005.0 + 10.0 * b as f64,
-            &[],
-            &dpsa_line::store::Outcome::Inspected {
-                verdict: "pass".into(),
-                pads,
-            },
-        )
-        .unwrap();
-    }
-    drop(s);
+    let all = spc_boards(&loc, 0..30);
     let (addr, stop, h) = serve(Site::new(loc, "line-1"));
     let (st, _, body) = get(&addr, "/spc");
     assert_eq!(st, 200, "{body}");
@@ -497,4 +478,87 @@ fn the_spc_page_shows_the_study_and_its_alarms() {
     }
     stop.send(()).unwrap();
     h.join().unwrap();
+}
+
+/// The line page shows the open alarms of the newest study without waiting for one: first
+/// that it is being made, then its alarm; a newer board marks it behind until the newer study
+/// is made, which then ends on that board.
+#[test]
+fn the_line_page_shows_the_open_alarms() {
+    let dir = tempfile::tempdir().unwrap();
+    let loc = Location::Sqlite(dir.path().join("line.sqlite"));
+    spc_boards(&loc, 0..30);
+    let site = Site::new(loc.clone(), "line-1");
+    let (addr, stop, h) = serve(site.clone());
+    let (st, _, body) = get(&addr, "/");
+    assert_eq!(st, 200, "{body}");
+    assert!(
+        body.contains("study of the newest boards is being made"),
+        "{body}"
+    );
+    dpsa_web::spc::settle(&site);
+    let (_, _, body) = get(&addr, "/");
+    let open = &body[body.find("Open alarms").unwrap()..body.find("Newest boards").unwrap()];
+    assert!(open.contains("Open alarms (2, mini)"), "{open}");
+    assert!(
+        open.contains("board mini") && open.contains("WE1") && open.contains("000000000000011b"),
+        "{open}"
+    );
+    assert!(
+        open.contains("up to board 000000000000011d.") && !open.contains("being made"),
+        "{open}"
+    );
+    spc_boards(&loc, 30..31);
+    let (_, _, body) = get(&addr, "/");
+    assert!(body.contains("a newer study is being made"), "{body}");
+    dpsa_web::spc::settle(&site);
+    let (_, _, body) = get(&addr, "/");
+    assert!(body.contains("up to board 000000000000011e."), "{body}");
+    stop.send(()).unwrap();
+    h.join().unwrap();
+}
+
+/// Boards `boards` of product `mini` (three pads each; a volume step of 25 % from board 27
+/// on) stored in `loc`; returns every pad's volume, board by board.
+fn spc_boards(loc: &Location, boards: std::ops::Range<u64>) -> Vec<f64> {
+    let mut s = Store::open(loc, "line-1").unwrap();
+    let mut all = Vec::new();
+    for b in boards {
+        all.extend(spc_board(&mut s, b));
+    }
+    all
+}
+
+fn spc_board(s: &mut Store, b: u64) -> Vec<f64> {
+    let mut all = Vec::new();
+    {
+        let id = s
+            .begin_board(&dpsa_line::store::BoardStart {
+                run_id: 0x100 + b,
+                product: "mini".into(),
+                program_hash: "p".into(),
+                calibration_hash: "c".into(),
+                started_unix_s: 1_700_000_000.0 + 10.0 * b as f64,
+            })
+            .unwrap();
+        let pads: Vec<_> = (0..3u32)
+            .map(|k| {
+                let v = 100.0 + ((b as u32 * 7 + k * 3) % 5) as f64 - 2.0
+                    + if b >= 27 { 25.0 } else { 0.0 };
+                all.push(v);
+                common::pad(k, &format!("R{k}-1"), "pass", Some(v))
+            })
+            .collect();
+        s.finish_board(
+            id,
+            1_700_000_005.0 + 10.0 * b as f64,
+            &[],
+            &dpsa_line::store::Outcome::Inspected {
+                verdict: "pass".into(),
+                pads,
+            },
+        )
+        .unwrap();
+    }
+    all
 }
