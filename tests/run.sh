@@ -49,6 +49,14 @@ if ! have chromedriver || ! { have chromium || have chromium-browser; }; then
     as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver
 fi
 
+# The pad's 3D view takes gl-matrix from the npm registry when dpsa-web is built
+# (host/web/build.rs): with npm, else with curl.
+if ! have npm && ! have curl; then
+    echo "== neither npm nor curl found: installing Debian's curl"
+    as_root apt-get update -qq
+    as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq curl ca-certificates
+fi
+
 if [ ! -d ../shared/data/real ]; then
     echo "error: ../shared/data/real (real fringe stacks used by the tests) is missing" >&2
     exit 1

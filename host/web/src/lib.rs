@@ -31,6 +31,7 @@ pub mod html;
 pub mod pages;
 pub mod review;
 pub mod spc;
+pub mod view3d;
 
 use axum::extract::{DefaultBodyLimit, Path, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
@@ -46,7 +47,8 @@ pub const DEFAULT_BIND: &str = "127.0.0.1:8080";
 
 /// The Content-Security-Policy of every response.
 pub const CSP: &str = "default-src 'none'; style-src 'self'; img-src 'self' data:; \
-                       frame-ancestors 'none'; base-uri 'none'; form-action 'self'";
+                       script-src 'self'; connect-src 'self'; frame-ancestors 'none'; \
+                       base-uri 'none'; form-action 'self'";
 
 /// Why the site could not be served.
 #[derive(Debug, thiserror::Error)]
@@ -94,6 +96,9 @@ pub fn router(site: Site) -> Router {
         .route("/board/{id}", get(board))
         .route("/board/{id}/pad/{pad}", get(pad))
         .route("/board/{id}/pad/{pad}/crop.png", get(crop_png))
+        .route("/board/{id}/pad/{pad}/heights.json", get(heights_json))
+        .route(view3d::LIBRARY_PATH, get(library_js))
+        .route(view3d::SCRIPT_PATH, get(view3d_js))
         .route(
             "/board/{id}/pad/{pad}/review",
             axum::routing::post(post_review),
@@ -410,6 +415,53 @@ async fn style() -> Response {
         "text/css; charset=utf-8",
         html::STYLE.to_owned(),
     )
+}
+
+/// The 3D view's library (npm, bundled at build time); a 404 in a build without it.
+async fn library_js() -> Response {
+    if view3d::LIBRARY.is_empty() {
+        return not_found().await;
+    }
+    script(view3d::LIBRARY)
+}
+
+async fn view3d_js() -> Response {
+    script(view3d::SCRIPT)
+}
+
+/// A script of the binary's own: cached for a day (the library's path names its version).
+fn script(text: &'static str) -> Response {
+    let mut r = respond(
+        StatusCode::OK,
+        "text/javascript; charset=utf-8",
+        text.to_owned(),
+    );
+    r.headers_mut().insert(
+        header::CACHE_CONTROL,
+        HeaderValue::from_static("public, max-age=86400"),
+    );
+    r
+}
+
+/// A pad's kept heights as JSON (`pages::heights_json`), or a 404.
+async fn heights_json(
+    State(site): State<Arc<Site>>,
+    Path((id, pad)): Path<(String, String)>,
+) -> Response {
+    let (Ok(id), Ok(pad)) = (id.parse::<i64>(), pad.parse::<u32>()) else {
+        return not_found().await;
+    };
+    let out = tokio::task::spawn_blocking(move || pages::heights_json(&site, id, pad)).await;
+    match out {
+        Ok(Ok(Some(body))) => respond(StatusCode::OK, "application/json", body),
+        Ok(Ok(None)) => not_found().await,
+        Ok(Err(e)) => message(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "Store unavailable",
+            &format!("The store could not be read: {e}"),
+        ),
+        Err(e) => message(StatusCode::INTERNAL_SERVER_ERROR, "Error", &e.to_string()),
+    }
 }
 
 async fn icon() -> Response {

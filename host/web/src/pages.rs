@@ -441,6 +441,7 @@ pub fn pad(site: &Site, id: i64, k: u32) -> Result<Option<String>, PageError> {
                     .map(|f| format!("; package family {}", esc(f)))
                     .unwrap_or_default()
             );
+            body.push_str(&crate::view3d::section(id, k, im, scale));
         }
         None if p.level != "pass" => body.push_str(
             "<p class=\"note\">No heights kept for this pad (the line keeps them for the \
@@ -511,6 +512,25 @@ pub fn pad(site: &Site, id: i64, k: u32) -> Result<Option<String>, PageError> {
 
 /// The PNG of pad `k`'s kept heights on board `id` (this line's), on the pad page's colour
 /// scale; `None` without one.
+/// Pad `k`'s kept heights of board `id` for the 3D view, as JSON ([`crate::view3d::json`]);
+/// `None`: no such board, pad or kept heights.
+pub fn heights_json(site: &Site, id: i64, k: u32) -> Result<Option<String>, PageError> {
+    let mut store = open(site)?;
+    if store.board(id)?.is_none() {
+        return Ok(None);
+    }
+    let Some(im) = store.pad_image(id, k)? else {
+        return Ok(None);
+    };
+    let nominal = store
+        .pads(id)?
+        .into_iter()
+        .find(|p| p.pad == k)
+        .and_then(|p| nominal_um(&p));
+    let scale = crate::crop::Scale::for_pad(&im, nominal);
+    Ok(Some(crate::view3d::json(&im, scale)))
+}
+
 pub fn crop_png(site: &Site, id: i64, k: u32) -> Result<Option<Vec<u8>>, PageError> {
     let mut store = open(site)?;
     if store.board(id)?.is_none() {
