@@ -510,11 +510,13 @@ pub fn pad(site: &Site, id: i64, k: u32) -> Result<Option<String>, PageError> {
     Ok(Some(frame(&format!("Pad {}", p.name), &body)))
 }
 
-/// The PNG of pad `k`'s kept heights on board `id` (this line's), on the pad page's colour
-/// scale; `None` without one.
-/// Pad `k`'s kept heights of board `id` for the 3D view, as JSON ([`crate::view3d::json`]);
+/// Pad `k`'s kept heights of board `id` (this line's) and their colour scale (the pad page's);
 /// `None`: no such board, pad or kept heights.
-pub fn heights_json(site: &Site, id: i64, k: u32) -> Result<Option<String>, PageError> {
+fn kept(
+    site: &Site,
+    id: i64,
+    k: u32,
+) -> Result<Option<(dpsa_line::store::PadImage, crate::crop::Scale)>, PageError> {
     let mut store = open(site)?;
     if store.board(id)?.is_none() {
         return Ok(None);
@@ -528,22 +530,20 @@ pub fn heights_json(site: &Site, id: i64, k: u32) -> Result<Option<String>, Page
         .find(|p| p.pad == k)
         .and_then(|p| nominal_um(&p));
     let scale = crate::crop::Scale::for_pad(&im, nominal);
-    Ok(Some(crate::view3d::json(&im, scale)))
+    Ok(Some((im, scale)))
 }
 
+/// Pad `k`'s kept heights of board `id` for the 3D view, as JSON ([`crate::view3d::json`]);
+/// `None` without them.
+pub fn heights_json(site: &Site, id: i64, k: u32) -> Result<Option<String>, PageError> {
+    Ok(kept(site, id, k)?.map(|(im, scale)| crate::view3d::json(&im, scale)))
+}
+
+/// The PNG of pad `k`'s kept heights on board `id`, on the pad page's colour scale; `None`
+/// without them.
 pub fn crop_png(site: &Site, id: i64, k: u32) -> Result<Option<Vec<u8>>, PageError> {
-    let mut store = open(site)?;
-    if store.board(id)?.is_none() {
-        return Ok(None);
+    match kept(site, id, k)? {
+        Some((im, scale)) => Ok(Some(crate::crop::png(&im, scale)?)),
+        None => Ok(None),
     }
-    let Some(im) = store.pad_image(id, k)? else {
-        return Ok(None);
-    };
-    let nominal = store
-        .pads(id)?
-        .into_iter()
-        .find(|p| p.pad == k)
-        .and_then(|p| nominal_um(&p));
-    let scale = crate::crop::Scale::for_pad(&im, nominal);
-    Ok(Some(crate::crop::png(&im, scale)?))
 }
