@@ -30,6 +30,7 @@ pub mod labels;
 pub mod picture;
 pub mod progress;
 pub mod recording;
+pub mod surface;
 pub mod time;
 
 pub use board_id::BoardId;

@@ -5,7 +5,7 @@
 //! | `pads.csv` | one row per pad; the IPC-CFX `SolderPasteMeasurement` names where they exist (`ComponentPad`, `PasteVolume`, `PasteHeight`, `PasteXOffset`, `PasteYOffset`, `Result`), then ours |
 //! | `report.json` | what `--json` prints |
 //! | `cfx_units_inspected.json` | an IPC-CFX 1.x `UnitsInspected` message (JSON envelope, `InspectionMethod` SPI), one `SolderPasteMeasurement` per pad, the failures as `DefectsFound` |
-//! | `overview.png` | the board's heights in grey, board x to the right and y up, every opening outlined in its verdict's colour (green pass, amber warning, red failure, magenta not measurable), every call ringed and labelled `REF.PIN class` where no label covers another, the fiducials marked, a title, a legend and a scale bar in mm |
+//! | `overview.png` | the board's heights above its local surface in grey (the bow taken out: `dpsa_formats::surface`), board x to the right and y up, every opening outlined in its verdict's colour (green pass, amber warning, red failure, magenta not measurable), every call ringed and labelled `REF.PIN class` where no label covers another, the fiducials marked, a title, a legend and a scale bar in mm |
 //! | `gallery/NNN_class_pad.png` | every failure (at most [`MAX_GALLERY`]): its name, class and measures against their fail limits; the heights above the pad's local surface around it (false colour 0 to 1.6 x stencil with a colour bar in um, board x right and y up with axes in mm, the opening dashed in white, the cut in black, no height in dark grey) over the profile along the cut (um against mm, the stencil thickness dashed) |
 
 use crate::error::InspectError;
@@ -368,17 +368,33 @@ pub fn draw_overview(
     let g = &map.grid;
     let fr = OverviewFrame::of(g, max_px);
     let (f, (nu, nv), (ou, ov)) = (fr.f, fr.size, fr.origin);
-    let (lo, hi) = dpsa_formats::board_map::colour_range(&map.heights).unwrap_or((0.0, 1.0));
-    let span = (hi - lo).max(1e-3);
+    // The heights drawn (every f-th map pixel), above the board's local surface: the bow
+    // taken out, the paste bright on a dark board.
+    let mut shown = dpsa_formats::grid::Grid::invalid(nv, nu);
+    for u in 0..nu {
+        for (k, out) in shown.data[u * nv..(u + 1) * nv].iter_mut().enumerate() {
+            *out = map
+                .heights
+                .at(u * f, (k * f).min(g.width.saturating_sub(1)));
+        }
+    }
+    let cell = (dpsa_formats::surface::SURFACE_CELL_MM / (g.pitch_mm * f as f64)).round();
+    let surface = dpsa_formats::surface::local_surface(&shown, (cell as usize).max(2));
+    for (h, s) in shown.data.iter_mut().zip(&surface.data) {
+        *h -= s;
+    }
+    // White from the 99th percentile up (the paste's tops on a printed board), at least 20 um
+    // (a board with hardly any paste keeps its bare board dark).
+    let top = dpsa_formats::board_map::colour_range(&shown).map_or(20.0, |r| r.1.max(20.0));
     let mut img: RgbImage = ImageBuffer::from_pixel(fr.image.0, fr.image.1, Rgb([24, 28, 36]));
-    // The heights: image column u is map row u f (board x), image row v is map column
-    // (nv - 1 - v) f (board y up).
+    // Image column u is map row u f (board x), image row v is map column (nv - 1 - v) f
+    // (board y up).
     for v in 0..nv {
-        let j = (nv - 1 - v) * f;
+        let k = nv - 1 - v;
         for u in 0..nu {
-            let px = map.heights.at(u * f, j.min(g.width.saturating_sub(1)));
+            let px = shown.data[u * nv + k];
             let q = if px.is_finite() {
-                (((px - lo) / span).clamp(0.0, 1.0) * 200.0 + 30.0) as u8
+                ((px / top).clamp(0.0, 1.0) * 200.0 + 30.0) as u8
             } else {
                 12
             };
@@ -491,7 +507,7 @@ pub fn draw_overview(
             13.0,
             [200, 200, 200],
             dark,
-            "x to the right, y up, heights in grey",
+            "x right, y up; grey: height above the board",
         )?;
         let mm = dpsa_formats::labels::scale_bar_mm(0.2 * nu as f64 * step);
         let len = (mm / step).round() as i32;
@@ -972,5 +988,47 @@ mod tests {
         let cyan = (-1..=1)
             .any(|d| img.get_pixel((x as i64 + 10 + d) as u32, y as u32).0 == [0, 210, 230]);
         assert!(cyan, "{x} {y}");
+    }
+
+    /// The heights in grey are above the board's local surface: on a board bowed by 300 um,
+    /// the bare board is dark at its middle and at its corners alike, and a 100 um deposit
+    /// is bright.
+    #[test]
+    fn the_overview_takes_out_the_bow() {
+        let g = BoardGrid {
+            x0_mm: 0.0,
+            y0_mm: 0.0,
+            pitch_mm: 0.05,
+            rows: 400,
+            width: 300,
+        };
+        let deposit = |x: f64, y: f64| (x - 10.0).abs() < 0.75 && (y - 7.5).abs() < 0.75;
+        let data = (0..g.rows * g.width)
+            .map(|k| {
+                let (x, y) = g.centre(k / g.width, k % g.width);
+                let (xi, eta) = (x / 10.0 - 1.0, y / 7.5 - 1.0);
+                let bow = 300.0 * (1.0 - xi * xi) * (1.0 - eta * eta);
+                (bow + if deposit(x, y) { 100.0 } else { 0.0 }) as f32
+            })
+            .collect();
+        let map = BoardMap {
+            board_id: None,
+            grid: g,
+            heights: Grid {
+                width: g.width,
+                rows: g.rows,
+                data,
+            },
+        };
+        let img = draw_overview(&map, &[], &[], "board", 400);
+        let fr = OverviewFrame::of(&g, 400);
+        let grey = |x: f64, y: f64| {
+            let (u, v) = fr.pixel(&g, x, y);
+            img.get_pixel(u as u32, v as u32).0[0]
+        };
+        assert!(grey(10.0, 7.5) > 180, "the deposit: {}", grey(10.0, 7.5));
+        for (x, y) in [(5.0, 7.5), (1.0, 1.0), (19.0, 14.0), (10.0, 3.0)] {
+            assert!(grey(x, y) < 60, "bare board at ({x}, {y}): {}", grey(x, y));
+        }
     }
 }
