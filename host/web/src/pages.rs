@@ -121,6 +121,51 @@ fn open_alarms(site: &Site, body: &mut String) {
     }
 }
 
+/// The pad's SPC chart (its volume, the board the subgroup, from the newest study of the
+/// product; see [`crate::spc::pad_chart`]) with its capability.
+fn pad_spc(site: &Site, product: &str, name: &str, body: &mut String) {
+    body.push_str("<h2>SPC: the pad's volume chart</h2>");
+    match crate::spc::pad_chart(site, product, name) {
+        Ok(crate::spc::PadSpc::Seen(s, href, behind)) => {
+            let _ = write!(
+                body,
+                "<p><img class=\"chart\" src=\"{href}\" alt=\"the pad's volume chart\"></p>\
+                 <p class=\"figures\"><span>boards <b>{}</b></span><span>mean <b>{}</b> %</span>\
+                 <span>Cp <b>{}</b></span><span>Cpk <b>{}</b></span><span>Pp <b>{}</b></span>\
+                 <span>Ppk <b>{}</b></span></p><p class=\"note\">From the <a href=\"/spc/{}\">SPC \
+                 study</a> of the product's newest boards{}.</p>",
+                s.points,
+                num(s.mean, 1),
+                num(s.cp.p, 2),
+                num(s.cp.k, 2),
+                num(s.pp.p, 2),
+                num(s.pp.k, 2),
+                crate::spc::segment(product),
+                if behind {
+                    "; newer boards are stored and a newer study is being made (reload)"
+                } else {
+                    ""
+                },
+            );
+        }
+        Ok(crate::spc::PadSpc::Making) => body.push_str(
+            "<p class=\"note\">The SPC study of the product's newest boards is being made \
+             (reload).</p>",
+        ),
+        Ok(crate::spc::PadSpc::None) => body.push_str(
+            "<p class=\"note\">The SPC study has no volume chart of this pad (too few boards, \
+             or no spread).</p>",
+        ),
+        Err(e) => {
+            let _ = write!(
+                body,
+                "<p class=\"note\">The SPC study could not be made: {}</p>",
+                esc(&e.to_string())
+            );
+        }
+    }
+}
+
 /// The line: its newest boards with their results, the yield and the throughput over them,
 /// the printer's newest correction.
 pub fn line(site: &Site) -> Result<String, PageError> {
@@ -464,6 +509,7 @@ pub fn pad(site: &Site, id: i64, k: u32) -> Result<Option<String>, PageError> {
         "<p class=\"note\">This board in red; {fails} of {} failed.</p>",
         history.len()
     );
+    pad_spc(site, &b.product, &p.name, &mut body);
     if p.level != "pass" {
         body.push_str("<h2>Review</h2>");
         if reviews.is_empty() {

@@ -117,10 +117,38 @@ pub struct Seen {
 /// none), a newer one is made in a thread of its own and the page shows the kept one, marked
 /// as behind.
 pub fn open_alarms(site: &Site) -> Result<LineAlarms, SpcError> {
+    Ok(match kept_now(site, None)? {
+        None => LineAlarms::NoBoard,
+        Some((None, _)) => LineAlarms::Making,
+        Some((Some((product, s)), current)) => {
+            let report = &s.1;
+            LineAlarms::Seen(Seen {
+                product,
+                upto_run_id: report
+                    .boards
+                    .last()
+                    .map(|b| b.run_id.clone())
+                    .unwrap_or_default(),
+                open: report.alarms.iter().filter(|a| a.open).cloned().collect(),
+                behind: !current,
+            })
+        }
+    })
+}
+
+/// The kept study of `product` (the newest inspected board's when `None`), without waiting
+/// for one: the kept study when it is of that product, and whether it ends on the product's
+/// newest board. When it does not, a newer one is made in a thread of its own (one at a
+/// time). `None`: no inspected board of the product.
+#[allow(clippy::type_complexity)]
+fn kept_now(
+    site: &Site,
+    product: Option<&str>,
+) -> Result<Option<(Option<(String, Arc<(Loaded, Report)>)>, bool)>, SpcError> {
     use std::sync::atomic::Ordering;
     let mut store = Store::open_read_only(&site.store, &site.line)?;
-    let Some(newest) = store.inspected_boards(None, 1)?.into_iter().next() else {
-        return Ok(LineAlarms::NoBoard);
+    let Some(newest) = store.inspected_boards(product, 1)?.into_iter().next() else {
+        return Ok(None);
     };
     let kept = site.spc.0.lock().unwrap_or_else(|p| p.into_inner()).clone();
     let current = kept
@@ -128,26 +156,52 @@ pub fn open_alarms(site: &Site) -> Result<LineAlarms, SpcError> {
         .is_some_and(|(p, id, _)| *p == newest.product && *id == newest.id);
     if !current && !site.spc.1.swap(true, Ordering::AcqRel) {
         let site = site.clone();
+        let product = newest.product.clone();
         std::thread::spawn(move || {
-            if let Err(e) = study(&site, None) {
-                tracing::warn!("spc study for the line page: {e}");
+            if let Err(e) = study(&site, Some(&product)) {
+                tracing::warn!("spc study for the pages: {e}");
             }
             site.spc.1.store(false, Ordering::Release);
         });
     }
-    Ok(kept.map_or(LineAlarms::Making, |(product, _, s)| {
-        let report = &s.1;
-        LineAlarms::Seen(Seen {
-            product,
-            upto_run_id: report
-                .boards
-                .last()
-                .map(|b| b.run_id.clone())
-                .unwrap_or_default(),
-            open: report.alarms.iter().filter(|a| a.open).cloned().collect(),
-            behind: !current,
-        })
-    }))
+    let kept = kept
+        .filter(|(p, _, _)| *p == newest.product)
+        .map(|(p, _, s)| (p, s));
+    Ok(Some((kept, current)))
+}
+
+/// What the pad page can say of the pad's SPC chart.
+#[derive(Clone, Debug)]
+pub enum PadSpc {
+    /// No study of the product is made yet (one is being made).
+    Making,
+    /// The study has no volume chart of the pad (too few boards, no spread, no such pad).
+    None,
+    /// The pad's volume series in the newest study, its chart's path, and whether newer
+    /// boards are stored than the study's.
+    Seen(Box<Series>, String, bool),
+}
+
+/// Pad `name`'s volume chart in the newest study of `product` (see [`kept_now`]).
+pub fn pad_chart(site: &Site, product: &str, name: &str) -> Result<PadSpc, SpcError> {
+    Ok(match kept_now(site, Some(product))? {
+        None => PadSpc::None,
+        Some((None, _)) => PadSpc::Making,
+        Some((Some((p, s)), current)) => {
+            let pads = &s.1.pads;
+            match pads
+                .iter()
+                .position(|x| x.name == name && x.metric == Metric::Volume && x.note.is_none())
+            {
+                Some(k) => PadSpc::Seen(
+                    Box::new(pads[k].clone()),
+                    chart_href(&p, ScopeKind::Pad, k, Metric::Volume),
+                    !current,
+                ),
+                None => PadSpc::None,
+            }
+        }
+    })
 }
 
 /// What the line page can say of the open alarms.

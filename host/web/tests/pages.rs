@@ -518,6 +518,55 @@ fn the_line_page_shows_the_open_alarms() {
     h.join().unwrap();
 }
 
+/// The pad page shows the pad's own SPC chart (its volume, the board the subgroup) from the
+/// newest study: being made at first, then the chart (a PNG the chart route serves) with its
+/// board count and mean (the mean of the pad's stored volumes).
+#[test]
+fn the_pad_page_shows_its_spc_chart() {
+    let dir = tempfile::tempdir().unwrap();
+    let loc = Location::Sqlite(dir.path().join("line.sqlite"));
+    let all = spc_boards(&loc, 0..30);
+    let site = Site::new(loc.clone(), "line-1");
+    let (addr, stop, h) = serve(site.clone());
+    let newest = Store::open(&loc, "line-1")
+        .unwrap()
+        .boards(1)
+        .unwrap()
+        .remove(0)
+        .id;
+    let page = format!("/board/{newest}/pad/1");
+    let (st, _, body) = get(&addr, &page);
+    assert_eq!(st, 200, "{body}");
+    assert!(
+        body.contains("study of the product's newest boards is being made"),
+        "{body}"
+    );
+    dpsa_web::spc::settle(&site);
+    let (_, _, body) = get(&addr, &page);
+    let spc = &body[body.find("SPC: the pad's volume chart").unwrap()..];
+    let src = spc
+        .split("<img class=\"chart\" src=\"")
+        .nth(1)
+        .and_then(|r| r.split('"').next())
+        .unwrap_or_else(|| panic!("no chart: {spc}"))
+        .to_owned();
+    assert!(
+        src.starts_with("/spc/mini/chart/pad/") && src.ends_with("/volume_pct.png"),
+        "{src}"
+    );
+    // Pad 1's volumes: every third value, from the second.
+    let mean = all.iter().skip(1).step_by(3).sum::<f64>() / 30.0;
+    assert!(
+        spc.contains("boards <b>30</b>") && spc.contains(&format!("mean <b>{mean:.1}</b>")),
+        "{mean:.1}: {spc}"
+    );
+    let (st, hd, _) = request(&addr, "GET", &src, &[], "");
+    assert_eq!(st, 200);
+    assert_eq!(header(&hd, "content-type"), Some("image/png"));
+    stop.send(()).unwrap();
+    h.join().unwrap();
+}
+
 /// Boards `boards` of product `mini` (three pads each; a volume step of 25 % from board 27
 /// on) stored in `loc`; returns every pad's volume, board by board.
 fn spc_boards(loc: &Location, boards: std::ops::Range<u64>) -> Vec<f64> {
