@@ -133,6 +133,13 @@ impl Designs {
         let (d, _) = self.find(program_hash)?;
         d.families.get(k as usize)?.as_deref()
     }
+
+    /// Pad `k`'s tolerance windows under the program of hash `program_hash` (its overrides
+    /// applied), if that program was given.
+    pub fn windows(&self, program_hash: &str, k: u32) -> Option<dpsa_inspect::program::Windows> {
+        let (d, _) = self.find(program_hash)?;
+        Some(d.program.windows_for(d.pads.get(k as usize)?))
+    }
 }
 
 /// The board `id` of program `program_hash` with its pad rows: the drawing, or `None` when

@@ -438,20 +438,52 @@ pub fn pad(site: &Site, id: i64, k: u32) -> Result<Option<String>, PageError> {
         .filter(|r| r.pad == k)
         .collect();
     let mut body = String::new();
+    // The program's limits of this pad (its overrides applied), when the program was given.
+    let w = site.designs.windows(&b.program_hash, k);
+    let window = |f: fn(&dpsa_inspect::program::Windows) -> &dpsa_inspect::program::Window| {
+        w.as_ref().map_or(String::new(), |w| {
+            let x = f(w);
+            format!(
+                "warn outside {}-{}, fail outside {}-{}",
+                x.warn[0], x.warn[1], x.fail[0], x.fail[1]
+            )
+        })
+    };
+    let offset = w.as_ref().map_or(String::new(), |w| {
+        format!(
+            "% of the opening's width: warn above {}, fail above {}",
+            w.offset_pct.warn, w.offset_pct.fail
+        )
+    });
     let _ = write!(
         body,
         "<p>Board <a href=\"/board/{id}\">{run:016x}</a> ({prod}), pad index {k}: \
          <b class=\"{c}\">{l}</b> {cl}</p><table>\
-         <tr><th class=\"t\">measure</th><th>value</th><th>standard uncertainty</th></tr>\
-         <tr><td class=\"t\">volume, % of the opening</td><td>{v}</td><td>{u}</td></tr>\
-         <tr><td class=\"t\">volume, um&sup3;</td><td>{vu}</td><td>{uu}</td></tr>\
-         <tr><td class=\"t\">height, um</td><td>{h}</td><td></td></tr>\
-         <tr><td class=\"t\">height, % of the stencil</td><td>{hp}</td><td></td></tr>\
-         <tr><td class=\"t\">area, mm&sup2;</td><td>{a}</td><td></td></tr>\
-         <tr><td class=\"t\">area, % of the opening</td><td>{ap}</td><td></td></tr>\
-         <tr><td class=\"t\">offset x, um</td><td>{ox}</td><td></td></tr>\
-         <tr><td class=\"t\">offset y, um</td><td>{oy}</td><td></td></tr>\
-         <tr><td class=\"t\">coverage (valid pixels)</td><td>{cov}</td><td></td></tr></table>",
+         <tr><th class=\"t\">measure</th><th>value</th><th>standard uncertainty</th>\
+         <th class=\"t\">limits</th></tr>\
+         <tr><td class=\"t\">volume, % of the opening</td><td>{v}</td><td>{u}</td>\
+         <td class=\"t\">{lv}</td></tr>\
+         <tr><td class=\"t\">volume, um&sup3;</td><td>{vu}</td><td>{uu}</td><td></td></tr>\
+         <tr><td class=\"t\">height, um</td><td>{h}</td><td></td><td></td></tr>\
+         <tr><td class=\"t\">height, % of the stencil</td><td>{hp}</td><td></td>\
+         <td class=\"t\">{lh}</td></tr>\
+         <tr><td class=\"t\">area, mm&sup2;</td><td>{a}</td><td></td><td></td></tr>\
+         <tr><td class=\"t\">area, % of the opening</td><td>{ap}</td><td></td>\
+         <td class=\"t\">{la}</td></tr>\
+         <tr><td class=\"t\">offset x, um</td><td>{ox}</td><td></td><td class=\"t\">{lo}</td></tr>\
+         <tr><td class=\"t\">offset y, um</td><td>{oy}</td><td></td><td class=\"t\">{lo}</td></tr>\
+         <tr><td class=\"t\">coverage (valid pixels)</td><td>{cov}</td><td></td><td></td></tr>\
+         </table>{note}",
+        lv = window(|w| &w.volume_pct),
+        lh = window(|w| &w.height_pct),
+        la = window(|w| &w.area_pct),
+        lo = offset,
+        note = if w.is_none() {
+            "<p class=\"note\">No limits shown: the board's program was not given to the \
+             pages (dpsa serve --program PROG).</p>"
+        } else {
+            ""
+        },
         run = b.run_id,
         prod = esc(&b.product),
         c = class(&p.level),

@@ -414,6 +414,23 @@ fn the_board_is_drawn_by_its_program() {
     assert!(!svg.contains("/pad/0\""), "a passed pad linked");
     assert!(svg.contains(dpsa_web::board_view::FAIL) && svg.contains(">pass</text>"));
     assert!(svg.contains(" mm</text>") && !svg.contains("style="));
+    // The pad page shows the pad's limits under the program (the defaults: the test's program
+    // sets none); a board of a program not given says it shows none.
+    let (_, _, pad) = get(&addr, &format!("/board/{}/pad/2", ids[0]));
+    let w = dpsa_inspect::program::Windows::default();
+    let v = &w.volume_pct;
+    let want = format!(
+        "warn outside {}-{}, fail outside {}-{}",
+        v.warn[0], v.warn[1], v.fail[0], v.fail[1]
+    );
+    let row = &pad[pad.find("volume, % of the opening").unwrap()..pad.find("volume, um").unwrap()];
+    assert!(row.contains(&want), "{want}: {row}");
+    assert!(pad.contains(&format!(
+        "warn above {}, fail above {}",
+        w.offset_pct.warn, w.offset_pct.fail
+    )));
+    let (_, _, pad) = get(&addr, &format!("/board/{}/pad/2", ids[1]));
+    assert!(pad.contains("No limits shown"), "{pad}");
     // Another program's board: not drawn, said.
     let (_, _, other) = get(&addr, &format!("/board/{}", ids[1]));
     assert!(
