@@ -374,10 +374,9 @@ impl Blender {
     }
 
     /// The turns, the edge's median, the seams: what the bands decided and added up. The
-    /// layers' spare grids kept for later bands are dropped.
+    /// buffers kept for later bands are dropped.
     pub fn finish(self) -> (Vec<i32>, Option<f64>, u64, Vec<Seam>) {
-        crate::resample::drop_spare();
-        drop_spare();
+        crate::pool::clear();
         let to_um = self.grid.pitch_mm * 1000.0;
         let seams = self
             .seams
@@ -506,58 +505,13 @@ fn mix_at(layers: &[Layer], r: usize, c: usize) -> Option<(f32, f32)> {
     (ws > 0.0).then(|| ((s / ws) as f32, (ts / ws) as f32))
 }
 
-/// Buffers of bands copied into the map, for the next bands' mix ([`recycle`]): a band of the
-/// paper board is 6 MB of heights, which glibc would map afresh for every band.
-static SPARE_F32: std::sync::Mutex<Vec<Vec<f32>>> = std::sync::Mutex::new(Vec::new());
-static SPARE_U8: std::sync::Mutex<Vec<Vec<u8>>> = std::sync::Mutex::new(Vec::new());
-
-/// Most buffers of each kind kept (a band's heights and variance, of two boards at a time).
-const SPARE_BANDS: usize = 4;
-
-/// A buffer of `n` values from the spares (its values left over: the caller writes them all).
-fn spare_of<T: Copy + Default>(pool: &std::sync::Mutex<Vec<Vec<T>>>, n: usize) -> Vec<T> {
-    let mut v = pool
-        .lock()
-        .ok()
-        .and_then(|mut s| s.pop())
-        .unwrap_or_default();
-    v.truncate(n);
-    v.resize(n, T::default());
-    v
-}
-
-fn spare_f32(n: usize) -> Vec<f32> {
-    spare_of(&SPARE_F32, n)
-}
-
-fn spare_u8(n: usize) -> Vec<u8> {
-    spare_of(&SPARE_U8, n)
-}
-
-/// Hands a band's buffers on to later bands (its rows are in the map).
+/// Hands a band's buffers on to later bands (its rows are in the map; [`crate::pool`]).
 pub(crate) fn recycle(m: BandMap) {
-    fn keep<T>(pool: &std::sync::Mutex<Vec<Vec<T>>>, v: Vec<T>) {
-        if let Ok(mut s) = pool.lock() {
-            if s.len() < SPARE_BANDS && v.capacity() > 0 {
-                s.push(v);
-            }
-        }
-    }
-    keep(&SPARE_F32, m.heights);
+    crate::pool::BAND_F32.give(m.heights);
     if let Some(v) = m.variance {
-        keep(&SPARE_F32, v);
+        crate::pool::BAND_F32.give(v);
     }
-    keep(&SPARE_U8, m.camera);
-}
-
-/// Drops the spare band buffers (a map is finished).
-pub(crate) fn drop_spare() {
-    if let Ok(mut s) = SPARE_F32.lock() {
-        *s = Vec::new();
-    }
-    if let Ok(mut s) = SPARE_U8.lock() {
-        *s = Vec::new();
-    }
+    crate::pool::BAND_U8.give(m.camera);
 }
 
 /// Blended rows of the map: board rows `rows`, row-major over the grid's width.
@@ -582,9 +536,9 @@ fn mix_rows(layers: &[Layer], grid: &BoardGrid, rows: Range<usize>, variance: bo
     let n = rows.len() * w;
     // Buffers of bands already in the map ([`recycle`]; fresh pages from the system, zeroed
     // by the kernel, cost more than the mix itself): every pixel is written by `mix_part`.
-    let mut heights = spare_f32(n);
-    let mut vars = variance.then(|| spare_f32(n));
-    let mut camera = spare_u8(n);
+    let mut heights = crate::pool::BAND_F32.take(n, 0.0);
+    let mut vars = variance.then(|| crate::pool::BAND_F32.take(n, 0.0));
+    let mut camera = crate::pool::BAND_U8.take(n, 0);
     let threads = std::thread::available_parallelism().map_or(1, |t| t.get());
     let part_rows = rows.len().div_ceil(threads.max(1)).max(1);
     let part = part_rows * w;

@@ -19,41 +19,6 @@
 
 use crate::Grid;
 use std::ops::Range;
-use std::sync::Mutex;
-
-/// Grids of layers already blended, kept for the next band's layers ([`Layer::recycle`]): a
-/// band's grids are megabytes each, which glibc maps afresh for every allocation and the
-/// kernel then zeroes page by page (over a quarter of `dpsa board-bench`'s time on the paper
-/// board while every band allocated its own).
-static SPARE: Mutex<Vec<Vec<f32>>> = Mutex::new(Vec::new());
-
-/// Most grids [`SPARE`] keeps: a band's layers (four grids for each of three cameras) and
-/// some more.
-const SPARE_MAX: usize = 16;
-
-/// A buffer of `n` values: the smallest spare one that holds them (else any spare one, else a
-/// new one). Its values are whatever its last layer left (`fill` where it had fewer): the
-/// caller writes every one.
-fn spare(n: usize, fill: f32) -> Vec<f32> {
-    let taken = SPARE.lock().ok().and_then(|mut s| {
-        let fits = (0..s.len())
-            .filter(|&k| s[k].capacity() >= n)
-            .min_by_key(|&k| s[k].capacity());
-        let k = fits.or_else(|| s.len().checked_sub(1))?;
-        Some(s.swap_remove(k))
-    });
-    let mut v = taken.unwrap_or_default();
-    v.truncate(n);
-    v.resize(n, fill);
-    v
-}
-
-/// Drops the spare grids (a map is finished: the memory goes back to the system).
-pub(crate) fn drop_spare() {
-    if let Ok(mut s) = SPARE.lock() {
-        *s = Vec::new();
-    }
-}
 
 /// Where a camera's pixels lie on the board (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -134,14 +99,14 @@ impl Layer {
         }
     }
 
-    /// A layer over the window `rows x cols` on spare grids ([`spare`]) whose values are left
+    /// A layer over the window `rows x cols` on kept grids ([`crate::pool`]) whose values are left
     /// over from earlier layers: the caller writes every pixel of every grid.
     fn reused(rows: Range<usize>, cols: Range<usize>, variance: bool) -> Layer {
         let (w, n) = (cols.len(), rows.len());
         let grid = |fill: f32| Grid {
             width: w,
             rows: n,
-            data: spare(w * n, fill),
+            data: crate::pool::LAYERS.take(w * n, fill),
         };
         Layer {
             heights: grid(f32::NAN),
@@ -156,9 +121,6 @@ impl Layer {
 
     /// Hands the layer's grids on to later layers (the band it belongs to is blended).
     pub(crate) fn recycle(self) {
-        let Ok(mut s) = SPARE.lock() else {
-            return;
-        };
         let grids = [
             Some(self.heights),
             Some(self.period_um),
@@ -166,9 +128,7 @@ impl Layer {
             self.variance,
         ];
         for g in grids.into_iter().flatten() {
-            if s.len() < SPARE_MAX && g.data.capacity() > 0 {
-                s.push(g.data);
-            }
+            crate::pool::LAYERS.give(g.data);
         }
     }
 
