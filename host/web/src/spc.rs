@@ -182,7 +182,8 @@ pub enum PadSpc {
     Seen(Box<Series>, String, bool),
 }
 
-/// Pad `name`'s volume chart in the newest study of `product` (see [`kept_now`]).
+/// Pad `name`'s volume chart in the newest study of `product`, without waiting for one (a
+/// newer study made in a thread of its own when the kept one is behind, as for the line page).
 pub fn pad_chart(site: &Site, product: &str, name: &str) -> Result<PadSpc, SpcError> {
     Ok(match kept_now(site, Some(product))? {
         None => PadSpc::None,
