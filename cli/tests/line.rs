@@ -292,7 +292,7 @@ fn assert_offline(b: &Value) {
 fn boards_back_to_back_are_stored_as_the_offline_inspection() {
     let f = fixture();
     let dir = f.dir.join("back-to-back");
-    let cfg = line_config(&dir, |t| t);
+    let cfg = line_config(&dir, |t| t + "\n[maps]\nkeep_boards = 2\n");
     let run = start(&cfg, Some(3));
     let sent = send(&cfg, &["--rate", "max", "--boards", "3", "--seed", "11"]);
     let summary = wait(run, 120, &cfg);
@@ -318,6 +318,49 @@ fn boards_back_to_back_are_stored_as_the_offline_inspection() {
     }
     // A UnitsInspected message and a printer proposal per board, nothing else.
     assert_eq!(std::fs::read_dir(dir.join("data/cfx")).unwrap().count(), 6);
+    // The measured maps for the pages: the newest two kept (keep_boards = 2), each the map
+    // the offline tools make of the same streams (`dpsa board`'s heights.png, in the same
+    // 0.25 um steps) but for the last bits of the chunked stitching.
+    assert_eq!(summary["maps_kept"], 3, "{summary}");
+    assert_eq!(summary["maps_not_kept"], 0, "{summary}");
+    let maps = dir.join("data/maps");
+    let kept = dpsa_formats::kept_map::kept(&maps, "line-1").unwrap();
+    assert_eq!(kept.len(), 2, "{kept:?}");
+    assert_eq!(std::fs::read_dir(&maps).unwrap().count(), 4);
+    let offline = image::open(f.dir.join("map/heights.png"))
+        .unwrap()
+        .to_luma16();
+    let runs: Vec<&str> = sent["run_ids"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|r| r.as_str().unwrap())
+        .collect();
+    for id in kept {
+        let k = dpsa_formats::kept_map::read_meta(&maps, "line-1", id)
+            .unwrap()
+            .unwrap();
+        assert!(runs[1..].contains(&k.run_id.as_str()), "{k:?}");
+        let (png, _) = dpsa_formats::kept_map::paths(&maps, "line-1", id);
+        let live = image::open(&png).unwrap().to_luma16();
+        assert_eq!(live.dimensions(), offline.dimensions());
+        let (mut same_mask, mut within, mut both) = (0usize, 0usize, 0usize);
+        for (a, b) in live.pixels().zip(offline.pixels()) {
+            let (a, b) = (a.0[0], b.0[0]);
+            same_mask += usize::from((a == 0) == (b == 0));
+            if a != 0 && b != 0 {
+                both += 1;
+                within += usize::from(a.abs_diff(b) <= 1);
+            }
+        }
+        let n = (live.width() * live.height()) as usize;
+        assert!(same_mask as f64 >= 0.9999 * n as f64, "{same_mask} of {n}");
+        assert!(within as f64 >= 0.999 * both as f64, "{within} of {both}");
+        assert_eq!(
+            k.valid as usize,
+            live.pixels().filter(|p| p.0[0] != 0).count()
+        );
+    }
     // `dpsa spc` reads what the line stored: the three boards, and the board chart's mean of
     // the measured volumes equal to the stored pad rows' (pads the inspection could not
     // measure left out).
@@ -614,7 +657,7 @@ fn the_line_serves_its_pages_while_it_runs() {
             "line",
             "run",
             "--boards",
-            "1",
+            "2",
             "--web",
             "127.0.0.1:0",
             "--config",
@@ -637,7 +680,8 @@ fn the_line_serves_its_pages_while_it_runs() {
         );
         std::thread::sleep(Duration::from_millis(50));
     };
-    let get = |path: &str| -> (String, String) {
+    // The whole response, head and body.
+    let get_raw = |path: &str| -> Vec<u8> {
         use std::io::{Read, Write};
         let mut s = std::net::TcpStream::connect(&addr).unwrap();
         write!(
@@ -645,8 +689,12 @@ fn the_line_serves_its_pages_while_it_runs() {
             "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
         )
         .unwrap();
-        let mut raw = String::new();
-        s.read_to_string(&mut raw).unwrap();
+        let mut raw = Vec::new();
+        s.read_to_end(&mut raw).unwrap();
+        raw
+    };
+    let get = |path: &str| -> (String, String) {
+        let raw = String::from_utf8(get_raw(path)).unwrap();
         let (head, body) = raw.split_once("\r\n\r\n").unwrap();
         (head.lines().next().unwrap().to_owned(), body.to_owned())
     };
@@ -695,25 +743,44 @@ fn the_line_serves_its_pages_while_it_runs() {
     assert!(status.contains(" 200 "), "{pad}: {status}");
     let png = format!("{pad}/crop.png");
     assert!(pad_page.contains(&format!("href=\"{png}\"")), "{pad_page}");
-    let bytes = {
-        use std::io::{Read, Write};
-        let mut s = std::net::TcpStream::connect(&addr).unwrap();
-        write!(
-            s,
-            "GET {png} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
-        )
-        .unwrap();
-        let mut raw = Vec::new();
-        s.read_to_end(&mut raw).unwrap();
-        raw
-    };
+    let bytes = get_raw(&png);
     assert!(bytes.starts_with(b"HTTP/1.1 200 "), "{png}");
     assert!(
         bytes.windows(8).any(|w| w == b"\x89PNG\r\n\x1a\n"),
         "{png}: no PNG"
     );
+    // Its measured map, kept once the board is stored (by a thread of its own): the board
+    // page's viewer, its description, a tile of it as PNG.
+    let t0 = Instant::now();
+    let info = loop {
+        let (status, body) = get(&format!("{link}/map.json"));
+        if status.contains(" 200 ") {
+            break body;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "{link}/map.json: {status} {body}"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    };
+    let info: Value = serde_json::from_str(&info).unwrap();
+    assert_eq!(info["run_id"], run.as_str(), "{info}");
+    assert!(info["levels"].as_u64().unwrap() >= 2, "{info}");
+    let (_, page) = get(&link);
+    assert!(
+        page.contains(&format!("data-map=\"{link}/map.json\"")),
+        "{page}"
+    );
+    let tile = get_raw(&format!("{link}/map/0/0/0.png"));
+    assert!(tile.starts_with(b"HTTP/1.1 200 "), "the map's tile");
+    let at = tile.windows(4).position(|w| w == b"\r\n\r\n").unwrap() + 4;
+    let img = image::load_from_memory(&tile[at..]).unwrap();
+    assert_eq!((img.width(), img.height()), (256, 256));
+    // A second board: the line, told to take two, then ends.
+    send(&cfg, &["--rate", "max", "--seed", "32"]);
     let summary = wait(child, 120, &cfg);
-    assert_eq!(summary["boards"], 1, "{summary}");
+    assert_eq!(summary["boards"], 2, "{summary}");
+    assert_eq!(summary["maps_kept"], 2, "{summary}");
 }
 
 /// A camera that falls silent in the first board: that board is incomplete with the camera
@@ -954,18 +1021,24 @@ fn a_bad_configuration_names_its_key() {
             assert!(e.contains(key) && !e.contains("s3cret"), "{extra}: {e}");
         }
     }
-    // The loop back to the printer's keys.
-    for (i, (extra, key)) in [
-        ("gain = 2.0", "printer.gain"),
-        ("delay_boards = 1000", "printer.delay_boards"),
-        ("max_step_um = nan", "printer.max_step_um"),
-        ("dead_band = 5.0", "unknown field `dead_band`"),
+    // The loop back to the printer's keys, and the maps': a count out of range, an unknown
+    // key, a directory that cannot be made (under a file).
+    std::fs::write(dir.join("a-file"), b"x").unwrap();
+    let under_a_file = format!("dir = \"{}\"", dir.join("a-file/maps").display());
+    for (i, (section, extra, key)) in [
+        ("printer", "gain = 2.0", "printer.gain"),
+        ("printer", "delay_boards = 1000", "printer.delay_boards"),
+        ("printer", "max_step_um = nan", "printer.max_step_um"),
+        ("printer", "dead_band = 5.0", "unknown field `dead_band`"),
+        ("maps", "keep_boards = 20000", "maps.keep_boards"),
+        ("maps", "keep = 3", "unknown field `keep`"),
+        ("maps", under_a_file.as_str(), "maps.dir"),
     ]
     .into_iter()
     .enumerate()
     {
-        let cfg = line_config(&dir.join(format!("printer{i}")), |t| {
-            format!("{t}\n[printer]\n{extra}\n")
+        let cfg = line_config(&dir.join(format!("section{i}")), |t| {
+            format!("{t}\n[{section}]\n{extra}\n")
         });
         let o = dpsa([
             "line".as_ref(),

@@ -275,6 +275,8 @@ fn run_line(a: RunArgs) -> Result<()> {
                 line: cfg.line.clone(),
                 reviews,
                 spc: Default::default(),
+                maps: (cfg.maps.keep_boards > 0).then(|| cfg.maps.dir.clone()),
+                map_cache: Default::default(),
                 designs: std::sync::Arc::new(dpsa_web::board_view::Designs::load(
                     &cfg.products
                         .iter()

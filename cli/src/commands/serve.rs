@@ -25,6 +25,10 @@ pub struct Args {
     /// per program (a board is drawn by the program whose hash it carries).
     #[arg(long = "program", value_name = "PROG")]
     programs: Vec<std::path::PathBuf>,
+    /// The directory of the measured maps the line keeps (LINE.toml's `[maps] dir`), for the
+    /// board page's zoom and pan. Default: `maps` beside an SQLite store, if there.
+    #[arg(long, value_name = "DIR")]
+    maps: Option<std::path::PathBuf>,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -38,6 +42,16 @@ pub fn run(a: Args) -> Result<()> {
             );
         }
     }
+    let maps = match (&a.maps, &store) {
+        (Some(d), _) if !d.is_dir() => bail!("--maps {}: no such directory", d.display()),
+        (Some(d), _) => Some(d.clone()),
+        (None, Location::Sqlite(p)) => p.parent().map(|d| d.join("maps")).filter(|d| d.is_dir()),
+        (None, _) => None,
+    };
+    match &maps {
+        Some(d) => tracing::info!(maps = %d.display(), "the boards' measured maps"),
+        None => tracing::info!("no maps directory: the board pages show no measured map"),
+    }
     let reviews = review_policy(a.token_file.as_deref(), a.bind)?;
     let paths: Vec<&std::path::Path> = a.programs.iter().map(|p| p.as_path()).collect();
     let designs = dpsa_web::board_view::Designs::load(&paths)?;
@@ -47,6 +61,8 @@ pub fn run(a: Args) -> Result<()> {
             line: a.line,
             reviews,
             spc: Default::default(),
+            maps,
+            map_cache: Default::default(),
             designs: std::sync::Arc::new(designs),
         },
         a.bind,

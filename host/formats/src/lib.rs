@@ -13,6 +13,7 @@
 //! | [`board_id`] | the board identity shared by a board's recordings, streams and maps |
 //! | [`kind`] | what kind of file or directory a path is (from its first bytes or marker), to name a wrong input for what it is |
 //! | [`images`] | 16-bit and false-colour PNGs |
+//! | [`kept_map`] | a board's measured map as the line keeps it for its pages |
 //! | [`labels`] | labels beside marks in a picture, none over another |
 //! | [`progress`] | progress bars on stderr |
 //! | [`recording`] | a camera's recording manifest (`manifest.json`): camera, calibration, processing, trigger log, and the range checks they share with the calibration file |
@@ -25,6 +26,7 @@ pub mod files;
 pub mod grid;
 pub mod heightmap;
 pub mod images;
+pub mod kept_map;
 pub mod kind;
 pub mod labels;
 pub mod picture;

@@ -51,6 +51,9 @@ pub struct LineFile {
     /// The loop back to the printer (`docs/spc.md`): its settings.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub printer: Option<PrinterEntry>,
+    /// The measured maps kept for the pages' zoom and pan.
+    #[serde(default, skip_serializing_if = "MapsEntry::is_default")]
+    pub maps: MapsEntry,
 }
 
 /// `[printer]`: the loop back to the printer; every key optional, the defaults those of
@@ -205,6 +208,39 @@ impl CfxEntry {
     }
 }
 
+/// `[maps]`: the newest inspected boards' measured maps, kept for the board page's zoom and
+/// pan (`dpsa_formats::kept_map`: about 45 MB a paper board).
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct MapsEntry {
+    /// The directory (default `DATA/maps`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dir: Option<PathBuf>,
+    /// How many of the newest boards' maps are kept (default [`DEFAULT_KEEP_MAPS`]; 0: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub keep_boards: Option<usize>,
+}
+
+impl MapsEntry {
+    fn is_default(&self) -> bool {
+        self.dir.is_none() && self.keep_boards.is_none()
+    }
+}
+
+/// Boards whose maps the line keeps unless `[maps] keep_boards` says otherwise.
+pub const DEFAULT_KEEP_MAPS: usize = 10;
+/// Most boards' maps `[maps] keep_boards` may ask for.
+pub const MAX_KEEP_MAPS: usize = 10_000;
+
+/// The maps the line keeps.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Maps {
+    /// Their directory.
+    pub dir: PathBuf,
+    /// How many boards' (0: none).
+    pub keep_boards: usize,
+}
+
 /// A product ready to inspect.
 pub struct Product {
     /// Its id.
@@ -251,6 +287,8 @@ pub struct LineConfig {
     pub config_hashes: Vec<u64>,
     /// The loop back to the printer.
     pub printer: LoopConfig,
+    /// The measured maps kept for the pages.
+    pub maps: Maps,
 }
 
 /// FNV-1a 64 of some byte strings, as 16 hex digits.
@@ -494,7 +532,23 @@ impl LineConfig {
         let printer = f.printer.clone().unwrap_or_default().check(path)?;
         let data = at(&f.data);
         let spool = f.cfx.spool.as_deref().map_or_else(|| data.join("cfx"), at);
-        for (key, d) in [("data", &data), ("cfx.spool", &spool)] {
+        let keep_boards = f.maps.keep_boards.unwrap_or(DEFAULT_KEEP_MAPS);
+        if keep_boards > MAX_KEEP_MAPS {
+            return Err(bad(
+                path,
+                "maps.keep_boards",
+                format!("{keep_boards} is more than {MAX_KEEP_MAPS}"),
+            ));
+        }
+        let maps = Maps {
+            dir: f.maps.dir.as_deref().map_or_else(|| data.join("maps"), at),
+            keep_boards,
+        };
+        for (key, d) in [
+            ("data", &data),
+            ("cfx.spool", &spool),
+            ("maps.dir", &maps.dir),
+        ] {
             std::fs::create_dir_all(d)
                 .map_err(|e| bad(path, key, format!("cannot create {}: {e}", d.display())))?;
         }
@@ -512,6 +566,7 @@ impl LineConfig {
             timeouts: t,
             config_hashes,
             printer,
+            maps,
         })
     }
 }
@@ -568,6 +623,7 @@ pub fn init(
         }],
         timeouts: Timeouts::default(),
         cfx: CfxEntry::default(),
+        maps: MapsEntry::default(),
         printer: None,
     };
     let text = format!(

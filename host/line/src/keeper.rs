@@ -16,6 +16,7 @@ use crate::config::Product;
 use crate::printer::{Loop, LoopConfig, Proposal};
 use crate::store::{BoardStart, CameraLoss, Outcome, PadImage, PadRow, PrintRow, Store};
 use dpsa_formats::grid::{BoardGrid, Grid};
+use dpsa_formats::kept_map::DesignToBoard;
 use dpsa_inspect::map::BoardMap;
 use dpsa_inspect::print::PrintOffset;
 use dpsa_inspect::verdict::Level;
@@ -60,6 +61,10 @@ pub enum Job {
     },
 }
 
+/// An inspected board's map, handed to the maps' writer once the board is stored: its grid,
+/// its heights and where the design lies on it.
+type MapKept = (BoardGrid, Grid, DesignToBoard);
+
 /// One board as the keeper stored it.
 #[derive(Clone, Debug)]
 pub struct Kept {
@@ -90,6 +95,10 @@ pub struct Tally {
     /// Resident memory when board 1, 10, 100, ... was stored, MB: flat memory shows as the
     /// same figure from a hundred boards on.
     pub rss_by_boards: std::collections::BTreeMap<usize, f64>,
+    /// Inspected boards whose measured map was kept (`[maps]`).
+    pub maps_kept: usize,
+    /// Inspected boards whose map was not kept (the writer busy, or a write that failed).
+    pub maps_not_kept: usize,
 }
 
 /// Most pad images kept per board (failures first): a board of many calls is a board to
@@ -143,6 +152,8 @@ pub struct Keeper {
     /// Each product's loop (by index into `products`), resumed from the store at its first
     /// board.
     pub loops: HashMap<usize, PrinterLoop>,
+    /// The writer of the measured maps kept for the pages (none: no map kept).
+    pub maps: Option<crate::maps::MapKeeper>,
 }
 
 /// One product's loop back to the printer and the run ids of its newest boards.
@@ -205,7 +216,7 @@ impl Keeper {
                     let Some((id, product)) = open.remove(&run_id) else {
                         continue;
                     };
-                    let (outcome, cfx, placement, images) =
+                    let (outcome, cfx, placement, images, map) =
                         self.inspect(product, run_id, grid, heights);
                     let verdict = match &outcome {
                         Outcome::Inspected { verdict, .. } => verdict.clone(),
@@ -227,6 +238,17 @@ impl Keeper {
                             }
                             let latency = last_row_at.elapsed().as_secs_f64();
                             tracing::info!(%run, %verdict, latency_s = format!("{latency:.3}"), "board stored");
+                            if let (Some(m), Some((grid, heights, design_to_board))) =
+                                (&self.maps, map)
+                            {
+                                m.offer(crate::maps::MapJob {
+                                    board: id,
+                                    run_id,
+                                    grid,
+                                    heights,
+                                    design_to_board,
+                                });
+                            }
                             self.keep(Kept {
                                 run_id,
                                 verdict,
@@ -379,6 +401,7 @@ impl Keeper {
         Option<serde_json::Value>,
         Option<PrintOffset>,
         Vec<PadImage>,
+        Option<MapKept>,
     ) {
         let p = &self.products[product];
         let map = BoardMap {
@@ -396,6 +419,7 @@ impl Keeper {
                     None,
                     None,
                     Vec::new(),
+                    None,
                 )
             }
         };
@@ -449,11 +473,17 @@ impl Keeper {
                 })
             })
             .collect();
+        let design_to_board = DesignToBoard {
+            rotation_rad: t.rotation_rad,
+            tx_mm: t.tx,
+            ty_mm: t.ty,
+        };
         (
             Outcome::Inspected { verdict, pads },
             Some(msg),
             i.print,
             images,
+            Some((map.grid, map.heights, design_to_board)),
         )
     }
 }

@@ -11,7 +11,8 @@
 //!   camera's end packet came, or is incomplete (a camera cut off or silent, a board too long).
 //! - [`keeper`]: the finished map inspected against the product's program, the board and
 //!   every pad stored ([`store`]), the CFX message spooled ([`cfx`]); the print's placement
-//!   fed to the loop back to the printer ([`printer`]), its proposal stored and spooled.
+//!   fed to the loop back to the printer ([`printer`]), its proposal stored and spooled; the
+//!   measured map kept for the pages by a thread of its own ([`maps`]).
 //! - [`service`]: `dpsa line run`: the listeners, the threads, the signals; [`memory`]: the
 //!   allocator told to keep the service's memory flat.
 //! - [`send`]: `dpsa line send`: simulated frame grabbers replaying recorded streams;
@@ -23,6 +24,7 @@ pub mod config;
 pub mod keeper;
 pub mod link;
 pub mod link_bench;
+pub mod maps;
 pub mod memory;
 pub mod printer;
 pub mod send;

@@ -59,6 +59,10 @@ pub struct Summary {
     /// Resident memory when board 1, 10, 100, ... was stored, MB (flat memory: the same
     /// figure from a hundred boards on).
     pub rss_by_boards_mb: std::collections::BTreeMap<usize, f64>,
+    /// Inspected boards whose measured map was kept for the pages (`[maps]`).
+    pub maps_kept: usize,
+    /// Inspected boards whose map was not kept (the writer busy, or a write that failed).
+    pub maps_not_kept: usize,
     /// Peak resident memory of the whole run (`VmHWM`), MB.
     pub peak_rss_mb: Option<f64>,
     /// Wall time, s.
@@ -154,6 +158,8 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
         printer: cfg.printer.clone(),
         loops: Default::default(),
         tally: Arc::clone(&tally),
+        maps: crate::maps::MapKeeper::start(&cfg.maps, &cfg.line, Arc::clone(&tally))
+            .map_err(|e| LineError::Io(format!("cannot start the maps' writer: {e}")))?,
     };
     // Two jobs queued at most: a board map waiting for the keeper holds the boards' thread
     // (and through the gate the frame grabbers), so memory stays at two open maps, two
@@ -232,6 +238,8 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
         rss_last_board_mb: t.rss_last_mb,
         peak_rss_mb: crate::memory::status_mb("VmHWM"),
         rss_by_boards_mb: t.rss_by_boards.clone(),
+        maps_kept: t.maps_kept,
+        maps_not_kept: t.maps_not_kept,
         seconds: started.elapsed().as_secs_f64(),
     })
 }

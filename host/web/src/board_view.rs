@@ -142,6 +142,23 @@ impl Designs {
     }
 }
 
+/// The calls among `pads` under the program of hash `program_hash`, failures last: each
+/// pad row with its opening's centroid in design mm; `None` when that program was not given.
+pub fn call_centres<'a>(
+    designs: &Designs,
+    program_hash: &str,
+    pads: &'a [PadRow],
+) -> Option<Vec<(&'a PadRow, [f64; 2])>> {
+    let (design, _) = designs.find(program_hash)?;
+    let mut calls: Vec<(&PadRow, [f64; 2])> = pads
+        .iter()
+        .filter(|p| p.level != "pass")
+        .filter_map(|p| Some((p, design.pads.get(p.pad as usize)?.outline.centroid())))
+        .collect();
+    calls.sort_by_key(|(p, _)| (p.level == "fail", p.pad));
+    Some(calls)
+}
+
 /// The board `id` of program `program_hash` with its pad rows: the drawing, or `None` when
 /// no program of that hash was given.
 pub fn board_svg(

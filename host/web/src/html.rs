@@ -28,6 +28,21 @@ image.crop { image-rendering: pixelated; }
 form.review { display: flex; flex-wrap: wrap; gap: .8em; align-items: center; margin: .8em 0; }
 form.review input { font: inherit; padding: .2em .4em; }
 form.review button { font: inherit; padding: .3em 1em; cursor: pointer; }
+.maptools button { font: inherit; min-width: 2.2em; padding: .2em .6em; margin-right: .4em; cursor: pointer; }
+.maptools span { margin-left: 1em; color: #57606a; }
+.mapframe { position: relative; overflow: hidden; height: 620px; max-width: 1200px; background: #1f2a36; cursor: grab; touch-action: none; user-select: none; }
+.mapframe.dragging { cursor: grabbing; }
+.maptiles img { position: absolute; max-width: none; }
+.maptiles.pixels img { image-rendering: pixelated; }
+a.mapcall { position: absolute; width: 18px; height: 18px; margin: -11px 0 0 -11px; border: 2px solid #d4a017; border-radius: 50%; }
+a.mapcall.fail { border-color: #ff4d4f; }
+a.mapcall span { position: absolute; left: 20px; top: -4px; white-space: nowrap; font-size: 12px; color: #fff; background: rgba(31, 42, 54, .75); padding: 0 .3em; }
+a.mapcall:hover span { background: #1f2a36; text-decoration: underline; }
+a.mapcall.nolabel span { display: none; }
+a.mapcall.nolabel:hover span { display: inline; z-index: 1; }
+.mapfoot { display: flex; align-items: flex-start; gap: 2em; margin: .4em 0; }
+#map-scale { display: inline-block; border-bottom: 3px solid #1d232a; text-align: center; font-size: 12px; }
+#map-at { color: #57606a; font-size: 13px; min-width: 14em; }
 ";
 
 /// The site's icon (`/icon.svg`): a deposit of paste on a pad.

@@ -5,8 +5,10 @@
 //! throughput, the printer's last correction, the false calls per family), a board (its
 //! verdict, cameras, print placement and every pad that warned or failed, each linked, with
 //! its review) and a pad (its values and uncertainty, the heights kept around it with the
-//! profile, its history on the line with a chart, its reviews and the review form). No
-//! JavaScript, no file from disk: the style sheet is in the binary.
+//! profile, its history on the line with a chart, its reviews and the review form). The
+//! board's measured map, when the line kept it, zooms and pans ([`tiles`]). JavaScript only
+//! for that and the pad's 3D view ([`view3d`]), no file from disk but the kept maps: the
+//! style sheet and the scripts are in the binary.
 //!
 //! - [`html`]: escaping, the page frame, the history chart (inline SVG).
 //! - [`crop`]: a pad's kept heights drawn (an image, axes, colour bar, profile).
@@ -31,6 +33,7 @@ pub mod html;
 pub mod pages;
 pub mod review;
 pub mod spc;
+pub mod tiles;
 pub mod view3d;
 
 use axum::extract::{DefaultBodyLimit, Path, State};
@@ -74,6 +77,10 @@ pub struct Site {
     pub designs: Arc<board_view::Designs>,
     /// The newest SPC study made, kept until a newer board comes.
     pub spc: Arc<spc::Cache>,
+    /// The directory of the measured maps the line keeps (`[maps]`), if any.
+    pub maps: Option<std::path::PathBuf>,
+    /// The maps' pyramids and tiles drawn so far.
+    pub map_cache: Arc<tiles::MapCache>,
 }
 
 impl Site {
@@ -85,6 +92,8 @@ impl Site {
             reviews: review::Policy::default(),
             designs: Arc::default(),
             spc: Arc::default(),
+            maps: None,
+            map_cache: Arc::default(),
         }
     }
 }
@@ -97,6 +106,9 @@ pub fn router(site: Site) -> Router {
         .route("/board/{id}/pad/{pad}", get(pad))
         .route("/board/{id}/pad/{pad}/crop.png", get(crop_png))
         .route("/board/{id}/pad/{pad}/heights.json", get(heights_json))
+        .route("/board/{id}/map.json", get(map_json))
+        .route("/board/{id}/map/{z}/{x}/{file}", get(map_tile))
+        .route(tiles::SCRIPT_PATH, get(mapview_js))
         .route(view3d::LIBRARY_PATH, get(library_js))
         .route(view3d::SCRIPT_PATH, get(view3d_js))
         .route(
@@ -423,6 +435,70 @@ async fn library_js() -> Response {
         return not_found().await;
     }
     script(view3d::LIBRARY)
+}
+
+async fn mapview_js() -> Response {
+    script(tiles::SCRIPT)
+}
+
+/// What the map viewer needs of board `id`'s kept map (built into its pyramid on the first
+/// request), or a 404 when none is kept.
+async fn map_json(State(site): State<Arc<Site>>, Path(id): Path<String>) -> Response {
+    let (Ok(id), Some(dir)) = (id.parse::<i64>(), site.maps.clone()) else {
+        return not_found().await;
+    };
+    let out =
+        tokio::task::spawn_blocking(move || site.map_cache.pyramid(&dir, &site.line, id)).await;
+    match out {
+        Ok(Ok(Some(p))) => respond(StatusCode::OK, "application/json", p.json()),
+        Ok(Ok(None)) => not_found().await,
+        Ok(Err(e)) => map_error(e),
+        Err(e) => message(StatusCode::INTERNAL_SERVER_ERROR, "Error", &e.to_string()),
+    }
+}
+
+/// A tile of board `id`'s kept map (`/board/ID/map/Z/X/Y.png`, every part an integer), or a
+/// 404. Its path names the board's map by the parsed id only.
+async fn map_tile(
+    State(site): State<Arc<Site>>,
+    Path((id, z, x, file)): Path<(String, String, String, String)>,
+) -> Response {
+    let (Ok(id), Ok(z), Ok(x), Some(Ok(y)), Some(dir)) = (
+        id.parse::<i64>(),
+        z.parse::<u8>(),
+        x.parse::<u32>(),
+        file.strip_suffix(".png").map(str::parse::<u32>),
+        site.maps.clone(),
+    ) else {
+        return not_found().await;
+    };
+    let out =
+        tokio::task::spawn_blocking(move || site.map_cache.tile_png(&dir, &site.line, id, z, x, y))
+            .await;
+    match out {
+        Ok(Ok(Some(png))) => {
+            let mut r = respond(StatusCode::OK, "image/png", png.as_ref().clone());
+            // A board's map never changes once kept.
+            r.headers_mut().insert(
+                header::CACHE_CONTROL,
+                HeaderValue::from_static("private, max-age=3600"),
+            );
+            r
+        }
+        Ok(Ok(None)) => not_found().await,
+        Ok(Err(e)) => map_error(e),
+        Err(e) => message(StatusCode::INTERNAL_SERVER_ERROR, "Error", &e.to_string()),
+    }
+}
+
+/// A kept map that cannot be read: said, never drawn.
+fn map_error(e: dpsa_formats::kept_map::KeptMapError) -> Response {
+    tracing::error!("map: {e}");
+    respond(
+        StatusCode::SERVICE_UNAVAILABLE,
+        "text/plain; charset=utf-8",
+        format!("the kept map cannot be read: {e}"),
+    )
 }
 
 async fn view3d_js() -> Response {

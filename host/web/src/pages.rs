@@ -29,6 +29,75 @@ fn open(site: &Site) -> Result<Store, StoreError> {
     Store::open_read_only(&site.store, &site.line)
 }
 
+/// The board page's measured map (`tiles`, `mapview.js`): the viewer, the calls placed on
+/// the map by the registration the line kept with it; or why there is none. Reads the map's
+/// description only: the pyramid is built when the viewer asks for it.
+fn map_section(site: &Site, id: i64, program_hash: &str, pads: &[PadRow], body: &mut String) {
+    let Some(dir) = &site.maps else { return };
+    let k = match dpsa_formats::kept_map::read_meta(dir, &site.line, id) {
+        Ok(Some(k)) => k,
+        Ok(None) => {
+            body.push_str(
+                "<h2>The measured map</h2><p class=\"note\">Not kept for this board: the line \
+                 keeps the newest boards' maps only (LINE.toml's [maps] keep_boards).</p>",
+            );
+            return;
+        }
+        Err(e) => {
+            let _ = write!(
+                body,
+                "<h2>The measured map</h2><p class=\"incomplete\">The kept map cannot be read: \
+                 {}</p>",
+                esc(&e.to_string())
+            );
+            return;
+        }
+    };
+    let g = &k.grid;
+    let y_top = g.y0_mm + g.width as f64 * g.pitch_mm;
+    let _ = write!(
+        body,
+        "<h2>The measured map</h2><div id=\"mapview\" class=\"mapview\" \
+         data-map=\"/board/{id}/map.json\" data-tiles=\"/board/{id}/map/\"><p class=\"maptools\">\
+         <button type=\"button\" id=\"map-in\" title=\"zoom in\">+</button><button \
+         type=\"button\" id=\"map-out\" title=\"zoom out\">&minus;</button><button \
+         type=\"button\" id=\"map-fit\">whole board</button><span id=\"map-status\">loading \
+         the map&hellip;</span></p><div id=\"mapframe\" class=\"mapframe\">"
+    );
+    let calls = crate::board_view::call_centres(&site.designs, program_hash, pads);
+    for (p, c) in calls.iter().flatten() {
+        let (x, y) = k.design_to_board.apply(c[0], c[1]);
+        let (u, v) = ((x - g.x0_mm) / g.pitch_mm, (y_top - y) / g.pitch_mm);
+        let label = format!(
+            "{} {}",
+            p.name,
+            p.class.as_deref().unwrap_or(p.level.as_str())
+        );
+        let _ = write!(
+            body,
+            "<a class=\"mapcall {c}\" href=\"/board/{id}/pad/{k}\" data-u=\"{u:.1}\" \
+             data-v=\"{v:.1}\" title=\"{t}\"><span>{t}</span></a>",
+            c = class(&p.level),
+            k = p.pad,
+            t = esc(&label)
+        );
+    }
+    let _ = write!(
+        body,
+        "</div><p class=\"mapfoot\"><canvas id=\"mapbar\" width=\"420\" height=\"44\">\
+         </canvas><span id=\"map-scale\"></span><span id=\"map-at\"></span></p></div>\
+         <p class=\"note\">The height above the local board surface (the bow and warp taken \
+         out), as measured and kept by the line (board x to the right, y up): drag to pan, the \
+         wheel or + and &minus; to zoom{calls}.</p><script src=\"{js}\"></script>",
+        calls = match &calls {
+            Some(c) if !c.is_empty() => ", the calls ringed and linked to their pad's page",
+            Some(_) => "",
+            None => "; the calls are not marked: the board's program was not given to the pages",
+        },
+        js = crate::tiles::SCRIPT_PATH
+    );
+}
+
 /// A pad's nominal height (the stencil's thickness), um: its height over its height in %.
 fn nominal_um(p: &PadRow) -> Option<f64> {
     let (h, pct) = (p.height_um?, p.height_pct?);
@@ -318,6 +387,9 @@ pub fn board(site: &Site, id: i64) -> Result<Option<String>, PageError> {
                  pages (dpsa serve --program PROG).</p>",
             ),
         }
+    }
+    if b.state == "inspected" {
+        map_section(site, id, &b.program_hash, &pads, &mut body);
     }
     if let Some(why) = &b.incomplete_reason {
         let _ = write!(

@@ -165,6 +165,19 @@ async fn shot(c: &Client, name: &str) {
     }
 }
 
+/// The value of `script` once it is not null (20 s at most).
+async fn wait_for(c: &Client, script: &str) -> Value {
+    let t0 = Instant::now();
+    loop {
+        let v = c.execute(script, vec![]).await.unwrap();
+        if !v.is_null() {
+            return v;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(20), "never: {script}");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
 /// Until the document and its images have loaded.
 async fn settle(c: &Client) {
     let t0 = Instant::now();
@@ -221,7 +234,34 @@ async fn click_to(c: &Client, css: &str, path: &str) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_pages_work_in_chromium() {
     let dir = tempfile::tempdir().unwrap();
+    // The boards' program (three openings named as the store's pads) and the second board's
+    // measured map as the line keeps it: 4.8 x 3.2 mm at 2 um, five levels, paste on the
+    // openings.
+    let prog = common::mini_program(dir.path());
     let (loc, ids) = store(dir.path());
+    // The drawing and the calls on the map need the boards' program: a site of its own whose
+    // design stands for the store's program "p" (the SPC page, which reads the program's
+    // pad names, is visited on the plain site).
+    let mut design = dpsa_line::config::Design::load(&prog).unwrap();
+    design.program_hash = "p".into();
+    let maps = dir.path().join("maps");
+    let shift = dpsa_formats::kept_map::DesignToBoard {
+        rotation_rad: 0.0,
+        tx_mm: 0.4,
+        ty_mm: 0.3,
+    };
+    common::kept_map(
+        &maps,
+        "line-1",
+        ids[1],
+        (2400, 1600, 0.002),
+        &[(1.4, 1.3), (2.4, 1.3), (3.4, 2.3)],
+        shift,
+    );
+    let mut with_map = Site::new(loc.clone(), "line-1");
+    with_map.designs = std::sync::Arc::new(dpsa_web::board_view::Designs::from(vec![design]));
+    with_map.maps = Some(maps);
+    let (map_addr, map_stop, map_h) = common::serve(with_map);
     let (addr, stop, h) = common::serve(Site::new(loc.clone(), "line-1"));
     let d = driver();
     let mut caps = serde_json::Map::new();
@@ -267,8 +307,101 @@ async fn the_pages_work_in_chromium() {
         &format!("/board/{}", ids[1]),
     )
     .await;
-    // The first call listed is the failure, pad 2 (U<1>-3).
+    // The same board on the site with its program and maps: drawn, with its measured map.
+    open_clean(&c, &format!("http://{map_addr}/board/{}", ids[1])).await;
+    // The measured map: its tiles load (no error in the console), each call's ring sits on
+    // its paste, zooming in and out changes the pyramid's level and loads that level's tiles.
+    let tiles_at = |c: &Client| {
+        let c = c.clone();
+        async move {
+            wait_for(
+                &c,
+                "const r = document.getElementById('mapview');                  if (r.dataset.error) { return ['error', r.dataset.error]; }                  if (!r.dataset.level) { return null; }                  const z = r.dataset.level;                  const imgs = [...document.querySelectorAll('#mapframe img.tile')];                  if (imgs.length === 0 || !imgs.every(i => i.complete && i.naturalWidth === 256                      && i.dataset.z === z)) { return null; }                  return [Number(z), Number(r.dataset.levels), imgs.length];",
+            )
+            .await
+        }
+    };
+    let fit = tiles_at(&c).await;
+    assert!(fit[0].is_number(), "the map: {fit}");
+    let (z0, levels) = (fit[0].as_u64().unwrap(), fit[1].as_u64().unwrap());
+    assert_eq!(levels, 5, "{fit}");
+    assert!(z0 < 4, "the whole board drawn from its finest level: {fit}");
+    let frame = c.find(Locator::Id("mapframe")).await.unwrap();
+    let png_bytes = frame.screenshot().await.unwrap();
+    let mut r = png::Decoder::new(std::io::Cursor::new(&png_bytes))
+        .read_info()
+        .unwrap();
+    let mut px = vec![0; r.output_buffer_size().unwrap()];
+    let info = r.next_frame(&mut px).unwrap();
+    let rings = c
+        .execute(
+            "return [...document.querySelectorAll('a.mapcall')].map(a =>                  [a.getAttribute('href'), parseFloat(a.style.left), parseFloat(a.style.top), a.hidden]);",
+            vec![],
+        )
+        .await
+        .unwrap();
+    let rings = rings.as_array().unwrap();
+    assert_eq!(rings.len(), 2, "{rings:?}");
+    let (lo, hi) = c
+        .execute(
+            "return fetch(document.getElementById('mapview').dataset.map).then(r => r.json())                  .then(j => j.range_um);",
+            vec![],
+        )
+        .await
+        .map(|v| (v[0].as_f64().unwrap(), v[1].as_f64().unwrap()))
+        .unwrap();
+    let paste = dpsa_formats::images::colour(((100.0 - lo) / (hi - lo)).clamp(0.0, 1.0));
+    let bare = dpsa_formats::images::colour(((0.0 - lo) / (hi - lo)).clamp(0.0, 1.0));
+    let at = |x: f64, y: f64| -> [u8; 3] {
+        let (x, y) = (x.round() as usize, y.round() as usize);
+        let i = y * info.line_size + x * (info.line_size / info.width as usize);
+        [px[i], px[i + 1], px[i + 2]]
+    };
+    let close = |a: [u8; 3], b: [u8; 3]| (0..3).all(|i| a[i].abs_diff(b[i]) <= 12);
+    for ring in rings {
+        let (x, y) = (ring[1].as_f64().unwrap(), ring[2].as_f64().unwrap());
+        assert_eq!(ring[3], false, "{ring}");
+        assert!(
+            close(at(x, y), paste),
+            "{ring}: {:?} is not the paste's {paste:?}",
+            at(x, y)
+        );
+        // 45 screen px below (90 to 180 map px at this level's scale, the paste reaching 75):
+        // bare board, its bow taken off.
+        assert!(
+            close(at(x, y + 45.0), bare),
+            "{ring}: {:?} is not bare board's {bare:?}",
+            at(x, y + 45.0)
+        );
+    }
+    c.find(Locator::Id("map-in"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    let zoomed = tiles_at(&c).await;
+    assert_eq!(zoomed[0].as_u64(), Some(z0 + 1), "{fit} then {zoomed}");
+    c.execute(
+        "const f = document.getElementById('mapframe');          f.dispatchEvent(new WheelEvent('wheel', {deltaY: 2000, clientX: 300, clientY: 300,          bubbles: true, cancelable: true}));",
+        vec![],
+    )
+    .await
+    .unwrap();
+    let out = tiles_at(&c).await;
+    assert!(out[0].as_u64().unwrap() < z0, "{fit} then {out}");
+    c.find(Locator::Id("map-fit"))
+        .await
+        .unwrap()
+        .click()
+        .await
+        .unwrap();
+    assert_eq!(tiles_at(&c).await[0].as_u64(), Some(z0));
+    let log = console(&c).await;
+    assert!(log.is_empty(), "the board page with its map: {log:?}");
     shot(&c, "board").await;
+    open_clean(&c, &format!("{site}/board/{}", ids[1])).await;
+    // The first call listed is the failure, pad 2 (U<1>-3).
     let first = c
         .find(Locator::Css("table tr td a[href*='/pad/']"))
         .await
@@ -380,4 +513,6 @@ async fn the_pages_work_in_chromium() {
     drop(d);
     stop.send(()).unwrap();
     h.join().unwrap();
+    map_stop.send(()).unwrap();
+    map_h.join().unwrap();
 }

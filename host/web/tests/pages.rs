@@ -20,6 +20,8 @@ fn the_pages_show_the_line_a_board_and_a_pad() {
         reviews: Default::default(),
         designs: Default::default(),
         spc: Default::default(),
+        maps: None,
+        map_cache: Default::default(),
         store: loc.clone(),
         line: "line-1".into(),
     });
@@ -155,6 +157,8 @@ fn a_store_that_is_gone_is_said() {
         reviews: Default::default(),
         designs: Default::default(),
         spc: Default::default(),
+        maps: None,
+        map_cache: Default::default(),
         store: Location::Sqlite(dir.path().join("none.sqlite")),
         line: "line-1".into(),
     });
@@ -339,46 +343,12 @@ fn reviews_are_stored_from_the_page_and_refused_from_elsewhere() {
 #[test]
 fn the_board_is_drawn_by_its_program() {
     let dir = tempfile::tempdir().unwrap();
-    std::fs::write(
-        dir.path().join("paste.gbr"),
-        "%FSLAX46Y46*%\n%MOMM*%\n%ADD10R,0.6X0.3*%\n%ADD11C,0.4*%\nD10*\n\
-         X1000000Y1000000D03*\nX2000000Y1000000D03*\nD11*\nX3000000Y2000000D03*\nM02*\n",
-    )
-    .unwrap();
-    let prog = dir.path().join("program.toml");
-    std::fs::write(&prog, "paste_layer = \"paste.gbr\"\nstencil_um = 100.0\n").unwrap();
+    let prog = common::mini_program(dir.path());
     let design = dpsa_line::config::Design::load(&prog).unwrap();
     assert_eq!(design.pads.len(), 3);
     let hash = design.program_hash.clone();
     let loc = Location::Sqlite(dir.path().join("line.sqlite"));
-    let mut s = Store::open(&loc, "line-1").unwrap();
-    let mut ids = Vec::new();
-    for (run, h) in [(0xc1u64, hash.as_str()), (0xc2, "another")] {
-        let id = s
-            .begin_board(&dpsa_line::store::BoardStart {
-                run_id: run,
-                product: "mini".into(),
-                program_hash: h.into(),
-                calibration_hash: "c".into(),
-                started_unix_s: 1_700_000_000.0,
-            })
-            .unwrap();
-        s.finish_board(
-            id,
-            1_700_000_001.0,
-            &[],
-            &dpsa_line::store::Outcome::Inspected {
-                verdict: "fail".into(),
-                pads: vec![
-                    common::pad(0, "R1-1", "pass", Some(100.0)),
-                    common::pad(1, "R1-2", "warn", Some(72.0)),
-                    common::pad(2, "U<1>-3", "fail", Some(31.0)),
-                ],
-            },
-        )
-        .unwrap();
-        ids.push(id);
-    }
+    let ids = common::mini_boards(&loc, &[(0xc1, hash.as_str()), (0xc2, "another")]);
     let mut site = Site::new(loc, "line-1");
     site.designs = std::sync::Arc::new(dpsa_web::board_view::Designs::from(vec![design]));
     let (addr, stop, h) = serve(site);
@@ -627,4 +597,189 @@ fn spc_board(s: &mut Store, b: u64) -> Vec<f64> {
         .unwrap();
     }
     all
+}
+
+/// The board page zooms and pans over the map the line kept: the viewer on the page with the
+/// calls placed by the kept registration; the map's description; tiles of the height above
+/// the board's surface (the bow gone, the paste 100 um), drawn once and then served from the
+/// cache; every other path under the map a 404; a damaged map said, never drawn.
+#[test]
+fn the_board_page_zooms_and_pans_over_its_kept_map() {
+    use dpsa_formats::images::colour;
+    use dpsa_formats::kept_map::DesignToBoard;
+    let dir = tempfile::tempdir().unwrap();
+    let prog = common::mini_program(dir.path());
+    let design = dpsa_line::config::Design::load(&prog).unwrap();
+    let hash = design.program_hash.clone();
+    let loc = Location::Sqlite(dir.path().join("line.sqlite"));
+    let ids = common::mini_boards(&loc, &[(0xd1, &hash), (0xd2, &hash), (0xd3, &hash)]);
+    // The design lies on the board turned by 20 mrad and shifted: each opening's paste where
+    // the transform puts it.
+    let t = DesignToBoard {
+        rotation_rad: 0.02,
+        tx_mm: 0.15,
+        ty_mm: -0.1,
+    };
+    let on_board = |x: f64, y: f64| {
+        let (s, c) = 0.02f64.sin_cos();
+        (c * x - s * y + 0.15, s * x + c * y - 0.1)
+    };
+    let deposits: Vec<(f64, f64)> = [(1.0, 1.0), (2.0, 1.0), (3.0, 2.0)]
+        .into_iter()
+        .map(|(x, y)| on_board(x, y))
+        .collect();
+    let maps = dir.path().join("maps");
+    // 5 x 3 mm at 10 um: 500 x 300 px, two levels.
+    let size = (500, 300, 0.01);
+    common::kept_map(&maps, "line-1", ids[0], size, &deposits, t);
+    common::kept_map(&maps, "line-1", ids[1], size, &deposits, t);
+    // Board 1's map damaged: cut short.
+    let (png1, _) = dpsa_formats::kept_map::paths(&maps, "line-1", ids[1]);
+    let bytes = std::fs::read(&png1).unwrap();
+    std::fs::write(&png1, &bytes[..bytes.len() - 100]).unwrap();
+    // Another line's map under an id this line has no map of.
+    common::kept_map(&maps, "line-2", ids[2], size, &deposits, t);
+
+    let mut site = Site::new(loc.clone(), "line-1");
+    site.designs = std::sync::Arc::new(dpsa_web::board_view::Designs::from(vec![design]));
+    site.maps = Some(maps.clone());
+    let cache = std::sync::Arc::clone(&site.map_cache);
+    let (addr, stop, h) = serve(site);
+
+    // The page: the viewer and its script; the calls placed on the map's pixels (u along
+    // board x, v down from the map's top edge at y = 3 mm), the passed pad not marked.
+    let b = ids[0];
+    let (st, _, page) = get(&addr, &format!("/board/{b}"));
+    assert_eq!(st, 200);
+    assert!(
+        page.contains(&format!("data-map=\"/board/{b}/map.json\"")),
+        "{page}"
+    );
+    assert!(page.contains("<script src=\"/js/mapview.js\"></script>"));
+    for (k, (x, y), level, label) in [
+        (1, (2.0, 1.0), "warn", "R1-2 insufficient"),
+        (2, (3.0, 2.0), "fail", "U&lt;1&gt;-3 insufficient"),
+    ] {
+        let (bx, by) = on_board(x, y);
+        let want = format!(
+            "<a class=\"mapcall {level}\" href=\"/board/{b}/pad/{k}\" data-u=\"{:.1}\" \
+             data-v=\"{:.1}\" title=\"{label}\">",
+            bx / 0.01,
+            (3.0 - by) / 0.01
+        );
+        assert!(page.contains(&want), "{want}\n{page}");
+    }
+    assert!(!page.contains(&format!("href=\"/board/{b}/pad/0\" data-u")));
+    let (st, h1, js) = get(&addr, "/js/mapview.js");
+    assert_eq!(st, 200);
+    assert!(header(&h1, "content-type").unwrap().contains("javascript"));
+    assert!(js.contains("mapview"));
+
+    // The description: the map turned (5 mm of x across), two levels, the scale from the
+    // bare board (0) to the paste's top (100 um).
+    let (st, _, info) = get(&addr, &format!("/board/{b}/map.json"));
+    assert_eq!(st, 200, "{info}");
+    let info: serde_json::Value = serde_json::from_str(&info).unwrap();
+    assert_eq!(
+        (
+            &info["width"],
+            &info["height"],
+            &info["levels"],
+            &info["tile"]
+        ),
+        (&500.into(), &300.into(), &2.into(), &256.into()),
+        "{info}"
+    );
+    assert!((info["y_top_mm"].as_f64().unwrap() - 3.0).abs() < 1e-9);
+    let (lo, hi) = (
+        info["range_um"][0].as_f64().unwrap(),
+        info["range_um"][1].as_f64().unwrap(),
+    );
+    assert!(lo.abs() < 1.0 && (hi - 100.0).abs() < 1.0, "{info}");
+    assert_eq!(cache.builds(), 1);
+
+    // The finest level's tiles: the paste of pad 2 coloured as 100 um above the board, the
+    // board beside it as 0, whatever the bow.
+    let pixel = |z: u8, u: f64, v: f64| -> [u8; 4] {
+        let (tx, ty) = ((u / 256.0) as u32, (v / 256.0) as u32);
+        let (st, hd, png) = request(
+            &addr,
+            "GET",
+            &format!("/board/{b}/map/{z}/{tx}/{ty}.png"),
+            &[],
+            "",
+        );
+        assert_eq!(st, 200);
+        assert_eq!(header(&hd, "content-type"), Some("image/png"));
+        assert!(header(&hd, "content-security-policy").is_some());
+        let mut d = png::Decoder::new(std::io::Cursor::new(png));
+        d.set_transformations(png::Transformations::EXPAND);
+        let mut r = d.read_info().unwrap();
+        let mut buf = vec![0; r.output_buffer_size().unwrap()];
+        r.next_frame(&mut buf).unwrap();
+        assert_eq!(buf.len(), 256 * 256 * 4);
+        let (pu, pv) = (u as usize % 256, v as usize % 256);
+        buf[(pv * 256 + pu) * 4..][..4].try_into().unwrap()
+    };
+    let near = |got: [u8; 4], um: f64| {
+        let want = colour(((um - lo) / (hi - lo)).clamp(0.0, 1.0));
+        assert!(
+            got[3] == 255 && (0..3).all(|i| got[i].abs_diff(want[i]) <= 8),
+            "{got:?} is not {um} um's {want:?}"
+        );
+    };
+    let (px, py) = on_board(3.0, 2.0);
+    near(pixel(1, px / 0.01, (3.0 - py) / 0.01), 100.0);
+    near(pixel(1, 450.0, 250.0), 0.0);
+    near(pixel(1, 20.0, 20.0), 0.0);
+    let drawn = cache.renders();
+    // The same tiles again: from the cache, none drawn.
+    near(pixel(1, 20.0, 20.0), 0.0);
+    assert_eq!(cache.renders(), drawn);
+    // Level 0 (the map halved) is one tile; beyond the map it is transparent.
+    assert_eq!(pixel(0, 255.0, 200.0)[3], 0);
+    assert_eq!(cache.builds(), 1);
+
+    // Nothing else under the map: levels, tiles and names that are not there, text where a
+    // number goes, traversal, another line's map, a board without one.
+    for path in [
+        format!("/board/{b}/map/2/0/0.png"),
+        format!("/board/{b}/map/1/2/0.png"),
+        format!("/board/{b}/map/1/0/2.png"),
+        format!("/board/{b}/map/1/0/0.jpg"),
+        format!("/board/{b}/map/1/0/-1.png"),
+        format!("/board/{b}/map/x/0/0.png"),
+        format!("/board/{b}/map/1/0/..%2f..%2fline.sqlite"),
+        format!("/board/{b}/map/../../../line.sqlite"),
+        format!("/board/{b}/map/%2e%2e/0/0.png"),
+        format!("/board/{b}/map"),
+        format!("/board/{}/map.json", ids[2]),
+        format!("/board/{}/map/0/0/0.png", ids[2]),
+        "/board/9999/map.json".to_owned(),
+    ] {
+        let (st, _, _) = get(&addr, &path);
+        assert_eq!(st, 404, "{path}");
+    }
+    // A board without a kept map says so; a damaged one is said, never drawn.
+    let (_, _, page) = get(&addr, &format!("/board/{}", ids[2]));
+    assert!(page.contains("Not kept for this board"), "{page}");
+    let (st, _, body) = get(&addr, &format!("/board/{}/map.json", ids[1]));
+    assert_eq!(st, 503);
+    assert!(
+        body.contains("kept map cannot be read") && body.contains("bytes where"),
+        "{body}"
+    );
+    let (st, _, _) = get(&addr, &format!("/board/{}/map/0/0/0.png", ids[1]));
+    assert_eq!(st, 503);
+    stop.send(()).unwrap();
+    h.join().unwrap();
+
+    // Pages without a maps directory show no map.
+    let (addr, stop, h) = serve(Site::new(loc, "line-1"));
+    let (_, _, page) = get(&addr, &format!("/board/{b}"));
+    assert!(!page.contains("The measured map"), "{page}");
+    let (st, _, _) = get(&addr, &format!("/board/{b}/map.json"));
+    assert_eq!(st, 404);
+    stop.send(()).unwrap();
+    h.join().unwrap();
 }

@@ -100,6 +100,11 @@ pub fn image(k: u32, family: &str, paste_um: f32) -> PadImage {
 /// failure, one pad named to test the escaping, and both pads' heights kept), one incomplete;
 /// and a board of line `other`.
 pub fn store(dir: &std::path::Path) -> (Location, Vec<i64>) {
+    store_of(dir, "p")
+}
+
+/// [`store`] with its boards under the program of hash `program_hash`.
+pub fn store_of(dir: &std::path::Path, program_hash: &str) -> (Location, Vec<i64>) {
     let loc = Location::Sqlite(dir.join("line.sqlite"));
     let mut s = Store::open(&loc, "line-1").unwrap();
     let cams = vec![CameraLoss {
@@ -135,7 +140,7 @@ pub fn store(dir: &std::path::Path) -> (Location, Vec<i64>) {
             .begin_board(&BoardStart {
                 run_id: run,
                 product: "mini".into(),
-                program_hash: "p".into(),
+                program_hash: program_hash.into(),
                 calibration_hash: "c".into(),
                 started_unix_s: 1_700_000_000.0 + 30.0 * k as f64,
             })
@@ -164,7 +169,7 @@ pub fn store(dir: &std::path::Path) -> (Location, Vec<i64>) {
         .begin_board(&BoardStart {
             run_id: 0xa3,
             product: "mini".into(),
-            program_hash: "p".into(),
+            program_hash: program_hash.into(),
             calibration_hash: "c".into(),
             started_unix_s: 1_700_000_060.0,
         })
@@ -184,7 +189,7 @@ pub fn store(dir: &std::path::Path) -> (Location, Vec<i64>) {
         .begin_board(&BoardStart {
             run_id: 0xb1,
             product: "mini".into(),
-            program_hash: "p".into(),
+            program_hash: program_hash.into(),
             calibration_hash: "c".into(),
             started_unix_s: 1_700_000_000.0,
         })
@@ -277,4 +282,91 @@ pub fn request(
 
 pub fn header<'a>(h: &'a [(String, String)], name: &str) -> Option<&'a str> {
     h.iter().find(|(k, _)| k == name).map(|(_, v)| v.as_str())
+}
+
+/// Keeps a measured map for line `line`'s board `board` in `dir` as the line does: `rows x
+/// width` pixels of `pitch_mm` from the board's origin, a board bowed by 20 um along x, and a
+/// 100 um deposit of 0.4 x 0.3 mm centred on each of `deposits` (board mm).
+pub fn kept_map(
+    dir: &std::path::Path,
+    line: &str,
+    board: i64,
+    (rows, width, pitch_mm): (usize, usize, f64),
+    deposits: &[(f64, f64)],
+    design_to_board: dpsa_formats::kept_map::DesignToBoard,
+) -> dpsa_formats::kept_map::KeptMap {
+    let grid = dpsa_formats::grid::BoardGrid {
+        x0_mm: 0.0,
+        y0_mm: 0.0,
+        pitch_mm,
+        rows,
+        width,
+    };
+    let mut data = vec![0f32; rows * width];
+    for r in 0..rows {
+        for c in 0..width {
+            let (x, y) = grid.centre(r, c);
+            let t = r as f64 / rows as f64 - 0.5;
+            let mut h = 20.0 * (1.0 - 4.0 * t * t);
+            if deposits
+                .iter()
+                .any(|&(dx, dy)| (x - dx).abs() < 0.2 && (y - dy).abs() < 0.15)
+            {
+                h += 100.0;
+            }
+            data[r * width + c] = h as f32;
+        }
+    }
+    let heights = dpsa_formats::grid::Grid { width, rows, data };
+    std::fs::create_dir_all(dir).unwrap();
+    dpsa_formats::kept_map::write(dir, line, board, 0x5eed, &grid, &heights, design_to_board)
+        .unwrap()
+}
+
+/// The test's program: three openings (a 0.6 x 0.3 mm rectangle at (1, 1) and (2, 1), a
+/// 0.4 mm disc at (3, 2)) in `dir/paste.gbr`, its program `dir/program.toml` (returned).
+pub fn mini_program(dir: &std::path::Path) -> std::path::PathBuf {
+    std::fs::write(
+        dir.join("paste.gbr"),
+        "%FSLAX46Y46*%\n%MOMM*%\n%ADD10R,0.6X0.3*%\n%ADD11C,0.4*%\nD10*\n\
+         X1000000Y1000000D03*\nX2000000Y1000000D03*\nD11*\nX3000000Y2000000D03*\nM02*\n",
+    )
+    .unwrap();
+    let prog = dir.join("program.toml");
+    std::fs::write(&prog, "paste_layer = \"paste.gbr\"\nstencil_um = 100.0\n").unwrap();
+    prog
+}
+
+/// Inspected boards of line `line-1` in `loc`, one per `(run id, program hash)`, each with
+/// [`mini_program`]'s three pads: R1-1 passed, R1-2 warned, U<1>-3 failed. Their ids.
+pub fn mini_boards(loc: &Location, boards: &[(u64, &str)]) -> Vec<i64> {
+    let mut s = Store::open(loc, "line-1").unwrap();
+    let mut ids = Vec::new();
+    for &(run, hash) in boards {
+        let id = s
+            .begin_board(&BoardStart {
+                run_id: run,
+                product: "mini".into(),
+                program_hash: hash.into(),
+                calibration_hash: "c".into(),
+                started_unix_s: 1_700_000_000.0,
+            })
+            .unwrap();
+        s.finish_board(
+            id,
+            1_700_000_001.0,
+            &[],
+            &Outcome::Inspected {
+                verdict: "fail".into(),
+                pads: vec![
+                    pad(0, "R1-1", "pass", Some(100.0)),
+                    pad(1, "R1-2", "warn", Some(72.0)),
+                    pad(2, "U<1>-3", "fail", Some(31.0)),
+                ],
+            },
+        )
+        .unwrap();
+        ids.push(id);
+    }
+    ids
 }
