@@ -318,6 +318,37 @@ pub fn kept(dir: &Path, line: &str) -> std::io::Result<Vec<i64>> {
     Ok(ids)
 }
 
+/// Removes the unfinished writes of line `line`'s maps in `dir` (the temporaries an atomic
+/// write leaves when its process is killed: `.LINE.board-ID....`); the names removed. For the
+/// line's own writer at its start, when no write of its can be under way.
+pub fn remove_unfinished(dir: &Path, line: &str) -> std::io::Result<Vec<String>> {
+    let prefix = format!(".{line}.board-");
+    let mut gone = Vec::new();
+    let entries = match std::fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(gone),
+        Err(e) => return Err(e),
+    };
+    for e in entries {
+        let e = e?;
+        let name = e.file_name().to_string_lossy().into_owned();
+        // Line "a"'s prefix may start line "a.board-5"'s names: the id and one of the two
+        // files' names must follow.
+        let ours = name.strip_prefix(prefix.as_str()).is_some_and(|rest| {
+            rest.split_once('.').is_some_and(|(id, file)| {
+                id.parse::<i64>().is_ok()
+                    && (file.starts_with("heights.png.") || file.starts_with("json."))
+            })
+        });
+        if ours && e.file_type()?.is_file() {
+            std::fs::remove_file(e.path())?;
+            gone.push(name);
+        }
+    }
+    gone.sort();
+    Ok(gone)
+}
+
 /// Removes all but line `line`'s newest `keep` maps of `dir` (the highest ids): the JSON
 /// first, so a map being removed is never read half gone. The ids removed.
 pub fn prune(dir: &Path, line: &str, keep: usize) -> std::io::Result<Vec<i64>> {
@@ -445,5 +476,20 @@ mod tests {
         assert_eq!(kept(dir.path(), "b").unwrap(), vec![2]);
         assert_eq!(kept(dir.path(), "a.board-5").unwrap(), vec![4]);
         assert!(kept(&dir.path().join("none"), "a").unwrap().is_empty());
+        // A killed write's temporaries: line "a"'s removed, no other's, no map.
+        for n in [
+            ".a.board-12.heights.png.x7Yq2",
+            ".a.board-5.board-9.json.k2",
+            ".b.board-3.json.zz",
+        ] {
+            std::fs::write(dir.path().join(n), b"x").unwrap();
+        }
+        assert_eq!(
+            remove_unfinished(dir.path(), "a").unwrap(),
+            vec![".a.board-12.heights.png.x7Yq2".to_owned()]
+        );
+        assert!(dir.path().join(".b.board-3.json.zz").exists());
+        assert!(dir.path().join(".a.board-5.board-9.json.k2").exists());
+        assert_eq!(kept(dir.path(), "a").unwrap(), vec![7, 10]);
     }
 }

@@ -47,6 +47,13 @@ impl MapKeeper {
         if maps.keep_boards == 0 {
             return Ok(None);
         }
+        match dpsa_formats::kept_map::remove_unfinished(&maps.dir, line) {
+            Ok(gone) if !gone.is_empty() => {
+                tracing::warn!(files = ?gone, "unfinished map writes of a killed run removed")
+            }
+            Ok(_) => {}
+            Err(e) => tracing::error!("unfinished map writes not removed: {e}"),
+        }
         let (tx, rx) = sync_channel::<MapJob>(1);
         let (dir, keep, line) = (maps.dir.clone(), maps.keep_boards, line.to_owned());
         let t = Arc::clone(&tally);
