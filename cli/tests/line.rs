@@ -783,6 +783,51 @@ fn the_line_serves_its_pages_while_it_runs() {
     assert_eq!(summary["maps_kept"], 2, "{summary}");
 }
 
+/// A board the design cannot be registered on (its program's fiducials are 2.6 mm discs the
+/// board does not have) is stored incomplete with the reason, and its map is kept all the
+/// same, without a registration: what a process engineer looks at to see why.
+#[test]
+fn a_board_the_design_cannot_be_registered_on_keeps_its_map() {
+    let f = fixture();
+    let dir = f.dir.join("unregistered");
+    let text = std::fs::read_to_string(f.board.join("program.toml")).unwrap();
+    assert!(text.contains("\ndiameter_mm = 1.0\n"), "{text}");
+    std::fs::write(
+        f.board.join("program-nofid.toml"),
+        text.replace("\ndiameter_mm = 1.0\n", "\ndiameter_mm = 2.6\n"),
+    )
+    .unwrap();
+    let cfg = line_config(&dir, |t| {
+        t.replace("program.toml\"", "program-nofid.toml\"")
+    });
+    assert!(std::fs::read_to_string(&cfg)
+        .unwrap()
+        .contains("program-nofid.toml"));
+    let run = start(&cfg, Some(1));
+    let sent = send(&cfg, &["--rate", "max", "--seed", "41"]);
+    let summary = wait(run, 120, &cfg);
+    assert_eq!(summary["incomplete"], 1, "{summary}");
+    assert_eq!(summary["maps_kept"], 1, "{summary}");
+    let run = sent["run_ids"][0].as_str().unwrap();
+    let boards = stored(&cfg);
+    let b = board_of(&boards, run);
+    assert!(
+        b["incomplete_reason"]
+            .as_str()
+            .unwrap()
+            .contains("could not be registered"),
+        "{b}"
+    );
+    let maps = dir.join("data/maps");
+    let id = dpsa_formats::kept_map::kept(&maps, "line-1").unwrap();
+    assert_eq!(id.len(), 1);
+    let k = dpsa_formats::kept_map::read_meta(&maps, "line-1", id[0])
+        .unwrap()
+        .unwrap();
+    assert_eq!((k.run_id.as_str(), k.design_to_board), (run, None));
+    assert!(k.valid > 0);
+}
+
 /// A camera that falls silent in the first board: that board is incomplete with the camera
 /// named, gets no CFX message, and the next board is inspected normally (none of the silent
 /// board's rows in it).

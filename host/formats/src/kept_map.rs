@@ -54,8 +54,9 @@ pub struct KeptMap {
     /// The PNG's value of height zero ([`ZERO`]).
     pub zero: u16,
     /// Where the design lies on the map: a design point `p` is at `R(rotation_rad) p + (tx_mm,
-    /// ty_mm)` on the board (the inspection's registration).
-    pub design_to_board: DesignToBoard,
+    /// ty_mm)` on the board (the inspection's registration); `None` (`null`) when the design
+    /// could not be registered on it (the board is incomplete: its map is kept to see why).
+    pub design_to_board: Option<DesignToBoard>,
     /// Valid pixels kept.
     pub valid: u64,
     /// Valid pixels beyond the 16 bits, kept invalid.
@@ -127,7 +128,7 @@ pub fn write(
     run_id: u64,
     grid: &BoardGrid,
     heights: &Grid,
-    design_to_board: DesignToBoard,
+    design_to_board: Option<DesignToBoard>,
 ) -> Result<KeptMap, FileError> {
     let (png, json) = paths(dir, line, board);
     let (mut valid, mut clipped) = (0u64, 0u64);
@@ -222,9 +223,10 @@ pub fn read_meta(dir: &Path, line: &str, board: i64) -> Result<Option<KeptMap>, 
     if !(g.pitch_mm.is_finite() && g.pitch_mm > 0.0 && g.x0_mm.is_finite() && g.y0_mm.is_finite()) {
         return Err(bad("a grid without a finite pitch and origin".into()));
     }
-    let t = &k.design_to_board;
-    if !(t.rotation_rad.is_finite() && t.tx_mm.is_finite() && t.ty_mm.is_finite()) {
-        return Err(bad("a design-to-board transform that is not finite".into()));
+    if let Some(t) = &k.design_to_board {
+        if !(t.rotation_rad.is_finite() && t.tx_mm.is_finite() && t.ty_mm.is_finite()) {
+            return Err(bad("a design-to-board transform that is not finite".into()));
+        }
     }
     Ok(Some(k))
 }
@@ -379,12 +381,12 @@ mod tests {
         }
     }
 
-    fn t() -> DesignToBoard {
-        DesignToBoard {
+    fn t() -> Option<DesignToBoard> {
+        Some(DesignToBoard {
             rotation_rad: 0.001,
             tx_mm: 0.2,
             ty_mm: -0.1,
-        }
+        })
     }
 
     #[test]

@@ -61,9 +61,9 @@ pub enum Job {
     },
 }
 
-/// An inspected board's map, handed to the maps' writer once the board is stored: its grid,
-/// its heights and where the design lies on it.
-type MapKept = (BoardGrid, Grid, DesignToBoard);
+/// A finished board's map, handed to the maps' writer once the board is stored: its grid,
+/// its heights and where the design lies on it (`None`: it could not be registered).
+type MapKept = (BoardGrid, Grid, Option<DesignToBoard>);
 
 /// One board as the keeper stored it.
 #[derive(Clone, Debug)]
@@ -419,8 +419,9 @@ impl Keeper {
                     None,
                     None,
                     Vec::new(),
-                    None,
-                )
+                    // Kept all the same, without a registration: the map shows why.
+                    Some((map.grid, map.heights, None)),
+                );
             }
         };
         let opt = |v: f64| v.is_finite().then_some(v);
@@ -483,7 +484,7 @@ impl Keeper {
             Some(msg),
             i.print,
             images,
-            Some((map.grid, map.heights, design_to_board)),
+            Some((map.grid, map.heights, Some(design_to_board))),
         )
     }
 }

@@ -1,5 +1,6 @@
-//! The measured maps the line keeps for its pages (`[maps]` of `LINE.toml`): each inspected
-//! board's map written by a thread of its own ([`MapKeeper`]) after the board is stored, so
+//! The measured maps the line keeps for its pages (`[maps]` of `LINE.toml`): each finished
+//! board's map (inspected, or incomplete because the design could not be registered on it)
+//! written by a thread of its own ([`MapKeeper`]) after the board is stored, so
 //! the verdict never waits for it, in `dpsa_formats::kept_map`'s files; the oldest removed
 //! beyond `keep_boards`.
 //!
@@ -26,8 +27,8 @@ pub struct MapJob {
     pub grid: BoardGrid,
     /// The map, um (NaN invalid).
     pub heights: Grid,
-    /// Where the design lies on it.
-    pub design_to_board: DesignToBoard,
+    /// Where the design lies on it (`None`: it could not be registered).
+    pub design_to_board: Option<DesignToBoard>,
 }
 
 /// The thread that writes the kept maps.

@@ -30,12 +30,22 @@ fn open(site: &Site) -> Result<Store, StoreError> {
 }
 
 /// The board page's measured map (`tiles`, `mapview.js`): the viewer, the calls placed on
-/// the map by the registration the line kept with it; or why there is none. Reads the map's
-/// description only: the pyramid is built when the viewer asks for it.
-fn map_section(site: &Site, id: i64, program_hash: &str, pads: &[PadRow], body: &mut String) {
+/// the map by the registration the line kept with it; or why there is none (said for an
+/// inspected board only: an incomplete one has a map only when the design could not be
+/// registered on it). Reads the map's description only: the pyramid is built when the viewer
+/// asks for it.
+fn map_section(
+    site: &Site,
+    id: i64,
+    inspected: bool,
+    program_hash: &str,
+    pads: &[PadRow],
+    body: &mut String,
+) {
     let Some(dir) = &site.maps else { return };
     let k = match dpsa_formats::kept_map::read_meta(dir, &site.line, id) {
         Ok(Some(k)) => k,
+        Ok(None) if !inspected => return,
         Ok(None) => {
             body.push_str(
                 "<h2>The measured map</h2><p class=\"note\">Not kept for this board: the line \
@@ -64,9 +74,12 @@ fn map_section(site: &Site, id: i64, program_hash: &str, pads: &[PadRow], body: 
          type=\"button\" id=\"map-fit\">whole board</button><span id=\"map-status\">loading \
          the map&hellip;</span></p><div id=\"mapframe\" class=\"mapframe\">"
     );
-    let calls = crate::board_view::call_centres(&site.designs, program_hash, pads);
+    let calls = k
+        .design_to_board
+        .and_then(|_| crate::board_view::call_centres(&site.designs, program_hash, pads));
     for (p, c) in calls.iter().flatten() {
-        let (x, y) = k.design_to_board.apply(c[0], c[1]);
+        let Some(t) = &k.design_to_board else { break };
+        let (x, y) = t.apply(c[0], c[1]);
         let (u, v) = ((x - g.x0_mm) / g.pitch_mm, (y_top - y) / g.pitch_mm);
         let label = format!(
             "{} {}",
@@ -89,10 +102,17 @@ fn map_section(site: &Site, id: i64, program_hash: &str, pads: &[PadRow], body: 
          <p class=\"note\">The height above the local board surface (the bow and warp taken \
          out), as measured and kept by the line (board x to the right, y up): drag to pan, the \
          wheel or + and &minus; to zoom{calls}.</p><script src=\"{js}\"></script>",
-        calls = match &calls {
-            Some(c) if !c.is_empty() => ", the calls ringed and linked to their pad's page",
-            Some(_) => "",
-            None => "; the calls are not marked: the board's program was not given to the pages",
+        calls = match (&calls, &k.design_to_board) {
+            (_, None) =>
+                "; the design could not be registered on this map, so nothing is \
+                          marked on it",
+            (Some(c), _) if !c.is_empty() => {
+                ", the calls ringed and linked to their pad's page"
+            }
+            (Some(_), _) => "",
+            (None, _) => {
+                "; the calls are not marked: the board's program was not given to the pages"
+            }
         },
         js = crate::tiles::SCRIPT_PATH
     );
@@ -388,8 +408,15 @@ pub fn board(site: &Site, id: i64) -> Result<Option<String>, PageError> {
             ),
         }
     }
-    if b.state == "inspected" {
-        map_section(site, id, &b.program_hash, &pads, &mut body);
+    if b.state != "open" {
+        map_section(
+            site,
+            id,
+            b.state == "inspected",
+            &b.program_hash,
+            &pads,
+            &mut body,
+        );
     }
     if let Some(why) = &b.incomplete_reason {
         let _ = write!(

@@ -409,7 +409,6 @@ fn encode(indices: &[u8]) -> Vec<u8> {
 mod tests {
     use super::*;
     use dpsa_formats::grid::BoardGrid;
-    use dpsa_formats::kept_map::DesignToBoard;
 
     /// A bowed board with one deposit, written and read as the line keeps it.
     fn board(dir: &Path) -> (BoardGrid, Grid) {
@@ -439,12 +438,7 @@ mod tests {
             rows: g.rows,
             data,
         };
-        let t = DesignToBoard {
-            rotation_rad: 0.0,
-            tx_mm: 0.0,
-            ty_mm: 0.0,
-        };
-        kept_map::write(dir, "l", 7, 1, &g, &heights, t).unwrap();
+        kept_map::write(dir, "l", 7, 1, &g, &heights, None).unwrap();
         (g, heights)
     }
 

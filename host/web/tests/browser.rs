@@ -256,7 +256,7 @@ async fn the_pages_work_in_chromium() {
         ids[1],
         (2400, 1600, 0.002),
         &[(1.4, 1.3), (2.4, 1.3), (3.4, 2.3)],
-        shift,
+        Some(shift),
     );
     let mut with_map = Site::new(loc.clone(), "line-1");
     with_map.designs = std::sync::Arc::new(dpsa_web::board_view::Designs::from(vec![design]));

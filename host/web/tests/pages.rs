@@ -615,11 +615,11 @@ fn the_board_page_zooms_and_pans_over_its_kept_map() {
     let ids = common::mini_boards(&loc, &[(0xd1, &hash), (0xd2, &hash), (0xd3, &hash)]);
     // The design lies on the board turned by 20 mrad and shifted: each opening's paste where
     // the transform puts it.
-    let t = DesignToBoard {
+    let t = Some(DesignToBoard {
         rotation_rad: 0.02,
         tx_mm: 0.15,
         ty_mm: -0.1,
-    };
+    });
     let on_board = |x: f64, y: f64| {
         let (s, c) = 0.02f64.sin_cos();
         (c * x - s * y + 0.15, s * x + c * y - 0.1)
@@ -639,6 +639,34 @@ fn the_board_page_zooms_and_pans_over_its_kept_map() {
     std::fs::write(&png1, &bytes[..bytes.len() - 100]).unwrap();
     // Another line's map under an id this line has no map of.
     common::kept_map(&maps, "line-2", ids[2], size, &deposits, t);
+    // A board the design could not be registered on: incomplete, its map kept without a
+    // registration; and an incomplete board without a map.
+    let mut s = Store::open(&loc, "line-1").unwrap();
+    let mut incomplete = Vec::new();
+    for run in [0xd4u64, 0xd5] {
+        let id = s
+            .begin_board(&dpsa_line::store::BoardStart {
+                run_id: run,
+                product: "mini".into(),
+                program_hash: hash.clone(),
+                calibration_hash: "c".into(),
+                started_unix_s: 1_700_000_000.0,
+            })
+            .unwrap();
+        let reason = "the design could not be registered on the map: no fiducial found";
+        s.finish_board(
+            id,
+            1_700_000_001.0,
+            &[],
+            &dpsa_line::store::Outcome::Incomplete {
+                reason: reason.into(),
+            },
+        )
+        .unwrap();
+        incomplete.push(id);
+    }
+    drop(s);
+    common::kept_map(&maps, "line-1", incomplete[0], size, &deposits, None);
 
     let mut site = Site::new(loc.clone(), "line-1");
     site.designs = std::sync::Arc::new(dpsa_web::board_view::Designs::from(vec![design]));
@@ -760,6 +788,19 @@ fn the_board_page_zooms_and_pans_over_its_kept_map() {
         let (st, _, _) = get(&addr, &path);
         assert_eq!(st, 404, "{path}");
     }
+    // The unregistered board's map is shown, nothing marked on it, and said so; the other
+    // incomplete board shows no map and says nothing of one.
+    let (_, _, page) = get(&addr, &format!("/board/{}", incomplete[0]));
+    assert!(
+        page.contains(&format!("data-map=\"/board/{}/map.json\"", incomplete[0]))
+            && page.contains("could not be registered on this map")
+            && !page.contains("class=\"mapcall"),
+        "{page}"
+    );
+    let (st, _, _) = get(&addr, &format!("/board/{}/map.json", incomplete[0]));
+    assert_eq!(st, 200);
+    let (_, _, page) = get(&addr, &format!("/board/{}", incomplete[1]));
+    assert!(!page.contains("The measured map"), "{page}");
     // A board without a kept map says so; a damaged one is said, never drawn.
     let (_, _, page) = get(&addr, &format!("/board/{}", ids[2]));
     assert!(page.contains("Not kept for this board"), "{page}");

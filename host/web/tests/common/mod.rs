@@ -293,7 +293,7 @@ pub fn kept_map(
     board: i64,
     (rows, width, pitch_mm): (usize, usize, f64),
     deposits: &[(f64, f64)],
-    design_to_board: dpsa_formats::kept_map::DesignToBoard,
+    design_to_board: Option<dpsa_formats::kept_map::DesignToBoard>,
 ) -> dpsa_formats::kept_map::KeptMap {
     let grid = dpsa_formats::grid::BoardGrid {
         x0_mm: 0.0,
