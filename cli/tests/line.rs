@@ -753,13 +753,13 @@ fn the_line_serves_its_pages_while_it_runs() {
     // page's viewer, its description, a tile of it as PNG.
     let t0 = Instant::now();
     let info = loop {
-        let (status, body) = get(&format!("{link}/map.json"));
+        let (status, body) = get(&format!("{link}/map/{run}/info.json"));
         if status.contains(" 200 ") {
             break body;
         }
         assert!(
             t0.elapsed() < Duration::from_secs(60),
-            "{link}/map.json: {status} {body}"
+            "{link}/map/{run}/info.json: {status} {body}"
         );
         std::thread::sleep(Duration::from_millis(200));
     };
@@ -768,10 +768,10 @@ fn the_line_serves_its_pages_while_it_runs() {
     assert!(info["levels"].as_u64().unwrap() >= 2, "{info}");
     let (_, page) = get(&link);
     assert!(
-        page.contains(&format!("data-map=\"{link}/map.json\"")),
+        page.contains(&format!("data-map=\"{link}/map/{run}/info.json\"")),
         "{page}"
     );
-    let tile = get_raw(&format!("{link}/map/0/0/0.png"));
+    let tile = get_raw(&format!("{link}/map/{run}/0/0/0.png"));
     assert!(tile.starts_with(b"HTTP/1.1 200 "), "the map's tile");
     let at = tile.windows(4).position(|w| w == b"\r\n\r\n").unwrap() + 4;
     let img = image::load_from_memory(&tile[at..]).unwrap();

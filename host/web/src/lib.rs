@@ -106,8 +106,8 @@ pub fn router(site: Site) -> Router {
         .route("/board/{id}/pad/{pad}", get(pad))
         .route("/board/{id}/pad/{pad}/crop.png", get(crop_png))
         .route("/board/{id}/pad/{pad}/heights.json", get(heights_json))
-        .route("/board/{id}/map.json", get(map_json))
-        .route("/board/{id}/map/{z}/{x}/{file}", get(map_tile))
+        .route("/board/{id}/map/{run}/{file}", get(map_info))
+        .route("/board/{id}/map/{run}/{z}/{x}/{file}", get(map_tile))
         .route(tiles::SCRIPT_PATH, get(mapview_js))
         .route(view3d::LIBRARY_PATH, get(library_js))
         .route(view3d::SCRIPT_PATH, get(view3d_js))
@@ -441,14 +441,36 @@ async fn mapview_js() -> Response {
     script(tiles::SCRIPT)
 }
 
-/// What the map viewer needs of board `id`'s kept map (built into its pyramid on the first
-/// request), or a 404 when none is kept.
-async fn map_json(State(site): State<Arc<Site>>, Path(id): Path<String>) -> Response {
-    let (Ok(id), Some(dir)) = (id.parse::<i64>(), site.maps.clone()) else {
+/// Board `id`'s run id as the map routes take it: 16 lowercase hex digits.
+fn run_hex(run: &str) -> Option<String> {
+    (run.len() == 16 && run.bytes().all(|b| matches!(b, b'0'..=b'9' | b'a'..=b'f')))
+        .then(|| run.to_owned())
+}
+
+/// What the map viewer needs of board `id`'s kept map of run `run`
+/// (`/board/ID/map/RUN/info.json`; the pyramid built on the first request), or a 404 when
+/// none of that run is kept.
+async fn map_info(
+    State(site): State<Arc<Site>>,
+    Path((id, run, file)): Path<(String, String, String)>,
+) -> Response {
+    let (Ok(id), Some(run), true, Some(dir)) = (
+        id.parse::<i64>(),
+        run_hex(&run),
+        file == "info.json",
+        site.maps.clone(),
+    ) else {
         return not_found().await;
     };
-    let out =
-        tokio::task::spawn_blocking(move || site.map_cache.pyramid(&dir, &site.line, id)).await;
+    let out = tokio::task::spawn_blocking(move || {
+        if !site.map_cache.has(id, &run) && !pages::board_has_run(&site, id, &run)? {
+            return Ok(None);
+        }
+        site.map_cache
+            .pyramid(&dir, &site.line, id, &run)
+            .map_err(MapError::Map)
+    })
+    .await;
     match out {
         Ok(Ok(Some(p))) => respond(StatusCode::OK, "application/json", p.json()),
         Ok(Ok(None)) => not_found().await,
@@ -457,14 +479,16 @@ async fn map_json(State(site): State<Arc<Site>>, Path(id): Path<String>) -> Resp
     }
 }
 
-/// A tile of board `id`'s kept map (`/board/ID/map/Z/X/Y.png`, every part an integer), or a
-/// 404. Its path names the board's map by the parsed id only.
+/// A tile of board `id`'s kept map of run `run` (`/board/ID/map/RUN/Z/X/Y.png`, every part
+/// parsed: integers and 16 hex digits), or a 404. The map's files are named from the parsed
+/// id only.
 async fn map_tile(
     State(site): State<Arc<Site>>,
-    Path((id, z, x, file)): Path<(String, String, String, String)>,
+    Path((id, run, z, x, file)): Path<(String, String, String, String, String)>,
 ) -> Response {
-    let (Ok(id), Ok(z), Ok(x), Some(Ok(y)), Some(dir)) = (
+    let (Ok(id), Some(run), Ok(z), Ok(x), Some(Ok(y)), Some(dir)) = (
         id.parse::<i64>(),
+        run_hex(&run),
         z.parse::<u8>(),
         x.parse::<u32>(),
         file.strip_suffix(".png").map(str::parse::<u32>),
@@ -472,13 +496,19 @@ async fn map_tile(
     ) else {
         return not_found().await;
     };
-    let out =
-        tokio::task::spawn_blocking(move || site.map_cache.tile_png(&dir, &site.line, id, z, x, y))
-            .await;
+    let out = tokio::task::spawn_blocking(move || {
+        if !site.map_cache.has(id, &run) && !pages::board_has_run(&site, id, &run)? {
+            return Ok(None);
+        }
+        site.map_cache
+            .tile_png(&dir, &site.line, id, &run, z, x, y)
+            .map_err(MapError::Map)
+    })
+    .await;
     match out {
         Ok(Ok(Some(png))) => {
             let mut r = respond(StatusCode::OK, "image/png", png.as_ref().clone());
-            // A board's map never changes once kept.
+            // A board's map never changes once kept, and its run is in the path.
             r.headers_mut().insert(
                 header::CACHE_CONTROL,
                 HeaderValue::from_static("private, max-age=3600"),
@@ -491,13 +521,24 @@ async fn map_tile(
     }
 }
 
-/// A kept map that cannot be read: said, never drawn.
-fn map_error(e: dpsa_formats::kept_map::KeptMapError) -> Response {
+/// Why a map route could not answer.
+#[derive(Debug, thiserror::Error)]
+enum MapError {
+    /// The store, asked whose board the id is.
+    #[error("the store could not be read: {0}")]
+    Store(#[from] dpsa_line::store::StoreError),
+    /// The kept map.
+    #[error("the kept map cannot be read: {0}")]
+    Map(dpsa_formats::kept_map::KeptMapError),
+}
+
+/// A kept map (or the store) that cannot be read: said, never drawn.
+fn map_error(e: MapError) -> Response {
     tracing::error!("map: {e}");
     respond(
         StatusCode::SERVICE_UNAVAILABLE,
         "text/plain; charset=utf-8",
-        format!("the kept map cannot be read: {e}"),
+        e.to_string(),
     )
 }
 

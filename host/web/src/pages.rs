@@ -34,9 +34,11 @@ fn open(site: &Site) -> Result<Store, StoreError> {
 /// inspected board only: an incomplete one has a map only when the design could not be
 /// registered on it). Reads the map's description only: the pyramid is built when the viewer
 /// asks for it.
+#[allow(clippy::too_many_arguments)]
 fn map_section(
     site: &Site,
     id: i64,
+    run: &str,
     inspected: bool,
     program_hash: &str,
     pads: &[PadRow],
@@ -44,6 +46,16 @@ fn map_section(
 ) {
     let Some(dir) = &site.maps else { return };
     let k = match dpsa_formats::kept_map::read_meta(dir, &site.line, id) {
+        // A map kept under this id by another store (another board): never shown as this one.
+        Ok(Some(k)) if k.run_id != run => {
+            let _ = write!(
+                body,
+                "<h2>The measured map</h2><p class=\"incomplete\">The map kept under this \
+                 board's id is of another board (run {}): not shown.</p>",
+                esc(&k.run_id)
+            );
+            return;
+        }
         Ok(Some(k)) => k,
         Ok(None) if !inspected => return,
         Ok(None) => {
@@ -68,7 +80,8 @@ fn map_section(
     let _ = write!(
         body,
         "<h2>The measured map</h2><div id=\"mapview\" class=\"mapview\" \
-         data-map=\"/board/{id}/map.json\" data-tiles=\"/board/{id}/map/\"><p class=\"maptools\">\
+         data-map=\"/board/{id}/map/{run}/info.json\" data-tiles=\"/board/{id}/map/{run}/\">\
+         <p class=\"maptools\">\
          <button type=\"button\" id=\"map-in\" title=\"zoom in\">+</button><button \
          type=\"button\" id=\"map-out\" title=\"zoom out\">&minus;</button><button \
          type=\"button\" id=\"map-fit\">whole board</button><span id=\"map-status\">loading \
@@ -116,6 +129,14 @@ fn map_section(
         },
         js = crate::tiles::SCRIPT_PATH
     );
+}
+
+/// Whether board `id` of this line is stored with run id `run` (16 hex digits): what the map
+/// routes check before they build a board's pyramid.
+pub fn board_has_run(site: &Site, id: i64, run: &str) -> Result<bool, StoreError> {
+    Ok(open(site)?
+        .board(id)?
+        .is_some_and(|b| format!("{:016x}", b.run_id) == run))
 }
 
 /// A pad's nominal height (the stencil's thickness), um: its height over its height in %.
@@ -409,14 +430,9 @@ pub fn board(site: &Site, id: i64) -> Result<Option<String>, PageError> {
         }
     }
     if b.state != "open" {
-        map_section(
-            site,
-            id,
-            b.state == "inspected",
-            &b.program_hash,
-            &pads,
-            &mut body,
-        );
+        let run = format!("{:016x}", b.run_id);
+        let inspected = b.state == "inspected";
+        map_section(site, id, &run, inspected, &b.program_hash, &pads, &mut body);
     }
     if let Some(why) = &b.incomplete_reason {
         let _ = write!(

@@ -181,7 +181,7 @@ impl Pyramid {
         }
     }
 
-    /// What the viewer needs (`map.json`): sizes, levels, scale, placement in mm.
+    /// What the viewer needs (`info.json`): sizes, levels, scale, placement in mm.
     pub fn json(&self) -> String {
         let (w, h) = self.size();
         let g = &self.kept.grid;
@@ -261,8 +261,8 @@ fn halve(l: &Level) -> Level {
     Level { w, h, data }
 }
 
-/// A tile's key: board, level, column, row.
-type TileKey = (i64, u8, u32, u32);
+/// A tile's key: board, run, level, column, row.
+type TileKey = (i64, String, u8, u32, u32);
 
 #[derive(Default)]
 struct Tiles {
@@ -301,35 +301,51 @@ impl MapCache {
         self.builds.load(Ordering::Relaxed)
     }
 
-    fn cached(&self, board: i64) -> Option<Arc<Pyramid>> {
+    /// Whether board `board`'s pyramid of run `run` is built and kept.
+    pub fn has(&self, board: i64, run: &str) -> bool {
+        self.cached(board, run).is_some()
+    }
+
+    fn cached(&self, board: i64, run: &str) -> Option<Arc<Pyramid>> {
         let p = self.pyramids.lock().ok()?;
         p.iter()
-            .find(|(b, _)| *b == board)
+            .find(|(b, p)| *b == board && p.kept.run_id == run)
             .map(|(_, p)| Arc::clone(p))
     }
 
-    /// Line `line`'s board `board`'s pyramid from the maps in `dir`: cached, else built (one
-    /// at a time); `None` when its map is not kept.
+    /// Line `line`'s board `board`'s pyramid from the maps in `dir`, of the board of run id
+    /// `run` (16 hex digits): cached, else built (one at a time); `None` when no map of that
+    /// run is kept under the id (a map another store kept under the same id is never shown
+    /// for this board).
     pub fn pyramid(
         &self,
         dir: &Path,
         line: &str,
         board: i64,
+        run: &str,
     ) -> Result<Option<Arc<Pyramid>>, KeptMapError> {
-        if let Some(p) = self.cached(board) {
+        if let Some(p) = self.cached(board, run) {
             return Ok(Some(p));
         }
         let _one = self.building.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(p) = self.cached(board) {
+        if let Some(p) = self.cached(board, run) {
             return Ok(Some(p));
+        }
+        // The description first: another run's map is not read at all.
+        if kept_map::read_meta(dir, line, board)?.is_none_or(|k| k.run_id != run) {
+            return Ok(None);
         }
         let Some((kept, heights)) = kept_map::read(dir, line, board)? else {
             return Ok(None);
         };
+        if kept.run_id != run {
+            return Ok(None);
+        }
         let p = Arc::new(Pyramid::new(kept, &heights));
         drop(heights);
         self.builds.fetch_add(1, Ordering::Relaxed);
         if let Ok(mut all) = self.pyramids.lock() {
+            all.retain(|(b, _)| *b != board);
             all.push_back((board, Arc::clone(&p)));
             while all.len() > PYRAMIDS_KEPT {
                 all.pop_front();
@@ -338,18 +354,20 @@ impl MapCache {
         Ok(Some(p))
     }
 
-    /// Tile `(z, x, y)` of line `line`'s board `board` as PNG: cached, else drawn and kept; `None` when the
-    /// map is not kept or the tile is outside it.
+    /// Tile `(z, x, y)` of line `line`'s board `board` of run `run` as PNG: cached, else
+    /// drawn and kept; `None` when no map of that run is kept or the tile is outside it.
+    #[allow(clippy::too_many_arguments)]
     pub fn tile_png(
         &self,
         dir: &Path,
         line: &str,
         board: i64,
+        run: &str,
         z: u8,
         x: u32,
         y: u32,
     ) -> Result<Option<Arc<Vec<u8>>>, KeptMapError> {
-        let key = (board, z, x, y);
+        let key = (board, run.to_owned(), z, x, y);
         if let Some(t) = self
             .tiles
             .lock()
@@ -358,7 +376,7 @@ impl MapCache {
         {
             return Ok(Some(t));
         }
-        let Some(p) = self.pyramid(dir, line, board)? else {
+        let Some(p) = self.pyramid(dir, line, board, run)? else {
             return Ok(None);
         };
         let Some(indices) = p.tile_indices(usize::from(z), x as usize, y as usize) else {
@@ -367,7 +385,7 @@ impl MapCache {
         let png = Arc::new(encode(&indices));
         self.renders.fetch_add(1, Ordering::Relaxed);
         if let Ok(mut t) = self.tiles.lock() {
-            if t.map.insert(key, Arc::clone(&png)).is_none() {
+            if t.map.insert(key.clone(), Arc::clone(&png)).is_none() {
                 t.order.push_back(key);
                 t.bytes += png.len();
             }
@@ -410,6 +428,9 @@ mod tests {
     use super::*;
     use dpsa_formats::grid::BoardGrid;
 
+    /// The run id of the test's board.
+    const RUN: &str = "0000000000000001";
+
     /// A bowed board with one deposit, written and read as the line keeps it.
     fn board(dir: &Path) -> (BoardGrid, Grid) {
         let g = BoardGrid {
@@ -447,7 +468,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let (g, _) = board(dir.path());
         let cache = MapCache::default();
-        let p = cache.pyramid(dir.path(), "l", 7).unwrap().unwrap();
+        let p = cache.pyramid(dir.path(), "l", 7, RUN).unwrap().unwrap();
         // 700 x 500 turned: three levels (700 -> 350 -> 175).
         assert_eq!(p.size(), (700, 500));
         assert_eq!(p.levels(), 3);
@@ -472,7 +493,7 @@ mod tests {
         // The finest level's tile over the deposit: its pixel coloured as 120 um is.
         let z = p.levels() - 1;
         let png = cache
-            .tile_png(dir.path(), "l", 7, z as u8, 0, 0)
+            .tile_png(dir.path(), "l", 7, RUN, z as u8, 0, 0)
             .unwrap()
             .unwrap();
         let rgba = decode(&png);
@@ -487,7 +508,7 @@ mod tests {
         );
         // Beyond the map (the last column of tiles past u = 700): transparent.
         let png = cache
-            .tile_png(dir.path(), "l", 7, z as u8, 2, 0)
+            .tile_png(dir.path(), "l", 7, RUN, z as u8, 2, 0)
             .unwrap()
             .unwrap();
         let rgba = decode(&png);
@@ -495,19 +516,19 @@ mod tests {
         assert_eq!(rgba[((10 * TILE) + (699 - 512)) * 4 + 3], 255);
         // Level 0 is one tile; a tile past the pyramid is none.
         assert!(cache
-            .tile_png(dir.path(), "l", 7, 0, 0, 0)
+            .tile_png(dir.path(), "l", 7, RUN, 0, 0, 0)
             .unwrap()
             .is_some());
         assert!(cache
-            .tile_png(dir.path(), "l", 7, 0, 1, 0)
+            .tile_png(dir.path(), "l", 7, RUN, 0, 1, 0)
             .unwrap()
             .is_none());
         assert!(cache
-            .tile_png(dir.path(), "l", 7, 3, 0, 0)
+            .tile_png(dir.path(), "l", 7, RUN, 3, 0, 0)
             .unwrap()
             .is_none());
         assert!(cache
-            .tile_png(dir.path(), "l", 8, 0, 0, 0)
+            .tile_png(dir.path(), "l", 8, RUN, 0, 0, 0)
             .unwrap()
             .is_none());
     }
@@ -519,20 +540,50 @@ mod tests {
         let cache = MapCache::default();
         // Level 1 is 350 x 250: two tiles across, one down.
         let a = cache
-            .tile_png(dir.path(), "l", 7, 1, 0, 0)
+            .tile_png(dir.path(), "l", 7, RUN, 1, 0, 0)
             .unwrap()
             .unwrap();
         let b = cache
-            .tile_png(dir.path(), "l", 7, 1, 0, 0)
+            .tile_png(dir.path(), "l", 7, RUN, 1, 0, 0)
             .unwrap()
             .unwrap();
         assert_eq!(a, b);
         assert_eq!((cache.renders(), cache.builds()), (1, 1));
         cache
-            .tile_png(dir.path(), "l", 7, 1, 1, 0)
+            .tile_png(dir.path(), "l", 7, RUN, 1, 1, 0)
             .unwrap()
             .unwrap();
         assert_eq!((cache.renders(), cache.builds()), (2, 1));
+        // Asked for another run's map under that id: none, nothing read or built.
+        assert!(cache
+            .pyramid(dir.path(), "l", 7, "00000000000000ff")
+            .unwrap()
+            .is_none());
+        // Another store kept another board's map under the same id: the cached pyramid and
+        // tiles of the first are not served for it, nor the second's for the first.
+        let g = cache
+            .pyramid(dir.path(), "l", 7, RUN)
+            .unwrap()
+            .unwrap()
+            .kept
+            .grid;
+        let flat = Grid {
+            width: g.width,
+            rows: g.rows,
+            data: vec![5.0; g.rows * g.width],
+        };
+        kept_map::write(dir.path(), "l", 7, 2, &g, &flat, None).unwrap();
+        let other = "0000000000000002";
+        let c = cache
+            .tile_png(dir.path(), "l", 7, other, 1, 0, 0)
+            .unwrap()
+            .unwrap();
+        assert_ne!(c, a);
+        assert_eq!(cache.builds(), 2);
+        assert!(cache
+            .tile_png(dir.path(), "l", 7, RUN, 1, 1, 1)
+            .unwrap()
+            .is_none());
     }
 
     #[test]

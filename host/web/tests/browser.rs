@@ -253,7 +253,7 @@ async fn the_pages_work_in_chromium() {
     common::kept_map(
         &maps,
         "line-1",
-        ids[1],
+        (ids[1], 0xa2),
         (2400, 1600, 0.002),
         &[(1.4, 1.3), (2.4, 1.3), (3.4, 2.3)],
         Some(shift),

@@ -612,7 +612,10 @@ fn the_board_page_zooms_and_pans_over_its_kept_map() {
     let design = dpsa_line::config::Design::load(&prog).unwrap();
     let hash = design.program_hash.clone();
     let loc = Location::Sqlite(dir.path().join("line.sqlite"));
-    let ids = common::mini_boards(&loc, &[(0xd1, &hash), (0xd2, &hash), (0xd3, &hash)]);
+    let ids = common::mini_boards(
+        &loc,
+        &[(0xd1, &hash), (0xd2, &hash), (0xd3, &hash), (0xd6, &hash)],
+    );
     // The design lies on the board turned by 20 mrad and shifted: each opening's paste where
     // the transform puts it.
     let t = Some(DesignToBoard {
@@ -631,14 +634,16 @@ fn the_board_page_zooms_and_pans_over_its_kept_map() {
     let maps = dir.path().join("maps");
     // 5 x 3 mm at 10 um: 500 x 300 px, two levels.
     let size = (500, 300, 0.01);
-    common::kept_map(&maps, "line-1", ids[0], size, &deposits, t);
-    common::kept_map(&maps, "line-1", ids[1], size, &deposits, t);
+    common::kept_map(&maps, "line-1", (ids[0], 0xd1), size, &deposits, t);
+    common::kept_map(&maps, "line-1", (ids[1], 0xd2), size, &deposits, t);
     // Board 1's map damaged: cut short.
     let (png1, _) = dpsa_formats::kept_map::paths(&maps, "line-1", ids[1]);
     let bytes = std::fs::read(&png1).unwrap();
     std::fs::write(&png1, &bytes[..bytes.len() - 100]).unwrap();
     // Another line's map under an id this line has no map of.
-    common::kept_map(&maps, "line-2", ids[2], size, &deposits, t);
+    common::kept_map(&maps, "line-2", (ids[2], 0xd3), size, &deposits, t);
+    // Under board 2's id in this line, the map of a board of another store (run 0x99).
+    common::kept_map(&maps, "line-1", (ids[2], 0x99), size, &deposits, t);
     // A board the design could not be registered on: incomplete, its map kept without a
     // registration; and an incomplete board without a map.
     let mut s = Store::open(&loc, "line-1").unwrap();
@@ -666,7 +671,14 @@ fn the_board_page_zooms_and_pans_over_its_kept_map() {
         incomplete.push(id);
     }
     drop(s);
-    common::kept_map(&maps, "line-1", incomplete[0], size, &deposits, None);
+    common::kept_map(
+        &maps,
+        "line-1",
+        (incomplete[0], 0xd4),
+        size,
+        &deposits,
+        None,
+    );
 
     let mut site = Site::new(loc.clone(), "line-1");
     site.designs = std::sync::Arc::new(dpsa_web::board_view::Designs::from(vec![design]));
@@ -677,10 +689,11 @@ fn the_board_page_zooms_and_pans_over_its_kept_map() {
     // The page: the viewer and its script; the calls placed on the map's pixels (u along
     // board x, v down from the map's top edge at y = 3 mm), the passed pad not marked.
     let b = ids[0];
+    const RUN: &str = "00000000000000d1";
     let (st, _, page) = get(&addr, &format!("/board/{b}"));
     assert_eq!(st, 200);
     assert!(
-        page.contains(&format!("data-map=\"/board/{b}/map.json\"")),
+        page.contains(&format!("data-map=\"/board/{b}/map/{RUN}/info.json\"")),
         "{page}"
     );
     assert!(page.contains("<script src=\"/js/mapview.js\"></script>"));
@@ -705,7 +718,7 @@ fn the_board_page_zooms_and_pans_over_its_kept_map() {
 
     // The description: the map turned (5 mm of x across), two levels, the scale from the
     // bare board (0) to the paste's top (100 um).
-    let (st, _, info) = get(&addr, &format!("/board/{b}/map.json"));
+    let (st, _, info) = get(&addr, &format!("/board/{b}/map/{RUN}/info.json"));
     assert_eq!(st, 200, "{info}");
     let info: serde_json::Value = serde_json::from_str(&info).unwrap();
     assert_eq!(
@@ -733,7 +746,7 @@ fn the_board_page_zooms_and_pans_over_its_kept_map() {
         let (st, hd, png) = request(
             &addr,
             "GET",
-            &format!("/board/{b}/map/{z}/{tx}/{ty}.png"),
+            &format!("/board/{b}/map/{RUN}/{z}/{tx}/{ty}.png"),
             &[],
             "",
         );
@@ -771,46 +784,71 @@ fn the_board_page_zooms_and_pans_over_its_kept_map() {
     // Nothing else under the map: levels, tiles and names that are not there, text where a
     // number goes, traversal, another line's map, a board without one.
     for path in [
-        format!("/board/{b}/map/2/0/0.png"),
-        format!("/board/{b}/map/1/2/0.png"),
-        format!("/board/{b}/map/1/0/2.png"),
-        format!("/board/{b}/map/1/0/0.jpg"),
-        format!("/board/{b}/map/1/0/-1.png"),
-        format!("/board/{b}/map/x/0/0.png"),
-        format!("/board/{b}/map/1/0/..%2f..%2fline.sqlite"),
-        format!("/board/{b}/map/../../../line.sqlite"),
-        format!("/board/{b}/map/%2e%2e/0/0.png"),
-        format!("/board/{b}/map"),
-        format!("/board/{}/map.json", ids[2]),
-        format!("/board/{}/map/0/0/0.png", ids[2]),
-        "/board/9999/map.json".to_owned(),
+        format!("/board/{b}/map/{RUN}/2/0/0.png"),
+        format!("/board/{b}/map/{RUN}/1/2/0.png"),
+        format!("/board/{b}/map/{RUN}/1/0/2.png"),
+        format!("/board/{b}/map/{RUN}/1/0/0.jpg"),
+        format!("/board/{b}/map/{RUN}/1/0/-1.png"),
+        format!("/board/{b}/map/{RUN}/x/0/0.png"),
+        format!("/board/{b}/map/{RUN}/1/0/..%2f..%2fline.sqlite"),
+        format!("/board/{b}/map/{RUN}/../../../line.sqlite"),
+        format!("/board/{b}/map/{RUN}/%2e%2e/0/0.png"),
+        format!("/board/{b}/map/{RUN}/map.json"),
+        format!("/board/{b}/map/{RUN}"),
+        format!("/board/{b}/map.json"),
+        format!("/board/{b}/map/00000000000000D1/info.json"),
+        format!("/board/{b}/map/d1/info.json"),
+        format!("/board/{b}/map/00000000000000d2/info.json"),
+        format!("/board/{b}/map/00000000000000d2/0/0/0.png"),
+        format!("/board/{}/map/00000000000000d3/info.json", ids[2]),
+        format!("/board/{}/map/00000000000000d3/0/0/0.png", ids[2]),
+        format!("/board/{}/map/0000000000000099/info.json", ids[2]),
+        "/board/9999/map/00000000000000d1/info.json".to_owned(),
     ] {
         let (st, _, _) = get(&addr, &path);
         assert_eq!(st, 404, "{path}");
     }
+    // The map under board 2's id is another store's board's: not shown, said.
+    let (_, _, page) = get(&addr, &format!("/board/{}", ids[2]));
+    assert!(
+        page.contains("is of another board (run 0000000000000099): not shown")
+            && !page.contains("data-map="),
+        "{page}"
+    );
     // The unregistered board's map is shown, nothing marked on it, and said so; the other
     // incomplete board shows no map and says nothing of one.
     let (_, _, page) = get(&addr, &format!("/board/{}", incomplete[0]));
     assert!(
-        page.contains(&format!("data-map=\"/board/{}/map.json\"", incomplete[0]))
-            && page.contains("could not be registered on this map")
+        page.contains(&format!(
+            "data-map=\"/board/{}/map/00000000000000d4/info.json\"",
+            incomplete[0]
+        )) && page.contains("could not be registered on this map")
             && !page.contains("class=\"mapcall"),
         "{page}"
     );
-    let (st, _, _) = get(&addr, &format!("/board/{}/map.json", incomplete[0]));
+    let (st, _, _) = get(
+        &addr,
+        &format!("/board/{}/map/00000000000000d4/info.json", incomplete[0]),
+    );
     assert_eq!(st, 200);
     let (_, _, page) = get(&addr, &format!("/board/{}", incomplete[1]));
     assert!(!page.contains("The measured map"), "{page}");
     // A board without a kept map says so; a damaged one is said, never drawn.
-    let (_, _, page) = get(&addr, &format!("/board/{}", ids[2]));
+    let (_, _, page) = get(&addr, &format!("/board/{}", ids[3]));
     assert!(page.contains("Not kept for this board"), "{page}");
-    let (st, _, body) = get(&addr, &format!("/board/{}/map.json", ids[1]));
+    let (st, _, body) = get(
+        &addr,
+        &format!("/board/{}/map/00000000000000d2/info.json", ids[1]),
+    );
     assert_eq!(st, 503);
     assert!(
         body.contains("kept map cannot be read") && body.contains("bytes where"),
         "{body}"
     );
-    let (st, _, _) = get(&addr, &format!("/board/{}/map/0/0/0.png", ids[1]));
+    let (st, _, _) = get(
+        &addr,
+        &format!("/board/{}/map/00000000000000d2/0/0/0.png", ids[1]),
+    );
     assert_eq!(st, 503);
     stop.send(()).unwrap();
     h.join().unwrap();
@@ -819,7 +857,7 @@ fn the_board_page_zooms_and_pans_over_its_kept_map() {
     let (addr, stop, h) = serve(Site::new(loc, "line-1"));
     let (_, _, page) = get(&addr, &format!("/board/{b}"));
     assert!(!page.contains("The measured map"), "{page}");
-    let (st, _, _) = get(&addr, &format!("/board/{b}/map.json"));
+    let (st, _, _) = get(&addr, &format!("/board/{b}/map/{RUN}/info.json"));
     assert_eq!(st, 404);
     stop.send(()).unwrap();
     h.join().unwrap();

@@ -284,13 +284,14 @@ pub fn header<'a>(h: &'a [(String, String)], name: &str) -> Option<&'a str> {
     h.iter().find(|(k, _)| k == name).map(|(_, v)| v.as_str())
 }
 
-/// Keeps a measured map for line `line`'s board `board` in `dir` as the line does: `rows x
+/// Keeps a measured map for line `line`'s board `board` of run id `run` in `dir` as the line
+/// does: `rows x
 /// width` pixels of `pitch_mm` from the board's origin, a board bowed by 20 um along x, and a
 /// 100 um deposit of 0.4 x 0.3 mm centred on each of `deposits` (board mm).
 pub fn kept_map(
     dir: &std::path::Path,
     line: &str,
-    board: i64,
+    (board, run): (i64, u64),
     (rows, width, pitch_mm): (usize, usize, f64),
     deposits: &[(f64, f64)],
     design_to_board: Option<dpsa_formats::kept_map::DesignToBoard>,
@@ -319,8 +320,7 @@ pub fn kept_map(
     }
     let heights = dpsa_formats::grid::Grid { width, rows, data };
     std::fs::create_dir_all(dir).unwrap();
-    dpsa_formats::kept_map::write(dir, line, board, 0x5eed, &grid, &heights, design_to_board)
-        .unwrap()
+    dpsa_formats::kept_map::write(dir, line, board, run, &grid, &heights, design_to_board).unwrap()
 }
 
 /// The test's program: three openings (a 0.6 x 0.3 mm rectangle at (1, 1) and (2, 1), a
