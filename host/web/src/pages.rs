@@ -61,7 +61,8 @@ fn map_section(
         Ok(None) => {
             body.push_str(
                 "<h2>The measured map</h2><p class=\"note\">Not kept for this board: the line \
-                 keeps the newest boards' maps only (LINE.toml's [maps] keep_boards).</p>",
+                 keeps its newest boards' maps only (LINE.toml's [maps] keep_boards), each \
+                 written just after its board is stored (reload).</p>",
             );
             return;
         }
