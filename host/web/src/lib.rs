@@ -219,25 +219,42 @@ fn respond(status: StatusCode, content_type: &'static str, body: impl IntoRespon
 
 const HTML: &str = "text/html; charset=utf-8";
 
+/// What a route makes on the blocking pool, served: `Some` with `content_type`, `None` a 404,
+/// an error a 503 page that says `failed` and why (logged), a panic a 500. The one shape of
+/// every route that reads the store or a kept map.
+async fn on_pool<B, E>(
+    content_type: &'static str,
+    (title, failed): (&'static str, &'static str),
+    make: impl FnOnce() -> Result<Option<B>, E> + Send + 'static,
+) -> Response
+where
+    B: IntoResponse + Send + 'static,
+    E: std::fmt::Display + Send + 'static,
+{
+    match tokio::task::spawn_blocking(make).await {
+        Ok(Ok(Some(body))) => respond(StatusCode::OK, content_type, body),
+        Ok(Ok(None)) => not_found().await,
+        Ok(Err(e)) => {
+            tracing::error!("{failed}: {e}");
+            message(
+                StatusCode::SERVICE_UNAVAILABLE,
+                title,
+                &format!("{failed}: {e}"),
+            )
+        }
+        Err(e) => message(StatusCode::INTERNAL_SERVER_ERROR, "Error", &e.to_string()),
+    }
+}
+
+/// What a route that reads the store says when it cannot.
+const STORE: (&str, &str) = ("Store unavailable", "The store could not be read");
+
 /// A page rendered on the blocking pool, or its error page.
 async fn page(
     site: Arc<Site>,
     render: impl FnOnce(&Site) -> Result<Option<String>, pages::PageError> + Send + 'static,
 ) -> Response {
-    let out = tokio::task::spawn_blocking(move || render(&site)).await;
-    match out {
-        Ok(Ok(Some(body))) => respond(StatusCode::OK, HTML, body),
-        Ok(Ok(None)) => not_found().await,
-        Ok(Err(e)) => {
-            tracing::error!("page: {e}");
-            message(
-                StatusCode::SERVICE_UNAVAILABLE,
-                "Store unavailable",
-                &format!("The store could not be read: {e}"),
-            )
-        }
-        Err(e) => message(StatusCode::INTERNAL_SERVER_ERROR, "Error", &e.to_string()),
-    }
+    on_pool(HTML, STORE, move || render(&site)).await
 }
 
 /// A page of one sentence (escaped here) with `status`.
@@ -275,24 +292,7 @@ async fn crop_png(
     let (Ok(id), Ok(pad)) = (id.parse::<i64>(), pad.parse::<u32>()) else {
         return not_found().await;
     };
-    let out = tokio::task::spawn_blocking(move || pages::crop_png(&site, id, pad)).await;
-    match out {
-        Ok(Ok(Some(bytes))) => respond(StatusCode::OK, "image/png", bytes),
-        Ok(Ok(None)) => not_found().await,
-        Ok(Err(e)) => {
-            tracing::error!("crop: {e}");
-            respond(
-                StatusCode::SERVICE_UNAVAILABLE,
-                "text/plain; charset=utf-8",
-                format!("the store could not be read: {e}"),
-            )
-        }
-        Err(e) => respond(
-            StatusCode::INTERNAL_SERVER_ERROR,
-            "text/plain; charset=utf-8",
-            e.to_string(),
-        ),
-    }
+    on_pool("image/png", STORE, move || pages::crop_png(&site, id, pad)).await
 }
 
 /// A review of a call: checked ([`review::check`]), stored, and the pad's page again (303).
@@ -376,20 +376,12 @@ async fn spc_product(State(site): State<Arc<Site>>, Path(product): Path<String>)
 }
 
 async fn spc_page(site: Arc<Site>, product: Option<String>) -> Response {
-    let out = tokio::task::spawn_blocking(move || spc::page(&site, product.as_deref())).await;
-    match out {
-        Ok(Ok(Some(body))) => respond(StatusCode::OK, HTML, body),
-        Ok(Ok(None)) => not_found().await,
-        Ok(Err(e)) => {
-            tracing::error!("spc: {e}");
-            message(
-                StatusCode::SERVICE_UNAVAILABLE,
-                "SPC unavailable",
-                &format!("The study could not be made: {e}"),
-            )
-        }
-        Err(e) => message(StatusCode::INTERNAL_SERVER_ERROR, "Error", &e.to_string()),
-    }
+    on_pool(
+        HTML,
+        ("SPC unavailable", "The study could not be made"),
+        move || spc::page(&site, product.as_deref()),
+    )
+    .await
 }
 
 /// An SPC chart as PNG (`spc::chart_png`), or a 404.
@@ -403,22 +395,12 @@ async fn spc_chart(
     ) else {
         return not_found().await;
     };
-    let out =
-        tokio::task::spawn_blocking(move || spc::chart_png(&site, &product, &kind, k, &metric))
-            .await;
-    match out {
-        Ok(Ok(Some(bytes))) => respond(StatusCode::OK, "image/png", bytes),
-        Ok(Ok(None)) => not_found().await,
-        Ok(Err(e)) => {
-            tracing::error!("spc chart: {e}");
-            message(
-                StatusCode::SERVICE_UNAVAILABLE,
-                "SPC unavailable",
-                &format!("The chart could not be drawn: {e}"),
-            )
-        }
-        Err(e) => message(StatusCode::INTERNAL_SERVER_ERROR, "Error", &e.to_string()),
-    }
+    on_pool(
+        "image/png",
+        ("SPC unavailable", "The chart could not be drawn"),
+        move || spc::chart_png(&site, &product, &kind, k, &metric),
+    )
+    .await
 }
 
 async fn style() -> Response {
@@ -462,21 +444,16 @@ async fn map_info(
     ) else {
         return not_found().await;
     };
-    let out = tokio::task::spawn_blocking(move || {
+    on_pool("application/json", MAP, move || {
         if !site.map_cache.has(id, &run) && !pages::board_has_run(&site, id, &run)? {
             return Ok(None);
         }
         site.map_cache
             .pyramid(&dir, &site.line, id, &run)
+            .map(|p| p.map(|p| p.json()))
             .map_err(MapError::Map)
     })
-    .await;
-    match out {
-        Ok(Ok(Some(p))) => respond(StatusCode::OK, "application/json", p.json()),
-        Ok(Ok(None)) => not_found().await,
-        Ok(Err(e)) => map_error(e),
-        Err(e) => message(StatusCode::INTERNAL_SERVER_ERROR, "Error", &e.to_string()),
-    }
+    .await
 }
 
 /// A tile of board `id`'s kept map of run `run` (`/board/ID/map/RUN/Z/X/Y.png`, every part
@@ -496,29 +473,24 @@ async fn map_tile(
     ) else {
         return not_found().await;
     };
-    let out = tokio::task::spawn_blocking(move || {
+    let mut r = on_pool("image/png", MAP, move || {
         if !site.map_cache.has(id, &run) && !pages::board_has_run(&site, id, &run)? {
             return Ok(None);
         }
         site.map_cache
             .tile_png(&dir, &site.line, id, &run, z, x, y)
+            .map(|t| t.map(|png| png.as_ref().clone()))
             .map_err(MapError::Map)
     })
     .await;
-    match out {
-        Ok(Ok(Some(png))) => {
-            let mut r = respond(StatusCode::OK, "image/png", png.as_ref().clone());
-            // A board's map never changes once kept, and its run is in the path.
-            r.headers_mut().insert(
-                header::CACHE_CONTROL,
-                HeaderValue::from_static("private, max-age=3600"),
-            );
-            r
-        }
-        Ok(Ok(None)) => not_found().await,
-        Ok(Err(e)) => map_error(e),
-        Err(e) => message(StatusCode::INTERNAL_SERVER_ERROR, "Error", &e.to_string()),
+    if r.status() == StatusCode::OK {
+        // A board's map never changes once kept, and its run is in the path.
+        r.headers_mut().insert(
+            header::CACHE_CONTROL,
+            HeaderValue::from_static("private, max-age=3600"),
+        );
     }
+    r
 }
 
 /// Why a map route could not answer.
@@ -532,15 +504,8 @@ enum MapError {
     Map(dpsa_formats::kept_map::KeptMapError),
 }
 
-/// A kept map (or the store) that cannot be read: said, never drawn.
-fn map_error(e: MapError) -> Response {
-    tracing::error!("map: {e}");
-    respond(
-        StatusCode::SERVICE_UNAVAILABLE,
-        "text/plain; charset=utf-8",
-        e.to_string(),
-    )
-}
+/// What the map routes say when the store or the kept map cannot be read (never drawn).
+const MAP: (&str, &str) = ("Map unavailable", "The map could not be drawn");
 
 async fn view3d_js() -> Response {
     script(view3d::SCRIPT)
@@ -568,17 +533,10 @@ async fn heights_json(
     let (Ok(id), Ok(pad)) = (id.parse::<i64>(), pad.parse::<u32>()) else {
         return not_found().await;
     };
-    let out = tokio::task::spawn_blocking(move || pages::heights_json(&site, id, pad)).await;
-    match out {
-        Ok(Ok(Some(body))) => respond(StatusCode::OK, "application/json", body),
-        Ok(Ok(None)) => not_found().await,
-        Ok(Err(e)) => message(
-            StatusCode::SERVICE_UNAVAILABLE,
-            "Store unavailable",
-            &format!("The store could not be read: {e}"),
-        ),
-        Err(e) => message(StatusCode::INTERNAL_SERVER_ERROR, "Error", &e.to_string()),
-    }
+    on_pool("application/json", STORE, move || {
+        pages::heights_json(&site, id, pad)
+    })
+    .await
 }
 
 async fn icon() -> Response {
