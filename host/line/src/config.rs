@@ -208,8 +208,9 @@ impl CfxEntry {
     }
 }
 
-/// `[maps]`: the newest inspected boards' measured maps, kept for the board page's zoom and
-/// pan (`dpsa_formats::kept_map`: about 45 MB a paper board).
+/// `[maps]`: the newest finished boards' measured maps (inspected, or left incomplete because
+/// the design could not be registered on them), kept for the board page's zoom and pan
+/// (`dpsa_formats::kept_map`: about 45 MB a paper board).
 #[derive(Clone, Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct MapsEntry {

@@ -95,9 +95,9 @@ pub struct Tally {
     /// Resident memory when board 1, 10, 100, ... was stored, MB: flat memory shows as the
     /// same figure from a hundred boards on.
     pub rss_by_boards: std::collections::BTreeMap<usize, f64>,
-    /// Inspected boards whose measured map was kept (`[maps]`).
+    /// Finished boards whose measured map was kept (`[maps]`).
     pub maps_kept: usize,
-    /// Inspected boards whose map was not kept (the writer busy, or a write that failed).
+    /// Finished boards whose map was not kept (the writer busy, or a write that failed).
     pub maps_not_kept: usize,
 }
 

@@ -59,9 +59,10 @@ pub struct Summary {
     /// Resident memory when board 1, 10, 100, ... was stored, MB (flat memory: the same
     /// figure from a hundred boards on).
     pub rss_by_boards_mb: std::collections::BTreeMap<usize, f64>,
-    /// Inspected boards whose measured map was kept for the pages (`[maps]`).
+    /// Finished boards (inspected, or left incomplete by a failed registration) whose measured
+    /// map was kept for the pages (`[maps]`).
     pub maps_kept: usize,
-    /// Inspected boards whose map was not kept (the writer busy, or a write that failed).
+    /// Such boards whose map was not kept (the writer busy, or a write that failed).
     pub maps_not_kept: usize,
     /// Peak resident memory of the whole run (`VmHWM`), MB.
     pub peak_rss_mb: Option<f64>,
