@@ -294,28 +294,30 @@ pub fn read(dir: &Path, line: &str, board: i64) -> Result<Option<(KeptMap, Grid)
     Ok(Some((k, Grid { width, rows, data })))
 }
 
+/// The names of the entries of `dir` (none when `dir` is missing).
+fn names_in(dir: &Path) -> std::io::Result<Vec<String>> {
+    match std::fs::read_dir(dir) {
+        Ok(entries) => entries
+            .map(|e| e.map(|e| e.file_name().to_string_lossy().into_owned()))
+            .collect(),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(Vec::new()),
+        Err(e) => Err(e),
+    }
+}
+
 /// Line `line`'s board ids with a kept map in `dir` (their JSON present), ascending; none
 /// when `dir` is missing.
 pub fn kept(dir: &Path, line: &str) -> std::io::Result<Vec<i64>> {
     let prefix = format!("{line}.board-");
-    let mut ids = Vec::new();
-    let entries = match std::fs::read_dir(dir) {
-        Ok(e) => e,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(ids),
-        Err(e) => return Err(e),
-    };
-    for e in entries {
-        let name = e?.file_name();
-        let Some(id) = name
-            .to_str()
-            .and_then(|n| n.strip_prefix(prefix.as_str()))
-            .and_then(|n| n.strip_suffix(".json"))
-            .and_then(|n| n.parse::<i64>().ok())
-        else {
-            continue;
-        };
-        ids.push(id);
-    }
+    let mut ids: Vec<i64> = names_in(dir)?
+        .iter()
+        .filter_map(|n| {
+            n.strip_prefix(prefix.as_str())?
+                .strip_suffix(".json")?
+                .parse::<i64>()
+                .ok()
+        })
+        .collect();
     ids.sort_unstable();
     Ok(ids)
 }
@@ -326,14 +328,7 @@ pub fn kept(dir: &Path, line: &str) -> std::io::Result<Vec<i64>> {
 pub fn remove_unfinished(dir: &Path, line: &str) -> std::io::Result<Vec<String>> {
     let prefix = format!(".{line}.board-");
     let mut gone = Vec::new();
-    let entries = match std::fs::read_dir(dir) {
-        Ok(e) => e,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(gone),
-        Err(e) => return Err(e),
-    };
-    for e in entries {
-        let e = e?;
-        let name = e.file_name().to_string_lossy().into_owned();
+    for name in names_in(dir)? {
         // Line "a"'s prefix may start line "a.board-5"'s names: the id and one of the two
         // files' names must follow.
         let ours = name.strip_prefix(prefix.as_str()).is_some_and(|rest| {
@@ -342,8 +337,9 @@ pub fn remove_unfinished(dir: &Path, line: &str) -> std::io::Result<Vec<String>>
                     && (file.starts_with("heights.png.") || file.starts_with("json."))
             })
         });
-        if ours && e.file_type()?.is_file() {
-            std::fs::remove_file(e.path())?;
+        let path = dir.join(&name);
+        if ours && std::fs::symlink_metadata(&path)?.is_file() {
+            std::fs::remove_file(path)?;
             gone.push(name);
         }
     }

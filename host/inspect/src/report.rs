@@ -923,18 +923,23 @@ mod tests {
     use dpsa_formats::grid::{BoardGrid, Grid};
     use dpsa_gerber::pads::Outline;
 
-    /// Board x runs to the right and y up: a failure at the board's right top shows there,
-    /// ringed in red; a passing opening is outlined in green; a fiducial is ringed in cyan;
-    /// the image has its margins.
-    #[test]
-    fn the_overview_is_the_design_view_with_its_calls_ringed() {
-        let g = BoardGrid {
+    /// The overview tests' board: 20 x 15 mm at 50 um.
+    fn test_grid() -> BoardGrid {
+        BoardGrid {
             x0_mm: 0.0,
             y0_mm: 0.0,
             pitch_mm: 0.05,
             rows: 400,
             width: 300,
-        };
+        }
+    }
+
+    /// Board x runs to the right and y up: a failure at the board's right top shows there,
+    /// ringed in red; a passing opening is outlined in green; a fiducial is ringed in cyan;
+    /// the image has its margins.
+    #[test]
+    fn the_overview_is_the_design_view_with_its_calls_ringed() {
+        let g = test_grid();
         let map = BoardMap {
             board_id: None,
             grid: g,
@@ -995,13 +1000,7 @@ mod tests {
     /// is bright.
     #[test]
     fn the_overview_takes_out_the_bow() {
-        let g = BoardGrid {
-            x0_mm: 0.0,
-            y0_mm: 0.0,
-            pitch_mm: 0.05,
-            rows: 400,
-            width: 300,
-        };
+        let g = test_grid();
         let deposit = |x: f64, y: f64| (x - 10.0).abs() < 0.75 && (y - 7.5).abs() < 0.75;
         let data = (0..g.rows * g.width)
             .map(|k| {

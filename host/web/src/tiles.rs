@@ -514,23 +514,17 @@ mod tests {
         let rgba = decode(&png);
         assert_eq!(rgba[((10 * TILE) + (700 - 512)) * 4 + 3], 0);
         assert_eq!(rgba[((10 * TILE) + (699 - 512)) * 4 + 3], 255);
-        // Level 0 is one tile; a tile past the pyramid is none.
-        assert!(cache
-            .tile_png(dir.path(), "l", 7, RUN, 0, 0, 0)
-            .unwrap()
-            .is_some());
-        assert!(cache
-            .tile_png(dir.path(), "l", 7, RUN, 0, 1, 0)
-            .unwrap()
-            .is_none());
-        assert!(cache
-            .tile_png(dir.path(), "l", 7, RUN, 3, 0, 0)
-            .unwrap()
-            .is_none());
-        assert!(cache
-            .tile_png(dir.path(), "l", 8, RUN, 0, 0, 0)
-            .unwrap()
-            .is_none());
+        // Level 0 is one tile; a tile past the pyramid, or of a board without a map, is none.
+        let there = |board: i64, z: u8, x: u32| {
+            cache
+                .tile_png(dir.path(), "l", board, RUN, z, x, 0)
+                .unwrap()
+                .is_some()
+        };
+        assert!(there(7, 0, 0));
+        assert!(!there(7, 0, 1));
+        assert!(!there(7, 3, 0));
+        assert!(!there(8, 0, 0));
     }
 
     #[test]
