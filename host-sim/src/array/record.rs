@@ -57,6 +57,11 @@ pub fn inspection_program(scene: &ArrayScene) -> crate::inspection::program::Pro
             / 2.0;
     p.fiducials.search_mm = (reach + 0.5).clamp(0.5, 20.0);
     p.truth = Some(PRINT_FILE.to_string());
+    if let Some(m) = scene.scatter {
+        p.measure.lateral_sigma_um = m.lateral_sigma_um;
+        p.measure.row_sigma_um = m.row_sigma_um;
+        p.measure.row_correlation = m.row_correlation;
+    }
     p
 }
 

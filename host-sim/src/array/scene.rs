@@ -292,6 +292,13 @@ pub struct ArrayScene {
     pub print: PrintParams,
     /// Where the design lands on the board, and its random placement error.
     pub placement: ScenePlacement,
+    /// The machine's scatter of a measured point as `dpsa grr`'s pixel study finds it on this
+    /// machine (`pixels` in its JSON), written into the board's inspection program
+    /// (`measure.lateral_sigma_um`, `.row_sigma_um`, `.row_correlation`) so that each pad's
+    /// stated uncertainty is this machine's; absent: the program's defaults (the small
+    /// array's figures).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scatter: Option<MachineScatter>,
     /// Directory of the scene file (`paste_layer` is relative to it); set by [`Self::load`].
     #[serde(skip)]
     pub scene_dir: Option<PathBuf>,
@@ -358,6 +365,7 @@ impl Default for ArrayScene {
             fiducial_diameter_mm: 1.0,
             print: PrintParams::default(),
             placement: ScenePlacement::default(),
+            scatter: None,
             scene_dir: None,
         }
     }
@@ -454,6 +462,18 @@ fn finite_in(v: f64, lo: f64, hi: f64, knob: &str) -> Result<(), ArraySceneError
     check(v.is_finite() && (lo..=hi).contains(&v), knob, || {
         format!("{v}, expected a finite value in {lo}..={hi}")
     })
+}
+
+/// A machine's scatter of a measured point (`[scatter]`, see [`ArrayScene::scatter`]).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct MachineScatter {
+    /// A pixel's scatter along the slope it lies on, um (0..=100).
+    pub lateral_sigma_um: f64,
+    /// A whole row's scatter along the motion, um (0..=100).
+    pub row_sigma_um: f64,
+    /// The correlation of neighbouring rows' shifts (0..=1).
+    pub row_correlation: f64,
 }
 
 /// `true` if the TOML text describes an array (it has a `cameras` table array).
@@ -571,6 +591,11 @@ impl ArrayScene {
         )?;
         finite_in(self.mean_step_px, 0.5, 1000.0, "mean_step_px")?;
         finite_in(self.jitter_pct, 0.0, 99.0, "jitter_pct")?;
+        if let Some(m) = &self.scatter {
+            finite_in(m.lateral_sigma_um, 0.0, 100.0, "scatter.lateral_sigma_um")?;
+            finite_in(m.row_sigma_um, 0.0, 100.0, "scatter.row_sigma_um")?;
+            finite_in(m.row_correlation, 0.0, 1.0, "scatter.row_correlation")?;
+        }
         finite_in(self.pixel_mm, 1e-4, 10.0, "pixel_mm")?;
         finite_in(self.blur_px, 0.0, 5.0, "blur_px")?;
         finite_in(self.truth_pitch_mm, 1e-3, 10.0, "truth_pitch_mm")?;
@@ -939,6 +964,28 @@ mod tests {
         }
         let last = paper.cameras.last().unwrap();
         assert!(last.y_mm + 2048.0 * paper.pixel_mm >= 168.0);
+        // The paper machine's own scatter reaches its boards' program; the small array's
+        // boards take the program's defaults.
+        let scatter = paper
+            .scatter
+            .expect("the paper board states its machine's scatter");
+        let m = crate::array::record::inspection_program(&paper).measure;
+        assert_eq!(
+            (m.lateral_sigma_um, m.row_sigma_um, m.row_correlation),
+            (
+                scatter.lateral_sigma_um,
+                scatter.row_sigma_um,
+                scatter.row_correlation
+            )
+        );
+        let small = ArrayScene::load(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/array-paste.toml"),
+        )
+        .unwrap();
+        assert_eq!(
+            crate::array::record::inspection_program(&small).measure,
+            dpsa_inspect::program::Measure::default()
+        );
     }
 
     #[test]
@@ -971,6 +1018,10 @@ mod tests {
             ),
             ("paste_layer = \"x.gbr\"\ndeposits = 5\n[[cameras]]\n", "deposits"),
             ("fiducials = [[1.0, 1.0]]\n[[cameras]]\n", "fiducials"),
+            (
+                "[scatter]\nlateral_sigma_um = 1.0\nrow_sigma_um = 3.0\nrow_correlation = 1.5\n[[cameras]]\n",
+                "scatter.row_correlation",
+            ),
             ("[print.defects]\nmissing = 1\n[[cameras]]\n", "print.defects"),
             (
                 "paste_layer = \"x.gbr\"\ndeposits = 0\nfiducial_diameter_mm = 0.0\n[[cameras]]\n",

@@ -213,6 +213,7 @@ mod tests {
                 first_row: 0,
                 lost: Vec::new(),
                 period_um: period,
+                reference_rad: Vec::new(),
                 placement: place,
             });
         }

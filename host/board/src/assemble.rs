@@ -32,6 +32,10 @@ pub struct CameraRows {
     pub first_row: i64,
     /// Height per turn of each column, um.
     pub period_um: Vec<f32>,
+    /// The core's reference phase of each column, rad: with the rows' sample places
+    /// ([`RowPlaces::samples`]) each pixel's own place is taken out of its height
+    /// ([`crate::places`]); empty: not.
+    pub reference_rad: Vec<f32>,
     /// Where the camera's pixels lie on the board (its lateral calibration).
     pub placement: CameraPlacement,
     /// Rows of `heights` that never arrived (a stream's missing or damaged packets, its
@@ -80,6 +84,8 @@ pub struct CameraFeed {
     pub first_row: i64,
     /// Height per turn of each column, um.
     pub period_um: Vec<f32>,
+    /// The core's reference phase of each column, rad (see [`CameraRows::reference_rad`]).
+    pub reference_rad: Vec<f32>,
     /// Where the camera's pixels lie on the board.
     pub placement: CameraPlacement,
     /// Where each of its rows was seen (`None`: nominal).
@@ -94,8 +100,10 @@ pub struct CameraFeed {
 struct Cam {
     feed: CameraFeed,
     unwrapper: Unwrapper,
-    /// Unwrapped rows held, camera row `held0` first (up to the rows handed on).
+    /// Unwrapped rows held, camera row `held0` first (up to the rows handed on); those from
+    /// `settle.settled` on not yet settled ([`crate::places::Settle`]).
     held: Grid,
+    settle: crate::places::Settle,
     /// Variance rows from camera row `held0` (as many as pushed).
     variance: Option<Grid>,
     held0: usize,
@@ -140,10 +148,26 @@ impl Cam {
         lo..hi
     }
 
-    /// Whether the rows `need` are all unwrapped (or will never come).
+    /// Whether the rows `need` are all unwrapped and settled (or will never come).
     fn has(&self, need: &Range<usize>) -> bool {
-        let done = self.unwrapper.emitted();
-        need.end <= done || (self.ended && done == self.unwrapper.pushed())
+        let done = self.settle.settled;
+        need.end <= done
+            || (self.ended
+                && self.unwrapper.emitted() == self.unwrapper.pushed()
+                && done == self.held0 + self.held.rows)
+    }
+
+    /// Takes each pixel's own place out of the rows unwrapped so far (see [`crate::places`]).
+    fn settle(&mut self) {
+        let last_known = self.ended && self.unwrapper.emitted() == self.unwrapper.pushed();
+        self.settle.rows(
+            &mut self.held,
+            self.held0,
+            self.feed.places.as_ref(),
+            &self.feed.reference_rad,
+            &self.feed.period_um,
+            last_known,
+        );
     }
 
     /// Drops the held rows before camera row `row`, once they are at least as many as the
@@ -151,6 +175,7 @@ impl Cam {
     /// rows needed are held).
     fn drop_before(&mut self, row: usize) {
         let w = self.held.width;
+        let row = row.min(self.settle.settled);
         let k = row.saturating_sub(self.held0).min(self.held.rows);
         if k == 0 || 2 * k < self.held.rows {
             return;
@@ -208,6 +233,7 @@ impl Stitcher {
                         MARGIN_ROWS,
                     ),
                     held: Grid::invalid(w, 0),
+                    settle: crate::places::Settle::default(),
                     variance: feed.variance.then(|| Grid::invalid(w, 0)),
                     held0: 0,
                     ended: false,
@@ -263,9 +289,13 @@ impl Stitcher {
         let pl = feed.places.get_or_insert_with(|| RowPlaces {
             along: Vec::new(),
             across: Vec::new(),
+            samples: Vec::new(),
         });
+        // Rows without sample places (none given) are seen at their row's place.
+        pl.samples.resize(pl.along.len(), Default::default());
         pl.along.extend(places.along.iter().map(|a| a + offset));
         pl.across.extend_from_slice(&places.across);
+        pl.samples.extend_from_slice(&places.samples);
     }
 
     /// No more rows come from camera `cam`.
@@ -283,9 +313,14 @@ impl Stitcher {
                         c.held.data.extend_from_slice(&g.data);
                         c.held.rows += g.rows;
                     }
+                    c.settle();
                 });
             }
         });
+        // A camera that ended with nothing left to unwrap still settles its last row.
+        for c in &mut self.cams {
+            c.settle();
+        }
         self.timing.unwrap_s += t0.elapsed().as_secs_f64();
         while self.next < self.grid.rows {
             let band = self.next..(self.next + self.band_rows).min(self.grid.rows);
@@ -406,6 +441,7 @@ pub fn assemble_in(
         .map(|c| CameraFeed {
             first_row: c.first_row,
             period_um: c.period_um.clone(),
+            reference_rad: c.reference_rad.clone(),
             placement: c.placement,
             places: c.places.clone(),
             lost: c.lost.clone(),
@@ -513,9 +549,11 @@ mod tests {
                     places: (k == 1).then(|| RowPlaces {
                         along,
                         across: vec![0.0; rows],
+                        samples: Vec::new(),
                     }),
                     first_row: 0,
                     period_um: period,
+                    reference_rad: Vec::new(),
                     placement: place,
                     lost,
                 }

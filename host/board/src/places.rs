@@ -1,5 +1,26 @@
 //! Where a camera's rows were seen: the row places that the provenance of a board recording
-//! (its latches replayed) gives, and that the resampling uses instead of the nominal placement.
+//! (its latches replayed) gives, and that the resampling uses instead of the nominal placement;
+//! and where, within its row, each pixel's height was seen ([`SamplePlace`], [`Settle`]).
+//!
+//! The core registers whole rows (`o_k = round(latch_k / cpp)`), so the board point behind
+//! board row `b` lies `e_k = latch_k / cpp - o_k` rows off `b` in window frame `k`
+//! (`|e_k| <= 1/2`). On a flat board that does not matter; on a deposit's wall the height
+//! changes along the motion and the least squares blend the `n` points. To first order in the
+//! slope the pixel's height is the height at `b + d`, with
+//!
+//! ```text
+//! d = sum_k c_k e_k,   c_k = -(cos Phi P_3k - sin Phi P_2k) sin(Phi + theta_k),   sum_k c_k = 1
+//! ```
+//!
+//! (`P` the window's least-squares rows, `theta_k` its shifts, `Phi` the pixel's measured
+//! phase; from `dPhi = (v_2 dv_3 - v_3 dv_2) / C^2` with `di_k = -C sin(Phi + theta_k) Phi'
+//! e_k`). Written out, `d = a + p cos 2 Phi + q sin 2 Phi` with three numbers per row: the
+//! row's place ([`RowPlaces::along`]) takes `mean_k e_k` (what every pixel of the row shares
+//! on average), the rest differs from pixel to pixel with the phase, by about `0.3 / sqrt(2n)`
+//! rows rms. [`Settle`] takes that rest out of each pixel's height with the local slope along
+//! the motion: `h(b + m) = h(b + d) - (d - m) dh/db`. Left out: the reflectance and the
+//! fringe contrast also change across a wall and bend the phase by a few hundredths of a
+//! radian more (`docs/board.md`).
 
 /// Where a camera's rows were seen ([`crate::provenance::row_places`] makes them).
 #[derive(Clone, Debug, PartialEq)]
@@ -10,4 +31,392 @@ pub struct RowPlaces {
     /// How far the board point of column `c` of row `i` lies from the nominal column, px:
     /// the point the placement puts at column `c` is at column `c - across[i]`.
     pub across: Vec<f64>,
+    /// Where each pixel's height was seen against `along` (empty: at `along`, every row).
+    pub samples: Vec<SamplePlace>,
+}
+
+/// How far the pixels of one row were seen from the row's place, rows: `offset + cos2 cos 2
+/// Phi + sin2 sin 2 Phi`, with `Phi = fringe_rad + ref(c) + 2 pi h / T(c)` the pixel's
+/// measured phase (`ref` the core's reference phase of column `c`, `h` the height, `T` the
+/// height per turn). All zero for a row whose window is unknown.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SamplePlace {
+    /// The fringe's phase at the row in its window's first frame, `2 pi (b - o_0) / period`,
+    /// rad.
+    pub fringe_rad: f32,
+    /// `a - mean_k e_k` (see the module docs), rows.
+    pub offset: f32,
+    /// `p`, rows.
+    pub cos2: f32,
+    /// `q`, rows.
+    pub sin2: f32,
+}
+
+impl SamplePlace {
+    /// The place of a window with shifts from the row offsets `o` (its frames'), sub-row
+    /// travels `e` (as many) and the core's fringe period `period_px`; board row `b`. `None`
+    /// when the shifts do not determine a phase (fewer than three, or all alike).
+    pub fn of_window(b: i64, o: &[i64], e: &[f64], period_px: f64) -> Option<SamplePlace> {
+        let n = o.len().min(e.len());
+        if n < 3 || !(period_px.is_finite() && period_px > 0.0) {
+            return None;
+        }
+        let turn = std::f64::consts::TAU / period_px;
+        let (mut cs, mut sn) = (vec![0.0; n], vec![0.0; n]);
+        for k in 0..n {
+            let th = -((o[k] - o[0]) as f64) * turn;
+            (sn[k], cs[k]) = th.sin_cos();
+        }
+        // The centred least squares (core/src/solve.rs): u = cos - mean, w = -(sin - mean).
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / n as f64;
+        let (mc, ms) = (mean(&cs), mean(&sn));
+        let u: Vec<f64> = cs.iter().map(|c| c - mc).collect();
+        let w: Vec<f64> = sn.iter().map(|s| -(s - ms)).collect();
+        let (suu, suw, sww) = (0..n).fold((0.0, 0.0, 0.0), |(a, b, c), k| {
+            (a + u[k] * u[k], b + u[k] * w[k], c + w[k] * w[k])
+        });
+        let det = suu * sww - suw * suw;
+        let singular = det.abs() <= 1e-9 * (suu * sww).max(1e-300);
+        if singular || !det.is_finite() {
+            return None;
+        }
+        let (mut a, mut bb, mut c, mut d) = (0.0, 0.0, 0.0, 0.0);
+        for k in 0..n {
+            let p2 = (sww * u[k] - suw * w[k]) / det;
+            let p3 = (suu * w[k] - suw * u[k]) / det;
+            a += p3 * cs[k] * e[k];
+            bb += p3 * sn[k] * e[k];
+            c += p2 * cs[k] * e[k];
+            d += p2 * sn[k] * e[k];
+        }
+        let m = mean(&e[..n]);
+        Some(SamplePlace {
+            fringe_rad: (((b - o[0]) as f64 * turn) % std::f64::consts::TAU) as f32,
+            offset: ((c - bb) / 2.0 - m) as f32,
+            cos2: (-(bb + c) / 2.0) as f32,
+            sin2: (-(a - d) / 2.0) as f32,
+        })
+    }
+
+    /// Rows off the row's place of a pixel of column phase `ref_rad` (the core's reference)
+    /// and height `h_um` in a column of `period_um` per turn.
+    #[inline]
+    pub fn at(&self, ref_rad: f32, h_um: f32, period_um: f32) -> f32 {
+        let turns = (self.fringe_rad + ref_rad) * (0.5 / std::f32::consts::PI) + h_um / period_um;
+        let (c, s) = cos_sin_turns(2.0 * turns);
+        self.offset + self.cos2 * c + self.sin2 * s
+    }
+}
+
+/// `cos`, `sin` of `2 pi t`, to about `4e-7`: reduced to an eighth of a turn, then the
+/// Taylor series to the ninth power (a pixel's place needs a few decimals; the library's
+/// `sin_cos` costs several times this over a board's millions of pixels).
+#[inline]
+fn cos_sin_turns(t: f32) -> (f32, f32) {
+    let x = t - t.round();
+    let q = (4.0 * x).round();
+    let a = (x - 0.25 * q) * std::f32::consts::TAU;
+    let a2 = a * a;
+    let s = a * (1.0 - a2 / 6.0 * (1.0 - a2 / 20.0 * (1.0 - a2 / 42.0 * (1.0 - a2 / 72.0))));
+    let c = 1.0 - a2 / 2.0 * (1.0 - a2 / 12.0 * (1.0 - a2 / 30.0 * (1.0 - a2 / 56.0)));
+    match (q as i32).rem_euclid(4) {
+        0 => (c, s),
+        1 => (-s, c),
+        2 => (-c, -s),
+        _ => (s, -c),
+    }
+}
+
+/// Takes each pixel's own place out of a camera's unwrapped rows, row after row as they come
+/// (see the module docs): row `i` once row `i + 1` is there (or the camera ended), from the
+/// rows as they came, so that whatever the chunks the same rows give the same heights.
+#[derive(Clone, Debug, Default)]
+pub struct Settle {
+    /// Row `settled - 1` as it came (before its own settling).
+    before: Vec<f32>,
+    /// Rows from the camera's first that are settled.
+    pub settled: usize,
+}
+
+impl Settle {
+    /// Settles the rows of `held` (camera rows from `held0`, `width` columns) that can be:
+    /// every one before the last, and the last too when `ended`. `places` gives every row's
+    /// place (rows past its end, or without samples, are left as they came); `reference_rad`
+    /// and `period_um` are per column (an empty `reference_rad`: nothing is changed).
+    pub fn rows(
+        &mut self,
+        held: &mut crate::Grid,
+        held0: usize,
+        places: Option<&RowPlaces>,
+        reference_rad: &[f32],
+        period_um: &[f32],
+        ended: bool,
+    ) {
+        let w = held.width;
+        let end = held0 + held.rows;
+        let last = if ended { end } else { end.saturating_sub(1) };
+        let usable = places.filter(|p| !p.samples.is_empty() && reference_rad.len() == w);
+        let Some(pl) = usable.filter(|_| period_um.len() == w) else {
+            self.settled = self.settled.max(last);
+            return;
+        };
+        let mut this = Vec::with_capacity(w);
+        while self.settled < last {
+            let i = self.settled;
+            let Some(k) = i.checked_sub(held0) else {
+                // Rows dropped unsettled (never the case in the stitcher): left as they are.
+                self.settled = held0;
+                self.before.clear();
+                continue;
+            };
+            this.clear();
+            this.extend_from_slice(&held.data[k * w..(k + 1) * w]);
+            let sp = pl.samples.get(i).copied().unwrap_or_default();
+            if sp != SamplePlace::default() {
+                let at = |j: usize| pl.along.get(j).copied();
+                let prev = (i > 0 && self.before.len() == w)
+                    .then(|| (&self.before[..], at(i - 1)))
+                    .and_then(|(r, a)| Some((r, a?)));
+                let (upto, after) = held.data.split_at_mut((k + 1) * w);
+                let next = (i + 1 < end)
+                    .then(|| (&after[..w], at(i + 1)))
+                    .and_then(|(r, a)| Some((r, a?)));
+                let here = at(i).unwrap_or(i as f64);
+                let row = &mut upto[k * w..];
+                for c in 0..w {
+                    let h = this[c];
+                    if !h.is_finite() {
+                        continue;
+                    }
+                    let fwd = next.map(|(r, a)| (r[c], a)).filter(|(v, _)| v.is_finite());
+                    let bwd = prev.map(|(r, a)| (r[c], a)).filter(|(v, _)| v.is_finite());
+                    let slope = match (bwd, fwd) {
+                        (Some((v0, a0)), Some((v1, a1))) => (v1 - v0) / (a1 - a0) as f32,
+                        (None, Some((v1, a1))) => (v1 - h) / (a1 - here) as f32,
+                        (Some((v0, a0)), None) => (h - v0) / (here - a0) as f32,
+                        (None, None) => continue,
+                    };
+                    if slope.is_finite() {
+                        row[c] = h - slope * sp.at(reference_rad[c], h, period_um[c]);
+                    }
+                }
+            }
+            std::mem::swap(&mut self.before, &mut this);
+            self.settled = i + 1;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Grid;
+    use std::f64::consts::TAU;
+
+    /// A small deterministic generator: uniform in `[0, 1)`.
+    struct Lcg(u64);
+    impl Lcg {
+        fn next(&mut self) -> f64 {
+            self.0 = self
+                .0
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (self.0 >> 11) as f64 / (1u64 << 53) as f64
+        }
+    }
+
+    /// A window of `n` frames about `step` rows apart (a step of 4 to 8 rows turns a fringe of
+    /// 10.3 rows by 140 to 280 degrees: a window the core takes) (with up to a quarter row of jitter),
+    /// their sub-row travels uniform in `[-1/2, 1/2)`: row offsets and travels.
+    fn window(rng: &mut Lcg, n: usize, step: f64) -> (Vec<i64>, Vec<f64>) {
+        let mut s = 100.0 + rng.next() * 10.0;
+        let (mut o, mut e) = (Vec::new(), Vec::new());
+        for _ in 0..n {
+            let ok = (s + 0.5f64).floor();
+            o.push(ok as i64);
+            e.push(s - ok);
+            s += step * (1.0 + 0.05 * (2.0 * rng.next() - 1.0));
+        }
+        (o, e)
+    }
+
+    /// The least-squares phase of samples `i` at shifts `th`, by the full normal equations
+    /// (rows `[1, cos, -sin]`, Cramer's rule): independent of the centred form above.
+    fn phase(i: &[f64], th: &[f64]) -> f64 {
+        let rows: Vec<[f64; 3]> = th.iter().map(|t| [1.0, t.cos(), -t.sin()]).collect();
+        let mut a = [[0.0; 3]; 3];
+        let mut y = [0.0; 3];
+        for (r, &v) in rows.iter().zip(i) {
+            for p in 0..3 {
+                y[p] += r[p] * v;
+                for q in 0..3 {
+                    a[p][q] += r[p] * r[q];
+                }
+            }
+        }
+        let det3 = |m: [[f64; 3]; 3]| {
+            m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+                - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+                + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+        };
+        let d = det3(a);
+        let col = |k: usize| {
+            let mut m = a;
+            for p in 0..3 {
+                m[p][k] = y[p];
+            }
+            det3(m) / d
+        };
+        col(2).atan2(col(1))
+    }
+
+    #[test]
+    fn cos_sin_of_turns_match_the_library() {
+        let mut worst = 0.0f64;
+        for k in -40_000..40_000 {
+            let t = k as f32 * 7.3e-5 + 0.013;
+            let (c, s) = cos_sin_turns(t);
+            let a = f64::from(t) * TAU;
+            worst = worst.max((f64::from(c) - a.cos()).abs());
+            worst = worst.max((f64::from(s) - a.sin()).abs());
+        }
+        assert!(worst < 1e-6, "worst {worst}");
+    }
+
+    /// On a board whose phase rises slowly along the motion, the least squares of a window's
+    /// samples give the phase at the place `SamplePlace` says (plus the travels' mean), for
+    /// any phase, 3 to 8 frames and steps that are not a fraction of the period.
+    #[test]
+    fn a_pixel_is_seen_where_its_window_says() {
+        let mut rng = Lcg(7);
+        let (period, slope) = (10.3, 1e-4);
+        let mut worst = 0.0f64;
+        let mut spread = 0.0f64;
+        for case in 0..400 {
+            let n = 3 + case % 6;
+            let (o, e) = window(&mut rng, n, [4.0, 5.6, 8.0][case % 3]);
+            let b = o[n - 1] + 2;
+            let Some(sp) = SamplePlace::of_window(b, &o, &e, period) else {
+                continue;
+            };
+            let phi0 = rng.next() * TAU;
+            let th: Vec<f64> = o
+                .iter()
+                .map(|&k| -((k - o[0]) as f64) * TAU / period)
+                .collect();
+            // The board point's own phase (the height's) changes by `slope` per row; the
+            // fringe's part is the row's.
+            let fringe = (b - o[0]) as f64 * TAU / period;
+            let i: Vec<f64> = (0..n)
+                .map(|k| 900.0 + 700.0 * (fringe + phi0 + slope * e[k] + th[k]).cos())
+                .collect();
+            let got = phase(&i, &th);
+            let seen = (got - fringe - phi0 + TAU / 2.0).rem_euclid(TAU) - TAU / 2.0;
+            let seen = seen / slope;
+            let mean = e.iter().sum::<f64>() / n as f64;
+            let said = mean + f64::from(sp.at((got - f64::from(sp.fringe_rad)) as f32, 0.0, 1.0));
+            worst = worst.max((seen - said).abs());
+            spread = spread.max((seen - mean).abs());
+        }
+        // The first order in a slope of 1e-4 rad per row; the f32 place.
+        assert!(worst < 2e-3, "worst {worst} rows");
+        // ... and the place is not just the mean.
+        assert!(spread > 0.05, "spread {spread} rows");
+    }
+
+    /// Rows of a ramp along the motion, each pixel seen at its own place: settled, every
+    /// pixel is the ramp at its row's place (to the slope's second order), whatever chunks
+    /// the rows come in; nothing changes without a reference table.
+    #[test]
+    fn settled_rows_are_the_ramp_at_their_place_whatever_the_chunks() {
+        let mut rng = Lcg(11);
+        let (w, rows, period_px, slope) = (24usize, 60usize, 10.3, 12.0f32);
+        let period_um: Vec<f32> = (0..w).map(|c| 480.0 + c as f32).collect();
+        let reference: Vec<f32> = (0..w).map(|c| (c as f32 * 0.7) % 6.2).collect();
+        let mut along = Vec::new();
+        let mut samples = Vec::new();
+        for i in 0..rows {
+            let (o, e) = window(&mut rng, 4, 8.0);
+            let mean = e.iter().sum::<f64>() / 4.0;
+            along.push(i as f64 + mean);
+            samples.push(SamplePlace::of_window(i as i64 + 200, &o, &e, period_px).unwrap());
+        }
+        samples[30] = SamplePlace::default();
+        let places = RowPlaces {
+            along: along.clone(),
+            across: vec![0.0; rows],
+            samples,
+        };
+        // Each pixel's height is the ramp where it was seen (its place depends on its height:
+        // a few rounds find it).
+        let mut g = Grid::invalid(w, rows);
+        let mut before = 0.0f64;
+        for (i, &a) in along.iter().enumerate() {
+            for c in 0..w {
+                let mut h = slope * a as f32;
+                for _ in 0..4 {
+                    let d = places.samples[i].at(reference[c], h, period_um[c]);
+                    h = slope * (a as f32 + d);
+                }
+                *g.at_mut(i, c) = h;
+                before += f64::from(h - slope * a as f32).powi(2);
+            }
+        }
+        g.data[5 * w + 3] = f32::NAN;
+        let settle_in = |cuts: &[usize]| {
+            let mut held = Grid::invalid(w, 0);
+            let mut s = Settle::default();
+            let mut from = 0;
+            for &to in cuts.iter().chain(std::iter::once(&rows)) {
+                held.data.extend_from_slice(&g.data[from * w..to * w]);
+                held.rows = to;
+                s.rows(
+                    &mut held,
+                    0,
+                    Some(&places),
+                    &reference,
+                    &period_um,
+                    to == rows,
+                );
+                from = to;
+            }
+            assert_eq!(s.settled, rows);
+            held
+        };
+        let whole = settle_in(&[]);
+        for cuts in [&[1usize, 2, 3][..], &[17, 18, 40], &[59]] {
+            let parts = settle_in(cuts);
+            let bits = |g: &Grid| g.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&parts), bits(&whole), "cuts {cuts:?}");
+        }
+        let mut after = 0.0f64;
+        for (i, &a) in along.iter().enumerate() {
+            for c in 0..w {
+                let v = whole.data[i * w + c];
+                if i == 5 && c == 3 {
+                    assert!(v.is_nan());
+                    continue;
+                }
+                let err = f64::from(v - slope * a as f32);
+                if i == 30 {
+                    // No window: as it came.
+                    assert_eq!(v, g.data[i * w + c]);
+                    continue;
+                }
+                after += err * err;
+            }
+        }
+        assert!(before > 0.5 * (rows * w) as f64, "before {before}");
+        assert!(after < 0.02 * before, "after {after}, before {before}");
+        // Without the columns' reference phases nothing is changed.
+        let mut held = g.clone();
+        let mut s = Settle::default();
+        s.rows(&mut held, 0, Some(&places), &[], &period_um, true);
+        assert_eq!(s.settled, rows);
+        assert!(held
+            .data
+            .iter()
+            .zip(&g.data)
+            .all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
 }

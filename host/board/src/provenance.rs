@@ -19,7 +19,7 @@
 //! confirms the replay row by row ([`Provenance::confirms`]): a row the replay cannot confirm
 //! (a lost trigger record) has no known mask or place.
 
-use crate::places::RowPlaces;
+use crate::places::{RowPlaces, SamplePlace};
 use crate::Grid;
 use dpsa_core::Trigger;
 use dpsa_formats::heightmap::flags;
@@ -238,13 +238,16 @@ impl Provenance {
 /// off its nominal place in each window frame, by that frame's sub-row travel; and the row is
 /// seen at a different image row in each window frame, which with a rotation `a` of the image
 /// rows moves it across by `p sin a` per image row. The row's height is the least-squares blend
-/// of those points, centred on their mean. Rows without a window keep the nominal place.
+/// of those points, centred on their mean; each pixel's own place about it
+/// ([`RowPlaces::samples`], [`crate::places`]) follows from the window's shifts (the core's
+/// fringe period `period_px`). Rows without a window keep the nominal place.
 pub fn row_places(
     prov: &Provenance,
     first_row: i64,
     rows: usize,
     r_w: f64,
     rotation_rad: f64,
+    period_px: f64,
 ) -> RowPlaces {
     let mean = |v: &mut dyn Iterator<Item = f64>| {
         let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
@@ -252,6 +255,7 @@ pub fn row_places(
     };
     let mut along = Vec::with_capacity(rows);
     let mut across = Vec::with_capacity(rows);
+    let mut samples = Vec::with_capacity(rows);
     for i in 0..rows {
         let b = first_row + i as i64;
         match prov.windows.get(&b) {
@@ -259,14 +263,22 @@ pub fn row_places(
                 along.push(i as f64 + mean(&mut w.frac.iter().copied()));
                 let r_mean = mean(&mut w.offsets.iter().map(|&ok| (b - ok) as f64));
                 across.push((r_mean - r_w) * rotation_rad.tan());
+                samples.push(
+                    SamplePlace::of_window(b, &w.offsets, &w.frac, period_px).unwrap_or_default(),
+                );
             }
             None => {
                 along.push(i as f64);
                 across.push(0.0);
+                samples.push(SamplePlace::default());
             }
         }
     }
-    RowPlaces { along, across }
+    RowPlaces {
+        along,
+        across,
+        samples,
+    }
 }
 /// Masks (sets to NaN) every pixel of `g` (row `i` is board row `first_row + i`) that a dead
 /// image pixel `[r, c]` of `dead` fed; returns how many valid pixels it masked.

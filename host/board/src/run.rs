@@ -195,6 +195,15 @@ pub fn placement(cal: &CameraCal, max_step_rows: u32) -> CameraPlacement {
     }
 }
 
+/// The core's reference phase of each column of camera `cal`, rad (for each pixel's place
+/// within its row, [`crate::places`]).
+pub fn reference_rad(cal: &CameraCal) -> Vec<f32> {
+    cal.core_reference_phase_rad
+        .iter()
+        .map(|&r| r.rem_euclid(std::f64::consts::TAU) as f32)
+        .collect()
+}
+
 /// What the stitcher needs of camera `cal` whose first row is board row `first_row` (rows
 /// placed as they come, nothing lost up front, no variance): the line's and the paced bench's
 /// cameras.
@@ -202,6 +211,7 @@ pub fn feed(cal: &CameraCal, first_row: i64, max_step_rows: u32) -> crate::assem
     crate::assemble::CameraFeed {
         first_row,
         period_um: cal.height_per_turn_um.iter().map(|&t| t as f32).collect(),
+        reference_rad: reference_rad(cal),
         placement: placement(cal, max_step_rows),
         places: None,
         lost: Vec::new(),
@@ -344,6 +354,7 @@ impl Collector {
             n,
             entry_row(cal, max_step),
             cal.lateral.rotation_rad,
+            cal.fringe_period_px,
         );
         self.next_row = Some(last + 1);
         Ok(Some(Chunk {
@@ -463,6 +474,7 @@ impl Collector {
             g.rows,
             entry_row(cal, max_step),
             cal.lateral.rotation_rad,
+            cal.fringe_period_px,
         );
         Ok((
             CameraRows {
@@ -472,6 +484,7 @@ impl Collector {
                 places: Some(places),
                 first_row: first,
                 period_um: cal.height_per_turn_um.iter().map(|&t| t as f32).collect(),
+                reference_rad: reference_rad(cal),
                 placement: placement(cal, max_step),
                 lost: mask,
             },

@@ -301,9 +301,9 @@ impl Default for Measure {
             surface_reach_mm: 0.6,
             wall_mm: 0.06,
             bridge_reach_mm: 0.6,
-            lateral_sigma_um: 2.6,
-            row_sigma_um: 3.7,
-            row_correlation: 0.34,
+            lateral_sigma_um: 1.7,
+            row_sigma_um: 3.5,
+            row_correlation: 0.3,
         }
     }
 }
