@@ -103,28 +103,56 @@ impl SamplePlace {
     #[inline]
     pub fn at(&self, ref_rad: f32, h_um: f32, period_um: f32) -> f32 {
         let turns = (self.fringe_rad + ref_rad) * (0.5 / std::f32::consts::PI) + h_um / period_um;
+        self.at_turns(turns)
+    }
+
+    /// [`SamplePlace::at`] of a pixel whose phase is `turns` turns.
+    #[inline(always)]
+    fn at_turns(&self, turns: f32) -> f32 {
         let (c, s) = cos_sin_turns(2.0 * turns);
         self.offset + self.cos2 * c + self.sin2 * s
     }
 }
 
-/// `cos`, `sin` of `2 pi t`, to about `4e-7`: reduced to an eighth of a turn, then the
-/// Taylor series to the ninth power (a pixel's place needs a few decimals; the library's
-/// `sin_cos` costs several times this over a board's millions of pixels).
-#[inline]
+/// Rounds to the nearest integer (ties to even) by adding and taking off `1.5 * 2^23`: exact
+/// for `|x| < 2^22`, with no call into the maths library (SSE2 has no rounding instruction).
+#[inline(always)]
+fn round_near(x: f32) -> f32 {
+    const MAGIC: f32 = 12_582_912.0;
+    (x + MAGIC) - MAGIC
+}
+
+/// `cos`, `sin` of `2 pi t` for `|t| < 2^18`, to about `4e-7`: reduced to an eighth of a turn,
+/// then the Taylor series to the ninth power (a pixel's place needs a few decimals; the
+/// library's `sin_cos` costs several times this over a board's millions of pixels). No branch
+/// and no table, so that a row's pixels go through it four or eight at a time. A non-finite or
+/// larger `t` gives a value of no meaning, never a panic.
+#[inline(always)]
 fn cos_sin_turns(t: f32) -> (f32, f32) {
-    let x = t - t.round();
-    let q = (4.0 * x).round();
-    let a = (x - 0.25 * q) * std::f32::consts::TAU;
+    let u = 4.0 * t;
+    let q = round_near(u);
+    let a = (u - q) * (0.25 * std::f32::consts::TAU);
     let a2 = a * a;
-    let s = a * (1.0 - a2 / 6.0 * (1.0 - a2 / 20.0 * (1.0 - a2 / 42.0 * (1.0 - a2 / 72.0))));
-    let c = 1.0 - a2 / 2.0 * (1.0 - a2 / 12.0 * (1.0 - a2 / 30.0 * (1.0 - a2 / 56.0)));
-    match (q as i32).rem_euclid(4) {
-        0 => (c, s),
-        1 => (-s, c),
-        2 => (-c, -s),
-        _ => (s, -c),
-    }
+    // Horner's form with the reciprocals as constants (a division each would cost more than
+    // the rest of the pixel).
+    let s = a
+        * (1.0
+            - a2 * (1.0 / 6.0)
+                * (1.0
+                    - a2 * (1.0 / 20.0) * (1.0 - a2 * (1.0 / 42.0) * (1.0 - a2 * (1.0 / 72.0)))));
+    let c = 1.0
+        - a2 * 0.5
+            * (1.0 - a2 * (1.0 / 12.0) * (1.0 - a2 * (1.0 / 30.0) * (1.0 - a2 * (1.0 / 56.0))));
+    // Quadrant k: swapped for odd k; the cosine negative for k = 1, 2, the sine for k = 2, 3.
+    let k = (q as i32) & 3;
+    let odd = k & 1 == 1;
+    let (x, y) = (if odd { s } else { c }, if odd { c } else { s });
+    let cos_neg = ((k ^ (k >> 1)) & 1) as u32;
+    let sin_neg = ((k >> 1) & 1) as u32;
+    (
+        f32::from_bits(x.to_bits() ^ (cos_neg << 31)),
+        f32::from_bits(y.to_bits() ^ (sin_neg << 31)),
+    )
 }
 
 /// Takes each pixel's own place out of a camera's unwrapped rows, row after row as they come
@@ -136,6 +164,8 @@ pub struct Settle {
     before: Vec<f32>,
     /// Rows from the camera's first that are settled.
     pub settled: usize,
+    /// Per column, the reference phase in turns and `1 / T` (um^-1), made on the first call.
+    columns: Vec<(f32, f32)>,
 }
 
 impl Settle {
@@ -160,6 +190,13 @@ impl Settle {
             self.settled = self.settled.max(last);
             return;
         };
+        if self.columns.len() != w {
+            self.columns = reference_rad
+                .iter()
+                .zip(period_um)
+                .map(|(&r, &t)| (r * (0.5 / std::f32::consts::PI), 1.0 / t))
+                .collect();
+        }
         let mut this = Vec::with_capacity(w);
         while self.settled < last {
             let i = self.settled;
@@ -174,36 +211,72 @@ impl Settle {
             let sp = pl.samples.get(i).copied().unwrap_or_default();
             if sp != SamplePlace::default() {
                 let at = |j: usize| pl.along.get(j).copied();
+                let here = at(i).unwrap_or(i as f64);
                 let prev = (i > 0 && self.before.len() == w)
-                    .then(|| (&self.before[..], at(i - 1)))
-                    .and_then(|(r, a)| Some((r, a?)));
+                    .then(|| at(i - 1))
+                    .flatten()
+                    .map(|a| (&self.before[..], a));
                 let (upto, after) = held.data.split_at_mut((k + 1) * w);
                 let next = (i + 1 < end)
-                    .then(|| (&after[..w], at(i + 1)))
-                    .and_then(|(r, a)| Some((r, a?)));
-                let here = at(i).unwrap_or(i as f64);
-                let row = &mut upto[k * w..];
-                for c in 0..w {
-                    let h = this[c];
-                    if !h.is_finite() {
-                        continue;
-                    }
-                    let fwd = next.map(|(r, a)| (r[c], a)).filter(|(v, _)| v.is_finite());
-                    let bwd = prev.map(|(r, a)| (r[c], a)).filter(|(v, _)| v.is_finite());
-                    let slope = match (bwd, fwd) {
-                        (Some((v0, a0)), Some((v1, a1))) => (v1 - v0) / (a1 - a0) as f32,
-                        (None, Some((v1, a1))) => (v1 - h) / (a1 - here) as f32,
-                        (Some((v0, a0)), None) => (h - v0) / (here - a0) as f32,
-                        (None, None) => continue,
-                    };
-                    if slope.is_finite() {
-                        row[c] = h - slope * sp.at(reference_rad[c], h, period_um[c]);
-                    }
-                }
+                    .then(|| at(i + 1))
+                    .flatten()
+                    .map(|a| (&after[..w], a));
+                settle_row(
+                    &mut upto[k * w..],
+                    &this,
+                    prev,
+                    next,
+                    here,
+                    &sp,
+                    &self.columns,
+                );
             }
             std::mem::swap(&mut self.before, &mut this);
             self.settled = i + 1;
         }
+    }
+}
+
+/// One row settled: `row` (as it came: `raw`) at place `here`, its neighbours as they came
+/// with their places (`None`: not there), the row's sample place, the columns' reference
+/// turns and inverse periods. The slope along the motion is the central difference where
+/// both neighbours are valid, else the one-sided one; a pixel with neither stays as it came.
+/// Written without a branch per pixel (selects), so that the compiler runs it in vectors.
+fn settle_row(
+    row: &mut [f32],
+    raw: &[f32],
+    prev: Option<(&[f32], f64)>,
+    next: Option<(&[f32], f64)>,
+    here: f64,
+    sp: &SamplePlace,
+    columns: &[(f32, f32)],
+) {
+    let w = row.len().min(raw.len()).min(columns.len());
+    let nan_row = vec![
+        f32::NAN;
+        if prev.is_none() || next.is_none() {
+            w
+        } else {
+            0
+        }
+    ];
+    let (p_row, p_at) = prev.unwrap_or((&nan_row, here - 1.0));
+    let (n_row, n_at) = next.unwrap_or((&nan_row, here + 1.0));
+    let (p_row, n_row) = (&p_row[..w], &n_row[..w]);
+    let inv = |d: f64| (1.0 / d) as f32;
+    let (both, fwd, bwd) = (inv(n_at - p_at), inv(n_at - here), inv(here - p_at));
+    let fringe = sp.fringe_rad * (0.5 / std::f32::consts::PI);
+    for c in 0..w {
+        let (h, p, n) = (raw[c], p_row[c], n_row[c]);
+        let (pf, nf) = (p.is_finite(), n.is_finite());
+        let central = (n - p) * both;
+        let one_sided = if nf { (n - h) * fwd } else { (h - p) * bwd };
+        let slope = if pf && nf { central } else { one_sided };
+        let (ref_turns, inv_t) = columns[c];
+        let d = sp.at_turns(fringe + ref_turns + h * inv_t);
+        let v = h - slope * d;
+        // NaN where the pixel or both neighbours are invalid: left as it came.
+        row[c] = if v.is_finite() { v } else { h };
     }
 }
 
