@@ -20,7 +20,8 @@
 //! rows rms. [`Settle`] takes that rest out of each pixel's height with the local slope along
 //! the motion: `h(b + m) = h(b + d) - (d - m) dh/db`. Left out: the reflectance and the
 //! fringe contrast also change across a wall and bend the phase by a few hundredths of a
-//! radian more (`docs/board.md`).
+//! radian more; the stream carries neither, so the map cannot take that out (`docs/spc.md`,
+//! "Where the walls' scatter comes from").
 
 /// Where a camera's rows were seen ([`crate::provenance::row_places`] makes them).
 #[derive(Clone, Debug, PartialEq)]
