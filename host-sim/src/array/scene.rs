@@ -470,7 +470,8 @@ fn finite_in(v: f64, lo: f64, hi: f64, knob: &str) -> Result<(), ArraySceneError
 pub struct MachineScatter {
     /// A pixel's scatter along the slope it lies on, um (0..=100).
     pub lateral_sigma_um: f64,
-    /// A whole row's scatter along the motion, um (0..=100).
+    /// A row's scatter along the motion over a pad cell's width of one camera's pixels, um
+    /// (0..=100).
     pub row_sigma_um: f64,
     /// The correlation of neighbouring rows' shifts (0..=1).
     pub row_correlation: f64,

@@ -280,9 +280,10 @@ pub struct Measure {
     /// scatters by `lateral_sigma_um x g` besides its noise (the walls of deposits). Used
     /// for each pad's stated uncertainty only (`dpsa grr` measures it: `lateral_sigma_um`).
     pub lateral_sigma_um: f64,
-    /// The machine's scatter of whole rows along the motion, um (encoder and trigger): every
-    /// pixel of a row moves together, so a deposit's front and back walls count it once per
-    /// row, not per pixel. Used for the stated uncertainty only (`dpsa grr`: `row_sigma_um`).
+    /// The machine's scatter of a row's place along the motion, um (encoder and trigger),
+    /// over a cell's width of one camera's pixels: those move together, so a deposit's front
+    /// and back walls count it once per row, not per pixel. Used for the stated uncertainty
+    /// only (`dpsa grr`: `row_sigma_um`, over segments of 32 columns within a camera).
     pub row_sigma_um: f64,
     /// The correlation of neighbouring rows' shifts (0..1): a deposit's wall spans two or
     /// three rows, which move partly together (`dpsa grr`: `row_correlation`).
@@ -301,9 +302,9 @@ impl Default for Measure {
             surface_reach_mm: 0.6,
             wall_mm: 0.06,
             bridge_reach_mm: 0.6,
-            lateral_sigma_um: 1.7,
-            row_sigma_um: 3.5,
-            row_correlation: 0.3,
+            lateral_sigma_um: 1.2,
+            row_sigma_um: 4.3,
+            row_correlation: 0.36,
         }
     }
 }
