@@ -158,8 +158,9 @@ pub enum Cmd {
     /// Benchmark the whole board: every camera's frames in memory, the core on every camera,
     /// provenance, unwrap, resampling, blending and every pad of the recording's program
     /// judged, timed per stage, beside a numpy float64 least-squares phase of the same frames;
-    /// then the rows paced at the conveyor rate and the latency from the last row to the last
-    /// verdict; as JSON.
+    /// then the rows paced at the conveyor rate (as the frame grabbers send them, and again
+    /// with the core on this host) and the latency from the last row to the last verdict; as
+    /// JSON.
     #[cfg(feature = "sim")]
     BoardBench(board_bench::Args),
     /// Benchmark the paste-layer reader on synthetic layers of up to 10^6 objects (flashes,

@@ -7,11 +7,15 @@
 //! each stage timed, no files written: what a line runs per board. Beside it, in the same run,
 //! the numpy float64 least-squares phase of camera 0's frames ([`super::numpy`]).
 //!
-//! Then the same board once more as the line receives it: every camera's rows paced at the
+//! Then the same board twice more as the line receives it: every camera's rows paced at the
 //! paper's conveyor rate ([`CONVEYOR_MM_S`]) and stitched band by band as they arrive
 //! (`dpsa_board::assemble::Stitcher`), and the time from the last row to the last verdict
 //! (`latency_after_last_row_s`): the last bands, the whole board's inspection, and any
-//! backlog of the core or the stitcher behind the conveyor.
+//! backlog of the stitcher behind the conveyor. In `line` the rows come as the frame
+//! grabbers send them (each camera's core rows worked out before the run: the line's host
+//! stitches and judges, its frame grabbers run the core); in `line_core_on_host` each
+//! camera's core runs in a thread of this machine as its frames come, beside the stitcher,
+//! and its backlog counts too.
 
 use crate::board::assemble::{assemble, CameraRows, Stitcher, BAND_ROWS};
 use crate::board::run::{open, Opened};
@@ -22,6 +26,7 @@ use crate::{Result, SimError};
 use dpsa_board::run::Collector;
 use dpsa_board::unwrap::CHUNK_ROWS;
 use dpsa_board::BoardGrid;
+use dpsa_formats::heightmap::HeightRow;
 use dpsa_gerber::pads::Pad;
 use dpsa_inspect::map::BoardMap;
 use dpsa_inspect::program::Program;
@@ -63,9 +68,14 @@ pub struct BoardBench {
     pub core_camera0_mpx_s: f64,
     /// The inspection of every pad (null when the recording has no `program.toml`).
     pub inspection: Option<BenchInspection>,
-    /// The board as the line receives it: rows paced at the conveyor rate, then the map and
-    /// the verdicts.
+    /// The board as the line receives it: each camera's rows, as its frame grabber sends
+    /// them (the core's rows worked out before the run), arrive at the conveyor rate; then
+    /// the map and the verdicts. This host does what the line's host does: stitch and judge.
     pub line: LineFeed,
+    /// The same with the core also on this host: each camera's frames arrive at the conveyor
+    /// rate and its core runs in a thread of this machine beside the stitcher (a frame
+    /// grabber without a core of its own).
+    pub line_core_on_host: LineFeed,
 }
 
 /// The inspection stage's work (`inspection` in the JSON): `pads` and `calls` as in
@@ -243,7 +253,10 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
     let core_camera0_mpx_s = one_px / core_camera0 / 1e6;
     let core_over_numpy = numpy.as_ref().map(|n| core_camera0_mpx_s / n.mpx_s);
 
-    let line = line_feed(&loaded, cal, &grid, judge.as_ref(), &stitched)?;
+    let line_core_on_host = line_feed(&loaded, cal, &grid, judge.as_ref(), &stitched, None)?;
+    let sent = per_camera(loaded.iter(), |(r, _)| sent_rows(r))?;
+    let line = line_feed(&loaded, cal, &grid, judge.as_ref(), &stitched, Some(&sent))?;
+    drop(sent);
     drop(stitched);
 
     let stitching = provenance + t.unwrap_s + t.resample_s + t.blend_s;
@@ -275,6 +288,7 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
         core_camera0_mpx_s,
         inspection,
         line,
+        line_core_on_host,
     })
 }
 
@@ -310,6 +324,17 @@ fn core_rows(rec: &Recording, cal: &CalFile, i: usize) -> Result<Collector> {
     Ok(rows)
 }
 
+/// Camera `rec`'s rows as its frame grabber sends them: the core's, worked out before the
+/// paced run.
+fn sent_rows(rec: &Recording) -> Result<Vec<HeightRow>> {
+    let mut rows = Vec::new();
+    crate::reconstruct::reconstruct_rows(rec, false, |r| {
+        rows.push(r);
+        Ok(())
+    })?;
+    Ok(rows)
+}
+
 /// Heights of the paced run's map and the first run's that differ by less than this are the
 /// same, um (the row places of a chunk and of a whole camera differ in the last bits).
 pub const MAP_SAME_UM: f32 = 1e-3;
@@ -326,7 +351,9 @@ enum Feed {
 }
 
 /// The board again as the line receives it: each camera's rows paced at [`CONVEYOR_MM_S`]
-/// (board rows of `grid.pitch_mm`) in its own thread, handed on [`FEED_ROWS`] at a time
+/// (board rows of `grid.pitch_mm`) in its own thread (from `sent`, the rows its frame
+/// grabber sends, or, without it, from its core running in that thread as the frames
+/// come), handed on [`FEED_ROWS`] at a time
 /// (dead-pixel masked, placed) to the band-by-band stitcher on this thread, which builds
 /// every band whose rows are in as they arrive; after the last row, the last bands and the
 /// verdicts. The time from the last row to the last verdict.
@@ -336,6 +363,7 @@ fn line_feed(
     grid: &BoardGrid,
     judge: Option<&Judge>,
     stitched: &dpsa_board::Grid,
+    sent: Option<&[Vec<HeightRow>]>,
 ) -> Result<LineFeed> {
     let row_s = Duration::from_secs_f64(grid.pitch_mm / CONVEYOR_MM_S);
     let most_rows = loaded
@@ -354,7 +382,8 @@ fn line_feed(
             .enumerate()
             .map(|(i, (r, _))| {
                 let (tx, done) = (tx.clone(), &done);
-                s.spawn(move || camera_feed(r, cal, i, (start, row_s), &tx, done))
+                let sent = sent.and_then(|v| v.get(i)).map(Vec::as_slice);
+                s.spawn(move || camera_feed(r, sent, cal, i, (start, row_s), &tx, done))
             })
             .collect();
         drop(tx);
@@ -436,10 +465,12 @@ fn line_feed(
     })
 }
 
-/// Camera `i`'s rows through the core, paced (`(start, row_s)`: row `k` not before
-/// `start + k row_s`), handed on [`FEED_ROWS`] at a time, then its end.
+/// Camera `i`'s rows (`sent`, or through the core), paced (`(start, row_s)`: row `k` not
+/// before `start + k row_s`; `sent` rows a chunk at a time, when its last row is due), handed
+/// on [`FEED_ROWS`] at a time, then its end.
 fn camera_feed(
     rec: &Recording,
+    sent: Option<&[HeightRow]>,
     cal: &CalFile,
     i: usize,
     (start, row_s): (Instant, Duration),
@@ -460,19 +491,38 @@ fn camera_feed(
         }
         Ok(())
     };
-    crate::reconstruct::reconstruct_rows(rec, false, |r| {
+    let mut each = |r: &HeightRow| -> Result<()> {
         let due = start + row_s * k;
         let now = Instant::now();
         if due > now {
             std::thread::sleep(due - now);
         }
         k += 1;
-        rows.push(&r);
+        rows.push(r);
         if k % FEED_ROWS == 0 {
             send(&mut rows)?;
         }
         Ok(())
-    })?;
+    };
+    match sent {
+        // The link delivers a chunk's rows when its last one is due: one wake-up per chunk,
+        // not per row (what a receiver reading the socket in blocks sees).
+        Some(sent) => {
+            let mut last = 0u32;
+            for chunk in sent.chunks(FEED_ROWS as usize) {
+                last += chunk.len() as u32;
+                let due = start + row_s * (last - 1);
+                let now = Instant::now();
+                if due > now {
+                    std::thread::sleep(due - now);
+                }
+                chunk.iter().try_for_each(&mut each)?;
+            }
+        }
+        None => {
+            crate::reconstruct::reconstruct_rows(rec, false, |r| each(&r))?;
+        }
+    }
     send(&mut rows)?;
     let done = done.load(std::sync::atomic::Ordering::Relaxed);
     let _ = tx.send(Feed::End(i, Instant::now(), done));

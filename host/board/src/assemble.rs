@@ -306,8 +306,22 @@ impl Stitcher {
     /// Unwraps what has arrived and builds every band whose rows are unwrapped.
     pub fn advance(&mut self) {
         let t0 = Instant::now();
+        // The cameras unwrap side by side: a camera's chunk waits until every camera still
+        // sending has one (a band needs every camera's rows anyway, so no band waits longer),
+        // and then their unwraps share the threads. Rows handed on camera by camera as they
+        // arrive (the line's receivers) would otherwise unwrap one camera at a time, on one
+        // thread. An ended camera goes at once. The heights are the same whenever a chunk is
+        // unwrapped.
+        let together = self
+            .cams
+            .iter()
+            .all(|c| c.ended || c.unwrapper.ready(false));
         std::thread::scope(|s| {
-            for c in self.cams.iter_mut().filter(|c| c.unwrapper.ready(c.ended)) {
+            for c in self
+                .cams
+                .iter_mut()
+                .filter(|c| c.unwrapper.ready(c.ended) && (together || c.ended))
+            {
                 s.spawn(move || {
                     while let Some(g) = c.unwrapper.next(c.ended) {
                         c.held.data.extend_from_slice(&g.data);
@@ -429,6 +443,19 @@ pub fn assemble(cameras: Vec<CameraRows>, grid: &BoardGrid) -> Assembled {
     assemble_in(cameras, grid, BAND_ROWS, CHUNK_ROWS)
 }
 
+/// What the stitcher needs of a camera before its rows.
+fn feed_of(c: &CameraRows) -> CameraFeed {
+    CameraFeed {
+        first_row: c.first_row,
+        period_um: c.period_um.clone(),
+        reference_rad: c.reference_rad.clone(),
+        placement: c.placement,
+        places: c.places.clone(),
+        lost: c.lost.clone(),
+        variance: c.variance.is_some(),
+    }
+}
+
 /// [`assemble`] with `band_rows` board rows per band and camera chunks of `chunk_rows`.
 pub fn assemble_in(
     cameras: Vec<CameraRows>,
@@ -436,18 +463,7 @@ pub fn assemble_in(
     band_rows: usize,
     chunk_rows: usize,
 ) -> Assembled {
-    let feeds = cameras
-        .iter()
-        .map(|c| CameraFeed {
-            first_row: c.first_row,
-            period_um: c.period_um.clone(),
-            reference_rad: c.reference_rad.clone(),
-            placement: c.placement,
-            places: c.places.clone(),
-            lost: c.lost.clone(),
-            variance: c.variance.is_some(),
-        })
-        .collect();
+    let feeds = cameras.iter().map(feed_of).collect();
     // Each camera's rows cut into chunks, one camera at a time, so that every chunk is freed
     // once pushed (a camera's grid cannot give back its first rows).
     let step = chunk_rows.max(1);
@@ -629,6 +645,44 @@ mod tests {
                 assert!(close(s.shift_x_um, t.shift_x_um) && close(s.shift_y_um, t.shift_y_um));
             }
         }
+    }
+
+    /// Rows that come camera by camera in pieces of their own sizes, the stitcher advanced
+    /// after every piece (as the line's receivers hand them on), give the map of whole
+    /// cameras bit for bit: the cameras' chunks wait for each other to unwrap, and when a
+    /// chunk is unwrapped does not change its heights.
+    #[test]
+    fn rows_in_uneven_pieces_give_the_same_map() {
+        let (cams, grid) = cameras();
+        let whole = assemble_in(cams.clone(), &grid, 64, 128);
+        let mut st = Stitcher::new(grid, cams.iter().map(feed_of).collect(), 64, 128);
+        let pieces = [100usize, 37, 250];
+        let mut at = vec![0usize; cams.len()];
+        let mut advances = 0;
+        while at.iter().zip(&cams).any(|(a, c)| *a < c.heights.rows) {
+            for (k, c) in cams.iter().enumerate() {
+                let w = c.heights.width;
+                let end = (at[k] + pieces[k]).min(c.heights.rows);
+                if at[k] == end {
+                    st.end(k);
+                    continue;
+                }
+                let var = c.variance.as_ref().map(|v| &v.data[at[k] * w..end * w]);
+                st.push(k, &c.heights.data[at[k] * w..end * w], var);
+                at[k] = end;
+                if end == c.heights.rows {
+                    st.end(k);
+                }
+                st.advance();
+                advances += 1;
+            }
+        }
+        assert!(advances > 10, "{advances}");
+        let a = st.finish();
+        assert_eq!(a.blended.camera, whole.blended.camera);
+        assert_eq!(a.lost_pixels, whole.lost_pixels);
+        let bits = |g: &Grid| g.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert!(bits(&a.blended.heights) == bits(&whole.blended.heights));
     }
 
     #[test]
