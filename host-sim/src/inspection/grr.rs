@@ -145,7 +145,8 @@ pub const SEGMENT: usize = 32;
 pub const NO_CAMERA: u8 = 255;
 
 /// Per pixel, the camera both maps took it from (`camera.png` of each: [`NO_CAMERA`] where
-/// they differ or either is invalid).
+/// they differ or either is invalid). Such pixels fit no row shift; they stay in the noise
+/// and lateral fit (a few columns at the seams).
 pub fn camera_key(a: &[u8], b: &[u8]) -> Vec<u8> {
     a.iter()
         .zip(b)
@@ -221,7 +222,8 @@ pub fn pixel_study(
             .map(|k| (g2(k), d[k] * d[k]))
             .collect::<Vec<_>>(),
     );
-    // A segment: a row, a block of SEGMENT columns and a camera; `seg(i, s, cam)` its slot.
+    // A segment: a row, a block of SEGMENT columns and a camera; row `i`'s segment of
+    // block `s` and camera `cam` is `shift[i * segs + seg(s, cam)]`.
     let blocks = w.div_ceil(SEGMENT);
     let segs = blocks * n_cams;
     let seg = |s: usize, cam: usize| s * n_cams + cam;
@@ -621,7 +623,8 @@ mod tests {
         assert!(rel(p.noise_um, NOISE_UM) < 0.08, "{p:?}");
         let blind = pixel_study(&a, &b, None, PITCH_MM);
         assert!(blind.row_sigma_um < 0.95 * ROW_PX * um, "{blind:?}");
-        // Pixels the two maps took from different cameras are left out.
+        // Pixels the two maps took from different cameras are left out of the rows' shifts
+        // (they stay in the noise and lateral fit).
         let mut other = cams.clone();
         other[..W * ROWS / 2].fill(0);
         let half = camera_key(&cams, &other);
