@@ -1142,6 +1142,35 @@ fn board_bench_reports_every_stage_of_the_board() {
         // The rows handed on as they came, a chunk at a time with their places, give the map
         // of the whole cameras at once.
         assert_eq!(line["map_differs_px"], 0, "{key}: {v}");
+        // Processor time after the last row: no more than the cores had in the latency (a
+        // clock tick of slack per reading and thread start), and the share busy says so.
+        let cpu = line["cpu_s_after_last_row"].as_f64().unwrap();
+        let threads = v["threads"].as_f64().unwrap();
+        assert!(cpu >= 0.0 && cpu <= threads * latency + 0.05, "{key}: {v}");
+        let busy = line["busy_after_last_row"].as_f64().unwrap();
+        assert!(
+            (busy - cpu / (threads * latency)).abs() < 1e-9,
+            "{key}: {v}"
+        );
+        assert!(
+            line["cpu_s_to_last_row"].as_f64().unwrap() >= 0.0,
+            "{key}: {v}"
+        );
+    }
+    // The first run's processor time, within what its cores had.
+    let cpu = &v["cpu_seconds"];
+    let threads = v["threads"].as_f64().unwrap();
+    for (k, wall) in [
+        ("stitching", stitching),
+        ("inspection", stage("inspection")),
+    ] {
+        let c = cpu[k]
+            .as_f64()
+            .unwrap_or_else(|| panic!("cpu_seconds.{k}: {v}"));
+        assert!(
+            c >= 0.0 && c <= threads * wall + 0.05,
+            "cpu_seconds.{k}: {v}"
+        );
     }
     let line = &v["line"];
     assert!(v["core_camera0_mpx_s"].as_f64().unwrap() > 0.0, "{v}");

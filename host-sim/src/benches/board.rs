@@ -49,6 +49,9 @@ pub struct BoardBench {
     pub board_pixels: u64,
     /// Seconds per stage (wall time).
     pub seconds: Stages,
+    /// Processor time of the stitching and the inspection (all threads), s: against
+    /// `threads x` their wall time, how busy the cores were.
+    pub cpu_seconds: Option<CpuSeconds>,
     /// `core_pixels / seconds.core` / 1e6: the core's output rate over all cameras.
     pub core_mpx_s: f64,
     /// The paper's budget for the whole board, s.
@@ -115,6 +118,42 @@ pub struct LineFeed {
     pub latency_budget_s: f64,
     /// `latency_after_last_row_s <= latency_budget_s`.
     pub within_latency_budget: bool,
+    /// Processor time of this process ([`process_cpu_s`]) from the first row to the last, s
+    /// (`None` where it cannot be read).
+    pub cpu_s_to_last_row: Option<f64>,
+    /// The same from the last row to the last verdict (the comparison of the maps left out).
+    pub cpu_s_after_last_row: Option<f64>,
+    /// `cpu_s_after_last_row` over the cores' time in the latency (`threads x latency`):
+    /// near 1, the latency is the work left, not cores waiting.
+    pub busy_after_last_row: Option<f64>,
+}
+
+/// Processor time per stage of the first run, s (`cpu_seconds` in the JSON; [`process_cpu_s`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct CpuSeconds {
+    /// Provenance, unwrap, resampling and blending (`seconds.stitching`).
+    pub stitching: f64,
+    /// `seconds.inspection`.
+    pub inspection: f64,
+}
+
+/// This process's processor time so far, user and system, all threads (those ended too), s:
+/// `/proc/self/stat`'s `utime` and `stime`, in the kernel's clock ticks (100 per second on
+/// Linux); `None` elsewhere or unreadable. A tick is 10 ms: the stages here take 0.3 s or
+/// more of it.
+pub fn process_cpu_s() -> Option<f64> {
+    cpu_of_stat(&std::fs::read_to_string("/proc/self/stat").ok()?)
+}
+
+/// `utime + stime` of a `/proc/PID/stat` line, s (at 100 ticks per second).
+fn cpu_of_stat(stat: &str) -> Option<f64> {
+    // The command name (field 2) is in parentheses and may hold spaces and parentheses:
+    // count from the last `)`.
+    let after = stat.rsplit_once(')')?.1;
+    let fields: Vec<&str> = after.split_whitespace().collect();
+    // Fields 14 and 15 of the line: the 12th and 13th after the name (the state is the 1st).
+    let ticks = |k: usize| fields.get(k)?.parse::<u64>().ok();
+    Some((ticks(11)? + ticks(12)?) as f64 / 100.0)
 }
 
 /// Wall time per stage, s (`seconds` in the JSON).
@@ -126,7 +165,8 @@ pub struct Stages {
     pub core: f64,
     /// Dead-pixel masks and row places, all cameras.
     pub provenance: f64,
-    /// Unwrapping, all cameras (in parallel threads).
+    /// Waiting for the unwrapping (each camera unwraps in a thread of its own beside the
+    /// resampling and blending; `dpsa_board::assemble::Timing::unwrap_s`).
     pub unwrap: f64,
     /// Resampling onto the board grid, all cameras (in parallel threads).
     pub resample: f64,
@@ -213,9 +253,12 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
         .iter()
         .map(|c| c.len() as u64 * c.width as u64)
         .sum();
+    let cpu0 = process_cpu_s();
     let (a, provenance) = stitch(collected, &loaded, cal, &grid)?;
+    let cpu1 = process_cpu_s();
     // Kept for the paced run's map to be compared with (not timed).
     let stitched = a.blended.heights.clone();
+    let cpu2 = process_cpu_s();
     let t4 = Instant::now();
     let inspection = judge
         .as_ref()
@@ -225,6 +268,13 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
         t4.elapsed().as_secs_f64()
     } else {
         0.0
+    };
+    let cpu_seconds = match (cpu0, cpu1, cpu2, process_cpu_s()) {
+        (Some(a), Some(b), Some(c), Some(d)) => Some(CpuSeconds {
+            stitching: b - a,
+            inspection: d - c,
+        }),
+        _ => None,
     };
     let t = a.timing;
 
@@ -267,6 +317,7 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
         frames_mb: loaded.iter().map(|(_, b)| *b as f64).sum::<f64>() / 1e6,
         core_pixels,
         board_pixels: (grid.rows * grid.width) as u64,
+        cpu_seconds,
         seconds: Stages {
             load,
             core,
@@ -346,8 +397,9 @@ const FEED_ROWS: u32 = 128;
 enum Feed {
     /// The camera's next rows.
     Rows(usize, dpsa_board::run::Chunk),
-    /// The camera's last row came at this instant, when the map had this many board rows.
-    End(usize, Instant, usize),
+    /// The camera's last row came at this instant (and this process's processor time then,
+    /// [`process_cpu_s`]), when the map had this many board rows.
+    End(usize, (Instant, Option<f64>), usize),
 }
 
 /// The board again as the line receives it: each camera's rows paced at [`CONVEYOR_MM_S`]
@@ -376,7 +428,8 @@ fn line_feed(
     // The map's board rows built so far, as the cameras' threads see it.
     let done = std::sync::atomic::AtomicUsize::new(0);
     let start = Instant::now();
-    let (st, ends, fed) = std::thread::scope(|s| {
+    let cpu_start = process_cpu_s();
+    let (st, ends, fed, cpu_last_row) = std::thread::scope(|s| {
         let handles: Vec<_> = loaded
             .iter()
             .enumerate()
@@ -390,10 +443,16 @@ fn line_feed(
         let mut st: Option<Stitcher> = None;
         let mut waiting: Vec<Vec<dpsa_board::run::Chunk>> = (0..n).map(|_| Vec::new()).collect();
         let mut ends: Vec<Option<(Instant, usize)>> = vec![None; n];
+        let mut cpu_last_row = None;
         for msg in rx {
             match msg {
                 Feed::Rows(i, c) => waiting[i].push(c),
-                Feed::End(i, t, done) => ends[i] = Some((t, done)),
+                Feed::End(i, (t, cpu), done) => {
+                    ends[i] = Some((t, done));
+                    if ends.iter().flatten().all(|e| e.0 <= t) {
+                        cpu_last_row = cpu;
+                    }
+                }
             }
             // The stitcher starts once every camera's first row (or end) is known.
             if st.is_none() && (0..n).all(|i| !waiting[i].is_empty() || ends[i].is_some()) {
@@ -427,7 +486,7 @@ fn line_feed(
                     .unwrap_or_else(|_| Err(SimError::Internal("a thread panicked".into())))
             })
             .collect::<Result<Vec<()>>>();
-        (st, ends, fed)
+        (st, ends, fed, cpu_last_row)
     });
     fed?;
     let st = st.ok_or_else(|| SimError::refused("no camera"))?;
@@ -440,6 +499,10 @@ fn line_feed(
     let core_backlog_s = ((last_row - start).as_secs_f64() - feed_s).max(0.0);
     let a = st.finish();
     let map_s = last_row.elapsed().as_secs_f64();
+    // The comparison with the first run's map is the bench's, not the line's: its time is
+    // left out of the latency.
+    let compared = Instant::now();
+    let cpu_compare = process_cpu_s();
     let map_differs_px = a
         .blended
         .heights
@@ -448,10 +511,21 @@ fn line_feed(
         .zip(&stitched.data)
         .filter(|(p, q)| p.is_finite() != q.is_finite() || (*p - *q).abs() > MAP_SAME_UM)
         .count();
+    let (compare_s, compare_cpu) = (
+        compared.elapsed().as_secs_f64(),
+        process_cpu_s().zip(cpu_compare).map(|(b, a)| b - a),
+    );
     if let Some(j) = judge {
         j.judge(grid, a.blended.heights)?;
     }
-    let latency = last_row.elapsed().as_secs_f64();
+    let latency = last_row.elapsed().as_secs_f64() - compare_s;
+    let cpu_end = process_cpu_s();
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get()) as f64;
+    let cpu_s_to_last_row = cpu_last_row.zip(cpu_start).map(|(b, a)| b - a);
+    let cpu_s_after_last_row = cpu_end
+        .zip(cpu_last_row)
+        .zip(compare_cpu)
+        .map(|((b, a), c)| b - a - c);
     Ok(LineFeed {
         conveyor_mm_s: CONVEYOR_MM_S,
         feed_s,
@@ -462,6 +536,9 @@ fn line_feed(
         latency_after_last_row_s: latency,
         latency_budget_s: LATENCY_BUDGET_S,
         within_latency_budget: latency <= LATENCY_BUDGET_S,
+        cpu_s_to_last_row,
+        cpu_s_after_last_row,
+        busy_after_last_row: cpu_s_after_last_row.map(|c| c / (threads * latency)),
     })
 }
 
@@ -525,7 +602,7 @@ fn camera_feed(
     }
     send(&mut rows)?;
     let done = done.load(std::sync::atomic::Ordering::Relaxed);
-    let _ = tx.send(Feed::End(i, Instant::now(), done));
+    let _ = tx.send(Feed::End(i, (Instant::now(), process_cpu_s()), done));
     Ok(())
 }
 
@@ -546,4 +623,25 @@ fn per_camera<T: Send, R: Send>(
             })
             .collect()
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The processor time is read from the right fields, whatever the command's name holds;
+    /// a line cut short or not numbers gives none.
+    #[test]
+    fn processor_time_from_a_stat_line() {
+        let line = "4242 (dpsa (x) y) R 1 4242 4242 0 -1 4194304 900 0 0 0 731 269 0 0 20 0 3 0 \
+                    123 456 789";
+        assert_eq!(cpu_of_stat(line), Some(10.0));
+        assert_eq!(cpu_of_stat("4242 (dpsa) R 1 2 3"), None);
+        assert_eq!(cpu_of_stat("4242 dpsa R"), None);
+        assert_eq!(cpu_of_stat("1 (a) R 1 1 1 0 -1 0 0 0 0 0 x 5 0 0"), None);
+        // This process: a reading, and it does not go back.
+        let a = process_cpu_s().expect("/proc/self/stat on Linux");
+        let b = process_cpu_s().expect("/proc/self/stat on Linux");
+        assert!(a >= 0.0 && b >= a, "{a} {b}");
+    }
 }

@@ -1,11 +1,17 @@
 //! One board map from the cameras' wrapped rows, band of board rows by band as the rows
 //! arrive ([`Stitcher`]): each camera's rows unwrapped chunk by chunk
-//! ([`crate::unwrap::Unwrapper`]), a band of board rows resampled from every camera once its
-//! rows are unwrapped ([`crate::resample`]), blended ([`crate::blend::Blender`]) and copied
-//! into the map; then the camera rows no later band needs are dropped. What it holds besides
-//! the map: per camera a chunk of wrapped rows with its margins and the unwrapped rows of a
-//! band, the layers of one band (more only while a turn waits for evidence, see
+//! ([`crate::unwrap::Unwrapper`]) in a thread of its own, beside a band of board rows
+//! resampled from every camera once its rows are unwrapped ([`crate::resample`]), blended
+//! ([`crate::blend::Blender`]) and copied into the map; then the camera rows no later band
+//! needs are dropped. What it holds besides the map: per camera a chunk of wrapped rows with
+//! its margins (and at most 16 pushes waiting for its thread), the unwrapped
+//! rows of a band, the layers of one band (more only while a turn waits for evidence, see
 //! [`crate::blend`]). [`assemble`] feeds whole cameras through it.
+//!
+//! The unwrapping threads keep the cores busy while the bands' single-threaded parts run
+//! (the blend's turn and seam sums, the copies into the map): the paper board's stitching
+//! took 1.8 cores on average with the cameras unwrapped between bands. A chunk's heights do
+//! not depend on when it is unwrapped, so the map is the same bit for bit.
 
 use crate::blend::{Blended, Blender};
 use crate::places::RowPlaces;
@@ -46,7 +52,9 @@ pub struct CameraRows {
 /// Seconds per stage (`timing.*` of `dpsa board --json`), summed over the bands.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct Timing {
-    /// Unwrapping, all cameras (in parallel threads), s.
+    /// Waiting for the cameras' unwrapping, s: each camera unwraps in a thread of its own
+    /// beside the resampling and blending, so this is the time the bands waited for it, not
+    /// the unwrapping's own.
     pub unwrap_s: f64,
     /// Resampling onto the board grid, all cameras (in parallel threads), s.
     pub resample_s: f64,
@@ -96,10 +104,32 @@ pub struct CameraFeed {
     pub variance: bool,
 }
 
+/// A camera's unwrapping in a thread of its own ([`Unwrapping`]), beside the resampling and
+/// blending of the bands whose rows are in: rows go to it as they are pushed and their
+/// chunks come back unwrapped (each chunk is the same whenever it is unwrapped, see
+/// [`Unwrapper`]).
+struct Unwrapping {
+    /// Rows to the thread (`None`: the camera ended); bounded, so that a thread behind the
+    /// rows holds the pusher back rather than a copy of every row.
+    to: Option<std::sync::mpsc::SyncSender<Vec<f32>>>,
+    /// The thread's unwrapper once it has handed on its last row.
+    done: Option<Unwrapper>,
+}
+
+/// What a camera's unwrapping thread sends back: a chunk of unwrapped rows, or at its end
+/// its unwrapper (with its counts).
+enum Unwrapped {
+    Rows(usize, Grid),
+    Done(usize, Box<Unwrapper>),
+}
+
+/// Pushes a camera's thread holds before the pusher waits for it.
+const QUEUED_PUSHES: usize = 16;
+
 /// A camera's state in the stitching.
 struct Cam {
     feed: CameraFeed,
-    unwrapper: Unwrapper,
+    unwrapping: Unwrapping,
     /// Unwrapped rows held, camera row `held0` first (up to the rows handed on); those from
     /// `settle.settled` on not yet settled ([`crate::places::Settle`]).
     held: Grid,
@@ -148,18 +178,20 @@ impl Cam {
         lo..hi
     }
 
+    /// Whether the camera ended and every row it pushed came back unwrapped.
+    fn all_unwrapped(&self) -> bool {
+        self.ended && self.unwrapping.done.is_some()
+    }
+
     /// Whether the rows `need` are all unwrapped and settled (or will never come).
     fn has(&self, need: &Range<usize>) -> bool {
         let done = self.settle.settled;
-        need.end <= done
-            || (self.ended
-                && self.unwrapper.emitted() == self.unwrapper.pushed()
-                && done == self.held0 + self.held.rows)
+        need.end <= done || (self.all_unwrapped() && done == self.held0 + self.held.rows)
     }
 
     /// Takes each pixel's own place out of the rows unwrapped so far (see [`crate::places`]).
     fn settle(&mut self) {
-        let last_known = self.ended && self.unwrapper.emitted() == self.unwrapper.pushed();
+        let last_known = self.all_unwrapped();
         self.settle.rows(
             &mut self.held,
             self.held0,
@@ -208,6 +240,8 @@ pub struct Stitcher {
     camera: Vec<u8>,
     lost_pixels: u64,
     timing: Timing,
+    /// The cameras' unwrapping threads' chunks.
+    unwrapped: std::sync::mpsc::Receiver<Unwrapped>,
 }
 
 impl Stitcher {
@@ -221,17 +255,16 @@ impl Stitcher {
     ) -> Stitcher {
         let variance = cams.iter().any(|c| c.variance);
         let n = cams.len();
+        let (back, unwrapped) = std::sync::mpsc::channel();
         let cams = cams
             .into_iter()
-            .map(|feed| {
+            .enumerate()
+            .map(|(k, feed)| {
                 let w = feed.period_um.len();
+                let unwrapper =
+                    Unwrapper::new(feed.period_um.clone(), BLOCK, chunk_rows, MARGIN_ROWS);
                 Cam {
-                    unwrapper: Unwrapper::new(
-                        feed.period_um.clone(),
-                        BLOCK,
-                        chunk_rows,
-                        MARGIN_ROWS,
-                    ),
+                    unwrapping: unwrapping(k, unwrapper, back.clone()),
                     held: Grid::invalid(w, 0),
                     settle: crate::places::Settle::default(),
                     variance: feed.variance.then(|| Grid::invalid(w, 0)),
@@ -253,6 +286,7 @@ impl Stitcher {
             camera: Vec::with_capacity(grid.rows * grid.width),
             lost_pixels: 0,
             timing: Timing::default(),
+            unwrapped,
         }
     }
 
@@ -267,11 +301,19 @@ impl Stitcher {
     /// A camera with a variance whose rows come without one has it unknown (NaN) there.
     pub fn push(&mut self, cam: usize, heights: &[f32], variance: Option<&[f32]>) {
         let c = &mut self.cams[cam];
-        let before = c.unwrapper.pushed();
-        c.unwrapper.push(heights);
+        let w = c.feed.period_um.len().max(1);
+        // Whole rows only (a part row at the end is not taken).
+        let rows = heights.len() / w;
+        match &c.unwrapping.to {
+            Some(to) if rows > 0 && !c.ended => {
+                // The thread ends only when told or when the stitcher is dropped.
+                let _ = to.send(heights[..rows * w].to_vec());
+            }
+            _ => return,
+        }
         if let Some(v) = c.variance.as_mut() {
             // Row for row with the heights taken.
-            let n = (c.unwrapper.pushed() - before) * v.width;
+            let n = rows * v.width;
             match variance {
                 Some(rows) if rows.len() >= n => v.data.extend_from_slice(&rows[..n]),
                 _ => v.data.resize(v.data.len() + n, f32::NAN),
@@ -300,42 +342,50 @@ impl Stitcher {
 
     /// No more rows come from camera `cam`.
     pub fn end(&mut self, cam: usize) {
-        self.cams[cam].ended = true;
+        let c = &mut self.cams[cam];
+        c.ended = true;
+        // The thread unwraps what it holds and hands on its unwrapper.
+        c.unwrapping.to = None;
+    }
+
+    /// Takes the unwrapped chunks that came back into the cameras' held rows (waiting for one
+    /// when `wait` and a camera still unwraps), and settles them; returns whether any came.
+    fn take_unwrapped(&mut self, wait: bool) -> bool {
+        let mut any = false;
+        loop {
+            let pending = self.cams.iter().any(|c| c.unwrapping.done.is_none());
+            let got = if wait && !any && pending {
+                self.unwrapped.recv().ok()
+            } else {
+                self.unwrapped.try_recv().ok()
+            };
+            let Some(msg) = got else { break };
+            any = true;
+            match msg {
+                Unwrapped::Rows(k, g) => {
+                    let c = &mut self.cams[k];
+                    c.held.data.extend_from_slice(&g.data);
+                    c.held.rows += g.rows;
+                }
+                Unwrapped::Done(k, u) => self.cams[k].unwrapping.done = Some(*u),
+            }
+        }
+        for c in &mut self.cams {
+            c.settle();
+        }
+        any
     }
 
     /// Unwraps what has arrived and builds every band whose rows are unwrapped.
     pub fn advance(&mut self) {
         let t0 = Instant::now();
-        // The cameras unwrap side by side: a camera's chunk waits until every camera still
-        // sending has one (a band needs every camera's rows anyway, so no band waits longer),
-        // and then their unwraps share the threads. Rows handed on camera by camera as they
-        // arrive (the line's receivers) would otherwise unwrap one camera at a time, on one
-        // thread. An ended camera goes at once. The heights are the same whenever a chunk is
-        // unwrapped.
-        let together = self
-            .cams
-            .iter()
-            .all(|c| c.ended || c.unwrapper.ready(false));
-        std::thread::scope(|s| {
-            for c in self
-                .cams
-                .iter_mut()
-                .filter(|c| c.unwrapper.ready(c.ended) && (together || c.ended))
-            {
-                s.spawn(move || {
-                    while let Some(g) = c.unwrapper.next(c.ended) {
-                        c.held.data.extend_from_slice(&g.data);
-                        c.held.rows += g.rows;
-                    }
-                    c.settle();
-                });
-            }
-        });
-        // A camera that ended with nothing left to unwrap still settles its last row.
-        for c in &mut self.cams {
-            c.settle();
-        }
+        self.take_unwrapped(false);
         self.timing.unwrap_s += t0.elapsed().as_secs_f64();
+        self.build_bands();
+    }
+
+    /// Builds every band whose rows are unwrapped, in order.
+    fn build_bands(&mut self) {
         while self.next < self.grid.rows {
             let band = self.next..(self.next + self.band_rows).min(self.grid.rows);
             let halo = self.blender.halo(&band);
@@ -388,10 +438,10 @@ impl Stitcher {
     fn put(&mut self, bands: Vec<crate::blend::BandMap>) {
         for m in bands {
             debug_assert_eq!(m.rows.start, self.done, "bands in order");
-            self.heights.extend_from_slice(&m.heights);
-            self.camera.extend_from_slice(&m.camera);
+            self.heights.extend_from_slice(m.heights());
+            self.camera.extend_from_slice(m.camera());
             if let Some(v) = self.variance.as_mut() {
-                match &m.variance {
+                match m.variance() {
                     Some(mv) => v.extend_from_slice(mv),
                     None => v.resize(self.heights.len(), f32::NAN),
                 }
@@ -404,15 +454,28 @@ impl Stitcher {
 
     /// Ends every camera, builds the remaining bands and returns the map.
     pub fn finish(mut self) -> Assembled {
-        for c in &mut self.cams {
-            c.ended = true;
+        for k in 0..self.cams.len() {
+            self.end(k);
         }
-        self.advance();
+        // Bands as the last chunks come back.
+        loop {
+            let t0 = Instant::now();
+            let came = self.take_unwrapped(true);
+            self.timing.unwrap_s += t0.elapsed().as_secs_f64();
+            self.build_bands();
+            if !came && self.cams.iter().all(|c| c.unwrapping.done.is_some()) {
+                break;
+            }
+        }
         let t = Instant::now();
         let bands = self.blender.end();
         self.put(bands);
         self.timing.blend_s += t.elapsed().as_secs_f64();
-        let unreached = self.cams.iter().map(|c| c.unwrapper.unreached).collect();
+        let unreached = self
+            .cams
+            .iter()
+            .map(|c| c.unwrapping.done.as_ref().map_or(0, |u| u.unreached))
+            .collect();
         let (turns, edge_median_um, edge_off_bands, seams) = self.blender.finish();
         let (w, rows) = (self.grid.width, self.grid.rows);
         let grid = |data: Vec<f32>| Grid {
@@ -434,6 +497,39 @@ impl Stitcher {
             lost_pixels: self.lost_pixels,
             timing: self.timing,
         }
+    }
+}
+
+/// Camera `k`'s unwrapping thread: it unwraps every chunk `unwrapper` has the rows for as
+/// they come, sends them `back`, and at the camera's end (its sender dropped) the last chunks
+/// and the unwrapper. It stops early, quietly, when the stitcher is gone.
+fn unwrapping(
+    k: usize,
+    mut unwrapper: Unwrapper,
+    back: std::sync::mpsc::Sender<Unwrapped>,
+) -> Unwrapping {
+    let (to, rows) = std::sync::mpsc::sync_channel::<Vec<f32>>(QUEUED_PUSHES);
+    std::thread::spawn(move || {
+        let mut ended = false;
+        loop {
+            while let Some(g) = unwrapper.next(ended) {
+                if back.send(Unwrapped::Rows(k, g)).is_err() {
+                    return;
+                }
+            }
+            if ended {
+                let _ = back.send(Unwrapped::Done(k, Box::new(unwrapper)));
+                return;
+            }
+            match rows.recv() {
+                Ok(r) => unwrapper.push(&r),
+                Err(_) => ended = true,
+            }
+        }
+    });
+    Unwrapping {
+        to: Some(to),
+        done: None,
     }
 }
 

@@ -116,11 +116,15 @@ fn median(mut v: Vec<f32>) -> Option<f32> {
     Some(*v.select_nth_unstable_by(k, f32::total_cmp).1)
 }
 
-/// One band of the blended map: board rows `rows`, row-major over the grid's width.
+/// One band of the blended map: board rows `rows`, row-major over the grid's width, the
+/// values `part` of buffers that hold the band's halo rows too (cutting the band out of them
+/// would move the whole band once more, a copy the map's own makes needless).
 #[derive(Clone, Debug)]
 pub struct BandMap {
     /// Board rows.
     pub rows: Range<usize>,
+    /// The band's values in each buffer below (`rows.len() x` the grid's width of them).
+    pub part: Range<usize>,
     /// Heights, um (NaN invalid).
     pub heights: Vec<f32>,
     /// Variance, um^2 (NaN unknown), when a camera came with one.
@@ -129,6 +133,23 @@ pub struct BandMap {
     pub camera: Vec<u8>,
     /// Pixels left invalid because a camera lost the rows that would have covered them.
     pub lost_pixels: u64,
+}
+
+impl BandMap {
+    /// The band's heights, um (NaN invalid).
+    pub fn heights(&self) -> &[f32] {
+        &self.heights[self.part.clone()]
+    }
+
+    /// The band's variance, um^2, when a camera came with one.
+    pub fn variance(&self) -> Option<&[f32]> {
+        self.variance.as_ref().map(|v| &v[self.part.clone()])
+    }
+
+    /// The band's source camera of each pixel.
+    pub fn camera(&self) -> &[u8] {
+        &self.camera[self.part.clone()]
+    }
 }
 
 /// A band waiting for the turns: its layers (over `rows` and their halo), the turns they were
@@ -356,19 +377,24 @@ impl Blender {
             (p.rows.start - halo.start) * w,
             (p.rows.end - halo.start) * w,
         );
-        let heights = part_of(map.heights, a..b);
-        let lost_pixels = p
-            .rows
-            .clone()
-            .flat_map(|r| (0..w).map(move |c| (r, c)))
-            .zip(&heights)
-            .filter(|&((r, c), h)| !h.is_finite() && p.layers.iter().any(|l| l.is_lost(r, c)))
-            .count() as u64;
+        // Only a camera that lost rows has lost pixels (a pass over the band's pixels
+        // otherwise spared).
+        let lost_pixels = if p.layers.iter().all(|l| l.lost.is_empty()) {
+            0
+        } else {
+            p.rows
+                .clone()
+                .flat_map(|r| (0..w).map(move |c| (r, c)))
+                .zip(&map.heights[a..b])
+                .filter(|&((r, c), h)| !h.is_finite() && p.layers.iter().any(|l| l.is_lost(r, c)))
+                .count() as u64
+        };
         BandMap {
             rows: p.rows.clone(),
-            heights,
-            variance: map.variance.map(|v| part_of(v, a..b)),
-            camera: part_of(map.camera, a..b),
+            part: a..b,
+            heights: map.heights,
+            variance: map.variance,
+            camera: map.camera,
             lost_pixels,
         }
     }
@@ -399,13 +425,6 @@ impl Blender {
             seams,
         )
     }
-}
-
-/// The values `part` of `v`, in `v`'s buffer (no copy into a new one).
-fn part_of<T>(mut v: Vec<T>, part: Range<usize>) -> Vec<T> {
-    v.truncate(part.end);
-    v.drain(..part.start.min(v.len()));
-    v
 }
 
 /// Moves a waiting band's layers onto `turns`.
@@ -671,10 +690,11 @@ pub fn blend(layers: &mut [Layer], grid: &BoardGrid, edge_px: usize) -> Blended 
     let mut camera = vec![NO_CAMERA; grid.rows * grid.width];
     for m in bands {
         let a = m.rows.start * grid.width;
-        heights.data[a..a + m.heights.len()].copy_from_slice(&m.heights);
-        camera[a..a + m.camera.len()].copy_from_slice(&m.camera);
-        if let (Some(v), Some(mv)) = (variance.as_mut(), m.variance) {
-            v.data[a..a + mv.len()].copy_from_slice(&mv);
+        let n = m.part.len();
+        heights.data[a..a + n].copy_from_slice(m.heights());
+        camera[a..a + n].copy_from_slice(m.camera());
+        if let (Some(v), Some(mv)) = (variance.as_mut(), m.variance()) {
+            v.data[a..a + n].copy_from_slice(mv);
         }
     }
     let (turns, edge_median_um, edge_off_bands, seams) = b.finish();

@@ -211,9 +211,11 @@ fn row_at(pos: &[f64], inv: &[f64], t: f64, hint: &mut usize) -> Option<f64> {
     }
     *hint = i;
     if i + 1 == pos.len() {
-        return Some(i as f64);
+        return Some(i as i64 as f64);
     }
-    Some(i as f64 + (t - pos[i]) * inv[i])
+    // Through i64: `usize as f64` is a sequence of several instructions on x86-64 (no
+    // unsigned conversion), `i64 as f64` one; the value (far below 2^53) is the same.
+    Some(i as i64 as f64 + (t - pos[i]) * inv[i])
 }
 
 /// `1 / (pos[i + 1] - pos[i])` for every `i` (for [`row_at`]: a multiplication per pixel, not
@@ -446,8 +448,9 @@ impl Sampler<'_> {
                     // `b >= 0` (a row of `along`): truncation is its floor. Through i64: the
                     // saturating f64 -> u64 conversion is several instructions more on x86-64,
                     // and `b` is far below 2^63.
-                    let i = b as i64 as usize;
+                    let i = b as i64;
                     let f = b - i as f64;
+                    let i = i as usize;
                     let a0 = pl.across.get(i).copied().unwrap_or(0.0);
                     let a1 = pl.across.get(i + 1).copied().unwrap_or(a0);
                     (b, c - (a0 * (1.0 - f) + a1 * f))
@@ -457,16 +460,17 @@ impl Sampler<'_> {
             None => (b, c),
         };
         // The row within the rows at hand.
-        let b = b - row0 as f64;
+        let b = b - row0 as i64 as f64;
         if !(b >= 0.0 && c >= 0.0 && b <= last_b && c <= last_c) {
             return Pixel::Invalid;
         }
         // Both non-negative here: truncation is the floor (no libm `floor` call in the
         // hot loop; the x86-64 baseline has no rounding instruction), and far below 2^63
         // (through i64, as above).
-        let (b0, c0) = (b as i64 as usize, c as i64 as usize);
-        let (b1, c1) = ((b0 + 1).min(rows - 1), (c0 + 1).min(w - 1));
+        let (b0, c0) = (b as i64, c as i64);
         let (fb, fc) = (b - b0 as f64, c - c0 as f64);
+        let (b0, c0) = (b0 as usize, c0 as usize);
+        let (b1, c1) = ((b0 + 1).min(rows - 1), (c0 + 1).min(w - 1));
         let lost = |r: usize| src.lost_rows.get(row0 + r).copied().unwrap_or(false);
         if self.any_lost && ((lost(b0) && fb < 1.0) || (lost(b1) && fb > 0.0)) {
             return Pixel::Lost;
