@@ -4,7 +4,7 @@
 //! resampled from every camera once its rows are unwrapped ([`crate::resample`]), blended
 //! ([`crate::blend::Blender`]) and copied into the map; then the camera rows no later band
 //! needs are dropped. What it holds besides the map: per camera a chunk of wrapped rows with
-//! its margins (and at most 16 pushes waiting for its thread), the unwrapped
+//! its margins (and at most 2 pushes waiting for its thread), the unwrapped
 //! rows of a band, the layers of one band (more only while a turn waits for evidence, see
 //! [`crate::blend`]). [`assemble`] feeds whole cameras through it.
 //!
@@ -124,7 +124,7 @@ enum Unwrapped {
 }
 
 /// Pushes a camera's thread holds before the pusher waits for it.
-const QUEUED_PUSHES: usize = 16;
+const QUEUED_PUSHES: usize = 2;
 
 /// A camera's state in the stitching.
 struct Cam {
