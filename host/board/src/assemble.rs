@@ -355,7 +355,13 @@ impl Stitcher {
         loop {
             let pending = self.cams.iter().any(|c| c.unwrapping.done.is_none());
             let got = if wait && !any && pending {
-                self.unwrapped.recv().ok()
+                match self.unwrapped.recv() {
+                    Ok(m) => Some(m),
+                    // Every thread is gone and one never sent its last rows: it panicked (a
+                    // bug). Stop, as the threads did when the stitcher ran them in a scope,
+                    // rather than wait for rows that cannot come.
+                    Err(_) => panic!("a camera's unwrapping thread stopped before its last rows"),
+                }
             } else {
                 self.unwrapped.try_recv().ok()
             };
