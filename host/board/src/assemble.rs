@@ -239,6 +239,8 @@ pub struct Stitcher {
     variance: Option<Vec<f32>>,
     camera: Vec<u8>,
     lost_pixels: u64,
+    /// Height values [`Self::push`] did not take (see [`Self::refused_values`]).
+    refused: usize,
     timing: Timing,
     /// The cameras' unwrapping threads' chunks.
     unwrapped: std::sync::mpsc::Receiver<Unwrapped>,
@@ -285,6 +287,7 @@ impl Stitcher {
             variance: variance.then(|| Vec::with_capacity(grid.rows * grid.width)),
             camera: Vec::with_capacity(grid.rows * grid.width),
             lost_pixels: 0,
+            refused: 0,
             timing: Timing::default(),
             unwrapped,
         }
@@ -295,17 +298,27 @@ impl Stitcher {
         self.done
     }
 
+    /// Height values [`Self::push`] did not take: rows of a camera after its [`Self::end`],
+    /// and a part row at the end of a push. Neither `dpsa board --streams` nor the line
+    /// pushes any; a count above 0 is a caller's mistake, which the caller can see here
+    /// (debug builds stop at [`Self::finish`]).
+    pub fn refused_values(&self) -> usize {
+        self.refused
+    }
+
     /// Camera `cam`'s next rows: wrapped heights (whole rows, um, NaN invalid) and, when the
     /// camera has one, their variance (um^2, same layout). Call [`Self::advance`] to work on
     /// them.
     /// A camera with a variance whose rows come without one has it unknown (NaN) there.
+    /// Whole rows only: a part row at the end, and rows after [`Self::end`] of that camera,
+    /// are not taken but counted ([`Self::refused_values`]).
     pub fn push(&mut self, cam: usize, heights: &[f32], variance: Option<&[f32]>) {
         let c = &mut self.cams[cam];
         let w = c.feed.period_um.len().max(1);
-        // Whole rows only (a part row at the end is not taken).
-        let rows = heights.len() / w;
+        let rows = if c.ended { 0 } else { heights.len() / w };
+        self.refused += heights.len() - rows * w;
         match &c.unwrapping.to {
-            Some(to) if rows > 0 && !c.ended => {
+            Some(to) if rows > 0 => {
                 // The thread ends only when told or when the stitcher is dropped.
                 let _ = to.send(heights[..rows * w].to_vec());
             }
@@ -460,6 +473,10 @@ impl Stitcher {
 
     /// Ends every camera, builds the remaining bands and returns the map.
     pub fn finish(mut self) -> Assembled {
+        debug_assert_eq!(
+            self.refused, 0,
+            "rows pushed after a camera's end, or part rows"
+        );
         for k in 0..self.cams.len() {
             self.end(k);
         }
@@ -785,6 +802,25 @@ mod tests {
         assert_eq!(a.lost_pixels, whole.lost_pixels);
         let bits = |g: &Grid| g.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
         assert!(bits(&a.blended.heights) == bits(&whole.blended.heights));
+    }
+
+    #[test]
+    fn rows_after_a_cameras_end_and_part_rows_are_refused_and_counted() {
+        let (cams, grid) = cameras();
+        let mut st = Stitcher::new(grid, cams.iter().map(feed_of).collect(), 64, 128);
+        let (w, h) = (cams[0].heights.width, &cams[0].heights.data);
+        st.push(0, &h[..2 * w], None);
+        assert_eq!(st.refused_values(), 0);
+        // A part row at a push's end.
+        st.push(0, &h[2 * w..3 * w + 3], None);
+        assert_eq!(st.refused_values(), 3);
+        st.end(0);
+        st.push(0, &h[3 * w..5 * w], None);
+        assert_eq!(st.refused_values(), 3 + 2 * w);
+        // Another camera is not affected.
+        st.push(1, &cams[1].heights.data[..cams[1].heights.width], None);
+        assert_eq!(st.refused_values(), 3 + 2 * w);
+        st.advance();
     }
 
     #[test]

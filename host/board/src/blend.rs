@@ -123,14 +123,15 @@ fn median(mut v: Vec<f32>) -> Option<f32> {
 pub struct BandMap {
     /// Board rows.
     pub rows: Range<usize>,
-    /// The band's values in each buffer below (`rows.len() x` the grid's width of them).
-    pub part: Range<usize>,
+    /// The band's values in each buffer below (`rows.len() x` the grid's width of them; the
+    /// buffers hold the halo rows around them too, so they are read through the accessors).
+    part: Range<usize>,
     /// Heights, um (NaN invalid).
-    pub heights: Vec<f32>,
+    heights: Vec<f32>,
     /// Variance, um^2 (NaN unknown), when a camera came with one.
-    pub variance: Option<Vec<f32>>,
+    variance: Option<Vec<f32>>,
     /// Source camera of each pixel.
-    pub camera: Vec<u8>,
+    camera: Vec<u8>,
     /// Pixels left invalid because a camera lost the rows that would have covered them.
     pub lost_pixels: u64,
 }
@@ -617,12 +618,17 @@ fn mix_part(
     (hs, mut vs, cs): (&mut [f32], Option<&mut [f32]>, &mut [u8]),
 ) {
     let mut acc = vec![Mix::NONE; w];
+    let mut cuts: Vec<usize> = Vec::with_capacity(2 * layers.len() + 2);
     for (k_row, (h_out, c_out)) in hs
         .chunks_mut(w.max(1))
         .zip(cs.chunks_mut(w.max(1)))
         .enumerate()
     {
         let r = r0 + k_row;
+        if vs.is_none() {
+            mix_row_by_cover(layers, r, h_out, c_out, &mut cuts, &mut acc);
+            continue;
+        }
         acc.fill(Mix::NONE);
         for (k, l) in layers.iter().enumerate() {
             add_layer_row(&mut acc, l, r, k.min(254) as u8);
@@ -647,6 +653,73 @@ fn mix_part(
     }
 }
 
+/// [`mix_part`]'s row `r` without variances, the same values: in the columns that one
+/// layer's window alone covers (all but the seams), each pixel is that layer's height where
+/// it is valid (`(w h) / w` is `h`: the product of two `f32` is exact in `f64`, and so is
+/// the quotient; `+ 0.0` gives the sums' `+0` for a `-0`), and its camera; where windows
+/// overlap, the sums of [`add_layer_row`]; where none reaches, invalid.
+fn mix_row_by_cover(
+    layers: &[Layer],
+    r: usize,
+    h_out: &mut [f32],
+    c_out: &mut [u8],
+    cuts: &mut Vec<usize>,
+    acc: &mut Vec<Mix>,
+) {
+    let w = h_out.len();
+    let cols = |l: &Layer| l.cols.start.min(w)..l.cols.end.min(w);
+    let live = |l: &&Layer| l.rows.contains(&r) && !cols(l).is_empty();
+    cuts.clear();
+    cuts.extend([0, w]);
+    for l in layers.iter().filter(live) {
+        cuts.extend([cols(l).start, cols(l).end]);
+    }
+    cuts.sort_unstable();
+    cuts.dedup();
+    for seg in cuts.windows(2) {
+        let (a, b) = (seg[0], seg[1]);
+        let mut over = layers
+            .iter()
+            .enumerate()
+            .filter(|(_, l)| live(l) && cols(l).start <= a && b <= cols(l).end);
+        let (h_seg, c_seg) = (&mut h_out[a..b], &mut c_out[a..b]);
+        match (over.next(), over.next()) {
+            (None, _) => {
+                h_seg.fill(f32::NAN);
+                c_seg.fill(NO_CAMERA);
+            }
+            (Some((k, l)), None) => {
+                let at = (r - l.rows.start) * l.cols.len() + (a - l.cols.start);
+                let (hs, ws) = (
+                    &l.heights.data[at..at + (b - a)],
+                    &l.weight.data[at..at + (b - a)],
+                );
+                let k = k.min(254) as u8;
+                for (((o, c), &h), &wt) in h_seg.iter_mut().zip(c_seg.iter_mut()).zip(hs).zip(ws) {
+                    let valid = h.is_finite() && wt > 0.0;
+                    *o = if valid { h + 0.0 } else { f32::NAN };
+                    *c = if valid { k } else { NO_CAMERA };
+                }
+            }
+            _ => {
+                acc.clear();
+                acc.resize(b - a, Mix::NONE);
+                for (k, l) in layers.iter().enumerate() {
+                    if live(&l) && cols(l).start <= a && b <= cols(l).end {
+                        let at = (r - l.rows.start) * l.cols.len() + (a - l.cols.start);
+                        add_part(acc, l, at, k.min(254) as u8);
+                    }
+                }
+                for ((o, c), m) in h_seg.iter_mut().zip(c_seg.iter_mut()).zip(acc.iter()) {
+                    let valid = m.ws > 0.0;
+                    *o = if valid { (m.s / m.ws) as f32 } else { f32::NAN };
+                    *c = if valid { m.best.1 } else { NO_CAMERA };
+                }
+            }
+        }
+    }
+}
+
 /// Adds layer `l` (number `k`) at board row `r` to the sums of the row's pixels `acc`.
 fn add_layer_row(acc: &mut [Mix], l: &Layer, r: usize, k: u8) {
     if !l.rows.contains(&r) {
@@ -654,11 +727,16 @@ fn add_layer_row(acc: &mut [Mix], l: &Layer, r: usize, k: u8) {
     }
     let cols = l.cols.start.min(acc.len())..l.cols.end.min(acc.len());
     let at = (r - l.rows.start) * l.cols.len();
-    let n = cols.len();
+    add_part(&mut acc[cols], l, at, k);
+}
+
+/// Adds layer `l`'s pixels from its window index `at` on, one to each of `acc`.
+fn add_part(acc: &mut [Mix], l: &Layer, at: usize, k: u8) {
+    let n = acc.len();
     let (hs, ws) = (&l.heights.data[at..at + n], &l.weight.data[at..at + n]);
     // A camera without a variance leaves the pixel's unknown (NaN).
     let vs = l.variance.as_ref().map(|v| &v.data[at..at + n]);
-    for (j, m) in acc[cols].iter_mut().enumerate() {
+    for (j, m) in acc.iter_mut().enumerate() {
         let (h, w) = (hs[j], ws[j]);
         if h.is_finite() && w > 0.0 {
             let wf = f64::from(w);
@@ -846,6 +924,58 @@ mod tests {
             lost_rows: &[],
         };
         resample(&src, &place, grid, 0..grid.rows, 15.0)
+    }
+
+    /// Without variances, a row is mixed by the layers' cover (one layer's pixels taken as
+    /// they are): the same heights and cameras, bit for bit, as the sums over every layer
+    /// that the variances' path still makes; windows that overlap, end mid-band, reach past
+    /// the grid and miss rows; invalid pixels, zero weights and `-0` heights.
+    #[test]
+    fn a_row_by_cover_is_the_weighted_sums() {
+        let mut seed = 5u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (w, rows) = (300usize, 40usize);
+        let windows = [
+            (0..30, 0..120),
+            (5..40, 100..210),
+            (0..40, 190..330),
+            (12..20, 50..60),
+        ];
+        let layers: Vec<Layer> = windows
+            .iter()
+            .map(|(rs, cs)| {
+                let mut l = Layer::empty(rs.clone(), cs.clone(), false);
+                for (h, wt) in l.heights.data.iter_mut().zip(l.weight.data.iter_mut()) {
+                    let u = rnd();
+                    *h = match (u * 20.0) as u32 {
+                        0 => f32::NAN,
+                        1 => -0.0,
+                        _ => (300.0 * rnd() - 100.0) as f32,
+                    };
+                    *wt = if u > 0.97 {
+                        0.0
+                    } else {
+                        rnd().max(1e-3) as f32
+                    };
+                }
+                l
+            })
+            .collect();
+        let n = rows * w;
+        let (mut h1, mut c1) = (vec![0.0f32; n], vec![0u8; n]);
+        let (mut h2, mut v2, mut c2) = (vec![0.0f32; n], vec![0.0f32; n], vec![0u8; n]);
+        mix_part(&layers, 0, w, (&mut h1, None, &mut c1));
+        mix_part(&layers, 0, w, (&mut h2, Some(&mut v2), &mut c2));
+        assert_eq!(c1, c2);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert!(bits(&h1) == bits(&h2));
+        let valid = c1.iter().filter(|&&c| c != NO_CAMERA).count();
+        assert!(valid > n / 2 && h1.iter().any(|h| h.is_nan()));
     }
 
     #[test]

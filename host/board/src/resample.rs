@@ -324,6 +324,9 @@ pub fn resample(
     out
 }
 
+/// Columns of a row whose camera rows are found together ([`Sampler::seen_at`]).
+const RUN: usize = 64;
+
 /// Fewest rows a thread of [`resample`] takes.
 const MIN_PART_ROWS: usize = 32;
 
@@ -409,58 +412,160 @@ impl Sampler<'_> {
             mut variance,
             lost,
         } = out;
+        let (mut bs, mut cs) = ([0.0f64; RUN], [0.0f64; RUN]);
+        let src = self.src;
+        let taps = Taps {
+            hs: &src.heights.data,
+            vs: src.variance.map(|v| &v.data[..]),
+            period: src.period_um,
+            lost_rows: src.lost_rows,
+            w: src.heights.width,
+            rows: src.heights.rows,
+            row0: src.row0,
+            row0_f: src.row0 as i64 as f64,
+            last_b: self.last.0,
+            last_c: self.last.1,
+            inv_feather: self.inv_feather,
+            any_lost: self.any_lost,
+        };
         for (k, i) in is.enumerate() {
             let b_row =
                 (self.grid.centre(i, 0).0 - self.x0) * self.inv_row - self.src.first_row as f64;
             // The row places' search starts from the nominal row, then from the last found.
             let mut hint = b_row.max(0.0) as usize;
-            let at = k * lw;
-            for (jj, &(c, along_c)) in self.cols.iter().enumerate() {
-                let idx = at + jj;
-                let (h, v, t, wt) = match self.pixel(b_row - along_c, c, &mut hint) {
-                    Pixel::Valid(h, v, t, wt) => (h, v, t, wt),
-                    Pixel::Invalid => (f32::NAN, f32::NAN, f32::NAN, 0.0),
-                    Pixel::Lost => {
-                        lost[idx] = true;
-                        (f32::NAN, f32::NAN, f32::NAN, 0.0)
+            for (n, run) in self.cols.chunks(RUN).enumerate() {
+                let (bs, cs) = (&mut bs[..run.len()], &mut cs[..run.len()]);
+                self.seen_at(b_row, run, &mut hint, bs, cs);
+                let at = k * lw + n * RUN;
+                for (jj, (&b, &c)) in bs.iter().zip(cs.iter()).enumerate() {
+                    let idx = at + jj;
+                    let (h, v, t, wt) = match taps.pixel(b, c) {
+                        Pixel::Valid(h, v, t, wt) => (h, v, t, wt),
+                        Pixel::Invalid => (f32::NAN, f32::NAN, f32::NAN, 0.0),
+                        Pixel::Lost => {
+                            lost[idx] = true;
+                            (f32::NAN, f32::NAN, f32::NAN, 0.0)
+                        }
+                    };
+                    heights[idx] = h;
+                    period[idx] = t;
+                    weight[idx] = wt;
+                    if let Some(vs) = variance.as_deref_mut() {
+                        vs[idx] = v;
                     }
-                };
-                heights[idx] = h;
-                period[idx] = t;
-                weight[idx] = wt;
-                if let Some(vs) = variance.as_deref_mut() {
-                    vs[idx] = v;
                 }
             }
         }
     }
 
-    /// The pixel at camera row `b` (nominal, from the camera's row 0) and column `c`.
+    /// Where the pixels of a run of window columns `run` of the board row at nominal camera
+    /// row `b_row` were seen: camera rows `bs` (from the camera's row 0; NaN outside the row
+    /// places) and columns `cs`.
+    ///
+    /// A run spans a small fraction of a camera row along the motion, so nearly always all its
+    /// pixels fall between the same two row places: [`row_at`]'s search is made once for the
+    /// run, and each pixel takes the same arithmetic [`row_at`] would (the same values).
     #[inline]
-    fn pixel(&self, b: f64, c: f64, hint: &mut usize) -> Pixel {
-        let src = self.src;
-        let (heights, row0) = (src.heights, src.row0);
-        let (w, rows) = (heights.width, heights.rows);
-        let (last_b, last_c) = self.last;
-        let (b, c) = match self.places {
-            Some((pl, inv)) => match row_at(&pl.along, inv, b, hint) {
-                Some(b) => {
-                    // `b >= 0` (a row of `along`): truncation is its floor. Through i64: the
-                    // saturating f64 -> u64 conversion is several instructions more on x86-64,
-                    // and `b` is far below 2^63.
-                    let i = b as i64;
-                    let f = b - i as f64;
-                    let i = i as usize;
-                    let a0 = pl.across.get(i).copied().unwrap_or(0.0);
-                    let a1 = pl.across.get(i + 1).copied().unwrap_or(a0);
-                    (b, c - (a0 * (1.0 - f) + a1 * f))
-                }
-                None => return Pixel::Invalid,
-            },
-            None => (b, c),
+    fn seen_at(
+        &self,
+        b_row: f64,
+        run: &[(f64, f64)],
+        hint: &mut usize,
+        bs: &mut [f64],
+        cs: &mut [f64],
+    ) {
+        let Some((pl, inv)) = self.places else {
+            for ((b, c), &(cc, along_c)) in bs.iter_mut().zip(cs.iter_mut()).zip(run) {
+                (*b, *c) = (b_row - along_c, cc);
+            }
+            return;
         };
+        let pos = &pl.along;
+        let across = |b: f64, c: f64| {
+            // `b >= 0` (a row of `along`): truncation is its floor. Through i64: the
+            // saturating f64 -> u64 conversion is several instructions more on x86-64, and
+            // `b` is far below 2^63.
+            let i = b as i64;
+            let f = b - i as f64;
+            let i = i as usize;
+            let a0 = pl.across.get(i).copied().unwrap_or(0.0);
+            let a1 = pl.across.get(i + 1).copied().unwrap_or(a0);
+            c - (a0 * (1.0 - f) + a1 * f)
+        };
+        // The nominal rows of the run's ends are its least and greatest (`along_c` is the
+        // camera column times a constant, and the columns increase along the window).
+        let (t0, t1) = (b_row - run[0].1, b_row - run[run.len() - 1].1);
+        let (lo, hi) = (t0.min(t1), t0.max(t1));
+        let one = match row_at(pos, inv, lo, hint) {
+            Some(_) if hi.is_finite() && *hint + 1 < pos.len() && hi < pos[*hint + 1] => {
+                Some(*hint)
+            }
+            _ => None,
+        };
+        match one {
+            Some(s) => {
+                // `pos[s] <= lo <= t <= hi < pos[s + 1]` for every pixel: `row_at` would find
+                // row `s` for each.
+                let (p, q) = (pos[s], inv[s]);
+                let s = s as i64 as f64;
+                for ((b, c), &(cc, along_c)) in bs.iter_mut().zip(cs.iter_mut()).zip(run) {
+                    let t = b_row - along_c;
+                    *b = s + (t - p) * q;
+                    *c = across(*b, cc);
+                }
+            }
+            None => {
+                for ((b, c), &(cc, along_c)) in bs.iter_mut().zip(cs.iter_mut()).zip(run) {
+                    match row_at(pos, inv, b_row - along_c, hint) {
+                        Some(r) => (*b, *c) = (r, across(r, cc)),
+                        None => (*b, *c) = (f64::NAN, cc),
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// What a pixel is interpolated from: the rows at hand of a camera ([`Sampler`]'s, copied
+/// into locals for the loop).
+#[derive(Clone, Copy)]
+struct Taps<'a> {
+    hs: &'a [f32],
+    vs: Option<&'a [f32]>,
+    period: &'a [f32],
+    lost_rows: &'a [bool],
+    w: usize,
+    rows: usize,
+    row0: usize,
+    /// `row0` as f64.
+    row0_f: f64,
+    last_b: f64,
+    last_c: f64,
+    inv_feather: f64,
+    any_lost: bool,
+}
+
+impl Taps<'_> {
+    /// The pixel at camera row `b` (from the camera's row 0, where the row places put it;
+    /// NaN: none) and column `c`.
+    #[inline]
+    fn pixel(&self, b: f64, c: f64) -> Pixel {
+        let Taps {
+            hs,
+            vs,
+            period,
+            lost_rows,
+            w,
+            rows,
+            row0,
+            row0_f,
+            last_b,
+            last_c,
+            inv_feather,
+            any_lost,
+        } = *self;
         // The row within the rows at hand.
-        let b = b - row0 as i64 as f64;
+        let b = b - row0_f;
         if !(b >= 0.0 && c >= 0.0 && b <= last_b && c <= last_c) {
             return Pixel::Invalid;
         }
@@ -471,21 +576,13 @@ impl Sampler<'_> {
         let (fb, fc) = (b - b0 as f64, c - c0 as f64);
         let (b0, c0) = (b0 as usize, c0 as usize);
         let (b1, c1) = ((b0 + 1).min(rows - 1), (c0 + 1).min(w - 1));
-        let lost = |r: usize| src.lost_rows.get(row0 + r).copied().unwrap_or(false);
-        if self.any_lost && ((lost(b0) && fb < 1.0) || (lost(b1) && fb > 0.0)) {
+        let lost = |r: usize| lost_rows.get(row0 + r).copied().unwrap_or(false);
+        if any_lost && ((lost(b0) && fb < 1.0) || (lost(b1) && fb > 0.0)) {
             return Pixel::Lost;
         }
         let (r0, r1) = (b0 * w, b1 * w);
-        let taps = [
-            (r0 + c0, (1.0 - fb) * (1.0 - fc)),
-            (r0 + c1, (1.0 - fb) * fc),
-            (r1 + c0, fb * (1.0 - fc)),
-            (r1 + c1, fb * fc),
-        ];
-        let (hs, vs) = (&heights.data, src.variance.map(|v| &v.data[..]));
-        let period = src.period_um;
         let edge = c.min(last_c - c) + 0.5;
-        let wt = (edge * self.inv_feather).clamp(1e-3, 1.0) as f32;
+        let wt = (edge * inv_feather).clamp(1e-3, 1.0) as f32;
         let t = f64::from(period[c0]) * (1.0 - fc) + f64::from(period[c1]) * fc;
         if vs.is_none() {
             // Four valid neighbours (nearly every pixel): the bilinear value as two lerps
@@ -498,6 +595,12 @@ impl Sampler<'_> {
                 return Pixel::Valid((top + fb * (bottom - top)) as f32, f32::NAN, t as f32, wt);
             }
         }
+        let taps = [
+            (r0 + c0, (1.0 - fb) * (1.0 - fc)),
+            (r0 + c1, (1.0 - fb) * fc),
+            (r1 + c0, fb * (1.0 - fc)),
+            (r1 + c1, fb * fc),
+        ];
         let (mut sum, mut wsum, mut vsum) = (0.0f64, 0.0f64, 0.0f64);
         // Without a branch per tap: a tap left out adds `0 x 0`, which leaves each sum the
         // same value (none of them is ever -0: it starts at +0 and `x + (-x)` is +0).
@@ -549,6 +652,96 @@ mod tests {
         assert_eq!(row_at(&pos, &inv, pos[0] - 0.01, &mut 0), None);
         assert_eq!(row_at(&pos, &inv, pos[49] + 0.01, &mut 0), None);
         assert_eq!(row_at(&[], &[], 0.0, &mut 0), None);
+    }
+
+    /// A run of columns takes the rows the search would find for each of its pixels, the
+    /// same values bit for bit, whether the run lies between two row places or crosses
+    /// several (a steep slope across the run), and NaN where the search finds none.
+    #[test]
+    fn a_run_of_columns_sees_each_pixel_where_the_search_does() {
+        let mut seed = 99u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let n = 200;
+        let along: Vec<f64> = (0..n).map(|i| i as f64 + 0.9 * (rnd() - 0.5)).collect();
+        let across: Vec<f64> = (0..n).map(|_| 0.6 * (rnd() - 0.5)).collect();
+        let places = crate::places::RowPlaces {
+            along,
+            across,
+            samples: Vec::new(),
+        };
+        let inv = inverse_steps(&places.along);
+        let heights = Grid::invalid(4, 4);
+        let src = Source {
+            heights: &heights,
+            row0: 0,
+            variance: None,
+            period_um: &[400.0; 4],
+            first_row: 0,
+            places: Some(&places),
+            lost_rows: &[],
+        };
+        let grid = BoardGrid {
+            x0_mm: 0.0,
+            y0_mm: 0.0,
+            pitch_mm: 0.03,
+            rows: 4,
+            width: 4,
+        };
+        let (mut crossed, mut nan) = (0, 0);
+        // Rows per column along the motion: none, a small rotation either way, steep.
+        for slope in [0.0, 0.0017, -0.0023, 0.04, -0.11] {
+            let cols: Vec<(f64, f64)> = (0..300)
+                .map(|j| (j as f64 * 1.01, j as f64 * slope))
+                .collect();
+            let ctx = Sampler {
+                src: &src,
+                x0: 0.0,
+                inv_row: 1.0,
+                grid: &grid,
+                cols: &cols,
+                places: Some((&places, &inv)),
+                any_lost: false,
+                inv_feather: 0.1,
+                last: (3.0, 3.0),
+            };
+            for k in 0..400 {
+                let b_row = -15.0 + 230.0 * rnd();
+                let mut hint = [0, 50, 199, 1000][k % 4];
+                for run in cols.chunks(RUN) {
+                    let (mut bs, mut cs) = (vec![0.0; run.len()], vec![0.0; run.len()]);
+                    ctx.seen_at(b_row, run, &mut hint, &mut bs, &mut cs);
+                    let mut segs = std::collections::BTreeSet::new();
+                    for (jj, &(c, along_c)) in run.iter().enumerate() {
+                        let mut h = 0;
+                        let (b, c) = match row_at(&places.along, &inv, b_row - along_c, &mut h) {
+                            Some(r) => {
+                                segs.insert(h);
+                                let i = r.floor() as usize;
+                                let f = r - i as f64;
+                                let a0 = places.across.get(i).copied().unwrap_or(0.0);
+                                let a1 = places.across.get(i + 1).copied().unwrap_or(a0);
+                                (r, c - (a0 * (1.0 - f) + a1 * f))
+                            }
+                            None => (f64::NAN, c),
+                        };
+                        if b.is_nan() {
+                            nan += 1;
+                            assert!(bs[jj].is_nan());
+                        } else {
+                            assert_eq!(bs[jj].to_bits(), b.to_bits(), "{slope} {b_row} {jj}");
+                        }
+                        assert_eq!(cs[jj].to_bits(), c.to_bits(), "{slope} {b_row} {jj}");
+                    }
+                    crossed += usize::from(segs.len() > 1);
+                }
+            }
+        }
+        assert!(crossed > 100 && nan > 100, "{crossed} {nan}");
     }
 
     #[test]

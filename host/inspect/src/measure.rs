@@ -655,7 +655,8 @@ fn nearest_of(placed: &Placed, k: usize, near: &[usize], q: Point, d: f64) -> bo
         // Box distance is a lower bound of the outline's distance.
         let bx = (b[0] - q[0]).max(q[0] - b[2]).max(0.0);
         let by = (b[1] - q[1]).max(q[1] - b[3]).max(0.0);
-        if bx > d || by > d || norm(bx, by) > d {
+        // Beside the box (`bx` or `by` zero) the norm is the other one, tested already.
+        if bx > d || by > d || (bx > 0.0 && by > 0.0 && norm(bx, by) > d) {
             continue;
         }
         let dj = placed.outlines[j].signed_distance(q);
@@ -852,11 +853,11 @@ fn bare(placed: &Placed, near: &[usize], q: Point, guard: f64) -> bool {
         let b = &placed.bboxes[n];
         let bx = (b[0] - x).max(x - b[2]).max(0.0);
         let by = (b[1] - y).max(y - b[3]).max(0.0);
-        // `norm(bx, by) >= max(bx, by)` in floating point too: the first two tests only
-        // spare the square root.
+        // `norm(bx, by) >= max(bx, by)` in floating point too, and equal to it when the
+        // other is zero: the first two tests and the zeros only spare the square root.
         bx >= guard
             || by >= guard
-            || norm(bx, by) >= guard
+            || (bx > 0.0 && by > 0.0 && norm(bx, by) >= guard)
             || placed.outlines[n].signed_distance(q) >= guard
     }) && placed
         .fiducials
