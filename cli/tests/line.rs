@@ -974,6 +974,62 @@ fn bad_clients_are_refused_and_the_line_goes_on() {
     );
 }
 
+/// A camera's stream of a board sent twice on one connection, the second copy after the
+/// first one's end and before the other cameras end: the second copy's rows are dropped with a
+/// log line, never pushed into the board's map, and the board is stored as the offline
+/// inspection of the same streams.
+#[test]
+fn a_cameras_stream_sent_twice_on_one_connection_is_taken_once() {
+    use std::io::Write;
+    let f = fixture();
+    let dir = f.dir.join("twice");
+    let cfg = line_config(&dir, |t| t);
+    let addrs = listen_addrs(&cfg);
+    assert_eq!(addrs.len(), 3);
+    let run = start(&cfg, Some(1));
+    let connect = |a: &String| {
+        let t0 = Instant::now();
+        loop {
+            match std::net::TcpStream::connect(a.as_str()) {
+                Ok(s) => return s,
+                Err(_) if t0.elapsed() < Duration::from_secs(20) => {
+                    std::thread::sleep(Duration::from_millis(50))
+                }
+                Err(e) => panic!("{e}"),
+            }
+        }
+    };
+    let stream = |i: usize| std::fs::read(f.streams.join(format!("cam{i}.dpsa"))).unwrap();
+    let mut cam0 = connect(&addrs[0]);
+    cam0.write_all(&stream(0)).unwrap();
+    cam0.write_all(&stream(0)).unwrap();
+    // The line reads both copies of camera 0 before the others come.
+    let log_path = cfg.with_extension("log");
+    let t0 = Instant::now();
+    while !std::fs::read_to_string(&log_path)
+        .unwrap_or_default()
+        .contains("rows after this camera's end of the board: dropped")
+    {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "{}",
+            std::fs::read_to_string(&log_path).unwrap_or_default()
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let mut others: Vec<_> = (1..3).map(|i| connect(&addrs[i])).collect();
+    for (k, c) in others.iter_mut().enumerate() {
+        c.write_all(&stream(k + 1)).unwrap();
+    }
+    wait(run, 120, &cfg);
+    drop((cam0, others));
+    let boards = stored(&cfg);
+    assert_eq!(boards.len(), 1, "{boards:?}");
+    assert_offline(&boards[0]);
+    let log = std::fs::read_to_string(&log_path).unwrap();
+    assert!(log.contains("a second stream of it is dropped"), "{log}");
+}
+
 /// `kill -9` in the middle of a board: on restart the store checks out, the board is
 /// recorded incomplete with the reason, and the next board is inspected normally.
 #[test]

@@ -188,6 +188,13 @@ impl Boards {
                     return;
                 };
                 let p = &mut self.open[k].parts[camera];
+                if p.ended.is_some() {
+                    // A second stream of this board on the same connection, after the first
+                    // one's end: its rows are not this camera's board any more.
+                    let run = format!("{run_id:016x}");
+                    tracing::warn!(camera, conn, %run, "rows after this camera's end of the board: dropped");
+                    return;
+                }
                 p.last = Instant::now();
                 p.next_row = Some(chunk.first_row + chunk.rows as i64);
                 p.waiting.push(*chunk);
