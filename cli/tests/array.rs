@@ -1111,11 +1111,17 @@ fn board_bench_reports_every_stage_of_the_board() {
     let v = json_of(&out);
     let s = &v["seconds"];
     let stage = |k: &str| s[k].as_f64().unwrap_or_else(|| panic!("{k}: {v}"));
-    let stitching: f64 = ["provenance", "unwrap", "resample", "blend"]
-        .iter()
-        .map(|k| stage(k))
-        .sum();
-    assert!((stage("stitching") - stitching).abs() < 1e-9, "{v}");
+    // The stitching is the provenance and the assembly's wall time: the waits for the
+    // unwrapping and the resampling are on the assembling thread, one after the other, so
+    // within it; the blend runs beside them in a thread of its own, at most as long as the
+    // assembly.
+    let stitching = stage("stitching");
+    let on_thread = stage("provenance") + stage("unwrap") + stage("resample");
+    assert!(stitching >= on_thread - 1e-9, "{v}");
+    assert!(
+        stage("provenance") + stage("blend") <= stitching + 1e-9,
+        "{v}"
+    );
     // No program in this recording: no inspection stage.
     assert!(
         v["inspection"].is_null() && stage("inspection") == 0.0,

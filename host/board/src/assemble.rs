@@ -1,17 +1,20 @@
 //! One board map from the cameras' wrapped rows, band of board rows by band as the rows
 //! arrive ([`Stitcher`]): each camera's rows unwrapped chunk by chunk
 //! ([`crate::unwrap::Unwrapper`]) in a thread of its own, beside a band of board rows
-//! resampled from every camera once its rows are unwrapped ([`crate::resample`]), blended
-//! ([`crate::blend::Blender`]) and copied into the map; then the camera rows no later band
-//! needs are dropped. What it holds besides the map: per camera a chunk of wrapped rows with
-//! its margins (and at most 2 pushes waiting for its thread), the unwrapped
-//! rows of a band, the layers of one band (more only while a turn waits for evidence, see
-//! [`crate::blend`]). [`assemble`] feeds whole cameras through it.
+//! resampled from every camera once its rows are unwrapped ([`crate::resample`]), then
+//! blended ([`crate::blend::Blender`]) and copied into the map in a thread of its own
+//! (`Blending`) while the next band is resampled; then the camera rows no later band needs
+//! are dropped. What it holds besides the map: per camera a chunk of wrapped rows with its
+//! margins (and at most 2 pushes waiting for its thread), the unwrapped rows of a band, the
+//! layers of up to three bands (the one blended, one waiting for the blend, the one
+//! resampled; more only while a turn waits for evidence, see [`crate::blend`]).
+//! [`assemble`] feeds whole cameras through it.
 //!
-//! The unwrapping threads keep the cores busy while the bands' single-threaded parts run
-//! (the blend's turn and seam sums, the copies into the map): the paper board's stitching
-//! took 1.8 cores on average with the cameras unwrapped between bands. A chunk's heights do
-//! not depend on when it is unwrapped, so the map is the same bit for bit.
+//! The unwrapping threads and the blend thread keep the cores busy while a band's
+//! single-threaded parts run (the blend's turn and seam sums, the copies into the map): with
+//! the rows at the conveyor's pace the unwrapping keeps up with them, and a blend on the
+//! resampling's thread left a core idle. A chunk's heights do not depend on when it is
+//! unwrapped and the bands are blended in their order, so the map is the same bit for bit.
 
 use crate::blend::{Blended, Blender};
 use crate::places::RowPlaces;
@@ -58,7 +61,8 @@ pub struct Timing {
     pub unwrap_s: f64,
     /// Resampling onto the board grid, all cameras (in parallel threads), s.
     pub resample_s: f64,
-    /// Blending, turn alignment and seams, s.
+    /// Blending, turn alignment, seams and the copies into the map, s: the blend thread's
+    /// own time, beside the resampling of the next band (it overlaps `resample_s`).
     pub blend_s: f64,
 }
 
@@ -227,18 +231,10 @@ impl Cam {
 pub struct Stitcher {
     grid: BoardGrid,
     cams: Vec<Cam>,
-    blender: Blender,
+    blending: Blending,
     band_rows: usize,
     /// The first board row not yet resampled.
     next: usize,
-    /// The first board row not yet in the map.
-    done: usize,
-    /// The map's rows so far (grown band by band: no page of the map is touched before
-    /// its band is blended).
-    heights: Vec<f32>,
-    variance: Option<Vec<f32>>,
-    camera: Vec<u8>,
-    lost_pixels: u64,
     /// Height values [`Self::push`] did not take (see [`Self::refused_values`]).
     refused: usize,
     timing: Timing,
@@ -279,14 +275,9 @@ impl Stitcher {
         Stitcher {
             grid,
             cams,
-            blender: Blender::new(grid, n, EDGE_PX),
+            blending: Blending::new(MapRows::new(grid, variance), Blender::new(grid, n, EDGE_PX)),
             band_rows: band_rows.max(1),
             next: 0,
-            done: 0,
-            heights: Vec::with_capacity(grid.rows * grid.width),
-            variance: variance.then(|| Vec::with_capacity(grid.rows * grid.width)),
-            camera: Vec::with_capacity(grid.rows * grid.width),
-            lost_pixels: 0,
             refused: 0,
             timing: Timing::default(),
             unwrapped,
@@ -295,7 +286,9 @@ impl Stitcher {
 
     /// Board rows of the map finished so far (from row 0).
     pub fn rows_done(&self) -> usize {
-        self.done
+        self.blending
+            .done
+            .load(std::sync::atomic::Ordering::Relaxed)
     }
 
     /// Height values [`Self::push`] did not take: rows of a camera after its [`Self::end`],
@@ -407,7 +400,7 @@ impl Stitcher {
     fn build_bands(&mut self) {
         while self.next < self.grid.rows {
             let band = self.next..(self.next + self.band_rows).min(self.grid.rows);
-            let halo = self.blender.halo(&band);
+            let halo = Blender::halo_of(&self.grid, &band);
             let grid = &self.grid;
             if !self.cams.iter().all(|c| c.has(&c.needs(&halo, grid))) {
                 break;
@@ -438,36 +431,17 @@ impl Stitcher {
                     .map(|h| h.join().expect("resample thread"))
                     .collect()
             });
-            let t2 = Instant::now();
-            let bands = self.blender.band(band.clone(), layers);
-            self.put(bands);
-            self.timing.resample_s += (t2 - t1).as_secs_f64();
-            self.timing.blend_s += t2.elapsed().as_secs_f64();
+            self.timing.resample_s += t1.elapsed().as_secs_f64();
             self.next = band.end;
+            // The blend thread takes it once it has blended the band before (the resampling
+            // of the next band goes on meanwhile).
+            self.blending.band(band, layers);
             // The next band's halo starts one row before it.
-            let next = self.blender.halo(&(self.next..self.next + 1));
+            let next = Blender::halo_of(&self.grid, &(self.next..self.next + 1));
             for c in &mut self.cams {
                 let from = c.needs(&next, &self.grid).start;
                 c.drop_before(from);
             }
-        }
-    }
-
-    /// Appends blended bands (in board-row order) to the map.
-    fn put(&mut self, bands: Vec<crate::blend::BandMap>) {
-        for m in bands {
-            debug_assert_eq!(m.rows.start, self.done, "bands in order");
-            self.heights.extend_from_slice(m.heights());
-            self.camera.extend_from_slice(m.camera());
-            if let Some(v) = self.variance.as_mut() {
-                match m.variance() {
-                    Some(mv) => v.extend_from_slice(mv),
-                    None => v.resize(self.heights.len(), f32::NAN),
-                }
-            }
-            self.lost_pixels += m.lost_pixels;
-            self.done = m.rows.end;
-            crate::blend::recycle(m);
         }
     }
 
@@ -490,35 +464,143 @@ impl Stitcher {
                 break;
             }
         }
-        let t = Instant::now();
-        let bands = self.blender.end();
-        self.put(bands);
-        self.timing.blend_s += t.elapsed().as_secs_f64();
         let unreached = self
             .cams
             .iter()
             .map(|c| c.unwrapping.done.as_ref().map_or(0, |u| u.unreached))
             .collect();
-        let (turns, edge_median_um, edge_off_bands, seams) = self.blender.finish();
+        let (map, blender, blend_s) = self.blending.finish();
+        let (turns, edge_median_um, edge_off_bands, seams) = blender.finish();
         let (w, rows) = (self.grid.width, self.grid.rows);
         let grid = |data: Vec<f32>| Grid {
             width: w,
             rows,
             data,
         };
+        self.timing.blend_s = blend_s;
         Assembled {
             blended: Blended {
-                heights: grid(self.heights),
-                variance: self.variance.map(grid),
-                camera: self.camera,
+                heights: grid(map.heights),
+                variance: map.variance.map(grid),
+                camera: map.camera,
                 turns,
                 edge_median_um,
                 edge_off_bands,
                 seams,
             },
             unreached,
-            lost_pixels: self.lost_pixels,
+            lost_pixels: map.lost_pixels,
             timing: self.timing,
+        }
+    }
+}
+
+/// The map's rows so far (grown band by band: no page of the map is touched before its band
+/// is blended).
+struct MapRows {
+    heights: Vec<f32>,
+    variance: Option<Vec<f32>>,
+    camera: Vec<u8>,
+    lost_pixels: u64,
+}
+
+impl MapRows {
+    fn new(grid: BoardGrid, variance: bool) -> MapRows {
+        let n = grid.rows * grid.width;
+        MapRows {
+            heights: Vec::with_capacity(n),
+            variance: variance.then(|| Vec::with_capacity(n)),
+            camera: Vec::with_capacity(n),
+            lost_pixels: 0,
+        }
+    }
+
+    /// Appends blended bands (in board-row order); returns the board row after the last.
+    fn put(&mut self, bands: Vec<crate::blend::BandMap>, mut done: usize) -> usize {
+        for m in bands {
+            debug_assert_eq!(m.rows.start, done, "bands in order");
+            self.heights.extend_from_slice(m.heights());
+            self.camera.extend_from_slice(m.camera());
+            if let Some(v) = self.variance.as_mut() {
+                match m.variance() {
+                    Some(mv) => v.extend_from_slice(mv),
+                    None => v.resize(self.heights.len(), f32::NAN),
+                }
+            }
+            self.lost_pixels += m.lost_pixels;
+            done = m.rows.end;
+            crate::blend::recycle(m);
+        }
+        done
+    }
+}
+
+/// What the blend thread is handed.
+enum ToBlend {
+    /// A band's rows and every camera's layer over its halo.
+    Band(Range<usize>, Vec<Layer>),
+    /// No more bands: blend those waiting and hand back the map.
+    Finish,
+}
+
+/// The blend and the map in a thread of their own, a band behind the resampling: the blend of
+/// a band (single-threaded: the turns, the seams' sums, the copies into the map) runs while
+/// the next band is resampled, so that a core is not left idle through it when the
+/// unwrapping has caught up with the rows (as in the line, where the rows come at the
+/// conveyor's pace). At most one band waits for it; the bands are blended in their order, so
+/// the map is the same bit for bit.
+struct Blending {
+    to: std::sync::mpsc::SyncSender<ToBlend>,
+    /// The map, the blender and the seconds it blended, at the end.
+    thread: std::thread::JoinHandle<Option<(MapRows, Blender, f64)>>,
+    /// Board rows in the map so far.
+    done: std::sync::Arc<std::sync::atomic::AtomicUsize>,
+}
+
+impl Blending {
+    fn new(mut map: MapRows, mut blender: Blender) -> Blending {
+        let (to, bands) = std::sync::mpsc::sync_channel::<ToBlend>(1);
+        let done = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let rows = std::sync::Arc::clone(&done);
+        let thread = std::thread::spawn(move || {
+            let mut seconds = 0.0;
+            let mut at = 0;
+            // A stitcher dropped before its end (an abandoned board) stops it quietly.
+            while let Ok(msg) = bands.recv() {
+                let t = Instant::now();
+                let finish = matches!(msg, ToBlend::Finish);
+                let blended = match msg {
+                    ToBlend::Band(band, layers) => blender.band(band, layers),
+                    ToBlend::Finish => blender.end(),
+                };
+                at = map.put(blended, at);
+                rows.store(at, std::sync::atomic::Ordering::Relaxed);
+                seconds += t.elapsed().as_secs_f64();
+                if finish {
+                    return Some((map, blender, seconds));
+                }
+            }
+            None
+        });
+        Blending { to, thread, done }
+    }
+
+    /// Hands on band `rows` with every camera's layer over its halo (waiting while the band
+    /// before is blended).
+    fn band(&self, rows: Range<usize>, layers: Vec<Layer>) {
+        if self.to.send(ToBlend::Band(rows, layers)).is_err() {
+            // The thread ends only when told or when the stitcher is dropped: it panicked (a
+            // bug), as an unwrapping thread that never sends its last rows.
+            panic!("the blend thread stopped before the map's end");
+        }
+    }
+
+    /// Blends the bands waiting and hands back the map, the blender and the seconds blended.
+    fn finish(self) -> (MapRows, Blender, f64) {
+        let _ = self.to.send(ToBlend::Finish);
+        match self.thread.join() {
+            Ok(Some(r)) => r,
+            _ => panic!("the blend thread stopped before the map's end"),
         }
     }
 }

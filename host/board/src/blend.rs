@@ -251,7 +251,12 @@ impl Blender {
 
     /// The rows (with halo) a band of board rows `rows` needs its layers over.
     pub fn halo(&self, rows: &Range<usize>) -> Range<usize> {
-        rows.start.saturating_sub(1)..(rows.end + 1).min(self.grid.rows)
+        Blender::halo_of(&self.grid, rows)
+    }
+
+    /// [`Self::halo`] of a blend on `grid`.
+    pub fn halo_of(grid: &BoardGrid, rows: &Range<usize>) -> Range<usize> {
+        rows.start.saturating_sub(1)..(rows.end + 1).min(grid.rows)
     }
 
     /// The next band: board rows `rows` (following the last band's), with every camera's layer

@@ -55,8 +55,9 @@ impl<T: Copy> Pool<T> {
     }
 }
 
-/// The layers' grids: a band's layers (four grids for each of three cameras) and some more.
-pub(crate) static LAYERS: Pool<f32> = Pool::new(16);
+/// The layers' grids: two bands' layers (up to four grids for each of three cameras; one band
+/// is blended while the next is resampled, see `assemble`).
+pub(crate) static LAYERS: Pool<f32> = Pool::new(36);
 
 /// The blend's band heights and variances (of two boards at a time).
 pub(crate) static BAND_F32: Pool<f32> = Pool::new(4);
