@@ -27,6 +27,7 @@ pub mod link_bench;
 pub mod maps;
 pub mod memory;
 pub mod printer;
+pub mod priority;
 pub mod send;
 pub mod service;
 pub mod store;

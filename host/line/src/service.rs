@@ -184,6 +184,15 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
     }
     drop(tx);
 
+    // The keeper and the links' threads are started: this thread and the stitching threads
+    // it starts run below them (`crate::priority`).
+    match crate::priority::lower_this_thread(crate::priority::STITCH_NICE) {
+        Some(nice) => tracing::debug!(nice, "the boards' thread runs below the keeper"),
+        None => tracing::warn!(
+            "the boards' thread could not lower its priority: the next board's stitching \
+             competes with this board's inspection on equal terms"
+        ),
+    }
     let mut boards = Boards::new(setup, job_tx, gate);
     let ended = |t: &Mutex<Tally>| t.lock().map_or(0, |t| t.boards);
     let mut stopping = false;
