@@ -925,34 +925,18 @@ fn bad_clients_are_refused_and_the_line_goes_on() {
     let f = fixture();
     let dir = f.dir.join("bad-clients");
     let cfg = line_config(&dir, |t| t.replace("header_s = 5.0", "header_s = 1.0"));
-    let text = std::fs::read_to_string(&cfg).unwrap();
-    let addrs: Vec<std::net::SocketAddr> = text
-        .lines()
-        .filter_map(|l| l.trim().strip_prefix("listen = \""))
-        .map(|l| l.trim_end_matches('"').parse().unwrap())
-        .collect();
+    let addrs = listen_addrs(&cfg);
     assert_eq!(addrs.len(), 3);
     let run = start(&cfg, Some(1));
-    // The line binds its ports at start.
-    let connect = |a| {
-        let t0 = Instant::now();
-        loop {
-            match std::net::TcpStream::connect(a) {
-                Ok(s) => return s,
-                Err(_) if t0.elapsed() < Duration::from_secs(20) => {
-                    std::thread::sleep(Duration::from_millis(50))
-                }
-                Err(e) => panic!("{e}"),
-            }
-        }
-    };
-    let mut garbage = connect(addrs[0]);
+    let mut garbage = connect_when_listening(&addrs[0]);
     let junk: Vec<u8> = (0..3_000_000u32)
         .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
         .collect();
     let _ = garbage.write_all(&junk);
-    let idle: Vec<_> = (0..100).map(|i| connect(addrs[i % 2])).collect();
-    let mut foreign = connect(addrs[2]);
+    let idle: Vec<_> = (0..100)
+        .map(|i| connect_when_listening(&addrs[i % 2]))
+        .collect();
+    let mut foreign = connect_when_listening(&addrs[2]);
     let _ = foreign.write_all(&std::fs::read(f.streams.join("cam0.dpsa")).unwrap());
     std::thread::sleep(Duration::from_millis(1500));
     drop(idle);
@@ -987,20 +971,8 @@ fn a_cameras_stream_sent_twice_on_one_connection_is_taken_once() {
     let addrs = listen_addrs(&cfg);
     assert_eq!(addrs.len(), 3);
     let run = start(&cfg, Some(1));
-    let connect = |a: &String| {
-        let t0 = Instant::now();
-        loop {
-            match std::net::TcpStream::connect(a.as_str()) {
-                Ok(s) => return s,
-                Err(_) if t0.elapsed() < Duration::from_secs(20) => {
-                    std::thread::sleep(Duration::from_millis(50))
-                }
-                Err(e) => panic!("{e}"),
-            }
-        }
-    };
     let stream = |i: usize| std::fs::read(f.streams.join(format!("cam{i}.dpsa"))).unwrap();
-    let mut cam0 = connect(&addrs[0]);
+    let mut cam0 = connect_when_listening(&addrs[0]);
     cam0.write_all(&stream(0)).unwrap();
     cam0.write_all(&stream(0)).unwrap();
     // The line reads both copies of camera 0 before the others come.
@@ -1017,7 +989,7 @@ fn a_cameras_stream_sent_twice_on_one_connection_is_taken_once() {
         );
         std::thread::sleep(Duration::from_millis(50));
     }
-    let mut others: Vec<_> = (1..3).map(|i| connect(&addrs[i])).collect();
+    let mut others: Vec<_> = (1..3).map(|i| connect_when_listening(&addrs[i])).collect();
     for (k, c) in others.iter_mut().enumerate() {
         c.write_all(&stream(k + 1)).unwrap();
     }
@@ -1222,6 +1194,20 @@ fn sigterm_finishes_the_board_in_progress_then_exits() {
 }
 
 /// The cameras' addresses of a line configuration (`listen = "..."`), in camera order.
+/// A connection to `addr` once the line listens there: it binds its ports at its start, so
+/// refused connections are tried again for up to 30 s.
+fn connect_when_listening(addr: &str) -> std::net::TcpStream {
+    let t0 = Instant::now();
+    loop {
+        match std::net::TcpStream::connect(addr) {
+            Ok(s) => return s,
+            Err(e) if t0.elapsed() > Duration::from_secs(30) => panic!("{addr}: {e}"),
+            Err(_) => std::thread::sleep(Duration::from_millis(50)),
+        }
+    }
+}
+
+/// The cameras' listening addresses of a line's configuration, in its order.
 fn listen_addrs(cfg: &Path) -> Vec<String> {
     std::fs::read_to_string(cfg)
         .unwrap()
@@ -1243,15 +1229,7 @@ fn sigterm_still_takes_a_late_camera_of_the_board_in_progress() {
     assert_eq!(addrs.len(), 3, "{addrs:?}");
     let stream = |i: usize| std::fs::read(f.streams.join(format!("cam{i}.dpsa"))).unwrap();
     let send = |i: usize| {
-        // The line may not listen yet just after its start.
-        let t0 = Instant::now();
-        let mut c = loop {
-            match std::net::TcpStream::connect(&addrs[i]) {
-                Ok(c) => break c,
-                Err(e) if t0.elapsed() > Duration::from_secs(30) => panic!("camera {i}: {e}"),
-                Err(_) => std::thread::sleep(Duration::from_millis(50)),
-            }
-        };
+        let mut c = connect_when_listening(&addrs[i]);
         c.write_all(&stream(i)).unwrap();
         c.shutdown(std::net::Shutdown::Write).unwrap();
         c

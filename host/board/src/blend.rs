@@ -937,13 +937,8 @@ mod tests {
     /// the grid and miss rows; invalid pixels, zero weights and `-0` heights.
     #[test]
     fn a_row_by_cover_is_the_weighted_sums() {
-        let mut seed = 5u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::test_rng::Lcg(5);
+        let mut rnd = || rng.next();
         let (w, rows) = (300usize, 40usize);
         let windows = [
             (0..30, 0..120),

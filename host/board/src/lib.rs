@@ -41,6 +41,8 @@ pub mod provenance;
 pub mod resample;
 pub mod run;
 pub mod streams;
+#[cfg(test)]
+mod test_rng;
 pub mod unwrap;
 
 pub use dpsa_formats::grid::{BoardGrid, Grid};

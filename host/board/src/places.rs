@@ -287,17 +287,7 @@ mod tests {
     use crate::Grid;
     use std::f64::consts::TAU;
 
-    /// A small deterministic generator: uniform in `[0, 1)`.
-    struct Lcg(u64);
-    impl Lcg {
-        fn next(&mut self) -> f64 {
-            self.0 = self
-                .0
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (self.0 >> 11) as f64 / (1u64 << 53) as f64
-        }
-    }
+    use crate::test_rng::Lcg;
 
     /// A window of `n` frames about `step` rows apart (a step of 4 to 8 rows turns a fringe of
     /// 10.3 rows by 140 to 280 degrees: a window the core takes) (with up to a quarter row of jitter),

@@ -659,13 +659,8 @@ mod tests {
     /// several (a steep slope across the run), and NaN where the search finds none.
     #[test]
     fn a_run_of_columns_sees_each_pixel_where_the_search_does() {
-        let mut seed = 99u64;
-        let mut rnd = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::test_rng::Lcg(99);
+        let mut rnd = || rng.next();
         let n = 200;
         let along: Vec<f64> = (0..n).map(|i| i as f64 + 0.9 * (rnd() - 0.5)).collect();
         let across: Vec<f64> = (0..n).map(|_| 0.6 * (rnd() - 0.5)).collect();

@@ -872,12 +872,9 @@ mod tests {
 
     #[test]
     fn the_fast_rounding_is_round_but_for_ties() {
-        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        let mut rng = crate::test_rng::Lcg(0x9e37_79b9_7f4a_7c15);
         for _ in 0..100_000 {
-            x = x
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            let v = ((x >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 4000.0;
+            let v = (rng.next() - 0.5) * 4000.0;
             let (f, d) = (v as f32, v);
             if (f - f.trunc()).abs() != 0.5 {
                 assert_eq!(round_f32(f), f.round(), "{f}");
