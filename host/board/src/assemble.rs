@@ -5,7 +5,7 @@
 //! blended ([`crate::blend::Blender`]) and copied into the map in a thread of its own
 //! (`Blending`) while the next band is resampled; then the camera rows no later band needs
 //! are dropped. What it holds besides the map: per camera a chunk of wrapped rows with its
-//! margins (and at most 2 pushes waiting for its thread), the unwrapped rows of a band, the
+//! margins (and at most 2 chunks' rows waiting for its thread), the unwrapped rows of a band, the
 //! layers of up to three bands (the one blended, one waiting for the blend, the one
 //! resampled; more only while a turn waits for evidence, see [`crate::blend`]).
 //! [`assemble`] feeds whole cameras through it.
@@ -113,11 +113,54 @@ pub struct CameraFeed {
 /// chunks come back unwrapped (each chunk is the same whenever it is unwrapped, see
 /// [`Unwrapper`]).
 struct Unwrapping {
-    /// Rows to the thread (`None`: the camera ended); bounded, so that a thread behind the
+    /// Rows to the thread (`None`: the camera ended).
+    to: Option<std::sync::mpsc::Sender<Vec<f32>>>,
+    /// The values sent and not yet taken by the thread, bounded, so that a thread behind the
     /// rows holds the pusher back rather than a copy of every row.
-    to: Option<std::sync::mpsc::SyncSender<Vec<f32>>>,
+    queued: std::sync::Arc<Queued>,
+    /// That bound, values: [`QUEUED_CHUNKS`] chunks' rows.
+    bound: usize,
     /// The thread's unwrapper once it has handed on its last row.
     done: Option<Unwrapper>,
+}
+
+/// Values sent to a camera's unwrapping thread and not yet taken ([`Unwrapping::queued`]),
+/// and whether the thread has ended.
+#[derive(Default)]
+struct Queued {
+    state: std::sync::Mutex<(usize, bool)>,
+    taken: std::sync::Condvar,
+}
+
+impl Queued {
+    /// Waits until `n` more values fit under `bound` (or nothing is queued: a push larger
+    /// than the bound goes alone; or the thread has ended), then counts them in.
+    fn add(&self, n: usize, bound: usize) {
+        let mut q = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        while !q.1 && q.0 > 0 && q.0 + n > bound {
+            q = self.taken.wait(q).unwrap_or_else(|e| e.into_inner());
+        }
+        q.0 += n;
+    }
+
+    /// `n` values taken by the thread.
+    fn take(&self, n: usize) {
+        let mut q = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        q.0 = q.0.saturating_sub(n);
+        self.taken.notify_all();
+    }
+}
+
+/// Marks the thread ended when it ends, however it ends (a panic too): a pusher waiting for
+/// room then goes on, and its send fails.
+struct EndedOnExit(std::sync::Arc<Queued>);
+
+impl Drop for EndedOnExit {
+    fn drop(&mut self) {
+        let mut q = self.0.state.lock().unwrap_or_else(|e| e.into_inner());
+        q.1 = true;
+        self.0.taken.notify_all();
+    }
 }
 
 /// What a camera's unwrapping thread sends back: a chunk of unwrapped rows, or at its end
@@ -127,8 +170,11 @@ enum Unwrapped {
     Done(usize, Box<Unwrapper>),
 }
 
-/// Pushes a camera's thread holds before the pusher waits for it.
-const QUEUED_PUSHES: usize = 2;
+/// Chunks' rows ([`CHUNK_ROWS`]) a camera's thread holds queued before the pusher waits for
+/// it, whatever the pushes' sizes: in the line a push is 128 rows, and a bound of 2 pushes
+/// held the pusher (and the bands) while the thread unwrapped a chunk; offline a push is a
+/// chunk, and 16 of them took `dpsa board`'s peak over 512 MB.
+const QUEUED_CHUNKS: usize = 2;
 
 /// A camera's state in the stitching.
 struct Cam {
@@ -262,7 +308,12 @@ impl Stitcher {
                 let unwrapper =
                     Unwrapper::new(feed.period_um.clone(), BLOCK, chunk_rows, MARGIN_ROWS);
                 Cam {
-                    unwrapping: unwrapping(k, unwrapper, back.clone()),
+                    unwrapping: unwrapping(
+                        k,
+                        unwrapper,
+                        back.clone(),
+                        QUEUED_CHUNKS * chunk_rows.max(1) * w.max(1),
+                    ),
                     held: Grid::invalid(w, 0),
                     settle: crate::places::Settle::default(),
                     variance: feed.variance.then(|| Grid::invalid(w, 0)),
@@ -312,6 +363,8 @@ impl Stitcher {
         self.refused += heights.len() - rows * w;
         match &c.unwrapping.to {
             Some(to) if rows > 0 => {
+                // Waits while the thread is behind by the bound.
+                c.unwrapping.queued.add(rows * w, c.unwrapping.bound);
                 // The thread ends only when told or when the stitcher is dropped.
                 let _ = to.send(heights[..rows * w].to_vec());
             }
@@ -612,9 +665,13 @@ fn unwrapping(
     k: usize,
     mut unwrapper: Unwrapper,
     back: std::sync::mpsc::Sender<Unwrapped>,
+    bound: usize,
 ) -> Unwrapping {
-    let (to, rows) = std::sync::mpsc::sync_channel::<Vec<f32>>(QUEUED_PUSHES);
+    let (to, rows) = std::sync::mpsc::channel::<Vec<f32>>();
+    let queued = std::sync::Arc::new(Queued::default());
+    let on_exit = EndedOnExit(std::sync::Arc::clone(&queued));
     std::thread::spawn(move || {
+        let on_exit = on_exit;
         let mut ended = false;
         loop {
             while let Some(g) = unwrapper.next(ended) {
@@ -627,13 +684,18 @@ fn unwrapping(
                 return;
             }
             match rows.recv() {
-                Ok(r) => unwrapper.push(&r),
+                Ok(r) => {
+                    unwrapper.push(&r);
+                    on_exit.0.take(r.len());
+                }
                 Err(_) => ended = true,
             }
         }
     });
     Unwrapping {
         to: Some(to),
+        queued,
+        bound,
         done: None,
     }
 }
@@ -696,6 +758,40 @@ pub fn assemble_in(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The bound on what waits for an unwrapping thread: a push that would pass it waits
+    /// until the thread has taken enough, a push larger than the bound goes alone, and a
+    /// thread that ended (however) never holds a pusher.
+    #[test]
+    fn a_push_waits_for_room_and_never_for_an_ended_thread() {
+        use std::sync::atomic::{AtomicBool, Ordering::SeqCst};
+        use std::sync::Arc;
+        let q = Arc::new(Queued::default());
+        q.add(6, 10);
+        let pushed = Arc::new(AtomicBool::new(false));
+        let pusher = {
+            let (q, pushed) = (Arc::clone(&q), Arc::clone(&pushed));
+            std::thread::spawn(move || {
+                q.add(6, 10);
+                pushed.store(true, SeqCst);
+            })
+        };
+        std::thread::sleep(std::time::Duration::from_millis(100));
+        assert!(!pushed.load(SeqCst), "6 + 6 values went past a bound of 10");
+        q.take(6);
+        pusher.join().unwrap();
+        assert!(pushed.load(SeqCst));
+        // Alone, a push of more than the bound goes.
+        q.take(6);
+        q.add(25, 10);
+        // 25 wait; the thread ends without taking them: the next push does not wait.
+        let pusher = {
+            let q = Arc::clone(&q);
+            std::thread::spawn(move || q.add(5, 10))
+        };
+        drop(EndedOnExit(Arc::clone(&q)));
+        pusher.join().unwrap();
+    }
 
     /// The truth: a bow of 2 turns (no chunk's seed block on turn 0), 0 at the edges and flat
     /// at the side edges, and paste boxes with sloped walls, um at board `(x, y)` mm. The
