@@ -323,6 +323,16 @@ fn boards_back_to_back_are_stored_as_the_offline_inspection() {
     // 0.25 um steps) but for the last bits of the chunked stitching.
     assert_eq!(summary["maps_kept"], 3, "{summary}");
     assert_eq!(summary["maps_not_kept"], 0, "{summary}");
+    // The processor time: some, never more than the cores had in the run (a clock tick of
+    // slack per reading), shared out over the boards.
+    let (cpu, secs) = (
+        summary["cpu_s"].as_f64().unwrap(),
+        summary["seconds"].as_f64().unwrap(),
+    );
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as f64;
+    assert!(cpu > 0.0 && cpu <= cores * secs + 0.02, "{summary}");
+    let per_board = summary["cpu_s_per_board"].as_f64().unwrap();
+    assert!((per_board * 3.0 - cpu).abs() < 1e-9, "{summary}");
     let maps = dir.join("data/maps");
     let kept = dpsa_formats::kept_map::kept(&maps, "line-1").unwrap();
     assert_eq!(kept.len(), 2, "{kept:?}");

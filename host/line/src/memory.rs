@@ -1,4 +1,5 @@
-//! The service's memory: what it reads of its own, and glibc's malloc told to keep it flat.
+//! The service's memory and processor time: what it reads of its own, and glibc's malloc
+//! told to keep the memory flat.
 //!
 //! The line runs all shift with a thread per frame-grabber connection, three new ones per
 //! board. glibc's malloc hands threads arenas of their own (up to eight per core) and keeps
@@ -45,9 +46,52 @@ pub fn status_mb(key: &str) -> Option<f64> {
     Some(kb * 1024.0 / 1e6)
 }
 
+/// Field `n` of a `/proc/PID/stat` (or `/proc/thread-self/stat`) line, numbered from 1 as
+/// `man 5 proc` numbers them (`n >= 3`; the command name, field 2, is in parentheses and may
+/// hold spaces and parentheses, so the fields are counted from the last `)`).
+pub fn stat_field(stat: &str, n: usize) -> Option<&str> {
+    let after = stat.rsplit_once(')')?.1;
+    after.split_whitespace().nth(n.checked_sub(3)?)
+}
+
+/// This process's processor time so far, user and system, all threads (those ended too), s:
+/// `/proc/self/stat`'s `utime` and `stime`, in the kernel's clock ticks (100 per second on
+/// Linux); `None` elsewhere or unreadable. A tick is 10 ms.
+pub fn process_cpu_s() -> Option<f64> {
+    cpu_of_stat(&std::fs::read_to_string("/proc/self/stat").ok()?)
+}
+
+/// `utime + stime` (fields 14 and 15) of a `/proc/PID/stat` line, s (at 100 ticks per
+/// second).
+fn cpu_of_stat(stat: &str) -> Option<f64> {
+    let ticks = |n: usize| stat_field(stat, n)?.parse::<u64>().ok();
+    Some((ticks(14)? + ticks(15)?) as f64 / 100.0)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The processor time is read from the right fields, whatever the command's name holds;
+    /// a line cut short or not numbers gives none.
+    #[test]
+    fn processor_time_from_a_stat_line() {
+        let line = "4242 (dpsa (x) y) R 1 4242 4242 0 -1 4194304 900 0 0 0 731 269 0 0 20 0 3 0 \
+                    123 456 789";
+        assert_eq!(cpu_of_stat(line), Some(10.0));
+        assert_eq!(stat_field(line, 3), Some("R"));
+        // The priority (18) and the nice value (19).
+        assert_eq!(stat_field(line, 18), Some("20"));
+        assert_eq!(stat_field(line, 19), Some("0"));
+        assert_eq!(stat_field(line, 2), None);
+        assert_eq!(cpu_of_stat("4242 (dpsa) R 1 2 3"), None);
+        assert_eq!(cpu_of_stat("4242 dpsa R"), None);
+        assert_eq!(cpu_of_stat("1 (a) R 1 1 1 0 -1 0 0 0 0 0 x 5 0 0"), None);
+        // This process: a reading, and it does not go back.
+        let a = process_cpu_s().expect("/proc/self/stat on Linux");
+        let b = process_cpu_s().expect("/proc/self/stat on Linux");
+        assert!(a >= 0.0 && b >= a, "{a} {b}");
+    }
 
     /// The peak is never below the current resident memory, and both are read (Linux).
     #[test]

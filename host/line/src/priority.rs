@@ -43,10 +43,7 @@ pub fn lower_this_thread(by: i32) -> Option<i32> {
 /// no such file).
 pub fn this_thread_nice() -> Option<i32> {
     let stat = std::fs::read_to_string("/proc/thread-self/stat").ok()?;
-    // The command name (field 2) is in parentheses and may hold spaces: count from the last
-    // `)`; the state (field 3) is the first after it.
-    let after = stat.rsplit_once(')')?.1;
-    after.split_whitespace().nth(19 - 3)?.parse().ok()
+    crate::memory::stat_field(&stat, 19)?.parse().ok()
 }
 
 #[cfg(test)]

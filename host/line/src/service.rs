@@ -66,6 +66,13 @@ pub struct Summary {
     pub maps_not_kept: usize,
     /// Peak resident memory of the whole run (`VmHWM`), MB.
     pub peak_rss_mb: Option<f64>,
+    /// Processor time of the run, all threads, s (Linux; `None` elsewhere), over `seconds`:
+    /// the start-up (the configuration already read), the waits and every board.
+    pub cpu_s: Option<f64>,
+    /// `cpu_s` over the boards ended (`None` without one): what a board costs the host, its
+    /// share of the start-up included. A line that sends a board every `T` s keeps up only
+    /// with more than `cpu_s_per_board / T` cores.
+    pub cpu_s_per_board: Option<f64>,
     /// Wall time, s.
     pub seconds: f64,
 }
@@ -80,6 +87,7 @@ pub struct RunOptions {
 /// Runs the line until a signal (or `opts.boards` boards); returns its summary.
 pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
     let started = Instant::now();
+    let cpu_started = crate::memory::process_cpu_s();
     if !crate::memory::cap_arenas() {
         tracing::debug!("malloc's arenas not capped (not glibc): memory may grow with threads");
     }
@@ -230,6 +238,9 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
         .join()
         .map_err(|_| LineError::Io("the keeper thread panicked".into()))?;
     let t = tally.lock().map(|t| t.clone()).unwrap_or_default();
+    let cpu_s = crate::memory::process_cpu_s()
+        .zip(cpu_started)
+        .map(|(b, a)| b - a);
     let count = |v: &str| t.by_verdict.get(v).copied().unwrap_or(0);
     let mut lat: Vec<f64> = t.latencies.iter().copied().collect();
     lat.sort_by(f64::total_cmp);
@@ -247,6 +258,8 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
         rss_first_board_mb: t.rss_first_mb,
         rss_last_board_mb: t.rss_last_mb,
         peak_rss_mb: crate::memory::status_mb("VmHWM"),
+        cpu_s,
+        cpu_s_per_board: cpu_s.filter(|_| t.boards > 0).map(|c| c / t.boards as f64),
         rss_by_boards_mb: t.rss_by_boards.clone(),
         maps_kept: t.maps_kept,
         maps_not_kept: t.maps_not_kept,
