@@ -1158,8 +1158,15 @@ fn board_bench_reports_every_stage_of_the_board() {
             (busy - cpu / (threads * latency)).abs() < 1e-9,
             "{key}: {v}"
         );
+        let to_last = line["cpu_s_to_last_row"].as_f64().unwrap();
+        assert!(to_last >= 0.0, "{key}: {v}");
+        // The floor: the work the cores could not have done by the last row, over the
+        // threads; never above the latency (the same tick of slack), never below 0.
+        let floor = line["latency_floor_s"].as_f64().unwrap();
+        assert!(floor >= 0.0 && floor <= latency + 0.05, "{key}: {v}");
+        let rows_s = line["feed_s"].as_f64().unwrap() + line["core_backlog_s"].as_f64().unwrap();
         assert!(
-            line["cpu_s_to_last_row"].as_f64().unwrap() >= 0.0,
+            (floor - ((to_last + cpu - threads * rows_s) / threads).max(0.0)).abs() < 0.05,
             "{key}: {v}"
         );
     }

@@ -30,6 +30,7 @@ use dpsa_formats::heightmap::HeightRow;
 use dpsa_gerber::pads::Pad;
 use dpsa_inspect::map::BoardMap;
 use dpsa_inspect::program::Program;
+use dpsa_line::memory::process_cpu_s;
 use serde::Serialize;
 use std::path::Path;
 use std::time::{Duration, Instant};
@@ -126,6 +127,12 @@ pub struct LineFeed {
     /// `cpu_s_after_last_row` over the cores' time in the latency (`threads x latency`):
     /// near 1, the latency is the work left, not cores waiting.
     pub busy_after_last_row: Option<f64>,
+    /// The latency no ordering of this run's work could have beaten, s: the processor time
+    /// from the first row to the last verdict, less what the cores had from the first row to
+    /// the last (`threads x` that wall time), over the threads; 0 when it all fits before
+    /// the last row. Near `latency_after_last_row_s`, only less work (or more cores) brings
+    /// the latency down, not scheduling.
+    pub latency_floor_s: Option<f64>,
 }
 
 /// Processor time per stage of the first run, s (`cpu_seconds` in the JSON; [`process_cpu_s`]).
@@ -135,25 +142,6 @@ pub struct CpuSeconds {
     pub stitching: f64,
     /// `seconds.inspection`.
     pub inspection: f64,
-}
-
-/// This process's processor time so far, user and system, all threads (those ended too), s:
-/// `/proc/self/stat`'s `utime` and `stime`, in the kernel's clock ticks (100 per second on
-/// Linux); `None` elsewhere or unreadable. A tick is 10 ms: the stages here take 0.3 s or
-/// more of it.
-pub fn process_cpu_s() -> Option<f64> {
-    cpu_of_stat(&std::fs::read_to_string("/proc/self/stat").ok()?)
-}
-
-/// `utime + stime` of a `/proc/PID/stat` line, s (at 100 ticks per second).
-fn cpu_of_stat(stat: &str) -> Option<f64> {
-    // The command name (field 2) is in parentheses and may hold spaces and parentheses:
-    // count from the last `)`.
-    let after = stat.rsplit_once(')')?.1;
-    let fields: Vec<&str> = after.split_whitespace().collect();
-    // Fields 14 and 15 of the line: the 12th and 13th after the name (the state is the 1st).
-    let ticks = |k: usize| fields.get(k)?.parse::<u64>().ok();
-    Some((ticks(11)? + ticks(12)?) as f64 / 100.0)
 }
 
 /// Wall time per stage, s (`seconds` in the JSON).
@@ -532,6 +520,10 @@ fn line_feed(
         .zip(cpu_last_row)
         .zip(compare_cpu)
         .map(|((b, a), c)| b - a - c);
+    let to_last_row_s = (last_row - start).as_secs_f64();
+    let latency_floor_s = cpu_s_to_last_row
+        .zip(cpu_s_after_last_row)
+        .map(|(a, b)| ((a + b - threads * to_last_row_s) / threads).max(0.0));
     Ok(LineFeed {
         conveyor_mm_s: CONVEYOR_MM_S,
         feed_s,
@@ -545,6 +537,7 @@ fn line_feed(
         cpu_s_to_last_row,
         cpu_s_after_last_row,
         busy_after_last_row: cpu_s_after_last_row.map(|c| c / (threads * latency)),
+        latency_floor_s,
     })
 }
 
@@ -629,25 +622,4 @@ fn per_camera<T: Send, R: Send>(
             })
             .collect()
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// The processor time is read from the right fields, whatever the command's name holds;
-    /// a line cut short or not numbers gives none.
-    #[test]
-    fn processor_time_from_a_stat_line() {
-        let line = "4242 (dpsa (x) y) R 1 4242 4242 0 -1 4194304 900 0 0 0 731 269 0 0 20 0 3 0 \
-                    123 456 789";
-        assert_eq!(cpu_of_stat(line), Some(10.0));
-        assert_eq!(cpu_of_stat("4242 (dpsa) R 1 2 3"), None);
-        assert_eq!(cpu_of_stat("4242 dpsa R"), None);
-        assert_eq!(cpu_of_stat("1 (a) R 1 1 1 0 -1 0 0 0 0 0 x 5 0 0"), None);
-        // This process: a reading, and it does not go back.
-        let a = process_cpu_s().expect("/proc/self/stat on Linux");
-        let b = process_cpu_s().expect("/proc/self/stat on Linux");
-        assert!(a >= 0.0 && b >= a, "{a} {b}");
-    }
 }

@@ -441,10 +441,22 @@ fn normal_equations<const NT: usize>(
     (m, v, n)
 }
 
-/// A [`robust_surface`]'s value at `(dx, dy)`.
+/// A [`robust_surface`]'s value at `(dx, dy)`: the coefficients times their [`terms`],
+/// summed in order.
+///
+/// The level, plane and quadratic are written out (the inner loops of the fits, the cells
+/// and the bridges' floods call this per pixel): the same products added in the same order
+/// as the general sum, whose start (`-0.0`) leaves the first product as it is, so the same
+/// value to the bit.
+#[inline]
 pub(crate) fn surface_at(c: &[f64], dx: f64, dy: f64) -> f64 {
     let t = terms(dx, dy);
-    c.iter().zip(t).map(|(a, b)| a * b).sum()
+    match *c {
+        [a] => a * t[0],
+        [a, b, e] => a * t[0] + b * t[1] + e * t[2],
+        [a, b, e, f, g, h] => a * t[0] + b * t[1] + e * t[2] + f * t[3] + g * t[4] + h * t[5],
+        _ => c.iter().zip(t).map(|(a, b)| a * b).sum(),
+    }
 }
 
 /// Sum and count of the finite values of the 3 x 3 block around `(a, b)` of a row-major
@@ -675,6 +687,70 @@ fn nearest_of(placed: &Placed, k: usize, near: &[usize], q: Point, d: f64) -> bo
     true
 }
 
+/// [`cell_member`] over one map row at a time, with the distances worked out a row at a
+/// time ([`Prepared::signed_distances`](dpsa_gerber::pads::Prepared::signed_distances)).
+///
+/// Per row: the opening's distances to every pixel, the reach; then per neighbour whose box
+/// comes within the reach of the row along x ([`row_near`]), its distances over the columns
+/// its box comes within the reach of along y, and the pixels it is nearer to (or as near,
+/// and of a lower index) leave the cell. Every pixel in reach is at most `reach.max` from
+/// the opening, and a neighbour's distance is at least its box's, so the neighbours and
+/// columns passed over are farther than the opening. Inside the opening no other is nearer
+/// (openings do not overlap).
+struct RowCells {
+    /// The opening's distances over the last row, mm.
+    own: Vec<f64>,
+    /// A neighbour's, over its columns.
+    other: Vec<f64>,
+}
+
+impl RowCells {
+    /// For rows of `cols` pixels.
+    fn new(cols: usize) -> RowCells {
+        RowCells {
+            own: vec![0.0; cols],
+            other: vec![0.0; cols],
+        }
+    }
+
+    /// Into `cells`, whether each pixel `(x, ys[b])` of a row is in pad `k`'s cell, of
+    /// `reach`, among the row's neighbours `row` ([`row_near`] at `x` with `reach.max`);
+    /// `ys` ascending. The opening's distances stay in `self.own`.
+    #[allow(clippy::too_many_arguments)]
+    fn run(
+        &mut self,
+        placed: &Placed,
+        k: usize,
+        reach: &Reach,
+        row: &[usize],
+        x: f64,
+        ys: &[f64],
+        cells: &mut [bool],
+    ) {
+        let own = &mut self.own[..ys.len()];
+        placed.outlines[k].signed_distances(x, ys, own);
+        for ((cell, &y), &d) in cells.iter_mut().zip(ys).zip(own.iter()) {
+            *cell = reach.contains([x, y], d);
+        }
+        for &j in row {
+            let b = &placed.bboxes[j];
+            let lo = ys.partition_point(|&y| y < b[1] - reach.max);
+            let hi = ys.partition_point(|&y| y <= b[3] + reach.max);
+            if lo >= hi {
+                continue;
+            }
+            let other = &mut self.other[lo..hi];
+            placed.outlines[j].signed_distances(x, &ys[lo..hi], other);
+            let span = cells[lo..hi].iter_mut().zip(&own[lo..hi]).zip(other.iter());
+            for ((cell, &d), &dj) in span {
+                if d >= 0.0 && (dj < d || (dj == d && j < k)) {
+                    *cell = false;
+                }
+            }
+        }
+    }
+}
+
 /// Measures pad `k`.
 pub(crate) fn measure_pad(
     map: &BoardMap,
@@ -807,24 +883,23 @@ fn local_surface(
             .max(1.0) as usize;
         let mut samples: Vec<[f64; 3]> = Vec::new();
         let mut row: Vec<usize> = Vec::with_capacity(near.len());
+        // A pixel's y is its column's, its x its row's (`grid.centre`): the columns' once,
+        // and the opening's distances a row at a time.
+        let cols: Vec<usize> = rj.clone().step_by(stride).collect();
+        let ys: Vec<f64> = cols.iter().map(|&j| map.grid.centre(0, j).1).collect();
+        let mut ds = vec![0.0; ys.len()];
         for i in ri.clone().step_by(stride) {
+            let x = map.grid.centre(i, 0).0;
             // The openings whose box comes within the guard of this row (one x) along x:
             // every other one passes `bare`'s box test on every pixel of the row.
-            row_near(
-                placed,
-                &near,
-                map.grid.centre(i, 0).0,
-                m.surface_guard_mm,
-                &mut row,
-            );
-            for j in rj.clone().step_by(stride) {
+            row_near(placed, &near, x, m.surface_guard_mm, &mut row);
+            o.signed_distances(x, &ys, &mut ds);
+            for ((&j, &y), &d) in cols.iter().zip(&ys).zip(&ds) {
                 let h = map.heights.data[i * map.grid.width + j];
                 if !h.is_finite() {
                     continue;
                 }
-                let (x, y) = map.grid.centre(i, j);
                 let q = [x, y];
-                let d = o.signed_distance(q);
                 if d < m.surface_guard_mm || d > reach {
                     continue;
                 }
@@ -953,22 +1028,35 @@ impl Cell {
         };
         // The neighbours of one row (one x): those whose box is within the reach along x.
         // Every pixel in reach is at most `reach.max` from the opening, so the others are
-        // passed over by [`nearest_of`]'s box test on every pixel of the row anyway.
+        // farther from every pixel of the row than the opening is.
         let mut row: Vec<usize> = Vec::with_capacity(near.len());
+        // A pixel's y is its column's, its x its row's (`grid.centre`): the columns' once,
+        // and the distances a row at a time.
+        let ys: Vec<f64> = rj.clone().map(|j| map.grid.centre(0, j).1).collect();
+        let mut rows = RowCells::new(w_w);
         for (a, i) in ri.enumerate() {
-            row_near(placed, &near, map.grid.centre(i, 0).0, reach.max, &mut row);
-            for (b, j) in rj.clone().enumerate() {
-                let (x, y) = map.grid.centre(i, j);
-                let q = [x, y];
-                let d = placed.outlines[k].signed_distance(q);
-                if !reach.contains(q, d) || !nearest_of(placed, k, &row, q, d) {
+            let x = map.grid.centre(i, 0).0;
+            row_near(placed, &near, x, reach.max, &mut row);
+            let at = a * w_w..(a + 1) * w_w;
+            rows.run(
+                placed,
+                k,
+                reach,
+                &row,
+                x,
+                &ys,
+                &mut cell.in_cell[at.clone()],
+            );
+            let cells = cell.in_cell[at.clone()].iter();
+            let out = cell.dist[at.clone()].iter_mut().zip(&mut cell.r[at]);
+            for (b, ((j, &inside), (dist, r))) in rj.clone().zip(cells).zip(out).enumerate() {
+                if !inside {
                     continue;
                 }
-                cell.in_cell[a * w_w + b] = true;
-                cell.dist[a * w_w + b] = d;
+                *dist = rows.own[b];
                 let h = map.heights.data[i * map.grid.width + j];
                 if h.is_finite() {
-                    cell.r[a * w_w + b] = f64::from(h) - surface_at(plane, x - c[0], y - c[1]);
+                    *r = f64::from(h) - surface_at(plane, x - c[0], ys[b] - c[1]);
                 }
             }
         }
@@ -1348,8 +1436,24 @@ mod tests {
     }
 
     proptest! {
-        /// The cell test over one row's neighbours ([`row_near`], [`nearest_of`], as
-        /// `Cell::new` runs it) agrees with [`cell_member`] and with the definition, and
+        /// The written-out surfaces give the general sum's value to the bit (signed zeros
+        /// included), for the level, the plane and the quadratic.
+        #[test]
+        fn surface_at_is_the_general_sum(
+            c in proptest::collection::vec(prop_oneof![Just(0.0), Just(-0.0), -50.0..50.0f64], 6),
+            dx in prop_oneof![Just(0.0), Just(-0.0), -3.0..3.0f64],
+            dy in prop_oneof![Just(0.0), Just(-0.0), -3.0..3.0f64],
+        ) {
+            for n in [1, 3, 6] {
+                let t = terms(dx, dy);
+                let general: f64 = c[..n].iter().zip(t).map(|(a, b)| a * b).sum();
+                prop_assert_eq!(surface_at(&c[..n], dx, dy).to_bits(), general.to_bits());
+            }
+        }
+
+        /// The cell test over one row's neighbours ([`row_near`], then [`nearest_of`] per
+        /// pixel, and [`RowCells`] a row at a time as `Cell::new` runs it) agrees with
+        /// [`cell_member`] and with the definition, and
         /// `bare` over a row's neighbours with `bare` over them all, on every pixel of the
         /// pads' windows in random layouts.
         #[test]
@@ -1371,15 +1475,21 @@ mod tests {
                 let others: Vec<usize> = (0..pads.len()).filter(|&j| j != k).collect();
                 let b = reach.bbox;
                 let cols = ((b[3] - b[1]) / pitch).ceil() as usize + 1;
+                let ys: Vec<f64> = (0..cols).map(|jj| b[1] + (jj as f64 + 0.5) * pitch).collect();
+                let mut rows = RowCells::new(cols);
+                let mut cells = vec![false; cols];
                 for i in 0..((b[2] - b[0]) / pitch).ceil() as usize + 1 {
                     let x = b[0] + (i as f64 + 0.5) * pitch;
                     row_near(&placed, &near, x, reach.max, &mut row);
-                    for jj in 0..cols {
-                        let q = [x, b[1] + (jj as f64 + 0.5) * pitch];
+                    rows.run(&placed, k, &reach, &row, x, &ys, &mut cells);
+                    for (jj, &y) in ys.iter().enumerate() {
+                        let q = [x, y];
                         let d = placed.outlines[k].signed_distance(q);
                         let fast = reach.contains(q, d) && nearest_of(&placed, k, &row, q, d);
                         prop_assert_eq!(fast, cell_member(&placed, k, &near, &reach, q).0);
                         prop_assert_eq!(fast, member_by_definition(&placed, k, &reach, q));
+                        prop_assert_eq!(cells[jj], fast);
+                        prop_assert_eq!(rows.own[jj].to_bits(), d.to_bits());
                     }
                     row_near(&placed, &others, x, guard, &mut row);
                     for jj in 0..cols {
