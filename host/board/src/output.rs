@@ -56,8 +56,8 @@ pub fn valid_fraction(valid: u64, total: u64) -> f64 {
     }
 }
 
-/// LSB of `heights.png`, um: 0.25 um over +-8.19 mm.
-pub const PNG_LSB_UM: f64 = 0.25;
+/// LSB of `heights.png`, um: 0.25 um over +-8.19 mm ([`dpsa_formats::height_code`]).
+pub const PNG_LSB_UM: f64 = dpsa_formats::height_code::LSB_UM;
 
 /// What `board.json` says about the map.
 #[derive(Clone, Debug, Serialize)]
@@ -139,7 +139,7 @@ pub const PREVIEW_PX: usize = 2048;
 
 /// What to write besides the cheap default files (measured on the paper board's 47 Mpx map,
 /// `timing.files_s` of `dpsa board --json`): the TIFF (0.15 s: uncompressed, and what
-/// `dpsa inspect` reads), `heights.png` (0.7 - 0.8 s: 95 MB of 16-bit samples through PNG's
+/// `dpsa inspect` reads), `heights.png` (0.25 - 0.32 s: 95 MB of 16-bit samples through PNG's
 /// fastest compression, encoded in a thread of its own beside the other files), `camera.png`
 /// (0.03 s, indexed), a false-colour preview above the local surface (0.35 - 0.45 s) are
 /// always written (about 0.6 s of wall time for all of them); the full-size false colour on
@@ -277,14 +277,7 @@ fn write_files(
                     h.rows,
                     |i, out| {
                         let row = &h.data[i * h.width..(i + 1) * h.width];
-                        for (o, &v) in out.iter_mut().zip(row) {
-                            *o = if v.is_finite() {
-                                ((f64::from(v) / PNG_LSB_UM).round() + 32768.0).clamp(1.0, 65535.0)
-                                    as u16
-                            } else {
-                                0
-                            };
-                        }
+                        dpsa_formats::height_code::code_clamped(row, out);
                     },
                 )?;
                 Ok(())

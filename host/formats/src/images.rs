@@ -125,8 +125,11 @@ where
 
 /// Writes a 16-bit grey PNG of `width x rows` atomically, row by row: `row(i, out)` fills
 /// row `i`. Nothing image-sized is held (the `image` crate's encoder holds the image and a
-/// big-endian copy of it: 190 MB on a paper board's map); the `png` crate's encoder
-/// with the compression and filter `image` uses by default (fast, adaptive).
+/// big-endian copy of it: 190 MB on a paper board's map); the `png` crate's encoder with
+/// its fast compression and each row filtered against the row above (`Up`). The paper board's
+/// 47.8 Mpx map (`Up` against the adaptive filter, which tries five filters on every row and
+/// keeps the best): 45.6 MB against 44.7 MB, encoded in about three quarters of the time and
+/// decoded in less than half (0.20 s against 0.48 s; the line's pages decode kept maps).
 pub fn save_png16_rows(
     path: &Path,
     width: usize,
@@ -138,7 +141,7 @@ pub fn save_png16_rows(
         enc.set_color(png::ColorType::Grayscale);
         enc.set_depth(png::BitDepth::Sixteen);
         enc.set_compression(png::Compression::Fast);
-        enc.set_filter(png::Filter::Adaptive);
+        enc.set_filter(png::Filter::Up);
         let mut writer = enc.write_header()?;
         let mut stream = writer.stream_writer()?;
         let (mut values, mut bytes) = (vec![0u16; width], vec![0u8; 2 * width]);

@@ -24,10 +24,9 @@ use std::path::{Path, PathBuf};
 pub const FORMAT: &str = "dpsa-kept-map";
 /// Its version.
 pub const VERSION: u32 = 1;
-/// The PNG's height step, um.
-pub const LSB_UM: f64 = 0.25;
-/// The PNG's value for a height of zero (0 is invalid).
-pub const ZERO: u16 = 32768;
+/// The PNG's height step, um, and its value for a height of zero (0 is invalid): the board
+/// map's code ([`crate::height_code`]).
+pub use crate::height_code::{LSB_UM, ZERO};
 /// Most pixels a kept map may have (a 220 x 168 mm board at 28 um is 48 M).
 pub const MAX_PIXELS: u64 = 200_000_000;
 /// Largest kept JSON, bytes.
@@ -109,16 +108,6 @@ pub fn paths(dir: &Path, line: &str, board: i64) -> (PathBuf, PathBuf) {
     )
 }
 
-/// The height `h` (um) as the PNG's value: `None` when invalid, `Some(None)` when beyond the
-/// 16 bits.
-fn code(h: f32) -> Option<Option<u16>> {
-    if !h.is_finite() {
-        return None;
-    }
-    let q = (f64::from(h) / LSB_UM).round() + f64::from(ZERO);
-    Some((1.0..=65535.0).contains(&q).then_some(q as u16))
-}
-
 /// Keeps `heights` (um, NaN invalid, on `grid`) as line `line`'s board `board`'s map in
 /// `dir`: the PNG, then the JSON, each atomically. The description written.
 pub fn write(
@@ -134,19 +123,9 @@ pub fn write(
     let (mut valid, mut clipped) = (0u64, 0u64);
     crate::images::save_png16_rows(&png, heights.width, heights.rows, |i, out| {
         let row = &heights.data[i * heights.width..(i + 1) * heights.width];
-        for (o, &h) in out.iter_mut().zip(row) {
-            *o = match code(h) {
-                None => 0,
-                Some(None) => {
-                    clipped += 1;
-                    0
-                }
-                Some(Some(v)) => {
-                    valid += 1;
-                    v
-                }
-            };
-        }
+        let (v, c) = crate::height_code::code_or_clip(row, out);
+        valid += v;
+        clipped += c;
     })?;
     let png_bytes = std::fs::metadata(&png)
         .map_err(|io| FileError::Write {

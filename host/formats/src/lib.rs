@@ -7,6 +7,7 @@
 //! | [`array`](mod@array) | the array recording's manifest `array.json`: the array's design and the board's size and identity |
 //! | [`calibration`] | the calibration file: every camera's configuration of the core, its lateral mapping and dead pixels |
 //! | [`files`] | bounded reads, atomic writes, output directories that appear whole, inputs never overwritten |
+//! | [`height_code`] | a height's 16-bit code in `heights.png` and the kept maps |
 //! | [`heightmap`] | the core's rows as a height map (the decoded stream, the reference) |
 //! | [`grid`] | the board map's grids: heights in board millimetres and their placement |
 //! | [`board_map`] | the board map directory's format name and colour scale |
@@ -24,6 +25,7 @@ pub mod board_map;
 pub mod calibration;
 pub mod files;
 pub mod grid;
+pub mod height_code;
 pub mod heightmap;
 pub mod images;
 pub mod kept_map;
