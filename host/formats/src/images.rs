@@ -126,10 +126,11 @@ where
 /// Writes a 16-bit grey PNG of `width x rows` atomically, row by row: `row(i, out)` fills
 /// row `i`. Nothing image-sized is held (the `image` crate's encoder holds the image and a
 /// big-endian copy of it: 190 MB on a paper board's map); the `png` crate's encoder with
-/// its fast compression and each row filtered against the row above (`Up`). The paper board's
-/// 47.8 Mpx map (`Up` against the adaptive filter, which tries five filters on every row and
-/// keeps the best): 45.6 MB against 44.7 MB, encoded in about three quarters of the time and
-/// decoded in less than half (0.20 s against 0.48 s; the line's pages decode kept maps).
+/// its fast compression and each row filtered against the row above (`Up`), not the adaptive
+/// filter, which tries five filters on every row and keeps the best: on the paper board's 47.8
+/// Mpx map 45.6 MB against 44.7 MB, the same samples, written faster (`docs/board.md`,
+/// thirteenth part), and undone on reading with one addition per byte (the line's pages read
+/// kept maps).
 pub fn save_png16_rows(
     path: &Path,
     width: usize,
