@@ -343,7 +343,7 @@ fn write_files(
             lengths: "mm",
             heights: "um",
             png_lsb_um: PNG_LSB_UM,
-            png_zero: 32768,
+            png_zero: dpsa_formats::height_code::ZERO,
         },
         pixels: Pixels {
             total,
