@@ -897,6 +897,63 @@ fn a_silent_camera_makes_its_board_incomplete_and_the_next_board_is_whole() {
     assert_offline(board_of(&boards, runs[1]));
 }
 
+/// The retention (`[retention] pad_days`): three boards stored under a line that keeps every
+/// pad row; the line restarted with a retention they are past: after its one board the
+/// keeper has deleted the pad rows of the two oldest (two boards a board), and nothing else.
+/// The boards, the new board's pads and the third old board's stay, and `dpsa spc` on the
+/// store counts the two as pruned.
+#[test]
+fn the_retention_deletes_the_oldest_pad_rows_and_keeps_the_boards() {
+    let f = fixture();
+    let dir = f.dir.join("retention");
+    let keep_all = line_config(&dir, |t| {
+        let without = t.replace("[retention]\npad_days = 30.0\n", "");
+        assert_ne!(without, t, "line init writes the retention");
+        without
+    });
+    let run = start(&keep_all, Some(3));
+    let old = send(
+        &keep_all,
+        &["--rate", "max", "--boards", "3", "--seed", "21"],
+    );
+    let summary = wait(run, 120, &keep_all);
+    assert_eq!(summary["boards"], 3, "{summary}");
+    assert_eq!(summary["pad_rows_pruned"], 0, "{summary}");
+    // 0.0001 days: 8.64 s. The old boards ended before this sleep; the new one will end
+    // after it, and is pruned only 8.64 s after its end.
+    std::thread::sleep(Duration::from_secs(9));
+    let text = std::fs::read_to_string(&keep_all).unwrap();
+    std::fs::write(
+        &keep_all,
+        format!("{text}\n[retention]\npad_days = 0.0001\n"),
+    )
+    .unwrap();
+    let run = start(&keep_all, Some(1));
+    let new = send(&keep_all, &["--rate", "max", "--seed", "22"]);
+    let summary = wait(run, 120, &keep_all);
+    let pads = f.offline.len();
+    assert_eq!(summary["pad_rows_pruned"], 2 * pads, "{summary}");
+    let boards = stored(&keep_all);
+    assert_eq!(boards.len(), 4);
+    let rows = |run: &Value| {
+        let b = board_of(&boards, run.as_str().unwrap());
+        assert_eq!(b["state"], "inspected", "{b}");
+        assert_eq!(b["pads"], pads, "the board's count is kept: {b}");
+        b["pad_rows"].as_array().unwrap().len()
+    };
+    let olds: Vec<usize> = old["run_ids"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(rows)
+        .collect();
+    assert_eq!(olds, [0, 0, pads], "the oldest first");
+    assert_offline(board_of(&boards, new["run_ids"][0].as_str().unwrap()));
+    let spc = spc_json(&dir);
+    assert_eq!(spc["boards_pruned"], 2, "{spc}");
+    assert_eq!(spc["boards"], 2, "{spc}");
+}
+
 /// 1 % of the packets lost: the board is inspected, the losses are stored, and no pad with
 /// less than the program's coverage is judged (never pass or fail on interpolated data).
 #[test]
@@ -1116,11 +1173,17 @@ fn a_bad_configuration_names_its_key() {
         ("maps", "keep_boards = 20000", "maps.keep_boards"),
         ("maps", "keep = 3", "unknown field `keep`"),
         ("maps", under_a_file.as_str(), "maps.dir"),
+        ("retention", "pad_days = 0.0", "retention.pad_days"),
+        ("retention", "pad_days = 40000.0", "retention.pad_days"),
+        ("retention", "pad_days = nan", "retention.pad_days"),
+        ("retention", "days = 3", "unknown field `days`"),
     ]
     .into_iter()
     .enumerate()
     {
         let cfg = line_config(&dir.join(format!("section{i}")), |t| {
+            // `line init` writes the retention's table: the bad key goes in its place.
+            let t = t.replace("[retention]\npad_days = 30.0\n", "");
             format!("{t}\n[{section}]\n{extra}\n")
         });
         let o = dpsa([

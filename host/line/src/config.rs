@@ -54,6 +54,9 @@ pub struct LineFile {
     /// The measured maps kept for the pages' zoom and pan.
     #[serde(default, skip_serializing_if = "MapsEntry::is_default")]
     pub maps: MapsEntry,
+    /// How long the store keeps every pad's row.
+    #[serde(default, skip_serializing_if = "RetentionEntry::is_default")]
+    pub retention: RetentionEntry,
 }
 
 /// `[printer]`: the loop back to the printer; every key optional, the defaults those of
@@ -228,6 +231,33 @@ impl MapsEntry {
     }
 }
 
+/// `[retention]`: the store's pad rows (every pad of every board, about 120 bytes each in
+/// SQLite: 62 GB a day at a board a second of 6,000 pads) are deleted once their board ended
+/// `pad_days` days ago; the boards' rows, their cameras' losses, the prints and the per-pad
+/// running aggregates (`pad_stats`) are kept for ever. The line's keeper deletes after each
+/// board it stores, at most [`crate::keeper::PRUNE_BOARDS_PER_BOARD`] boards' pads, the
+/// oldest first.
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct RetentionEntry {
+    /// Days a board's pad rows are kept after it ended (absent: for ever).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pad_days: Option<f64>,
+}
+
+impl RetentionEntry {
+    fn is_default(&self) -> bool {
+        self.pad_days.is_none()
+    }
+}
+
+/// The retention [`crate::config::init`] writes: 30 days, what the issue's scale asks the
+/// store to be designed for (1.9 TB of pad rows in SQLite at a board a second of 6,000
+/// pads; a smaller board or a slower line takes proportionally less).
+pub const INIT_PAD_DAYS: f64 = 30.0;
+/// Most days `[retention] pad_days` may say (a century).
+pub const MAX_PAD_DAYS: f64 = 36_500.0;
+
 /// Boards whose maps the line keeps unless `[maps] keep_boards` says otherwise.
 pub const DEFAULT_KEEP_MAPS: usize = 10;
 /// Most boards' maps `[maps] keep_boards` may ask for.
@@ -290,6 +320,8 @@ pub struct LineConfig {
     pub printer: LoopConfig,
     /// The measured maps kept for the pages.
     pub maps: Maps,
+    /// Days a board's pad rows are kept after it ended (`None`: for ever).
+    pub pad_days: Option<f64>,
 }
 
 /// FNV-1a 64 of some byte strings, as 16 hex digits.
@@ -545,6 +577,18 @@ impl LineConfig {
             dir: f.maps.dir.as_deref().map_or_else(|| data.join("maps"), at),
             keep_boards,
         };
+        if let Some(d) = f.retention.pad_days {
+            if !(d.is_finite() && d > 0.0 && d <= MAX_PAD_DAYS) {
+                return Err(bad(
+                    path,
+                    "retention.pad_days",
+                    format!(
+                        "{d} days is not in (0, {MAX_PAD_DAYS}]; leave the key out to keep \
+                         every pad row for ever"
+                    ),
+                ));
+            }
+        }
         for (key, d) in [
             ("data", &data),
             ("cfx.spool", &spool),
@@ -568,6 +612,7 @@ impl LineConfig {
             config_hashes,
             printer,
             maps,
+            pad_days: f.retention.pad_days,
         })
     }
 }
@@ -626,10 +671,15 @@ pub fn init(
         cfx: CfxEntry::default(),
         maps: MapsEntry::default(),
         printer: None,
+        retention: RetentionEntry {
+            pad_days: Some(INIT_PAD_DAYS),
+        },
     };
     let text = format!(
         "# dpsa line: one line's configuration (docs/line.md lists every key).\n\
-         # Written by `dpsa line init`; edit it, then `dpsa line run --config {}`.\n\n{}",
+         # Written by `dpsa line init`; edit it, then `dpsa line run --config {}`.\n\
+         # [retention] pad_days: every pad's row is deleted that many days after its board\n\
+         # (the boards and the per-pad aggregates stay); remove the table to keep them all.\n\n{}",
         out.display(),
         toml::to_string_pretty(&f).map_err(|e| LineError::Io(e.to_string()))?
     );

@@ -99,6 +99,8 @@ pub struct Tally {
     pub maps_kept: usize,
     /// Finished boards whose map was not kept (the writer busy, or a write that failed).
     pub maps_not_kept: usize,
+    /// Pad rows the retention deleted (`[retention]`).
+    pub pad_rows_pruned: u64,
 }
 
 /// Most pad images kept per board (failures first): a board of many calls is a board to
@@ -111,6 +113,14 @@ fn is_power_of_ten(mut n: usize) -> bool {
     }
     n == 1
 }
+
+/// Boards whose pad rows the keeper deletes at most after each board it stores, when
+/// `[retention]` asks for it: twice the boards that come, so that a backlog (a retention
+/// shortened on an old store, or a line back after a long stop) is worked off at a board
+/// more each board, and no board waits for more than two boards' deletes (SQLite deletes
+/// about 600,000 pad rows a second in `dpsa line store-bench`: 20 ms for two boards of 6,000
+/// pads).
+pub const PRUNE_BOARDS_PER_BOARD: usize = 2;
 
 /// Latencies [`Tally`] keeps (the newest).
 pub const LATENCIES_KEPT: usize = 10_000;
@@ -154,6 +164,8 @@ pub struct Keeper {
     pub loops: HashMap<usize, PrinterLoop>,
     /// The writer of the measured maps kept for the pages (none: no map kept).
     pub maps: Option<crate::maps::MapKeeper>,
+    /// Days a board's pad rows are kept after it ended (`None`: for ever).
+    pub pad_days: Option<f64>,
 }
 
 /// One product's loop back to the printer and the run ids of its newest boards.
@@ -255,6 +267,7 @@ impl Keeper {
                                 latency_s: Some(latency),
                                 rss_mb: crate::memory::status_mb("VmRSS"),
                             });
+                            self.retain(crate::boards::unix_now());
                         }
                         Err(e) => tracing::error!(%run, "not stored: {e}"),
                     }
@@ -270,18 +283,49 @@ impl Keeper {
                     let outcome = Outcome::Incomplete { reason };
                     // Printed all the same: the loop counts it (no placement, held).
                     match self.finish(id, run_id, product, &losses, &outcome, None, &[]) {
-                        Ok(_) => self.keep(Kept {
-                            run_id,
-                            verdict: "incomplete".into(),
-                            latency_s: None,
-                            rss_mb: crate::memory::status_mb("VmRSS"),
-                        }),
+                        Ok(_) => {
+                            self.keep(Kept {
+                                run_id,
+                                verdict: "incomplete".into(),
+                                latency_s: None,
+                                rss_mb: crate::memory::status_mb("VmRSS"),
+                            });
+                            self.retain(crate::boards::unix_now());
+                        }
                         Err(e) => {
                             tracing::error!(run = %format!("{run_id:016x}"), "not stored: {e}")
                         }
                     }
                 }
             }
+        }
+    }
+
+    /// The retention after a board stored at `now_unix_s`: the pad rows of at most
+    /// [`PRUNE_BOARDS_PER_BOARD`] boards that ended more than `pad_days` days before, the
+    /// oldest first. A failure is logged and tried again after the next board: the boards
+    /// themselves are stored either way.
+    fn retain(&mut self, now_unix_s: f64) {
+        let Some(days) = self.pad_days else {
+            return;
+        };
+        let t = Instant::now();
+        match self
+            .store
+            .prune_pads_oldest(now_unix_s - days * 86_400.0, PRUNE_BOARDS_PER_BOARD)
+        {
+            Ok(0) => {}
+            Ok(rows) => {
+                if let Ok(mut tally) = self.tally.lock() {
+                    tally.pad_rows_pruned += rows;
+                }
+                tracing::debug!(
+                    rows,
+                    ms = format!("{:.1}", t.elapsed().as_secs_f64() * 1e3),
+                    "pad rows past the retention deleted"
+                );
+            }
+            Err(e) => tracing::error!("retention: pad rows not deleted: {e}"),
         }
     }
 

@@ -64,6 +64,8 @@ pub struct Summary {
     pub maps_kept: usize,
     /// Such boards whose map was not kept (the writer busy, or a write that failed).
     pub maps_not_kept: usize,
+    /// Pad rows deleted by the retention (`[retention] pad_days`) while it ran.
+    pub pad_rows_pruned: u64,
     /// Peak resident memory of the whole run (`VmHWM`), MB.
     pub peak_rss_mb: Option<f64>,
     /// Processor time of the run, all threads, s (Linux; `None` elsewhere), over `seconds`:
@@ -169,6 +171,7 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
         tally: Arc::clone(&tally),
         maps: crate::maps::MapKeeper::start(&cfg.maps, &cfg.line, Arc::clone(&tally))
             .map_err(|e| LineError::Io(format!("cannot start the maps' writer: {e}")))?,
+        pad_days: cfg.pad_days,
     };
     // Two jobs queued at most: a board map waiting for the keeper holds the boards' thread
     // (and through the gate the frame grabbers), so memory stays at two open maps, two
@@ -263,6 +266,7 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
         rss_by_boards_mb: t.rss_by_boards.clone(),
         maps_kept: t.maps_kept,
         maps_not_kept: t.maps_not_kept,
+        pad_rows_pruned: t.pad_rows_pruned,
         seconds: started.elapsed().as_secs_f64(),
     })
 }

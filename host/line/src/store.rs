@@ -1494,10 +1494,23 @@ impl Store {
     /// does). Only the boards from the oldest one that still has pads on are looked at, so a
     /// daily prune costs the boards of the retention window, not of the store's life.
     pub fn prune_pads(&mut self, before_unix_s: f64) -> Result<u64, StoreError> {
+        self.prune_pads_oldest(before_unix_s, usize::MAX)
+    }
+
+    /// [`Store::prune_pads`] of at most `boards` boards, the oldest first: what the line's
+    /// keeper does after each board it stores (`[retention]`, `crate::keeper`), so that the
+    /// deletes are spread over the boards instead of stalling one. Returns the pad rows
+    /// deleted.
+    pub fn prune_pads_oldest(
+        &mut self,
+        before_unix_s: f64,
+        boards: usize,
+    ) -> Result<u64, StoreError> {
         if before_unix_s.is_nan() {
             return Err(self.invalid("pruning before NaN s".to_owned()));
         }
-        on_backend!(&mut self.db, d => d.prune_pads(&self.line, before_unix_s))
+        let limit = i64::try_from(boards).unwrap_or(i64::MAX);
+        on_backend!(&mut self.db, d => d.prune_pads(&self.line, before_unix_s, limit))
     }
 
     /// SQLite: copies the WAL into the database and empties it (`PRAGMA
@@ -1649,6 +1662,7 @@ pub(crate) mod tests {
         pad_history_is_newest_first_and_only_inspected_boards,
         inspected_boards_are_one_products_newest_first,
         prune_deletes_pads_and_keeps_boards_and_pad_stats,
+        prune_oldest_takes_at_most_the_boards_asked_oldest_first,
         a_newer_schema_is_refused,
         opening_a_store_again_changes_nothing,
         pad_stats_equal_sums_recomputed_from_the_pad_rows,
@@ -2572,6 +2586,43 @@ pub(crate) mod tests {
         store.check().unwrap();
     }
 
+    fn prune_oldest_takes_at_most_the_boards_asked_oldest_first(b: Backend) {
+        let (_p, mut store) = fresh(b);
+        // Boards 1, 2, 3 and 5 inspected (ended at run id + 0.5), board 4 incomplete (no
+        // pads: never counted against the limit).
+        let ids: Vec<i64> = [1, 2, 3]
+            .iter()
+            .map(|&r| inspect(&mut store, r, "p", 7, 100.0))
+            .collect();
+        let four = store.begin_board(&start(4, "p", 4.0)).unwrap();
+        let gone = Outcome::Incomplete {
+            reason: "camera 1 silent".to_owned(),
+        };
+        store.finish_board(four, 4.5, &cams(), &gone).unwrap();
+        let five = inspect(&mut store, 5, "p", 7, 100.0);
+        let stats_before = stats(&mut store);
+        let left = |s: &mut Store| -> Vec<usize> {
+            ids.iter()
+                .chain([&five])
+                .map(|&id| s.pads(id).unwrap().len())
+                .collect()
+        };
+        assert_eq!(store.prune_pads_oldest(5.0, 0).unwrap(), 0);
+        assert_eq!(left(&mut store), [7, 7, 7, 7]);
+        assert_eq!(store.prune_pads_oldest(5.0, 2).unwrap(), 14);
+        assert_eq!(left(&mut store), [0, 0, 7, 7]);
+        // Only board 3 is before 5 s and still has pads; board 5 ended at 5.5 s.
+        assert_eq!(store.prune_pads_oldest(5.0, 2).unwrap(), 7);
+        assert_eq!(left(&mut store), [0, 0, 0, 7]);
+        assert_eq!(store.prune_pads_oldest(5.0, 2).unwrap(), 0);
+        assert_eq!(store.prune_pads_oldest(6.0, 2).unwrap(), 7);
+        assert_eq!(left(&mut store), [0, 0, 0, 0]);
+        assert_eq!(store.boards(10).unwrap().len(), 5);
+        assert_eq!(stats(&mut store), stats_before);
+        assert!(store.prune_pads_oldest(f64::NAN, 2).is_err());
+        store.check().unwrap();
+    }
+
     /// Sets the store's schema version by hand.
     fn set_version(store: &mut Store, v: u32) {
         let sql = match store.dialect() {
@@ -3250,6 +3301,12 @@ pub(crate) mod tests {
         assert!(r.insert.pads_per_s > 0.0 && r.history.median_ms >= 0.0);
         assert_eq!(r.history.entries, r.inspected_boards);
         assert!(r.prune.pad_rows_deleted > 0);
+        // The keeper's calls take the boards left, two at a time.
+        let k = &r.prune;
+        assert!(k.keeper_calls > 0 && k.keeper_pad_rows_deleted > 0);
+        assert_eq!(k.pad_rows_deleted + k.keeper_pad_rows_deleted, r.pad_rows);
+        assert!(k.keeper_pad_rows_deleted <= (k.keeper_calls * 2 * 200) as u64);
+        assert!(k.keeper_call_median_ms <= k.keeper_call_max_ms);
         assert!(r.size.bytes > 0);
         let json = serde_json::to_string(&r).unwrap();
         assert!(json.contains("\"goals\""), "{json}");

@@ -136,7 +136,20 @@ pub struct PruneBench {
     pub seconds: f64,
     /// Pad rows deleted per second.
     pub pad_rows_per_s: f64,
+    /// The line's keeper's share after each board (`[retention]`): calls of
+    /// [`Store::prune_pads_oldest`] for [`crate::keeper::PRUNE_BOARDS_PER_BOARD`] boards
+    /// each, on the boards left, timed one by one.
+    pub keeper_calls: usize,
+    /// Pad rows those calls deleted.
+    pub keeper_pad_rows_deleted: u64,
+    /// Their median, ms.
+    pub keeper_call_median_ms: f64,
+    /// The slowest, ms.
+    pub keeper_call_max_ms: f64,
 }
+
+/// Calls of the keeper's retention timed by the benchmark (fewer when fewer boards are left).
+const KEEPER_PRUNE_CALLS: usize = 20;
 
 /// The goals of the store.
 #[derive(Debug, Clone, Serialize)]
@@ -311,10 +324,29 @@ fn run_with(
     let t = Instant::now();
     let deleted = store.prune_pads(t0 + (boards / 2) as f64)?;
     let seconds = t.elapsed().as_secs_f64();
+    let mut call_ms = Vec::with_capacity(KEEPER_PRUNE_CALLS);
+    let mut keeper_deleted = 0;
+    for _ in 0..KEEPER_PRUNE_CALLS {
+        let t = Instant::now();
+        let n = store.prune_pads_oldest(
+            t0 + boards as f64 + 1.0,
+            crate::keeper::PRUNE_BOARDS_PER_BOARD,
+        )?;
+        if n == 0 {
+            break;
+        }
+        call_ms.push(t.elapsed().as_secs_f64() * 1e3);
+        keeper_deleted += n;
+    }
+    call_ms.sort_by(f64::total_cmp);
     let prune = PruneBench {
         pad_rows_deleted: deleted,
         seconds,
         pad_rows_per_s: deleted as f64 / seconds,
+        keeper_calls: call_ms.len(),
+        keeper_pad_rows_deleted: keeper_deleted,
+        keeper_call_median_ms: quantile(&call_ms, 0.5),
+        keeper_call_max_ms: call_ms.last().copied().unwrap_or(0.0),
     };
 
     let inserts = insert.pads_per_s.min(insert.pads_per_s_last_10pct);

@@ -1093,7 +1093,12 @@ impl Pg {
             .collect()
     }
 
-    pub(super) fn prune_pads(&mut self, line: &str, before_unix_s: f64) -> Result<u64, StoreError> {
+    pub(super) fn prune_pads(
+        &mut self,
+        line: &str,
+        before_unix_s: f64,
+        limit: i64,
+    ) -> Result<u64, StoreError> {
         self.ready()?;
         let err = pg_err(&self.name);
         let ids: Vec<i64> = self
@@ -1102,8 +1107,9 @@ impl Pg {
                 "SELECT id FROM boards \
                  WHERE id >= (SELECT min(board_id) FROM pads) AND line = $2 \
                  AND ended_unix_s < $1 \
-                 AND EXISTS (SELECT 1 FROM pads WHERE board_id = boards.id) ORDER BY id",
-                &[&before_unix_s, &line],
+                 AND EXISTS (SELECT 1 FROM pads WHERE board_id = boards.id) \
+                 ORDER BY id LIMIT $3",
+                &[&before_unix_s, &line, &limit],
             )
             .map_err(&err)?
             .iter()

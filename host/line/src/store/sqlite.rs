@@ -820,7 +820,12 @@ impl Sqlite {
         Ok(out)
     }
 
-    pub(super) fn prune_pads(&mut self, line: &str, before_unix_s: f64) -> Result<u64, StoreError> {
+    pub(super) fn prune_pads(
+        &mut self,
+        line: &str,
+        before_unix_s: f64,
+        limit: i64,
+    ) -> Result<u64, StoreError> {
         let name = self.name.as_str();
         let err = |e| sql_err(name, e);
         let ids: Vec<i64> = {
@@ -830,11 +835,12 @@ impl Sqlite {
                     "SELECT id FROM boards \
                      WHERE id >= (SELECT min(board_id) FROM pads) AND line = ?2 \
                      AND ended_unix_s < ?1 \
-                     AND EXISTS (SELECT 1 FROM pads WHERE board_id = boards.id) ORDER BY id",
+                     AND EXISTS (SELECT 1 FROM pads WHERE board_id = boards.id) \
+                     ORDER BY id LIMIT ?3",
                 )
                 .map_err(err)?;
             let rows = s
-                .query_map(params![before_unix_s, line], |r| r.get(0))
+                .query_map(params![before_unix_s, line, limit], |r| r.get(0))
                 .map_err(err)?;
             rows.collect::<Result<_, _>>().map_err(err)?
         };
