@@ -124,7 +124,7 @@ fn help_texts() {
         ("pads", &["--json"][..]),
         (
             "line",
-            &["run", "init", "send", "boards", "store-bench"][..],
+            &["run", "init", "send", "boards", "check", "store-bench"][..],
         ),
     ] {
         let h = ok(&[sub, "--help"]);

@@ -1100,6 +1100,34 @@ fn kill_9_mid_board_leaves_a_sound_store_and_the_board_incomplete() {
     );
     assert!(killed["pad_rows"].as_array().unwrap().is_empty());
     assert_offline(board_of(&boards, sent["run_ids"][0].as_str().unwrap()));
+    // The restart checked the whole store (a small one), and `dpsa line check` finds it
+    // sound, whole and on its newest board.
+    assert_eq!(summary["store_checked"], "whole", "{summary}");
+    assert!(
+        summary["store_bytes_at_start"].as_u64().unwrap() > 0,
+        "{summary}"
+    );
+    let check = |extra: &[&str]| {
+        let mut args = vec!["line", "check", "--config", cfg.to_str().unwrap()];
+        args.extend(extra);
+        dpsa(args)
+    };
+    for (extra, checked) in [
+        (&[][..], "whole"),
+        (&["--newest", "1"][..], "newest 1 boards"),
+    ] {
+        let v: Value = serde_json::from_str(&ok(&check(extra), "line check")).unwrap();
+        assert_eq!(v["ok"], true, "{v}");
+        assert_eq!(v["checked"], checked, "{v}");
+    }
+    let o = check(&["--newest", "0"]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--newest"));
+    let elsewhere = dir.join("nothing-here.sqlite");
+    let o = check(&["--store", elsewhere.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no store"));
+    assert!(!elsewhere.exists(), "line check never makes a store");
 }
 
 /// A configuration with a wrong key is refused before anything starts, naming the key.

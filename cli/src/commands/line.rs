@@ -27,6 +27,11 @@ enum LineCmd {
     Send(SendArgs),
     /// The boards the line stored, newest first, as JSON.
     Boards(BoardsArgs),
+    /// Check the store (SQLite's page and foreign-key checks, and the schema's rules on every
+    /// row), or with --newest N the rules on its newest boards' rows, as `line run` does at
+    /// start on a store too large to read whole. Prints the result as JSON; a store found
+    /// damaged is an error, naming what was found.
+    Check(CheckArgs),
     /// Record that the stencil was cleaned (now, or --at): `dpsa spc` counts the fine
     /// apertures' clogging from the last clean. Prints the event as JSON.
     Clean(CleanArgs),
@@ -145,6 +150,19 @@ struct BoardsArgs {
 }
 
 #[derive(clap::Args)]
+struct CheckArgs {
+    /// The line's configuration.
+    #[arg(long)]
+    config: PathBuf,
+    /// Only the rows of the store's newest N boards (every line's) and the aggregates.
+    #[arg(long, value_name = "N")]
+    newest: Option<usize>,
+    /// The store, over the configuration's `store`.
+    #[arg(long, value_name = "URL_OR_PATH")]
+    store: Option<String>,
+}
+
+#[derive(clap::Args)]
 struct CleanArgs {
     /// The line's configuration.
     #[arg(long)]
@@ -208,6 +226,7 @@ pub fn run(a: Args) -> Result<()> {
         LineCmd::Send(a) => send(a),
         LineCmd::Boards(a) => boards(a),
         LineCmd::Clean(a) => clean(a),
+        LineCmd::Check(a) => check(a),
         LineCmd::StoreBench(a) => store_bench(a),
         LineCmd::LinkBench(a) => {
             if !(a.mb.is_finite() && a.mb > 0.0 && a.mb <= 10_000.0) {
@@ -493,6 +512,42 @@ fn clean(a: CleanArgs) -> Result<()> {
         note: a.note,
     };
     out!("{}", serde_json::to_string_pretty(&c)?);
+    Ok(())
+}
+
+fn check(a: CheckArgs) -> Result<()> {
+    let cfg = LineConfig::load(&a.config)?;
+    let location = match &a.store {
+        Some(text) => store_arg(text)?,
+        None => cfg.store,
+    };
+    if let Location::Sqlite(path) = &location {
+        if !path.is_file() {
+            bail!(
+                "no store at {}: the line has stored nothing yet",
+                path.display()
+            );
+        }
+    }
+    if a.newest == Some(0) {
+        bail!("--newest 0 checks no board: give at least 1, or leave it out for the whole store");
+    }
+    let mut store = dpsa_line::store::Store::open_read_only(&location, &cfg.line)?;
+    let (bytes, counted) = store.bytes()?;
+    let t = std::time::Instant::now();
+    match a.newest {
+        None => store.check()?,
+        Some(n) => store.check_newest(n)?,
+    }
+    let v = serde_json::json!({
+        "store": location.to_string(),
+        "checked": a.newest.map_or_else(|| "whole".to_owned(), |n| format!("newest {n} boards")),
+        "ok": true,
+        "bytes": bytes,
+        "bytes_counted": counted,
+        "seconds": t.elapsed().as_secs_f64(),
+    });
+    out!("{}", serde_json::to_string_pretty(&v)?);
     Ok(())
 }
 

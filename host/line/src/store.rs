@@ -290,6 +290,9 @@
 //! PostgreSQL also: no NaN anywhere, no trigger switched off, the triggers that keep `pads`'
 //! foreign key all there, no constraint added `NOT VALID`, and `schema_version` at this
 //! program's version. The checks read every pad row: seconds for a store of gigabytes.
+//! [`Store::check_newest`] applies the same rules to the rows of the newest boards only (and
+//! to the aggregates, whole), without SQLite's page checks: what `dpsa line run` does at
+//! start on a store larger than [`crate::service::WHOLE_CHECK_BYTES`].
 //!
 //! # Queries an engineer would run
 //!
@@ -377,6 +380,19 @@ use schema::{Step, MIGRATIONS};
 
 /// The newest schema version this program knows (`PRAGMA user_version` of a store it made).
 pub const SCHEMA_VERSION: u32 = MIGRATIONS.len() as u32;
+
+/// The end of a check: `Ok` when no rule was `broken`, else [`StoreError::Corrupt`] saying
+/// each.
+fn broken_rules(store: &str, broken: &[String]) -> Result<(), StoreError> {
+    if broken.is_empty() {
+        Ok(())
+    } else {
+        Err(StoreError::Corrupt {
+            store: store.to_owned(),
+            why: broken.join("; "),
+        })
+    }
+}
 
 /// The line's name when LINE.toml gives none, and the line of every board stored before
 /// schema version 2.
@@ -1435,7 +1451,16 @@ impl Store {
     /// `Ok(())`, or [`StoreError::Corrupt`] with what was found. Reads every pad row: seconds
     /// for a store of gigabytes.
     pub fn check(&mut self) -> Result<(), StoreError> {
-        on_backend!(&mut self.db, d => d.check())
+        on_backend!(&mut self.db, d => d.check(None))
+    }
+
+    /// [`Store::check`]'s rules on the rows of the store's newest `boards` boards (every
+    /// line's, by id) and on the aggregates, in time bounded by those boards rather than the
+    /// store's age; SQLite's page and foreign-key checks, which read the whole file, are left
+    /// out. What `dpsa line run` does at start when the store is larger than
+    /// [`crate::service::WHOLE_CHECK_BYTES`]; `dpsa line check` checks the whole store.
+    pub fn check_newest(&mut self, boards: usize) -> Result<(), StoreError> {
+        on_backend!(&mut self.db, d => d.check(Some(boards)))
     }
 
     /// This line's boards, newest (last begun) first, at most `limit`.
@@ -1523,7 +1548,7 @@ impl Store {
     }
 
     /// The store's size in bytes and what was counted.
-    fn bytes(&mut self) -> Result<(u64, &'static str), StoreError> {
+    pub fn bytes(&mut self) -> Result<(u64, &'static str), StoreError> {
         match (&mut self.db, &self.location) {
             (Db::Sqlite(d), Location::Sqlite(path)) => {
                 Ok((d.bytes(path)?, "the database file and its WAL"))
@@ -1663,6 +1688,7 @@ pub(crate) mod tests {
         inspected_boards_are_one_products_newest_first,
         prune_deletes_pads_and_keeps_boards_and_pad_stats,
         prune_oldest_takes_at_most_the_boards_asked_oldest_first,
+        check_newest_reads_the_newest_boards_rows_and_the_aggregates,
         a_newer_schema_is_refused,
         opening_a_store_again_changes_nothing,
         pad_stats_equal_sums_recomputed_from_the_pad_rows,
@@ -2621,6 +2647,72 @@ pub(crate) mod tests {
         assert_eq!(stats(&mut store), stats_before);
         assert!(store.prune_pads_oldest(f64::NAN, 2).is_err());
         store.check().unwrap();
+    }
+
+    fn check_newest_reads_the_newest_boards_rows_and_the_aggregates(b: Backend) {
+        let (_p, mut store) = fresh(b);
+        let ids: Vec<i64> = (1..=3)
+            .map(|r| inspect(&mut store, r, "p", 5, 100.0))
+            .collect();
+        store.check_newest(1).unwrap();
+        // A row of the oldest board damaged: found by the whole check and by the newest
+        // three, not by the newest two.
+        for (damage, undo) in [
+            (
+                format!("UPDATE boards SET pads = 6 WHERE id = {}", ids[0]),
+                format!("UPDATE boards SET pads = 5 WHERE id = {}", ids[0]),
+            ),
+            (
+                // A warning without its defect row.
+                format!(
+                    "UPDATE pads SET level = 'warn' WHERE board_id = {} AND pad = 0",
+                    ids[0]
+                ),
+                format!(
+                    "UPDATE pads SET level = 'pass' WHERE board_id = {} AND pad = 0",
+                    ids[0]
+                ),
+            ),
+            (
+                format!(
+                    "INSERT INTO defects (board_id, pad, level, class) \
+                     VALUES ({}, 1, 'fail', 'insufficient')",
+                    ids[0]
+                ),
+                format!("DELETE FROM defects WHERE board_id = {}", ids[0]),
+            ),
+        ] {
+            store.exec(&damage).unwrap();
+            assert!(store.check().is_err(), "{damage}");
+            assert!(store.check_newest(3).is_err(), "{damage}");
+            store.check_newest(2).unwrap();
+            store.exec(&undo).unwrap();
+        }
+        // The newest board's rows and the aggregates are always read.
+        for (damage, undo) in [
+            (
+                // A warning without its defect row.
+                format!(
+                    "UPDATE pads SET level = 'warn' WHERE board_id = {} AND pad = 0",
+                    ids[2]
+                ),
+                format!(
+                    "UPDATE pads SET level = 'pass' WHERE board_id = {} AND pad = 0",
+                    ids[2]
+                ),
+            ),
+            (
+                "UPDATE pad_stats SET fails = boards + 1 WHERE pad = 0".to_owned(),
+                "UPDATE pad_stats SET fails = 0 WHERE pad = 0".to_owned(),
+            ),
+        ] {
+            store.exec(&damage).unwrap();
+            let e = store.check_newest(1).unwrap_err();
+            assert!(matches!(e, StoreError::Corrupt { .. }), "{e}");
+            store.exec(&undo).unwrap();
+        }
+        store.check().unwrap();
+        store.check_newest(usize::MAX).unwrap();
     }
 
     /// Sets the store's schema version by hand.

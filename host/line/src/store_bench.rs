@@ -65,8 +65,14 @@ pub struct StoreBench {
     pub insert: InsertBench,
     /// A pad's history.
     pub history: HistoryBench,
-    /// [`Store::check`] of the full store (what the service does at every start), seconds.
+    /// [`Store::check`] of the full store (what the service does at start when the store is
+    /// at most [`crate::service::WHOLE_CHECK_BYTES`]), seconds.
     pub check_s: f64,
+    /// Boards [`Store::check_newest`] was timed on ([`crate::service::CHECK_NEWEST_BOARDS`]).
+    pub check_newest_boards: usize,
+    /// [`Store::check_newest`] of them (what the service does at start on a larger store),
+    /// seconds: the same on a store of any age.
+    pub check_newest_s: f64,
     /// The store's size.
     pub size: SizeBench,
     /// Retention ([`Store::prune_pads`]).
@@ -311,6 +317,10 @@ fn run_with(
     let t = Instant::now();
     store.check()?;
     let check_s = t.elapsed().as_secs_f64();
+    let check_newest_boards = crate::service::CHECK_NEWEST_BOARDS;
+    let t = Instant::now();
+    store.check_newest(check_newest_boards)?;
+    let check_newest_s = t.elapsed().as_secs_f64();
 
     store.checkpoint()?;
     let (bytes, counted) = store.bytes()?;
@@ -374,6 +384,8 @@ fn run_with(
         insert,
         history,
         check_s,
+        check_newest_boards,
+        check_newest_s,
         size,
         prune,
         goals,

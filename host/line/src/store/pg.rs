@@ -888,8 +888,9 @@ impl Pg {
     }
 
     /// The rules of [`schema::INVARIANTS`] and [`schema::POSTGRES_INVARIANTS`], in one
-    /// read-only snapshot (the other lines go on writing meanwhile).
-    pub(super) fn check(&mut self) -> Result<(), StoreError> {
+    /// read-only snapshot (the other lines go on writing meanwhile), on every board's rows
+    /// (`newest` `None`) or the newest boards'.
+    pub(super) fn check(&mut self, newest: Option<usize>) -> Result<(), StoreError> {
         self.ready()?;
         let name = self.name.as_str();
         let err = pg_err(name);
@@ -901,6 +902,16 @@ impl Pg {
             .start()
             .map_err(&err)?;
         let version = read_version(&mut tx, name)?;
+        let from_board: Option<i64> = match newest {
+            None => None,
+            Some(n) => tx
+                .query_one(
+                    "SELECT min(id) FROM (SELECT id FROM boards ORDER BY id DESC LIMIT $1) AS n",
+                    &[&i64::try_from(n).unwrap_or(i64::MAX)],
+                )
+                .map_err(&err)?
+                .get(0),
+        };
         let mut broken = Vec::new();
         if version != super::SCHEMA_VERSION {
             broken.push(format!(
@@ -910,7 +921,7 @@ impl Pg {
         }
         for (what, sql) in schema::INVARIANTS.iter().chain(schema::POSTGRES_INVARIANTS) {
             let n: i64 = tx
-                .query_one(&schema::render(sql, Dialect::Postgres), &[])
+                .query_one(&schema::rule(sql, Dialect::Postgres, from_board), &[])
                 .map_err(&err)?
                 .get(0);
             if n != 0 {
@@ -918,14 +929,7 @@ impl Pg {
             }
         }
         tx.commit().map_err(&err)?;
-        if broken.is_empty() {
-            Ok(())
-        } else {
-            Err(StoreError::Corrupt {
-                store: name.to_owned(),
-                why: broken.join("; "),
-            })
-        }
+        super::broken_rules(name, &broken)
     }
 
     pub(super) fn boards(

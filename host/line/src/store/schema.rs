@@ -85,6 +85,15 @@ pub(crate) fn render(template: &str, dialect: Dialect) -> String {
     out
 }
 
+/// Rule `sql` of [`INVARIANTS`] or [`POSTGRES_INVARIANTS`] in `dialect`, on the rows of the
+/// boards from id `from_board` on (`None`: every board).
+pub(crate) fn rule(sql: &str, dialect: Dialect, from_board: Option<i64>) -> String {
+    // The lowest id both databases read as a 64-bit integer literal (`-9223372036854775808`
+    // is a numeric in PostgreSQL: a minus before a number too large).
+    let from = from_board.unwrap_or(i64::MIN + 1);
+    render(sql, dialect).replace("{from_board}", &from.to_string())
+}
+
 /// One migration step: takes a store from version `i` to `i + 1`.
 #[derive(Clone, Debug)]
 pub(crate) enum Step {
@@ -471,7 +480,11 @@ CREATE TABLE IF NOT EXISTS schema_version (
 ";
 
 /// The rules [`crate::store::Store::check`] verifies on the rows, both dialects: each a query
-/// counting the rows that break it, with what it says of them. They restate the schema's
+/// counting the rows that break it, with what it says of them. `{from_board}` (filled in by
+/// [`rule`]) bounds the rows of boards to the boards from that id on: the lowest possible id
+/// for the whole store, the oldest of the newest boards for
+/// [`crate::store::Store::check_newest`]; the aggregates and the stencil's cleans are read
+/// whole either way (a few rows per pad and product). They restate the schema's
 /// CHECKs and foreign keys (a database whose constraints were switched off or dropped, or
 /// whose rows were written past them, is caught) and add what the store keeps true without a
 /// constraint saying so: a board's pad rows number its `pads`, only inspected boards have pad
@@ -481,7 +494,7 @@ pub(crate) const INVARIANTS: &[(&str, &str)] = &[
     (
         "boards whose state disagrees with their end, verdict, reason or pad count, or whose \
          run id, state, verdict or line is not one the schema allows",
-        "SELECT count(*) FROM boards WHERE NOT (
+        "SELECT count(*) FROM boards WHERE id >= {from_board} AND NOT (
             ((state = 'open' AND ended_unix_s IS NULL AND verdict IS NULL
                 AND incomplete_reason IS NULL AND pads = 0)
             OR (state = 'inspected' AND ended_unix_s IS NOT NULL AND verdict IS NOT NULL
@@ -495,12 +508,13 @@ pub(crate) const INVARIANTS: &[(&str, &str)] = &[
     ),
     (
         "camera rows out of range (camera 0..=255, counts >= 0)",
-        "SELECT count(*) FROM board_cameras WHERE NOT (camera BETWEEN 0 AND 255 AND rows >= 0
+        "SELECT count(*) FROM board_cameras WHERE board_id >= {from_board}
+            AND NOT (camera BETWEEN 0 AND 255 AND rows >= 0
             AND missing_rows >= 0 AND missing_packets >= 0 AND damaged_packets >= 0)",
     ),
     (
         "pad rows out of range (pad >= 0, level pass / warn / fail, coverage 0..=1)",
-        "SELECT count(*) FROM pads WHERE NOT (pad >= 0
+        "SELECT count(*) FROM pads WHERE board_id >= {from_board} AND NOT (pad >= 0
             AND (level = 'pass' OR level = 'warn' OR level = 'fail')
             AND coverage BETWEEN 0 AND 1)",
     ),
@@ -512,11 +526,12 @@ pub(crate) const INVARIANTS: &[(&str, &str)] = &[
     (
         "camera rows of a board that is not in the store",
         "SELECT count(*) FROM board_cameras AS c
-            WHERE NOT EXISTS (SELECT 1 FROM boards AS b WHERE b.id = c.board_id)",
+            WHERE c.board_id >= {from_board} AND NOT EXISTS (SELECT 1 FROM boards AS b WHERE b.id = c.board_id)",
     ),
     (
         "defect rows without the pad row they stand for (same board, pad and level)",
-        "SELECT count(*) FROM defects AS d WHERE NOT EXISTS (SELECT 1 FROM pads AS p
+        "SELECT count(*) FROM defects AS d WHERE d.board_id >= {from_board}
+            AND NOT EXISTS (SELECT 1 FROM pads AS p
             WHERE p.board_id = d.board_id AND p.pad = d.pad AND p.level = d.level)",
     ),
     (
@@ -525,9 +540,10 @@ pub(crate) const INVARIANTS: &[(&str, &str)] = &[
         "SELECT count(*) FROM
             (SELECT board_id, count(*) AS n,
                     sum(CASE WHEN level = 'pass' THEN 0 ELSE 1 END) AS flagged
-             FROM pads GROUP BY board_id) AS p
+             FROM pads WHERE board_id >= {from_board} GROUP BY board_id) AS p
             LEFT JOIN boards AS b ON b.id = p.board_id
-            LEFT JOIN (SELECT board_id, count(*) AS n FROM defects GROUP BY board_id) AS d
+            LEFT JOIN (SELECT board_id, count(*) AS n FROM defects
+                WHERE board_id >= {from_board} GROUP BY board_id) AS d
                 ON d.board_id = p.board_id
             WHERE b.id IS NULL OR b.state <> 'inspected' OR b.pads <> p.n
                 OR coalesce(d.n, 0) <> p.flagged",
@@ -536,30 +552,30 @@ pub(crate) const INVARIANTS: &[(&str, &str)] = &[
         "print rows of a board not in the store or still open, with a placement on a board \
          not inspected, or out of range (held and limited 0..=7, counts >= 0)",
         "SELECT count(*) FROM prints AS p LEFT JOIN boards AS b ON b.id = p.board_id
-            WHERE b.id IS NULL OR b.state = 'open'
+            WHERE p.board_id >= {from_board} AND (b.id IS NULL OR b.state = 'open'
                 OR (p.x_um IS NOT NULL AND b.state <> 'inspected')
                 OR NOT (p.held BETWEEN 0 AND 7 AND p.limited BETWEEN 0 AND 7
                     AND coalesce(p.pads_used, 0) >= 0 AND coalesce(p.outliers, 0) >= 0
-                    AND (p.x_um IS NULL) = (p.pads_used IS NULL))",
+                    AND (p.x_um IS NULL) = (p.pads_used IS NULL)))",
     ),
     (
         "pad images of a board not in the store or not inspected, of a pad the board's rows \
          do not name, or whose heights are not two bytes a sample",
         "SELECT count(*) FROM pad_images AS i LEFT JOIN boards AS b ON b.id = i.board_id
-            WHERE b.id IS NULL OR b.state <> 'inspected'
+            WHERE i.board_id >= {from_board} AND (b.id IS NULL OR b.state <> 'inspected'
                 OR NOT EXISTS (SELECT 1 FROM pads AS p
                     WHERE p.board_id = i.board_id AND p.pad = i.pad)
-                OR {bytes_of}(i.heights) <> 2 * i.nx * i.ny",
+                OR {bytes_of}(i.heights) <> 2 * i.nx * i.ny)",
     ),
     (
         "reviews of a board not in the store or not inspected, or not of a pad that warned \
          or failed while the board's pad rows are kept",
         "SELECT count(*) FROM reviews AS r LEFT JOIN boards AS b ON b.id = r.board_id
-            WHERE b.id IS NULL OR b.state <> 'inspected'
+            WHERE r.board_id >= {from_board} AND (b.id IS NULL OR b.state <> 'inspected'
                 OR NOT (r.decision = 'confirmed' OR r.decision = 'false_call')
                 OR (EXISTS (SELECT 1 FROM pads AS p WHERE p.board_id = r.board_id)
                     AND NOT EXISTS (SELECT 1 FROM defects AS d
-                        WHERE d.board_id = r.board_id AND d.pad = r.pad))",
+                        WHERE d.board_id = r.board_id AND d.pad = r.pad)))",
     ),
 ];
 
@@ -570,16 +586,20 @@ pub(crate) const INVARIANTS: &[(&str, &str)] = &[
 pub(crate) const POSTGRES_INVARIANTS: &[(&str, &str)] = &[
     (
         "NaN values (a measurement that could not be made is NULL, never NaN)",
-        "SELECT (SELECT count(*) FROM pads WHERE 'NaN' IN (volume_um3, volume_pct, area_mm2,
+        "SELECT (SELECT count(*) FROM pads WHERE board_id >= {from_board}
+                    AND 'NaN' IN (volume_um3, volume_pct, area_mm2,
                     area_pct, height_um, height_pct, offset_x_um, offset_y_um, coverage,
                     uncertainty_um3))
-              + (SELECT count(*) FROM boards WHERE 'NaN' IN (started_unix_s, ended_unix_s))
+              + (SELECT count(*) FROM boards WHERE id >= {from_board}
+                    AND 'NaN' IN (started_unix_s, ended_unix_s))
               + (SELECT count(*) FROM pad_stats
                     WHERE 'NaN' IN (sum_volume_pct, sum_sq_volume_pct))
               + (SELECT count(*) FROM stencil_cleans WHERE cleaned_unix_s = 'NaN')
-              + (SELECT count(*) FROM pad_images WHERE 'NaN' IN (x0_mm, y0_mm, pitch_mm, lsb_um))
-              + (SELECT count(*) FROM reviews WHERE reviewed_unix_s = 'NaN')
-              + (SELECT count(*) FROM prints WHERE 'NaN' IN (x_um, y_um, rotation_mdeg,
+              + (SELECT count(*) FROM pad_images WHERE board_id >= {from_board}
+                    AND 'NaN' IN (x0_mm, y0_mm, pitch_mm, lsb_um))
+              + (SELECT count(*) FROM reviews WHERE board_id >= {from_board}
+                    AND reviewed_unix_s = 'NaN')
+              + (SELECT count(*) FROM prints WHERE board_id >= {from_board} AND 'NaN' IN (x_um, y_um, rotation_mdeg,
                     stretch_ppm, u_x_um, u_y_um, u_rotation_mdeg, u_stretch_ppm, scale_um,
                     centre_x_mm, centre_y_mm, correction_x_um, correction_y_um,
                     correction_rotation_mdeg, change_x_um, change_y_um, change_rotation_mdeg,
@@ -630,9 +650,12 @@ mod tests {
                 );
             }
         }
-        for (_, sql) in INVARIANTS {
+        for (_, sql) in INVARIANTS.iter().chain(POSTGRES_INVARIANTS) {
             for d in [Dialect::Sqlite, Dialect::Postgres] {
-                assert!(!render(sql, d).replace("{16}", "").contains(['{', '}']));
+                for from in [None, Some(7)] {
+                    let r = rule(sql, d, from);
+                    assert!(!r.replace("{16}", "").contains(['{', '}']), "{r}");
+                }
             }
         }
         assert_eq!(render("a {unknown} b", Dialect::Sqlite), "a {unknown} b");
