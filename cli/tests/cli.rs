@@ -124,7 +124,15 @@ fn help_texts() {
         ("pads", &["--json"][..]),
         (
             "line",
-            &["run", "init", "send", "boards", "check", "store-bench"][..],
+            &[
+                "run",
+                "init",
+                "send",
+                "boards",
+                "product",
+                "check",
+                "store-bench",
+            ][..],
         ),
     ] {
         let h = ok(&[sub, "--help"]);

@@ -954,6 +954,107 @@ fn the_retention_deletes_the_oldest_pad_rows_and_keeps_the_boards() {
     assert_eq!(spc["boards"], 2, "{spc}");
 }
 
+/// `dpsa line product --config CFG [extra]` as JSON.
+fn product(cfg: &Path, extra: &[&str]) -> Value {
+    let mut args = vec!["line", "product", "--config", cfg.to_str().unwrap()];
+    args.extend(extra);
+    serde_json::from_str(&ok(&dpsa(args), "line product")).unwrap()
+}
+
+/// Waits until `n` boards of `cfg`'s line have ended (stored inspected or incomplete).
+fn wait_ended(cfg: &Path, n: usize) {
+    let t0 = Instant::now();
+    while stored(cfg).iter().filter(|b| b["state"] != "open").count() < n {
+        assert!(
+            t0.elapsed() < Duration::from_secs(60),
+            "{n} boards not ended"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// The line told the product of the boards that begin (`dpsa line product`, the data
+/// directory's `product` file; the streams carry none): a board of the second product is
+/// stored under it and inspected with its program; a file naming a product the configuration
+/// does not have makes the board that begins incomplete with the reason, never inspected
+/// against another product's program; `--default` goes back to the default product.
+#[test]
+fn each_board_is_inspected_as_the_product_the_line_is_told() {
+    let f = fixture();
+    let dir = f.dir.join("product");
+    let cfg = line_config(&dir, |t| {
+        // A second product: the first one's program and board under another id.
+        let block: Vec<String> = t
+            .split("[[product]]\n")
+            .nth(1)
+            .unwrap()
+            .lines()
+            .take_while(|l| !l.is_empty() && !l.starts_with('['))
+            .map(|l| {
+                if l.starts_with("id = ") {
+                    "id = \"other\"".to_owned()
+                } else {
+                    l.to_owned()
+                }
+            })
+            .collect();
+        assert_eq!(block.len(), 4, "{t}");
+        format!("{t}\n[[product]]\n{}\n", block.join("\n"))
+    });
+    let first = product(&cfg, &[]);
+    assert_eq!(first["from"], "default_product", "{first}");
+    let default_id = first["product"].as_str().unwrap().to_owned();
+    assert_eq!(first["products"], serde_json::json!([default_id, "other"]));
+    let o = dpsa([
+        "line",
+        "product",
+        "--config",
+        cfg.to_str().unwrap(),
+        "--set",
+        "nope",
+    ]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("not a product"));
+    assert_eq!(product(&cfg, &["--set", "other"])["product"], "other");
+
+    let run = start(&cfg, Some(3));
+    let a = send(&cfg, &["--rate", "max", "--seed", "31"]);
+    wait_ended(&cfg, 1);
+    // A line controller that writes an id the line does not know.
+    std::fs::write(dir.join("data/product"), "nonexistent\n").unwrap();
+    let told = product(&cfg, &[]);
+    assert!(told["product"].is_null(), "{told}");
+    assert!(
+        told["refused"].as_str().unwrap().contains("nonexistent"),
+        "{told}"
+    );
+    let b = send(&cfg, &["--rate", "max", "--seed", "32"]);
+    wait_ended(&cfg, 2);
+    assert_eq!(
+        product(&cfg, &["--default"])["product"],
+        default_id.as_str()
+    );
+    let c = send(&cfg, &["--rate", "max", "--seed", "33"]);
+    let summary = wait(run, 120, &cfg);
+    assert_eq!(summary["boards"], 3, "{summary}");
+    let boards = stored(&cfg);
+    let run_of = |v: &Value| v["run_ids"][0].as_str().unwrap().to_owned();
+    let board_a = board_of(&boards, &run_of(&a));
+    assert_eq!(board_a["product"], "other", "{board_a}");
+    assert_offline(board_a);
+    let board_b = board_of(&boards, &run_of(&b));
+    assert_eq!(board_b["state"], "incomplete", "{board_b}");
+    let why = board_b["incomplete_reason"].as_str().unwrap();
+    assert!(
+        why.contains("nonexistent") && why.contains("product"),
+        "{why}"
+    );
+    assert!(board_b["pad_rows"].as_array().unwrap().is_empty());
+    let board_c = board_of(&boards, &run_of(&c));
+    assert_eq!(board_c["product"], default_id.as_str(), "{board_c}");
+    assert_offline(board_c);
+}
+
 /// 1 % of the packets lost: the board is inspected, the losses are stored, and no pad with
 /// less than the program's coverage is judged (never pass or fail on interpolated data).
 #[test]

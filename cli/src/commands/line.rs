@@ -27,6 +27,10 @@ enum LineCmd {
     Send(SendArgs),
     /// The boards the line stored, newest first, as JSON.
     Boards(BoardsArgs),
+    /// Tell the line the product of the boards that begin from now on (--set ID), or that
+    /// they are the configuration's default product again (--default); without either, say
+    /// which it is. Prints it as JSON.
+    Product(ProductArgs),
     /// Check the store (SQLite's page and foreign-key checks, and the schema's rules on every
     /// row), or with --newest N the rules on its newest boards' rows, as `line run` does at
     /// start on a store too large to read whole. Prints the result as JSON; a store found
@@ -150,6 +154,20 @@ struct BoardsArgs {
 }
 
 #[derive(clap::Args)]
+#[command(group(clap::ArgGroup::new("change").args(["set", "default"])))]
+struct ProductArgs {
+    /// The line's configuration.
+    #[arg(long)]
+    config: PathBuf,
+    /// The product (one of the configuration's `[[product]]` ids).
+    #[arg(long, value_name = "ID")]
+    set: Option<String>,
+    /// Back to the configuration's `default_product`.
+    #[arg(long)]
+    default: bool,
+}
+
+#[derive(clap::Args)]
 struct CheckArgs {
     /// The line's configuration.
     #[arg(long)]
@@ -167,7 +185,8 @@ struct CleanArgs {
     /// The line's configuration.
     #[arg(long)]
     config: PathBuf,
-    /// The product whose stencil was cleaned (default: the configuration's default product).
+    /// The product whose stencil was cleaned (default: the product the line is told now,
+    /// `dpsa line product`).
     #[arg(long)]
     product: Option<String>,
     /// When, Unix seconds (default: now).
@@ -227,6 +246,7 @@ pub fn run(a: Args) -> Result<()> {
         LineCmd::Boards(a) => boards(a),
         LineCmd::Clean(a) => clean(a),
         LineCmd::Check(a) => check(a),
+        LineCmd::Product(a) => product(a),
         LineCmd::StoreBench(a) => store_bench(a),
         LineCmd::LinkBench(a) => {
             if !(a.mb.is_finite() && a.mb > 0.0 && a.mb <= 10_000.0) {
@@ -496,7 +516,12 @@ fn clean(a: CleanArgs) -> Result<()> {
                 .collect::<Vec<_>>()
                 .join(", ")
         ),
-        None => cfg.products[cfg.default_product].id.clone(),
+        // The product the line is told now (`dpsa line product`), whose stencil is on the
+        // printer.
+        None => match cfg.product_now() {
+            Ok(k) => cfg.products[k].id.clone(),
+            Err(why) => bail!("{why}: give --product"),
+        },
     };
     let at = match a.at {
         Some(t) => t,
@@ -512,6 +537,43 @@ fn clean(a: CleanArgs) -> Result<()> {
         note: a.note,
     };
     out!("{}", serde_json::to_string_pretty(&c)?);
+    Ok(())
+}
+
+fn product(a: ProductArgs) -> Result<()> {
+    let cfg = LineConfig::load(&a.config)?;
+    let file = cfg.product_file();
+    let ids: Vec<&str> = cfg.products.iter().map(|p| p.id.as_str()).collect();
+    if let Some(id) = &a.set {
+        if !ids.contains(&id.as_str()) {
+            bail!(
+                "--set {id:?}: not a product of {} ({ids:?})",
+                a.config.display()
+            );
+        }
+        dpsa_formats::files::write_bytes(&file, format!("{id}\n").as_bytes())?;
+    } else if a.default {
+        match std::fs::remove_file(&file) {
+            Ok(()) => {}
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+            Err(e) => bail!("cannot remove {}: {e}", file.display()),
+        }
+    }
+    // A file that names no product is said, not failed: this is how one finds out why the
+    // boards that begin now are stored incomplete.
+    let (product, from, refused) = match cfg.product_now() {
+        Ok(k) if file.exists() => (Some(ids[k]), "the product file", None),
+        Ok(k) => (Some(ids[k]), "default_product", None),
+        Err(why) => (None, "the product file", Some(why)),
+    };
+    let v = serde_json::json!({
+        "product": product,
+        "from": from,
+        "file": file.display().to_string(),
+        "products": ids,
+        "refused": refused,
+    });
+    out!("{}", serde_json::to_string_pretty(&v)?);
     Ok(())
 }
 

@@ -93,6 +93,35 @@ pub fn unix_now() -> f64 {
         .map_or(0.0, |d| d.as_secs_f64())
 }
 
+/// Longest product id the product file may hold, bytes.
+const MAX_PRODUCT_FILE: u64 = 1024;
+
+/// The product `file` names among `products` (its text, surrounding white space trimmed), or
+/// `default` when there is no file. `Err` says why not when the file cannot be read, is too
+/// long, or names none of them.
+pub fn product_named(
+    file: &std::path::Path,
+    products: &[(String, BoardGrid)],
+    default: usize,
+) -> Result<usize, String> {
+    let shown = file.display();
+    let bytes = match dpsa_formats::files::read_capped_io(file, MAX_PRODUCT_FILE) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(default),
+        Err(e) => {
+            return Err(format!(
+                "the line's product file {shown} could not be read: {e}"
+            ))
+        }
+    };
+    let text = String::from_utf8_lossy(&bytes);
+    let id = text.trim();
+    products.iter().position(|(p, _)| p == id).ok_or_else(|| {
+        let known: Vec<&str> = products.iter().map(|(p, _)| p.as_str()).collect();
+        format!("{shown} names product {id:?}, which is not one of LINE.toml's ({known:?})")
+    })
+}
+
 /// A camera's part of an open board.
 struct Part {
     /// The connection whose stream it is.
@@ -115,16 +144,24 @@ struct Open {
     stitcher: Option<Stitcher>,
     /// The last camera's last row came at (for the latency).
     last_row_at: Option<Instant>,
+    /// Its product (index into the setup's).
+    product: usize,
+    /// Why it will not be inspected, known at its start (the line was told a product it does
+    /// not have): its rows are dropped and it ends incomplete with this reason.
+    refused: Option<String>,
 }
 
 /// What the boards need to stitch.
 pub struct Setup {
     /// The calibration.
     pub cal: CalFile,
-    /// The board map's grid (the default product's).
-    pub grid: BoardGrid,
-    /// The product every board is (streams carry none, see [`crate::config`]).
-    pub product: usize,
+    /// Each product's id and board map grid, in the configuration's order.
+    pub products: Vec<(String, BoardGrid)>,
+    /// The product of a board when the line is told none (LINE.toml's `default_product`).
+    pub default_product: usize,
+    /// The file that tells the line the product of the boards that begin
+    /// ([`crate::config::PRODUCT_FILE`] in the data directory; `dpsa line product` writes it).
+    pub product_file: std::path::PathBuf,
     /// `timeouts.silent_s`.
     pub silent_s: f64,
     /// `timeouts.board_s`.
@@ -260,6 +297,10 @@ impl Boards {
                 }
                 let n = self.setup.cal.camera.len();
                 let now = Instant::now();
+                let (product, refused) = match self.product_now() {
+                    Ok(p) => (p, None),
+                    Err(why) => (self.setup.default_product, Some(why)),
+                };
                 self.open.push(Open {
                     run_id,
                     began: now,
@@ -274,11 +315,20 @@ impl Boards {
                         .collect(),
                     stitcher: None,
                     last_row_at: None,
+                    product,
+                    refused: refused.clone(),
                 });
-                tracing::info!(%run, "board began");
+                match &refused {
+                    None => {
+                        tracing::info!(%run, product = %self.setup.products[product].0, "board began")
+                    }
+                    Some(why) => {
+                        tracing::warn!(%run, "board began; it will not be inspected: {why}")
+                    }
+                }
                 let _ = self.keeper.send(Job::Begin {
                     run_id,
-                    product: self.setup.product,
+                    product,
                     started_unix_s: unix_now(),
                 });
                 self.open.len() - 1
@@ -295,10 +345,28 @@ impl Boards {
         p.last = Instant::now();
     }
 
+    /// The product of a board that begins now: the one [`Setup::product_file`] names, or the
+    /// default when there is no such file. `Err` with the reason when the file cannot be read
+    /// or names no product of the configuration: the board is then never inspected against
+    /// another product's program.
+    fn product_now(&self) -> Result<usize, String> {
+        product_named(
+            &self.setup.product_file,
+            &self.setup.products,
+            self.setup.default_product,
+        )
+    }
+
     /// Hands what arrived to board `k`'s stitcher (made once every camera's first rows are
     /// known) and builds every band that is in.
     fn stitch(&mut self, k: usize) {
         let b = &mut self.open[k];
+        if b.refused.is_some() {
+            for p in &mut b.parts {
+                p.waiting.clear();
+            }
+            return;
+        }
         if b.stitcher.is_none()
             && b.parts
                 .iter()
@@ -317,7 +385,8 @@ impl Boards {
                     dpsa_board::run::feed(c, p.waiting.first().map_or(0, |c| c.first_row), max_step)
                 })
                 .collect();
-            b.stitcher = Some(Stitcher::new(self.setup.grid, feeds, BAND_ROWS, CHUNK_ROWS));
+            let grid = self.setup.products[b.product].1;
+            b.stitcher = Some(Stitcher::new(grid, feeds, BAND_ROWS, CHUNK_ROWS));
         }
         if let Some(st) = b.stitcher.as_mut() {
             for (i, p) in b.parts.iter_mut().enumerate() {
@@ -339,24 +408,30 @@ impl Boards {
         self.remember(b.run_id);
         let run = format!("{:016x}", b.run_id);
         let losses: Vec<CameraLoss> = b.parts.iter().filter_map(|p| p.ended.clone()).collect();
-        let Some(st) = b.stitcher else {
-            let empty: Vec<usize> = (0..b.parts.len())
-                .filter(|&i| b.parts[i].next_row.is_none())
-                .collect();
-            let reason = format!("camera(s) {empty:?} sent no row of this board");
-            tracing::warn!(%run, "board incomplete: {reason}");
-            let _ = self.keeper.send(Job::Incomplete {
-                run_id: b.run_id,
-                reason,
-                losses,
-            });
-            return;
+        let st = match (b.refused, b.stitcher) {
+            (None, Some(st)) => st,
+            (refused, _) => {
+                // Refused at its start, or a camera ended without a row: nothing to inspect.
+                let reason = refused.unwrap_or_else(|| {
+                    let empty: Vec<usize> = (0..b.parts.len())
+                        .filter(|&i| b.parts[i].next_row.is_none())
+                        .collect();
+                    format!("camera(s) {empty:?} sent no row of this board")
+                });
+                tracing::warn!(%run, "board incomplete: {reason}");
+                let _ = self.keeper.send(Job::Incomplete {
+                    run_id: b.run_id,
+                    reason,
+                    losses,
+                });
+                return;
+            }
         };
         let a = st.finish();
         tracing::info!(%run, "board map done");
         let _ = self.keeper.send(Job::Finished {
             run_id: b.run_id,
-            grid: self.setup.grid,
+            grid: self.setup.products[b.product].1,
             heights: a.blended.heights,
             losses,
             last_row_at: b.last_row_at.unwrap_or_else(Instant::now),
@@ -445,5 +520,47 @@ impl Boards {
             let losses = self.losses(0);
             self.close(0, why.to_string(), losses);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_product_file_names_a_product_or_the_board_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("product");
+        let grid = BoardGrid {
+            x0_mm: 0.0,
+            y0_mm: 0.0,
+            pitch_mm: 0.03,
+            rows: 10,
+            width: 10,
+        };
+        let products = vec![("a".to_owned(), grid), ("b-2".to_owned(), grid)];
+        assert_eq!(
+            product_named(&file, &products, 1),
+            Ok(1),
+            "no file: the default"
+        );
+        for (text, want) in [("a", 0), ("b-2\n", 1), ("  a \r\n", 0)] {
+            std::fs::write(&file, text).unwrap();
+            assert_eq!(product_named(&file, &products, 1), Ok(want), "{text:?}");
+        }
+        for text in ["", "c", "a b", "A"] {
+            std::fs::write(&file, text).unwrap();
+            let why = product_named(&file, &products, 1).unwrap_err();
+            assert!(why.contains("not one of LINE.toml's"), "{text:?}: {why}");
+        }
+        std::fs::write(&file, "a".repeat(2000)).unwrap();
+        let why = product_named(&file, &products, 0).unwrap_err();
+        assert!(why.contains("could not be read"), "{why}");
+        std::fs::remove_file(&file).unwrap();
+        std::fs::create_dir(&file).unwrap();
+        assert!(
+            product_named(&file, &products, 0).is_err(),
+            "a directory is no product"
+        );
     }
 }

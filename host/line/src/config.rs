@@ -27,8 +27,8 @@ pub struct LineFile {
     pub data: PathBuf,
     /// The board map's pixel, mm (the array's design pitch, `array.json`'s `pixel_mm`).
     pub pixel_mm: f64,
-    /// The product inspected when a board's streams name none (format v2 streams carry no
-    /// product id, so today: every board).
+    /// The product of a board when the line is told none ([`PRODUCT_FILE`]; format v2
+    /// streams carry no product id).
     pub default_product: String,
     /// The line's name, which its boards are stored under (default `line-1`): each line of
     /// one store needs its own.
@@ -257,6 +257,14 @@ impl RetentionEntry {
 pub const INIT_PAD_DAYS: f64 = 30.0;
 /// Most days `[retention] pad_days` may say (a century).
 pub const MAX_PAD_DAYS: f64 = 36_500.0;
+
+/// The file in the data directory that tells the line the product of the boards that begin
+/// from now on (their streams carry none: format v2): one product id of LINE.toml; absent, the
+/// `default_product`. `dpsa line product` writes it (atomically); a line controller or MES may
+/// write it too. Read at each board's start; a board begun while it names no product of the
+/// configuration is stored incomplete with the reason, never inspected against another
+/// product's program.
+pub const PRODUCT_FILE: &str = "product";
 
 /// Boards whose maps the line keeps unless `[maps] keep_boards` says otherwise.
 pub const DEFAULT_KEEP_MAPS: usize = 10;
@@ -614,6 +622,32 @@ impl LineConfig {
             maps,
             pad_days: f.retention.pad_days,
         })
+    }
+}
+
+impl LineConfig {
+    /// The line's product file ([`PRODUCT_FILE`] in the data directory).
+    pub fn product_file(&self) -> PathBuf {
+        self.data.join(PRODUCT_FILE)
+    }
+
+    /// Each product's id and board map grid, in order.
+    pub fn product_grids(&self) -> Vec<(String, BoardGrid)> {
+        self.products
+            .iter()
+            .map(|p| (p.id.clone(), p.grid))
+            .collect()
+    }
+
+    /// The product of the boards that begin now (index into `products`): what the product
+    /// file names, or the default without one; `Err` says why the file names none
+    /// ([`crate::boards::product_named`]).
+    pub fn product_now(&self) -> Result<usize, String> {
+        crate::boards::product_named(
+            &self.product_file(),
+            &self.product_grids(),
+            self.default_product,
+        )
     }
 }
 

@@ -183,9 +183,9 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
         listeners.push(l);
     }
 
-    let product = cfg.default_product;
-    let grid = cfg.products[product].grid;
-    let max_rows = (grid.rows as u64).saturating_mul(4) + 4096;
+    // A stream may be as long as four of the longest product's boards.
+    let longest = cfg.products.iter().map(|p| p.grid.rows).max().unwrap_or(0);
+    let max_rows = (longest as u64).saturating_mul(4) + 4096;
     let gate = Arc::new(crate::boards::Gate::new());
     let links: Vec<LinkSetup> = cfg
         .cal
@@ -205,8 +205,9 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
         .collect();
     let setup = Setup {
         cal: cfg.cal.clone(),
-        grid,
-        product,
+        products: cfg.product_grids(),
+        default_product: cfg.default_product,
+        product_file: cfg.product_file(),
         silent_s: cfg.timeouts.silent_s,
         board_s: cfg.timeouts.board_s,
     };
