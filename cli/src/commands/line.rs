@@ -271,6 +271,11 @@ fn store_arg(text: &str) -> Result<Location> {
     Location::from_arg(text).map_err(|why| anyhow::anyhow!("--store: {why}"))
 }
 
+/// The store a `--store` names, else the configuration's.
+fn store_or(arg: Option<&str>, cfg: &LineConfig) -> Result<Location> {
+    arg.map_or_else(|| Ok(cfg.store.clone()), store_arg)
+}
+
 fn store_bench(a: StoreBenchArgs) -> Result<()> {
     use dpsa_line::store::bench;
     let (r, target) = match (&a.dir, &a.store) {
@@ -501,10 +506,7 @@ fn rate(s: &str) -> std::result::Result<String, String> {
 
 fn clean(a: CleanArgs) -> Result<()> {
     let cfg = LineConfig::load(&a.config)?;
-    let location = match &a.store {
-        Some(text) => store_arg(text)?,
-        None => cfg.store.clone(),
-    };
+    let location = store_or(a.store.as_deref(), &cfg)?;
     let product = match a.product {
         Some(p) if cfg.products.iter().any(|q| q.id == p) => p,
         Some(p) => bail!(
@@ -579,10 +581,7 @@ fn product(a: ProductArgs) -> Result<()> {
 
 fn check(a: CheckArgs) -> Result<()> {
     let cfg = LineConfig::load(&a.config)?;
-    let location = match &a.store {
-        Some(text) => store_arg(text)?,
-        None => cfg.store,
-    };
+    let location = store_or(a.store.as_deref(), &cfg)?;
     if let Location::Sqlite(path) = &location {
         if !path.is_file() {
             bail!(
@@ -615,10 +614,7 @@ fn check(a: CheckArgs) -> Result<()> {
 
 fn boards(a: BoardsArgs) -> Result<()> {
     let cfg = LineConfig::load(&a.config)?;
-    let location = match &a.store {
-        Some(text) => store_arg(text)?,
-        None => cfg.store,
-    };
+    let location = store_or(a.store.as_deref(), &cfg)?;
     let mut store = dpsa_line::store::Store::open(&location, &cfg.line)?;
     let boards = store.boards(a.last)?;
     // The print rows of the products listed, by board id (each product's newest, as many as
