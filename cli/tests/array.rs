@@ -672,9 +672,16 @@ fn board_streams_need_no_frames_only_their_trigger_logs() {
     let cal = CalFile::load(calibration_file()).unwrap();
     let streams: Vec<PathBuf> = s.iter().map(PathBuf::from).collect();
     let lib = tmp.path().join("lib-map");
-    let built =
-        dpsa_board::run::from_streams(&board, &cal, &streams, &lib, false, Default::default())
-            .unwrap();
+    let built = dpsa_board::run::from_streams(
+        &board,
+        &cal,
+        &streams,
+        &lib,
+        false,
+        Default::default(),
+        Default::default(),
+    )
+    .unwrap();
     assert_eq!(built.report.pixels.unplaced_rows, vec![0, 0, 0]);
     let cli = tmp.path().join("cli-map");
     let o = board_cmd(&board, &cli, &[&s[0], &s[1], &s[2]]);

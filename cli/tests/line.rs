@@ -268,11 +268,15 @@ fn board_of<'a>(boards: &'a [Value], run: &str) -> &'a Value {
 /// level, and its volume within 0.1 % (the line stitches chunk by chunk: the places of a
 /// chunk and of a whole camera differ in the last bits).
 fn assert_offline(b: &Value) {
-    let f = fixture();
+    assert_offline_as(b, &fixture().offline);
+}
+
+/// [`assert_offline`] against the offline `pads.csv` rows `offline`.
+fn assert_offline_as(b: &Value, offline: &[(String, String, Option<f64>)]) {
     assert_eq!(b["state"], "inspected", "{b}");
     let pads = b["pad_rows"].as_array().unwrap();
-    assert_eq!(pads.len(), f.offline.len());
-    for (p, (name, level, vol)) in pads.iter().zip(&f.offline) {
+    assert_eq!(pads.len(), offline.len());
+    for (p, (name, level, vol)) in pads.iter().zip(offline) {
         assert_eq!(p["name"].as_str(), Some(name.as_str()));
         assert_eq!(p["level"].as_str(), Some(level.as_str()), "pad {name}");
         match (p["volume_um3"].as_f64(), vol) {
@@ -982,6 +986,27 @@ fn wait_ended(cfg: &Path, n: usize) {
 fn each_board_is_inspected_as_the_product_the_line_is_told() {
     let f = fixture();
     let dir = f.dir.join("product");
+    // The second product's program takes the paste's reflectance out of its maps.
+    std::fs::create_dir_all(&dir).unwrap();
+    let reflecting = dir.join("reflecting.toml");
+    let original = std::fs::read_to_string(f.board.join("program.toml")).unwrap();
+    let layer = f.board.join("paste.gbr");
+    let text: String = original
+        .lines()
+        .filter(|l| !l.starts_with("truth = "))
+        .map(|l| {
+            if l.starts_with("paste_layer = ") {
+                format!("paste_layer = {:?}\n", layer.to_str().unwrap())
+            } else {
+                format!("{l}\n")
+            }
+        })
+        .collect();
+    std::fs::write(
+        &reflecting,
+        text + "\n[reflectance]\nbackground_step = 0.574\n",
+    )
+    .unwrap();
     let cfg = line_config(&dir, |t| {
         // A second product: the first one's program and board under another id.
         let block: Vec<String> = t
@@ -993,6 +1018,8 @@ fn each_board_is_inspected_as_the_product_the_line_is_told() {
             .map(|l| {
                 if l.starts_with("id = ") {
                     "id = \"other\"".to_owned()
+                } else if l.starts_with("program = ") {
+                    format!("program = {:?}", reflecting.to_str().unwrap())
                 } else {
                     l.to_owned()
                 }
@@ -1041,7 +1068,52 @@ fn each_board_is_inspected_as_the_product_the_line_is_told() {
     let run_of = |v: &Value| v["run_ids"][0].as_str().unwrap().to_owned();
     let board_a = board_of(&boards, &run_of(&a));
     assert_eq!(board_a["product"], "other", "{board_a}");
-    assert_offline(board_a);
+    // As `dpsa board --program` with the same program makes it offline, which differs from
+    // the map without the reflectance taken out.
+    let (map, insp) = (dir.join("map"), dir.join("inspection"));
+    let s = |p: &Path| p.as_os_str().to_owned();
+    let mut args = vec![
+        "board".into(),
+        s(&f.board),
+        "--cal".into(),
+        s(&f.cal),
+        "--out".into(),
+        s(&map),
+        "--program".into(),
+        s(&reflecting),
+        "--json".into(),
+        "--streams".into(),
+    ];
+    args.extend((0..3).map(|i| s(&f.streams.join(format!("cam{i}.dpsa")))));
+    let report: Value = serde_json::from_str(&ok(&dpsa(args), "board --program")).unwrap();
+    let step = &report["paste_reflectance"]["background_step"];
+    assert!((step.as_f64().unwrap() - 0.574).abs() < 1e-6, "{report}");
+    ok(
+        &dpsa([
+            "inspect".into(),
+            s(&map),
+            "--program".into(),
+            s(&reflecting),
+            "--no-truth".into(),
+            "--out".into(),
+            s(&insp),
+        ]),
+        "inspect",
+    );
+    let offline = pads_csv(&insp.join("pads.csv"));
+    assert_offline_as(board_a, &offline);
+    let moved = offline
+        .iter()
+        .zip(&f.offline)
+        .filter(|(a, b)| match (a.2, b.2) {
+            (Some(x), Some(y)) => (x - y).abs() > 2e-3 * y.abs().max(1e3),
+            _ => false,
+        })
+        .count();
+    assert!(
+        moved > 10,
+        "{moved} pads' volumes moved with the reflectance"
+    );
     let board_b = board_of(&boards, &run_of(&b));
     assert_eq!(board_b["state"], "incomplete", "{board_b}");
     let why = board_b["incomplete_reason"].as_str().unwrap();

@@ -36,6 +36,11 @@ pub struct Args {
     /// instead of a preview at most 2048 px on its longer side.
     #[arg(long)]
     full_colour: bool,
+    /// The board's inspection program (`program.toml`): the map takes the paste's
+    /// reflectance (its `[reflectance]`, with its stencil thickness) out of the deposits'
+    /// walls. Without it nothing is taken out (the map says which in `paste_reflectance`).
+    #[arg(long)]
+    program: Option<PathBuf>,
     /// Draw `heights.colour.png` of the absolute heights (the board's bow and warp in it)
     /// instead of the height above the local board surface.
     #[arg(long)]
@@ -63,13 +68,21 @@ pub fn run(a: Args, progress: bool) -> Result<i32> {
     for s in &a.streams {
         kind::expect(s, "--streams", kind::Kind::Stream, &[])?;
     }
+    if let Some(p) = &a.program {
+        kind::expect(p, "--program", kind::Kind::Program, &[])?;
+    }
     let mut inputs = vec![files::Input::Dir(&a.dir), files::Input::File(&a.cal)];
     inputs.extend(a.streams.iter().map(|p| files::Input::File(p)));
+    inputs.extend(a.program.iter().map(|p| files::Input::File(p)));
     // The map directory may not be, hold or lie inside an input; it replaces only an
     // earlier map (checked again when it is swapped in).
     files::refuse_overwrite_dir("--out", &a.out, &inputs)?;
     dpsa_board::output::check_destination(&a.out)?;
     let cal = CalFile::load(&a.cal)?;
+    let paste = match &a.program {
+        Some(p) => paste_of(p)?,
+        None => Default::default(),
+    };
     let outputs = dpsa_board::output::Outputs {
         full_colour: a.full_colour,
         absolute_colour: a.absolute_colour,
@@ -86,6 +99,7 @@ pub fn run(a: Args, progress: bool) -> Result<i32> {
             progress,
             outputs,
             truth: !a.no_truth,
+            paste,
         };
         let r = dpsa_sim::board::run::run_shown(&a.dir, &cal, &a.out, source, &opts)?;
         let json = a
@@ -96,8 +110,10 @@ pub fn run(a: Args, progress: bool) -> Result<i32> {
     };
     #[cfg(not(feature = "sim"))]
     let (r, json, summary) = {
-        let r = dpsa_board::run::from_streams(&a.dir, &cal, &a.streams, &a.out, progress, outputs)?
-            .report;
+        let r = dpsa_board::run::from_streams(
+            &a.dir, &cal, &a.streams, &a.out, progress, outputs, paste,
+        )?
+        .report;
         let json = a
             .json
             .then(|| serde_json::to_string_pretty(&r))
@@ -148,4 +164,14 @@ pub fn run(a: Args, progress: bool) -> Result<i32> {
     }
     out!("{summary} -> {}", a.out.display());
     Ok(status)
+}
+
+/// The paste's reflectance of the program at `path` (its `[reflectance]` and stencil), which
+/// the map takes out of the deposits' walls.
+pub fn paste_of(path: &std::path::Path) -> Result<dpsa_board::places::PasteReflectance> {
+    let p = dpsa_inspect::program::Program::load(path)?;
+    Ok(dpsa_board::places::PasteReflectance::new(
+        p.reflectance.background_step,
+        p.stencil_um,
+    ))
 }

@@ -171,6 +171,12 @@ fn array(
         step(3),
         map_dir.display()
     );
+    let program = board_dir.join(record::PROGRAM_FILE);
+    let paste = if program.is_file() {
+        super::board::paste_of(&program)?
+    } else {
+        Default::default()
+    };
     let r = board::run::run_shown(
         &board_dir,
         &cal,
@@ -178,6 +184,7 @@ fn array(
         board::run::Source::Core,
         &board::run::Options {
             progress,
+            paste,
             ..Default::default()
         },
     )?;
@@ -186,7 +193,6 @@ fn array(
         serde_json::to_string_pretty(&r)?.as_bytes(),
     )?;
     out!("{}", r.summary());
-    let program = board_dir.join(record::PROGRAM_FILE);
     if program.is_file() {
         let insp = out.join("inspection");
         out!(

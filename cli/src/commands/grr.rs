@@ -24,6 +24,11 @@ pub struct Args {
     /// temporary directory, removed at the end and on SIGINT/SIGTERM).
     #[arg(long)]
     work: Option<PathBuf>,
+    /// Take the paste's reflectance out of the maps' walls with the simulated machine's own
+    /// step (`[reflectance] background_step` of the scene's background and contrast, in
+    /// every run's program; see docs/spc.md).
+    #[arg(long)]
+    reflectance: bool,
     /// Print the report as JSON.
     #[arg(long)]
     json: bool,
@@ -39,7 +44,14 @@ pub fn run(a: Args) -> Result<()> {
             tmp.path().to_path_buf()
         }
     };
-    let r = dpsa_sim::inspection::grr::grr(&a.scene, a.setups, a.repeats, a.seed, &work)?;
+    let r = dpsa_sim::inspection::grr::grr(
+        &a.scene,
+        a.setups,
+        a.repeats,
+        a.seed,
+        a.reflectance,
+        &work,
+    )?;
     if a.json {
         out!("{}", serde_json::to_string_pretty(&r)?);
     } else {

@@ -133,6 +133,42 @@ impl Surface<'_> {
     }
 }
 
+/// Per column of `model`'s camera: the fringe's modulation factor of a pixel on a smooth
+/// surface (pixel integration and blur), and the blur's part of it.
+fn modulation(scene: &ArrayScene, model: &CameraModel) -> (Vec<f64>, Vec<f64>) {
+    let w = model.width as usize;
+    let sigma2 = scene.blur_px * scene.blur_px;
+    let mut m0 = Vec::with_capacity(w);
+    let mut m_blur = Vec::with_capacity(w);
+    for c in 0..w {
+        let g_r = TAU * model.fringe_frequency[c];
+        let g_c = if w > 1 {
+            let (a, b) = (c.saturating_sub(1), (c + 1).min(w - 1));
+            (model.reference_phase_rad[b] - model.reference_phase_rad[a]) / (b - a) as f64
+        } else {
+            0.0
+        };
+        let blur = (-sigma2 * (g_r * g_r + g_c * g_c) / 2.0).exp();
+        m_blur.push(blur);
+        m0.push(sinc(g_r / 2.0) * sinc(g_c / 2.0) * blur);
+    }
+    (m0, m_blur)
+}
+
+/// The paste's background step over the board's fringe contrast as the cameras of `scene`
+/// see them (`(B_paste - B_board) / (C_board M)`, `M` the mean modulation factor over every
+/// camera's columns): what a program's `reflectance.background_step` says of this machine.
+pub fn paste_background_step(scene: &ArrayScene) -> f64 {
+    let (mut sum, mut n) = (0.0, 0usize);
+    for i in 0..scene.cameras.len() {
+        let (m0, _) = modulation(scene, &scene.camera_model(i));
+        sum += m0.iter().sum::<f64>();
+        n += m0.len();
+    }
+    let m = sum / n.max(1) as f64;
+    (scene.paste_background - scene.background) / (scene.contrast * m)
+}
+
 fn sinc(x: f64) -> f64 {
     if x.abs() < 1e-8 {
         1.0
@@ -163,21 +199,7 @@ impl<'a> CameraRenderer<'a> {
     /// factors and dead-pixel mask, and bins the board's deposits.
     pub fn new(scene: &'a ArrayScene, model: &'a CameraModel, surface: Surface<'a>) -> Self {
         let w = model.width as usize;
-        let sigma2 = scene.blur_px * scene.blur_px;
-        let mut m0 = Vec::with_capacity(w);
-        let mut m_blur = Vec::with_capacity(w);
-        for c in 0..w {
-            let g_r = TAU * model.fringe_frequency[c];
-            let g_c = if w > 1 {
-                let (a, b) = (c.saturating_sub(1), (c + 1).min(w - 1));
-                (model.reference_phase_rad[b] - model.reference_phase_rad[a]) / (b - a) as f64
-            } else {
-                0.0
-            };
-            let blur = (-sigma2 * (g_r * g_r + g_c * g_c) / 2.0).exp();
-            m_blur.push(blur);
-            m0.push(sinc(g_r / 2.0) * sinc(g_c / 2.0) * blur);
-        }
+        let (m0, m_blur) = modulation(scene, model);
         let mut dead = vec![false; w * model.rows as usize];
         for &[r, c] in &model.dead_pixels {
             dead[r as usize * w + c as usize] = true;

@@ -203,6 +203,12 @@ impl Judge {
         Ok(Some(Judge { program, pads }))
     }
 
+    /// The program's paste reflectance, which the map takes out of the walls.
+    fn paste(&self) -> dpsa_board::places::PasteReflectance {
+        let p = &self.program;
+        dpsa_board::places::PasteReflectance::new(p.reflectance.background_step, p.stencil_um)
+    }
+
     /// Registers, measures and judges every pad on `heights`.
     fn judge(&self, grid: &BoardGrid, heights: dpsa_board::Grid) -> Result<BenchInspection> {
         let map = BoardMap {
@@ -227,6 +233,7 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
     let Opened { recs, layout, .. } = open(dir, cal)?;
     let grid = layout.grid;
     let judge = Judge::of(dir)?;
+    let paste = judge.as_ref().map(Judge::paste).unwrap_or_default();
     let t0 = Instant::now();
     let loaded = per_camera(recs.iter().enumerate(), |(i, r)| {
         let mut r = calibrated(r, cal, i)?;
@@ -245,7 +252,7 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
         .map(|c| c.len() as u64 * c.width as u64)
         .sum();
     let cpu0 = process_cpu_s();
-    let (a, provenance, assembly) = stitch(collected, &loaded, cal, &grid)?;
+    let (a, provenance, assembly) = stitch(collected, &loaded, cal, &grid, paste)?;
     let cpu1 = process_cpu_s();
     // Kept for the paced run's map to be compared with (not timed).
     let stitched = a.blended.heights.clone();
@@ -341,6 +348,7 @@ fn stitch(
     loaded: &[(Recording, u64)],
     cal: &CalFile,
     grid: &BoardGrid,
+    paste: dpsa_board::places::PasteReflectance,
 ) -> Result<(dpsa_board::assemble::Assembled, f64, f64)> {
     let t2 = Instant::now();
     let cams: Vec<CameraRows> = per_camera(
@@ -355,7 +363,7 @@ fn stitch(
     )?;
     let provenance = t2.elapsed().as_secs_f64();
     let t3 = Instant::now();
-    let a = assemble(cams, grid);
+    let a = assemble(cams, grid, paste);
     Ok((a, provenance, t3.elapsed().as_secs_f64()))
 }
 
@@ -457,7 +465,9 @@ fn line_feed(
                         dpsa_board::run::feed(&cal.camera[i], first, max_step)
                     })
                     .collect();
-                st = Some(Stitcher::new(*grid, feeds, BAND_ROWS, CHUNK_ROWS));
+                let mut s = Stitcher::new(*grid, feeds, BAND_ROWS, CHUNK_ROWS);
+                s.set_paste(judge.map(Judge::paste).unwrap_or_default());
+                st = Some(s);
             }
             if let Some(st) = st.as_mut() {
                 for (i, w) in waiting.iter_mut().enumerate() {

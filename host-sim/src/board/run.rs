@@ -180,6 +180,8 @@ pub struct Options {
     /// Compare the map with the recording's board truth when it has one (the simulator's
     /// check; about 35 s on the paper board). `false`: `truth` is null.
     pub truth: bool,
+    /// The paste's reflectance taken out of the walls (the program's; the default: none).
+    pub paste: dpsa_board::places::PasteReflectance,
 }
 
 impl Default for Options {
@@ -188,6 +190,7 @@ impl Default for Options {
             progress: false,
             outputs: Default::default(),
             truth: true,
+            paste: Default::default(),
         }
     }
 }
@@ -305,6 +308,7 @@ pub fn run_shown(
         progress,
         outputs,
         truth: compare,
+        paste,
     } = *opts;
     let started = Instant::now();
     if let Source::Streams(paths) = source {
@@ -312,7 +316,7 @@ pub fn run_shown(
         if !camera_recordings_present(&arr) {
             // The streams alone, as the production build runs them: no camera recording, so
             // no Cramer-Rao bound; the board truth (`truth/array.json`) is still compared.
-            let built = map::from_streams(dir, cal, paths, out, progress, outputs)?;
+            let built = map::from_streams(dir, cal, paths, out, progress, outputs, paste)?;
             let t2 = Instant::now();
             let truth = if compare {
                 against_board_truth(&arr, cal, &built, &built.report.grid, false, progress)?
@@ -364,6 +368,7 @@ pub fn run_shown(
             rows_s,
             progress,
             outputs,
+            paste,
         },
         out,
     )?;

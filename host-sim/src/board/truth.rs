@@ -224,7 +224,7 @@ mod tests {
             rows: 466,
             width: 300,
         };
-        let a = assemble(cams, &grid);
+        let a = assemble(cams, &grid, Default::default());
         let st = against_truth(
             &a.blended.heights,
             a.blended.variance.as_ref(),

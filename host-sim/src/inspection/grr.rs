@@ -36,6 +36,9 @@ pub struct GrrReport {
     pub repeats: u32,
     /// Pads measured in every run: the parts.
     pub pads: usize,
+    /// The paste's background step over the board's contrast that the maps took out of the
+    /// walls (`--reflectance`: the scene's; else the programs'; 0: nothing taken out).
+    pub paste_background_step: f64,
     /// The volume's gauge study, % of the opening volume.
     pub volume: Gauge,
     /// The height's gauge study, um (no tolerance: `pct_tolerance` null).
@@ -330,12 +333,15 @@ struct Run {
     calls: Vec<String>,
 }
 
-/// Runs the study in `work` (created; its recordings are removed as it goes).
+/// Runs the study in `work` (created; its recordings are removed as it goes); with
+/// `reflectance`, every run's program takes the scene's paste reflectance out of the walls
+/// ([`crate::array::render::paste_background_step`]).
 pub fn grr(
     scene_path: &Path,
     setups: u32,
     repeats: u32,
     seed: u64,
+    reflectance: bool,
     work: &Path,
 ) -> Result<GrrReport> {
     if !(2..=20).contains(&setups) {
@@ -358,6 +364,7 @@ pub fn grr(
     }
     std::fs::create_dir_all(work).at(|| format!("creating {}", work.display()))?;
     let mut runs: Vec<Run> = Vec::new();
+    let mut paste_step = 0.0;
     let mut placements = Vec::new();
     let mut tolerance = f64::NAN;
     let mut family: Vec<&'static str> = Vec::new();
@@ -380,8 +387,20 @@ pub fn grr(
             let _ = std::fs::remove_dir_all(&board);
             let _ = std::fs::remove_dir_all(&map);
             record::simulate_board(&placed, setup_seed + 1 + u64::from(t), &board)?;
-            crate::board::run::run(&board, &cal, &map)?;
             let program_path = board.join("program.toml");
+            let program = super::program::Program::load(&program_path)
+                .map_err(dpsa_inspect::InspectError::from)?;
+            paste_step = if reflectance {
+                crate::array::render::paste_background_step(&scene)
+            } else {
+                program.reflectance.background_step
+            };
+            let opts = crate::board::run::Options {
+                paste: dpsa_board::places::PasteReflectance::new(paste_step, program.stencil_um),
+                ..Default::default()
+            };
+            let source = crate::board::run::Source::Core;
+            crate::board::run::run_shown(&board, &cal, &map, source, &opts)?;
             let (report, insp) = inspect_dir(&map, &program_path, None, 1)?;
             if a == 0 && t < 2 {
                 first_maps.push(dpsa_inspect::map::BoardMap::open(&map)?);
@@ -390,8 +409,6 @@ pub fn grr(
                     .map_err(|e| SimError::Refused(format!("{}: {e}", cameras.display())))?;
                 first_cameras.push(values);
             }
-            let program = super::program::Program::load(&program_path)
-                .map_err(dpsa_inspect::InspectError::from)?;
             tolerance = program.windows.volume_pct.fail[1] - program.windows.volume_pct.fail[0];
             placements.push((
                 report.registration.shift_mm,
@@ -520,6 +537,7 @@ pub fn grr(
         .filter(|&&k| runs.iter().all(|r| r.calls[k] == runs[0].calls[k]))
         .count();
     Ok(GrrReport {
+        paste_background_step: paste_step,
         scene: scene_path.display().to_string(),
         setups,
         repeats,

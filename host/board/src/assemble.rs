@@ -335,6 +335,15 @@ impl Stitcher {
         }
     }
 
+    /// Takes the paste's reflectance out of every camera's walls from now on (see
+    /// [`crate::places::PasteReflectance`]; the default takes nothing out). Set before the first
+    /// push: rows already settled keep what they had.
+    pub fn set_paste(&mut self, paste: crate::places::PasteReflectance) {
+        for c in &mut self.cams {
+            c.settle.paste = paste;
+        }
+    }
+
     /// Board rows of the map finished so far (from row 0).
     pub fn rows_done(&self) -> usize {
         self.blending
@@ -702,8 +711,14 @@ fn unwrapping(
 
 /// Unwraps, resamples and blends `cameras` (in order across the board) onto `grid` through a
 /// [`Stitcher`], fed a chunk of every camera's rows at a time.
-pub fn assemble(cameras: Vec<CameraRows>, grid: &BoardGrid) -> Assembled {
-    assemble_in(cameras, grid, BAND_ROWS, CHUNK_ROWS)
+/// The paste's reflectance is taken out of the walls with `paste`
+/// ([`Stitcher::set_paste`]).
+pub fn assemble(
+    cameras: Vec<CameraRows>,
+    grid: &BoardGrid,
+    paste: crate::places::PasteReflectance,
+) -> Assembled {
+    assemble_in(cameras, grid, BAND_ROWS, CHUNK_ROWS, paste)
 }
 
 /// What the stitcher needs of a camera before its rows.
@@ -725,6 +740,7 @@ pub fn assemble_in(
     grid: &BoardGrid,
     band_rows: usize,
     chunk_rows: usize,
+    paste: crate::places::PasteReflectance,
 ) -> Assembled {
     let feeds = cameras.iter().map(feed_of).collect();
     // Each camera's rows cut into chunks, one camera at a time, so that every chunk is freed
@@ -741,6 +757,7 @@ pub fn assemble_in(
         .map(|c| (split(c.heights), c.variance.map(split)))
         .collect();
     let mut st = Stitcher::new(*grid, feeds, band_rows, chunk_rows);
+    st.set_paste(paste);
     while chunks.iter().any(|c| !c.0.is_empty()) {
         for (k, (h, v)) in chunks.iter_mut().enumerate() {
             let Some(rows) = h.pop_front() else {
@@ -885,7 +902,7 @@ mod tests {
     #[test]
     fn band_by_band_the_map_is_the_truth_whatever_the_band() {
         let (cams, grid) = cameras();
-        let whole = assemble_in(cams.clone(), &grid, grid.rows, 5000);
+        let whole = assemble_in(cams.clone(), &grid, grid.rows, 5000, Default::default());
         let m = &whole.blended;
         // Absolute heights: no pixel a turn off, the median error small.
         let mut errs = Vec::new();
@@ -913,7 +930,7 @@ mod tests {
         assert!(whole.lost_pixels > 0 && m.off_turn_bands() == 0);
         // The same map band by band and chunk by chunk, as rows arrive.
         for (band, chunk) in [(37, 64), (256, 100), (1, 512)] {
-            let a = assemble_in(cams.clone(), &grid, band, chunk);
+            let a = assemble_in(cams.clone(), &grid, band, chunk, Default::default());
             let b = &a.blended;
             // (The turns each camera was moved by depend on its first chunk's seed block;
             // the heights they give do not.)
@@ -951,7 +968,7 @@ mod tests {
     #[test]
     fn rows_in_uneven_pieces_give_the_same_map() {
         let (cams, grid) = cameras();
-        let whole = assemble_in(cams.clone(), &grid, 64, 128);
+        let whole = assemble_in(cams.clone(), &grid, 64, 128, Default::default());
         let mut st = Stitcher::new(grid, cams.iter().map(feed_of).collect(), 64, 128);
         let pieces = [100usize, 37, 250];
         let mut at = vec![0usize; cams.len()];
@@ -1009,9 +1026,14 @@ mod tests {
             let eta = 2.0 * y / WID - 1.0;
             truth(x, y, LEN, WID) + 500.0 * x / LEN * (1.0 - eta * eta).powi(2)
         });
-        let a = assemble(cams, &grid);
+        let a = assemble(cams, &grid, Default::default());
         assert!(a.blended.edge_off_bands > 0);
         let (cams, grid) = cameras();
-        assert_eq!(assemble(cams, &grid).blended.edge_off_bands, 0);
+        assert_eq!(
+            assemble(cams, &grid, Default::default())
+                .blended
+                .edge_off_bands,
+            0
+        );
     }
 }

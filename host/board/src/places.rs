@@ -18,10 +18,26 @@
 //! row's place ([`RowPlaces::along`]) takes `mean_k e_k` (what every pixel of the row shares
 //! on average), the rest differs from pixel to pixel with the phase, by about `0.3 / sqrt(2n)`
 //! rows rms. [`Settle`] takes that rest out of each pixel's height with the local slope along
-//! the motion: `h(b + m) = h(b + d) - (d - m) dh/db`. Left out: the reflectance and the
-//! fringe contrast also change across a wall and bend the phase by a few hundredths of a
-//! radian more; the stream carries neither, so the map cannot take that out (`docs/spc.md`,
-//! "Where the walls' scatter comes from").
+//! the motion: `h(b + m) = h(b + d) - (d - m) dh/db`.
+//!
+//! **The paste's reflectance** ([`PasteReflectance`]). Paste and board reflect differently:
+//! across a wall the background `B` steps too, and in frame `k` the pixel sees it `e_k` rows
+//! off, `di_k = B' e_k`. Through the same least squares that bends the phase by
+//!
+//! ```text
+//! dPhi = (B' / C) sum_k g_k e_k,   g_k = cos Phi P_3k - sin Phi P_2k
+//! ```
+//!
+//! (`C` the fringe contrast), written out `(B' / C) (a cos Phi + b sin Phi)` with two more
+//! numbers per row ([`SamplePlace::bg_cos`], [`SamplePlace::bg_sin`]). The stream carries
+//! neither `B` nor `C`, so the map takes `B' / C` as the paste's background step over the
+//! board's fringe contrast (a constant of the machine and the materials, from the program)
+//! times the rate at which the pixel goes from board to paste, `(dh/db) / H` (`H` the paste's
+//! height, the stencil's thickness): the sum of that rate over a wall is the paste's share of
+//! it, about 1, whatever the wall's profile and wherever the edge falls in the pixel, and a
+//! deposit's volume is such a sum. The same step in the fringe contrast bends the phase
+//! through the fringe term; on the small board taking it out too gained nothing
+//! (`docs/spc.md`, "Where the walls' scatter comes from"), so it is left in.
 
 /// Where a camera's rows were seen ([`crate::provenance::row_places`] makes them).
 #[derive(Clone, Debug, PartialEq)]
@@ -51,6 +67,42 @@ pub struct SamplePlace {
     pub cos2: f32,
     /// `q`, rows.
     pub sin2: f32,
+    /// `sum_k P_3k e_k`: the background's bend of the phase is `(B' / C) (bg_cos cos Phi +
+    /// bg_sin sin Phi)` (see the module docs), rows.
+    pub bg_cos: f32,
+    /// `-sum_k P_2k e_k`, rows.
+    pub bg_sin: f32,
+}
+
+/// How the paste's reflectance differs from the board's, for taking its bend of the phase
+/// out of the walls (see the module docs): a constant of the machine (its illumination and
+/// optics) and of the materials (the paste, the solder mask), from the program.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct PasteReflectance {
+    /// The paste's background above the board's, over the board's fringe contrast as the
+    /// cameras see it, `(B_paste - B_board) / C_board`; 0: nothing is corrected.
+    pub background_step: f32,
+    /// The paste's height, um (the stencil's thickness): a pixel whose height rises by `dh`
+    /// has gone `dh / paste_um` of the way from board to paste.
+    pub paste_um: f32,
+}
+
+impl PasteReflectance {
+    /// The program's background step over the board's contrast and the stencil's thickness
+    /// (um).
+    pub fn new(background_step: f64, paste_um: f64) -> PasteReflectance {
+        PasteReflectance {
+            background_step: background_step as f32,
+            paste_um: paste_um as f32,
+        }
+    }
+
+    /// `background_step / paste_um`, or `None` when nothing is to be corrected (a zero step;
+    /// a height or step that is not finite, or a height that is not positive).
+    fn per_um(&self) -> Option<f32> {
+        let k = self.background_step / self.paste_um;
+        (self.background_step != 0.0 && self.paste_um > 0.0 && k.is_finite()).then_some(k)
+    }
 }
 
 impl SamplePlace {
@@ -82,9 +134,12 @@ impl SamplePlace {
             return None;
         }
         let (mut a, mut bb, mut c, mut d) = (0.0, 0.0, 0.0, 0.0);
+        let (mut e3, mut e2) = (0.0, 0.0);
         for k in 0..n {
             let p2 = (sww * u[k] - suw * w[k]) / det;
             let p3 = (suu * w[k] - suw * u[k]) / det;
+            e3 += p3 * e[k];
+            e2 += p2 * e[k];
             a += p3 * cs[k] * e[k];
             bb += p3 * sn[k] * e[k];
             c += p2 * cs[k] * e[k];
@@ -96,6 +151,8 @@ impl SamplePlace {
             offset: ((c - bb) / 2.0 - m) as f32,
             cos2: (-(bb + c) / 2.0) as f32,
             sin2: (-(a - d) / 2.0) as f32,
+            bg_cos: e3 as f32,
+            bg_sin: (-e2) as f32,
         })
     }
 
@@ -167,6 +224,8 @@ pub struct Settle {
     pub settled: usize,
     /// Per column, the reference phase in turns and `1 / T` (um^-1), made on the first call.
     columns: Vec<(f32, f32)>,
+    /// The paste's reflectance taken out of the walls (the default: nothing taken out).
+    pub paste: PasteReflectance,
 }
 
 impl Settle {
@@ -222,15 +281,13 @@ impl Settle {
                     .then(|| at(i + 1))
                     .flatten()
                     .map(|a| (&after[..w], a));
-                settle_row(
-                    &mut upto[k * w..],
-                    &this,
-                    prev,
-                    next,
-                    here,
-                    &sp,
-                    &self.columns,
-                );
+                let rows = (&mut upto[k * w..], &this[..]);
+                match self.paste.per_um() {
+                    Some(per_um) => {
+                        settle_row::<true>(rows, prev, next, here, &sp, &self.columns, per_um)
+                    }
+                    None => settle_row::<false>(rows, prev, next, here, &sp, &self.columns, 0.0),
+                }
             }
             std::mem::swap(&mut self.before, &mut this);
             self.settled = i + 1;
@@ -240,17 +297,19 @@ impl Settle {
 
 /// One row settled: `row` (as it came: `raw`) at place `here`, its neighbours as they came
 /// with their places (`None`: not there), the row's sample place, the columns' reference
-/// turns and inverse periods. The slope along the motion is the central difference where
-/// both neighbours are valid, else the one-sided one; a pixel with neither stays as it came.
-/// Written without a branch per pixel (selects), so that the compiler runs it in vectors.
-fn settle_row(
-    row: &mut [f32],
-    raw: &[f32],
+/// turns and inverse periods; with `PASTE`, the paste's reflectance taken out too
+/// ([`PasteReflectance`]: `per_um` its background step over its height). The slope along the
+/// motion is the central difference where both neighbours are valid, else the one-sided one;
+/// a pixel with neither stays as it came. Written without a branch per pixel (selects), so
+/// that the compiler runs it in vectors.
+fn settle_row<const PASTE: bool>(
+    (row, raw): (&mut [f32], &[f32]),
     prev: Option<(&[f32], f64)>,
     next: Option<(&[f32], f64)>,
     here: f64,
     sp: &SamplePlace,
     columns: &[(f32, f32)],
+    per_um: f32,
 ) {
     let w = row.len().min(raw.len()).min(columns.len());
     let nan_row = vec![
@@ -274,8 +333,15 @@ fn settle_row(
         let one_sided = if nf { (n - h) * fwd } else { (h - p) * bwd };
         let slope = if pf && nf { central } else { one_sided };
         let (ref_turns, inv_t) = columns[c];
-        let d = sp.at_turns(fringe + ref_turns + h * inv_t);
-        let v = h - slope * d;
+        let turns = fringe + ref_turns + h * inv_t;
+        let d = sp.at_turns(turns);
+        let mut v = h - slope * d;
+        if PASTE {
+            // The background's bend of the phase, rad, as height: times T / (2 pi).
+            let (c1, s1) = cos_sin_turns(turns);
+            let bend = slope * per_um * (sp.bg_cos * c1 + sp.bg_sin * s1);
+            v -= bend / (std::f32::consts::TAU * inv_t);
+        }
         // NaN where the pixel or both neighbours are invalid: left as it came.
         row[c] = if v.is_finite() { v } else { h };
     }
@@ -482,5 +548,109 @@ mod tests {
             .iter()
             .zip(&g.data)
             .all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
+
+    /// Columns across a deposit's wall along the motion, paste brighter than the board (its
+    /// background 400 above, its contrast the board's 700): each row's window through the
+    /// least squares of the full normal equations. Against the same windows over paste that
+    /// reflects as the board, a column's height summed over the wall (what a volume adds up)
+    /// differs, settled with the paste's reflectance, by a fraction of what it does without,
+    /// wherever the edge lies in the pixel and though the background steps over a narrower
+    /// band than the height rises; where the board is flat nothing changes.
+    #[test]
+    fn the_pastes_reflectance_is_taken_out_of_a_wall() {
+        // The background steps where the height rises (the correction's own model): what is
+        // left is a small part; over half that band (as a hard edge blurred by the pixel over
+        // a wall that rises over two or three): still less than three quarters.
+        for (band, bound) in [(3.0, 0.3), (1.5, 0.75)] {
+            reflectance_across_a_wall(band, bound);
+        }
+    }
+
+    fn reflectance_across_a_wall(band: f64, bound: f64) {
+        let mut rng = Lcg(23);
+        let (w, rows, period_px, paste_um) = (64usize, 24usize, 10.3, 100.0f64);
+        let period_um: Vec<f32> = (0..w).map(|c| 480.0 + (c % 7) as f32).collect();
+        let reference: Vec<f32> = (0..w).map(|c| (c as f32 * 0.9) % 6.2).collect();
+        let smooth = |x: f64| {
+            let t = x.clamp(0.0, 1.0);
+            t * t * (3.0 - 2.0 * t)
+        };
+        // Each column's wall at its own sub-row place; the background steps over `band` rows
+        // about it (the height rises over 3).
+        let edge: Vec<f64> = (0..w).map(|_| 9.0 + 2.0 * rng.next()).collect();
+        let height = |c: usize, b: f64| paste_um * smooth((b - edge[c]) / 3.0 + 0.5);
+        let paste = |c: usize, b: f64| smooth((b - edge[c]) / band + 0.5);
+        let (mut along, mut samples) = (Vec::new(), Vec::new());
+        let (mut g, mut same) = (Grid::invalid(w, rows), Grid::invalid(w, rows));
+        for i in 0..rows {
+            let (o, e) = window(&mut rng, 4, 8.0);
+            let b0 = i as i64 + 200;
+            let sp = SamplePlace::of_window(b0, &o, &e, period_px).unwrap();
+            let th: Vec<f64> = o
+                .iter()
+                .map(|&k| -((k - o[0]) as f64) * TAU / period_px)
+                .collect();
+            for c in 0..w {
+                let t = f64::from(period_um[c]);
+                let base = f64::from(sp.fringe_rad) + f64::from(reference[c]);
+                for (step, m) in [(400.0, &mut g), (0.0, &mut same)] {
+                    let i_k: Vec<f64> = (0..4)
+                        .map(|k| {
+                            let b = i as f64 + e[k];
+                            let bg = 1800.0 + step * paste(c, b);
+                            bg + 700.0 * (base + TAU * height(c, b) / t + th[k]).cos()
+                        })
+                        .collect();
+                    let got = phase(&i_k, &th) - base;
+                    let got = (got + TAU / 2.0).rem_euclid(TAU) - TAU / 2.0;
+                    *m.at_mut(i, c) = (got / TAU * t) as f32;
+                }
+            }
+            along.push(i as f64 + e.iter().sum::<f64>() / 4.0);
+            samples.push(sp);
+        }
+        let places = RowPlaces {
+            along: along.clone(),
+            across: vec![0.0; rows],
+            samples,
+        };
+        let settled = |g: &Grid, p: PasteReflectance| {
+            let mut held = g.clone();
+            let mut s = Settle {
+                paste: p,
+                ..Settle::default()
+            };
+            s.rows(&mut held, 0, Some(&places), &reference, &period_um, true);
+            held
+        };
+        let without = settled(&g, PasteReflectance::default());
+        let with = settled(&g, PasteReflectance::new(400.0 / 700.0, paste_um));
+        let reference_map = settled(&same, PasteReflectance::default());
+        // Per column, the heights summed over the rows against paste reflecting as the board.
+        let column_error = |m: &Grid| {
+            let sq: f64 = (0..w)
+                .map(|c| {
+                    let d: f64 = (0..rows)
+                        .map(|i| f64::from(m.data[i * w + c] - reference_map.data[i * w + c]))
+                        .sum();
+                    d * d
+                })
+                .sum();
+            (sq / w as f64).sqrt()
+        };
+        let (e_without, e_with) = (column_error(&without), column_error(&with));
+        assert!(e_without > 2.0, "without: {e_without} um rows");
+        assert!(
+            e_with < bound * e_without,
+            "band {band}: with {e_with}, without {e_without} um rows"
+        );
+        // Where the board is flat (the first and last rows, the slope 0), nothing changes.
+        for i in [1, rows - 2] {
+            for c in 0..w {
+                let (a, b) = (with.data[i * w + c], without.data[i * w + c]);
+                assert!((a - b).abs() < 1e-3, "row {i} column {c}: {a} against {b}");
+            }
+        }
     }
 }

@@ -69,6 +69,8 @@ pub struct MapReport {
     /// `--streams`: what each camera's stream held and lost.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub streams: Option<StreamsReport>,
+    /// The paste's reflectance taken out of the walls (a zero step: none).
+    pub paste_reflectance: crate::places::PasteReflectance,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -711,6 +713,8 @@ pub struct Inputs<'a> {
     pub progress: bool,
     /// What to write besides the cheap default files.
     pub outputs: crate::output::Outputs,
+    /// The paste's reflectance taken out of the walls (the program's; the default: none).
+    pub paste: crate::places::PasteReflectance,
 }
 
 /// Assembles the cameras' rows `cams` (with each one's unplaced-row count) into the board map,
@@ -724,6 +728,7 @@ pub fn build(cams: Vec<(CameraRows, u64)>, inputs: Inputs<'_>, out: &Path) -> Re
         rows_s,
         progress,
         outputs,
+        paste,
     } = inputs;
     let grid = &layout.grid;
     let (cams, unplaced): (Vec<CameraRows>, Vec<u64>) = cams.into_iter().unzip();
@@ -740,7 +745,7 @@ pub fn build(cams: Vec<(CameraRows, u64)>, inputs: Inputs<'_>, out: &Path) -> Re
         timing,
         lost_pixels,
         ..
-    } = assemble(cams, grid);
+    } = assemble(cams, grid, paste);
     steps.inc(1);
     if let Some(r) = &mut streams_report {
         r.gap_board_pixels = lost_pixels;
@@ -797,6 +802,7 @@ pub fn build(cams: Vec<(CameraRows, u64)>, inputs: Inputs<'_>, out: &Path) -> Re
             total_s: started.elapsed().as_secs_f64(),
         },
         streams: streams_report,
+        paste_reflectance: paste,
     };
     Ok(Built { report, blended })
 }
@@ -804,7 +810,7 @@ pub fn build(cams: Vec<(CameraRows, u64)>, inputs: Inputs<'_>, out: &Path) -> Re
 /// `dpsa board DIR --cal CAL --streams S0 S1 ... --out OUT`: the board map of the array
 /// recording `dir` (its `array.json` only) from the cameras' packet streams, with the
 /// calibration file `cal`. Every check (array, calibration, streams) comes before any file
-/// is written.
+/// is written. `paste`: the program's paste reflectance, taken out of the walls.
 pub fn from_streams(
     dir: &Path,
     cal: &CalFile,
@@ -812,6 +818,7 @@ pub fn from_streams(
     out: &Path,
     progress: bool,
     outputs: crate::output::Outputs,
+    paste: crate::places::PasteReflectance,
 ) -> Result<Built> {
     let started = Instant::now();
     let layout = layout(dir, cal)?;
@@ -832,6 +839,7 @@ pub fn from_streams(
             rows_s,
             progress,
             outputs,
+            paste,
         },
         out,
     )

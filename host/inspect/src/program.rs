@@ -24,6 +24,9 @@
 //! shape_threshold_um = 10.0        # paste for the shape (smear) measure
 //! min_coverage = 0.85              # below: "not measurable"
 //!
+//! [reflectance]                    # how paste reflects against the board (the map's walls)
+//! background_step = 0.0            # (B_paste - B_board) / C_board as the cameras see them
+//!
 //! [windows]                        # the default window of every pad
 //! volume_pct = { warn = [65.0, 135.0], fail = [55.0, 145.0] }
 //! # ... area_pct, height_pct, offset_pct, shape_pct, missing_pct, bridge_height_pct
@@ -331,6 +334,10 @@ pub struct Program {
     /// How pads are measured (`[measure]`).
     #[serde(default)]
     pub measure: Measure,
+    /// How the paste reflects against the board (`[reflectance]`): the board map takes its
+    /// bend of the phase out of the deposits' walls (`dpsa_board::places`).
+    #[serde(default, skip_serializing_if = "Reflectance::is_zero")]
+    pub reflectance: Reflectance,
     /// Every pad's windows unless an override matches (`[windows]`).
     #[serde(default)]
     pub windows: Windows,
@@ -352,6 +359,26 @@ pub struct Program {
 
 fn default_stencil() -> f64 {
     100.0
+}
+
+/// How the paste reflects against the board (`[reflectance]`), a constant of the machine
+/// (its illumination and optics) and the materials (the paste, the solder mask).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Reflectance {
+    /// The paste's background (the fringes' mean level) above the board's, over the board's
+    /// fringe contrast, both as the cameras see them: `(B_paste - B_board) / C_board`. With
+    /// it the board map takes the paste's reflectance out of the walls' heights (`docs/spc.md`,
+    /// "Where the walls' scatter comes from"); 0 (the default): nothing is taken out.
+    #[serde(default)]
+    pub background_step: f64,
+}
+
+impl Reflectance {
+    /// Nothing to take out.
+    pub fn is_zero(&self) -> bool {
+        self.background_step == 0.0
+    }
 }
 
 fn check_window(key: &str, w: &Window, lo: f64, hi: f64) -> Result<(), ProgramError> {
@@ -454,6 +481,7 @@ impl Program {
             placement: Placement::default(),
             fiducials: Fiducials::default(),
             measure: Measure::default(),
+            reflectance: Reflectance::default(),
             windows: Windows::default(),
             components: None,
             overrides: Vec::new(),
@@ -582,6 +610,12 @@ impl Program {
         )?;
         check_range("measure.surface_guard_mm", m.surface_guard_mm, 0.0, 2.0)?;
         check_range("measure.lateral_sigma_um", m.lateral_sigma_um, 0.0, 100.0)?;
+        check_range(
+            "reflectance.background_step",
+            self.reflectance.background_step,
+            -10.0,
+            10.0,
+        )?;
         check_range("measure.row_sigma_um", m.row_sigma_um, 0.0, 100.0)?;
         check_range("measure.row_correlation", m.row_correlation, 0.0, 1.0)?;
         check_range("measure.surface_reach_mm", m.surface_reach_mm, 0.1, 10.0)?;
@@ -698,6 +732,14 @@ mod tests {
         // The smallest program is one line.
         let r = Program::from_toml_str("paste_layer = \"a.gbr\"\n", Path::new("p.toml")).unwrap();
         assert_eq!(r.windows, Windows::default());
+        // Without `[reflectance]` nothing is taken out of the walls, and a program that has
+        // none writes none; one that has a step keeps it.
+        assert!(r.reflectance.is_zero() && !text.contains("reflectance"));
+        let text = "paste_layer = \"a.gbr\"\n[reflectance]\nbackground_step = 0.62\n";
+        let t = Program::from_toml_str(text, Path::new("p.toml")).unwrap();
+        assert_eq!(t.reflectance.background_step, 0.62);
+        let again = Program::from_toml_str(&t.to_toml_string(), Path::new("p.toml")).unwrap();
+        assert_eq!(again, t);
     }
 
     #[test]
@@ -712,6 +754,9 @@ mod tests {
             "paste_layer = \"a\"\n[[override]]\nvolume_pct = { warn = [60.0, 140.0], fail = [50.0, 150.0] }\n",
             "paste_layer = \"a\"\n[[override]]\ncomponent = \"U1\"\nvolume_pct = { warn = [160.0, 140.0], fail = [50.0, 150.0] }\n",
             "stencil_um = 100.0\n",
+            "paste_layer = \"a\"\n[reflectance]\nbackground_step = nan\n",
+            "paste_layer = \"a\"\n[reflectance]\nbackground_step = 11.0\n",
+            "paste_layer = \"a\"\n[reflectance]\ncontrast_step = 0.3\n",
         ];
         for text in bad {
             let e = Program::from_toml_str(text, Path::new("p.toml"));

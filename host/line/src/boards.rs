@@ -157,6 +157,9 @@ pub struct Setup {
     pub cal: CalFile,
     /// Each product's id and board map grid, in the configuration's order.
     pub products: Vec<(String, BoardGrid)>,
+    /// Each product's paste reflectance (its program's), which the map takes out of the
+    /// walls; in the order of `products` (missing: none taken out).
+    pub pastes: Vec<dpsa_board::places::PasteReflectance>,
     /// The product of a board when the line is told none (LINE.toml's `default_product`).
     pub default_product: usize,
     /// The file that tells the line the product of the boards that begin
@@ -386,7 +389,15 @@ impl Boards {
                 })
                 .collect();
             let grid = self.setup.products[b.product].1;
-            b.stitcher = Some(Stitcher::new(grid, feeds, BAND_ROWS, CHUNK_ROWS));
+            let mut st = Stitcher::new(grid, feeds, BAND_ROWS, CHUNK_ROWS);
+            st.set_paste(
+                self.setup
+                    .pastes
+                    .get(b.product)
+                    .copied()
+                    .unwrap_or_default(),
+            );
+            b.stitcher = Some(st);
         }
         if let Some(st) = b.stitcher.as_mut() {
             for (i, p) in b.parts.iter_mut().enumerate() {

@@ -206,6 +206,14 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
     let setup = Setup {
         cal: cfg.cal.clone(),
         products: cfg.product_grids(),
+        pastes: cfg
+            .products
+            .iter()
+            .map(|p| {
+                let r = p.program.reflectance.background_step;
+                dpsa_board::places::PasteReflectance::new(r, p.program.stencil_um)
+            })
+            .collect(),
         default_product: cfg.default_product,
         product_file: cfg.product_file(),
         silent_s: cfg.timeouts.silent_s,
