@@ -379,13 +379,25 @@ fn unfinished() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
     UNFINISHED.lock().unwrap_or_else(|p| p.into_inner())
 }
 
-/// Removes a file, or a directory with everything in it (retried: a writer thread may still be
-/// adding files while the interrupt handler runs).
+/// Removes a file, or a directory with everything in it. A writer thread may still be adding
+/// files to the directory while the interrupt handler runs, and could outrun the removal
+/// (each round empties it, and a new file keeps the last step from removing it): so the
+/// directory is first renamed to a name of its own beside it (`NAME.removing`, hidden as the
+/// temporaries' names are), where no writer's path leads, then removed; where the rename
+/// fails it is removed where it is, retried.
 fn remove_any(p: &Path) {
     match std::fs::symlink_metadata(p) {
         Ok(m) if m.is_dir() => {
+            let mut gone = p.as_os_str().to_owned();
+            gone.push(".removing");
+            let gone = PathBuf::from(gone);
+            let target = if std::fs::rename(p, &gone).is_ok() {
+                gone
+            } else {
+                p.to_path_buf()
+            };
             for _ in 0..5 {
-                if std::fs::remove_dir_all(p).is_ok() || !p.exists() {
+                if std::fs::remove_dir_all(&target).is_ok() || !target.exists() {
                     break;
                 }
             }
@@ -1091,6 +1103,42 @@ pub fn require_png(what: &str, path: &Path) -> Result<(), FileError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A directory that writer threads keep adding files to (as an output's writers do while
+    /// the interrupt handler removes it) is removed whole, and nothing of it is left beside it.
+    #[test]
+    fn a_directory_still_being_written_is_removed() {
+        let parent = tempfile::tempdir().unwrap();
+        for round in 0..20 {
+            let d = parent.path().join(format!(".out.{round}"));
+            std::fs::create_dir(&d).unwrap();
+            for i in 0..200 {
+                std::fs::write(d.join(format!("old{i}")), b"x").unwrap();
+            }
+            let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+            let writers: Vec<_> = (0..2)
+                .map(|w| {
+                    let (d, stop) = (d.clone(), stop.clone());
+                    std::thread::spawn(move || {
+                        let mut i = 0u64;
+                        while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                            let _ = std::fs::write(d.join(format!("w{w}-{i}")), b"y");
+                            i += 1;
+                        }
+                    })
+                })
+                .collect();
+            std::thread::sleep(std::time::Duration::from_millis(2));
+            remove_any(&d);
+            stop.store(true, std::sync::atomic::Ordering::Relaxed);
+            for w in writers {
+                w.join().unwrap();
+            }
+            assert!(!d.exists(), "round {round}");
+        }
+        let left: Vec<_> = std::fs::read_dir(parent.path()).unwrap().collect();
+        assert!(left.is_empty(), "{left:?}");
+    }
 
     #[test]
     fn atomic_write_appears_only_on_commit() {
