@@ -986,14 +986,23 @@ fn wait_ended(cfg: &Path, n: usize) {
 fn each_board_is_inspected_as_the_product_the_line_is_told() {
     let f = fixture();
     let dir = f.dir.join("product");
-    // The second product's program takes the paste's reflectance out of its maps.
+    // The recording's program takes the paste's reflectance out of its maps (the scene's
+    // machine does); the second product's program is the same without it.
     std::fs::create_dir_all(&dir).unwrap();
-    let reflecting = dir.join("reflecting.toml");
+    let plain = dir.join("plain.toml");
     let original = std::fs::read_to_string(f.board.join("program.toml")).unwrap();
+    assert!(
+        original.contains("[reflectance]\nbackground_step = 0.574"),
+        "{original}"
+    );
     let layer = f.board.join("paste.gbr");
     let text: String = original
         .lines()
-        .filter(|l| !l.starts_with("truth = "))
+        .filter(|l| {
+            !l.starts_with("truth = ")
+                && *l != "[reflectance]"
+                && !l.starts_with("background_step = ")
+        })
         .map(|l| {
             if l.starts_with("paste_layer = ") {
                 format!("paste_layer = {:?}\n", layer.to_str().unwrap())
@@ -1002,11 +1011,7 @@ fn each_board_is_inspected_as_the_product_the_line_is_told() {
             }
         })
         .collect();
-    std::fs::write(
-        &reflecting,
-        text + "\n[reflectance]\nbackground_step = 0.574\n",
-    )
-    .unwrap();
+    std::fs::write(&plain, text).unwrap();
     let cfg = line_config(&dir, |t| {
         // A second product: the first one's program and board under another id.
         let block: Vec<String> = t
@@ -1019,7 +1024,7 @@ fn each_board_is_inspected_as_the_product_the_line_is_told() {
                 if l.starts_with("id = ") {
                     "id = \"other\"".to_owned()
                 } else if l.starts_with("program = ") {
-                    format!("program = {:?}", reflecting.to_str().unwrap())
+                    format!("program = {:?}", plain.to_str().unwrap())
                 } else {
                     l.to_owned()
                 }
@@ -1069,7 +1074,7 @@ fn each_board_is_inspected_as_the_product_the_line_is_told() {
     let board_a = board_of(&boards, &run_of(&a));
     assert_eq!(board_a["product"], "other", "{board_a}");
     // As `dpsa board --program` with the same program makes it offline, which differs from
-    // the map without the reflectance taken out.
+    // the map with the reflectance taken out.
     let (map, insp) = (dir.join("map"), dir.join("inspection"));
     let s = |p: &Path| p.as_os_str().to_owned();
     let mut args = vec![
@@ -1080,20 +1085,20 @@ fn each_board_is_inspected_as_the_product_the_line_is_told() {
         "--out".into(),
         s(&map),
         "--program".into(),
-        s(&reflecting),
+        s(&plain),
         "--json".into(),
         "--streams".into(),
     ];
     args.extend((0..3).map(|i| s(&f.streams.join(format!("cam{i}.dpsa")))));
     let report: Value = serde_json::from_str(&ok(&dpsa(args), "board --program")).unwrap();
     let step = &report["paste_reflectance"]["background_step"];
-    assert!((step.as_f64().unwrap() - 0.574).abs() < 1e-6, "{report}");
+    assert_eq!(step.as_f64(), Some(0.0), "{report}");
     ok(
         &dpsa([
             "inspect".into(),
             s(&map),
             "--program".into(),
-            s(&reflecting),
+            s(&plain),
             "--no-truth".into(),
             "--out".into(),
             s(&insp),
@@ -1112,7 +1117,7 @@ fn each_board_is_inspected_as_the_product_the_line_is_told() {
         .count();
     assert!(
         moved > 10,
-        "{moved} pads' volumes moved with the reflectance"
+        "{moved} pads' volumes moved without the reflectance taken out"
     );
     let board_b = board_of(&boards, &run_of(&b));
     assert_eq!(board_b["state"], "incomplete", "{board_b}");

@@ -4,7 +4,7 @@
 //! the core on the recording and compares the map with the simulated board's truth.
 
 use super::out;
-use anyhow::Result;
+use anyhow::{Context, Result};
 use dpsa_formats::calibration::CalFile;
 use dpsa_formats::{files, kind};
 use std::path::PathBuf;
@@ -38,7 +38,8 @@ pub struct Args {
     full_colour: bool,
     /// The board's inspection program (`program.toml`): the map takes the paste's
     /// reflectance (its `[reflectance]`, with its stencil thickness) out of the deposits'
-    /// walls. Without it nothing is taken out (the map says which in `paste_reflectance`).
+    /// walls. Default: the recording's own `DIR/program.toml` when it has one; without either
+    /// nothing is taken out (the map says which in `paste_reflectance`).
     #[arg(long)]
     program: Option<PathBuf>,
     /// Draw `heights.colour.png` of the absolute heights (the board's bow and warp in it)
@@ -79,9 +80,24 @@ pub fn run(a: Args, progress: bool) -> Result<i32> {
     files::refuse_overwrite_dir("--out", &a.out, &inputs)?;
     dpsa_board::output::check_destination(&a.out)?;
     let cal = CalFile::load(&a.cal)?;
+    // The program given, else the recording's own (the simulator writes one beside its
+    // frames), else none.
     let paste = match &a.program {
         Some(p) => paste_of(p)?,
-        None => Default::default(),
+        None => {
+            let own = a.dir.join("program.toml");
+            if own.is_file() {
+                paste_of(&own).with_context(|| {
+                    format!(
+                        "{}: the map takes the paste's reflectance from the recording's \
+                         program; name another with --program",
+                        own.display()
+                    )
+                })?
+            } else {
+                Default::default()
+            }
+        }
     };
     let outputs = dpsa_board::output::Outputs {
         full_colour: a.full_colour,

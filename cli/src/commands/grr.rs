@@ -26,7 +26,8 @@ pub struct Args {
     work: Option<PathBuf>,
     /// Take the paste's reflectance out of the maps' walls with the simulated machine's own
     /// step (`[reflectance] background_step` of the scene's background and contrast, in
-    /// every run's program; see docs/spc.md).
+    /// every run's program; see docs/spc.md) even where the scene's programs leave it in (a
+    /// scene without `[reflectance]`; the shipped printed boards' take it out already).
     #[arg(long)]
     reflectance: bool,
     /// Print the report as JSON.

@@ -62,6 +62,9 @@ pub fn inspection_program(scene: &ArrayScene) -> crate::inspection::program::Pro
         p.measure.row_sigma_um = m.row_sigma_um;
         p.measure.row_correlation = m.row_correlation;
     }
+    if let Some(r) = scene.reflectance {
+        p.reflectance.background_step = r.background_step;
+    }
     p
 }
 

@@ -299,6 +299,15 @@ pub struct ArrayScene {
     /// array's figures).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub scatter: Option<MachineScatter>,
+    /// The paste's reflectance as this machine takes it out of the deposits' walls, written
+    /// into the board's inspection program (`[reflectance] background_step`): the paste's
+    /// background above the board's over the board's fringe contrast, as the machine's builder
+    /// measured it (`crate::array::render::paste_background_step` is what the scene's
+    /// rendering gives; the shipped scenes' tests hold the two within 1 %). The pads' stated
+    /// uncertainty ([`Self::scatter`]) is then the corrected maps'. Absent: the programs leave
+    /// the reflectance in.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reflectance: Option<MachineReflectance>,
     /// Directory of the scene file (`paste_layer` is relative to it); set by [`Self::load`].
     #[serde(skip)]
     pub scene_dir: Option<PathBuf>,
@@ -366,6 +375,7 @@ impl Default for ArrayScene {
             print: PrintParams::default(),
             placement: ScenePlacement::default(),
             scatter: None,
+            reflectance: None,
             scene_dir: None,
         }
     }
@@ -475,6 +485,15 @@ pub struct MachineScatter {
     pub row_sigma_um: f64,
     /// The correlation of neighbouring rows' shifts (0..=1).
     pub row_correlation: f64,
+}
+
+/// The paste's reflectance a machine takes out of the walls (`[reflectance]`, see
+/// [`ArrayScene::reflectance`]).
+#[derive(Serialize, Deserialize, Clone, Copy, Debug, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct MachineReflectance {
+    /// The paste's background step over the board's fringe contrast (-10..=10).
+    pub background_step: f64,
 }
 
 /// `true` if the TOML text describes an array (it has a `cameras` table array).
@@ -596,6 +615,14 @@ impl ArrayScene {
             finite_in(m.lateral_sigma_um, 0.0, 100.0, "scatter.lateral_sigma_um")?;
             finite_in(m.row_sigma_um, 0.0, 100.0, "scatter.row_sigma_um")?;
             finite_in(m.row_correlation, 0.0, 1.0, "scatter.row_correlation")?;
+        }
+        if let Some(r) = &self.reflectance {
+            finite_in(
+                r.background_step,
+                -10.0,
+                10.0,
+                "reflectance.background_step",
+            )?;
         }
         finite_in(self.pixel_mm, 1e-4, 10.0, "pixel_mm")?;
         finite_in(self.blur_px, 0.0, 5.0, "blur_px")?;
@@ -965,28 +992,47 @@ mod tests {
         }
         let last = paper.cameras.last().unwrap();
         assert!(last.y_mm + 2048.0 * paper.pixel_mm >= 168.0);
-        // The paper machine's own scatter reaches its boards' program; the small array's
-        // boards take the program's defaults.
-        let scatter = paper
-            .scatter
-            .expect("the paper board states its machine's scatter");
-        let m = crate::array::record::inspection_program(&paper).measure;
-        assert_eq!(
-            (m.lateral_sigma_um, m.row_sigma_um, m.row_correlation),
-            (
-                scatter.lateral_sigma_um,
-                scatter.row_sigma_um,
-                scatter.row_correlation
-            )
-        );
+        // Each printed board's machine states its scatter and the paste's reflectance it takes
+        // out, and both reach its boards' program; the stated step is the rendering's own.
         let small = ArrayScene::load(
             &Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/array-paste.toml"),
         )
         .unwrap();
-        assert_eq!(
-            crate::array::record::inspection_program(&small).measure,
-            dpsa_inspect::program::Measure::default()
-        );
+        let turned = ArrayScene::load(
+            &Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/array-paste-turned.toml"),
+        )
+        .unwrap();
+        for (name, scene) in [("paper", &paper), ("small", &small), ("turned", &turned)] {
+            let scatter = scene
+                .scatter
+                .expect("the scene states its machine's scatter");
+            let step = scene
+                .reflectance
+                .expect("the scene states the paste's reflectance")
+                .background_step;
+            let program = crate::array::record::inspection_program(scene);
+            let m = program.measure;
+            assert_eq!(
+                (m.lateral_sigma_um, m.row_sigma_um, m.row_correlation),
+                (
+                    scatter.lateral_sigma_um,
+                    scatter.row_sigma_um,
+                    scatter.row_correlation
+                ),
+                "{name}"
+            );
+            assert_eq!(program.reflectance.background_step, step, "{name}");
+            let rendered = crate::array::render::paste_background_step(scene);
+            assert!(
+                (step / rendered - 1.0).abs() < 0.01,
+                "{name}: {step} {rendered}"
+            );
+        }
+        // Without them, the program's defaults and no reflectance taken out.
+        let bare = ArrayScene::from_toml_str("[[cameras]]\n").unwrap();
+        let program = crate::array::record::inspection_program(&bare);
+        assert_eq!(program.measure, dpsa_inspect::program::Measure::default());
+        assert_eq!(program.reflectance.background_step, 0.0);
     }
 
     #[test]

@@ -66,6 +66,8 @@ pub struct GrrReport {
     pub families: Vec<FamilyCheck>,
     /// The machine's pixel scatter, from the first set-up's first two maps.
     pub pixels: PixelStudy,
+    /// The row scatter the pads' volumes see, from the same two maps.
+    pub pad_study: PadStudy,
     /// Every run's placement as the registration found it: shift (mm), rotation (deg).
     pub placements: Vec<([f64; 2], f64)>,
     /// Wall time of the whole study (calibrations included), s.
@@ -93,6 +95,8 @@ pub struct FamilyCheck {
     pub volume_ratio: f64,
     /// Of the stated volume variance, the local surface's share.
     pub volume_u_surface_share: f64,
+    /// ... and the rows' shifts' share (the program's `measure.row_sigma_um`).
+    pub volume_u_row_share: f64,
     /// Height: observed within a set-up, um.
     pub height_sigma_um: f64,
     /// Height: observed over every run, um.
@@ -128,6 +132,76 @@ pub struct PixelStudy {
     pub row_sigma_um: f64,
     /// The correlation of neighbouring rows' shifts.
     pub row_correlation: f64,
+}
+
+/// The row scatter along the motion that the pads' volumes see, from the same two maps as
+/// the [`PixelStudy`] (one set-up, so the difference of a pad's two volumes over `sqrt 2` is
+/// one measurement's error).
+///
+/// Each pad's stated volume variance is the rest (noise, lateral scatter, local surface)
+/// plus `row^2` times its rows' part per um^2 (`volume_var_per_row_um2`, which the row
+/// correlation the program gives is in). The row scatter here is the one that makes the
+/// stated variances, summed over the pads, equal the pads' squared errors summed:
+/// `row^2 = sum (d^2 - rest) / sum per` (the moments' estimate; the rest with the program's
+/// other constants). The pixel study fits a shift to each row's pixels; a volume sums a
+/// wall over several rows, so the two differ where a row's pixels are moved by more than
+/// their sum is (`docs/spc.md`, "The pad study").
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct PadStudy {
+    /// Pads measured on both maps.
+    pub pads: usize,
+    /// The row scatter, um; null when the pads' errors are within the rest of their stated
+    /// variance (nothing left for the rows) or no pad has a rows' part.
+    pub row_sigma_um: Option<f64>,
+    /// Its standard error, um, from the pads' scatter about the fit.
+    pub row_sigma_se_um: Option<f64>,
+    /// The program's `measure.row_sigma_um` the maps were inspected with, um.
+    pub program_row_sigma_um: f64,
+}
+
+/// The moments' fit of [`PadStudy`]: per pad its squared error `d2`, the rest of its stated
+/// variance `rest` and its rows' part per unit `per`; returns the row scatter and its
+/// standard error (`None` where the fit has no positive value).
+fn pad_row_fit(d2: &[f64], rest: &[f64], per: &[f64]) -> (Option<f64>, Option<f64>) {
+    let den: f64 = per.iter().sum();
+    let num: f64 = d2.iter().zip(rest).map(|(d, r)| d - r).sum();
+    if !(den > 0.0 && num > 0.0 && num.is_finite() && den.is_finite()) {
+        return (None, None);
+    }
+    let r2 = num / den;
+    let resid: f64 = d2
+        .iter()
+        .zip(rest)
+        .zip(per)
+        .map(|((d, r), p)| (d - r - r2 * p).powi(2))
+        .sum();
+    let se_r2 = resid.sqrt() / den;
+    let r = r2.sqrt();
+    (Some(r), Some(se_r2 / (2.0 * r)))
+}
+
+/// [`PadStudy`] of two runs' volumes `v0`, `v1`, stated variances `u0`, `u1` and rows' parts
+/// per um^2 `p0`, `p1` (%, per pad; NaN: not measured), inspected with `program_row` um.
+fn pad_study(v: [&[f64]; 2], u: [&[f64]; 2], p: [&[f64]; 2], program_row: f64) -> PadStudy {
+    let (mut d2, mut rest, mut per) = (Vec::new(), Vec::new(), Vec::new());
+    for k in 0..v[0].len() {
+        let (a, b) = (v[0][k], v[1][k]);
+        let (ua, ub, pa, pb) = (u[0][k], u[1][k], p[0][k], p[1][k]);
+        if ![a, b, ua, ub, pa, pb].iter().all(|x| x.is_finite()) {
+            continue;
+        }
+        let pk = 0.5 * (pa + pb);
+        d2.push(0.5 * (a - b).powi(2));
+        rest.push(0.5 * (ua + ub) - program_row * program_row * pk);
+        per.push(pk);
+    }
+    let (row_sigma_um, row_sigma_se_um) = pad_row_fit(&d2, &rest, &per);
+    PadStudy {
+        pads: d2.len(),
+        row_sigma_um,
+        row_sigma_se_um,
+        program_row_sigma_um: program_row,
+    }
 }
 
 /// Most columns of a row segment in [`PixelStudy`]: about the width of a small pad's cell
@@ -330,6 +404,8 @@ struct Run {
     height: Vec<f64>,
     /// Stated variances: volume, its surface part, height.
     stated: Vec<[f64; 3]>,
+    /// The volume variance's rows' part per um^2 of row scatter.
+    row_part: Vec<f64>,
     calls: Vec<String>,
 }
 
@@ -370,6 +446,7 @@ pub fn grr(
     let mut family: Vec<&'static str> = Vec::new();
     let mut first_maps: Vec<dpsa_inspect::map::BoardMap> = Vec::new();
     let mut first_cameras: Vec<Vec<u8>> = Vec::new();
+    let mut program_row = f64::NAN;
     for a in 0..setups {
         // The set-up: its own calibration and its own placement.
         let setup_seed = seed.wrapping_add(1000 * u64::from(a));
@@ -410,6 +487,7 @@ pub fn grr(
                 first_cameras.push(values);
             }
             tolerance = program.windows.volume_pct.fail[1] - program.windows.volume_pct.fail[0];
+            program_row = program.measure.row_sigma_um;
             placements.push((
                 report.registration.shift_mm,
                 report.registration.rotation_deg,
@@ -429,6 +507,7 @@ pub fn grr(
                 volume: Vec::new(),
                 height: Vec::new(),
                 stated: Vec::new(),
+                row_part: Vec::new(),
                 calls: Vec::new(),
             };
             for (m, c) in insp.measurements.iter().zip(&insp.calls) {
@@ -440,6 +519,11 @@ pub fn grr(
                     m.volume_u_surface_pct.powi(2),
                     m.height_u_um.powi(2),
                 ]);
+                run.row_part.push(if ok {
+                    m.volume_var_per_row_um2
+                } else {
+                    f64::NAN
+                });
                 run.calls.push(format!("{:?}{:?}", c.level, c.class));
             }
             runs.push(run);
@@ -453,6 +537,7 @@ pub fn grr(
             r.volume[k].is_finite()
                 && r.height[k].is_finite()
                 && r.stated[k].iter().all(|v| v.is_finite())
+                && r.row_part[k].is_finite()
         })
     };
     let pads: Vec<usize> = (0..n_pads).filter(|&k| all_finite(k)).collect();
@@ -489,8 +574,9 @@ pub fn grr(
     };
     let mut sig = Vec::new();
     let mut hsig = Vec::new();
-    // Per family: [volume within, volume all, height within, height all], stated sums, pads.
-    let mut fam: BTreeMap<&str, ([f64; 4], [f64; 3], usize)> = BTreeMap::new();
+    // Per family: [volume within, volume all, height within, height all], stated sums (the
+    // volume, its surface part, the height, the volume's rows' part), pads.
+    let mut fam: BTreeMap<&str, ([f64; 4], [f64; 4], usize)> = BTreeMap::new();
     for &k in &pads {
         let v: Vec<f64> = runs.iter().map(|r| r.volume[k]).collect();
         let h: Vec<f64> = runs.iter().map(|r| r.height[k]).collect();
@@ -507,6 +593,7 @@ pub fn grr(
             for (acc, s) in e.1.iter_mut().zip(r.stated[k]) {
                 *acc += s / runs.len() as f64;
             }
+            e.1[3] += program_row * program_row * r.row_part[k] / runs.len() as f64;
         }
         e.2 += 1;
     }
@@ -524,6 +611,7 @@ pub fn grr(
                 volume_u_pct: vs,
                 volume_ratio: vs / o[0],
                 volume_u_surface_share: s[1] / s[0],
+                volume_u_row_share: s[3] / s[0],
                 height_sigma_um: o[2],
                 height_sigma_all_um: o[3],
                 height_u_um: hs,
@@ -560,6 +648,16 @@ pub fn grr(
             Some(&camera_key(&first_cameras[0], &first_cameras[1])),
             first_maps[0].grid.pitch_mm,
         ),
+        pad_study: {
+            let stated = |r: &Run| r.stated.iter().map(|s| s[0]).collect::<Vec<f64>>();
+            let (u0, u1) = (stated(&runs[0]), stated(&runs[1]));
+            pad_study(
+                [&runs[0].volume, &runs[1].volume],
+                [&u0, &u1],
+                [&runs[0].row_part, &runs[1].row_part],
+                program_row,
+            )
+        },
         placements,
         seconds: t0.elapsed().as_secs_f64(),
     })
@@ -618,6 +716,62 @@ mod tests {
             rows: ROWS,
             data,
         }
+    }
+
+    /// The pad study's fit recovers the row scatter its pads' errors were drawn with (4,000
+    /// pads: within 5 %, and within three of its standard errors), and states none where the
+    /// errors leave nothing for the rows; `pad_study` pairs the two runs' pads and leaves out
+    /// what either did not measure.
+    #[test]
+    fn the_pad_study_recovers_the_row_scatter() {
+        let mut g = Normal::new(5);
+        let mut uni = Normal::new(6);
+        // Spread over (lo, hi) from a normal draw (not uniform: any spread will do).
+        let mut between = |lo: f64, hi: f64| {
+            let z = uni.next();
+            lo + (hi - lo) * 0.5 * (1.0 + (z / std::f64::consts::SQRT_2).tanh())
+        };
+        let row: f64 = 2.3;
+        let n = 4000;
+        let per: Vec<f64> = (0..n).map(|_| between(0.01, 0.1)).collect();
+        let rest: Vec<f64> = (0..n).map(|_| between(0.1, 0.5)).collect();
+        let d2: Vec<f64> = (0..n)
+            .map(|k| (rest[k] + row * row * per[k]) * g.next().powi(2))
+            .collect();
+        let (r, se) = pad_row_fit(&d2, &rest, &per);
+        let (r, se) = (r.expect("a row"), se.expect("its error"));
+        assert!((r / row - 1.0).abs() < 0.05, "{r} {se}");
+        assert!((r - row).abs() < 3.0 * se && se < 0.1 * row, "{r} {se}");
+        // Errors within the rest: no row.
+        let small: Vec<f64> = rest.iter().map(|r| 0.5 * r).collect();
+        assert_eq!(pad_row_fit(&small, &rest, &per), (None, None));
+        assert_eq!(pad_row_fit(&[], &[], &[]), (None, None));
+        // Through the runs' figures: a run's variance is the rest plus the program's row part.
+        let program_row = 4.3;
+        let (mut v0, mut v1, mut u) = (Vec::new(), Vec::new(), Vec::new());
+        for k in 0..n {
+            let e = (2.0_f64 * d2[k]).sqrt() * if k % 2 == 0 { 1.0 } else { -1.0 };
+            v0.push(80.0 + e);
+            v1.push(80.0);
+            u.push(rest[k] + program_row * program_row * per[k]);
+        }
+        v1[3] = f64::NAN;
+        let study = pad_study([&v0, &v1], [&u, &u], [&per, &per], program_row);
+        assert_eq!(study.pads, n - 1);
+        let want = {
+            let keep = |x: &[f64]| -> Vec<f64> {
+                x.iter()
+                    .enumerate()
+                    .filter(|(k, _)| *k != 3)
+                    .map(|(_, v)| *v)
+                    .collect()
+            };
+            pad_row_fit(&keep(&d2), &keep(&rest), &keep(&per))
+                .0
+                .expect("a row")
+        };
+        let got = study.row_sigma_um.expect("a row");
+        assert!((got / want - 1.0).abs() < 1e-9, "{got} {want}");
     }
 
     /// The study recovers each camera's row scatter (within 6 %; 1 to 3 % over seeds), its

@@ -215,6 +215,11 @@ pub struct PadMeasurement {
     /// Of it, the part from the local surface (the rest is the cell pixels' noise), % of the
     /// opening volume.
     pub volume_u_surface_pct: f64,
+    /// The part of the volume's variance that the rows' shifts along the motion put in, per
+    /// um^2 of the program's `measure.row_sigma_um`, (% of the opening volume)^2 per um^2
+    /// (`dpsa grr`'s pad study takes it apart from the rest; not in the reports).
+    #[serde(skip)]
+    pub volume_var_per_row_um2: f64,
     /// Standard uncertainty of the height, um.
     pub height_u_um: f64,
     /// The height's standard uncertainty, % of the stencil thickness.
@@ -244,6 +249,7 @@ impl PadMeasurement {
             volume_u_um3: f64::NAN,
             volume_u_pct: f64::NAN,
             volume_u_surface_pct: f64::NAN,
+            volume_var_per_row_um2: f64::NAN,
             height_u_um: f64::NAN,
             height_u_pct: f64::NAN,
             paste_sigma_um: f64::NAN,
@@ -862,6 +868,8 @@ pub(crate) fn measure_pad(
     pm.volume_u_um3 = u.volume_sum.sqrt() * px_area * 1e6;
     pm.volume_u_pct = 100.0 * u.volume_sum.sqrt() * px_area / opening_volume;
     pm.volume_u_surface_pct = 100.0 * u.volume_surface.sqrt() * px_area / opening_volume;
+    pm.volume_var_per_row_um2 =
+        (100.0 * px_area / opening_volume).powi(2) * u.volume_row_unit / (p * 1000.0).powi(2);
     pm.height_u_um = u.height.sqrt();
 
     pm.height_u_pct = 100.0 * pm.height_u_um / stencil;

@@ -81,6 +81,9 @@ pub(crate) struct Uncertainty {
     pub volume_sum: f64,
     /// Of it, the local surface's.
     pub volume_surface: f64,
+    /// The rows' shifts' part of the volume's variance per px^2 of row scatter, pixel-sum
+    /// units (`CellCounts::cell_row_g2`; negative where the rows' correlation is).
+    pub volume_row_unit: f64,
     /// The height's variance, um^2 (NaN without interior pixels).
     pub height: f64,
     /// The paste's pixel noise, um.
@@ -137,6 +140,7 @@ impl Uncertainty {
         Uncertainty {
             volume_sum: (pixels + surface - shared).max(0.0),
             volume_surface: surface,
+            volume_row_unit: c.cell_row_g2,
             height,
             paste_sigma_um: var_p.sqrt(),
         }
@@ -288,6 +292,37 @@ mod tests {
             assert!(
                 (rh - 1.0).abs() < 0.12,
                 "{boxed}: height stated / observed {rh:.3}"
+            );
+        }
+    }
+
+    /// The rows' part of a volume's variance, as `dpsa grr`'s pad study takes it apart: the
+    /// stated variance with a row scatter less the one without is that scatter squared times
+    /// `volume_var_per_row_um2`, whatever the rows' correlation.
+    #[test]
+    fn the_rows_part_of_the_volume_variance_is_taken_apart() {
+        let pads = [pad()];
+        let placed = Placed::new(&pads, &Rigid::IDENTITY, &[], 1.0);
+        let m = map(11, 1.5, false);
+        let noise = NoiseModel::measure(&m, &placed, 0.1);
+        for rho in [0.0, 0.36, -0.2] {
+            let at = |row: f64| {
+                let mut p = program();
+                p.measure.row_sigma_um = row;
+                p.measure.row_correlation = rho;
+                measure_all(&m, &pads, &placed, &Rigid::IDENTITY, &p, &noise)[0].clone()
+            };
+            let (none, some) = (at(0.0), at(4.0));
+            let per = some.volume_var_per_row_um2;
+            assert!(
+                per > 0.0 && per == none.volume_var_per_row_um2,
+                "{rho}: {per}"
+            );
+            let rows_part = some.volume_u_pct.powi(2) - none.volume_u_pct.powi(2);
+            assert!(
+                (rows_part / (16.0 * per) - 1.0).abs() < 1e-9,
+                "{rho}: {rows_part} against {}",
+                16.0 * per
             );
         }
     }
