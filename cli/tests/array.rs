@@ -902,6 +902,43 @@ fn board_streams_that_do_not_belong_are_refused() {
     assert!(String::from_utf8_lossy(&r.stderr).contains("refusing to write"));
 }
 
+/// Without `--program` the map takes the recording's own program: its paste's reflectance is
+/// taken out (the JSON says which); a recording without one takes nothing out; a broken one is
+/// refused, named, before anything is written. With the streams only `array.json` of the
+/// recording is read, so a directory of it and a program stands for the recording.
+#[test]
+fn board_takes_the_recordings_own_program() {
+    let b = short_boards();
+    let tmp = tempfile::tempdir().unwrap();
+    let rec = tmp.path().join("rec");
+    std::fs::create_dir_all(&rec).unwrap();
+    std::fs::copy(b.boards[0].join("array.json"), rec.join("array.json")).unwrap();
+    let [a, _] = &b.streams;
+    let streams = [a[0].as_path(), a[1].as_path(), a[2].as_path()];
+    let step = |out: &Path| {
+        let r = board_cmd(&rec, out, &streams);
+        let j = json_of(&r);
+        j["paste_reflectance"]["background_step"].as_f64().unwrap()
+    };
+    assert_eq!(step(&tmp.path().join("none")), 0.0);
+    let program =
+        "paste_layer = \"paste.gbr\"\nstencil_um = 120.0\n\n[reflectance]\nbackground_step = 0.5\n";
+    std::fs::write(rec.join("program.toml"), program).unwrap();
+    assert_eq!(step(&tmp.path().join("own")), 0.5);
+    std::fs::write(rec.join("program.toml"), "paste_layer = [\n").unwrap();
+    let out = tmp.path().join("broken");
+    let r = board_cmd(&rec, &out, &streams);
+    assert_eq!(r.status.code(), Some(1));
+    let e = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        e.contains("the recording's own program")
+            && e.contains("--program")
+            && e.contains("program.toml"),
+        "{e}"
+    );
+    assert!(!out.exists());
+}
+
 /// Every packet of a stream: (start, length, kind, board row).
 fn packets_of(bytes: &[u8]) -> Vec<(usize, usize, dpsa_core::packets::Kind, i64)> {
     let mut pos = 0;

@@ -87,13 +87,10 @@ pub fn run(a: Args, progress: bool) -> Result<i32> {
         None => {
             let own = a.dir.join("program.toml");
             if own.is_file() {
-                paste_of(&own).with_context(|| {
-                    format!(
-                        "{}: the map takes the paste's reflectance from the recording's \
-                         program; name another with --program",
-                        own.display()
-                    )
-                })?
+                paste_of(&own).context(
+                    "the recording's own program (the map takes the paste's reflectance \
+                     from it; name another with --program)",
+                )?
             } else {
                 Default::default()
             }
