@@ -42,6 +42,22 @@ struct UnitsIn {
 /// The `board.json` version this build reads.
 pub(crate) const MAP_VERSION: u32 = 1;
 
+/// `v.round() as i64` (halves away from zero; NaN 0, saturating) without libm's `round`, a
+/// call on the x86-64 baseline, which has no rounding instruction: the truncation, moved by
+/// one where the part it dropped is a half or more (that part is exact below 2^52).
+#[inline]
+pub(crate) fn round_i64(v: f64) -> i64 {
+    let i = v as i64;
+    let f = v - i as f64;
+    if f >= 0.5 {
+        i.saturating_add(1)
+    } else if f <= -0.5 {
+        i.saturating_sub(1)
+    } else {
+        i
+    }
+}
+
 impl BoardMap {
     /// Reads a map directory (`board.json`, `heights_um.tiff`), checking its format, version,
     /// units and grid (at most [`MAX_PIXELS`]) against each other.
@@ -158,8 +174,8 @@ impl BoardMap {
     pub(crate) fn pixel_of(&self, p: [f64; 2]) -> (i64, i64) {
         let g = &self.grid;
         (
-            ((p[0] - g.x0_mm) / g.pitch_mm - 0.5).round() as i64,
-            ((p[1] - g.y0_mm) / g.pitch_mm - 0.5).round() as i64,
+            round_i64((p[0] - g.x0_mm) / g.pitch_mm - 0.5),
+            round_i64((p[1] - g.y0_mm) / g.pitch_mm - 0.5),
         )
     }
 
@@ -190,6 +206,41 @@ impl BoardMap {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Exactly `round() as i64`: at every half and its neighbours, at random values of
+    /// every size, at the ends of the range, for NaN and the infinities.
+    #[test]
+    fn round_i64_is_the_rounding_of_libm() {
+        let mut vs = vec![
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            9.3e18,
+            -9.3e18,
+            4.5e15,
+            -4.5e15,
+            0.49999999999999994,
+            -0.49999999999999994,
+            0.0,
+            -0.0,
+        ];
+        for k in -2000..2000 {
+            let h = f64::from(k) + 0.5;
+            vs.extend([h, h.next_up(), h.next_down(), f64::from(k)]);
+        }
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        for _ in 0..100_000 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            let m = (x >> 11) as f64 / (1u64 << 53) as f64;
+            let e = (x % 60) as i32 - 8;
+            vs.push((m - 0.5) * 2f64.powi(e));
+        }
+        for v in vs {
+            assert_eq!(round_i64(v), v.round() as i64, "{v:e}");
+        }
+    }
     use std::path::PathBuf;
     use tiff::encoder::{colortype, TiffEncoder};
 

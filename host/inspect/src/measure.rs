@@ -916,7 +916,8 @@ fn local_surface(
             .sqrt()
             .ceil()
             .max(1.0) as usize;
-        let mut samples: Vec<[f64; 3]> = Vec::new();
+        let mut samples: Vec<[f64; 3]> =
+            Vec::with_capacity(ri.len().div_ceil(stride) * rj.len().div_ceil(stride));
         let mut row: Vec<usize> = Vec::with_capacity(near.len());
         // A pixel's y is its column's, its x its row's (`grid.centre`): the columns' once,
         // and the opening's distances a row at a time.
@@ -1117,6 +1118,12 @@ impl Cell {
         }
         let (h_w, w_w) = (self.ri.len() as i64, self.cols as i64);
         let l = crate::noise::LAGS as i64;
+        // The coefficients at every lag, looked up once (`noise.at`, in the loops' order).
+        let side = 2 * l + 1;
+        let co: Vec<f64> = (-l..=l)
+            .flat_map(|di| (-l..=l).map(move |dj| (di, dj)))
+            .map(|(di, dj)| noise.at(di, dj))
+            .collect();
         let mut sum = 0.0;
         for (p, keep) in samples.iter().zip(&fit.keep) {
             if !keep {
@@ -1129,15 +1136,16 @@ impl Cell {
             }
             let mut k = 0.0;
             for di in -l..=l {
-                for dj in -l..=l {
-                    let (aa, bb) = (a + di, b + dj);
-                    if aa >= 0
-                        && bb >= 0
-                        && aa < h_w
-                        && bb < w_w
-                        && self.in_cell[(aa * w_w + bb) as usize]
-                    {
-                        k += noise.at(di, dj);
+                let aa = a + di;
+                if aa < 0 || aa >= h_w {
+                    continue;
+                }
+                let row = &self.in_cell[(aa * w_w) as usize..((aa + 1) * w_w) as usize];
+                let lags = &co[((di + l) * side) as usize..((di + l + 1) * side) as usize];
+                for (dj, &r) in (-l..=l).zip(lags) {
+                    let bb = b + dj;
+                    if bb >= 0 && bb < w_w && row[bb as usize] {
+                        k += r;
                     }
                 }
             }
@@ -1177,7 +1185,7 @@ impl Cell {
             cell_n: 0,
             cell_t: [0.0; 6],
             int_t: [0.0; 6],
-            diff2: Vec::new(),
+            diff2: Vec::with_capacity(2 * h_w * w_w),
             cell_g2: 0.0,
             int_g2: 0.0,
             cell_row_g2: 0.0,
