@@ -1119,11 +1119,10 @@ impl Cell {
         let (h_w, w_w) = (self.ri.len() as i64, self.cols as i64);
         let l = crate::noise::LAGS as i64;
         // The coefficients at every lag, looked up once (`noise.at`, in the loops' order).
-        let side = 2 * l + 1;
-        let co: Vec<f64> = (-l..=l)
-            .flat_map(|di| (-l..=l).map(move |dj| (di, dj)))
-            .map(|(di, dj)| noise.at(di, dj))
-            .collect();
+        const SIDE: usize = 2 * crate::noise::LAGS + 1;
+        let side = SIDE as i64;
+        let co: [f64; SIDE * SIDE] =
+            std::array::from_fn(|n| noise.at(n as i64 / side - l, n as i64 % side - l));
         let mut sum = 0.0;
         for (p, keep) in samples.iter().zip(&fit.keep) {
             if !keep {
