@@ -206,6 +206,8 @@ impl BoardMap {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::path::PathBuf;
+    use tiff::encoder::{colortype, TiffEncoder};
 
     /// Exactly `round() as i64`: at every half and its neighbours, at random values of
     /// every size, at the ends of the range, for NaN and the infinities.
@@ -241,8 +243,6 @@ mod tests {
             assert_eq!(round_i64(v), v.round() as i64, "{v:e}");
         }
     }
-    use std::path::PathBuf;
-    use tiff::encoder::{colortype, TiffEncoder};
 
     /// The message as `dpsa` prints it (`{e:#}`): each error of the chain, `: ` between.
     fn chain(e: &dyn std::error::Error) -> String {
