@@ -193,6 +193,36 @@ impl BoardMap {
         )
     }
 
+    /// A hint that row `i`'s pixels `cols` of the heights will be read soon: a pad's window
+    /// is a few cache lines of each of many map rows 24 KB apart, which the processor's own
+    /// prefetcher does not foresee, so each row's first read would wait on memory. A hint
+    /// only (nothing is read, an index beyond the map is ignored); no code on other
+    /// processors.
+    #[inline]
+    pub(crate) fn prefetch_row(&self, i: usize, cols: std::ops::Range<usize>) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let w = self.grid.width;
+            if i >= self.grid.rows || cols.start >= cols.end || cols.end > w {
+                return;
+            }
+            let row = &self.heights.data[i * w + cols.start..i * w + cols.end];
+            // 16 heights (f32) to a 64-byte line, and the line of the last one.
+            for at in row.iter().step_by(16).chain(row.last()) {
+                // SAFETY: SSE, the intrinsic's feature, is in the x86-64 baseline, and a
+                // prefetch reads nothing (and the address is inside the heights anyway).
+                #[allow(unsafe_code)]
+                unsafe {
+                    std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(
+                        (at as *const f32).cast(),
+                    );
+                }
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = (i, cols);
+    }
+
     /// Whether `bbox` (board mm) lies inside the grid.
     pub(crate) fn covers(&self, b: [f64; 4]) -> bool {
         let g = &self.grid;

@@ -556,13 +556,39 @@ pub fn per_pad<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync) -> Vec<T> {
 /// Pads a thread of [`per_pad`] takes at a time.
 const PER_PAD_RUN: usize = 16;
 
+/// The instructions the per-pad work runs on; the values are the same on either.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Instructions {
+    /// The x86-64 baseline (SSE2), or whatever the target's own is.
+    Baseline,
+    /// AVX2 with FMA and the bit instructions of the same processors (x86-64 only, where
+    /// run-time detection finds them): the compiler's vectors twice as wide, and about a
+    /// tenth less time on the paper board (`docs/board.md`).
+    Avx2,
+}
+
+impl Instructions {
+    /// AVX2 where this processor has it (with FMA), else the baseline.
+    pub fn best() -> Instructions {
+        if avx2_fma() {
+            Instructions::Avx2
+        } else {
+            Instructions::Baseline
+        }
+    }
+}
+
 /// Measures every pad (on the machine's threads), then the bridges between them.
 ///
 /// A pad's bridge search (its flood fill) follows its measurement in the same pass, while
 /// the map's rows around it are still in the caches (a second pass over the pads after all
 /// were measured waited on the map's memory: about a tenth of `dpsa inspect`'s processor
 /// time on the paper board went to one load there).
+///
+/// `instructions`: [`Instructions::best`] but in the test that compares them (AVX2 only
+/// where this processor has it: else the baseline).
 pub fn measure_all(
+    instructions: Instructions,
     map: &BoardMap,
     pads: &[Pad],
     placed: &Placed,
@@ -570,14 +596,66 @@ pub fn measure_all(
     program: &Program,
     noise: &NoiseModel,
 ) -> Vec<PadMeasurement> {
+    let avx2 = instructions == Instructions::Avx2 && avx2_fma();
+    let board = Board {
+        map,
+        pads,
+        placed,
+        t,
+        program,
+        noise,
+    };
     let measured = per_pad(pads.len(), |k| {
-        let m = measure_pad(map, pads, placed, t, program, noise, k);
-        let reached = reached(map, placed, program, &m, k);
-        (m, reached)
+        #[cfg(target_arch = "x86_64")]
+        if avx2 {
+            #[allow(unsafe_code)]
+            // SAFETY: `avx2_fma` found AVX2 and FMA on this processor.
+            return unsafe { board.pad_on_avx2(k) };
+        }
+        let _ = avx2;
+        board.pad(k)
     });
     let (mut out, reached): (Vec<_>, Vec<_>) = measured.into_iter().unzip();
     join_bridges(&mut out, reached);
     out
+}
+
+/// Whether this processor runs AVX2 and FMA (run-time detection on x86-64).
+fn avx2_fma() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    return std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma");
+    #[cfg(not(target_arch = "x86_64"))]
+    false
+}
+
+/// What every pad's measurement reads.
+struct Board<'a> {
+    map: &'a BoardMap,
+    pads: &'a [Pad],
+    placed: &'a Placed,
+    t: &'a Rigid,
+    program: &'a Program,
+    noise: &'a NoiseModel,
+}
+
+impl Board<'_> {
+    /// Pad `k`'s measurement and the openings its paste reaches.
+    #[inline(always)]
+    fn pad(&self, k: usize) -> (PadMeasurement, Vec<usize>) {
+        let (map, placed, program) = (self.map, self.placed, self.program);
+        let m = measure_pad(map, self.pads, placed, self.t, program, self.noise, k);
+        let reached = reached(map, placed, program, &m, k);
+        (m, reached)
+    }
+
+    /// [`Board::pad`] compiled for AVX2 (and the instructions that come with it): the same
+    /// arithmetic in the same order (Rust neither fuses nor reorders floating-point
+    /// operations, whatever the instructions), so the same values to the bit.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+    fn pad_on_avx2(&self, k: usize) -> (PadMeasurement, Vec<usize>) {
+        self.pad(k)
+    }
 }
 
 /// An opening's smaller and larger size (its width and length), mm: a circle's diameter, a
@@ -925,6 +1003,7 @@ fn local_surface(
         let ys: Vec<f64> = cols.iter().map(|&j| map.grid.centre(0, j).1).collect();
         let mut ds = vec![0.0; ys.len()];
         for i in ri.clone().step_by(stride) {
+            map.prefetch_row(i + 2 * stride, rj.clone());
             let x = map.grid.centre(i, 0).0;
             // The openings whose box comes within the guard of this row (one x) along x:
             // every other one passes `bare`'s box test on every pixel of the row.
@@ -1071,6 +1150,7 @@ impl Cell {
         let ys: Vec<f64> = rj.clone().map(|j| map.grid.centre(0, j).1).collect();
         let mut rows = RowCells::new(w_w);
         for (a, i) in ri.enumerate() {
+            map.prefetch_row(i + 2, rj.clone());
             let x = map.grid.centre(i, 0).0;
             row_near(placed, &near, x, reach.max, &mut row);
             let at = a * w_w..(a + 1) * w_w;

@@ -6,7 +6,7 @@
 
 use crate::error::InspectError;
 use crate::map::BoardMap;
-use crate::measure::{measure_all, PadMeasurement, Placed};
+use crate::measure::{measure_all, Instructions, PadMeasurement, Placed};
 use crate::noise::NoiseModel;
 use crate::print::PrintOffset;
 use crate::program::Program;
@@ -59,7 +59,15 @@ pub fn inspect(
         program.fiducials.diameter_mm,
     );
     let noise = NoiseModel::measure(map, &placed, program.measure.surface_guard_mm);
-    let measurements = measure_all(map, pads, &placed, &t, program, &noise);
+    let measurements = measure_all(
+        Instructions::best(),
+        map,
+        pads,
+        &placed,
+        &t,
+        program,
+        &noise,
+    );
     let calls: Vec<Call> = measurements
         .iter()
         .zip(pads)

@@ -150,7 +150,7 @@ impl Uncertainty {
 #[cfg(test)]
 mod tests {
     use crate::map::BoardMap;
-    use crate::measure::{measure_all, Placed};
+    use crate::measure::{measure_all, Instructions, Placed};
     use crate::noise::NoiseModel;
     use crate::program::Program;
     use dpsa_formats::grid::{BoardGrid, Grid};
@@ -273,7 +273,15 @@ mod tests {
             for seed in 0..runs {
                 let m = map(1000 + seed, 1.5, boxed);
                 let noise = NoiseModel::measure(&m, &placed, 0.1);
-                let pm = &measure_all(&m, &pads, &placed, &Rigid::IDENTITY, &program, &noise)[0];
+                let pm = &measure_all(
+                    Instructions::best(),
+                    &m,
+                    &pads,
+                    &placed,
+                    &Rigid::IDENTITY,
+                    &program,
+                    &noise,
+                )[0];
                 assert!(pm.unmeasurable.is_none());
                 v.push(pm.volume_pct);
                 h.push(pm.height_um);
@@ -310,7 +318,16 @@ mod tests {
                 let mut p = program();
                 p.measure.row_sigma_um = row;
                 p.measure.row_correlation = rho;
-                measure_all(&m, &pads, &placed, &Rigid::IDENTITY, &p, &noise)[0].clone()
+                measure_all(
+                    Instructions::best(),
+                    &m,
+                    &pads,
+                    &placed,
+                    &Rigid::IDENTITY,
+                    &p,
+                    &noise,
+                )[0]
+                .clone()
             };
             let (none, some) = (at(0.0), at(4.0));
             let per = some.volume_var_per_row_um2;
