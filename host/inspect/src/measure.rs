@@ -562,8 +562,8 @@ pub enum Instructions {
     /// The x86-64 baseline (SSE2), or whatever the target's own is.
     Baseline,
     /// AVX2 with FMA and the bit instructions of the same processors (x86-64 only, where
-    /// run-time detection finds them): the compiler's vectors twice as wide, and about a
-    /// tenth less time on the paper board (`docs/board.md`).
+    /// run-time detection finds them): the compiler's vectors twice as wide, and about 7 %
+    /// less time on the paper board (`docs/board.md`, issue 22's seventeenth part).
     Avx2,
 }
 
