@@ -58,6 +58,8 @@ pub struct Placed {
     /// Fiducials on the board: centre and radius, mm.
     pub fiducials: Vec<(Point, f64)>,
     bins: Vec<Vec<u32>>,
+    /// Each opening's first bin (lowest x, then y) of those its box covers.
+    first_bin: Vec<(u32, u32)>,
     bin_origin: Point,
     bin_mm: f64,
     nx: usize,
@@ -100,6 +102,7 @@ impl Placed {
             max_size,
             fiducials: fids,
             bins: Vec::new(),
+            first_bin: Vec::new(),
             bin_origin: lo,
             bin_mm,
             nx,
@@ -109,6 +112,7 @@ impl Placed {
         if bins.len() == nx * ny {
             for (k, b) in placed.bboxes.iter().enumerate() {
                 let (x0, x1, y0, y1) = placed.bin_range(*b);
+                placed.first_bin.push((x0 as u32, y0 as u32));
                 for bx in x0..=x1 {
                     for by in y0..=y1 {
                         bins[bx * ny + by].push(k as u32);
@@ -132,19 +136,24 @@ impl Placed {
         )
     }
 
-    /// Openings whose box comes within `reach` of box `b`, except `skip`.
+    /// Openings whose box comes within `reach` of box `b`, except `skip`, in ascending order.
     pub fn near(&self, b: [f64; 4], reach: f64, skip: usize) -> Vec<usize> {
         let g = [b[0] - reach, b[1] - reach, b[2] + reach, b[3] + reach];
         let mut out: Vec<usize> = Vec::new();
         if self.bins.len() == self.nx * self.ny && !self.bins.is_empty() {
             let (x0, x1, y0, y1) = self.bin_range(g);
+            // An opening is in every bin its box covers: it is taken from the first of them
+            // in the range only, so each comes once (then sorted: fewer to sort).
             for bx in x0..=x1 {
                 for by in y0..=y1 {
-                    out.extend(self.bins[bx * self.ny + by].iter().map(|&k| k as usize));
+                    out.extend(self.bins[bx * self.ny + by].iter().filter_map(|&k| {
+                        let (fx, fy) = self.first_bin[k as usize];
+                        let first = (fx as usize).max(x0) == bx && (fy as usize).max(y0) == by;
+                        first.then_some(k as usize)
+                    }));
                 }
             }
             out.sort_unstable();
-            out.dedup();
         } else {
             out = (0..self.outlines.len()).collect();
         }
@@ -373,18 +382,18 @@ fn trimmed_fit(
                     m[(i, j)] = m[(j, i)];
                 }
             }
-            let sub = m.view((0, 0), (nt, nt)).clone_owned();
-            // Conditioning: the terms are mm-scaled, so a determinant far below the diagonal's
-            // product means a direction the samples do not see.
-            let diag: f64 = (0..nt).map(|i| sub[(i, i)]).product();
-            match sub.clone().try_inverse() {
-                Some(inv) if sub.determinant().abs() > 1e-9 * diag => {
-                    inv_final = inv.transpose().iter().copied().collect();
-                    let sol = inv * v.rows(0, nt);
-                    break sol.iter().copied().collect::<Vec<f64>>();
+            let solved = match nt {
+                6 => solve::<6>(&m, &v),
+                3 => solve::<3>(&m, &v),
+                _ => solve::<1>(&m, &v),
+            };
+            match solved {
+                Some((inv, sol)) => {
+                    inv_final = inv;
+                    break sol;
                 }
-                _ if nt > 1 => nt = if nt == 6 { 3 } else { 1 },
-                _ => return None,
+                None if nt > 1 => nt = if nt == 6 { 3 } else { 1 },
+                None => return None,
             }
         };
         coef = sol;
@@ -434,6 +443,34 @@ fn trimmed_fit(
     })
 }
 
+/// The upper-left `N x N` block of the normal equations `m` (mirrored already) solved for the
+/// first `N` entries of `v`: the block's inverse (row-major, as [`SurfaceFit::inv`]) and the
+/// coefficients; None when the block is singular or ill conditioned (the terms are mm-scaled,
+/// so a determinant far below the diagonal's product means a direction the samples do not
+/// see). A fixed size, so nothing is allocated but the two results; nalgebra picks its
+/// inverse and determinant by the size, whatever the storage, so the values are those of a
+/// block of run-time size.
+fn solve<const N: usize>(
+    m: &nalgebra::SMatrix<f64, 6, 6>,
+    v: &nalgebra::SVector<f64, 6>,
+) -> Option<(Vec<f64>, Vec<f64>)>
+where
+    nalgebra::Const<N>: nalgebra::DimMin<nalgebra::Const<N>, Output = nalgebra::Const<N>>,
+{
+    let sub: nalgebra::SMatrix<f64, N, N> = m.fixed_view::<N, N>(0, 0).into_owned();
+    let diag: f64 = (0..N).map(|i| sub[(i, i)]).product();
+    match sub.try_inverse() {
+        Some(inv) if sub.determinant().abs() > 1e-9 * diag => {
+            let sol = inv * v.fixed_rows::<N>(0);
+            Some((
+                inv.transpose().iter().copied().collect(),
+                sol.iter().copied().collect(),
+            ))
+        }
+        _ => None,
+    }
+}
+
 /// The normal equations of the first `NT` terms over the kept samples (every `step`-th):
 /// the upper triangle of the `NT x NT` block of the matrix, the first `NT` entries of the
 /// right-hand side, and the samples summed. Each entry is summed over the samples in their
@@ -455,10 +492,14 @@ fn normal_equations<const NT: usize>(
             continue;
         }
         let t = terms(p[0], p[1]);
+        // Whole rows (the lower triangle is worked out and not used): each entry the same
+        // products added in the same order as over the upper triangle alone, in a few wide
+        // operations instead of one per entry.
         for i in 0..NT {
             b[i] += t[i] * p[2];
-            for j in i..NT {
-                a[i][j] += t[i] * t[j];
+            let ti = t[i];
+            for (acc, tj) in a[i].iter_mut().zip(&t[..NT]) {
+                *acc += ti * tj;
             }
         }
         n += 1;
@@ -492,11 +533,90 @@ pub(crate) fn surface_at(c: &[f64], dx: f64, dy: f64) -> f64 {
     }
 }
 
+/// A surface's values ([`surface_at`]) over a window's pixels, a row at a time: each product
+/// of its terms worked out once per column or per row, and added per pixel in
+/// [`surface_at`]'s order, so the same values to the bit.
+struct SurfaceColumns<'a> {
+    /// The coefficients (1, 3 or 6).
+    coef: &'a [f64],
+    /// Per column: `dy`, `e dy` and `h dy^2` (the coefficients of `dy` and `dy^2`).
+    cols: Vec<[f64; 3]>,
+}
+
+/// [`SurfaceColumns`] along one row.
+struct SurfaceRow<'a> {
+    columns: &'a SurfaceColumns<'a>,
+    dx: f64,
+    /// `a + b dx` (the level alone for a level) and `f dx^2`.
+    head: f64,
+    fx2: f64,
+}
+
+impl<'a> SurfaceColumns<'a> {
+    /// For the surface `coef` over columns at `dys` (about the surface's origin, mm).
+    fn new(coef: &'a [f64], dys: impl Iterator<Item = f64>) -> SurfaceColumns<'a> {
+        let (e, h) = match *coef {
+            [_, _, e] => (e, 0.0),
+            [_, _, e, _, _, h] => (e, h),
+            _ => (0.0, 0.0),
+        };
+        SurfaceColumns {
+            coef,
+            cols: dys.map(|dy| [dy, e * dy, h * (dy * dy)]).collect(),
+        }
+    }
+
+    /// Along the row at `dx`.
+    fn row(&self, dx: f64) -> SurfaceRow<'_> {
+        let t = terms(dx, 0.0);
+        let (head, fx2) = match *self.coef {
+            [a] => (a * t[0], 0.0),
+            [a, b, _] => (a * t[0] + b * t[1], 0.0),
+            [a, b, _, f, _, _] => (a * t[0] + b * t[1], f * t[3]),
+            _ => (f64::NAN, f64::NAN),
+        };
+        SurfaceRow {
+            columns: self,
+            dx,
+            head,
+            fx2,
+        }
+    }
+}
+
+impl SurfaceRow<'_> {
+    /// The surface at this row's column `b`: `surface_at(coef, dx, dy)`.
+    #[inline]
+    fn at(&self, b: usize) -> f64 {
+        let [dy, ey, hy2] = self.columns.cols[b];
+        match *self.columns.coef {
+            [_] => self.head,
+            [_, _, _] => self.head + ey,
+            [_, _, _, _, g, _] => self.head + ey + self.fx2 + g * (self.dx * dy) + hy2,
+            _ => surface_at(self.columns.coef, self.dx, dy),
+        }
+    }
+}
+
 /// Sum and count of the finite values of the 3 x 3 block around `(a, b)` of a row-major
 /// grid `width` wide.
 fn mean3x3(r: &[f64], width: usize, a: usize, b: usize) -> (f64, u32) {
     let rows = r.len() / width.max(1);
     let (mut s, mut n) = (0.0, 0);
+    if a >= 1 && b >= 1 && a + 1 < rows && b + 1 < width {
+        // Away from the grid's edges (a pad's interior): three slices of three. An invalid
+        // value adds 0 instead of being passed over: the sum starts at +0 and so is never
+        // -0, and `s + 0.0 == s` to the bit otherwise: the same sum.
+        for aa in a - 1..=a + 1 {
+            let at = aa * width + b - 1;
+            for &v in &r[at..at + 3] {
+                let valid = v.is_finite();
+                s += if valid { v } else { 0.0 };
+                n += u32::from(valid);
+            }
+        }
+        return (s, n);
+    }
     for aa in a.saturating_sub(1)..=(a + 1).min(rows.saturating_sub(1)) {
         for bb in b.saturating_sub(1)..=(b + 1).min(width.saturating_sub(1)) {
             let v = r[aa * width + bb];
@@ -643,8 +763,8 @@ impl Board<'_> {
     #[inline(always)]
     fn pad(&self, k: usize) -> (PadMeasurement, Vec<usize>) {
         let (map, placed, program) = (self.map, self.placed, self.program);
-        let m = measure_pad(map, self.pads, placed, self.t, program, self.noise, k);
-        let reached = reached(map, placed, program, &m, k);
+        let (m, cell) = measure_pad(map, self.pads, placed, self.t, program, self.noise, k);
+        let reached = reached(map, placed, program, &m, k, cell.as_ref());
         (m, reached)
     }
 
@@ -862,8 +982,9 @@ impl RowCells {
     }
 }
 
-/// Measures pad `k`.
-pub(crate) fn measure_pad(
+/// Measures pad `k`: the measurement, and its cell when one was made (the bridges' flood
+/// reads its heights and distances).
+fn measure_pad(
     map: &BoardMap,
     pads: &[Pad],
     placed: &Placed,
@@ -871,7 +992,7 @@ pub(crate) fn measure_pad(
     program: &Program,
     noise: &NoiseModel,
     k: usize,
-) -> PadMeasurement {
+) -> (PadMeasurement, Option<Cell>) {
     let bb = placed.bboxes[k];
     let stencil = program.stencil_um;
     let m = &program.measure;
@@ -879,7 +1000,7 @@ pub(crate) fn measure_pad(
     let mut pm = PadMeasurement::new(k, opening_mm2);
     if !map.covers(bb) {
         pm.unmeasurable = Some(Unmeasurable::OutsideMap);
-        return pm;
+        return (pm, None);
     }
     let c = placed.outlines[k].centroid();
     let p = map.grid.pitch_mm;
@@ -888,7 +1009,7 @@ pub(crate) fn measure_pad(
     let inset = height_inset(program, placed.min_size[k]);
     let Some((fit, stride, samples)) = local_surface(map, placed, program, k, c) else {
         pm.unmeasurable = Some(Unmeasurable::NoSurface);
-        return pm;
+        return (pm, None);
     };
     pm.surface = fit.coef.clone();
     pm.surface_rms_um = fit.rms;
@@ -949,6 +1070,7 @@ pub(crate) fn measure_pad(
     pm.volume_var_per_row_um2 =
         (100.0 * px_area / opening_volume).powi(2) * u.volume_row_unit / (p * 1000.0).powi(2);
     pm.height_u_um = u.height.sqrt();
+    scratch::give(std::mem::take(&mut s.diff2));
 
     pm.height_u_pct = 100.0 * pm.height_u_um / stencil;
 
@@ -964,7 +1086,7 @@ pub(crate) fn measure_pad(
     if s.open_n == 0 || pm.coverage < m.min_coverage {
         pm.unmeasurable = Some(Unmeasurable::LowCoverage);
     }
-    pm
+    (pm, Some(cell))
 }
 
 /// Pad `k`'s local surface about its centroid `c` (board mm): a robust quadratic through the
@@ -1075,6 +1197,173 @@ struct Cell {
     dist: Vec<f64>,
 }
 
+/// Pixels of a noise lag's side: `2 LAGS + 1`.
+const LAG_SIDE: usize = 2 * crate::noise::LAGS + 1;
+
+/// Over a window's cell (row-major, `cols` wide), the sum of the noise's correlation
+/// coefficients between a pixel and the cell's pixels within [`crate::noise::LAGS`] of it.
+///
+/// The sum walks the lags row by row ([`LagSums::walk`]). With the cell's pixels counted
+/// over every box of the window from its first row and column (a summed-area table, one
+/// larger each way), a pixel whose neighbourhood holds none of them gets 0 (the walk would
+/// add nothing), one whose neighbourhood is all in the cell gets every coefficient summed in
+/// the walk's order (`all`), both the walk's values to the bit; only pixels at the cell's
+/// edge walk. On the paper board this took the overlap from about 5 % of the per-pad work
+/// to under 1 %.
+struct LagSums<'a> {
+    in_cell: &'a [bool],
+    rows: i64,
+    cols: i64,
+    /// The coefficients, row-major over the lags `-LAGS..=LAGS` both ways.
+    co: [f64; LAG_SIDE * LAG_SIDE],
+    /// Every coefficient summed in the walk's order.
+    all: f64,
+    /// The summed-area table, `(rows + 1) x (cols + 1)`.
+    counts: Vec<u32>,
+}
+
+impl<'a> LagSums<'a> {
+    /// For the cell `in_cell`, `cols` wide, and the coefficients `co`.
+    fn new(in_cell: &'a [bool], cols: usize, co: [f64; LAG_SIDE * LAG_SIDE]) -> LagSums<'a> {
+        let rows = in_cell.len() / cols.max(1);
+        let mut counts = scratch::filled((rows + 1) * (cols + 1), 0u32);
+        for a in 0..rows {
+            let mut run = 0u32;
+            for b in 0..cols {
+                run += u32::from(in_cell[a * cols + b]);
+                counts[(a + 1) * (cols + 1) + b + 1] = counts[a * (cols + 1) + b + 1] + run;
+            }
+        }
+        LagSums {
+            in_cell,
+            rows: rows as i64,
+            cols: cols as i64,
+            co,
+            all: co.iter().fold(0.0, |k, &r| k + r),
+            counts,
+        }
+    }
+
+    /// The cell's pixels in rows `a0..a1`, columns `b0..b1` (clipped to the window).
+    fn members(&self, a0: i64, a1: i64, b0: i64, b1: i64) -> u32 {
+        let (a0, a1) = (
+            a0.clamp(0, self.rows) as usize,
+            a1.clamp(0, self.rows) as usize,
+        );
+        let (b0, b1) = (
+            b0.clamp(0, self.cols) as usize,
+            b1.clamp(0, self.cols) as usize,
+        );
+        let w = self.cols as usize + 1;
+        let at = |a: usize, b: usize| self.counts[a * w + b];
+        at(a1, b1) + at(a0, b0) - at(a0, b1) - at(a1, b0)
+    }
+
+    /// The sum at window pixel `(a, b)` (it may lie outside the window).
+    fn at(&self, a: i64, b: i64) -> f64 {
+        let l = crate::noise::LAGS as i64;
+        if a < -l || b < -l || a >= self.rows + l || b >= self.cols + l {
+            return 0.0;
+        }
+        match self.members(a - l, a + l + 1, b - l, b + l + 1) {
+            0 => 0.0,
+            n if n as usize == LAG_SIDE * LAG_SIDE => self.all,
+            _ => self.walk(a, b),
+        }
+    }
+
+    /// The sum at `(a, b)` lag by lag: rows of lags in order, each row's in order, the
+    /// coefficient of every lag that lands on a cell pixel added.
+    fn walk(&self, a: i64, b: i64) -> f64 {
+        let l = crate::noise::LAGS as i64;
+        let side = LAG_SIDE as i64;
+        let mut k = 0.0;
+        for di in -l..=l {
+            let aa = a + di;
+            if aa < 0 || aa >= self.rows {
+                continue;
+            }
+            let row = &self.in_cell[(aa * self.cols) as usize..((aa + 1) * self.cols) as usize];
+            let lags = &self.co[((di + l) * side) as usize..((di + l + 1) * side) as usize];
+            for (dj, &r) in (-l..=l).zip(lags) {
+                let bb = b + dj;
+                if bb >= 0 && bb < self.cols && row[bb as usize] {
+                    k += r;
+                }
+            }
+        }
+        k
+    }
+}
+
+impl Drop for LagSums<'_> {
+    fn drop(&mut self) {
+        scratch::give(std::mem::take(&mut self.counts));
+    }
+}
+
+impl Drop for Cell {
+    /// The buffers go back to this thread's [`scratch`] for the next pad.
+    fn drop(&mut self) {
+        scratch::give(std::mem::take(&mut self.r));
+        scratch::give(std::mem::take(&mut self.in_cell));
+        scratch::give(std::mem::take(&mut self.dist));
+    }
+}
+
+/// Buffers kept from pad to pad on each thread: a pad's cell, sums and flood took and gave
+/// back some 100 KB, and the allocator's share of the per-pad work was about 4 % (the paper
+/// board's profile). A buffer comes back cleared and filled as asked; each thread keeps at
+/// most [`scratch::KEPT`] of a kind, as large as the largest pad's window it served.
+mod scratch {
+    use std::cell::RefCell;
+
+    /// Buffers of one kind a thread keeps.
+    pub(super) const KEPT: usize = 4;
+
+    thread_local! {
+        static F64S: RefCell<Vec<Vec<f64>>> = const { RefCell::new(Vec::new()) };
+        static BOOLS: RefCell<Vec<Vec<bool>>> = const { RefCell::new(Vec::new()) };
+        static U32S: RefCell<Vec<Vec<u32>>> = const { RefCell::new(Vec::new()) };
+    }
+
+    /// The element types kept.
+    pub(super) trait Kept: Copy + 'static {
+        /// This thread's buffers of the type.
+        fn with<R>(f: impl FnOnce(&mut Vec<Vec<Self>>) -> R) -> R;
+    }
+
+    macro_rules! kept {
+        ($t:ty, $pool:ident) => {
+            impl Kept for $t {
+                fn with<R>(f: impl FnOnce(&mut Vec<Vec<Self>>) -> R) -> R {
+                    $pool.with(|p| f(&mut p.borrow_mut()))
+                }
+            }
+        };
+    }
+    kept!(f64, F64S);
+    kept!(bool, BOOLS);
+    kept!(u32, U32S);
+
+    /// `len` copies of `value`, in a kept buffer when there is one.
+    pub(super) fn filled<T: Kept>(len: usize, value: T) -> Vec<T> {
+        let mut v = T::with(|p| p.pop()).unwrap_or_default();
+        v.clear();
+        v.resize(len, value);
+        v
+    }
+
+    /// `v` kept for the next [`filled`] (dropped when enough are kept).
+    pub(super) fn give<T: Kept>(v: Vec<T>) {
+        T::with(|p| {
+            if p.len() < KEPT {
+                p.push(v);
+            }
+        });
+    }
+}
+
 /// What the cell's pixels add up to.
 struct Sums {
     /// Pixels of the opening, and of those the valid ones.
@@ -1137,9 +1426,9 @@ impl Cell {
             ri: ri.clone(),
             rj: rj.clone(),
             cols: w_w,
-            r: vec![f64::NAN; h_w * w_w],
-            in_cell: vec![false; h_w * w_w],
-            dist: vec![f64::INFINITY; h_w * w_w],
+            r: scratch::filled(h_w * w_w, f64::NAN),
+            in_cell: scratch::filled(h_w * w_w, false),
+            dist: scratch::filled(h_w * w_w, f64::INFINITY),
         };
         // The neighbours of one row (one x): those whose box is within the reach along x.
         // Every pixel in reach is at most `reach.max` from the opening, so the others are
@@ -1148,10 +1437,12 @@ impl Cell {
         // A pixel's y is its column's, its x its row's (`grid.centre`): the columns' once,
         // and the distances a row at a time.
         let ys: Vec<f64> = rj.clone().map(|j| map.grid.centre(0, j).1).collect();
+        let columns = SurfaceColumns::new(plane, ys.iter().map(|&y| y - c[1]));
         let mut rows = RowCells::new(w_w);
         for (a, i) in ri.enumerate() {
             map.prefetch_row(i + 2, rj.clone());
             let x = map.grid.centre(i, 0).0;
+            let surface = columns.row(x - c[0]);
             row_near(placed, &near, x, reach.max, &mut row);
             let at = a * w_w..(a + 1) * w_w;
             rows.run(
@@ -1172,7 +1463,7 @@ impl Cell {
                 *dist = rows.own[b];
                 let h = map.heights.data[i * map.grid.width + j];
                 if h.is_finite() {
-                    *r = f64::from(h) - surface_at(plane, x - c[0], ys[b] - c[1]);
+                    *r = f64::from(h) - surface.at(b);
                 }
             }
         }
@@ -1196,13 +1487,13 @@ impl Cell {
         for v in &mut t {
             *v /= s.cell_n.max(1) as f64;
         }
-        let (h_w, w_w) = (self.ri.len() as i64, self.cols as i64);
+        // The coefficients at every lag, looked up once (`noise.at`, in `LagSums::at`'s order).
         let l = crate::noise::LAGS as i64;
-        // The coefficients at every lag, looked up once (`noise.at`, in the loops' order).
-        const SIDE: usize = 2 * crate::noise::LAGS + 1;
-        let side = SIDE as i64;
-        let co: [f64; SIDE * SIDE] =
-            std::array::from_fn(|n| noise.at(n as i64 / side - l, n as i64 % side - l));
+        let co: [f64; LAG_SIDE * LAG_SIDE] = std::array::from_fn(|n| {
+            let side = LAG_SIDE as i64;
+            noise.at(n as i64 / side - l, n as i64 % side - l)
+        });
+        let lags = LagSums::new(&self.in_cell, self.cols, co);
         let mut sum = 0.0;
         for (p, keep) in samples.iter().zip(&fit.keep) {
             if !keep {
@@ -1210,24 +1501,7 @@ impl Cell {
             }
             let (i, j) = map.pixel_of([p[0] + c[0], p[1] + c[1]]);
             let (a, b) = (i - self.ri.start as i64, j - self.rj.start as i64);
-            if a < -l || b < -l || a >= h_w + l || b >= w_w + l {
-                continue;
-            }
-            let mut k = 0.0;
-            for di in -l..=l {
-                let aa = a + di;
-                if aa < 0 || aa >= h_w {
-                    continue;
-                }
-                let row = &self.in_cell[(aa * w_w) as usize..((aa + 1) * w_w) as usize];
-                let lags = &co[((di + l) * side) as usize..((di + l + 1) * side) as usize];
-                for (dj, &r) in (-l..=l).zip(lags) {
-                    let bb = b + dj;
-                    if bb >= 0 && bb < w_w && row[bb as usize] {
-                        k += r;
-                    }
-                }
-            }
+            let k = lags.at(a, b);
             if k != 0.0 {
                 sum += fit.weight(&t, &terms(p[0], p[1])) * k;
             }
@@ -1264,7 +1538,7 @@ impl Cell {
             cell_n: 0,
             cell_t: [0.0; 6],
             int_t: [0.0; 6],
-            diff2: Vec::with_capacity(2 * h_w * w_w),
+            diff2: scratch::filled(0, 0.0),
             cell_g2: 0.0,
             int_g2: 0.0,
             cell_row_g2: 0.0,
@@ -1292,9 +1566,18 @@ impl Cell {
             (d(up, mid, down), d(left, mid, right))
         };
         let interior = |idx: usize| self.dist[idx] <= -inset && r[idx].is_finite();
+        // A pixel's x is its row's, its y its column's (`grid.centre`), and their terms'
+        // factors the same products: the columns' once, the row's once per row.
+        let ys: Vec<f64> = self.rj.clone().map(|j| map.grid.centre(0, j).1).collect();
+        let dys: Vec<(f64, f64)> = ys
+            .iter()
+            .map(|&y| (y - c[1], (y - c[1]) * (y - c[1])))
+            .collect();
         let (mut prev_gx, mut prev_int_gx) = (0.0, 0.0);
         for a in 0..h_w {
             let (mut row_gx, mut int_row_gx) = (0.0, 0.0);
+            let x = map.grid.centre(self.ri.start + a, 0).0;
+            let (dx, dx2) = (x - c[0], (x - c[0]) * (x - c[0]));
             for b in 0..w_w {
                 let idx = a * w_w + b;
                 if !self.in_cell[idx] {
@@ -1320,8 +1603,9 @@ impl Cell {
                     }
                 };
                 s.vol += v;
-                let (x, y) = map.grid.centre(self.ri.start + a, self.rj.start + b);
-                let t = terms(x - c[0], y - c[1]);
+                let (y, (dy, dy2)) = (ys[b], dys[b]);
+                // `terms(dx, dy)`.
+                let t = [1.0, dx, dy, dx2, dx * dy, dy2];
                 s.cell_n += 1;
                 for (acc, t) in s.cell_t.iter_mut().zip(t) {
                     *acc += t;
@@ -1354,19 +1638,21 @@ impl Cell {
                     s.hn += 1;
                     s.int_g2 += g2;
                     int_row_gx += gx;
-                    if a + 1 >= h_w || !interior(idx + w_w) {
+                    let down = a + 1 < h_w && interior(idx + w_w);
+                    let right = b + 1 < w_w && interior(idx + 1);
+                    if !down {
                         s.int_edges[0] += 1;
                     }
-                    if b + 1 >= w_w || !interior(idx + 1) {
+                    if !right {
                         s.int_edges[1] += 1;
                     }
                     for (acc, t) in s.int_t.iter_mut().zip(t) {
                         *acc += t;
                     }
-                    if b + 1 < w_w && interior(idx + 1) {
+                    if right {
                         s.diff2.push((r[idx + 1] - r[idx]).powi(2));
                     }
-                    if a + 1 < h_w && interior(idx + w_w) {
+                    if down {
                         s.diff2.push((r[idx + w_w] - r[idx]).powi(2));
                     }
                     // 3 x 3 mean for the maximum.
@@ -1391,20 +1677,22 @@ impl Cell {
 /// `bridge_reach_mm`; a pixel inside another opening is a bridge to it. Each flood visits
 /// about the pad's own deposit, so the search costs little more than the deposit's area.
 ///
-/// The openings measured pad `k`'s paste reaches ([`flood`]; none when it is unmeasurable).
+/// The openings measured pad `k`'s paste reaches ([`flood`], with the pad's `cell`; none when
+/// it is unmeasurable).
 fn reached(
     map: &BoardMap,
     placed: &Placed,
     program: &Program,
     m: &PadMeasurement,
     k: usize,
+    cell: Option<&Cell>,
 ) -> Vec<usize> {
-    if m.unmeasurable.is_some() {
+    let (None, Some(cell)) = (m.unmeasurable, cell) else {
         return Vec::new();
-    }
+    };
     let reach = program.measure.bridge_reach_mm;
     let thr = program.stencil_um * program.windows.bridge_height_pct / 100.0;
-    flood(map, placed, m, k, reach, thr)
+    flood(map, placed, m, k, reach, thr, cell)
 }
 
 /// Fills `bridged_to` of both pads of each pair that one's paste reaches (`reached[k]`, the
@@ -1425,7 +1713,9 @@ fn join_bridges(pm: &mut [PadMeasurement], reached: Vec<Vec<usize>>) {
     }
 }
 
-/// The openings pad `k`'s paste reaches.
+/// The openings pad `k`'s paste reaches, with `cell` its [`Cell`]: over the cell's pixels the
+/// heights above the surface and the distances to the opening are the cell's (the same
+/// values: the same formulas on the same coordinates), elsewhere worked out here.
 fn flood(
     map: &BoardMap,
     placed: &Placed,
@@ -1433,6 +1723,7 @@ fn flood(
     k: usize,
     reach: f64,
     thr: f64,
+    cell: &Cell,
 ) -> Vec<usize> {
     let o = &placed.outlines[k];
     let bb = placed.bboxes[k];
@@ -1446,8 +1737,18 @@ fn flood(
         return Vec::new();
     }
     let c = o.centroid();
+    // The cell's index of map pixel `(i, j)` when it is one of the cell's pixels.
+    let of_cell = |i: usize, j: usize| -> Option<usize> {
+        let (a, b) = (i.wrapping_sub(cell.ri.start), j.wrapping_sub(cell.rj.start));
+        let idx = a.checked_mul(cell.cols)?.checked_add(b)?;
+        (a < cell.ri.len() && b < cell.cols && cell.in_cell[idx]).then_some(idx)
+    };
     let paste = |a: usize, b: usize| -> bool {
         let (i, j) = (ri.start + a, rj.start + b);
+        if let Some(idx) = of_cell(i, j) {
+            // NaN (an invalid pixel) is not above.
+            return cell.r[idx] > thr;
+        }
         let h = map.heights.data[i * map.grid.width + j];
         if !h.is_finite() {
             return false;
@@ -1456,24 +1757,36 @@ fn flood(
         f64::from(h) - surface_at(&m.surface, x - c[0], y - c[1]) > thr
     };
     // 0 unseen, 1 visited.
-    let mut seen = vec![false; hw * ww];
-    let mut stack: Vec<usize> = Vec::new();
+    let mut seen = scratch::filled(hw * ww, false);
+    // Pixels to go on from, as (row, column) of the window: no division per pixel.
+    let mut stack: Vec<(usize, usize)> = Vec::new();
     let (oi, oj) = map.window(bb);
     for i in oi {
         for j in oj.clone() {
             let (a, b) = (i - ri.start, j - rj.start);
-            let (x, y) = map.grid.centre(i, j);
-            if o.signed_distance([x, y]) <= 0.0 && paste(a, b) {
+            let d = match of_cell(i, j) {
+                Some(idx) => cell.dist[idx],
+                None => {
+                    let (x, y) = map.grid.centre(i, j);
+                    o.signed_distance([x, y])
+                }
+            };
+            if d <= 0.0 && paste(a, b) {
                 seen[a * ww + b] = true;
-                stack.push(a * ww + b);
+                stack.push((a, b));
             }
         }
     }
     let mut hit: Vec<usize> = Vec::new();
-    while let Some(idx) = stack.pop() {
-        let (a, b) = (idx / ww, idx % ww);
-        let (x, y) = map.grid.centre(ri.start + a, rj.start + b);
-        if o.signed_distance([x, y]) > 0.0 {
+    while let Some((a, b)) = stack.pop() {
+        let idx = a * ww + b;
+        let (i, j) = (ri.start + a, rj.start + b);
+        let (x, y) = map.grid.centre(i, j);
+        let d = match of_cell(i, j) {
+            Some(at) => cell.dist[at],
+            None => o.signed_distance([x, y]),
+        };
+        if d > 0.0 {
             let q = [x, y];
             if let Some(&j) = near.iter().find(|&&j| {
                 let bj = &placed.bboxes[j];
@@ -1494,7 +1807,7 @@ fn flood(
             if !seen[n] {
                 seen[n] = true;
                 if paste(a2, b2) {
-                    stack.push(n);
+                    stack.push((a2, b2));
                 }
             }
         };
@@ -1511,6 +1824,7 @@ fn flood(
             visit(idx + 1, a, b + 1);
         }
     }
+    scratch::give(seen);
     hit
 }
 
@@ -1557,7 +1871,156 @@ mod tests {
                 }))
     }
 
+    /// The 3 x 3 block's sum and count by their definition: rows, then columns, in order,
+    /// clipped to the grid, finite values only.
+    fn mean3x3_by_definition(r: &[f64], width: usize, a: usize, b: usize) -> (f64, u32) {
+        let rows = r.len() / width;
+        let (mut s, mut n) = (0.0, 0);
+        for aa in a as i64 - 1..=a as i64 + 1 {
+            for bb in b as i64 - 1..=b as i64 + 1 {
+                if aa < 0 || bb < 0 || aa >= rows as i64 || bb >= width as i64 {
+                    continue;
+                }
+                let v = r[aa as usize * width + bb as usize];
+                if v.is_finite() {
+                    s += v;
+                    n += 1;
+                }
+            }
+        }
+        (s, n)
+    }
+
+    /// The block's inverse and solution as the fit took them before [`solve`]: a block of
+    /// run-time size (nalgebra's `DMatrix`).
+    fn solve_at_run_time(
+        m: &nalgebra::SMatrix<f64, 6, 6>,
+        v: &nalgebra::SVector<f64, 6>,
+        nt: usize,
+    ) -> Option<(Vec<f64>, Vec<f64>)> {
+        let sub = m.view((0, 0), (nt, nt)).clone_owned();
+        let diag: f64 = (0..nt).map(|i| sub[(i, i)]).product();
+        match sub.clone().try_inverse() {
+            Some(inv) if sub.determinant().abs() > 1e-9 * diag => {
+                let sol = inv.clone() * v.rows(0, nt);
+                Some((
+                    inv.transpose().iter().copied().collect(),
+                    sol.iter().copied().collect(),
+                ))
+            }
+            _ => None,
+        }
+    }
+
+    #[test]
+    fn a_kept_buffer_comes_back_as_asked() {
+        let mut v = scratch::filled(5, 1.5f64);
+        assert_eq!(v, vec![1.5; 5]);
+        v[2] = f64::NAN;
+        v.push(7.0);
+        scratch::give(v);
+        assert_eq!(scratch::filled(3, 0.25f64), vec![0.25; 3]);
+        let b = scratch::filled(4, true);
+        scratch::give(b);
+        assert_eq!(scratch::filled(6, false), vec![false; 6]);
+        // More given back than kept: the rest are dropped.
+        for _ in 0..2 * scratch::KEPT {
+            scratch::give(vec![9u32; 10]);
+        }
+        assert_eq!(scratch::filled(2, 0u32), vec![0, 0]);
+    }
+
     proptest! {
+        /// The lag sums' shortcuts (no cell pixel near, all of them) give the walk's value
+        /// to the bit at every pixel of the window and beyond its edges, on random cells
+        /// (empty, full, sparse, dense) and coefficients (zeros among them).
+        #[test]
+        fn lag_sums_are_the_walk(
+            rows in 1..14usize,
+            cols in 1..14usize,
+            fill in prop_oneof![Just(0.0), Just(1.0), 0.0..1.0f64],
+            co in proptest::collection::vec(prop_oneof![Just(0.0), -0.3..1.0f64], LAG_SIDE * LAG_SIDE),
+            seed in any::<u64>(),
+        ) {
+            use rand::SeedableRng;
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+            let cell: Vec<bool> = (0..rows * cols).map(|_| rng.random::<f64>() < fill).collect();
+            let co: [f64; LAG_SIDE * LAG_SIDE] = std::array::from_fn(|n| co[n]);
+            let lags = LagSums::new(&cell, cols, co);
+            let l = crate::noise::LAGS as i64 + 2;
+            for a in -l..rows as i64 + l {
+                for b in -l..cols as i64 + l {
+                    prop_assert_eq!(lags.at(a, b).to_bits(), lags.walk(a, b).to_bits());
+                }
+            }
+        }
+
+        /// A surface row's values are [`surface_at`]'s to the bit, for the level, the plane
+        /// and the quadratic (signed zeros among the coefficients and offsets).
+        #[test]
+        fn surface_rows_are_surface_at(
+            c in proptest::collection::vec(prop_oneof![Just(0.0), Just(-0.0), -50.0..50.0f64], 6),
+            dx in prop_oneof![Just(0.0), Just(-0.0), -3.0..3.0f64],
+            dys in proptest::collection::vec(prop_oneof![Just(0.0), Just(-0.0), -3.0..3.0f64], 1..20),
+        ) {
+            for n in [1, 3, 6] {
+                let columns = SurfaceColumns::new(&c[..n], dys.iter().copied());
+                let row = columns.row(dx);
+                for (b, &dy) in dys.iter().enumerate() {
+                    prop_assert_eq!(row.at(b).to_bits(), surface_at(&c[..n], dx, dy).to_bits());
+                }
+            }
+        }
+
+        /// [`mean3x3`] (with its path away from the edges) is the block's sum and count by
+        /// definition, to the bit, at every pixel of grids with invalid values.
+        #[test]
+        fn mean3x3_is_the_block_by_definition(
+            rows in 1..9usize,
+            cols in 1..9usize,
+            values in proptest::collection::vec(
+                prop_oneof![Just(f64::NAN), Just(0.0), Just(-0.0), -80.0..80.0f64], 64),
+        ) {
+            let r: Vec<f64> = (0..rows * cols).map(|n| values[n % values.len()]).collect();
+            for a in 0..rows {
+                for b in 0..cols {
+                    let (s, n) = mean3x3(&r, cols, a, b);
+                    let (s0, n0) = mean3x3_by_definition(&r, cols, a, b);
+                    prop_assert_eq!((s.to_bits(), n), (s0.to_bits(), n0));
+                }
+            }
+        }
+
+        /// [`solve`] at a fixed size gives the run-time-size block's inverse and solution to
+        /// the bit, or None with it: normal matrices of random samples (well and badly
+        /// conditioned) and singular ones.
+        #[test]
+        fn a_fixed_size_solve_is_the_run_time_one(
+            pts in proptest::collection::vec((-2.0..2.0f64, -2.0..2.0f64, -30.0..30.0f64), 0..40),
+            line in any::<bool>(),
+        ) {
+            let s: Vec<[f64; 3]> = pts
+                .iter()
+                .map(|&(x, y, z)| if line { [x, 0.5 * x, z] } else { [x, y, z] })
+                .collect();
+            let keep = vec![true; s.len()];
+            let (mut m, v, _) = normal_equations::<6>(&s, &keep, 1);
+            for i in 0..6 {
+                for j in 0..i {
+                    m[(i, j)] = m[(j, i)];
+                }
+            }
+            let bits = |o: Option<(Vec<f64>, Vec<f64>)>| {
+                o.map(|(a, b)| {
+                    let f = |v: Vec<f64>| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    (f(a), f(b))
+                })
+            };
+            prop_assert_eq!(bits(solve::<6>(&m, &v)), bits(solve_at_run_time(&m, &v, 6)));
+            prop_assert_eq!(bits(solve::<3>(&m, &v)), bits(solve_at_run_time(&m, &v, 3)));
+            prop_assert_eq!(bits(solve::<1>(&m, &v)), bits(solve_at_run_time(&m, &v, 1)));
+        }
+
         /// A fit that ends its rounds once the selection stops changing is the fit of all
         /// four rounds, to the bit (coefficients, rms, count, inverse, selection): on planes
         /// and quadratics with noise and paste-like outliers, of a few samples (every round
