@@ -16,9 +16,22 @@
 //! (its packet never arrived or was damaged, `dpsa board --streams`) is not an invalid pixel
 //! to interpolate around: every board pixel whose footprint touches it stays invalid and is
 //! marked in [`Layer::lost`].
+//!
+//! Where the processor has AVX2 ([`Instructions::best`]), the common pixel (in the rows at
+//! hand, four valid neighbours, no lost row, no variance grid) and the search for where a
+//! run of pixels was seen go four at a time in `std::arch` intrinsics (`resample/avx2.rs`):
+//! the scalar operations in the scalar order, so every layer is the same to the bit
+//! (`every_instruction_set_resamples_the_same_bits`). Intrinsics, not a SIMD crate: the
+//! gathers from the camera's rows and the exact order of operations are the point, the
+//! portable `std::simd` needs a nightly compiler, and the core's kernels
+//! (`dpsa_core::lanes`) are written the same way.
 
 use crate::Grid;
+use dpsa_formats::instructions::Instructions;
 use std::ops::Range;
+
+#[cfg(target_arch = "x86_64")]
+mod avx2;
 
 /// Where a camera's pixels lie on the board (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -233,6 +246,25 @@ pub fn resample(
     board_rows: Range<usize>,
     feather_px: f64,
 ) -> Layer {
+    resample_on(
+        Instructions::best(),
+        src,
+        place,
+        grid,
+        board_rows,
+        feather_px,
+    )
+}
+
+/// [`resample`] on the given instructions (AVX2 only where this processor has it).
+pub fn resample_on(
+    instructions: Instructions,
+    src: &Source,
+    place: &CameraPlacement,
+    grid: &BoardGrid,
+    board_rows: Range<usize>,
+    feather_px: f64,
+) -> Layer {
     let (heights, variance) = (src.heights, src.variance);
     let lost_rows = src.lost_rows;
     let (w, rows, row0) = (heights.width, heights.rows, src.row0);
@@ -293,6 +325,7 @@ pub fn resample(
         any_lost,
         inv_feather: 1.0 / feather_px.max(1e-9),
         last: ((rows - 1) as f64, (w - 1) as f64),
+        avx2: instructions.avx2(),
     };
     // The rows in parts, one per core (each pixel is its own: the parts are the rows
     // resampled one after the other).
@@ -398,6 +431,8 @@ struct Sampler<'a> {
     inv_feather: f64,
     /// The last row at hand and the last column.
     last: (f64, f64),
+    /// Whether to take [`avx2::run`] (detected).
+    avx2: bool,
 }
 
 impl Sampler<'_> {
@@ -428,6 +463,8 @@ impl Sampler<'_> {
             inv_feather: self.inv_feather,
             any_lost: self.any_lost,
         };
+        #[cfg(target_arch = "x86_64")]
+        let avx2 = self.avx2 && avx2::takes(&taps);
         for (k, i) in is.enumerate() {
             let b_row =
                 (self.grid.centre(i, 0).0 - self.x0) * self.inv_row - self.src.first_row as f64;
@@ -437,7 +474,29 @@ impl Sampler<'_> {
                 let (bs, cs) = (&mut bs[..run.len()], &mut cs[..run.len()]);
                 self.seen_at(b_row, run, &mut hint, bs, cs);
                 let at = k * lw + n * RUN;
-                for (jj, (&b, &c)) in bs.iter().zip(cs.iter()).enumerate() {
+                // The run's pixels left to `Taps::pixel`: all, or those AVX2 did not take.
+                let mut left = u64::MAX >> (64 - run.len());
+                #[cfg(target_arch = "x86_64")]
+                if avx2 {
+                    let end = at + run.len();
+                    #[allow(unsafe_code)]
+                    // SAFETY: `self.avx2` holds only where `Instructions::avx2`, and
+                    // `avx2::takes(&taps)` was checked above.
+                    unsafe {
+                        left = avx2::run(
+                            &taps,
+                            bs,
+                            cs,
+                            &mut heights[at..end],
+                            &mut period[at..end],
+                            &mut weight[at..end],
+                        );
+                    }
+                }
+                while left != 0 {
+                    let jj = left.trailing_zeros() as usize;
+                    left &= left - 1;
+                    let (b, c) = (bs[jj], cs[jj]);
                     let idx = at + jj;
                     let (h, v, t, wt) = match taps.pixel(b, c) {
                         Pixel::Valid(h, v, t, wt) => (h, v, t, wt),
@@ -507,7 +566,18 @@ impl Sampler<'_> {
                 // `pos[s] <= lo <= t <= hi < pos[s + 1]` for every pixel: `row_at` would find
                 // row `s` for each.
                 let (p, q) = (pos[s], inv[s]);
+                let mut done = 0;
+                #[cfg(target_arch = "x86_64")]
+                if self.avx2 && s < pl.across.len() && pl.across.len() < i32::MAX as usize {
+                    #[allow(unsafe_code)]
+                    // SAFETY: `self.avx2` holds only where `Instructions::avx2`; `s` is a row of
+                    // `across`, which has fewer than `i32::MAX`.
+                    unsafe {
+                        done = avx2::seen_in_one((s, p, q), b_row, run, &pl.across, bs, cs);
+                    }
+                }
                 let s = s as i64 as f64;
+                let (bs, cs, run) = (&mut bs[done..], &mut cs[done..], &run[done..]);
                 for ((b, c), &(cc, along_c)) in bs.iter_mut().zip(cs.iter_mut()).zip(run) {
                     let t = b_row - along_c;
                     *b = s + (t - p) * q;
@@ -689,7 +759,20 @@ mod tests {
         };
         let (mut crossed, mut nan) = (0, 0);
         // Rows per column along the motion: none, a small rotation either way, steep.
-        for slope in [0.0, 0.0017, -0.0023, 0.04, -0.11] {
+        // The baseline, and the AVX2 form where this processor has it.
+        let avx2 = Instructions::best() == Instructions::Avx2;
+        let forms = [
+            (0.0, false),
+            (0.0, avx2),
+            (0.0017, avx2),
+            (-0.0023, false),
+            (-0.0023, avx2),
+        ];
+        let forms = forms
+            .into_iter()
+            .chain([0.0017, 0.04, -0.11].map(|s| (s, false)));
+        let forms = forms.chain([0.04, -0.11].map(|s| (s, avx2)));
+        for (slope, avx2) in forms {
             let cols: Vec<(f64, f64)> = (0..300)
                 .map(|j| (j as f64 * 1.01, j as f64 * slope))
                 .collect();
@@ -703,6 +786,7 @@ mod tests {
                 any_lost: false,
                 inv_feather: 0.1,
                 last: (3.0, 3.0),
+                avx2,
             };
             for k in 0..400 {
                 let b_row = -15.0 + 230.0 * rnd();
@@ -737,6 +821,107 @@ mod tests {
             }
         }
         assert!(crossed > 100 && nan > 100, "{crossed} {nan}");
+    }
+
+    /// The AVX2 form gives every pixel of a layer the baseline's bits: heights with invalid
+    /// and infinite pixels, odd widths, a band of a camera's rows, rotations either way, row
+    /// places, lost rows and a variance grid (the last two left to the baseline), the
+    /// window's edges and the rows at hand's.
+    #[test]
+    fn every_instruction_set_resamples_the_same_bits() {
+        let mut rng = crate::test_rng::Lcg(2026);
+        let mut rnd = move || rng.next();
+        let (mut cases, mut taken) = (0, 0);
+        for case in 0..24 {
+            let w = [1, 2, 3, 5, 37, 64, 65, 203][case % 8];
+            let rows = [1, 2, 7, 60, 133][case % 5];
+            let row0 = [0, 3, 40][case % 3];
+            let mut cam = Grid::invalid(w, rows);
+            for v in &mut cam.data {
+                let u = rnd();
+                *v = match u {
+                    u if u < 0.06 => f32::NAN,
+                    u if u < 0.07 => f32::INFINITY,
+                    u if u < 0.08 => f32::NEG_INFINITY,
+                    _ => (400.0 * rnd() - 200.0) as f32,
+                };
+            }
+            let var = cam.data.iter().map(|_| rnd() as f32).collect::<Vec<_>>();
+            let var = Grid {
+                width: w,
+                rows,
+                data: var,
+            };
+            let period: Vec<f32> = (0..w).map(|_| (300.0 + 200.0 * rnd()) as f32).collect();
+            let total = row0 + rows;
+            let places = crate::places::RowPlaces {
+                along: (0..total).map(|i| i as f64 + 0.8 * (rnd() - 0.5)).collect(),
+                across: (0..total).map(|_| 0.7 * (rnd() - 0.5)).collect(),
+                samples: Vec::new(),
+            };
+            let lost: Vec<bool> = (0..total).map(|_| rnd() < 0.05).collect();
+            let (with_places, with_lost, with_var) = (case % 4 == 1, case % 6 == 5, case % 7 == 3);
+            let src = Source {
+                heights: &cam,
+                row0,
+                variance: with_var.then_some(&var),
+                period_um: &period,
+                first_row: 7,
+                places: with_places.then_some(&places),
+                lost_rows: if with_lost { &lost } else { &[] },
+            };
+            let p = CameraPlacement {
+                x0_mm: 0.1,
+                y0_mm: 0.2,
+                row_mm: 0.03,
+                pitch_mm: 0.0299 + 0.0003 * rnd(),
+                rotation_rad: 0.02 * (rnd() - 0.5),
+            };
+            let grid = BoardGrid {
+                x0_mm: 0.0,
+                y0_mm: 0.0,
+                pitch_mm: 0.03,
+                rows: total + 20,
+                width: w + 10,
+            };
+            let band = [0..grid.rows, 9..grid.rows / 2 + 9][case % 2].clone();
+            // Weights clamped at 1 (narrow feathers) and at 1e-3 (a feather of 1000 columns).
+            let feather = [1.0, 15.0, 80.0, 1000.0][(case / 3) % 4];
+            let base = resample_on(
+                Instructions::Baseline,
+                &src,
+                &p,
+                &grid,
+                band.clone(),
+                feather,
+            );
+            let best = resample_on(Instructions::best(), &src, &p, &grid, band, feather);
+            let bits = |g: &Grid| g.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            assert_eq!(
+                (base.rows.clone(), base.cols.clone()),
+                (best.rows.clone(), best.cols.clone())
+            );
+            assert_eq!(bits(&base.heights), bits(&best.heights), "case {case}");
+            assert_eq!(bits(&base.period_um), bits(&best.period_um), "case {case}");
+            assert_eq!(bits(&base.weight), bits(&best.weight), "case {case}");
+            assert_eq!(
+                base.variance.as_ref().map(bits),
+                best.variance.as_ref().map(bits)
+            );
+            assert_eq!(base.lost, best.lost, "case {case}");
+            cases += 1;
+            #[cfg(target_arch = "x86_64")]
+            {
+                let valid = base.heights.data.iter().filter(|h| h.is_finite()).count();
+                taken += usize::from(!with_var && !with_lost && valid > 100);
+            }
+        }
+        assert_eq!(cases, 24);
+        // On x86-64 with AVX2 most cases took the vector form for some of their pixels.
+        #[cfg(target_arch = "x86_64")]
+        if Instructions::best() == Instructions::Avx2 {
+            assert!(taken >= 8, "{taken}");
+        }
     }
 
     #[test]

@@ -191,6 +191,28 @@ fn unwrap_rows(
     block: usize,
     scratch: &mut Scratch,
 ) -> Vec<u32> {
+    #[cfg(target_arch = "x86_64")]
+    if dpsa_formats::instructions::Instructions::best().avx2() {
+        /// [`unwrap_rows_in`] in AVX2 (its arguments as one).
+        #[target_feature(enable = "avx2")]
+        fn on_avx2(a: (&[f32], usize, &[f32], usize, &mut Scratch)) -> Vec<u32> {
+            unwrap_rows_in(a.0, a.1, a.2, a.3, a.4)
+        }
+        #[allow(unsafe_code)]
+        // SAFETY: run-time detection found AVX2.
+        return unsafe { on_avx2((wrapped, rows, period_um, block, scratch)) };
+    }
+    unwrap_rows_in(wrapped, rows, period_um, block, scratch)
+}
+
+#[inline(always)]
+fn unwrap_rows_in(
+    wrapped: &[f32],
+    rows: usize,
+    period_um: &[f32],
+    block: usize,
+    scratch: &mut Scratch,
+) -> Vec<u32> {
     let w = period_um.len();
     let block = block.max(2);
     // Turns per pixel (row by row: no division to find a pixel's column).

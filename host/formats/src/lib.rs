@@ -28,6 +28,7 @@ pub mod grid;
 pub mod height_code;
 pub mod heightmap;
 pub mod images;
+pub mod instructions;
 pub mod kept_map;
 pub mod kind;
 pub mod labels;

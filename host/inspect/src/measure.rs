@@ -676,27 +676,10 @@ pub fn per_pad<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync) -> Vec<T> {
 /// Pads a thread of [`per_pad`] takes at a time.
 const PER_PAD_RUN: usize = 16;
 
-/// The instructions the per-pad work runs on; the values are the same on either.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Instructions {
-    /// The x86-64 baseline (SSE2), or whatever the target's own is.
-    Baseline,
-    /// AVX2 with FMA and the bit instructions of the same processors (x86-64 only, where
-    /// run-time detection finds them): the compiler's vectors twice as wide, and about 7 %
-    /// less time on the paper board (`docs/board.md`, issue 22's seventeenth part).
-    Avx2,
-}
-
-impl Instructions {
-    /// AVX2 where this processor has it (with FMA), else the baseline.
-    pub fn best() -> Instructions {
-        if avx2_fma() {
-            Instructions::Avx2
-        } else {
-            Instructions::Baseline
-        }
-    }
-}
+/// The instructions the per-pad work's entry ([`measure_all`]) is built for; the values are
+/// the same on either (`docs/board.md`, issue 22's seventeenth and nineteenth parts: what
+/// the compiler keeps inside the AVX2 build has changed with the code).
+pub use dpsa_formats::instructions::Instructions;
 
 /// Measures every pad (on the machine's threads), then the bridges between them.
 ///
@@ -716,7 +699,7 @@ pub fn measure_all(
     program: &Program,
     noise: &NoiseModel,
 ) -> Vec<PadMeasurement> {
-    let avx2 = instructions == Instructions::Avx2 && avx2_fma();
+    let avx2 = instructions.avx2();
     let board = Board {
         map,
         pads,
@@ -729,7 +712,7 @@ pub fn measure_all(
         #[cfg(target_arch = "x86_64")]
         if avx2 {
             #[allow(unsafe_code)]
-            // SAFETY: `avx2_fma` found AVX2 and FMA on this processor.
+            // SAFETY: `Instructions::avx2` found AVX2 and FMA on this processor.
             return unsafe { board.pad_on_avx2(k) };
         }
         let _ = avx2;
@@ -738,14 +721,6 @@ pub fn measure_all(
     let (mut out, reached): (Vec<_>, Vec<_>) = measured.into_iter().unzip();
     join_bridges(&mut out, reached);
     out
-}
-
-/// Whether this processor runs AVX2 and FMA (run-time detection on x86-64).
-fn avx2_fma() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    return std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma");
-    #[cfg(not(target_arch = "x86_64"))]
-    false
 }
 
 /// What every pad's measurement reads.
