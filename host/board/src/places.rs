@@ -39,6 +39,8 @@
 //! through the fringe term; on the small board taking it out too gained nothing
 //! (`docs/spc.md`, "Where the walls' scatter comes from"), so it is left in.
 
+use dpsa_formats::instructions::Instructions;
+
 /// Where a camera's rows were seen ([`crate::provenance::row_places`] makes them).
 #[derive(Clone, Debug, PartialEq)]
 pub struct RowPlaces {
@@ -226,6 +228,9 @@ pub struct Settle {
     columns: Vec<(f32, f32)>,
     /// The paste's reflectance taken out of the walls (the default: nothing taken out).
     pub paste: PasteReflectance,
+    /// What the settling runs on (the default: [`Instructions::best`]; the same rows on every
+    /// set, to the bit).
+    pub instructions: Instructions,
 }
 
 impl Settle {
@@ -258,7 +263,7 @@ impl Settle {
                 .collect();
         }
         let mut this = Vec::with_capacity(w);
-        let avx2 = dpsa_formats::instructions::Instructions::best().avx2();
+        let avx2 = self.instructions.avx2();
         while self.settled < last {
             let i = self.settled;
             let Some(k) = i.checked_sub(held0) else {
@@ -309,23 +314,28 @@ type SettleArgs<'a> = (
 /// instead of the baseline's four; the same operations, so the same values to the bit), else
 /// for the baseline.
 fn settle_row_on<const PASTE: bool>(avx2: bool, args: SettleArgs<'_>, per_um: f32) {
-    let (rows, prev, next, here, sp, columns) = args;
     #[cfg(target_arch = "x86_64")]
     if avx2 {
         /// [`settle_row`] in AVX2.
         #[target_feature(enable = "avx2")]
         fn on_avx2<const PASTE: bool>(args: SettleArgs<'_>, per_um: f32) {
-            let (rows, prev, next, here, sp, columns) = args;
-            settle_row::<PASTE>(rows, prev, next, here, sp, columns, per_um);
+            settle_row_of::<PASTE>(args, per_um);
         }
         #[allow(unsafe_code)]
         // SAFETY: `avx2` holds only where run-time detection found AVX2.
         unsafe {
-            on_avx2::<PASTE>((rows, prev, next, here, sp, columns), per_um);
+            on_avx2::<PASTE>(args, per_um);
         }
         return;
     }
     let _ = avx2;
+    settle_row_of::<PASTE>(args, per_um);
+}
+
+/// [`settle_row`] of its arguments as one.
+#[inline(always)]
+fn settle_row_of<const PASTE: bool>(args: SettleArgs<'_>, per_um: f32) {
+    let (rows, prev, next, here, sp, columns) = args;
     settle_row::<PASTE>(rows, prev, next, here, sp, columns, per_um);
 }
 
@@ -528,9 +538,12 @@ mod tests {
             }
         }
         g.data[5 * w + 3] = f32::NAN;
-        let settle_in = |cuts: &[usize]| {
+        let settle_in = |cuts: &[usize], instructions: Instructions| {
             let mut held = Grid::invalid(w, 0);
-            let mut s = Settle::default();
+            let mut s = Settle {
+                instructions,
+                ..Settle::default()
+            };
             let mut from = 0;
             for &to in cuts.iter().chain(std::iter::once(&rows)) {
                 held.data.extend_from_slice(&g.data[from * w..to * w]);
@@ -548,11 +561,16 @@ mod tests {
             assert_eq!(s.settled, rows);
             held
         };
-        let whole = settle_in(&[]);
+        let whole = settle_in(&[], Instructions::best());
+        let bits = |g: &Grid| g.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
         for cuts in [&[1usize, 2, 3][..], &[17, 18, 40], &[59]] {
-            let parts = settle_in(cuts);
-            let bits = |g: &Grid| g.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            let parts = settle_in(cuts, Instructions::best());
             assert_eq!(bits(&parts), bits(&whole), "cuts {cuts:?}");
+        }
+        // The baseline's build settles the same bits as the best this processor runs.
+        for cuts in [&[][..], &[17, 18, 40]] {
+            let base = settle_in(cuts, Instructions::Baseline);
+            assert_eq!(bits(&base), bits(&whole), "baseline, cuts {cuts:?}");
         }
         let mut after = 0.0f64;
         for (i, &a) in along.iter().enumerate() {
@@ -650,17 +668,27 @@ mod tests {
             across: vec![0.0; rows],
             samples,
         };
-        let settled = |g: &Grid, p: PasteReflectance| {
+        let settled_on = |g: &Grid, p: PasteReflectance, instructions: Instructions| {
             let mut held = g.clone();
             let mut s = Settle {
                 paste: p,
+                instructions,
                 ..Settle::default()
             };
             s.rows(&mut held, 0, Some(&places), &reference, &period_um, true);
             held
         };
+        let settled = |g: &Grid, p: PasteReflectance| settled_on(g, p, Instructions::best());
         let without = settled(&g, PasteReflectance::default());
         let with = settled(&g, PasteReflectance::new(400.0 / 700.0, paste_um));
+        // The baseline's build gives the same bits, with the reflectance and without.
+        let bits = |g: &Grid| g.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        for (p, got) in [
+            (PasteReflectance::default(), &without),
+            (PasteReflectance::new(400.0 / 700.0, paste_um), &with),
+        ] {
+            assert_eq!(bits(&settled_on(&g, p, Instructions::Baseline)), bits(got));
+        }
         let reference_map = settled(&same, PasteReflectance::default());
         // Per column, the heights summed over the rows against paste reflecting as the board.
         let column_error = |m: &Grid| {

@@ -28,6 +28,7 @@
 //! clamped edges (`super::blend`).
 
 use crate::Grid;
+use dpsa_formats::instructions::Instructions;
 use std::collections::{BinaryHeap, VecDeque};
 
 /// Default block size, px.
@@ -149,6 +150,27 @@ fn round_f32(x: f32) -> f32 {
     (x + M) - M
 }
 
+/// `x`'s place in `f32::total_cmp`'s order as an unsigned integer: `order_key(a) <
+/// order_key(b)` exactly where `a.total_cmp(&b)` is `Less` (NaNs and signed zeros included),
+/// and [`from_order_key`] gives back `x`'s bits. A non-negative value (sign bit clear) gets its
+/// sign bit set, so it comes after every negative; a negative one has every bit flipped, so a
+/// larger magnitude comes first.
+#[inline]
+fn order_key(x: f32) -> u32 {
+    let b = x.to_bits();
+    b ^ (((b as i32 >> 31) as u32) | 0x8000_0000)
+}
+
+/// The value whose [`order_key`] is `k`, to the bit.
+#[inline]
+fn from_order_key(k: u32) -> f32 {
+    f32::from_bits(if k & 0x8000_0000 != 0 {
+        k ^ 0x8000_0000
+    } else {
+        !k
+    })
+}
+
 /// The finite values of `from` written into `to` from index `n` on (which has room for all
 /// of `from` past `n`); returns the index past the last one written. Without a branch per
 /// value: every value is written, and the next one overwrites it unless it is finite.
@@ -166,10 +188,28 @@ fn compact_finite(from: &[f32], to: &mut [f32], n: usize) -> usize {
 /// Unwraps `wrapped` (heights in `[-T(c)/2, T(c)/2)`, NaN invalid) with `period_um[c]` per
 /// column. `block` is the block size in pixels (at least 2).
 pub fn unwrap(wrapped: &Grid, period_um: &[f32], block: usize) -> Unwrapped {
+    unwrap_on(Instructions::best(), wrapped, period_um, block)
+}
+
+/// [`unwrap`] on `instructions` (the same heights on every set, to the bit:
+/// [`Instructions`]).
+pub fn unwrap_on(
+    instructions: Instructions,
+    wrapped: &Grid,
+    period_um: &[f32],
+    block: usize,
+) -> Unwrapped {
     let (w, rows) = (wrapped.width, wrapped.rows);
     assert_eq!(period_um.len(), w, "one period per column");
     let mut s = Scratch::default();
-    let unreached_rows = unwrap_rows(&wrapped.data[..w * rows], rows, period_um, block, &mut s);
+    let unreached_rows = unwrap_rows(
+        instructions,
+        &wrapped.data[..w * rows],
+        rows,
+        period_um,
+        block,
+        &mut s,
+    );
     Unwrapped {
         heights: Grid {
             width: w,
@@ -183,8 +223,11 @@ pub fn unwrap(wrapped: &Grid, period_um: &[f32], block: usize) -> Unwrapped {
 }
 
 /// [`unwrap`] of the `rows` whole rows `wrapped` (of `period_um.len()` columns) into
-/// `scratch.heights`; returns the unreached pixels per row ([`Unwrapped::unreached_rows`]).
+/// `scratch.heights`, built for AVX2 where `instructions` asks for it and the processor has
+/// it, else for the baseline; returns the unreached pixels per row
+/// ([`Unwrapped::unreached_rows`]).
 fn unwrap_rows(
+    instructions: Instructions,
     wrapped: &[f32],
     rows: usize,
     period_um: &[f32],
@@ -192,16 +235,17 @@ fn unwrap_rows(
     scratch: &mut Scratch,
 ) -> Vec<u32> {
     #[cfg(target_arch = "x86_64")]
-    if dpsa_formats::instructions::Instructions::best().avx2() {
+    if instructions.avx2() {
         /// [`unwrap_rows_in`] in AVX2 (its arguments as one).
         #[target_feature(enable = "avx2")]
         fn on_avx2(a: (&[f32], usize, &[f32], usize, &mut Scratch)) -> Vec<u32> {
             unwrap_rows_in(a.0, a.1, a.2, a.3, a.4)
         }
         #[allow(unsafe_code)]
-        // SAFETY: run-time detection found AVX2.
+        // SAFETY: `Instructions::avx2` holds only where run-time detection found AVX2.
         return unsafe { on_avx2((wrapped, rows, period_um, block, scratch)) };
     }
+    let _ = instructions;
     unwrap_rows_in(wrapped, rows, period_um, block, scratch)
 }
 
@@ -298,7 +342,9 @@ fn unwrap_rows_in(
     //    turn, then a 3 x 3 median over the blocks.
     let mut bil = Bilinear::new(w, rows, bw, bh, block);
     let mut low = vec![f32::NAN; bw * bh];
-    let mut v: Vec<f32> = Vec::with_capacity(block * block);
+    // A block's values as their order keys ([`order_key`]): integers, compared in one
+    // instruction where `f32::total_cmp` reworks both sides of every comparison.
+    let mut v: Vec<u32> = Vec::with_capacity(block * block);
     // The surface of a block row's pixel rows, row-major (`block x w`).
     let mut band: Vec<f32> = vec![f32::NAN; block * w];
     for br in 0..bh {
@@ -309,14 +355,14 @@ fn unwrap_rows_in(
         }
         for bc in 0..bw {
             let (c0, c1) = (bc * block, (bc * block + block).min(w));
-            v.resize((r1 - r0) * (c1 - c0), 0.0);
+            v.resize((r1 - r0) * (c1 - c0), 0);
             let mut n = 0;
             for r in r0..r1 {
                 let (us, ss) = (&turns[r * w + c0..r * w + c1], &band[(r - r0) * w + c0..]);
                 for (&u, &sv) in us.iter().zip(ss) {
                     // Without a branch: every value is written, and the next one overwrites
                     // it unless it is finite.
-                    v[n] = nearest(u, sv);
+                    v[n] = order_key(nearest(u, sv));
                     n += usize::from(u.is_finite());
                 }
             }
@@ -325,7 +371,7 @@ fn unwrap_rows_in(
                 continue;
             }
             let k = (v.len() * 3) / 10;
-            low[br * bw + bc] = *v.select_nth_unstable_by(k, f32::total_cmp).1;
+            low[br * bw + bc] = from_order_key(*v.select_nth_unstable(k).1);
         }
     }
     let (low, _) = fill_nearest(&low, bw, bh);
@@ -412,6 +458,8 @@ pub struct Unwrapper {
     pub gap_aligned: usize,
     /// The unwrapping's buffers, kept from chunk to chunk.
     scratch: Scratch,
+    /// What the unwrapping runs on ([`Instructions::best`] unless [`Self::on`] says).
+    instructions: Instructions,
 }
 
 impl Unwrapper {
@@ -435,6 +483,15 @@ impl Unwrapper {
             unreached: 0,
             gap_aligned: 0,
             scratch: Scratch::default(),
+            instructions: Instructions::best(),
+        }
+    }
+
+    /// The same unwrapper on `instructions` (the same rows on every set, to the bit).
+    pub fn on(self, instructions: Instructions) -> Unwrapper {
+        Unwrapper {
+            instructions,
+            ..self
         }
     }
 
@@ -486,6 +543,7 @@ impl Unwrapper {
         let from = (lo - self.held_from) * w;
         let mut scratch = std::mem::take(&mut self.scratch);
         let unreached_rows = unwrap_rows(
+            self.instructions,
             &self.wrapped[from..from + (hi - lo) * w],
             hi - lo,
             &self.period_um,
@@ -911,6 +969,36 @@ mod tests {
         assert_eq!(u.unreached, whole.unreached);
     }
 
+    /// The baseline's build unwraps the same bits as the best this processor runs (AVX2
+    /// where it has it), whole and chunk by chunk, over widths that leave a part vector.
+    #[test]
+    fn every_instruction_set_unwraps_the_same_bits() {
+        let bits = |d: &[f32]| d.iter().map(|h| h.to_bits()).collect::<Vec<_>>();
+        for w in [397, 400] {
+            let (_, wrapped, period) = tilted_board(w, 300, 1000.0, 400.0, 2.0);
+            let best = unwrap_on(Instructions::best(), &wrapped, &period, 6);
+            let base = unwrap_on(Instructions::Baseline, &wrapped, &period, 6);
+            assert_eq!(
+                bits(&base.heights.data),
+                bits(&best.heights.data),
+                "width {w}"
+            );
+            assert_eq!(base.unreached_rows, best.unreached_rows);
+            let chunks = |instructions: Instructions| {
+                let mut un = Unwrapper::new(period.clone(), 6, 100, 12).on(instructions);
+                un.push(&wrapped.data);
+                let mut out = Vec::new();
+                while let Some(g) = un.next(true) {
+                    out.extend(g.data);
+                }
+                (out, un.unreached)
+            };
+            let (a, b) = (chunks(Instructions::Baseline), chunks(Instructions::best()));
+            assert_eq!(bits(&a.0), bits(&b.0), "width {w}, chunks");
+            assert_eq!(a.1, b.1);
+        }
+    }
+
     #[test]
     fn a_gap_longer_than_the_margin_keeps_the_turn() {
         // 80 invalid rows across the whole camera, longer than the 12-row margin: the chunk
@@ -999,6 +1087,48 @@ mod tests {
         // Opposite angles cancel exactly.
         assert_eq!(circular_mean(&[0, 2048], |_| true), None);
         assert_eq!(circular_mean(&[5, 7], |i| i > 5), None);
+    }
+
+    /// The order keys sort as `f32::total_cmp` does, pair by pair and as a whole (NaNs of
+    /// either sign, both zeros, the infinities, subnormals), and give back every value's bits;
+    /// a selection over them picks what `select_nth_unstable_by(total_cmp)` picks.
+    #[test]
+    fn order_keys_are_the_total_order() {
+        let mut rng = crate::test_rng::Lcg(99);
+        let mut bits = || (rng.next() * 4_294_967_296.0) as u32;
+        let mut xs: Vec<f32> = [
+            0.0,
+            -0.0,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+            -f32::NAN,
+            f32::MIN_POSITIVE,
+            -f32::MIN_POSITIVE,
+            f32::from_bits(1),
+            f32::from_bits(0x8000_0001),
+            f32::MAX,
+            f32::MIN,
+            1.0,
+            -1.0,
+        ]
+        .to_vec();
+        xs.extend((0..2000).map(|_| f32::from_bits(bits())));
+        // Turns as step 3 sees them: near each other.
+        xs.extend((0..2000).map(|i| (i as f32 - 1000.0) * 1e-3 + (bits() % 7) as f32 * 0.25));
+        for &a in &xs {
+            assert_eq!(from_order_key(order_key(a)).to_bits(), a.to_bits());
+        }
+        for (a, b) in xs.iter().zip(xs.iter().skip(1).chain(xs.iter().rev())) {
+            assert_eq!(order_key(*a).cmp(&order_key(*b)), a.total_cmp(b), "{a} {b}");
+        }
+        for (len, k) in [(1, 0), (7, 2), (256, 76), (4014, 1204)] {
+            let mut f = xs[xs.len() - len..].to_vec();
+            let mut keys: Vec<u32> = f.iter().map(|&x| order_key(x)).collect();
+            let want = *f.select_nth_unstable_by(k, f32::total_cmp).1;
+            let got = from_order_key(*keys.select_nth_unstable(k).1);
+            assert_eq!(got.to_bits(), want.to_bits(), "len {len}");
+        }
     }
 
     #[test]

@@ -39,8 +39,62 @@ impl Grid {
     }
 
     /// Valid (finite) pixels.
+    ///
+    /// Counted in eight lanes of 32-bit counters over blocks of 2^16 values (no lane can
+    /// overflow), summed per block: the compiler keeps the lanes in vector registers, where
+    /// `filter(..).count()` made one dependent count. On a paper board's map (47.8 Mpx,
+    /// which `dpsa board` counts three times) its `perf` samples fell from 361 - 371 to
+    /// 299 - 311 (two alternating pairs): the pass is mostly the memory's.
     pub fn valid(&self) -> usize {
-        self.data.iter().filter(|v| v.is_finite()).count()
+        self.data
+            .chunks(1 << 16)
+            .map(|block| {
+                let mut lanes = [0u32; 8];
+                let eights = block.chunks_exact(8);
+                let rest = eights.remainder();
+                for e in eights {
+                    for (n, v) in lanes.iter_mut().zip(e) {
+                        *n += u32::from(v.is_finite());
+                    }
+                }
+                let rest = rest.iter().filter(|v| v.is_finite()).count();
+                lanes.iter().map(|&n| n as usize).sum::<usize>() + rest
+            })
+            .sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The count is the finite values', over lengths about the lanes and the blocks and
+    /// every kind of value that is not finite.
+    #[test]
+    fn valid_counts_the_finite_values() {
+        let mut seed = 7u64;
+        for len in [0, 1, 7, 8, 9, 65_535, 65_536, 65_537, 200_003] {
+            let data: Vec<f32> = (0..len)
+                .map(|_| {
+                    seed = seed
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    match (seed >> 60) % 5 {
+                        0 => f32::NAN,
+                        1 => f32::INFINITY,
+                        2 => f32::NEG_INFINITY,
+                        _ => f32::from_bits((seed >> 16) as u32 & 0x7F7F_FFFF),
+                    }
+                })
+                .collect();
+            let want = data.iter().filter(|v| v.is_finite()).count();
+            let g = Grid {
+                width: 1,
+                rows: len,
+                data,
+            };
+            assert_eq!(g.valid(), want, "len {len}");
+        }
     }
 }
 

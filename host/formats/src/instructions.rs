@@ -33,6 +33,14 @@ impl Instructions {
     }
 }
 
+/// The best this processor runs ([`Instructions::best`]): what a stage takes unless a test
+/// asks for another.
+impl Default for Instructions {
+    fn default() -> Instructions {
+        Instructions::best()
+    }
+}
+
 /// Whether this processor runs AVX2 and FMA (run-time detection on x86-64; the standard
 /// library caches it, so a call is a load).
 fn avx2_fma() -> bool {
