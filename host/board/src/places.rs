@@ -319,7 +319,7 @@ fn settle_row_on<const PASTE: bool>(avx2: bool, args: SettleArgs<'_>, per_um: f3
         /// [`settle_row`] in AVX2.
         #[target_feature(enable = "avx2")]
         fn on_avx2<const PASTE: bool>(args: SettleArgs<'_>, per_um: f32) {
-            settle_row_of::<PASTE>(args, per_um);
+            settle_row::<PASTE>(args, per_um);
         }
         #[allow(unsafe_code)]
         // SAFETY: `avx2` holds only where run-time detection found AVX2.
@@ -329,14 +329,7 @@ fn settle_row_on<const PASTE: bool>(avx2: bool, args: SettleArgs<'_>, per_um: f3
         return;
     }
     let _ = avx2;
-    settle_row_of::<PASTE>(args, per_um);
-}
-
-/// [`settle_row`] of its arguments as one.
-#[inline(always)]
-fn settle_row_of<const PASTE: bool>(args: SettleArgs<'_>, per_um: f32) {
-    let (rows, prev, next, here, sp, columns) = args;
-    settle_row::<PASTE>(rows, prev, next, here, sp, columns, per_um);
+    settle_row::<PASTE>(args, per_um);
 }
 
 /// One row settled: `row` (as it came: `raw`) at place `here`, its neighbours as they came
@@ -348,12 +341,7 @@ fn settle_row_of<const PASTE: bool>(args: SettleArgs<'_>, per_um: f32) {
 /// that the compiler runs it in vectors.
 #[inline(always)]
 fn settle_row<const PASTE: bool>(
-    (row, raw): (&mut [f32], &[f32]),
-    prev: Option<(&[f32], f64)>,
-    next: Option<(&[f32], f64)>,
-    here: f64,
-    sp: &SamplePlace,
-    columns: &[(f32, f32)],
+    ((row, raw), prev, next, here, sp, columns): SettleArgs<'_>,
     per_um: f32,
 ) {
     let w = row.len().min(raw.len()).min(columns.len());

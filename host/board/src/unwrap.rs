@@ -236,27 +236,25 @@ fn unwrap_rows(
 ) -> Vec<u32> {
     #[cfg(target_arch = "x86_64")]
     if instructions.avx2() {
-        /// [`unwrap_rows_in`] in AVX2 (its arguments as one).
+        /// [`unwrap_rows_in`] in AVX2.
         #[target_feature(enable = "avx2")]
-        fn on_avx2(a: (&[f32], usize, &[f32], usize, &mut Scratch)) -> Vec<u32> {
-            unwrap_rows_in(a.0, a.1, a.2, a.3, a.4)
+        fn on_avx2(args: UnwrapArgs<'_>) -> Vec<u32> {
+            unwrap_rows_in(args)
         }
         #[allow(unsafe_code)]
         // SAFETY: `Instructions::avx2` holds only where run-time detection found AVX2.
         return unsafe { on_avx2((wrapped, rows, period_um, block, scratch)) };
     }
     let _ = instructions;
-    unwrap_rows_in(wrapped, rows, period_um, block, scratch)
+    unwrap_rows_in((wrapped, rows, period_um, block, scratch))
 }
 
+/// [`unwrap_rows`]' arguments but the instruction set, as one (for its two builds).
+type UnwrapArgs<'a> = (&'a [f32], usize, &'a [f32], usize, &'a mut Scratch);
+
+/// [`unwrap_rows`] in whichever build calls it.
 #[inline(always)]
-fn unwrap_rows_in(
-    wrapped: &[f32],
-    rows: usize,
-    period_um: &[f32],
-    block: usize,
-    scratch: &mut Scratch,
-) -> Vec<u32> {
+fn unwrap_rows_in((wrapped, rows, period_um, block, scratch): UnwrapArgs<'_>) -> Vec<u32> {
     let w = period_um.len();
     let block = block.max(2);
     // Turns per pixel (row by row: no division to find a pixel's column).
