@@ -218,6 +218,8 @@ impl Judge {
         };
         let i = dpsa_inspect::run::inspect(&map, &self.pads, &self.program)
             .map_err(dpsa_inspect::InspectError::from)?;
+        // Its memory serves the next map (the pools are kept between boards, as in the line).
+        dpsa_board::pool::give_map(map.heights);
         let (pads, calls) = dpsa_inspect::run::counts(&i);
         Ok(BenchInspection {
             pads,
@@ -234,6 +236,10 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
     let grid = layout.grid;
     let judge = Judge::of(dir)?;
     let paste = judge.as_ref().map(Judge::paste).unwrap_or_default();
+    // As the line does, board after board: a map's memory and its bands' are kept for the
+    // next map. The first run's map is the process's first and grows into fresh memory (a
+    // line's first board); the paced runs reuse what the runs before them gave back.
+    dpsa_board::pool::keep_between_boards();
     let t0 = Instant::now();
     let loaded = per_camera(recs.iter().enumerate(), |(i, r)| {
         let mut r = calibrated(r, cal, i)?;
@@ -262,6 +268,7 @@ pub fn run(dir: &Path, cal: &CalFile, python: Option<&str>) -> Result<BoardBench
         .as_ref()
         .map(|j| j.judge(&grid, a.blended.heights))
         .transpose()?;
+    dpsa_board::pool::give_camera(a.blended.camera);
     let inspection_s = if judge.is_some() {
         t4.elapsed().as_secs_f64()
     } else {
@@ -474,6 +481,7 @@ fn line_feed(
                     for c in w.drain(..) {
                         st.push(i, &c.heights, None);
                         st.push_places(i, &c.places, c.first_row);
+                        dpsa_board::pool::give_rows(c.heights);
                     }
                     if ends[i].is_some() {
                         st.end(i);
@@ -524,6 +532,7 @@ fn line_feed(
     }
     let latency = last_row.elapsed().as_secs_f64() - compare_s;
     let cpu_end = process_cpu_s();
+    dpsa_board::pool::give_camera(a.blended.camera);
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get()) as f64;
     let cpu_s_to_last_row = cpu_last_row.zip(cpu_start).map(|(b, a)| b - a);
     let cpu_s_after_last_row = cpu_end

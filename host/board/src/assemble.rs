@@ -314,7 +314,12 @@ impl Stitcher {
                         back.clone(),
                         QUEUED_CHUNKS * chunk_rows.max(1) * w.max(1),
                     ),
-                    held: Grid::invalid(w, 0),
+                    // A stitcher's before gave it back (`finish`) when the pools are kept.
+                    held: Grid {
+                        width: w,
+                        rows: 0,
+                        data: crate::pool::HELD.take_empty(0),
+                    },
                     settle: crate::places::Settle::default(),
                     variance: feed.variance.then(|| Grid::invalid(w, 0)),
                     held0: 0,
@@ -374,8 +379,11 @@ impl Stitcher {
             Some(to) if rows > 0 => {
                 // Waits while the thread is behind by the bound.
                 c.unwrapping.queued.add(rows * w, c.unwrapping.bound);
-                // The thread ends only when told or when the stitcher is dropped.
-                let _ = to.send(heights[..rows * w].to_vec());
+                // The thread ends only when told or when the stitcher is dropped. It gives
+                // the rows back once it has them (`pool::give_rows`).
+                let mut v = crate::pool::ROWS.take_empty(rows * w);
+                v.extend_from_slice(&heights[..rows * w]);
+                let _ = to.send(v);
             }
             _ => return,
         }
@@ -440,6 +448,7 @@ impl Stitcher {
                     let c = &mut self.cams[k];
                     c.held.data.extend_from_slice(&g.data);
                     c.held.rows += g.rows;
+                    crate::pool::give_rows(g.data);
                 }
                 Unwrapped::Done(k, u) => self.cams[k].unwrapping.done = Some(*u),
             }
@@ -532,6 +541,11 @@ impl Stitcher {
             .map(|c| c.unwrapping.done.as_ref().map_or(0, |u| u.unreached))
             .collect();
         let (map, blender, blend_s) = self.blending.finish();
+        if crate::pool::kept_between_boards() {
+            for c in &mut self.cams {
+                crate::pool::HELD.give(std::mem::take(&mut c.held.data));
+            }
+        }
         let (turns, edge_median_um, edge_off_bands, seams) = blender.finish();
         let (w, rows) = (self.grid.width, self.grid.rows);
         let grid = |data: Vec<f32>| Grid {
@@ -568,11 +582,13 @@ struct MapRows {
 
 impl MapRows {
     fn new(grid: BoardGrid, variance: bool) -> MapRows {
+        // Buffers a finished map gave back when the pools are kept between boards
+        // (`pool::keep_between_boards`), else new ones.
         let n = grid.rows * grid.width;
         MapRows {
-            heights: Vec::with_capacity(n),
-            variance: variance.then(|| Vec::with_capacity(n)),
-            camera: Vec::with_capacity(n),
+            heights: crate::pool::MAP_F32.take_empty(n),
+            variance: variance.then(|| crate::pool::MAP_F32.take_empty(n)),
+            camera: crate::pool::MAP_U8.take_empty(n),
             lost_pixels: 0,
         }
     }
@@ -696,6 +712,7 @@ fn unwrapping(
                 Ok(r) => {
                     unwrapper.push(&r);
                     on_exit.0.take(r.len());
+                    crate::pool::give_rows(r);
                 }
                 Err(_) => ended = true,
             }
@@ -997,6 +1014,32 @@ mod tests {
         assert_eq!(a.lost_pixels, whole.lost_pixels);
         let bits = |g: &Grid| g.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
         assert!(bits(&a.blended.heights) == bits(&whole.blended.heights));
+    }
+
+    /// Board after board with the pools kept (as the line keeps them): a map's memory given
+    /// back with stale values in it (here made absurd) serves a later map, which is the
+    /// first one's bits. The keeping is the process's from here on: the other tests then run
+    /// on kept buffers too, which every buffer's user writes before it reads.
+    #[test]
+    fn maps_on_memory_given_back_are_the_same_bits() {
+        let (cams, grid) = cameras();
+        crate::pool::keep_between_boards();
+        assert!(crate::pool::kept_between_boards());
+        let bits = |g: &Grid| g.data.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        let first = assemble_in(cams.clone(), &grid, 64, 128, Default::default());
+        let want = bits(&first.blended.heights);
+        let camera = first.blended.camera.clone();
+        for _ in 0..2 {
+            let mut old = first.blended.heights.clone();
+            old.data.fill(-1.0e30);
+            crate::pool::give_map(old);
+            crate::pool::give_camera(vec![9; camera.len()]);
+            let next = assemble_in(cams.clone(), &grid, 64, 128, Default::default());
+            assert!(bits(&next.blended.heights) == want);
+            assert_eq!(next.blended.camera, camera);
+            crate::pool::give_map(next.blended.heights);
+            crate::pool::give_camera(next.blended.camera);
+        }
     }
 
     #[test]

@@ -36,7 +36,7 @@ pub mod blend;
 pub mod colour;
 pub mod output;
 pub mod places;
-mod pool;
+pub mod pool;
 pub mod provenance;
 pub mod resample;
 pub mod run;

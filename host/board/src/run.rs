@@ -332,7 +332,15 @@ impl Collector {
         }
         let w = self.width;
         let n = span as usize;
-        let mut g = Grid::invalid(w, n);
+        // Every value invalid, on rows a chunk before gave back (`pool::give_rows`) when the
+        // pools are kept between boards.
+        let mut data = crate::pool::ROWS.take_empty(w * n);
+        data.resize(w * n, f32::NAN);
+        let mut g = Grid {
+            width: w,
+            rows: n,
+            data,
+        };
         let mut unplaced = 0;
         for (k, (&b, latch)) in self.rows.iter().zip(&self.latches).enumerate() {
             if b < first {

@@ -556,10 +556,12 @@ impl Unwrapper {
             .iter()
             .map(|&n| n as usize)
             .sum::<usize>();
+        let mut data = crate::pool::ROWS.take_empty((b - a) * w);
+        data.extend_from_slice(&u[a * w..b * w]);
         let out = Grid {
             width: w,
             rows: e - s,
-            data: u[a * w..b * w].to_vec(),
+            data,
         };
         for row in out.data.chunks_exact(w.max(1)) {
             for (l, &h) in self.last.iter_mut().zip(row) {

@@ -404,6 +404,8 @@ impl Boards {
                 for c in p.waiting.drain(..) {
                     st.push(i, &c.heights, None);
                     st.push_places(i, &c.places, c.first_row);
+                    // Copied into the stitcher: the memory serves a later chunk.
+                    dpsa_board::pool::give_rows(c.heights);
                 }
                 if p.ended.is_some() {
                     st.end(i);
@@ -440,6 +442,10 @@ impl Boards {
         };
         let a = st.finish();
         tracing::info!(%run, "board map done");
+        dpsa_board::pool::give_camera(a.blended.camera);
+        if let Some(v) = a.blended.variance {
+            dpsa_board::pool::give_map(v);
+        }
         let _ = self.keeper.send(Job::Finished {
             run_id: b.run_id,
             grid: self.setup.products[b.product].1,

@@ -250,16 +250,21 @@ impl Keeper {
                             }
                             let latency = last_row_at.elapsed().as_secs_f64();
                             tracing::info!(%run, %verdict, latency_s = format!("{latency:.3}"), "board stored");
-                            if let (Some(m), Some((grid, heights, design_to_board))) =
-                                (&self.maps, map)
-                            {
-                                m.offer(crate::maps::MapJob {
-                                    board: id,
-                                    run_id,
-                                    grid,
-                                    heights,
-                                    design_to_board,
-                                });
+                            match (&self.maps, map) {
+                                (Some(m), Some((grid, heights, design_to_board))) => {
+                                    m.offer(crate::maps::MapJob {
+                                        board: id,
+                                        run_id,
+                                        grid,
+                                        heights,
+                                        design_to_board,
+                                    })
+                                }
+                                // Not kept: its memory serves the next board's map.
+                                (None, Some((_, heights, _))) => {
+                                    dpsa_board::pool::give_map(heights)
+                                }
+                                (_, None) => {}
                             }
                             self.keep(Kept {
                                 run_id,
@@ -269,7 +274,12 @@ impl Keeper {
                             });
                             self.retain(crate::boards::unix_now());
                         }
-                        Err(e) => tracing::error!(%run, "not stored: {e}"),
+                        Err(e) => {
+                            tracing::error!(%run, "not stored: {e}");
+                            if let Some((_, heights, _)) = map {
+                                dpsa_board::pool::give_map(heights);
+                            }
+                        }
                     }
                 }
                 Job::Incomplete {

@@ -72,7 +72,7 @@ impl MapKeeper {
                         &job.heights,
                         job.design_to_board,
                     );
-                    drop(job.heights);
+                    dpsa_board::pool::give_map(job.heights);
                     match r {
                         Ok(k) => {
                             tracing::debug!(
@@ -118,11 +118,15 @@ impl MapKeeper {
     /// Hands `job` to the writer; a map that finds the writer busy with one waiting is not
     /// kept (said and counted).
     pub fn offer(&self, job: MapJob) {
-        let Some(tx) = &self.tx else { return };
+        let Some(tx) = &self.tx else {
+            dpsa_board::pool::give_map(job.heights);
+            return;
+        };
         let board = job.board;
         match tx.try_send(job) {
             Ok(()) => {}
-            Err(TrySendError::Full(_)) => {
+            Err(TrySendError::Full(job)) => {
+                dpsa_board::pool::give_map(job.heights);
                 tracing::warn!(
                     board,
                     "map not kept: the writer is still busy with two maps"
@@ -131,7 +135,8 @@ impl MapKeeper {
                     t.maps_not_kept += 1;
                 }
             }
-            Err(TrySendError::Disconnected(_)) => {
+            Err(TrySendError::Disconnected(job)) => {
+                dpsa_board::pool::give_map(job.heights);
                 tracing::error!(board, "map not kept: the writer has stopped");
                 if let Ok(mut t) = self.tally.lock() {
                     t.maps_not_kept += 1;

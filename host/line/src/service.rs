@@ -117,6 +117,8 @@ pub fn run(cfg: LineConfig, opts: RunOptions) -> Result<Summary, LineError> {
     if !crate::memory::cap_arenas() {
         tracing::debug!("malloc's arenas not capped (not glibc): memory may grow with threads");
     }
+    // Board after board: the maps' and the bands' buffers are reused, not faulted in afresh.
+    dpsa_board::pool::keep_between_boards();
     let term = Arc::new(AtomicBool::new(false));
     let int = Arc::new(AtomicBool::new(false));
     // A second SIGINT exits at once (status 130); the first one is a stop like SIGTERM.
