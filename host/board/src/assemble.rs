@@ -314,7 +314,8 @@ impl Stitcher {
                         back.clone(),
                         QUEUED_CHUNKS * chunk_rows.max(1) * w.max(1),
                     ),
-                    // A stitcher's before gave it back (`finish`) when the pools are kept.
+                    // The held rows of a stitcher before, given back at its `finish` when the
+                    // pools are kept between boards.
                     held: Grid {
                         width: w,
                         rows: 0,
