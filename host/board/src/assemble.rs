@@ -542,10 +542,8 @@ impl Stitcher {
             .map(|c| c.unwrapping.done.as_ref().map_or(0, |u| u.unreached))
             .collect();
         let (map, blender, blend_s) = self.blending.finish();
-        if crate::pool::kept_between_boards() {
-            for c in &mut self.cams {
-                crate::pool::HELD.give(std::mem::take(&mut c.held.data));
-            }
+        for c in &mut self.cams {
+            crate::pool::HELD.give_kept(std::mem::take(&mut c.held.data));
         }
         let (turns, edge_median_um, edge_off_bands, seams) = blender.finish();
         let (w, rows) = (self.grid.width, self.grid.rows);

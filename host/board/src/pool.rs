@@ -78,6 +78,14 @@ impl<T: Copy> Pool<T> {
         }
     }
 
+    /// Keeps `v` as [`Pool::give`] does when the pools are kept between boards
+    /// ([`keep_between_boards`]); else drops it.
+    pub(crate) fn give_kept(&self, v: Vec<T>) {
+        if kept_between_boards() {
+            self.give(v);
+        }
+    }
+
     /// Buffers kept (for the tests).
     #[cfg(test)]
     fn kept(&self) -> usize {
@@ -109,7 +117,8 @@ pub(crate) static MAP_F32: Pool<f32> = Pool::new(4);
 pub(crate) static MAP_U8: Pool<u8> = Pool::new(3);
 
 /// Rows handed from stage to stage of the stitching: a camera's chunks as they are taken
-/// from its rows (`run::Collector::take_chunk`) and as they come back unwrapped
+/// from its rows (`run::Collector::take_chunk`), as the stitcher hands them to its
+/// unwrapping threads (`assemble::Stitcher::push`) and as they come back unwrapped
 /// (`unwrap::Unwrapper::next`), each a few megabytes; handed back once copied on
 /// ([`give_rows`]). Kept between boards only.
 pub(crate) static ROWS: Pool<f32> = Pool::new(12);
@@ -136,25 +145,19 @@ pub fn kept_between_boards() -> bool {
 /// Hands a finished map's heights (or variances) back for a later map, when the pools are
 /// kept between boards; else drops them.
 pub fn give_map(heights: crate::Grid) {
-    if kept_between_boards() {
-        MAP_F32.give(heights.data);
-    }
+    MAP_F32.give_kept(heights.data);
 }
 
 /// Hands rows copied on back for later chunks, when the pools are kept between boards
 /// (else drops them): a camera chunk's heights once the stitcher has them
 /// (`assemble::Stitcher::push` copies them).
 pub fn give_rows(rows: Vec<f32>) {
-    if kept_between_boards() {
-        ROWS.give(rows);
-    }
+    ROWS.give_kept(rows);
 }
 
 /// Hands a finished map's cameras back, as [`give_map`].
 pub fn give_camera(camera: Vec<u8>) {
-    if kept_between_boards() {
-        MAP_U8.give(camera);
-    }
+    MAP_U8.give_kept(camera);
 }
 
 /// A map is finished: unless the pools are kept between boards, every pool is emptied (the
