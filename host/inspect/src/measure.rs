@@ -358,7 +358,10 @@ fn trimmed_fit(
     let mut rms = 0.0;
     let mut kept = 0;
     let mut res: Vec<f64> = vec![0.0; s.len()];
-    let mut kept_res: Vec<f64> = Vec::with_capacity(s.len());
+    // The kept samples' residuals' magnitudes, as their bits: for values whose sign bit is
+    // clear (magnitudes, NaN's too) the bits' order as integers is `f64::total_cmp`'s, so
+    // the median is found with integer comparisons and is the same value.
+    let mut kept_res: Vec<u64> = Vec::with_capacity(s.len());
     // The trimming rounds look at every `sub`-th sample (about 500); the last fit at all.
     let sub = (s.len() / 500).max(1);
     let mut round = 0;
@@ -406,16 +409,22 @@ fn trimmed_fit(
                 .zip(&keep)
                 .step_by(step)
                 .filter(|(_, k)| **k)
-                .map(|(r, _)| r.abs()),
+                .map(|(r, _)| r.abs().to_bits()),
         );
         kept = kept_res.len();
-        rms = (kept_res.iter().map(|r| r * r).sum::<f64>() / kept as f64).sqrt();
+        rms = (kept_res
+            .iter()
+            .map(|&r| f64::from_bits(r) * f64::from_bits(r))
+            .sum::<f64>()
+            / kept as f64)
+            .sqrt();
         if round == 3 {
             break;
         }
         let mid = kept_res.len() / 2;
-        let (_, med, _) = kept_res.select_nth_unstable_by(mid, f64::total_cmp);
-        let limit = (3.0 * 1.4826 * *med).max(3.0);
+        let (_, med, _) = kept_res.select_nth_unstable(mid);
+        let med = f64::from_bits(*med);
+        let limit = (3.0 * 1.4826 * med).max(3.0);
         let mut changed = false;
         for (k, r) in keep.iter_mut().zip(&res) {
             let now = r.abs() <= limit;
@@ -1523,22 +1532,12 @@ impl Cell {
             cell_edges: [0; 2],
             int_edges: [0; 2],
         };
-        // Squared slope at a valid pixel, (um per pixel)^2: central differences where both
-        // neighbours are valid, else one-sided, else 0 along that axis.
-        let slope = |a: usize, b: usize| {
-            let at = |aa: usize, bb: usize| r[aa * w_w + bb];
-            let d = |lo: f64, mid: f64, hi: f64| match (lo.is_finite(), hi.is_finite()) {
-                (true, true) => 0.5 * (hi - lo),
-                (true, false) => mid - lo,
-                (false, true) => hi - mid,
-                _ => 0.0,
-            };
-            let mid = at(a, b);
-            let up = if a > 0 { at(a - 1, b) } else { f64::NAN };
-            let down = if a + 1 < h_w { at(a + 1, b) } else { f64::NAN };
-            let left = if b > 0 { at(a, b - 1) } else { f64::NAN };
-            let right = if b + 1 < w_w { at(a, b + 1) } else { f64::NAN };
-            (d(up, mid, down), d(left, mid, right))
+        // The slopes of a row's pixels ([`row_slopes`]), a row at a time; above the first
+        // row and below the last, nothing valid.
+        let outside = scratch::filled(w_w, f64::NAN);
+        let mut slopes = RowSlopes {
+            down: scratch::filled(w_w, 0.0),
+            along: scratch::filled(w_w, 0.0),
         };
         let interior = |idx: usize| self.dist[idx] <= -inset && r[idx].is_finite();
         // A pixel's x is its row's, its y its column's (`grid.centre`), and their terms'
@@ -1553,6 +1552,7 @@ impl Cell {
             let (mut row_gx, mut int_row_gx) = (0.0, 0.0);
             let x = map.grid.centre(self.ri.start + a, 0).0;
             let (dx, dx2) = (x - c[0], (x - c[0]) * (x - c[0]));
+            row_slopes(r, w_w, a, &outside, &mut slopes);
             for b in 0..w_w {
                 let idx = a * w_w + b;
                 if !self.in_cell[idx] {
@@ -1586,7 +1586,7 @@ impl Cell {
                     *acc += t;
                 }
                 let (gx, gy) = if r[idx].is_finite() {
-                    slope(a, b)
+                    (slopes.down[b], slopes.along[b])
                 } else {
                     (0.0, 0.0)
                 };
@@ -1643,7 +1643,64 @@ impl Cell {
             s.int_row_g1 += int_row_gx * prev_int_gx;
             (prev_gx, prev_int_gx) = (row_gx, int_row_gx);
         }
+        scratch::give(outside);
+        scratch::give(slopes.down);
+        scratch::give(slopes.along);
         s
+    }
+}
+
+/// The slopes of a row of heights (um per pixel): per pixel, down the column and along the
+/// row.
+struct RowSlopes {
+    down: Vec<f64>,
+    along: Vec<f64>,
+}
+
+/// A slope between the neighbours `lo` and `hi` of a valid value `mid` (um per pixel): the
+/// central difference where both are valid, else one-sided, else 0.
+///
+/// Written without branches (each case's value is worked out and one is picked), so the
+/// compiler can take a row of pixels a few at a time: the same operations on the same
+/// values in each case as the reference's (the tests' `slope_at`): the same values to the bit.
+#[inline(always)]
+fn slope_between(lo: f64, mid: f64, hi: f64) -> f64 {
+    // All ones where `v` is finite, else zero: the test on the bits (the magnitude below
+    // infinity's), so the compiler keeps it in vector registers.
+    let finite = |v: f64| 0u64.wrapping_sub(u64::from((v.to_bits() << 1) < (0x7ff << 53)));
+    let pick =
+        |mask: u64, a: f64, b: f64| f64::from_bits((a.to_bits() & mask) | (b.to_bits() & !mask));
+    let (l, h) = (finite(lo), finite(hi));
+    let one_sided = pick(l, mid - lo, hi - mid);
+    let sided = pick(l & h, 0.5 * (hi - lo), one_sided);
+    // Neither valid: +0.
+    f64::from_bits(sided.to_bits() & (l | h))
+}
+
+/// Into `out`, the slopes of each pixel of row `a` of the row-major grid `r`, `w` wide
+/// (valid or not: an invalid pixel's are not used), as the reference (the tests'
+/// `slope_at`) gives them; `outside` (`w` NaN) stands for the rows above the first and below
+/// the last.
+fn row_slopes(r: &[f64], w: usize, a: usize, outside: &[f64], out: &mut RowSlopes) {
+    let row_at = |aa: usize| &r[aa * w..(aa + 1) * w];
+    let rows = r.len() / w.max(1);
+    let up = if a > 0 { row_at(a - 1) } else { outside };
+    let down = if a + 1 < rows { row_at(a + 1) } else { outside };
+    let row = row_at(a);
+    let (gx, gy) = (&mut out.down[..w], &mut out.along[..w]);
+    for (g, ((&u, &m), &d)) in gx.iter_mut().zip(up.iter().zip(row).zip(down)) {
+        *g = slope_between(u, m, d);
+    }
+    match w {
+        0 => {}
+        1 => gy[0] = 0.0,
+        _ => {
+            gy[0] = slope_between(f64::NAN, row[0], row[1]);
+            for (g, t) in gy[1..w - 1].iter_mut().zip(row.windows(3)) {
+                *g = slope_between(t[0], t[1], t[2]);
+            }
+            gy[w - 1] = slope_between(row[w - 2], row[w - 1], f64::NAN);
+        }
     }
 }
 
@@ -1866,6 +1923,27 @@ mod tests {
         (s, n)
     }
 
+    /// The slopes at valid pixel `(a, b)` of a row-major grid `w` wide (um per pixel, down the
+    /// column and along the row): central differences where both neighbours are valid, else
+    /// one-sided, else 0 along that axis: the reference of [`row_slopes`], as the sums took them
+    /// pixel by pixel before.
+    fn slope_at(r: &[f64], w: usize, a: usize, b: usize) -> (f64, f64) {
+        let h = r.len() / w;
+        let at = |aa: usize, bb: usize| r[aa * w + bb];
+        let d = |lo: f64, mid: f64, hi: f64| match (lo.is_finite(), hi.is_finite()) {
+            (true, true) => 0.5 * (hi - lo),
+            (true, false) => mid - lo,
+            (false, true) => hi - mid,
+            _ => 0.0,
+        };
+        let mid = at(a, b);
+        let up = if a > 0 { at(a - 1, b) } else { f64::NAN };
+        let down = if a + 1 < h { at(a + 1, b) } else { f64::NAN };
+        let left = if b > 0 { at(a, b - 1) } else { f64::NAN };
+        let right = if b + 1 < w { at(a, b + 1) } else { f64::NAN };
+        (d(up, mid, down), d(left, mid, right))
+    }
+
     /// The block's inverse and solution as the fit took them before [`solve`]: a block of
     /// run-time size (nalgebra's `DMatrix`).
     fn solve_at_run_time(
@@ -1906,6 +1984,52 @@ mod tests {
     }
 
     proptest! {
+        /// The trimming's median of the residuals' magnitudes taken on their bits is the
+        /// median by `f64::total_cmp`, bit for bit: magnitudes of signed zeros, NaN, both
+        /// infinities, subnormals and ordinary values, odd and even counts.
+        #[test]
+        fn a_median_of_magnitudes_by_their_bits_is_the_total_orders(
+            v in proptest::collection::vec(prop_oneof![
+                Just(0.0), Just(-0.0), Just(f64::NAN), Just(-f64::NAN), Just(f64::INFINITY),
+                Just(f64::NEG_INFINITY), Just(5e-324), Just(f64::MIN_POSITIVE), -1e3..1e3f64,
+            ], 1..60),
+        ) {
+            let mut by_order: Vec<f64> = v.iter().map(|x| x.abs()).collect();
+            let mut by_bits: Vec<u64> = by_order.iter().map(|x| x.to_bits()).collect();
+            let mid = v.len() / 2;
+            let want = *by_order.select_nth_unstable_by(mid, f64::total_cmp).1;
+            let got = *by_bits.select_nth_unstable(mid).1;
+            prop_assert_eq!(got, want.to_bits());
+        }
+
+        /// A row's slopes are the pixel-by-pixel slopes to the bit, on grids of 1 to 9 rows
+        /// and columns with invalid values (NaN, both infinities) anywhere and signed zeros
+        /// among the heights.
+        #[test]
+        fn row_slopes_are_the_slopes_pixel_by_pixel(
+            rows in 1..9usize,
+            cols in 1..9usize,
+            r in proptest::collection::vec(prop_oneof![
+                Just(f64::NAN), Just(f64::INFINITY), Just(f64::NEG_INFINITY),
+                Just(0.0), Just(-0.0), -80.0..120.0f64,
+            ], 81),
+        ) {
+            let r = &r[..rows * cols];
+            let outside = vec![f64::NAN; cols];
+            let mut out = RowSlopes { down: vec![7.0; cols], along: vec![7.0; cols] };
+            for a in 0..rows {
+                row_slopes(r, cols, a, &outside, &mut out);
+                for b in 0..cols {
+                    if !r[a * cols + b].is_finite() {
+                        continue;
+                    }
+                    let (gx, gy) = slope_at(r, cols, a, b);
+                    prop_assert_eq!(out.down[b].to_bits(), gx.to_bits());
+                    prop_assert_eq!(out.along[b].to_bits(), gy.to_bits());
+                }
+            }
+        }
+
         /// The lag sums' shortcuts (no cell pixel near, all of them) give the walk's value
         /// to the bit at every pixel of the window and beyond its edges, on random cells
         /// (empty, full, sparse, dense) and coefficients (zeros among them).
