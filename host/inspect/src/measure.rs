@@ -1532,13 +1532,8 @@ impl Cell {
             cell_edges: [0; 2],
             int_edges: [0; 2],
         };
-        // The slopes of a row's pixels ([`row_slopes`]), a row at a time; above the first
-        // row and below the last, nothing valid.
-        let outside = scratch::filled(w_w, f64::NAN);
-        let mut slopes = RowSlopes {
-            down: scratch::filled(w_w, 0.0),
-            along: scratch::filled(w_w, 0.0),
-        };
+        // The slopes of a row's pixels, a row at a time.
+        let mut slopes = RowSlopes::new(w_w);
         let interior = |idx: usize| self.dist[idx] <= -inset && r[idx].is_finite();
         // A pixel's x is its row's, its y its column's (`grid.centre`), and their terms'
         // factors the same products: the columns' once, the row's once per row.
@@ -1552,7 +1547,7 @@ impl Cell {
             let (mut row_gx, mut int_row_gx) = (0.0, 0.0);
             let x = map.grid.centre(self.ri.start + a, 0).0;
             let (dx, dx2) = (x - c[0], (x - c[0]) * (x - c[0]));
-            row_slopes(r, w_w, a, &outside, &mut slopes);
+            slopes.of_row(r, a);
             for b in 0..w_w {
                 let idx = a * w_w + b;
                 if !self.in_cell[idx] {
@@ -1643,18 +1638,17 @@ impl Cell {
             s.int_row_g1 += int_row_gx * prev_int_gx;
             (prev_gx, prev_int_gx) = (row_gx, int_row_gx);
         }
-        scratch::give(outside);
-        scratch::give(slopes.down);
-        scratch::give(slopes.along);
         s
     }
 }
 
 /// The slopes of a row of heights (um per pixel): per pixel, down the column and along the
-/// row.
+/// row; for rows `w` wide.
 struct RowSlopes {
     down: Vec<f64>,
     along: Vec<f64>,
+    /// `w` NaN: the rows above the first and below the last (nothing valid).
+    outside: Vec<f64>,
 }
 
 /// A slope between the neighbours `lo` and `hi` of a valid value `mid` (um per pixel): the
@@ -1677,30 +1671,54 @@ fn slope_between(lo: f64, mid: f64, hi: f64) -> f64 {
     f64::from_bits(sided.to_bits() & (l | h))
 }
 
-/// Into `out`, the slopes of each pixel of row `a` of the row-major grid `r`, `w` wide
-/// (valid or not: an invalid pixel's are not used), as the reference (the tests'
-/// `slope_at`) gives them; `outside` (`w` NaN) stands for the rows above the first and below
-/// the last.
-fn row_slopes(r: &[f64], w: usize, a: usize, outside: &[f64], out: &mut RowSlopes) {
-    let row_at = |aa: usize| &r[aa * w..(aa + 1) * w];
-    let rows = r.len() / w.max(1);
-    let up = if a > 0 { row_at(a - 1) } else { outside };
-    let down = if a + 1 < rows { row_at(a + 1) } else { outside };
-    let row = row_at(a);
-    let (gx, gy) = (&mut out.down[..w], &mut out.along[..w]);
-    for (g, ((&u, &m), &d)) in gx.iter_mut().zip(up.iter().zip(row).zip(down)) {
-        *g = slope_between(u, m, d);
-    }
-    match w {
-        0 => {}
-        1 => gy[0] = 0.0,
-        _ => {
-            gy[0] = slope_between(f64::NAN, row[0], row[1]);
-            for (g, t) in gy[1..w - 1].iter_mut().zip(row.windows(3)) {
-                *g = slope_between(t[0], t[1], t[2]);
-            }
-            gy[w - 1] = slope_between(row[w - 2], row[w - 1], f64::NAN);
+impl RowSlopes {
+    /// For rows `w` wide, its buffers from this thread's [`scratch`].
+    fn new(w: usize) -> RowSlopes {
+        RowSlopes {
+            down: scratch::filled(w, 0.0),
+            along: scratch::filled(w, 0.0),
+            outside: scratch::filled(w, f64::NAN),
         }
+    }
+
+    /// The slopes of each pixel of row `a` of the row-major grid `r` (as wide as these rows;
+    /// valid or not: an invalid pixel's are not used), as the reference (the tests'
+    /// `slope_at`) gives them.
+    fn of_row(&mut self, r: &[f64], a: usize) {
+        let w = self.outside.len();
+        let row_at = |aa: usize| &r[aa * w..(aa + 1) * w];
+        let rows = r.len() / w.max(1);
+        let up = if a > 0 { row_at(a - 1) } else { &self.outside };
+        let down = if a + 1 < rows {
+            row_at(a + 1)
+        } else {
+            &self.outside
+        };
+        let row = row_at(a);
+        let (gx, gy) = (&mut self.down[..w], &mut self.along[..w]);
+        for (g, ((&u, &m), &d)) in gx.iter_mut().zip(up.iter().zip(row).zip(down)) {
+            *g = slope_between(u, m, d);
+        }
+        match w {
+            0 => {}
+            1 => gy[0] = 0.0,
+            _ => {
+                gy[0] = slope_between(f64::NAN, row[0], row[1]);
+                for (g, t) in gy[1..w - 1].iter_mut().zip(row.windows(3)) {
+                    *g = slope_between(t[0], t[1], t[2]);
+                }
+                gy[w - 1] = slope_between(row[w - 2], row[w - 1], f64::NAN);
+            }
+        }
+    }
+}
+
+impl Drop for RowSlopes {
+    /// The buffers go back to this thread's [`scratch`] for the next pad.
+    fn drop(&mut self) {
+        scratch::give(std::mem::take(&mut self.down));
+        scratch::give(std::mem::take(&mut self.along));
+        scratch::give(std::mem::take(&mut self.outside));
     }
 }
 
@@ -1925,7 +1943,7 @@ mod tests {
 
     /// The slopes at valid pixel `(a, b)` of a row-major grid `w` wide (um per pixel, down the
     /// column and along the row): central differences where both neighbours are valid, else
-    /// one-sided, else 0 along that axis: the reference of [`row_slopes`], as the sums took them
+    /// one-sided, else 0 along that axis: the reference of [`RowSlopes::of_row`], as the sums took them
     /// pixel by pixel before.
     fn slope_at(r: &[f64], w: usize, a: usize, b: usize) -> (f64, f64) {
         let h = r.len() / w;
@@ -2015,10 +2033,11 @@ mod tests {
             ], 81),
         ) {
             let r = &r[..rows * cols];
-            let outside = vec![f64::NAN; cols];
-            let mut out = RowSlopes { down: vec![7.0; cols], along: vec![7.0; cols] };
+            let mut out = RowSlopes::new(cols);
+            out.down.fill(7.0);
+            out.along.fill(7.0);
             for a in 0..rows {
-                row_slopes(r, cols, a, &outside, &mut out);
+                out.of_row(r, a);
                 for b in 0..cols {
                     if !r[a * cols + b].is_finite() {
                         continue;
